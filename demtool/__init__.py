@@ -1,0 +1,10 @@
+"""demtool: Digital Elevation Models of planetary surfaces from spacecraft images."""
+
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__ = version("demtool")
+except PackageNotFoundError:  # running from a source tree that is not installed
+    __version__ = "0.1.0"
+
+__all__ = ["__version__"]

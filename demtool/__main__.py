@@ -1,0 +1,3 @@
+from demtool.cli import main
+
+main()

@@ -1,0 +1,125 @@
+"""The ``demtool`` command line: a click group of chained stages.
+
+Each stage lives in ``demtool/commands/<stage>.py`` as a thin click command that
+resolves options, calls the stage's runner and lets :class:`DemtoolError` reach the
+group, which prints it on one line and exits with status 1.  Commands are imported
+lazily so ``demtool --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import importlib
+import signal
+import sys
+from dataclasses import dataclass
+
+import click
+
+from demtool import __version__
+from demtool.errors import DemtoolError
+
+# stage name -> one-line description, in pipeline order
+STAGES: dict[str, str] = {
+    "synth": "Render a synthetic planetary scene: terrain, albedo, cameras, images, truth.",
+    "select": "Select the images that overlap a target image (SIFT, ratio test, RANSAC).",
+    "bundle": "Structure from motion and bundle adjustment of selected images (pycolmap).",
+    "rectify": "Uncalibrated rectification of a stereo pair (SIFT, RANSAC F, Hartley).",
+    "sgm": "Semi-global matching of a rectified pair (mutual information, census).",
+    "match": "Area-based matching: seeds, Delaunay, pyramid NCC, least-squares matching.",
+    "dem": "Dense DEM in the target frame from bundle points or a disparity map.",
+    "refine": "Shape-from-shading refinement of a coarse DEM (lunar-Lambert).",
+    "compare": "Measure a DEM against a reference: co-registration, statistics, plots.",
+}
+
+
+@dataclass
+class AppState:
+    """What the group's options leave for the subcommands (``ctx.obj``)."""
+
+    verbosity: int = 0
+    debug: bool = False
+    config_path: str | None = None
+
+
+def load_command(name: str) -> click.Command:
+    """Import ``demtool.commands.<name>`` and return its ``command``."""
+    module = importlib.import_module(f"demtool.commands.{name}")
+    return module.command
+
+
+def stage_param_names(name: str) -> list[str] | None:
+    """Option names of a stage (for config validation); None for an unknown stage."""
+    if name not in STAGES:
+        return None
+    command = load_command(name)
+    return [p.name for p in command.params if isinstance(p, click.Option) and p.name]
+
+
+class DemtoolGroup(click.Group):
+    """Lazy subcommands; DemtoolError becomes one line on stderr and exit status 1."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return list(STAGES)
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name not in STAGES:
+            return None
+        return load_command(cmd_name)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        with formatter.section("Stages"):
+            formatter.write_dl(list(STAGES.items()))
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except DemtoolError as exc:
+            state = ctx.find_object(AppState)
+            if state is not None and state.debug:
+                raise
+            sub = ctx.invoked_subcommand
+            prefix = f"demtool {sub}" if sub else "demtool"
+            click.echo(f"Error: {prefix}: {exc}", err=True)
+            ctx.exit(1)
+
+
+@click.group(cls=DemtoolGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="demtool")
+@click.option("-v", "--verbose", count=True, help="More log output (repeat for more).")
+@click.option("-q", "--quiet", count=True, help="Less log output (repeat for less).")
+@click.option("--debug", is_flag=True, help="Show full tracebacks on errors.")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False),
+              help="TOML preset (configs/*.toml); command-line options override it.")
+@click.pass_context
+def cli(ctx: click.Context, verbose: int, quiet: int, debug: bool, config_path: str | None):
+    """demtool: Digital Elevation Models of planetary surfaces from spacecraft images.
+
+    Each stage reads and writes files (GeoTIFF, NPZ, JSON), so stages chain in shell
+    pipelines, Makefiles and batch jobs.  Run ``demtool STAGE --help`` for a stage.
+    """
+    from demtool.config import load_config, to_default_map
+    from demtool.logs import configure_logging
+
+    configure_logging(verbose - quiet)
+    ctx.obj = AppState(verbosity=verbose - quiet, debug=debug, config_path=config_path)
+    if config_path:
+        content = load_config(config_path)
+        ctx.default_map = to_default_map(content, config_path, stage_param_names)
+
+
+def _raise_on_sigterm(signum, frame):  # pragma: no cover - exercised through subprocess tests
+    raise KeyboardInterrupt(f"terminated by signal {signum}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console-script entry point: SIGTERM unwinds like Ctrl-C so no partial output stays."""
+    signal.signal(signal.SIGTERM, _raise_on_sigterm)
+    try:
+        cli.main(args=argv, prog_name="demtool")
+    except KeyboardInterrupt:
+        click.echo("Error: demtool: interrupted; no output written", err=True)
+        sys.exit(130)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

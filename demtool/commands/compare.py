@@ -1,0 +1,11 @@
+"""`demtool compare` (not implemented yet)."""
+
+import click
+
+from demtool.cli import STAGES
+from demtool.errors import DemtoolError
+
+
+@click.command(name="compare", help=STAGES["compare"] + "\n\nNot implemented yet.")
+def command() -> None:
+    raise DemtoolError("not implemented yet")

@@ -1,0 +1,11 @@
+"""`demtool sgm` (not implemented yet)."""
+
+import click
+
+from demtool.cli import STAGES
+from demtool.errors import DemtoolError
+
+
+@click.command(name="sgm", help=STAGES["sgm"] + "\n\nNot implemented yet.")
+def command() -> None:
+    raise DemtoolError("not implemented yet")

@@ -1,0 +1,531 @@
+"""Every read and write of demtool's files: GeoTIFF rasters, images, NPZ and JSON.
+
+Contracts (see DESIGN.md):
+
+* Rasters are float32 GeoTIFF with nodata = NaN, written with rasterio.  A DEM's
+  affine transform carries its pixel spacing in metres.  A raster in an image's own
+  pixel frame has no CRS and the tag ``frame=image:<name>``.
+* NPZ files carry ``format_version`` and ``kind``; each kind has a schema that
+  :func:`read_npz` checks (keys, shapes, dtypes), naming the file and the key.
+* Every write is atomic: the data go to a hidden temporary file beside the target,
+  which is renamed into place.  Inside :func:`output_transaction` the renames are
+  deferred until the whole stage has succeeded, so a failing or interrupted stage
+  leaves no output at all.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import json
+import os
+import tempfile
+import warnings
+import zipfile
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from demtool.errors import InputError
+
+NPZ_FORMAT_VERSION = 1
+
+# --------------------------------------------------------------------------------------
+# Atomic writes and output transactions
+# --------------------------------------------------------------------------------------
+
+
+class _Transaction:
+    def __init__(self) -> None:
+        self.pending: list[tuple[Path, Path]] = []
+
+    def commit(self) -> None:
+        for temporary, final in self.pending:
+            os.replace(temporary, final)
+        self.pending.clear()
+
+    def rollback(self) -> None:
+        for temporary, _ in self.pending:
+            with contextlib.suppress(OSError):
+                temporary.unlink()
+        self.pending.clear()
+
+
+_current_transaction: contextvars.ContextVar[_Transaction | None] = contextvars.ContextVar(
+    "demtool_output_transaction", default=None
+)
+
+
+@contextlib.contextmanager
+def output_transaction() -> Iterator[None]:
+    """Defer the renames of every write inside the block until it succeeds.
+
+    All files written with this module inside the block appear together at the end;
+    if the block raises (or the process is interrupted by SIGINT/SIGTERM, which the
+    CLI turns into an exception) none of them appears and the temporaries are removed.
+    """
+    transaction = _Transaction()
+    token = _current_transaction.set(transaction)
+    try:
+        yield
+    except BaseException:
+        transaction.rollback()
+        raise
+    else:
+        transaction.commit()
+    finally:
+        _current_transaction.reset(token)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; move it into place when the block succeeds.
+
+    Parameters
+    ----------
+    path : path-like
+        The final file name.  Its parent folder is created if needed.
+    suffix : str, optional
+        Suffix of the temporary file (defaults to that of ``path``, so that format
+        drivers that look at the extension behave).
+    """
+    final = Path(path)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    suffix = final.suffix if suffix is None else suffix
+    handle, name = tempfile.mkstemp(prefix=f".{final.name}.", suffix=f".tmp{suffix}",
+                                    dir=final.parent)
+    os.close(handle)
+    temporary = Path(name)
+    try:
+        yield temporary
+    except BaseException:
+        with contextlib.suppress(OSError):
+            temporary.unlink()
+        raise
+    transaction = _current_transaction.get()
+    if transaction is None:
+        os.replace(temporary, final)
+    else:
+        transaction.pending.append((temporary, final))
+
+
+# --------------------------------------------------------------------------------------
+# Input checks
+# --------------------------------------------------------------------------------------
+
+
+def require_file(path: str | os.PathLike, what: str = "file") -> Path:
+    """Return ``path`` as a Path, or raise InputError if it is not an existing file."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: {what} not found")
+    if not p.is_file():
+        raise InputError(f"{p}: {what} is not a file")
+    return p
+
+
+# --------------------------------------------------------------------------------------
+# Rasters
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Raster:
+    """A raster band read from disk.
+
+    Attributes
+    ----------
+    data : (H, W) float32
+        Values; NaN where the file has nodata.
+    transform : affine.Affine
+        Pixel-to-map transform (pixel spacing in metres for a DEM).
+    crs : rasterio.crs.CRS or None
+        None for rasters in an image's own pixel frame.
+    tags : dict of str to str
+        The dataset tags (provenance, frame, scene metadata).
+    path : Path
+        Where it was read from (for messages).
+    """
+
+    data: np.ndarray
+    transform: Any
+    crs: Any
+    tags: dict[str, str] = field(default_factory=dict)
+    path: Path | None = None
+
+    @property
+    def spacing(self) -> tuple[float, float]:
+        """Pixel size (x, y) in transform units (metres for a DEM), both positive."""
+        return abs(self.transform.a), abs(self.transform.e)
+
+    def tag_json(self, key: str, default: Any = None) -> Any:
+        """Decode a tag that was written as JSON (parameters, vectors); ``default`` if absent."""
+        if key not in self.tags:
+            return default
+        try:
+            return json.loads(self.tags[key])
+        except json.JSONDecodeError:
+            return self.tags[key]
+
+
+def image_frame_transform(gsd_m: float = 1.0):
+    """Transform of a raster in an image's own pixel frame with pixel spacing ``gsd_m``.
+
+    Column ``c`` and row ``r`` map to x = c * gsd_m, y = -r * gsd_m (north-up style, so
+    GDAL and QGIS show the raster the right way up).
+    """
+    from affine import Affine
+
+    return Affine(float(gsd_m), 0.0, 0.0, 0.0, -float(gsd_m), 0.0)
+
+
+def _open_dataset(path: Path, what: str):
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
+
+    require_file(path, what)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            return rasterio.open(path)
+    except RasterioIOError as exc:
+        raise InputError(f"{path}: cannot read {what}: {_first_line(exc)}") from None
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def _read_bands(path: Path, what: str, bands: list[int] | None = None):
+    from rasterio.errors import NotGeoreferencedWarning, RasterioError
+
+    dataset = _open_dataset(path, what)
+    with dataset:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                indexes = bands or list(range(1, dataset.count + 1))
+                data = dataset.read(indexes, masked=True)
+        except (RasterioError, ValueError) as exc:
+            raise InputError(f"{path}: cannot read {what}: {_first_line(exc)}") from None
+        values = np.ma.filled(data.astype(np.float32), np.nan)
+        tags = dict(dataset.tags())
+        return values, dataset.transform, dataset.crs, tags, dataset.colorinterp
+
+
+def read_raster(path: str | os.PathLike, *, band: int = 1, what: str = "raster",
+                allow_all_nan: bool = False) -> Raster:
+    """Read one band of a GeoTIFF (or any GDAL raster) as float32 with NaN nodata.
+
+    Parameters
+    ----------
+    path : path-like
+        The raster file.
+    band : int
+        1-based band index.
+    what : str
+        What the file is, for error messages ("DEM", "left image", ...).
+    allow_all_nan : bool
+        If False (default), a raster with no valid pixel is an InputError.
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file, missing band, or no valid pixel.
+    """
+    p = Path(path)
+    dataset = _open_dataset(p, what)
+    with dataset:
+        count = dataset.count
+    if not 1 <= band <= count:
+        raise InputError(f"{p}: {what} has {count} band(s), band {band} requested")
+    values, transform, crs, tags, _ = _read_bands(p, what, [band])
+    data = values[0]
+    if not allow_all_nan and not np.isfinite(data).any():
+        raise InputError(f"{p}: {what} contains no valid (finite) pixel")
+    return Raster(data=data, transform=transform, crs=crs, tags=tags, path=p)
+
+
+def read_image(path: str | os.PathLike, *, what: str = "image") -> Raster:
+    """Read any GDAL-readable image (GeoTIFF, PNG, JPEG, PDS3/PDS4, ISIS3) as grey float32.
+
+    Colour images (3 or 4 bands) are converted to luminance with the ITU-R BT.601
+    weights; an alpha band marks nodata.  Values keep their original scale (DN).
+
+    Returns
+    -------
+    Raster
+        ``data`` is (H, W) float32 with NaN for nodata.
+    """
+    p = Path(path)
+    values, transform, crs, tags, colorinterp = _read_bands(p, what)
+    from rasterio.enums import ColorInterp
+
+    if values.shape[0] >= 3:
+        alpha = [i for i, c in enumerate(colorinterp) if c == ColorInterp.alpha]
+        grey = 0.299 * values[0] + 0.587 * values[1] + 0.114 * values[2]
+        if alpha:
+            grey = np.where(values[alpha[0]] > 0, grey, np.nan)
+        data = grey.astype(np.float32)
+    else:
+        data = values[0]
+    if not np.isfinite(data).any():
+        raise InputError(f"{p}: {what} contains no valid (finite) pixel")
+    return Raster(data=data, transform=transform, crs=crs, tags=tags, path=p)
+
+
+def _tag_value(value: Any) -> str:
+    if isinstance(value, str):
+        return value
+    return json.dumps(value, default=_json_default, separators=(",", ":"))
+
+
+def write_raster(path: str | os.PathLike, data: np.ndarray, *, transform=None, crs=None,
+                 tags: Mapping[str, Any] | None = None,
+                 band_names: list[str] | None = None) -> Path:
+    """Write a float32 GeoTIFF with NaN nodata, atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        Output file.
+    data : (H, W) or (B, H, W) array
+        Values, cast to float32; NaN marks nodata.
+    transform : affine.Affine, optional
+        Pixel-to-map transform; default: the identity image frame
+        (:func:`image_frame_transform` with 1 unit per pixel).
+    crs : CRS or str, optional
+        Coordinate reference system; None for image-frame rasters.
+    tags : mapping, optional
+        Dataset tags; non-string values are stored as JSON.  Use
+        :meth:`demtool.provenance.Provenance.tags` for the provenance tags.
+    band_names : list of str, optional
+        Descriptions of the bands.
+    """
+    import rasterio
+
+    array = np.asarray(data, dtype=np.float32)
+    if array.ndim == 2:
+        array = array[np.newaxis]
+    if array.ndim != 3:
+        raise ValueError(f"write_raster expects a 2-D or 3-D array, got shape {data.shape}")
+    count, height, width = array.shape
+    profile = {
+        "driver": "GTiff",
+        "dtype": "float32",
+        "nodata": float("nan"),
+        "count": count,
+        "height": height,
+        "width": width,
+        "transform": transform if transform is not None else image_frame_transform(1.0),
+        "crs": crs,
+        "compress": "deflate",
+        "predictor": 3,
+        "tiled": width >= 256 and height >= 256,
+    }
+    if profile["tiled"]:
+        profile.update(blockxsize=256, blockysize=256)
+    if width * height * count * 4 > 3.5e9:
+        profile["BIGTIFF"] = "YES"
+    with atomic_path(path, suffix=".tif") as temporary:
+        with rasterio.open(temporary, "w", **profile) as dst:
+            dst.write(array)
+            if tags:
+                dst.update_tags(**{k: _tag_value(v) for k, v in tags.items()})
+            if band_names:
+                for index, name in enumerate(band_names, start=1):
+                    dst.set_band_description(index, name)
+    return Path(path)
+
+
+# --------------------------------------------------------------------------------------
+# NPZ with schemas
+# --------------------------------------------------------------------------------------
+
+# Shape patterns: ints are fixed sizes, strings are named sizes that must agree across
+# the keys of one file, "*" is any size.  dtype kinds: "f" float, "i" integer
+# (signed or unsigned), "b" bool, "U" string.
+NPZ_SCHEMAS: dict[str, dict[str, tuple[tuple, str]]] = {
+    "cameras": {
+        "names": (("N",), "U"),
+        "K": (("N", 3, 3), "f"),
+        "R": (("N", 3, 3), "f"),
+        "t": (("N", 3), "f"),
+        "width": (("N",), "i"),
+        "height": (("N",), "i"),
+    },
+    "rectification": {
+        "H_left": ((3, 3), "f"),
+        "H_right": ((3, 3), "f"),
+        "F": ((3, 3), "f"),
+        "size_left": ((2,), "i"),  # (width, height) of the original left image
+        "size_right": ((2,), "i"),
+        "size_rect": ((2,), "i"),  # (width, height) of the rectified canvas
+        "points_left": (("N", 2), "f"),  # inlier matches, original pixel coordinates (x, y)
+        "points_right": (("N", 2), "f"),
+        "points_left_rect": (("N", 2), "f"),  # the same, rectified coordinates
+        "points_right_rect": (("N", 2), "f"),
+        "disparity_range": ((2,), "f"),  # (min, max) of x_left - x_right, with margin
+        "left_name": ((), "U"),
+        "right_name": ((), "U"),
+    },
+    "bundle": {
+        "points": (("N", 3), "f"),
+        "colors": (("N",), "f"),  # mean intensity of the track
+        "track_length": (("N",), "i"),
+        "reprojection_error": (("N",), "f"),  # pixels, mean over the track
+        "image_names": (("M",), "U"),
+        "K": (("M", 3, 3), "f"),
+        "R": (("M", 3, 3), "f"),
+        "t": (("M", 3), "f"),
+        "width": (("M",), "i"),
+        "height": (("M",), "i"),
+        "target_index": ((), "i"),
+        "aligned": ((), "b"),  # True when a similarity put the model in metric coordinates
+    },
+    "matches": {
+        "points_left": (("N", 2), "f"),
+        "points_right": (("N", 2), "f"),
+        "left_name": ((), "U"),
+        "right_name": ((), "U"),
+    },
+}
+
+
+def _check_array(path: Path, kind: str, key: str, value: np.ndarray, pattern: tuple,
+                 dtype_kind: str, sizes: dict[str, int]) -> None:
+    kinds = {"f": "fc", "i": "iu", "b": "b", "U": "U"}[dtype_kind]
+    if value.dtype.kind not in kinds:
+        raise InputError(f"{path}: '{key}' of {kind} file has dtype {value.dtype}, "
+                         f"expected {dict(f='float', i='integer', b='bool', U='string')[dtype_kind]}")
+    if value.ndim != len(pattern):
+        raise InputError(f"{path}: '{key}' of {kind} file has shape {value.shape}, "
+                         f"expected {len(pattern)} dimension(s) {pattern}")
+    for axis, (size, want) in enumerate(zip(value.shape, pattern, strict=True)):
+        if want == "*":
+            continue
+        if isinstance(want, int):
+            if size != want:
+                raise InputError(f"{path}: '{key}' of {kind} file has shape {value.shape}, "
+                                 f"expected {pattern}")
+        elif sizes.setdefault(want, size) != size:
+            raise InputError(f"{path}: '{key}' of {kind} file has {size} entries along axis "
+                             f"{axis}, but other arrays have {want}={sizes[want]}")
+
+
+def validate_npz(path: Path, kind: str, arrays: Mapping[str, np.ndarray]) -> None:
+    """Check ``arrays`` against the schema of ``kind``; raise InputError naming the key."""
+    if kind not in NPZ_SCHEMAS:
+        raise ValueError(f"unknown NPZ kind {kind!r}; known: {', '.join(NPZ_SCHEMAS)}")
+    sizes: dict[str, int] = {}
+    for key, (pattern, dtype_kind) in NPZ_SCHEMAS[kind].items():
+        if key not in arrays:
+            raise InputError(f"{path}: {kind} file lacks the key '{key}'")
+        _check_array(path, kind, key, np.asarray(arrays[key]), pattern, dtype_kind, sizes)
+
+
+def write_npz(path: str | os.PathLike, kind: str, arrays: Mapping[str, Any]) -> Path:
+    """Write an NPZ file of a known ``kind`` atomically, after checking its schema.
+
+    Extra keys beyond the schema are allowed (and kept).  ``format_version`` and
+    ``kind`` are added.
+    """
+    p = Path(path)
+    content = {key: np.asarray(value) for key, value in arrays.items()}
+    validate_npz(p, kind, content)
+    content["format_version"] = np.asarray(NPZ_FORMAT_VERSION)
+    content["kind"] = np.asarray(kind)
+    with atomic_path(p, suffix=".npz") as temporary:
+        with open(temporary, "wb") as handle:
+            np.savez_compressed(handle, **content)
+    return p
+
+
+def read_npz(path: str | os.PathLike, kind: str) -> dict[str, np.ndarray]:
+    """Read an NPZ file of ``kind``, checking its kind, version, keys, shapes and dtypes.
+
+    Returns
+    -------
+    dict of str to ndarray
+        All arrays of the file; 0-d arrays stay 0-d (use ``.item()``).
+
+    Raises
+    ------
+    InputError
+        Missing or corrupt file, another kind, a missing key or a wrong shape/dtype.
+    """
+    p = require_file(path, f"{kind} file")
+    try:
+        with np.load(p, allow_pickle=False) as npz:
+            content = {key: npz[key] for key in npz.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise InputError(f"{p}: not a readable NPZ file ({_first_line(exc)})") from None
+    if "kind" not in content:
+        raise InputError(f"{p}: not a demtool NPZ file (no 'kind' entry); expected a {kind} file")
+    found = str(content["kind"])
+    if found != kind:
+        raise InputError(f"{p}: is a {found} file, expected a {kind} file")
+    version = int(content.get("format_version", -1))
+    if version > NPZ_FORMAT_VERSION:
+        raise InputError(f"{p}: format_version {version} is newer than this demtool "
+                         f"understands ({NPZ_FORMAT_VERSION}); upgrade demtool")
+    validate_npz(p, kind, content)
+    return content
+
+
+# --------------------------------------------------------------------------------------
+# JSON
+# --------------------------------------------------------------------------------------
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, (set, tuple)):
+        return list(value)
+    raise TypeError(f"cannot store {type(value).__name__} in JSON")
+
+
+def _json_clean(value: Any) -> Any:
+    """Replace non-finite floats by None so the file is strict JSON."""
+    if isinstance(value, float):
+        return value if np.isfinite(value) else None
+    if isinstance(value, np.floating):
+        return _json_clean(float(value))
+    if isinstance(value, Mapping):
+        return {str(k): _json_clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_clean(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _json_clean(value.tolist())
+    return value
+
+
+def dumps_json(obj: Any) -> str:
+    """Serialise to strict, indented JSON (numpy values converted, NaN/inf become null)."""
+    return json.dumps(_json_clean(obj), indent=2, default=_json_default, allow_nan=False)
+
+
+def write_json(path: str | os.PathLike, obj: Any) -> Path:
+    """Write ``obj`` as indented JSON, atomically."""
+    text = dumps_json(obj) + "\n"
+    with atomic_path(path, suffix=".json") as temporary:
+        temporary.write_text(text, encoding="utf-8")
+    return Path(path)
+
+
+def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
+    """Read a JSON file; InputError naming the file when missing or malformed."""
+    p = require_file(path, what)
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{p}: {what} is not valid JSON ({_first_line(exc)})") from None

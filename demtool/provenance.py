@@ -1,0 +1,100 @@
+"""Provenance: raster tags and the ``<output>.json`` sidecar every stage writes.
+
+The sidecar is the manifest that makes a result reproducible: the stage, the demtool
+version, the resolved parameters, each input with its SHA-256, wall time, peak memory
+and the stage's summary figures.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import platform
+import resource
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from demtool import __version__
+from demtool import io as dio
+
+
+def file_sha256(path: str | os.PathLike, chunk_size: int = 1 << 20) -> str | None:
+    """SHA-256 of a file's content (hex), or None if it is not a readable file."""
+    p = Path(path)
+    if not p.is_file():
+        return None
+    digest = hashlib.sha256()
+    with open(p, "rb") as handle:
+        while block := handle.read(chunk_size):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def peak_memory_mb() -> float:
+    """Peak resident memory of this process so far, in MiB."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 1024.0 if sys.platform != "darwin" else peak / 2**20
+
+
+class Provenance:
+    """Collects what a stage run needs to describe its outputs.
+
+    Create it when the stage starts (the clock starts then), pass ``tags()`` to every
+    raster written, and call ``write_sidecar(output, summary)`` inside the stage's
+    :func:`demtool.io.output_transaction`.
+
+    Parameters
+    ----------
+    stage : str
+        The subcommand name (``"sgm"``).
+    params : mapping
+        The resolved parameters (after config file and command line).
+    inputs : sequence of path-like
+        The input files (folders are listed by name, without a hash).
+    """
+
+    def __init__(self, stage: str, params: Mapping[str, Any],
+                 inputs: Sequence[str | os.PathLike]) -> None:
+        self.stage = stage
+        self.params = {k: (str(v) if isinstance(v, Path) else v) for k, v in params.items()}
+        self.inputs = [Path(p) for p in inputs]
+        self.started = time.perf_counter()
+        self.started_utc = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+
+    def tags(self, **extra: Any) -> dict[str, Any]:
+        """Raster tags: stage, version, parameters, input names, plus ``extra``."""
+        tags: dict[str, Any] = {
+            "demtool_stage": self.stage,
+            "demtool_version": __version__,
+            "demtool_params": self.params,
+            "demtool_inputs": [p.name for p in self.inputs],
+        }
+        tags.update(extra)
+        return tags
+
+    def record(self, summary: Mapping[str, Any] | None = None,
+               outputs: Sequence[str | os.PathLike] = ()) -> dict[str, Any]:
+        """The manifest as a dict (what :meth:`write_sidecar` writes)."""
+        return {
+            "stage": self.stage,
+            "demtool_version": __version__,
+            "started_utc": self.started_utc,
+            "command": " ".join(["demtool", *sys.argv[1:]]) if sys.argv else None,
+            "parameters": self.params,
+            "inputs": [{"path": str(p), "sha256": file_sha256(p)} for p in self.inputs],
+            "outputs": [str(p) for p in outputs],
+            "wall_time_s": round(time.perf_counter() - self.started, 3),
+            "peak_memory_mb": round(peak_memory_mb(), 1),
+            "python": platform.python_version(),
+            "summary": dict(summary or {}),
+        }
+
+    def write_sidecar(self, output: str | os.PathLike, summary: Mapping[str, Any] | None = None,
+                      outputs: Sequence[str | os.PathLike] = ()) -> Path:
+        """Write ``<output>.json`` (atomically) and return its path."""
+        sidecar = Path(f"{output}.json")
+        dio.write_json(sidecar, self.record(summary, outputs or [output]))
+        return sidecar

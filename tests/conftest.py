@@ -1,0 +1,1 @@
+"""Shared fixtures.  The synthetic-scene fixtures are added with `demtool synth`."""

@@ -214,7 +214,11 @@ def _read_bands(path: Path, what: str, bands: list[int] | None = None):
             raise InputError(f"{path}: cannot read {what}: {_first_line(exc)}") from None
         values = np.ma.filled(data.astype(np.float32), np.nan)
         tags = dict(dataset.tags())
-        return values, dataset.transform, dataset.crs, tags, dataset.colorinterp
+        transform = dataset.transform
+        if dataset.crs is None and transform.is_identity:
+            # No georeferencing (PNG, or GDAL dropped a unit transform): the image frame.
+            transform = image_frame_transform(1.0)
+        return values, transform, dataset.crs, tags, dataset.colorinterp
 
 
 def read_raster(path: str | os.PathLike, *, band: int = 1, what: str = "raster",
@@ -331,7 +335,11 @@ def write_raster(path: str | os.PathLike, data: np.ndarray, *, transform=None, c
         profile.update(blockxsize=256, blockysize=256)
     if width * height * count * 4 > 3.5e9:
         profile["BIGTIFF"] = "YES"
-    with atomic_path(path, suffix=".tif") as temporary:
+    from rasterio.errors import NotGeoreferencedWarning
+
+    with atomic_path(path, suffix=".tif") as temporary, warnings.catch_warnings():
+        # A unit image-frame transform is "not georeferenced" to GDAL; that is intended.
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
         with rasterio.open(temporary, "w", **profile) as dst:
             dst.write(array)
             if tags:
@@ -400,8 +408,9 @@ def _check_array(path: Path, kind: str, key: str, value: np.ndarray, pattern: tu
                  dtype_kind: str, sizes: dict[str, int]) -> None:
     kinds = {"f": "fc", "i": "iu", "b": "b", "U": "U"}[dtype_kind]
     if value.dtype.kind not in kinds:
+        wanted = {"f": "float", "i": "integer", "b": "bool", "U": "string"}[dtype_kind]
         raise InputError(f"{path}: '{key}' of {kind} file has dtype {value.dtype}, "
-                         f"expected {dict(f='float', i='integer', b='bool', U='string')[dtype_kind]}")
+                         f"expected {wanted}")
     if value.ndim != len(pattern):
         raise InputError(f"{path}: '{key}' of {kind} file has shape {value.shape}, "
                          f"expected {len(pattern)} dimension(s) {pattern}")

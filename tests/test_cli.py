@@ -1,0 +1,85 @@
+"""The click group: help, version, config presets, error reporting."""
+
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from demtool import __version__
+from demtool.cli import STAGES, cli, stage_param_names
+from demtool.config import load_config, to_default_map
+from demtool.errors import InputError, ParameterError
+
+CONFIGS = sorted((Path(__file__).parent.parent / "configs").glob("*.toml"))
+
+
+def test_help_lists_every_stage():
+    result = CliRunner().invoke(cli, ["--help"])
+    assert result.exit_code == 0
+    for stage in ["synth", "select", "bundle", "rectify", "sgm", "match", "dem", "refine",
+                  "compare"]:
+        assert stage in result.output
+    assert list(STAGES)[0] == "synth"
+
+
+def test_version():
+    result = CliRunner().invoke(cli, ["--version"])
+    assert result.exit_code == 0 and __version__ in result.output
+
+
+@pytest.mark.parametrize("stage", list(STAGES))
+def test_each_stage_has_help(stage):
+    result = CliRunner().invoke(cli, [stage, "--help"])
+    assert result.exit_code == 0
+    assert STAGES[stage].split(":")[0] in " ".join(result.output.split())
+
+
+def test_unknown_stage_is_a_usage_error():
+    result = CliRunner().invoke(cli, ["stereo"])
+    assert result.exit_code == 2
+
+
+@pytest.mark.parametrize("preset", CONFIGS, ids=[p.name for p in CONFIGS])
+def test_every_preset_names_real_options(preset):
+    content = load_config(preset)
+    default_map = to_default_map(content, preset, stage_param_names)
+    assert set(default_map) <= set(STAGES)
+
+
+def test_config_unknown_key_and_section_are_errors(tmp_path):
+    def params(stage):
+        return ["p1", "num_disparities"] if stage == "sgm" else None
+
+    good = to_default_map({"sgm": {"p1": 8, "num-disparities": 64}}, "x.toml", params)
+    assert good == {"sgm": {"p1": 8, "num_disparities": 64}}
+    with pytest.raises(ParameterError, match=r"x\.toml: unknown key 'p3' in \[sgm\]; "
+                                             r"valid keys: num-disparities, p1"):
+        to_default_map({"sgm": {"p3": 1}}, "x.toml", params)
+    with pytest.raises(ParameterError, match=r"unknown section \[stereo\]"):
+        to_default_map({"stereo": {"p1": 1}}, "x.toml", params)
+
+
+def test_config_errors_through_the_cli(tmp_path):
+    runner = CliRunner()
+    missing = runner.invoke(cli, ["--config", str(tmp_path / "none.toml"), "compare", "a.tif",
+                                  "b.tif", "--out", str(tmp_path / "r")])
+    assert missing.exit_code == 1
+    assert "none.toml: config file not found" in missing.output
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[sgm\n")
+    result = runner.invoke(cli, ["--config", str(bad), "compare", "a.tif", "b.tif",
+                                 "--out", str(tmp_path / "r")])
+    assert result.exit_code == 1
+    assert "bad.toml: config file is not valid TOML" in result.output
+    unknown = tmp_path / "unknown.toml"
+    unknown.write_text("[nosuchstage]\nx = 1\n")
+    result = runner.invoke(cli, ["--config", str(unknown), "compare", "a.tif", "b.tif",
+                                 "--out", str(tmp_path / "r")])
+    assert result.exit_code == 1
+    assert "unknown section [nosuchstage]" in result.output
+    assert not (tmp_path / "r").exists()
+
+
+def test_load_config_missing_file(tmp_path):
+    with pytest.raises(InputError, match="config file not found"):
+        load_config(tmp_path / "absent.toml")

@@ -1,0 +1,115 @@
+# demtool — chain the stages like ISIS tools.
+#
+#   make demo            synthetic scene → every route → refined DEM → comparison table
+#   make test            test suite (installs the test extras into .venv)
+#   make bench           benchmarks (installs the bench extras into .venv)
+#
+# Variables: WORK (work folder), CONFIG (TOML preset), SYNTH_ARGS (extra synth options),
+# TARGET / PARTNER (view names of the target image and its stereo partner).
+
+.DELETE_ON_ERROR:
+SHELL := /bin/bash
+
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+DEMTOOL := $(BIN)/demtool
+WORK ?= work/demo
+CONFIG ?= configs/navcam.toml
+SYNTH_ARGS ?=
+TARGET ?= view_00
+PARTNER ?= view_01
+
+DT := $(DEMTOOL) $(if $(CONFIG),--config $(CONFIG))
+SCENE := $(WORK)/scene
+STEREO := $(WORK)/stereo
+TRUTH := $(SCENE)/truth_dem_target.tif
+
+# Every DEM the demo makes, compared with the truth at the end.
+PRODUCTS := dem_bam dem_siam dem_siam_projective dem_match dem_refined
+
+.PHONY: all demo test bench install install-test install-bench clean lint
+
+all: demo
+
+# ---------------------------------------------------------------------- environment
+$(VENV)/.installed: pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e .
+	touch $@
+
+$(VENV)/.installed-test: $(VENV)/.installed
+	$(BIN)/python -m pip install -q -e '.[test]'
+	touch $@
+
+$(VENV)/.installed-bench: $(VENV)/.installed
+	$(BIN)/python -m pip install -q -e '.[bench]'
+	touch $@
+
+install: $(VENV)/.installed
+install-test: $(VENV)/.installed-test
+install-bench: $(VENV)/.installed-bench
+
+test: $(VENV)/.installed-test
+	$(BIN)/python -m pytest -q
+
+lint: $(VENV)/.installed-test
+	$(BIN)/ruff check demtool tests bench
+
+bench: $(VENV)/.installed-bench
+	@set -e; for script in bench/*.py; do \
+	  echo "=== $$script"; $(BIN)/python $$script; \
+	done
+
+# ---------------------------------------------------------------------- the chain
+$(SCENE)/scene.json: | $(VENV)/.installed
+	$(DT) synth --out $(SCENE) $(SYNTH_ARGS)
+
+# BAM route: select → bundle → dem from points
+$(WORK)/selection.json: $(SCENE)/scene.json
+	$(DT) select $(SCENE)/view_*.tif --target $(SCENE)/$(TARGET).tif \
+	  --cameras $(SCENE)/cameras.npz --scene $(SCENE)/scene.json --out $@
+
+$(WORK)/bundle.npz: $(WORK)/selection.json
+	$(DT) bundle $< --align-cameras $(SCENE)/cameras.npz --out $@
+
+$(WORK)/dem_bam.tif: $(WORK)/bundle.npz
+	$(DT) dem --points $< --scene $(SCENE)/scene.json --out $@
+
+# SIAM route: rectify → sgm → dem (calibrated, and the study's projective fit to BAM)
+$(STEREO)/rectify.npz: $(SCENE)/scene.json
+	$(DT) rectify $(SCENE)/$(TARGET).tif $(SCENE)/$(PARTNER).tif --out $(STEREO)
+
+$(STEREO)/disparity_sgm.tif: $(STEREO)/rectify.npz
+	$(DT) sgm $(STEREO)/left_rect.tif $(STEREO)/right_rect.tif --rectify $< --out $@
+
+$(WORK)/dem_siam.tif: $(STEREO)/disparity_sgm.tif $(STEREO)/rectify.npz
+	$(DT) dem --disparity $< --rectify $(STEREO)/rectify.npz \
+	  --cameras $(SCENE)/cameras.npz --scene $(SCENE)/scene.json --out $@
+
+$(WORK)/dem_siam_projective.tif: $(STEREO)/disparity_sgm.tif $(STEREO)/rectify.npz $(WORK)/dem_bam.tif
+	$(DT) dem --disparity $< --rectify $(STEREO)/rectify.npz \
+	  --reference $(WORK)/dem_bam.tif --out $@
+
+# Area-based matching route (HiRISE DM / LRO NAC)
+$(STEREO)/disparity_match.tif: $(STEREO)/rectify.npz
+	$(DT) match $(STEREO)/left_rect.tif $(STEREO)/right_rect.tif --rectify $< --out $@
+
+$(WORK)/dem_match.tif: $(STEREO)/disparity_match.tif $(STEREO)/rectify.npz
+	$(DT) dem --disparity $< --rectify $(STEREO)/rectify.npz \
+	  --cameras $(SCENE)/cameras.npz --scene $(SCENE)/scene.json --out $@
+
+# Shape-from-shading refinement of the SIAM DEM
+$(WORK)/dem_refined.tif: $(WORK)/dem_siam.tif
+	$(DT) refine $(SCENE)/$(TARGET).tif $< --out $@
+
+# Comparison of every product with the synthetic truth
+$(WORK)/reports/%/report.json: $(WORK)/%.tif
+	$(DT) compare $< $(TRUTH) --out $(WORK)/reports/$* --label $*
+
+demo: $(foreach p,$(PRODUCTS),$(WORK)/reports/$(p)/report.json)
+	@$(BIN)/python -m demtool.summary $(foreach p,$(PRODUCTS),$(WORK)/reports/$(p)/report.json)
+
+clean:
+	rm -rf $(WORK)

@@ -216,7 +216,8 @@ def coherence_spectrum(dem: np.ndarray, reference: np.ndarray, *, spacing: float
     spectra = []
     for values in (a[r0:r1, c0:c1], b[r0:r1, c0:c1]):
         detrended = _detrend(values, valid) * taper
-        if not np.any(detrended):
+        scale = np.ptp(values[valid]) if valid.any() else 0.0
+        if not np.abs(detrended).max() > 1e-9 * max(scale, 1e-30):
             raise ProcessingError("a DEM is a plane over the common valid area: its "
                                   "coherence is undefined")
         spectra.append(np.fft.rfft2(detrended))

@@ -1,0 +1,482 @@
+"""SIFT features, descriptor matching and robust epipolar geometry, shared by the stages.
+
+``rectify``, ``select`` and ``match`` (seed points) all need the same three steps:
+
+1. :func:`to_uint8` — a NaN-aware robust stretch of a float image (12-bit DN, radiance,
+   NaN = nodata) to the 8-bit image OpenCV's SIFT expects, plus a validity mask;
+2. :func:`detect_sift` — SIFT keypoints and descriptors (Lowe 2004) as plain arrays
+   (:class:`Features`), never inside the masked-out (NaN) area;
+3. :func:`match_descriptors` — nearest neighbours with Lowe's ratio test and an
+   optional mutual-nearest-neighbour check, then :func:`ransac_fundamental` —
+   a fundamental matrix by USAC/MAGSAC (Barath et al. 2019/2020) or classic RANSAC
+   that rejects the remaining false matches.
+
+All functions are pure (arrays in, arrays out) and use the array conventions of
+CONTRIBUTING.md: point arrays are ``(N, 2)`` as ``(x, y)`` = ``(column, row)``, with
+the centre of pixel (row r, column c) at (x, y) = (c, r).
+
+References
+----------
+Lowe, D. G. (2004). Distinctive image features from scale-invariant keypoints.
+    IJCV 60(2), 91-110 (SIFT; ratio test, sect. 7.1).
+Hartley, R., Zisserman, A. (2004). Multiple View Geometry, 2nd ed. (Sampson
+    distance, eq. 11.9; the fundamental matrix, ch. 9-11).
+Barath, D., Noskova, J., Ivashechkin, M., Matas, J. (2020). MAGSAC++, a fast,
+    reliable and accurate robust estimator. CVPR.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from demtool.errors import ParameterError, ProcessingError
+from demtool.logs import get_logger
+
+log = get_logger(__name__)
+
+#: Descriptor length of SIFT.
+SIFT_DESCRIPTOR_SIZE = 128
+
+#: Above this many query × train descriptor pairs, "auto" matching uses FLANN k-d trees.
+_BRUTE_FORCE_LIMIT = 4.0e7
+
+
+# --------------------------------------------------------------------------------------
+# 8-bit conversion
+# --------------------------------------------------------------------------------------
+
+
+def to_uint8(image: np.ndarray, mask: np.ndarray | None = None,
+             percentiles: tuple[float, float] = (0.5, 99.5)) -> tuple[np.ndarray, np.ndarray]:
+    """Stretch a float image (any DN range, NaN = nodata) robustly to 8 bits.
+
+    The values between the ``percentiles`` of the valid pixels map linearly to
+    0 … 255 (values outside are clipped), so 12- or 16-bit images and radiances keep
+    their contrast and a few hot pixels do not compress it.
+
+    Parameters
+    ----------
+    image : (H, W) array
+        Grey image, any real dtype; NaN and ±inf mark nodata.  A ``uint8`` image is
+        returned unchanged (apart from the copy).
+    mask : (H, W) bool, optional
+        True where the pixel may be used; combined with the finite-value mask.
+    percentiles : (float, float)
+        Lower and upper percentile (0-100) of the valid values mapped to 0 and 255.
+
+    Returns
+    -------
+    image8 : (H, W) uint8
+        The stretched image; nodata pixels hold the stretched median (a neutral grey,
+        so they create no strong artificial edges).
+    valid : (H, W) bool
+        True where ``image`` is finite (and ``mask`` is True).
+
+    Raises
+    ------
+    ParameterError
+        Not a 2-D array, mask of another shape, or bad percentiles.
+    """
+    array = np.asarray(image)
+    if array.ndim != 2:
+        raise ParameterError(f"to_uint8 expects a 2-D grey image, got shape {array.shape}")
+    low_pct, high_pct = (float(p) for p in percentiles)
+    if not 0.0 <= low_pct < high_pct <= 100.0:
+        raise ParameterError(f"percentiles must satisfy 0 <= low < high <= 100, got {percentiles}")
+    valid = np.isfinite(array) if array.dtype.kind == "f" else np.ones(array.shape, bool)
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != array.shape:
+            raise ParameterError(f"mask shape {mask.shape} differs from image shape {array.shape}")
+        valid &= mask
+    if array.dtype == np.uint8:
+        return array.copy(), valid
+    values = array[valid]
+    if values.size == 0:
+        return np.zeros(array.shape, np.uint8), valid
+    # A subsample is enough for the percentiles of a large image.
+    step = max(1, values.size // 2_000_000)
+    low, median, high = np.percentile(values[::step].astype(np.float64),
+                                      [low_pct, 50.0, high_pct])
+    scale = 255.0 / (high - low) if high > low else 0.0
+    work = np.where(valid, array, median).astype(np.float32)
+    stretched = np.clip((work - np.float32(low)) * np.float32(scale) + np.float32(0.5), 0, 255)
+    return stretched.astype(np.uint8), valid
+
+
+# --------------------------------------------------------------------------------------
+# SIFT detection
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Features:
+    """SIFT keypoints and descriptors of one image, as plain arrays.
+
+    Attributes
+    ----------
+    points : (N, 2) float32
+        Keypoint positions (x, y) in pixels of the image given to :func:`detect_sift`
+        (plus its ``offset``).
+    descriptors : (N, 128) float32
+        SIFT descriptors (OpenCV's scaling: components 0 … 255 after clipping at 0.2).
+    sizes : (N,) float32
+        Keypoint diameters in pixels.
+    angles : (N,) float32
+        Keypoint orientations in degrees (0 … 360, OpenCV convention).
+    responses : (N,) float32
+        Detector responses (DoG contrast), larger = stronger.
+    """
+
+    points: np.ndarray
+    descriptors: np.ndarray
+    sizes: np.ndarray
+    angles: np.ndarray
+    responses: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    @classmethod
+    def empty(cls) -> Features:
+        """A feature set with no keypoint."""
+        return cls(np.zeros((0, 2), np.float32), np.zeros((0, SIFT_DESCRIPTOR_SIZE), np.float32),
+                   np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.float32))
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The arrays by name (for caching in an NPZ file)."""
+        return {"points": self.points, "descriptors": self.descriptors, "sizes": self.sizes,
+                "angles": self.angles, "responses": self.responses}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> Features:
+        """Inverse of :meth:`to_arrays`; checks shapes, raises ValueError when inconsistent."""
+        points = np.asarray(arrays["points"], np.float32).reshape(-1, 2)
+        descriptors = np.asarray(arrays["descriptors"], np.float32)
+        count = len(points)
+        if descriptors.shape != (count, SIFT_DESCRIPTOR_SIZE):
+            raise ValueError(f"descriptors have shape {descriptors.shape}, expected "
+                             f"({count}, {SIFT_DESCRIPTOR_SIZE})")
+        others = [np.asarray(arrays[key], np.float32).reshape(-1)
+                  for key in ("sizes", "angles", "responses")]
+        if any(len(a) != count for a in others):
+            raise ValueError("sizes/angles/responses do not match the number of points")
+        return cls(points, descriptors, *others)
+
+    def subset(self, keep: np.ndarray) -> Features:
+        """The features selected by a boolean mask or index array."""
+        return Features(self.points[keep], self.descriptors[keep], self.sizes[keep],
+                        self.angles[keep], self.responses[keep])
+
+
+def detect_sift(image: np.ndarray, *, mask: np.ndarray | None = None, max_features: int = 0,
+                contrast_threshold: float = 0.04, edge_threshold: float = 10.0,
+                n_octave_layers: int = 3, border_px: int = 8,
+                offset: tuple[float, float] = (0.0, 0.0)) -> Features:
+    """Detect SIFT keypoints and compute their descriptors (Lowe 2004, OpenCV).
+
+    Parameters
+    ----------
+    image : (H, W) array
+        Grey image: float (any DN range, NaN = nodata; stretched with :func:`to_uint8`)
+        or uint8.
+    mask : (H, W) bool, optional
+        True where keypoints may be detected (e.g. a region of interest).
+    max_features : int
+        Keep at most this many keypoints, the strongest first (0 = all).
+    contrast_threshold : float
+        OpenCV's SIFT contrast threshold (0.04 default; lower finds more keypoints
+        in weak texture).
+    edge_threshold : float
+        Lowe's edge-response threshold r (sect. 4.1); larger keeps more edge-like points.
+    n_octave_layers : int
+        Scale layers per octave (3 in Lowe 2004).
+    border_px : int
+        Keypoints closer than this to nodata (NaN) or to the mask edge are dropped,
+        since their descriptors would see the fill value.
+    offset : (float, float)
+        Added to the keypoint (x, y): the position of ``image[0, 0]`` in a larger
+        image when ``image`` is a crop.
+
+    Returns
+    -------
+    Features
+        Possibly empty (a flat or all-nodata image has no keypoint).
+    """
+    import cv2
+
+    if max_features < 0:
+        raise ParameterError(f"max_features must be >= 0, got {max_features}")
+    if contrast_threshold <= 0:
+        raise ParameterError(f"contrast_threshold must be > 0, got {contrast_threshold}")
+    image8, valid = to_uint8(image, mask)
+    if not valid.any():
+        return Features.empty()
+    detect_mask = valid.astype(np.uint8)
+    if border_px > 0 and not valid.all():
+        kernel = np.ones((2 * border_px + 1, 2 * border_px + 1), np.uint8)
+        detect_mask = cv2.erode(detect_mask, kernel, borderType=cv2.BORDER_REPLICATE)
+    sift = cv2.SIFT_create(nfeatures=int(max_features), nOctaveLayers=int(n_octave_layers),
+                           contrastThreshold=float(contrast_threshold),
+                           edgeThreshold=float(edge_threshold))
+    keypoints, descriptors = sift.detectAndCompute(image8, detect_mask)
+    if not keypoints or descriptors is None:
+        return Features.empty()
+    points = np.array([kp.pt for kp in keypoints], dtype=np.float32).reshape(-1, 2)
+    points += np.asarray(offset, dtype=np.float32)
+    sizes = np.array([kp.size for kp in keypoints], dtype=np.float32)
+    angles = np.array([kp.angle for kp in keypoints], dtype=np.float32)
+    responses = np.array([kp.response for kp in keypoints], dtype=np.float32)
+    features = Features(points, np.ascontiguousarray(descriptors, dtype=np.float32),
+                        sizes, angles, responses)
+    if max_features and len(features) > max_features:  # OpenCV may keep ties
+        order = np.argsort(-responses, kind="stable")[:max_features]
+        features = features.subset(np.sort(order))
+    return features
+
+
+# --------------------------------------------------------------------------------------
+# Matching
+# --------------------------------------------------------------------------------------
+
+
+def _knn(query: np.ndarray, train: np.ndarray, k: int,
+         method: str) -> tuple[np.ndarray, np.ndarray]:
+    """Indices and distances of the k nearest train descriptors of each query, (Nq, k).
+
+    Missing neighbours (train smaller than k) get index -1 and distance inf.
+    """
+    import cv2
+
+    use_flann = method == "flann" or (method == "auto"
+                                      and len(query) * len(train) > _BRUTE_FORCE_LIMIT)
+    if use_flann:
+        matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})
+    else:
+        matcher = cv2.BFMatcher(cv2.NORM_L2)
+    indices = np.full((len(query), k), -1, dtype=np.int64)
+    distances = np.full((len(query), k), np.inf, dtype=np.float64)
+    for neighbours in matcher.knnMatch(query, train, k=k):
+        for rank, m in enumerate(neighbours[:k]):
+            indices[m.queryIdx, rank] = m.trainIdx
+            distances[m.queryIdx, rank] = m.distance
+    return indices, distances
+
+
+def match_descriptors(descriptors_a: np.ndarray, descriptors_b: np.ndarray, *,
+                      ratio: float = 0.8, mutual: bool = True,
+                      method: str = "auto") -> np.ndarray:
+    """Match descriptors with Lowe's ratio test and an optional mutual check.
+
+    A descriptor of ``a`` is matched to its nearest neighbour in ``b`` when the
+    distance to it is below ``ratio`` times the distance to the second nearest
+    (Lowe 2004, sect. 7.1: 0.8 rejects 90 % of false matches and 5 % of correct
+    ones).  With ``mutual``, the match is kept only if the ``a`` descriptor is also
+    the nearest neighbour of the ``b`` descriptor.
+
+    Parameters
+    ----------
+    descriptors_a, descriptors_b : (Na, D), (Nb, D) float32
+        Descriptors (e.g. :attr:`Features.descriptors`).
+    ratio : float
+        Ratio-test threshold in (0, 1]; 1 disables the test.
+    mutual : bool
+        Require mutual nearest neighbours.
+    method : {"auto", "brute", "flann"}
+        Exact brute force, or FLANN randomised k-d trees (approximate, for large
+        sets); "auto" picks FLANN above 4e7 descriptor pairs.
+
+    Returns
+    -------
+    (M, 2) int64
+        Index pairs ``(i, j)``: ``descriptors_a[i]`` matches ``descriptors_b[j]``,
+        sorted by ``i``.  Each ``j`` appears at most once when ``mutual``.
+    """
+    if not 0.0 < ratio <= 1.0:
+        raise ParameterError(f"ratio must be in (0, 1], got {ratio}")
+    if method not in ("auto", "brute", "flann"):
+        raise ParameterError(f"unknown matching method {method!r}; should be one of "
+                             "auto, brute, flann")
+    a = np.ascontiguousarray(descriptors_a, dtype=np.float32)
+    b = np.ascontiguousarray(descriptors_b, dtype=np.float32)
+    if a.ndim != 2 or b.ndim != 2 or a.shape[1] != b.shape[1]:
+        raise ParameterError(f"descriptor arrays must be (N, D) with the same D, got "
+                             f"{a.shape} and {b.shape}")
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((0, 2), np.int64)
+    indices, distances = _knn(a, b, 2, method)
+    best, second = distances[:, 0], distances[:, 1]
+    keep = indices[:, 0] >= 0
+    if len(b) >= 2 and ratio < 1.0:
+        keep &= best < ratio * second
+    pairs = np.column_stack([np.nonzero(keep)[0], indices[keep, 0]])
+    if mutual and len(pairs):
+        back, _ = _knn(b, a, 1, method)
+        pairs = pairs[back[pairs[:, 1], 0] == pairs[:, 0]]
+    return pairs.astype(np.int64)
+
+
+# --------------------------------------------------------------------------------------
+# Epipolar geometry
+# --------------------------------------------------------------------------------------
+
+
+def sampson_distance(F: np.ndarray, points_a: np.ndarray, points_b: np.ndarray) -> np.ndarray:
+    """First-order geometric error of correspondences under F, in pixels.
+
+    Hartley & Zisserman (2004) eq. 11.9: with x_a, x_b homogeneous and the epipolar
+    constraint ``x_b^T F x_a = 0``, the Sampson distance is
+    ``|x_b^T F x_a| / sqrt((F x_a)_1^2 + (F x_a)_2^2 + (F^T x_b)_1^2 + (F^T x_b)_2^2)``.
+
+    Parameters
+    ----------
+    F : (3, 3) float
+        Fundamental matrix with ``x_b^T F x_a = 0``.
+    points_a, points_b : (N, 2) float
+        Corresponding pixel coordinates (x, y).
+
+    Returns
+    -------
+    (N,) float64
+        Distances in pixels.
+    """
+    a = np.column_stack([np.asarray(points_a, np.float64), np.ones(len(points_a))])
+    b = np.column_stack([np.asarray(points_b, np.float64), np.ones(len(points_b))])
+    Fa = a @ np.asarray(F, np.float64).T
+    Ftb = b @ np.asarray(F, np.float64)
+    numerator = np.abs(np.sum(b * Fa, axis=1))
+    denominator = np.sqrt(Fa[:, 0] ** 2 + Fa[:, 1] ** 2 + Ftb[:, 0] ** 2 + Ftb[:, 1] ** 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(denominator > 0, numerator / denominator, np.inf)
+
+
+def ransac_fundamental(points_a: np.ndarray, points_b: np.ndarray, *, threshold_px: float = 1.0,
+                       confidence: float = 0.999, method: str = "magsac", seed: int = 0,
+                       max_iterations: int = 10000,
+                       what: str = "the image pair") -> tuple[np.ndarray, np.ndarray]:
+    """Fundamental matrix of point correspondences by a robust estimator.
+
+    Parameters
+    ----------
+    points_a, points_b : (N, 2) float
+        Matched pixel coordinates (x, y) in images a and b; N >= 8.
+    threshold_px : float
+        Inlier threshold in pixels: a match is an inlier when its Sampson distance
+        (:func:`sampson_distance`) is at most this.
+    confidence : float
+        Desired probability (0 … 1, exclusive) that the estimate is outlier-free.
+    method : {"magsac", "ransac"}
+        ``cv2.USAC_MAGSAC`` (MAGSAC++, Barath et al. 2020) where this OpenCV has it,
+        else (or for "ransac") classic ``cv2.FM_RANSAC``.
+    seed : int
+        Seed of OpenCV's random generator, so runs are reproducible.
+    max_iterations : int
+        Upper bound on the robust iterations.
+    what : str
+        Name of the pair, for error messages.
+
+    Returns
+    -------
+    F : (3, 3) float64
+        Rank-2 fundamental matrix with ``x_b^T F x_a = 0``, scaled to unit Frobenius norm.
+    inliers : (N,) bool
+        True for matches with Sampson distance <= ``threshold_px``.
+
+    Raises
+    ------
+    ProcessingError
+        Fewer than 8 matches or 8 inliers, coincident points (zero parallax: the
+        same image twice), or no non-degenerate F.
+    """
+    import cv2
+
+    if threshold_px <= 0:
+        raise ParameterError(f"threshold_px must be > 0, got {threshold_px}")
+    if not 0.0 < confidence < 1.0:
+        raise ParameterError(f"confidence must be in (0, 1), got {confidence}")
+    if method not in ("magsac", "ransac"):
+        raise ParameterError(f"unknown RANSAC method {method!r}; should be one of magsac, ransac")
+    a = np.asarray(points_a, np.float64).reshape(-1, 2)
+    b = np.asarray(points_b, np.float64).reshape(-1, 2)
+    if len(a) != len(b):
+        raise ParameterError(f"point arrays differ in length: {len(a)} and {len(b)}")
+    count = len(a)
+    if count < 8:
+        raise ProcessingError(f"{what}: only {count} matches, at least 8 are needed to "
+                              "estimate a fundamental matrix")
+    if np.median(np.linalg.norm(a - b, axis=1)) < 0.05:
+        raise ProcessingError(f"{what}: the {count} matched points coincide (zero parallax; "
+                              "are the two images identical?); the epipolar geometry is "
+                              "undefined")
+    flag = cv2.USAC_MAGSAC if (method == "magsac" and hasattr(cv2, "USAC_MAGSAC")) \
+        else cv2.FM_RANSAC
+    cv2.setRNGSeed(int(seed))
+    try:
+        F, _ = cv2.findFundamentalMat(a, b, flag, float(threshold_px), float(confidence),
+                                      int(max_iterations))
+    except cv2.error as exc:  # OpenCV raises on some degenerate inputs
+        raise ProcessingError(f"{what}: fundamental-matrix estimation failed on {count} "
+                              f"matches ({str(exc).strip().splitlines()[-1]})") from None
+    if F is None or F.shape != (3, 3) or not np.all(np.isfinite(F)):
+        raise ProcessingError(f"{what}: no fundamental matrix found from {count} matches "
+                              "(degenerate configuration)")
+    F = _enforce_rank2(F)
+    inliers = sampson_distance(F, a, b) <= threshold_px
+    n_inliers = int(inliers.sum())
+    if n_inliers < 8:
+        raise ProcessingError(f"{what}: only {n_inliers} of {count} matches agree with a "
+                              "fundamental matrix; at least 8 are needed")
+    log.debug("%s: F from %d matches, %d inliers (%s)", what, count, n_inliers, method)
+    return F, inliers
+
+
+def _enforce_rank2(F: np.ndarray) -> np.ndarray:
+    """Closest rank-2 matrix in Frobenius norm, normalised to unit norm (H&Z sect. 11.1.1)."""
+    U, s, Vt = np.linalg.svd(np.asarray(F, np.float64))
+    if s[0] <= 0 or s[1] / s[0] < 1e-12:
+        raise ProcessingError("degenerate fundamental matrix (rank < 2)")
+    F2 = U @ np.diag([s[0], s[1], 0.0]) @ Vt
+    return F2 / np.linalg.norm(F2)
+
+
+def fit_fundamental(points_a: np.ndarray, points_b: np.ndarray) -> np.ndarray:
+    """Least-squares fundamental matrix of inlier matches (normalised 8-point algorithm).
+
+    Hartley & Zisserman (2004), algorithm 11.1: Hartley normalisation of both point
+    sets, linear solution by SVD, rank-2 enforcement, denormalisation.
+
+    Parameters
+    ----------
+    points_a, points_b : (N, 2) float
+        Inlier correspondences (x, y), N >= 8.
+
+    Returns
+    -------
+    (3, 3) float64
+        F with ``x_b^T F x_a = 0``, unit Frobenius norm.
+    """
+    a = np.asarray(points_a, np.float64).reshape(-1, 2)
+    b = np.asarray(points_b, np.float64).reshape(-1, 2)
+    if len(a) < 8 or len(a) != len(b):
+        raise ProcessingError(f"the 8-point algorithm needs >= 8 matches, got {len(a)}")
+    Ta, Tb = _normalising_transform(a), _normalising_transform(b)
+    an = a @ Ta[:2, :2].T + Ta[:2, 2]
+    bn = b @ Tb[:2, :2].T + Tb[:2, 2]
+    design = np.column_stack([bn[:, 0] * an[:, 0], bn[:, 0] * an[:, 1], bn[:, 0],
+                              bn[:, 1] * an[:, 0], bn[:, 1] * an[:, 1], bn[:, 1],
+                              an[:, 0], an[:, 1], np.ones(len(a))])
+    _, _, Vt = np.linalg.svd(design, full_matrices=False)
+    Fn = _enforce_rank2(Vt[-1].reshape(3, 3))
+    return _enforce_rank2(Tb.T @ Fn @ Ta)
+
+
+def _normalising_transform(points: np.ndarray) -> np.ndarray:
+    """Similarity moving the centroid to 0 and the mean distance to sqrt(2) (H&Z 4.4.4)."""
+    centre = points.mean(axis=0)
+    spread = np.mean(np.linalg.norm(points - centre, axis=1))
+    scale = np.sqrt(2.0) / spread if spread > 0 else 1.0
+    return np.array([[scale, 0.0, -scale * centre[0]],
+                     [0.0, scale, -scale * centre[1]],
+                     [0.0, 0.0, 1.0]])

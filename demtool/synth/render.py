@@ -1,0 +1,340 @@
+"""Ray casting of a height field and rendering of pinhole views (numba kernels).
+
+The height field is the DEM on the map grid (CONTRIBUTING.md): cell (row r, column c)
+holds the height at the cell centre ``x = x_first + c·s``, ``y = y_first − r·s``
+(world metres, X east, Y north, Z up) and is interpolated bilinearly in between.
+A ray hits the surface where ``z(t) = h(x(t), y(t))``; the kernels march along the
+ray in steps of at most half a cell horizontally and refine the first sign change by
+bisection to ~1e-9 m, far below 0.1 px at any sensible ground sampling distance.
+
+Shading: the normal at the hit comes from the DEM gradient (central differences at
+the nodes, interpolated bilinearly), the reflectance from
+:func:`demtool.reflectance.lunar_lambert` with L from the per-pixel phase angle;
+a hit is in cast shadow when the terrain rises above the ray from it toward the sun.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from demtool.camera import PinholeCamera
+from demtool.reflectance import lunar_lambert
+
+MARCH_STEP_CELLS = 0.5  # horizontal ray-marching step, in cells
+BISECTION_ITERATIONS = 52
+SHADOW_EPSILON_M = 1e-4  # terrain must rise this far above a sun ray to cast a shadow
+
+
+class HeightField(NamedTuple):
+    """A DEM prepared for ray casting (map grid, see module docstring).
+
+    Attributes
+    ----------
+    dem : (H, W) float64
+        Heights, metres.
+    grad_x, grad_y : (H, W) float64
+        ∂h/∂X (east) and ∂h/∂Y (north) at the nodes, central differences.
+    x_first, y_first : float
+        World X of column 0 and world Y of row 0 (cell centres), metres.
+    spacing : float
+        Cell size, metres.
+    z_min, z_max : float
+        Bounds of the heights (padded by a millimetre).
+    """
+
+    dem: np.ndarray
+    grad_x: np.ndarray
+    grad_y: np.ndarray
+    x_first: float
+    y_first: float
+    spacing: float
+    z_min: float
+    z_max: float
+
+
+def height_field(dem: np.ndarray, transform) -> HeightField:
+    """Prepare ``dem`` (map grid, ``transform`` = Affine(s, 0, x_west, 0, −s, y_north))."""
+    spacing = float(transform.a)
+    if not np.isclose(-transform.e, spacing) or transform.b != 0 or transform.d != 0:
+        raise ValueError("height_field: the DEM transform must be north-up with square cells")
+    heights = np.ascontiguousarray(dem, dtype=np.float64)
+    grad_rows, grad_cols = np.gradient(heights, spacing)
+    return HeightField(
+        dem=heights, grad_x=np.ascontiguousarray(grad_cols),
+        grad_y=np.ascontiguousarray(-grad_rows),  # rows run south
+        x_first=float(transform.c) + 0.5 * spacing, y_first=float(transform.f) - 0.5 * spacing,
+        spacing=spacing, z_min=float(heights.min()) - 1e-3, z_max=float(heights.max()) + 1e-3)
+
+
+# --------------------------------------------------------------------------------------
+# numba kernels
+# --------------------------------------------------------------------------------------
+
+
+@njit(cache=True, inline="always")
+def _bilinear(grid, fc, fr):
+    """Bilinear value at fractional (column, row); NaN outside the grid."""
+    height, width = grid.shape
+    if not (fc >= 0.0 and fr >= 0.0 and fc <= width - 1 and fr <= height - 1):
+        return np.nan
+    c0 = min(int(fc), width - 2)
+    r0 = min(int(fr), height - 2)
+    a = fc - c0
+    b = fr - r0
+    return ((grid[r0, c0] * (1.0 - a) + grid[r0, c0 + 1] * a) * (1.0 - b)
+            + (grid[r0 + 1, c0] * (1.0 - a) + grid[r0 + 1, c0 + 1] * a) * b)
+
+
+@njit(cache=True, inline="always")
+def _clearance(ox, oy, oz, dx, dy, dz, t, dem, x_first, y_first, spacing):
+    """Ray height above the terrain at parameter t (+inf outside the DEM)."""
+    h = _bilinear(dem, (ox + t * dx - x_first) / spacing, (y_first - (oy + t * dy)) / spacing)
+    if np.isnan(h):
+        return np.inf
+    return oz + t * dz - h
+
+
+@njit(cache=True)
+def _intersect(ox, oy, oz, dx, dy, dz, dem, x_first, y_first, spacing, z_min, z_max):
+    """Ray parameter of the first hit of origin + t·direction with the surface, or NaN."""
+    if dz >= 0.0:
+        return np.nan
+    t_start = max((oz - z_max) / -dz, 0.0)
+    t_end = (oz - z_min) / -dz
+    horizontal = math.sqrt(dx * dx + dy * dy)
+    span = t_end - t_start
+    step = span
+    if horizontal * span > MARCH_STEP_CELLS * spacing:
+        step = MARCH_STEP_CELLS * spacing / horizontal
+    t_prev = t_start
+    if _clearance(ox, oy, oz, dx, dy, dz, t_prev, dem, x_first, y_first, spacing) <= 0.0:
+        return t_prev
+    while t_prev < t_end:
+        t = min(t_prev + step, t_end)
+        if _clearance(ox, oy, oz, dx, dy, dz, t, dem, x_first, y_first, spacing) <= 0.0:
+            lo, hi = t_prev, t
+            for _ in range(BISECTION_ITERATIONS):
+                mid = 0.5 * (lo + hi)
+                if _clearance(ox, oy, oz, dx, dy, dz, mid, dem, x_first, y_first,
+                              spacing) <= 0.0:
+                    hi = mid
+                else:
+                    lo = mid
+            return 0.5 * (lo + hi)
+        t_prev = t
+    return np.nan
+
+
+@njit(cache=True)
+def _in_shadow(px, py, pz, sx, sy, sz, dem, x_first, y_first, spacing, z_max):
+    """True when the terrain blocks the ray from (px, py, pz) toward the sun s."""
+    horizontal = math.sqrt(sx * sx + sy * sy)
+    if horizontal < 1e-12:
+        return False
+    step = MARCH_STEP_CELLS * spacing / horizontal
+    u = step
+    while True:
+        z = pz + u * sz
+        if z > z_max:
+            return False
+        h = _bilinear(dem, (px + u * sx - x_first) / spacing, (y_first - (py + u * sy)) / spacing)
+        if np.isnan(h):
+            return False
+        if h > z + SHADOW_EPSILON_M:
+            return True
+        u += step
+
+
+@njit(cache=True, parallel=True)
+def _render_geometry(pixel_to_ray, center, depth_axis, height, width, dem, grad_x, grad_y,
+                     albedo, x_first, y_first, spacing, z_min, z_max, sun):
+    depth = np.full((height, width), np.nan)
+    hit = np.full((height, width, 3), np.nan)
+    mu0 = np.full((height, width), np.nan)
+    mu = np.full((height, width), np.nan)
+    phase = np.full((height, width), np.nan)
+    rho = np.full((height, width), np.nan)
+    shadow = np.zeros((height, width), dtype=np.bool_)
+    for r in prange(height):
+        for c in range(width):
+            dx = pixel_to_ray[0, 0] * c + pixel_to_ray[0, 1] * r + pixel_to_ray[0, 2]
+            dy = pixel_to_ray[1, 0] * c + pixel_to_ray[1, 1] * r + pixel_to_ray[1, 2]
+            dz = pixel_to_ray[2, 0] * c + pixel_to_ray[2, 1] * r + pixel_to_ray[2, 2]
+            norm = math.sqrt(dx * dx + dy * dy + dz * dz)
+            dx /= norm
+            dy /= norm
+            dz /= norm
+            t = _intersect(center[0], center[1], center[2], dx, dy, dz, dem, x_first, y_first,
+                           spacing, z_min, z_max)
+            if np.isnan(t):
+                continue
+            x = center[0] + t * dx
+            y = center[1] + t * dy
+            z = center[2] + t * dz
+            hit[r, c, 0] = x
+            hit[r, c, 1] = y
+            hit[r, c, 2] = z
+            depth[r, c] = t * (depth_axis[0] * dx + depth_axis[1] * dy + depth_axis[2] * dz)
+            fc = (x - x_first) / spacing
+            fr = (y_first - y) / spacing
+            gx = _bilinear(grad_x, fc, fr)
+            gy = _bilinear(grad_y, fc, fr)
+            n_norm = math.sqrt(gx * gx + gy * gy + 1.0)
+            nx, ny, nz = -gx / n_norm, -gy / n_norm, 1.0 / n_norm
+            cos_i = nx * sun[0] + ny * sun[1] + nz * sun[2]
+            mu0[r, c] = cos_i
+            mu[r, c] = -(nx * dx + ny * dy + nz * dz)
+            cos_phase = -(sun[0] * dx + sun[1] * dy + sun[2] * dz)
+            phase[r, c] = math.degrees(math.acos(max(-1.0, min(1.0, cos_phase))))
+            rho[r, c] = _bilinear(albedo, fc, fr)
+            if cos_i > 0.0:
+                shadow[r, c] = _in_shadow(x, y, z, sun[0], sun[1], sun[2], dem, x_first,
+                                          y_first, spacing, z_max)
+    return depth, hit, mu0, mu, phase, rho, shadow
+
+
+@njit(cache=True, parallel=True)
+def _cast_rays(origins, directions, dem, x_first, y_first, spacing, z_min, z_max):
+    count = origins.shape[0]
+    t = np.empty(count)
+    for i in prange(count):
+        d = directions[i]
+        norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        t[i] = _intersect(origins[i, 0], origins[i, 1], origins[i, 2], d[0] / norm,
+                          d[1] / norm, d[2] / norm, dem, x_first, y_first, spacing, z_min,
+                          z_max) / norm
+    return t
+
+
+# --------------------------------------------------------------------------------------
+# Public functions
+# --------------------------------------------------------------------------------------
+
+
+def intersect_rays(field: HeightField, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """First intersections of rays with the height field.
+
+    Parameters
+    ----------
+    field : HeightField
+        From :func:`height_field`.
+    origins : (N, 3) float
+        Ray origins, world metres (above the terrain).
+    directions : (N, 3) float
+        Ray directions (any length, pointing down toward the terrain).
+
+    Returns
+    -------
+    (N, 3) float64
+        World coordinates of the hits, metres; NaN for rays that miss the DEM.
+    """
+    o = np.ascontiguousarray(np.atleast_2d(origins), dtype=np.float64)
+    d = np.ascontiguousarray(np.atleast_2d(directions), dtype=np.float64)
+    o = np.broadcast_to(o, d.shape).copy() if o.shape != d.shape else o
+    t = _cast_rays(o, d, field.dem, field.x_first, field.y_first, field.spacing, field.z_min,
+                   field.z_max)
+    return o + t[:, None] * d
+
+
+def pixel_hits(field: HeightField, camera: PinholeCamera, pixels: np.ndarray) -> np.ndarray:
+    """World points (N, 3) where the rays of ``pixels`` (N, 2) (u, v) hit the terrain."""
+    rays = camera.rays(np.atleast_2d(pixels))
+    return intersect_rays(field, np.broadcast_to(camera.center, rays.shape), rays)
+
+
+class ViewGeometry(NamedTuple):
+    """Per-pixel geometry of one rendered view, all (h, w), NaN where the ray misses.
+
+    Attributes
+    ----------
+    depth : float64
+        Camera z of the hit (metres along the optical axis), as used by
+        :meth:`PinholeCamera.backproject`.
+    hit : (h, w, 3) float64
+        World coordinates of the hit, metres.
+    mu0, mu : float64
+        Cosines of the incidence and emission angles at the hit (DEM normal).
+    phase_deg : float64
+        Phase angle (sun–surface–camera), degrees.
+    albedo : float64
+        Normal albedo at the hit.
+    shadow : bool
+        True where the hit faces the sun but the terrain blocks it (cast shadow).
+    """
+
+    depth: np.ndarray
+    hit: np.ndarray
+    mu0: np.ndarray
+    mu: np.ndarray
+    phase_deg: np.ndarray
+    albedo: np.ndarray
+    shadow: np.ndarray
+
+
+def view_geometry(field: HeightField, albedo: np.ndarray, camera: PinholeCamera,
+                  sun_vector: np.ndarray) -> ViewGeometry:
+    """Cast every pixel's ray of ``camera`` onto the height field and shade-prepare it.
+
+    Parameters
+    ----------
+    field : HeightField
+        The terrain, from :func:`height_field`.
+    albedo : (H, W) float
+        Normal albedo on the same map grid as the DEM.
+    camera : PinholeCamera
+        The view; pixel (row r, column c) is at (u, v) = (c, r).
+    sun_vector : (3,) float
+        Unit vector toward the sun, world frame.
+    """
+    pixel_to_ray = camera.R.T @ np.linalg.inv(camera.K)
+    sun = np.asarray(sun_vector, dtype=np.float64)
+    sun = sun / np.linalg.norm(sun)
+    result = _render_geometry(
+        np.ascontiguousarray(pixel_to_ray), camera.center, np.ascontiguousarray(camera.R[2]),
+        camera.height, camera.width, field.dem, field.grad_x, field.grad_y,
+        np.ascontiguousarray(albedo, dtype=np.float64), field.x_first, field.y_first,
+        field.spacing, field.z_min, field.z_max, sun)
+    return ViewGeometry(*result)
+
+
+def reflectance(geometry: ViewGeometry) -> np.ndarray:
+    """Lunar-Lambert reflectance (McEwen 1991, eq. 4) of a view; 0 in cast shadow.
+
+    Returns
+    -------
+    (h, w) float64
+        ``R = ρ (2L μ0/(μ0+μ) + (1−L) μ0)`` with L(α) from the per-pixel phase angle;
+        NaN where the ray missed the DEM.
+    """
+    values = lunar_lambert(np.nan_to_num(geometry.mu0), np.nan_to_num(geometry.mu),
+                           np.nan_to_num(geometry.phase_deg), np.nan_to_num(geometry.albedo))
+    values = np.where(geometry.shadow, 0.0, values)
+    return np.where(np.isnan(geometry.depth), np.nan, values)
+
+
+def expose(reflectance_map: np.ndarray, *, dn_per_reflectance: float, gain_e_per_dn: float,
+           read_noise_dn: float, bit_depth: int, noise: bool,
+           rng: np.random.Generator) -> np.ndarray:
+    """Turn reflectance into quantised digital numbers with photon and read noise.
+
+    The expected signal ``S = R · dn_per_reflectance`` (DN) becomes ``S · gain``
+    electrons, drawn from a Poisson distribution, converted back to DN, plus Gaussian
+    read noise (σ = ``read_noise_dn``); the result is rounded and clipped to
+    0 … 2^bit_depth − 1.
+
+    Returns
+    -------
+    (h, w) float32
+        Digital numbers (integer-valued), NaN where ``reflectance_map`` is NaN.
+    """
+    signal = np.nan_to_num(reflectance_map) * dn_per_reflectance
+    if noise:
+        electrons = rng.poisson(np.clip(signal * gain_e_per_dn, 0.0, None))
+        signal = electrons / gain_e_per_dn + rng.normal(0.0, read_noise_dn, signal.shape)
+    counts = np.clip(np.rint(signal), 0, 2**bit_depth - 1).astype(np.float32) + np.float32(0)
+    counts[np.isnan(reflectance_map)] = np.nan
+    return counts

@@ -1,0 +1,279 @@
+"""The synthetic scene: parameters, camera layout, and :func:`make_scene`.
+
+Geometry (world frame of CONTRIBUTING.md: X east, Y north, Z up, metres, origin at
+the scene centre, Z = 0 the mean surface).  Every camera flies at ``altitude_m``
+above the mean surface and looks at the scene centre with the same focal length:
+
+* ``view_00``, the target, is exactly nadir above the centre with image up = north,
+  so image right = east and image down = south (its grid frame is the world frame);
+* ``view_01``, the stereo partner, is displaced east by ``partner_bh · altitude``
+  (baseline along image x, so rectification is gentle);
+* ``view_02`` … have base-to-height ratios (to the target) spread evenly from
+  ``bh_min`` to ``bh_max`` at azimuths a golden angle apart.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from demtool.camera import PinholeCamera, look_at
+from demtool.errors import ParameterError
+from demtool.logs import get_logger
+from demtool.reflectance import lunar_lambert, sun_vector
+from demtool.synth import render, terrain
+from demtool.synth.params import SceneParams, check_parameters
+
+log = get_logger(__name__)
+
+GOLDEN_ANGLE_DEG = 180.0 * (3.0 - np.sqrt(5.0))  # 137.5°
+FOOTPRINT_MARGIN = 0.04  # fraction of the DEM side kept free around every footprint
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A rendered synthetic scene (see :func:`make_scene`).
+
+    Attributes
+    ----------
+    params : SceneParams
+    dem : (N, N) float32
+        Truth heights on the map grid, metres above the mean surface (mean 0).
+    dem_transform : affine.Affine
+        ``Affine(s, 0, −N s/2, 0, −s, N s/2)``: map grid centred on the world origin.
+    albedo : (N, N) float32
+        Normal albedo on the map grid.
+    names : tuple of str
+        View names ``view_00`` … in order; ``target`` and ``partner`` are two of them.
+    cameras : dict of str to PinholeCamera
+    images : dict of str to (h, w) float32
+        Digital numbers 0 … 2^bit_depth − 1 (integer-valued), NaN where a ray missed.
+    depths : dict of str to (h, w) float64
+        Camera z of each pixel's hit (metres), NaN where the ray missed.
+    shadows : dict of str to (h, w) bool
+        Cast-shadow mask of each view.
+    truth_target : (h, w) float32
+        World Z of the target pixels' hits, metres above the mean surface.
+    sun_vector : (3,) float64
+        Unit vector toward the sun, world frame.
+    gsd_m : float
+        Ground sampling distance of the target at Z = 0, metres per pixel.
+    distance_m : float
+        Target camera to the mean surface (= altitude), metres.
+    dn_per_reflectance : float
+        Expected DN per unit of lunar-Lambert reflectance (before noise).
+    render_time_s : float
+        Wall time of :func:`make_scene`, seconds.
+    timings : dict of str to float
+        Seconds per step (terrain, each view).
+    """
+
+    params: SceneParams
+    dem: np.ndarray
+    dem_transform: Any
+    albedo: np.ndarray
+    names: tuple[str, ...]
+    target: str
+    partner: str
+    cameras: dict[str, PinholeCamera]
+    images: dict[str, np.ndarray]
+    depths: dict[str, np.ndarray]
+    shadows: dict[str, np.ndarray]
+    truth_target: np.ndarray
+    sun_vector: np.ndarray
+    gsd_m: float
+    distance_m: float
+    dn_per_reflectance: float
+    render_time_s: float
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def view_name(index: int) -> str:
+    """``view_00``, ``view_01``, …"""
+    return f"view_{index:02d}"
+
+
+def dem_transform(params: SceneParams):
+    """Map-grid transform of the scene's DEM, centred on the world origin."""
+    from affine import Affine
+
+    half = 0.5 * params.dem_size * params.spacing_m
+    return Affine(params.spacing_m, 0.0, -half, 0.0, -params.spacing_m, half)
+
+
+def camera_positions(params: SceneParams) -> np.ndarray:
+    """Camera centres (n_views, 3), world metres: target, partner, then the others."""
+    h = params.altitude_m
+    positions = [(0.0, 0.0, h), (params.partner_bh * h, 0.0, h)]
+    others = params.n_views - 2
+    ratios = np.linspace(params.bh_min, params.bh_max, others) if others > 1 else \
+        np.array([0.5 * (params.bh_min + params.bh_max)])[:others]
+    for k, ratio in enumerate(ratios):
+        azimuth = np.radians(30.0 + k * GOLDEN_ANGLE_DEG)  # clockwise from north
+        positions.append((ratio * h * np.sin(azimuth), ratio * h * np.cos(azimuth), h))
+    return np.asarray(positions, dtype=np.float64)
+
+
+def make_cameras(params: SceneParams) -> dict[str, PinholeCamera]:
+    """The scene's cameras by name, all looking at the scene centre (module docstring)."""
+    focal = params.altitude_m / params.gsd_m
+    return {view_name(i): look_at(centre, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), focal_px=focal,
+                                  width=params.image_size, height=params.image_size)
+            for i, centre in enumerate(camera_positions(params))}
+
+
+def footprint_bounds(camera: PinholeCamera, z_min: float, z_max: float) -> np.ndarray:
+    """(x_min, x_max, y_min, y_max) of the ground any pixel can see between z_min and z_max.
+
+    The pixels' rays fill a pyramid; its part between the two planes is a convex
+    frustum whose corners are the corner rays' crossings of the planes, so these
+    bound every possible hit exactly.
+    """
+    w, h = camera.width - 1, camera.height - 1
+    corners = np.array([[-0.5, -0.5], [w + 0.5, -0.5], [-0.5, h + 0.5], [w + 0.5, h + 0.5]])
+    rays = camera.rays(corners)
+    if np.any(rays[:, 2] >= 0):
+        return np.array([-np.inf, np.inf, -np.inf, np.inf])
+    points = []
+    for z in (z_min, z_max):
+        s = (z - camera.center[2]) / rays[:, 2]
+        points.append(camera.center[:2] + s[:, None] * rays[:, :2])
+    xy = np.vstack(points)
+    return np.array([xy[:, 0].min(), xy[:, 0].max(), xy[:, 1].min(), xy[:, 1].max()])
+
+
+def check_footprints(params: SceneParams, cameras: dict[str, PinholeCamera], z_min: float,
+                     z_max: float) -> None:
+    """Raise ParameterError when a view can see beyond the DEM (with a margin).
+
+    Every hit of every view must lie at least ``FOOTPRINT_MARGIN`` of the DEM side
+    inside its edges, so rays never miss and the terrain casting shadows into the
+    views is modelled.
+    """
+    half = 0.5 * params.dem_size * params.spacing_m
+    limit = half * (1.0 - 2.0 * FOOTPRINT_MARGIN)
+    if z_max >= params.altitude_m:
+        raise ParameterError(f"altitude_m ({params.altitude_m}) must be above the highest "
+                             f"terrain ({z_max:.1f} m)")
+    for name, camera in cameras.items():
+        x0, x1, y0, y1 = footprint_bounds(camera, z_min, z_max)
+        reach = max(abs(x0), abs(x1), abs(y0), abs(y1))
+        if reach > limit:
+            raise ParameterError(
+                f"{name} sees ground up to {reach:.1f} m from the centre, but the DEM "
+                f"(dem_size {params.dem_size} × spacing {params.spacing_m} m) keeps only "
+                f"±{limit:.1f} m with its margin; use a larger dem_size or spacing, a "
+                f"smaller gsd_m or image_size, or smaller B/H ratios")
+
+
+def flat_dn_per_reflectance(params: SceneParams) -> float:
+    """DN per unit reflectance so a flat mean-albedo surface at nadir gives ``exposure_dn``.
+
+    Flat surface: μ0 = cos i, μ = 1, phase α = i, so
+    ``R = ρ (2L μ0 / (μ0 + 1) + (1 − L) μ0)`` (McEwen 1991, eq. 4).
+    """
+    mu0 = np.cos(np.radians(params.sun_incidence_deg))
+    flat = float(lunar_lambert(mu0, 1.0, params.sun_incidence_deg, params.albedo_mean))
+    return params.exposure_dn / flat
+
+
+def make_terrain(params: SceneParams) -> tuple[np.ndarray, np.ndarray]:
+    """The truth DEM (metres, mean 0) and albedo on the map grid, both (N, N) float64."""
+    streams = [np.random.default_rng(s) for s in np.random.SeedSequence(params.seed).spawn(4)]
+    n, s = params.dem_size, params.spacing_m
+    dem = terrain.fractal_surface(n, s, spectral_exponent=params.spectral_exponent,
+                                  rms_m=params.fractal_rms_m, rng=streams[0])
+    if params.crater_count:
+        diameters = terrain.crater_diameters(
+            params.crater_count, min_diameter_m=params.crater_min_diameter_m,
+            max_diameter_m=params.crater_max_diameter_m, exponent=params.crater_exponent,
+            rng=streams[1])
+        dem = terrain.add_craters(dem, s, diameters, depth_ratio=params.crater_depth_ratio,
+                                  rim_ratio=params.rim_height_ratio, rng=streams[1])
+    if params.boulder_count:
+        dem = terrain.add_boulders(dem, s, params.boulder_count,
+                                   mean_height_m=params.boulder_height_m, rng=streams[2])
+    dem = dem - dem.mean()
+    albedo = terrain.albedo_map(n, s, mean=params.albedo_mean, variation=params.albedo_variation,
+                                correlation_m=params.albedo_correlation_m, rng=streams[3])
+    return dem, albedo
+
+
+def make_scene(params: SceneParams | None = None, *, dem: np.ndarray | None = None,
+               albedo: np.ndarray | None = None) -> Scene:
+    """Build and render a synthetic scene.
+
+    Parameters
+    ----------
+    params : SceneParams, optional
+        Defaults to ``SceneParams()`` (the demo scene).
+    dem : (N, N) float, optional
+        Use this truth DEM (metres, map grid, N = ``params.dem_size``) instead of
+        generating one: for tests with known shapes (planes, ridges).  Used as given
+        (not re-centred).
+    albedo : (N, N) float, optional
+        Use this albedo map instead of generating one.
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    ParameterError
+        Invalid parameters, or a view that would see beyond the DEM.
+    """
+    params = params or SceneParams()
+    check_parameters(params)
+    started = time.perf_counter()
+    timings: dict[str, float] = {}
+    generated_dem, generated_albedo = make_terrain(params)
+    shape = (params.dem_size, params.dem_size)
+    for name, given in (("dem", dem), ("albedo", albedo)):
+        if given is not None and np.shape(given) != shape:
+            raise ParameterError(f"{name} has shape {np.shape(given)}, expected {shape} "
+                                 f"(dem_size)")
+    # Render from the float32 values that are written to disk, so files and images agree.
+    dem = (generated_dem if dem is None else np.asarray(dem)).astype(np.float32)
+    albedo = (generated_albedo if albedo is None else np.asarray(albedo)).astype(np.float32)
+    transform = dem_transform(params)
+    field = render.height_field(dem.astype(np.float64), transform)
+    timings["terrain"] = time.perf_counter() - started
+    log.debug("terrain: %d × %d cells, heights %.1f … %.1f m", *shape, dem.min(), dem.max())
+
+    cameras = make_cameras(params)
+    check_footprints(params, cameras, field.z_min, field.z_max)
+    sun = sun_vector(params.sun_incidence_deg, params.sun_azimuth_deg)
+    dn_scale = flat_dn_per_reflectance(params)
+    noise_seeds = np.random.SeedSequence([params.seed, 1]).spawn(params.n_views)
+    images, depths, shadows = {}, {}, {}
+    truth_target = None
+    for index, (name, camera) in enumerate(cameras.items()):
+        step_start = time.perf_counter()
+        geometry = render.view_geometry(field, albedo.astype(np.float64), camera, sun)
+        if np.isnan(geometry.depth).any():  # excluded by check_footprints; a safeguard
+            raise ParameterError(f"{name}: {int(np.isnan(geometry.depth).sum())} rays miss "
+                                 f"the DEM; enlarge dem_size")
+        images[name] = render.expose(
+            render.reflectance(geometry), dn_per_reflectance=dn_scale,
+            gain_e_per_dn=params.gain_e_per_dn, read_noise_dn=params.read_noise_dn,
+            bit_depth=params.bit_depth, noise=params.noise,
+            rng=np.random.default_rng(noise_seeds[index]))
+        depths[name] = geometry.depth
+        shadows[name] = geometry.shadow
+        if index == 0:
+            truth_target = geometry.hit[:, :, 2].astype(np.float32)
+        timings[name] = time.perf_counter() - step_start
+        log.debug("%s rendered in %.2f s (%.1f %% in cast shadow)", name, timings[name],
+                  100.0 * geometry.shadow.mean())
+    names = tuple(cameras)
+    return Scene(params=params, dem=dem, dem_transform=transform,
+                 albedo=albedo, names=names, target=names[0],
+                 partner=names[1], cameras=cameras, images=images, depths=depths,
+                 shadows=shadows, truth_target=truth_target, sun_vector=sun,
+                 gsd_m=params.gsd_m, distance_m=params.altitude_m,
+                 dn_per_reflectance=dn_scale, render_time_s=time.perf_counter() - started,
+                 timings=timings)

@@ -40,7 +40,7 @@ log = get_logger(__name__)
 SIFT_DESCRIPTOR_SIZE = 128
 
 #: Above this many query × train descriptor pairs, "auto" matching uses FLANN k-d trees.
-_BRUTE_FORCE_LIMIT = 4.0e7
+_BRUTE_FORCE_LIMIT = 1.0e8
 
 
 # --------------------------------------------------------------------------------------
@@ -242,26 +242,53 @@ def detect_sift(image: np.ndarray, *, mask: np.ndarray | None = None, max_featur
 # --------------------------------------------------------------------------------------
 
 
-def _knn(query: np.ndarray, train: np.ndarray, k: int,
-         method: str) -> tuple[np.ndarray, np.ndarray]:
-    """Indices and distances of the k nearest train descriptors of each query, (Nq, k).
+def _brute_force(a: np.ndarray, b: np.ndarray,
+                 chunk_bytes: int = 64 << 20) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact nearest neighbours both ways from one distance matrix (BLAS, in row chunks).
 
-    Missing neighbours (train smaller than k) get index -1 and distance inf.
+    Returns, for each row of ``a``, the indices (Na, 2) and squared distances (Na, 2) of
+    its two nearest rows of ``b`` (index -1, distance inf when ``b`` has one row), and
+    for each row of ``b`` the index (Nb,) of its nearest row of ``a``.
+    """
+    norms_b = np.einsum("ij,ij->i", b, b)
+    indices = np.full((len(a), 2), -1, np.int64)
+    distances = np.full((len(a), 2), np.inf, np.float64)
+    best_a_for_b = np.zeros(len(b), np.int64)
+    best_b_distance = np.full(len(b), np.inf, np.float64)
+    rows = max(1, chunk_bytes // (4 * len(b)))
+    for start in range(0, len(a), rows):
+        block = a[start:start + rows]
+        d2 = np.einsum("ij,ij->i", block, block)[:, None] + norms_b[None, :] - 2.0 * (block @ b.T)
+        np.maximum(d2, 0.0, out=d2)
+        k = min(2, len(b))
+        nearest = np.argpartition(d2, k - 1, axis=1)[:, :k] if len(b) > k else \
+            np.tile(np.arange(k), (len(block), 1))
+        nearest_d = np.take_along_axis(d2, nearest, axis=1)
+        order = np.argsort(nearest_d, axis=1)
+        indices[start:start + len(block), :k] = np.take_along_axis(nearest, order, axis=1)
+        distances[start:start + len(block), :k] = np.take_along_axis(nearest_d, order, axis=1)
+        column_best = np.argmin(d2, axis=0)
+        column_d = d2[column_best, np.arange(len(b))]
+        better = column_d < best_b_distance
+        best_b_distance[better] = column_d[better]
+        best_a_for_b[better] = column_best[better] + start
+    return indices, distances, best_a_for_b
+
+
+def _flann(query: np.ndarray, train: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Approximate k nearest train rows of each query row (FLANN k-d trees), (Nq, k).
+
+    Missing neighbours get index -1 and distance inf.  Distances are squared.
     """
     import cv2
 
-    use_flann = method == "flann" or (method == "auto"
-                                      and len(query) * len(train) > _BRUTE_FORCE_LIMIT)
-    if use_flann:
-        matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})
-    else:
-        matcher = cv2.BFMatcher(cv2.NORM_L2)
+    matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})
     indices = np.full((len(query), k), -1, dtype=np.int64)
     distances = np.full((len(query), k), np.inf, dtype=np.float64)
     for neighbours in matcher.knnMatch(query, train, k=k):
         for rank, m in enumerate(neighbours[:k]):
             indices[m.queryIdx, rank] = m.trainIdx
-            distances[m.queryIdx, rank] = m.distance
+            distances[m.queryIdx, rank] = float(m.distance) ** 2
     return indices, distances
 
 
@@ -285,8 +312,9 @@ def match_descriptors(descriptors_a: np.ndarray, descriptors_b: np.ndarray, *,
     mutual : bool
         Require mutual nearest neighbours.
     method : {"auto", "brute", "flann"}
-        Exact brute force, or FLANN randomised k-d trees (approximate, for large
-        sets); "auto" picks FLANN above 4e7 descriptor pairs.
+        Exact brute force (one BLAS distance matrix, in chunks), or FLANN randomised
+        k-d trees (approximate, for large sets); "auto" picks FLANN above 1e8
+        descriptor pairs.
 
     Returns
     -------
@@ -306,15 +334,23 @@ def match_descriptors(descriptors_a: np.ndarray, descriptors_b: np.ndarray, *,
                              f"{a.shape} and {b.shape}")
     if len(a) == 0 or len(b) == 0:
         return np.zeros((0, 2), np.int64)
-    indices, distances = _knn(a, b, 2, method)
-    best, second = distances[:, 0], distances[:, 1]
+    use_flann = method == "flann" or (method == "auto"
+                                      and len(a) * len(b) > _BRUTE_FORCE_LIMIT)
+    if use_flann:
+        indices, distances = _flann(a, b, 2)
+    else:
+        indices, distances, best_a_for_b = _brute_force(a, b)
+    best, second = distances[:, 0], distances[:, 1]  # squared distances
     keep = indices[:, 0] >= 0
     if len(b) >= 2 and ratio < 1.0:
-        keep &= best < ratio * second
+        keep &= best < ratio**2 * second
     pairs = np.column_stack([np.nonzero(keep)[0], indices[keep, 0]])
     if mutual and len(pairs):
-        back, _ = _knn(b, a, 1, method)
-        pairs = pairs[back[pairs[:, 1], 0] == pairs[:, 0]]
+        if use_flann:
+            best_a_for_b = np.full(len(b), -1, np.int64)
+            back, _ = _flann(b, a, 1)
+            best_a_for_b[:] = back[:, 0]
+        pairs = pairs[best_a_for_b[pairs[:, 1]] == pairs[:, 0]]
     return pairs.astype(np.int64)
 
 

@@ -1,0 +1,216 @@
+"""Tests of uncalibrated rectification (demtool.rectify, demtool rectify)."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from features_helpers import make_stereo_scene
+
+from demtool import io as dio
+from demtool import rectify
+from demtool.cli import cli
+from demtool.errors import ProcessingError
+from demtool.homography import (
+    apply_homography,
+    disparity_to_correspondences,
+    rectified_to_original,
+    warp_to_rectified,
+)
+
+SIZE = 256
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_stereo_scene(size=SIZE)
+
+
+@pytest.fixture(scope="module")
+def result(scene):
+    return rectify.rectify_pair(scene.left, scene.right, what="L / R")
+
+
+def _truth_points(scene, count=600, seed=5):
+    """Surface points seen by both cameras and their pixel coordinates."""
+    points = scene.terrain.surface_points(count, np.random.default_rng(seed))
+    ul, ur = scene.left_camera.project(points), scene.right_camera.project(points)
+    inside = np.all((ul > 1) & (ul < SIZE - 2) & (ur > 1) & (ur < SIZE - 2), axis=1)
+    return points[inside], ul[inside], ur[inside]
+
+
+def test_rectified_truth_points_share_rows(scene, result):
+    assert result.rms_vertical_residual < 0.5
+    assert np.all(np.abs(result.vertical_residuals) <= 1.0)
+    assert len(result.points_left) > 200 and result.n_ransac_inliers <= result.n_matches
+    points, ul, ur = _truth_points(scene)
+    left_rect = apply_homography(result.H_left, ul)
+    right_rect = apply_homography(result.H_right, ur)
+    row_error = left_rect[:, 1] - right_rect[:, 1]
+    assert np.max(np.abs(row_error)) < 0.5
+    assert np.sqrt(np.mean(row_error**2)) < 0.2
+    # the disparity range brackets every true disparity, and disparity follows height
+    disparity = left_rect[:, 0] - right_rect[:, 0]
+    low, high = result.disparity_range
+    assert low < disparity.min() and disparity.max() < high
+    assert high - low < 3 * (disparity.max() - disparity.min()) + 40
+    assert np.corrcoef(disparity, points[:, 2])[0, 1] > 0.8  # left camera is west: d grows up
+    assert abs(np.mean(result.disparities)) < 1e-6  # translation centres the control points
+
+
+def test_rectification_keeps_orientation_and_resolution(result):
+    for H, size in ((result.H_left, result.size_left), (result.H_right, result.size_right)):
+        centre = (size - 1) / 2.0
+        ends = apply_homography(H, np.array([centre, centre + [10, 0], centre + [0, 10]]))
+        x_axis, y_axis = ends[1] - ends[0], ends[2] - ends[0]
+        assert x_axis[0] > 0 and y_axis[1] > 0  # no mirror, no half-turn
+        assert x_axis[0] * y_axis[1] - x_axis[1] * y_axis[0] > 0
+        assert 0.7 < np.linalg.norm(x_axis) / 10 < 1.4  # resolution roughly kept
+        assert abs(np.dot(x_axis, y_axis)) / 100 < 0.15  # shear keeps pixels nearly square
+        corners = apply_homography(H, np.array([[0, 0], [size[0] - 1, size[1] - 1]]))
+        assert np.all(corners >= -1e-6) and np.all(corners <= result.size_rect - 1 + 1e-6)
+    assert np.prod(result.size_rect) < 3 * SIZE * SIZE
+
+
+def test_loop_zhang_shear_undoes_a_shear():
+    H = np.array([[1.2, 0.35, 4.0], [0.0, 1.0, -2.0], [0.0, 0.0, 1.0]])
+    S = rectify.loop_zhang_shear(H, np.array([200, 100]))
+    mid = apply_homography(S @ H, np.array([[0, 49.5], [199, 49.5], [99.5, 0], [99.5, 99]]))
+    horizontal, vertical = mid[1] - mid[0], mid[3] - mid[2]
+    assert abs(np.dot(horizontal, vertical)) < 1e-6 * np.linalg.norm(horizontal) ** 2
+    np.testing.assert_allclose(np.linalg.norm(horizontal) / np.linalg.norm(vertical), 199 / 99)
+    assert S[1, 1] == 1 and S[1, 0] == 0  # rows untouched
+
+
+def test_identical_images_are_refused(scene):
+    with pytest.raises(ProcessingError, match=r"L / L.*(coincide|identical)"):
+        rectify.rectify_pair(scene.left, scene.left, what="L / L")
+
+
+def test_pure_rotation_is_refused(scene):
+    angle = np.deg2rad(8)
+    rotation = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0],
+                         [0, 0, 1]])
+    centre = np.array([[1, 0, SIZE / 2], [0, 1, SIZE / 2], [0, 0, 1]])
+    H = centre @ rotation @ np.linalg.inv(centre)
+    H[2, :2] = [2e-4, -1e-4]  # plus some perspective: still a homography
+    rotated = cv2.warpPerspective(scene.left, H, (SIZE, SIZE), flags=cv2.INTER_LINEAR,
+                                  borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    with pytest.raises(ProcessingError, match="no parallax"):
+        rectify.rectify_pair(scene.left, rotated, what="L / rotated")
+
+
+def test_noise_pair_has_too_few_matches():
+    rng = np.random.default_rng(0)
+    a = cv2.GaussianBlur(rng.normal(0, 1, (160, 160)).astype(np.float32), (0, 0), 1.5)
+    b = cv2.GaussianBlur(rng.normal(0, 1, (160, 160)).astype(np.float32), (0, 0), 1.5)
+    with pytest.raises(ProcessingError, match=r"noise / noise: only \d+ SIFT matches.*at least 30"):
+        rectify.rectify_pair(a, b, min_matches=30, what="noise / noise")
+
+
+def test_images_of_different_sizes(scene):
+    right = scene.right[10:230, 5:250]
+    result = rectify.rectify_pair(scene.left, right, what="L / cropped R")
+    assert result.size_right.tolist() == [245, 220]
+    assert result.rms_vertical_residual < 0.5
+    _, ul, ur = _truth_points(scene)
+    ur = ur - [5, 10]
+    inside = np.all((ur > 1) & (ur < [243, 218]), axis=1)
+    rows = (apply_homography(result.H_left, ul[inside])[:, 1]
+            - apply_homography(result.H_right, ur[inside])[:, 1])
+    assert np.max(np.abs(rows)) < 0.5
+
+
+def test_warp_and_inverse_mapping():
+    image = np.arange(40 * 50, dtype=np.float32).reshape(40, 50)
+    H = np.array([[1.0, 0.0, 3.0], [0.0, 1.0, -2.0], [0.0, 0.0, 1.0]])
+    warped = warp_to_rectified(image, H, (60, 40))
+    np.testing.assert_allclose(warped[0:38, 3:53], image[2:40, 0:50])
+    assert np.isnan(warped[:, :3]).all() and np.isnan(warped[38:, :]).all()
+    half = warp_to_rectified(image, np.array([[1, 0, 0.5], [0, 1, 0], [0, 0, 1.0]]), (50, 40))
+    np.testing.assert_allclose(half[5, 1:50], 0.5 * (image[5, :49] + image[5, 1:]))
+    holes = image.copy()
+    holes[10, 10] = np.nan
+    assert np.isnan(warp_to_rectified(holes, H, (60, 40))[8, 13])
+    # disparity → original correspondences
+    H_left = np.array([[1.0, 0.1, 5.0], [0.0, 1.0, 2.0], [1e-4, 0.0, 1.0]])
+    H_right = np.array([[0.9, 0.0, -3.0], [0.05, 1.0, 2.0], [0.0, 2e-4, 1.0]])
+    disparity = np.full((30, 40), np.nan, np.float32)
+    disparity[5:20, 10:30] = 4.25
+    left, right, pixels = disparity_to_correspondences(disparity, H_left, H_right)
+    assert len(left) == 15 * 20
+    back_left = apply_homography(H_left, left)
+    back_right = apply_homography(H_right, right)
+    np.testing.assert_allclose(back_left, pixels[:, ::-1], atol=1e-9)
+    np.testing.assert_allclose(back_left[:, 0] - back_right[:, 0], 4.25, atol=1e-9)
+    np.testing.assert_allclose(back_left[:, 1], back_right[:, 1], atol=1e-9)
+    np.testing.assert_allclose(rectified_to_original(back_left, H_left), left, atol=1e-9)
+
+
+# ------------------------------------------------------------------------------- CLI
+
+
+@pytest.fixture(scope="module")
+def pair_files(scene, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("pair")
+    dio.write_raster(folder / "view_00.tif", scene.left)
+    dio.write_raster(folder / "view_01.tif", scene.right)
+    return folder / "view_00.tif", folder / "view_01.tif"
+
+
+def test_cli_writes_rectified_pair(pair_files, tmp_path, scene):
+    left, right = pair_files
+    out = tmp_path / "stereo"
+    run = CliRunner().invoke(cli, ["rectify", str(left), str(right), "--out", str(out),
+                                   "--min-matches", "50"])
+    assert run.exit_code == 0, run.output
+    assert "RMS vertical residual" in run.output
+    data = dio.read_npz(out / "rectify.npz", "rectification")
+    assert str(data["left_name"]) == "view_00" and str(data["right_name"]) == "view_01"
+    assert float(data["rms_vertical_residual"]) < 0.5
+    width, height = data["size_rect"]
+    left_rect = dio.read_raster(out / "left_rect.tif")
+    right_rect = dio.read_raster(out / "right_rect.tif")
+    assert left_rect.data.shape == right_rect.data.shape == (height, width)
+    assert left_rect.tags["frame"] == "image:view_00_rect"
+    assert right_rect.tags["frame"] == "image:view_01_rect"
+    assert np.isnan(left_rect.data).any() and np.isfinite(left_rect.data).mean() > 0.5
+    # the rectified image is the original resampled through H_left
+    row, col = np.argwhere(np.isfinite(left_rect.data))[len(left_rect.data) * 3]
+    x, y = rectified_to_original(np.array([[col, row]], float), data["H_left"])[0]
+    expected = cv2.getRectSubPix(scene.left, (1, 1), (float(x), float(y)))[0, 0]
+    assert left_rect.data[row, col] == pytest.approx(expected, rel=2e-3)
+    sidecar = json.loads((out / "rectify.npz.json").read_text())
+    assert sidecar["stage"] == "rectify"
+    assert sidecar["summary"]["inliers"] == len(data["points_left"])
+    assert sidecar["summary"]["rms_vertical_residual_px"] < 0.5
+    assert sidecar["parameters"]["min_matches"] == 50
+
+
+def test_cli_bad_inputs_leave_no_output(pair_files, tmp_path, scene):
+    left, right = pair_files
+    out = tmp_path / "out"
+    runner = CliRunner()
+    missing = runner.invoke(cli, ["rectify", str(left), str(tmp_path / "nope.tif"),
+                                  "--out", str(out)])
+    assert missing.exit_code == 1
+    assert "nope.tif" in missing.output and "not found" in missing.output
+    empty = tmp_path / "empty.tif"
+    dio.write_raster(empty, np.full((64, 64), np.nan, np.float32))
+    nan_only = runner.invoke(cli, ["rectify", str(left), str(empty), "--out", str(out)])
+    assert nan_only.exit_code == 1 and "empty.tif" in nan_only.output
+    assert "no valid" in nan_only.output
+    same = runner.invoke(cli, ["rectify", str(left), str(left), "--out", str(out)])
+    assert same.exit_code == 1 and "view_00.tif" in same.output
+    errors = [line for line in same.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and "identical" in errors[0]
+    strict = runner.invoke(cli, ["rectify", str(left), str(right), "--out", str(out),
+                                 "--min-matches", "100000"])
+    assert strict.exit_code == 1 and "at least 100000" in strict.output
+    bad_option = runner.invoke(cli, ["rectify", str(left), str(right), "--out", str(out),
+                                     "--ratio", "1.5"])
+    assert bad_option.exit_code == 2
+    assert not out.exists() or not any(out.iterdir())

@@ -191,9 +191,8 @@ def _render_geometry(pixel_to_ray, center, depth_axis, height, width, dem, grad_
             cos_phase = -(sun[0] * dx + sun[1] * dy + sun[2] * dz)
             phase[r, c] = math.degrees(math.acos(max(-1.0, min(1.0, cos_phase))))
             rho[r, c] = _bilinear(albedo, fc, fr)
-            if cos_i > 0.0:
-                shadow[r, c] = _in_shadow(x, y, z, sun[0], sun[1], sun[2], dem, x_first,
-                                          y_first, spacing, z_max)
+            shadow[r, c] = cos_i <= 0.0 or _in_shadow(x, y, z, sun[0], sun[1], sun[2], dem,
+                                                      x_first, y_first, spacing, z_max)
     return depth, hit, mu0, mu, phase, rho, shadow
 
 
@@ -263,7 +262,8 @@ class ViewGeometry(NamedTuple):
     albedo : float64
         Normal albedo at the hit.
     shadow : bool
-        True where the hit faces the sun but the terrain blocks it (cast shadow).
+        True where the hit gets no direct sunlight: it faces away from the sun
+        (attached shadow, μ0 ≤ 0) or the terrain blocks the sun (cast shadow).
     """
 
     depth: np.ndarray
@@ -302,7 +302,7 @@ def view_geometry(field: HeightField, albedo: np.ndarray, camera: PinholeCamera,
 
 
 def reflectance(geometry: ViewGeometry) -> np.ndarray:
-    """Lunar-Lambert reflectance (McEwen 1991, eq. 4) of a view; 0 in cast shadow.
+    """Lunar-Lambert reflectance (McEwen 1991, eq. 4) of a view; 0 in shadow.
 
     Returns
     -------

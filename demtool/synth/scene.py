@@ -54,7 +54,7 @@ class Scene:
     depths : dict of str to (h, w) float64
         Camera z of each pixel's hit (metres), NaN where the ray missed.
     shadows : dict of str to (h, w) bool
-        Cast-shadow mask of each view.
+        Shadow mask of each view: no direct sunlight (attached or cast shadow).
     truth_target : (h, w) float32
         World Z of the target pixels' hits, metres above the mean surface.
     sun_vector : (3,) float64
@@ -267,7 +267,7 @@ def make_scene(params: SceneParams | None = None, *, dem: np.ndarray | None = No
         if index == 0:
             truth_target = geometry.hit[:, :, 2].astype(np.float32)
         timings[name] = time.perf_counter() - step_start
-        log.debug("%s rendered in %.2f s (%.1f %% in cast shadow)", name, timings[name],
+        log.debug("%s rendered in %.2f s (%.1f %% in shadow)", name, timings[name],
                   100.0 * geometry.shadow.mean())
     names = tuple(cameras)
     return Scene(params=params, dem=dem, dem_transform=transform,

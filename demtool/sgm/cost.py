@@ -1,0 +1,420 @@
+"""Matching costs of semi-global matching: census, mutual information, absolute difference.
+
+A cost volume ``C[y, x, k]`` (uint16) holds the cost of matching the left pixel
+(x, y) with the right pixel (x − d, y), d = ``min_disparity + k`` (demtool's
+disparity convention, ``x_right = x_left − d``).  Every cost is first computed per
+pixel and then summed over a small ``window`` (a box filter, as OpenCV's StereoSGBM
+does with ``blockSize``), which makes it robust on weakly textured, noisy planetary
+images where a pixelwise cost is not.
+
+Invalid correspondences never match: where the right pixel is NaN in the input or
+falls outside the image the pixelwise cost is the cost's maximum; where the left
+pixel is NaN the cost is 0 for every disparity (neutral: the path costs carry the
+smoothness term across it, and the output is NaN there anyway).
+
+References
+----------
+Zabih, R. & Woodfill, J. (1994), Non-parametric local transforms for computing
+visual correspondence, ECCV, 151–158 (census transform).
+Kim, J., Kolmogorov, V. & Zabih, R. (2003), Visual correspondence using energy
+minimization and mutual information, ICCV, 1033–1040 (Taylor expansion of MI).
+Hirschmüller, H. (2008), Stereo processing by semiglobal matching and mutual
+information, IEEE TPAMI 30(2), 328–341, §3.1.2 (eqs. 5–12, MI matching cost).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from numba.core import types
+from numba.extending import intrinsic
+
+# Scale of the MI pixel cost: integer units per nat of pointwise mutual information,
+# and the cap (in nats) of the cost of pairs never seen together.
+MI_UNITS_PER_NAT = 8.0
+MI_MAX_NATS = 8.0
+
+
+@intrinsic
+def _popcount64(typingctx, value):
+    """Number of set bits of a uint64 (LLVM ``ctpop``; one instruction on x86-64)."""
+    if not isinstance(value, types.Integer):
+        return None
+    signature = types.uint64(types.uint64)
+
+    def codegen(context, builder, sig, args):
+        return builder.ctpop(args[0])
+
+    return signature, codegen
+
+
+# --------------------------------------------------------------------------------------
+# Image preparation
+# --------------------------------------------------------------------------------------
+
+
+def fill_invalid(image: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Replace invalid pixels by the nearest valid one (so windows near NaN stay finite).
+
+    Parameters
+    ----------
+    image : (H, W) float array
+    valid : (H, W) bool, True where ``image`` is usable
+
+    Returns
+    -------
+    (H, W) float32, a copy.
+    """
+    from scipy import ndimage
+
+    out = np.asarray(image, dtype=np.float32).copy()
+    if valid.all():
+        return out
+    _, (rows, cols) = ndimage.distance_transform_edt(~valid, return_indices=True)
+    return out[rows, cols]
+
+
+def robust_range(images: list[np.ndarray], masks: list[np.ndarray],
+                 percentiles: tuple[float, float] = (0.5, 99.5)) -> tuple[float, float]:
+    """Low and high percentiles of the valid pixels of one or more images (a robust stretch)."""
+    values = np.concatenate([np.asarray(i)[m] for i, m in zip(images, masks, strict=True)])
+    low, high = np.percentile(values, percentiles)
+    if not high > low:
+        high = low + 1.0
+    return float(low), float(high)
+
+
+def quantize(image: np.ndarray, valid: np.ndarray, levels: int,
+             value_range: tuple[float, float] | None = None) -> np.ndarray:
+    """Quantise an image to integer grey levels ``0 .. levels − 1`` by a robust linear stretch.
+
+    Parameters
+    ----------
+    image : (H, W) float array, any scale (e.g. 12-bit DN), NaN allowed
+    valid : (H, W) bool, True where ``image`` is usable
+    levels : int, at most 256
+    value_range : (low, high), optional
+        Values mapped to 0 and ``levels − 1``; default: the 0.5 and 99.5 percentiles
+        of the valid pixels (values beyond are clipped).
+
+    Returns
+    -------
+    (H, W) uint8; invalid pixels get the level of their nearest valid neighbour.
+    """
+    low, high = value_range if value_range is not None else robust_range([image], [valid])
+    filled = fill_invalid(image, valid)
+    scaled = (filled - low) * ((levels - 1) / (high - low))
+    return np.clip(np.rint(scaled), 0, levels - 1).astype(np.uint8)
+
+
+@njit(nogil=True, cache=True)
+def _census(image, radius_y, radius_x, out):
+    height, width = image.shape
+    for y in range(height):
+        for x in range(width):
+            centre = image[y, x]
+            bits = np.uint64(0)
+            for dy in range(-radius_y, radius_y + 1):
+                yy = min(max(y + dy, 0), height - 1)
+                for dx in range(-radius_x, radius_x + 1):
+                    if dy == 0 and dx == 0:
+                        continue
+                    xx = min(max(x + dx, 0), width - 1)
+                    bits = bits << np.uint64(1)
+                    if image[yy, xx] < centre:
+                        bits = bits | np.uint64(1)
+            out[y, x] = bits
+
+
+def census_transform(image: np.ndarray, window: tuple[int, int]) -> np.ndarray:
+    """Census transform: one bit per neighbour, set where it is darker than the centre.
+
+    Zabih & Woodfill (1994).  Borders replicate the edge pixels.
+
+    Parameters
+    ----------
+    image : (H, W) float array without NaN (see :func:`fill_invalid`)
+    window : (rows, columns), odd sizes with rows × columns − 1 ≤ 64 (5×5, 9×7, ...)
+
+    Returns
+    -------
+    (H, W) uint64 bit strings.
+    """
+    rows, cols = window
+    if rows % 2 == 0 or cols % 2 == 0 or rows * cols - 1 > 64:
+        raise ValueError(f"census window {rows}x{cols}: sizes must be odd with at most 64 bits")
+    out = np.empty(image.shape, dtype=np.uint64)
+    _census(np.ascontiguousarray(image, dtype=np.float32), rows // 2, cols // 2, out)
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# Mutual information (Hirschmüller 2008, §3.1.2)
+# --------------------------------------------------------------------------------------
+
+
+@njit(nogil=True, cache=True)
+def _joint_histogram(left_levels, right_levels, left_valid, right_valid, disparity, levels):
+    height, width = left_levels.shape
+    histogram = np.zeros((levels, levels), dtype=np.float64)
+    for y in range(height):
+        for x in range(width):
+            d = disparity[y, x]
+            if not left_valid[y, x] or not np.isfinite(d):
+                continue
+            xr = x - int(np.rint(d))
+            if xr < 0 or xr >= width or not right_valid[y, xr]:
+                continue
+            histogram[left_levels[y, x], right_levels[y, xr]] += 1.0
+    return histogram
+
+
+def mutual_information_table(left_levels: np.ndarray, right_levels: np.ndarray,
+                             left_valid: np.ndarray, right_valid: np.ndarray,
+                             disparity: np.ndarray, *, levels: int,
+                             sigma: float = 1.0) -> tuple[np.ndarray, int]:
+    """Pointwise mutual information of every grey-level pair, under a disparity estimate.
+
+    The joint histogram of corresponding pixels (left pixel p, right pixel p − d(p))
+    gives P_{I1,I2}; marginals are taken from it, so occluded pixels do not enter
+    (Hirschmüller 2008, §3.1.2).  Entropies are expanded per pixel pair
+    (Kim et al. 2003) with Parzen (Gaussian) smoothing before and after the log:
+
+        h_{I1,I2}(i, k) = −log(P_{I1,I2} ⊗ g)(i, k) ⊗ g                   (eq. 12)
+        h_{I}(i)        = −log(P_{I} ⊗ g)(i) ⊗ g                           (eq. 13)
+        mi(i, k)        = h_{I1}(i) + h_{I2}(k) − h_{I1,I2}(i, k)          (eq. 14)
+
+    The 1/n factor of eq. 12 is left out: it scales every cost alike, which the
+    integer scaling of :func:`mi_cost_table` absorbs.
+
+    Parameters
+    ----------
+    left_levels, right_levels : (H, W) uint8, grey levels 0 .. levels − 1
+    left_valid, right_valid : (H, W) bool
+    disparity : (H, W) float, pixels, NaN = unknown (excluded from the histogram)
+    levels : int
+    sigma : float
+        Standard deviation of the Parzen window, in grey levels.
+
+    Returns
+    -------
+    mi : (levels, levels) float64, nats (higher = more likely a correct match)
+    count : int, number of pixel pairs in the histogram
+    """
+    from scipy import ndimage
+
+    histogram = _joint_histogram(left_levels, right_levels, left_valid, right_valid,
+                                 np.asarray(disparity, dtype=np.float32), levels)
+    count = int(histogram.sum())
+    if count == 0:
+        return np.zeros((levels, levels)), 0
+    joint = histogram / count
+    tiny = 1e-12
+    h_joint = ndimage.gaussian_filter(
+        -np.log(np.maximum(ndimage.gaussian_filter(joint, sigma, mode="constant"), tiny)),
+        sigma, mode="nearest")
+    h_left = ndimage.gaussian_filter1d(
+        -np.log(np.maximum(ndimage.gaussian_filter1d(joint.sum(1), sigma, mode="constant"),
+                           tiny)), sigma, mode="nearest")
+    h_right = ndimage.gaussian_filter1d(
+        -np.log(np.maximum(ndimage.gaussian_filter1d(joint.sum(0), sigma, mode="constant"),
+                           tiny)), sigma, mode="nearest")
+    return h_left[:, None] + h_right[None, :] - h_joint, count
+
+
+def mi_cost_table(mi: np.ndarray) -> np.ndarray:
+    """Integer pixel cost of every grey-level pair from pointwise MI (cost = −mi, shifted).
+
+    ``cost = round(MI_UNITS_PER_NAT · min(max(mi) − mi, MI_MAX_NATS))``: the best
+    pair costs 0 and pairs never seen together cost ``MI_UNITS_PER_NAT · MI_MAX_NATS``.
+
+    Returns
+    -------
+    (levels, levels) uint16
+    """
+    cost = np.minimum(mi.max() - mi, MI_MAX_NATS) * MI_UNITS_PER_NAT
+    return np.rint(cost).astype(np.uint16)
+
+
+def absolute_difference_table(levels: int, truncation: int) -> np.ndarray:
+    """Pixel cost ``min(|i − k|, truncation)`` of every grey-level pair, (levels, levels) uint16."""
+    grey = np.arange(levels)
+    return np.minimum(np.abs(grey[:, None] - grey[None, :]), truncation).astype(np.uint16)
+
+
+# --------------------------------------------------------------------------------------
+# Cost volume
+# --------------------------------------------------------------------------------------
+
+
+@njit(nogil=True, cache=True)
+def _pixel_cost_row(kind, y, left_codes, right_codes, left_levels, right_levels, table,
+                    left_valid, right_valid, min_disparity, invalid_cost, out):
+    """Pixelwise costs of image row ``y`` into ``out`` (W, D)."""
+    width = left_valid.shape[1]
+    n_disp = out.shape[1]
+    for x in range(width):
+        row = out[x]
+        if not left_valid[y, x]:
+            for k in range(n_disp):
+                row[k] = 0
+            continue
+        for k in range(n_disp):
+            xr = x - (min_disparity + k)
+            if xr < 0 or xr >= width or not right_valid[y, xr]:
+                row[k] = invalid_cost
+            elif kind == 0:
+                row[k] = np.uint16(_popcount64(left_codes[y, x] ^ right_codes[y, xr]))
+            else:
+                row[k] = table[left_levels[y, x], right_levels[y, xr]]
+
+
+@njit(nogil=True, cache=True)
+def _box_rows(row, radius_x, out):
+    """Horizontal box sum of a (W, D) row of costs along x (edges replicated) into ``out``."""
+    width, n_disp = row.shape
+    acc = np.zeros(n_disp, dtype=np.int32)
+    for j in range(-radius_x, radius_x + 1):
+        src = row[min(max(j, 0), width - 1)]
+        for k in range(n_disp):
+            acc[k] += src[k]
+    for x in range(width):
+        dst = out[x]
+        for k in range(n_disp):
+            dst[k] = acc[k]
+        add = row[min(x + radius_x + 1, width - 1)]
+        sub = row[max(x - radius_x, 0)]
+        for k in range(n_disp):
+            acc[k] += np.int32(add[k]) - np.int32(sub[k])
+
+
+@njit(nogil=True, cache=True)
+def _cost_volume(kind, left_codes, right_codes, left_levels, right_levels, table,
+                 left_valid, right_valid, min_disparity, invalid_cost, radius_y, radius_x,
+                 row_start, out):
+    """Windowed costs of image rows ``row_start .. row_start + out.shape[0]`` into ``out``.
+
+    A ring of horizontally box-summed rows and a running vertical sum make the window
+    cost O(1) per cell whatever the window size.  Rows beyond the image replicate
+    the edge rows.
+    """
+    height = left_valid.shape[0]
+    n_rows, width, n_disp = out.shape
+    ring_size = 2 * radius_y + 1
+    ring = np.zeros((ring_size, width, n_disp), dtype=np.uint16)
+    pixel = np.empty((width, n_disp), dtype=np.uint16)
+    running = np.zeros((width, n_disp), dtype=np.int32)
+    # fill the ring with the rows of the first output row's window
+    for j in range(ring_size):
+        yy = min(max(row_start - radius_y + j, 0), height - 1)
+        _pixel_cost_row(kind, yy, left_codes, right_codes, left_levels, right_levels, table,
+                        left_valid, right_valid, min_disparity, invalid_cost, pixel)
+        _box_rows(pixel, radius_x, ring[j])
+        slot = ring[j]
+        for x in range(width):
+            for k in range(n_disp):
+                running[x, k] += slot[x, k]
+    oldest = 0
+    for i in range(n_rows):
+        dst = out[i]
+        for x in range(width):
+            for k in range(n_disp):
+                dst[x, k] = running[x, k]
+        if i + 1 == n_rows:
+            break
+        yy = min(max(row_start + i + radius_y + 1, 0), height - 1)
+        _pixel_cost_row(kind, yy, left_codes, right_codes, left_levels, right_levels, table,
+                        left_valid, right_valid, min_disparity, invalid_cost, pixel)
+        slot = ring[oldest]
+        for x in range(width):
+            for k in range(n_disp):
+                running[x, k] -= slot[x, k]
+        _box_rows(pixel, radius_x, slot)
+        for x in range(width):
+            for k in range(n_disp):
+                running[x, k] += slot[x, k]
+        oldest = (oldest + 1) % ring_size
+
+
+@dataclass(frozen=True)
+class PixelCost:
+    """What the pixelwise cost compares: census codes, or grey levels and a cost table.
+
+    Attributes
+    ----------
+    name : str
+        "census", "mi" or "ad" (for messages and reports).
+    left, right : (H, W) uint64 census codes, or (H, W) uint8 grey levels
+    table : (L, L) uint16
+        Cost of each (left level, right level) pair; unused (1×1) for census.
+    max_cost : int
+        The largest pixel cost (the cost of an invalid correspondence).
+    """
+
+    name: str
+    left: np.ndarray
+    right: np.ndarray
+    table: np.ndarray
+    max_cost: int
+
+    @property
+    def is_census(self) -> bool:
+        return self.name == "census"
+
+
+def census_pixel_cost(left: np.ndarray, right: np.ndarray, window: tuple[int, int]
+                      ) -> PixelCost:
+    """Census pixel cost (Hamming distance of the census codes) of a NaN-filled pair."""
+    bits = window[0] * window[1] - 1
+    return PixelCost("census", census_transform(left, window), census_transform(right, window),
+                     np.zeros((1, 1), dtype=np.uint16), bits)
+
+
+def table_pixel_cost(name: str, left_levels: np.ndarray, right_levels: np.ndarray,
+                     table: np.ndarray) -> PixelCost:
+    """Table pixel cost (MI or absolute difference) of a pair of grey-level images."""
+    table = np.ascontiguousarray(table, dtype=np.uint16)
+    return PixelCost(name, left_levels, right_levels, table, int(table.max()))
+
+
+def windowed_cost_volume(pixel_cost: PixelCost, left_valid: np.ndarray,
+                         right_valid: np.ndarray, *, min_disparity: int,
+                         num_disparities: int, window: int, rows: tuple[int, int],
+                         out: np.ndarray | None = None) -> np.ndarray:
+    """Cost volume of image rows ``rows[0] .. rows[1]``, summed over a square window.
+
+    Parameters
+    ----------
+    pixel_cost : PixelCost
+        The pixelwise cost (census, MI or absolute difference).
+    left_valid, right_valid : (H, W) bool, True where the input pixel is finite
+    min_disparity, num_disparities : int
+        The volume covers d = min_disparity .. min_disparity + num_disparities − 1.
+    window : int, odd
+        Side of the square window the pixel costs are summed over (1 = pixelwise).
+    rows : (start, stop)
+        The image rows to compute (a strip); windows reach beyond it into the image.
+    out : (stop − start, W, D) uint16, optional
+        Where to write (a preallocated strip volume).
+
+    Returns
+    -------
+    (stop − start, W, num_disparities) uint16, the cost C[y − start, x, k]; at most
+    ``window² · pixel_cost.max_cost``.
+    """
+    start, stop = rows
+    width = left_valid.shape[1]
+    if out is None:
+        out = np.empty((stop - start, width, num_disparities), dtype=np.uint16)
+    if pixel_cost.is_census:
+        codes_left, codes_right = pixel_cost.left, pixel_cost.right
+        levels_left = levels_right = np.zeros((1, 1), dtype=np.uint8)
+    else:
+        codes_left = codes_right = np.zeros((1, 1), dtype=np.uint64)
+        levels_left, levels_right = pixel_cost.left, pixel_cost.right
+    _cost_volume(0 if pixel_cost.is_census else 1, codes_left, codes_right, levels_left,
+                 levels_right, pixel_cost.table, left_valid, right_valid, int(min_disparity),
+                 np.uint16(pixel_cost.max_cost), window // 2, window // 2, int(start), out)
+    return out

@@ -1,0 +1,241 @@
+"""Disparity selection and post-processing of semi-global matching.
+
+Winner-takes-all on the aggregated cost S, sub-pixel interpolation, the right
+image's disparity from the same S (diagonal search, Hirschmüller 2008 §3.1.4), the
+left–right consistency check, speckle removal and a NaN-aware median filter.
+
+Disparity convention: ``x_right = x_left − d`` in the left image's pixel frame,
+float32 pixels, NaN = invalid.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+SUBPIXEL_MODES = {"none": 0, "parabola": 1, "equiangular": 2}
+
+
+@njit(nogil=True, cache=True)
+def _subpixel_offset(mode, minus, centre, plus):
+    """Offset in (−0.5, 0.5] of the minimum of a curve sampled at −1, 0, +1."""
+    if mode == 1:  # parabola through the three samples
+        denominator = minus + plus - 2.0 * centre
+        if denominator <= 0.0:
+            return 0.0
+        return 0.5 * (minus - plus) / denominator
+    if mode == 2:  # equiangular (symmetric V) fit, Shimizu & Okutomi (2001)
+        denominator = 2.0 * (max(minus, plus) - centre)
+        if denominator <= 0.0:
+            return 0.0
+        return (minus - plus) / denominator
+    return 0.0
+
+
+@njit(nogil=True, cache=True)
+def _select_rows(total, min_disparity, mode, lr_threshold, left_valid, right_valid, row_start,
+                 disparity, confidence):
+    """WTA, sub-pixel, LR check for the rows of one strip (see :func:`select_disparities`)."""
+    n_rows, width, n_disp = total.shape
+    right_best = np.empty(width, dtype=np.int64)
+    for i in range(n_rows):
+        y = row_start + i
+        srow = total[i]
+        if lr_threshold >= 0:
+            # right image: d_R(x_r) = argmin_d S(x_r + d, d), the diagonal of the same S
+            for xr in range(width):
+                best = -1
+                best_value = 1 << 30
+                for k in range(n_disp):
+                    x = xr + min_disparity + k
+                    if x >= 0 and x < width:
+                        value = np.int64(srow[x, k])
+                        if value < best_value:
+                            best_value = value
+                            best = k
+                right_best[xr] = best
+        for x in range(width):
+            s = srow[x]
+            low = s[0]
+            for k in range(1, n_disp):
+                low = min(low, s[k])
+            best = 0
+            while s[best] != low:
+                best += 1
+            second = np.uint16(65535)
+            for k in range(0, best - 1):
+                second = min(second, s[k])
+            for k in range(best + 2, n_disp):
+                second = min(second, s[k])
+            d_int = min_disparity + best
+            xr = x - d_int
+            valid = left_valid[y, x] and xr >= 0 and xr < width and right_valid[y, xr]
+            if valid and lr_threshold >= 0:
+                other = right_best[xr]
+                valid = other >= 0 and abs(other - best) <= lr_threshold
+            if not valid:
+                disparity[i, x] = np.nan
+                confidence[i, x] = np.nan
+                continue
+            offset = 0.0
+            if best > 0 and best < n_disp - 1:
+                offset = _subpixel_offset(mode, np.float64(s[best - 1]), np.float64(low),
+                                          np.float64(s[best + 1]))
+            disparity[i, x] = d_int + offset
+            if second == 65535 or second == 0:
+                confidence[i, x] = 1.0 if second == 65535 else 0.0
+            else:
+                confidence[i, x] = (np.float64(second) - np.float64(low)) / np.float64(second)
+
+
+def select_disparities(total: np.ndarray, *, min_disparity: int, left_valid: np.ndarray,
+                       right_valid: np.ndarray, row_start: int = 0,
+                       subpixel: str = "equiangular", lr_threshold: float | None = 1.0
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Disparity and confidence from the aggregated cost of a strip of rows.
+
+    Winner-takes-all d = argmin_d S(p, d); sub-pixel by a parabola or an equiangular
+    (V-shaped) fit through S at d − 1, d, d + 1 (Shimizu & Okutomi 2001); the right
+    image's disparity is d_R(x_r) = argmin_d S(x_r + d, d) from the same S, and the
+    left pixel is kept only where |d_L − d_R(x − d_L)| ≤ ``lr_threshold``
+    (Hirschmüller 2008, §3.1.4).
+
+    Parameters
+    ----------
+    total : (h, W, D) uint16
+        Aggregated cost of image rows ``row_start .. row_start + h``.
+    min_disparity : int
+        Disparity of index 0.
+    left_valid, right_valid : (H, W) bool
+        Valid input pixels of the whole images.
+    row_start : int
+        Image row of ``total[0]``.
+    subpixel : {"equiangular", "parabola", "none"}
+    lr_threshold : float or None
+        Largest left–right difference in pixels; None skips the check.
+
+    Returns
+    -------
+    disparity : (h, W) float32, pixels, NaN = invalid (NaN input, match outside the
+        right image or on a NaN pixel, failed LR check)
+    confidence : (h, W) float32 in [0, 1], (S₂ − S₁)/S₂ with S₁ the best aggregated
+        cost and S₂ the best one at least two disparities away; NaN where invalid.
+    """
+    if subpixel not in SUBPIXEL_MODES:
+        raise ValueError(f"unknown subpixel mode {subpixel!r}: should be one of "
+                         + ", ".join(SUBPIXEL_MODES))
+    n_rows, width, _ = total.shape
+    disparity = np.empty((n_rows, width), dtype=np.float32)
+    confidence = np.empty((n_rows, width), dtype=np.float32)
+    threshold = -1 if lr_threshold is None else int(np.floor(lr_threshold))
+    _select_rows(total, int(min_disparity), SUBPIXEL_MODES[subpixel], threshold, left_valid,
+                 right_valid, int(row_start), disparity, confidence)
+    return disparity, confidence
+
+
+@njit(nogil=True, cache=True)
+def _speckles(disparity, max_size, max_difference, out):
+    height, width = disparity.shape
+    label = np.zeros((height, width), dtype=np.int32)
+    stack = np.empty(height * width, dtype=np.int64)
+    members = np.empty(height * width, dtype=np.int64)
+    current = 0
+    for start in range(height * width):
+        y0, x0 = divmod(start, width)
+        if label[y0, x0] != 0 or not np.isfinite(disparity[y0, x0]):
+            continue
+        current += 1
+        label[y0, x0] = current
+        top = 0
+        stack[0] = start
+        count = 0
+        while top >= 0:
+            index = stack[top]
+            top -= 1
+            members[count] = index
+            count += 1
+            y, x = divmod(index, width)
+            value = disparity[y, x]
+            for n in range(4):
+                yy = y + (1 if n == 0 else -1 if n == 1 else 0)
+                xx = x + (1 if n == 2 else -1 if n == 3 else 0)
+                if yy < 0 or yy >= height or xx < 0 or xx >= width or label[yy, xx] != 0:
+                    continue
+                other = disparity[yy, xx]
+                if np.isfinite(other) and abs(other - value) <= max_difference:
+                    label[yy, xx] = current
+                    top += 1
+                    stack[top] = yy * width + xx
+        if count < max_size:
+            for j in range(count):
+                y, x = divmod(members[j], width)
+                out[y, x] = np.nan
+
+
+def remove_speckles(disparity: np.ndarray, *, max_size: int, max_difference: float
+                    ) -> np.ndarray:
+    """Invalidate small isolated regions of the disparity map (like ``cv2.filterSpeckles``).
+
+    Regions are 4-connected sets of valid pixels whose neighbours differ by at most
+    ``max_difference`` pixels; those with fewer than ``max_size`` pixels become NaN.
+
+    Parameters
+    ----------
+    disparity : (H, W) float32, pixels, NaN = invalid
+    max_size : int, pixels (0 = no filtering)
+    max_difference : float, pixels
+
+    Returns
+    -------
+    (H, W) float32, a filtered copy.
+    """
+    out = np.array(disparity, dtype=np.float32, copy=True)
+    if max_size > 0:
+        _speckles(np.ascontiguousarray(disparity, dtype=np.float32), int(max_size),
+                  float(max_difference), out)
+    return out
+
+
+@njit(nogil=True, cache=True)
+def _median(disparity, radius, out):
+    height, width = disparity.shape
+    window = np.empty((2 * radius + 1) ** 2, dtype=np.float32)
+    for y in range(height):
+        for x in range(width):
+            if not np.isfinite(disparity[y, x]):
+                out[y, x] = np.nan
+                continue
+            count = 0
+            for yy in range(max(y - radius, 0), min(y + radius + 1, height)):
+                for xx in range(max(x - radius, 0), min(x + radius + 1, width)):
+                    value = disparity[yy, xx]
+                    if np.isfinite(value):
+                        window[count] = value
+                        count += 1
+            values = np.sort(window[:count])
+            if count % 2 == 1:
+                out[y, x] = values[count // 2]
+            else:
+                out[y, x] = 0.5 * (values[count // 2 - 1] + values[count // 2])
+
+
+def median_filter(disparity: np.ndarray, size: int) -> np.ndarray:
+    """NaN-aware median filter: each valid pixel becomes the median of the valid ones
+    in its ``size × size`` window; invalid pixels stay NaN.
+
+    Parameters
+    ----------
+    disparity : (H, W) float32, NaN = invalid
+    size : int, odd (1 = no filtering)
+
+    Returns
+    -------
+    (H, W) float32, a filtered copy.
+    """
+    if size <= 1:
+        return np.array(disparity, dtype=np.float32, copy=True)
+    if size % 2 == 0:
+        raise ValueError(f"median size must be odd, got {size}")
+    out = np.empty(disparity.shape, dtype=np.float32)
+    _median(np.ascontiguousarray(disparity, dtype=np.float32), size // 2, out)
+    return out

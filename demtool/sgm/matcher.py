@@ -1,0 +1,447 @@
+"""Semi-global matching of a rectified pair: costs, strips, MI iterations and HMI pyramid.
+
+:func:`sgm` is the stage's core (arrays in, arrays out).  The image is processed in
+horizontal strips with an overlap, so that at most two uint16 volumes (cost C and
+aggregated cost S) of ``workers`` strips exist at once whatever the image size;
+strips run in parallel threads (the numba kernels release the GIL).
+
+References
+----------
+Hirschmüller, H. (2008), Stereo processing by semiglobal matching and mutual
+information, IEEE TPAMI 30(2), 328–341.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from demtool.errors import InputError, ParameterError
+from demtool.logs import get_logger
+from demtool.sgm import cost as costs
+from demtool.sgm.aggregate import aggregate_costs
+from demtool.sgm.disparity import median_filter, remove_speckles, select_disparities
+
+log = get_logger(__name__)
+
+COSTS = ("hmi", "mi", "census", "ad")
+CENSUS_WINDOWS = {"5x5": (5, 5), "9x7": (7, 9)}  # (rows, columns): 9 wide, 7 high
+
+
+@dataclass(frozen=True)
+class CostDefaults:
+    """Tuned defaults of one cost: window side and penalties (cost units)."""
+
+    window: int
+    p1: int
+    p2: int
+
+
+# Tuned on bench/stereo_accuracy.py (synthetic pairs and Middlebury); see README.
+COST_DEFAULTS: dict[str, CostDefaults] = {
+    "census": CostDefaults(window=5, p1=60, p2=600),
+    "mi": CostDefaults(window=5, p1=150, p2=1200),
+    "ad": CostDefaults(window=5, p1=80, p2=600),
+}
+MI_LEVELS = 128  # most grey levels of the MI histogram (fewer on small images)
+MI_PAIRS_PER_CELL = 8  # the MI histogram has at least this many pixels per cell
+MI_SIGMA = 1.0  # Parzen window, grey levels
+AD_TRUNCATION = 24  # grey levels (of 256)
+P2_KAPPA = 8  # grey levels (of 256) above which the adaptive P2 shrinks
+STRIP_OVERLAP = 32  # rows shared by neighbouring strips
+MIN_LEVEL_SIZE = 24  # smallest image side of an HMI level, pixels
+
+
+@dataclass(frozen=True)
+class SGMResult:
+    """What :func:`sgm` returns.
+
+    Attributes
+    ----------
+    disparity : (H, W) float32
+        Pixels in the left image's frame, ``x_right = x_left − d``; NaN = invalid.
+    confidence : (H, W) float32
+        0..1, (S₂ − S₁)/S₂ of the best and the best non-adjacent aggregated cost;
+        NaN where ``disparity`` is NaN.
+    parameters : dict
+        The resolved parameters (defaults filled in).
+    timings : dict of str to float
+        Seconds per phase, summed over strips and pyramid levels.
+    levels : list of dict
+        One entry per SGM pass (MI iteration or HMI level): scale, disparity range,
+        valid fraction, number of pixel pairs in the MI histogram.
+    """
+
+    disparity: np.ndarray
+    confidence: np.ndarray
+    parameters: dict[str, Any]
+    timings: dict[str, float] = field(default_factory=dict)
+    levels: list[dict[str, Any]] = field(default_factory=list)
+
+
+class _Timer:
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    def add(self, phase: str, seconds: float) -> None:
+        self.seconds[phase] = self.seconds.get(phase, 0.0) + seconds
+
+    def run(self, phase: str, function: Callable, *args, **kwargs):
+        start = time.perf_counter()
+        try:
+            return function(*args, **kwargs)
+        finally:
+            self.add(phase, time.perf_counter() - start)
+
+
+def available_cores() -> int:
+    """CPU cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def plan_strips(height: int, width: int, num_disparities: int, *, workers: int,
+                max_memory_mb: float, overlap: int = STRIP_OVERLAP) -> list[tuple[int, int]]:
+    """Split the rows into strips so that ``workers`` strips' C and S volumes fit the budget.
+
+    Returns
+    -------
+    list of (start, stop)
+        The rows each strip outputs; each is computed with ``overlap`` extra rows on
+        its inner sides.
+    """
+    row_bytes = width * num_disparities * 2 * 2  # C and S, uint16
+    budget_rows = int(max_memory_mb * 2**20 / (workers * row_bytes))
+    if budget_rows < 2 * overlap + 16:
+        raise ParameterError(f"--max-memory-mb {max_memory_mb:g} is too small for "
+                             f"{width} columns × {num_disparities} disparities × {workers} "
+                             f"workers; raise it or use fewer workers")
+    n_strips = 1 if height <= budget_rows else math.ceil(height / (budget_rows - 2 * overlap))
+    big = height * width * num_disparities > 8_000_000 and height >= 8 * overlap * workers
+    if workers > 1 and big:
+        n_strips = workers * math.ceil(max(n_strips, workers) / workers)
+    bounds = np.linspace(0, height, n_strips + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+
+
+def _match_pass(pixel_cost: costs.PixelCost, left_valid: np.ndarray, right_valid: np.ndarray,
+                guide: np.ndarray, *, min_disparity: int, num_disparities: int, window: int,
+                p1: int, p2: int, paths: int, p2_kappa: int, subpixel: str,
+                lr_threshold: float | None, workers: int, max_memory_mb: float,
+                timer: _Timer) -> tuple[np.ndarray, np.ndarray]:
+    """One SGM pass over the whole image, strip by strip (in parallel threads)."""
+    height, width = left_valid.shape
+    strips = plan_strips(height, width, num_disparities, workers=workers,
+                         max_memory_mb=max_memory_mb)
+    max_cost = pixel_cost.max_cost * window * window
+    if paths * (max_cost + p2) > np.iinfo(np.uint16).max:
+        raise ParameterError(
+            f"cost window {window}×{window} of {pixel_cost.name} (maximum {max_cost}) + P2 "
+            f"{p2} could overflow the 16-bit sums of {paths} paths; lower --p2 or the window")
+
+    def run_strip(rows: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        start, stop = rows
+        lo = max(0, start - STRIP_OVERLAP)
+        hi = min(height, stop + STRIP_OVERLAP)
+        volume = timer.run("cost", costs.windowed_cost_volume, pixel_cost, left_valid,
+                           right_valid, min_disparity=min_disparity,
+                           num_disparities=num_disparities, window=window, rows=(lo, hi))
+        total = timer.run("aggregate", aggregate_costs, volume, p1=p1, p2=p2, paths=paths,
+                          guide=guide[lo:hi], p2_kappa=p2_kappa, max_cost=max_cost)
+        del volume
+        return timer.run("select", select_disparities, total[start - lo:stop - lo],
+                         min_disparity=min_disparity, left_valid=left_valid,
+                         right_valid=right_valid, row_start=start, subpixel=subpixel,
+                         lr_threshold=lr_threshold)
+
+    if len(strips) == 1 or workers == 1:
+        parts = [run_strip(rows) for rows in strips]
+    else:
+        with ThreadPoolExecutor(max_workers=min(workers, len(strips))) as pool:
+            parts = list(pool.map(run_strip, strips))
+    disparity = np.concatenate([p[0] for p in parts], axis=0)
+    confidence = np.concatenate([p[1] for p in parts], axis=0)
+    return disparity, confidence
+
+
+def _postprocess(disparity: np.ndarray, confidence: np.ndarray, *, speckle_size: int,
+                 speckle_range: float, median: int, timer: _Timer
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    start = time.perf_counter()
+    if speckle_size > 0:
+        disparity = remove_speckles(disparity, max_size=speckle_size,
+                                    max_difference=speckle_range)
+    if median > 1:
+        disparity = median_filter(disparity, median)
+    confidence = np.where(np.isfinite(disparity), confidence, np.float32(np.nan))
+    timer.add("postprocess", time.perf_counter() - start)
+    return disparity, confidence.astype(np.float32)
+
+
+def mi_levels(valid_pixels: int, most: int = MI_LEVELS) -> int:
+    """Grey levels of the MI histogram for an image of ``valid_pixels`` pixels.
+
+    A power of two between 16 and ``most`` with about ``MI_PAIRS_PER_CELL`` pixels
+    per histogram cell, so that a small image (or a coarse HMI level) does not
+    over-fit its own pixel pairs: each pixel's pair raises its own cell by 1/n, a
+    bias that favours the current disparity estimate when cells hold few pairs.
+    """
+    wanted = math.sqrt(max(valid_pixels, 1) / MI_PAIRS_PER_CELL)
+    return int(min(most, max(16, 2 ** math.floor(math.log2(max(wanted, 1.0))))))
+
+
+def _downsample(image: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Halve an image by 2×2 block means; a block is valid only if all four pixels are."""
+    height, width = image.shape[0] // 2 * 2, image.shape[1] // 2 * 2
+    blocks = np.where(valid, image, 0.0)[:height, :width].reshape(height // 2, 2, width // 2, 2)
+    block_valid = valid[:height, :width].reshape(height // 2, 2, width // 2, 2).all(axis=(1, 3))
+    return blocks.mean(axis=(1, 3)).astype(np.float32), block_valid
+
+
+def _upsample_disparity(disparity: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Double a coarse disparity map (values and size, nearest neighbour) to ``shape``."""
+    fine = np.repeat(np.repeat(disparity * 2.0, 2, axis=0), 2, axis=1)
+    out = np.full(shape, np.nan, dtype=np.float32)
+    rows, cols = min(shape[0], fine.shape[0]), min(shape[1], fine.shape[1])
+    out[:rows, :cols] = fine[:rows, :cols]
+    return out
+
+
+def _check_inputs(left: np.ndarray, right: np.ndarray, min_disparity: int,
+                  num_disparities: int) -> None:
+    if left.ndim != 2 or right.ndim != 2:
+        raise InputError(f"images must be 2-D, got shapes {left.shape} and {right.shape}")
+    if left.shape != right.shape:
+        raise InputError(f"the rectified images differ in size: left {left.shape[1]}×"
+                         f"{left.shape[0]}, right {right.shape[1]}×{right.shape[0]} "
+                         "(width×height); rectify them onto one canvas")
+    for name, image in (("left", left), ("right", right)):
+        if not np.isfinite(image).any():
+            raise InputError(f"the {name} image contains no valid (finite) pixel")
+    width = left.shape[1]
+    if num_disparities < 1:
+        raise ParameterError(f"num_disparities must be at least 1, got {num_disparities}")
+    max_disparity = min_disparity + num_disparities - 1
+    if num_disparities >= width or max(abs(min_disparity), abs(max_disparity)) >= width:
+        raise ParameterError(f"disparity range {min_disparity}..{max_disparity} is wider "
+                             f"than the image ({width} px)")
+
+
+def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparities: int,
+        cost: str = "hmi", census_window: str = "5x5", cost_window: int | None = None,
+        paths: int = 8, p1: int | None = None, p2: int | None = None,
+        adaptive_p2: bool = False, mi_iterations: int = 3, subpixel: str = "equiangular",
+        lr_check: bool = True, lr_threshold: float = 1.0, speckle_size: int = 100,
+        speckle_range: float = 2.0, median: int = 3, workers: int = 0,
+        max_memory_mb: float = 1400.0, seed: int = 0) -> SGMResult:
+    """Dense disparity of a rectified pair by semi-global matching (Hirschmüller 2008).
+
+    Parameters
+    ----------
+    left, right : (H, W) float arrays
+        The rectified images (any radiometric scale, e.g. 12-bit DN); NaN marks
+        pixels outside the warped image, which never match and come out NaN.
+    min_disparity, num_disparities : int
+        Search range d = min_disparity .. min_disparity + num_disparities − 1 pixels,
+        ``x_right = x_left − d``.
+    cost : {"hmi", "mi", "census", "ad"}
+        "hmi": mutual information with the hierarchical schedule (1/16 → 1, the
+        coarsest level iterated ``mi_iterations`` times from a random disparity,
+        every finer level once from the coarser result; Hirschmüller 2008 §3.1.4);
+        "mi": mutual information iterated ``mi_iterations`` times at full
+        resolution from a zero disparity; "census": Hamming distance of census
+        codes; "ad": truncated absolute difference.  Every cost is summed over a
+        ``cost_window`` square.
+    census_window : {"5x5", "9x7"}
+        Census window (width × height).
+    cost_window : int, optional
+        Odd side of the window the pixel cost is summed over (default per cost,
+        :data:`COST_DEFAULTS`).
+    paths : {8, 16}
+    p1, p2 : int, optional
+        Smoothness penalties in cost units (defaults per cost, :data:`COST_DEFAULTS`).
+    adaptive_p2 : bool
+        Lower P2 across intensity edges (P2·κ/|ΔI|, κ = ``P2_KAPPA`` grey levels).
+    mi_iterations : int
+        MI iterations ("mi": at full resolution; "hmi": at the coarsest level).
+    subpixel : {"equiangular", "parabola", "none"}
+    lr_check : bool
+        Keep only pixels whose left and right disparities (both from one aggregated
+        cost) agree within ``lr_threshold`` pixels.
+    speckle_size : int
+        Regions smaller than this (pixels) are removed (0 = off).
+    speckle_range : float
+        Largest disparity step inside a region, pixels.
+    median : int
+        Side of the NaN-aware median filter (1 = off).
+    workers : int
+        Parallel strips (0 = all cores).
+    max_memory_mb : float
+        Budget of the cost volumes of all concurrent strips, MiB.
+    seed : int
+        Seed of the random initial disparity of "hmi".
+
+    Returns
+    -------
+    SGMResult
+
+    Raises
+    ------
+    InputError
+        Images of different sizes, not 2-D, or without a finite pixel.
+    ParameterError
+        A disparity range wider than the image, or bad option values.
+    """
+    left = np.asarray(left, dtype=np.float32)
+    right = np.asarray(right, dtype=np.float32)
+    _check_inputs(left, right, min_disparity, num_disparities)
+    if cost not in COSTS:
+        raise ParameterError(f"unknown cost {cost!r}: should be one of {', '.join(COSTS)}")
+    if census_window not in CENSUS_WINDOWS:
+        raise ParameterError(f"unknown census window {census_window!r}: should be one of "
+                             + ", ".join(CENSUS_WINDOWS))
+    defaults = COST_DEFAULTS["mi" if cost == "hmi" else cost]
+    window = defaults.window if cost_window is None else int(cost_window)
+    p1 = defaults.p1 if p1 is None else int(p1)
+    p2 = defaults.p2 if p2 is None else int(p2)
+    if window < 1 or window % 2 == 0:
+        raise ParameterError(f"cost window must be an odd number ≥ 1, got {window}")
+    if not 0 < p1 <= p2:
+        raise ParameterError(f"penalties must satisfy 0 < P1 ≤ P2, got P1={p1}, P2={p2}")
+    if paths not in (8, 16):
+        raise ParameterError(f"paths must be 8 or 16, got {paths}")
+    if mi_iterations < 1:
+        raise ParameterError(f"mi_iterations must be at least 1, got {mi_iterations}")
+    if median > 1 and median % 2 == 0:
+        raise ParameterError(f"median size must be odd, got {median}")
+    workers = available_cores() if workers <= 0 else int(workers)
+    timer = _Timer()
+    start = time.perf_counter()
+    left_valid = np.isfinite(left)
+    right_valid = np.isfinite(right)
+    guide = costs.quantize(left, left_valid, 256)
+    common = dict(paths=paths, p1=p1, p2=p2, p2_kappa=P2_KAPPA if adaptive_p2 else 0,
+                  workers=workers, max_memory_mb=max_memory_mb, timer=timer)
+    final = dict(subpixel=subpixel, lr_threshold=lr_threshold if lr_check else None)
+    levels: list[dict[str, Any]] = []
+
+    if cost in ("census", "ad"):
+        started = time.perf_counter()
+        if cost == "census":
+            pixel_cost = costs.census_pixel_cost(costs.fill_invalid(left, left_valid),
+                                                 costs.fill_invalid(right, right_valid),
+                                                 CENSUS_WINDOWS[census_window])
+        else:
+            value_range = costs.robust_range([left, right], [left_valid, right_valid])
+            pixel_cost = costs.table_pixel_cost(
+                "ad", costs.quantize(left, left_valid, 256, value_range),
+                costs.quantize(right, right_valid, 256, value_range),
+                costs.absolute_difference_table(256, AD_TRUNCATION))
+        timer.add("prepare", time.perf_counter() - started)
+        disparity, confidence = _match_pass(
+            pixel_cost, left_valid, right_valid, guide, min_disparity=min_disparity,
+            num_disparities=num_disparities, window=window, **common, **final)
+        levels.append({"scale": 1, "min_disparity": min_disparity,
+                       "num_disparities": num_disparities,
+                       "valid_fraction": float(np.isfinite(disparity).mean())})
+    else:
+        disparity, confidence = _mutual_information_sgm(
+            left, right, left_valid, right_valid, guide, cost=cost,
+            min_disparity=min_disparity, num_disparities=num_disparities, window=window,
+            mi_iterations=mi_iterations, seed=seed, common=common, final=final,
+            speckle=(speckle_size, speckle_range), levels=levels)
+
+    disparity, confidence = _postprocess(disparity, confidence, speckle_size=speckle_size,
+                                         speckle_range=speckle_range, median=median,
+                                         timer=timer)
+    timings = {k: round(v, 3) for k, v in timer.seconds.items()}
+    timings["total"] = round(time.perf_counter() - start, 3)
+    parameters = dict(cost=cost, census_window=census_window, cost_window=window,
+                      paths=paths, p1=p1, p2=p2, adaptive_p2=adaptive_p2,
+                      p2_kappa=P2_KAPPA if adaptive_p2 else 0, mi_iterations=mi_iterations,
+                      mi_levels=MI_LEVELS, mi_sigma=MI_SIGMA, subpixel=subpixel,
+                      lr_check=lr_check, lr_threshold=lr_threshold,
+                      speckle_size=speckle_size, speckle_range=speckle_range, median=median,
+                      min_disparity=min_disparity, num_disparities=num_disparities,
+                      workers=workers, max_memory_mb=max_memory_mb, seed=seed)
+    return SGMResult(disparity, confidence, parameters, timings, levels)
+
+
+def _mutual_information_sgm(left, right, left_valid, right_valid, guide, *, cost, min_disparity,
+                            num_disparities, window, mi_iterations, seed, common, final,
+                            speckle, levels):
+    """Iterated MI ("mi") or the hierarchical HMI schedule ("hmi")."""
+    timer: _Timer = common["timer"]
+    max_disparity = min_disparity + num_disparities - 1
+    # the pyramid: (scale, left, right, valid masks, guide); scale 1 last
+    pyramid = [(1, left, right, left_valid, right_valid, guide)]
+    if cost == "hmi":
+        scale = 1
+        while scale < 16:
+            _, image_l, image_r, valid_l, valid_r, _ = pyramid[0]
+            if min(image_l.shape) // 2 < MIN_LEVEL_SIZE:
+                break
+            image_l, valid_l = _downsample(image_l, valid_l)
+            image_r, valid_r = _downsample(image_r, valid_r)
+            if not (valid_l.any() and valid_r.any()):
+                break
+            scale *= 2
+            pyramid.insert(0, (scale, image_l, image_r, valid_l, valid_r,
+                               costs.quantize(image_l, valid_l, 256)))
+    previous = None
+    for index, (scale, image_l, image_r, valid_l, valid_r, level_guide) in enumerate(pyramid):
+        started = time.perf_counter()
+        n_levels = mi_levels(int(min(valid_l.sum(), valid_r.sum())))
+        levels_l = costs.quantize(image_l, valid_l, n_levels)
+        levels_r = costs.quantize(image_r, valid_r, n_levels)
+        lo = math.floor(min_disparity / scale) - (1 if scale > 1 else 0)
+        hi = math.ceil(max_disparity / scale) + (1 if scale > 1 else 0)
+        width = image_l.shape[1]
+        lo, hi = max(lo, -(width - 2)), min(hi, width - 2)
+        count = hi - lo + 1
+        if previous is None:
+            if cost == "hmi":
+                rng = np.random.default_rng(seed)
+                estimate = rng.integers(lo, hi + 1, size=image_l.shape).astype(np.float32)
+            else:
+                estimate = np.full(image_l.shape, float(np.clip(0, lo, hi)), dtype=np.float32)
+        else:
+            estimate = _upsample_disparity(previous, image_l.shape)
+        timer.add("prepare", time.perf_counter() - started)
+        iterations = mi_iterations if (cost == "mi" or index == 0) else 1
+        last_level = scale == 1
+        for iteration in range(iterations):
+            started = time.perf_counter()
+            mi, pairs = costs.mutual_information_table(levels_l, levels_r, valid_l, valid_r,
+                                                       estimate, levels=n_levels,
+                                                       sigma=MI_SIGMA)
+            if pairs == 0:
+                raise InputError("no valid corresponding pixels for the MI histogram; "
+                                 "check the disparity range and the NaN masks")
+            pixel_cost = costs.table_pixel_cost("mi", levels_l, levels_r, costs.mi_cost_table(mi))
+            timer.add("mi", time.perf_counter() - started)
+            final_pass = last_level and iteration == iterations - 1
+            options = final if final_pass else dict(subpixel="none", lr_threshold=1.0)
+            disparity, confidence = _match_pass(
+                pixel_cost, valid_l, valid_r, level_guide, min_disparity=lo,
+                num_disparities=count, window=window, **common, **options)
+            if not final_pass:
+                disparity, _ = _postprocess(disparity, confidence, speckle_size=speckle[0],
+                                            speckle_range=speckle[1], median=3, timer=timer)
+            levels.append({"scale": scale, "iteration": iteration + 1, "min_disparity": lo,
+                           "num_disparities": count, "mi_levels": n_levels, "mi_pairs": pairs,
+                           "valid_fraction": float(np.isfinite(disparity).mean())})
+            log.debug("MI level 1/%d iteration %d: %d disparities, %.1f %% valid", scale,
+                      iteration + 1, count, 100 * levels[-1]["valid_fraction"])
+            estimate = disparity
+        previous = estimate
+    return disparity, confidence

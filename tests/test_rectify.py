@@ -61,6 +61,28 @@ def test_rectified_truth_points_share_rows(scene, result):
     assert abs(np.mean(result.disparities)) < 1e-6  # translation centres the control points
 
 
+def test_rectifies_the_synthetic_scene_pair(small_scene):
+    """The synth stage's target/partner pair: truth rows agree, the range brackets truth."""
+    from demtool.synth import truth_disparity
+
+    left = small_scene.images[small_scene.target]
+    right = small_scene.images[small_scene.partner]
+    result = rectify.rectify_pair(left, right, what="target / partner")
+    assert result.rms_vertical_residual < 0.5
+    width, height = result.size_rect
+    truth = truth_disparity(small_scene, result.H_left, result.H_right, (height, width))
+    from demtool.synth import rectified_correspondence
+
+    match = rectified_correspondence(small_scene, result.H_left, result.H_right, (height, width))
+    rows = np.arange(height, dtype=float)[:, None] - match.y_right
+    visible = truth.visible
+    assert visible.sum() > 0.5 * left.size
+    assert np.nanmax(np.abs(rows[visible])) < 0.5
+    low, high = result.disparity_range
+    assert low < np.nanmin(truth.disparity[visible])
+    assert np.nanmax(truth.disparity[visible]) < high
+
+
 def test_rectification_keeps_orientation_and_resolution(result):
     for H, size in ((result.H_left, result.size_left), (result.H_right, result.size_right)):
         centre = (size - 1) / 2.0

@@ -1,0 +1,395 @@
+"""Co-registration of a DEM to a reference: vertical offset and Nuth & Kääb shift.
+
+Conventions.  A shift ``(dx_px, dy_px, dz)`` is the translation that, **added** to the
+DEM, aligns it with the reference: ``aligned[y, x] = dem[y − dy, x − dx] + dz``, with x
+to the right and y down in pixels of the comparison grid and dz in metres (see
+:func:`demtool.compare.grids.shift_dem`).
+
+Methods
+-------
+* :func:`vertical_offset` — the median of ``reference − dem``.
+* :func:`nuth_kaab` — horizontal and vertical shift.  Nuth & Kääb (2011, The
+  Cryosphere 5, 271–290, eq. 3) fit ``dh / tan(slope) = a cos(b − aspect) + c`` to
+  binned elevation differences; that sinusoid is the first-order Taylor expansion
+  ``dh ≈ −t · ∇z + dz`` of a translated surface, divided by the slope.  We solve the
+  expansion itself — ``dh = δx ∂z/∂x + δy ∂z/∂y − δz`` — by least squares over every
+  valid pixel (no binning, no division by a small slope), then shift the DEM by the
+  increment with cubic convolution and repeat until the increment is below a
+  tolerance.  This is a Gauss–Newton / Lucas–Kanade (1981) iteration on the same model;
+  it stays well conditioned on near-flat terrain, where ``dh / tan(slope)`` is
+  dominated by noise, and it gives a parameter covariance.  A coarse-to-fine
+  schedule (both DEMs smoothed by the same Gaussian first) widens the capture range.
+* ICP lives in :mod:`demtool.compare.icp`, the chaining in :mod:`demtool.compare.align`.
+
+Uncertainty.  Every fit reports the standard deviation of its parameters as the larger
+of the formal least-squares value ``σ² (GᵀG)⁻¹`` (σ² the residual variance) and a block
+bootstrap (pixels grouped in square blocks so that spatially correlated residuals are
+resampled together; Künsch 1989).  Both grow as the terrain's slopes vanish.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numba import njit, prange
+
+from demtool.compare.grids import shift_dem
+from demtool.errors import ProcessingError
+from demtool.logs import get_logger
+
+__all__ = ["ShiftResult", "nuth_kaab", "vertical_offset"]
+
+log = get_logger(__name__)
+
+MIN_PIXELS = 100
+
+
+@dataclass(frozen=True)
+class ShiftResult:
+    """A fitted translation and its uncertainty.
+
+    Attributes
+    ----------
+    dx_px, dy_px : float
+        Horizontal shift to add to the DEM, pixels (x right, y down).
+    dz : float
+        Vertical shift to add, metres.
+    sigma_dx_px, sigma_dy_px, sigma_dz : float
+        One-sigma uncertainties (inf when the terrain cannot constrain the shift).
+    iterations : int
+        Iterations used (1 for the offset).
+    converged : bool
+        Whether the last increment was below the tolerance.
+    count : int
+        Pixels used in the last fit (after outlier rejection).
+    """
+
+    dx_px: float
+    dy_px: float
+    dz: float
+    sigma_dx_px: float
+    sigma_dy_px: float
+    sigma_dz: float
+    iterations: int = 1
+    converged: bool = True
+    count: int = 0
+
+
+# --------------------------------------------------------------------------------------
+# helpers
+# --------------------------------------------------------------------------------------
+
+
+def _nmad(values: np.ndarray) -> float:
+    return float(1.4826 * np.median(np.abs(values - np.median(values))))
+
+
+def _check_pair(dem: np.ndarray, reference: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+    if dem.shape != reference.shape or dem.ndim != 2:
+        raise ValueError(f"dem and reference must be 2-D arrays of one shape, got {dem.shape} "
+                         f"and {reference.shape}")
+    usable = np.isfinite(reference)
+    if mask is not None:
+        if mask.shape != dem.shape:
+            raise ValueError(f"mask has shape {mask.shape}, DEM has {dem.shape}")
+        usable &= mask.astype(bool)
+    return usable
+
+
+def _block_ids(shape: tuple[int, int], n_target: int = 64) -> np.ndarray:
+    """Square blocks, about ``n_target`` of them over the grid (at least 8 px wide)."""
+    side = max(8, int(np.sqrt(shape[0] * shape[1] / n_target)))
+    rows = np.arange(shape[0]) // side
+    cols = np.arange(shape[1]) // side
+    return rows[:, None] * (cols.max() + 1) + cols[None, :]
+
+
+def _bootstrap_sigma(design: np.ndarray, target: np.ndarray, blocks: np.ndarray, *,
+                     replicates: int = 300, seed: int = 0) -> np.ndarray:
+    """Std of least-squares solutions when whole blocks are resampled with replacement."""
+    ids, inverse = np.unique(blocks, return_inverse=True)
+    n_params = design.shape[1]
+    if ids.size < 8:
+        return np.full(n_params, np.nan)
+    outer = design[:, :, None] * design[:, None, :]
+    normal = np.stack([np.bincount(inverse, weights=outer[:, i, j], minlength=ids.size)
+                       for i in range(n_params) for j in range(n_params)], axis=1)
+    rhs = np.stack([np.bincount(inverse, weights=design[:, i] * target, minlength=ids.size)
+                    for i in range(n_params)], axis=1)
+    rng = np.random.default_rng(seed)
+    draws = rng.integers(0, ids.size, size=(replicates, ids.size))
+    weights = np.zeros((replicates, ids.size))
+    np.add.at(weights, (np.repeat(np.arange(replicates), ids.size), draws.ravel()), 1.0)
+    sums = (weights @ normal).reshape(replicates, n_params, n_params)
+    rhs_sums = weights @ rhs
+    try:
+        solutions = np.linalg.solve(sums, rhs_sums[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        return np.full(n_params, np.inf)
+    return solutions.std(axis=0, ddof=1)
+
+
+def _solve(design: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least squares with formal covariance; inf variance for unconstrained directions."""
+    normal = design.T @ design
+    rhs = design.T @ target
+    scale = np.sqrt(np.diag(normal))
+    scale[scale == 0] = 1.0
+    scaled = normal / np.outer(scale, scale)
+    eigval, eigvec = np.linalg.eigh(scaled)
+    well = eigval > 1e-10 * eigval.max()
+    inv_scaled = (eigvec[:, well] / eigval[well]) @ eigvec[:, well].T
+    inverse = inv_scaled / np.outer(scale, scale)
+    params = inverse @ rhs
+    residual = target - design @ params
+    dof = max(target.size - design.shape[1], 1)
+    variance = float(residual @ residual / dof)
+    sigma = np.sqrt(np.maximum(np.diag(inverse), 0.0) * variance)
+    if not well.all():
+        # directions the data cannot see: infinite uncertainty on the touched parameters
+        touched = np.abs(eigvec[:, ~well]).max(axis=1) > 1e-6
+        sigma[touched] = np.inf
+    return params, sigma, variance
+
+
+def _robust_inliers(residual: np.ndarray, k: float = 4.0) -> np.ndarray:
+    nmad = _nmad(residual)
+    if nmad == 0:
+        return np.ones(residual.shape, bool)
+    return np.abs(residual - np.median(residual)) <= k * nmad
+
+
+# --------------------------------------------------------------------------------------
+# vertical offset
+# --------------------------------------------------------------------------------------
+
+
+def vertical_offset(dem: np.ndarray, reference: np.ndarray, *,
+                    mask: np.ndarray | None = None) -> ShiftResult:
+    """Median vertical offset: the ``dz`` to add to the DEM so its median error is zero.
+
+    Parameters
+    ----------
+    dem, reference : (H, W) float arrays, metres, NaN = invalid, on one grid
+    mask : (H, W) bool, optional
+        True where pixels may be used (e.g. stable terrain).
+
+    Returns
+    -------
+    ShiftResult
+        ``dz = median(reference − dem)``; its sigma is 1.2533 · NMAD / √n (the
+        asymptotic standard error of a median) or the block-bootstrap value if larger.
+    """
+    usable = _check_pair(dem, reference, mask) & np.isfinite(dem)
+    count = int(usable.sum())
+    if count < MIN_PIXELS:
+        raise ProcessingError(f"only {count} common valid pixels (need {MIN_PIXELS}) for the "
+                              "vertical offset")
+    dh = (reference - dem)[usable]
+    dz = float(np.median(dh))
+    sigma = 1.2533 * _nmad(dh) / np.sqrt(count)
+    return ShiftResult(0.0, 0.0, dz, 0.0, 0.0, float(sigma), 1, True, count)
+
+
+# --------------------------------------------------------------------------------------
+# Nuth & Kääb (linearised)
+# --------------------------------------------------------------------------------------
+
+
+def _smooth(values: np.ndarray, sigma: float) -> np.ndarray:
+    """NaN-aware Gaussian smoothing (normalised convolution)."""
+    from scipy.ndimage import gaussian_filter
+
+    if sigma <= 0:
+        return values
+    valid = np.isfinite(values)
+    num = gaussian_filter(np.where(valid, values, 0.0), sigma, mode="nearest")
+    den = gaussian_filter(valid.astype(np.float64), sigma, mode="nearest")
+    out = np.full(values.shape, np.nan)
+    good = den > 0.999  # keep only pixels whose footprint is (almost) entirely valid
+    out[good] = num[good] / den[good]
+    return out
+
+
+@njit(parallel=True, cache=True)
+def _gradient_sums(grad_x, grad_y, dh, usable, params, centre, halfwidth):
+    # Normal equations of dh = p0 gx + p1 gy - p2 over usable pixels with finite dh,
+    # optionally only where |dh - model(params) - centre| <= halfwidth (halfwidth > 0).
+    # Returns per-row sums of: gx², gx gy, -gx, gy², -gy, 1, gx dh, gy dh, -dh, dh².
+    rows, cols = dh.shape
+    partial = np.zeros((rows, 10))
+    for r in prange(rows):
+        acc = np.zeros(10)
+        for c in range(cols):
+            if not usable[r, c]:
+                continue
+            d = dh[r, c]
+            gx = grad_x[r, c]
+            gy = grad_y[r, c]
+            if not (np.isfinite(d) and np.isfinite(gx) and np.isfinite(gy)):
+                continue
+            if halfwidth > 0.0:
+                model = params[0] * gx + params[1] * gy - params[2]
+                if abs(d - model - centre) > halfwidth:
+                    continue
+            acc[0] += gx * gx
+            acc[1] += gx * gy
+            acc[2] -= gx
+            acc[3] += gy * gy
+            acc[4] -= gy
+            acc[5] += 1.0
+            acc[6] += gx * d
+            acc[7] += gy * d
+            acc[8] -= d
+            acc[9] += d * d
+        partial[r] = acc
+    return partial.sum(axis=0)
+
+
+def _solve_sums(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """Solve the 3 × 3 normal equations of :func:`_gradient_sums`; formal sigmas."""
+    normal = np.array([[sums[0], sums[1], sums[2]],
+                       [sums[1], sums[3], sums[4]],
+                       [sums[2], sums[4], sums[5]]])
+    rhs = sums[6:9]
+    count = int(round(sums[5]))
+    scale = np.sqrt(np.diag(normal))
+    scale[scale == 0] = 1.0
+    eigval, eigvec = np.linalg.eigh(normal / np.outer(scale, scale))
+    well = eigval > 1e-10 * max(eigval.max(), 1e-300)
+    inverse = ((eigvec[:, well] / eigval[well]) @ eigvec[:, well].T) / np.outer(scale, scale)
+    params = inverse @ rhs
+    residual_ss = max(sums[9] - 2 * params @ rhs + params @ normal @ params, 0.0)
+    variance = residual_ss / max(count - 3, 1)
+    sigma = np.sqrt(np.maximum(np.diag(inverse), 0.0) * variance)
+    if not well.all():
+        touched = np.abs(eigvec[:, ~well]).max(axis=1) > 1e-6
+        sigma[touched] = np.inf
+        params[touched & (np.arange(3) < 2)] = 0.0
+    return params, sigma, variance, count
+
+
+def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
+                  shift: np.ndarray, *, max_iterations: int, tolerance_px: float,
+                  max_step_px: float) -> tuple[np.ndarray, int, bool, dict[str, Any]]:
+    grad_y, grad_x = np.gradient(reference)  # metres per pixel, y down, x right
+    usable = np.ascontiguousarray(usable)
+    converged = False
+    last: dict[str, Any] = {}
+    iteration = 0
+    subsample = max(1, int(np.sqrt(dem.size / 250_000)))  # for the robust thresholds
+    for iteration in range(1, max_iterations + 1):  # noqa: B007 - used after the loop
+        aligned = shift_dem(dem, shift[0], shift[1], shift[2])
+        dh = aligned - reference
+        sums = _gradient_sums(grad_x, grad_y, dh, usable, np.zeros(3), 0.0, 0.0)
+        if sums[5] < MIN_PIXELS:
+            raise ProcessingError(f"only {int(sums[5])} common valid pixels (need "
+                                  f"{MIN_PIXELS}) after shifting by ({shift[0]:.2f}, "
+                                  f"{shift[1]:.2f}) px; the DEMs barely overlap")
+        params, _, _, _ = _solve_sums(sums)
+        # one pass of outlier rejection at 4 NMAD of the residuals (subsampled median)
+        sub = (slice(None, None, subsample), slice(None, None, subsample))
+        residual = (dh[sub] - (params[0] * grad_x[sub] + params[1] * grad_y[sub]
+                               - params[2]))[usable[sub]]
+        residual = residual[np.isfinite(residual)]
+        centre = float(np.median(residual)) if residual.size else 0.0
+        halfwidth = 4.0 * _nmad(residual) if residual.size else 0.0
+        if halfwidth > 0:
+            sums = _gradient_sums(grad_x, grad_y, dh, usable, params, centre, halfwidth)
+            params, sigma, variance, count = _solve_sums(sums)
+        else:
+            params, sigma, variance, count = _solve_sums(sums)
+        step = float(np.hypot(params[0], params[1]))
+        if step > max_step_px:
+            params = params * (max_step_px / step)
+        last = {"dh": dh, "grad_x": grad_x, "grad_y": grad_y, "usable": usable,
+                "params": params, "centre": centre, "halfwidth": halfwidth,
+                "sigma": sigma, "variance": variance, "count": count}
+        shift = shift + params
+        if step < tolerance_px:
+            converged = True
+            break
+    return shift, iteration, converged, last
+
+
+def _final_bootstrap(last: dict[str, Any], blocks: np.ndarray, seed: int) -> np.ndarray:
+    """Block-bootstrap sigmas of the last Gauss–Newton increment."""
+    dh, gx, gy = last["dh"], last["grad_x"], last["grad_y"]
+    params = last["params"]
+    keep = last["usable"] & np.isfinite(dh) & np.isfinite(gx) & np.isfinite(gy)
+    if last["halfwidth"] > 0:
+        model = params[0] * gx + params[1] * gy - params[2]
+        with np.errstate(invalid="ignore"):
+            keep &= np.abs(dh - model - last["centre"]) <= last["halfwidth"]
+    design = np.column_stack([gx[keep], gy[keep], -np.ones(int(keep.sum()))])
+    return _bootstrap_sigma(design, dh[keep], blocks[keep], seed=seed)
+
+
+def nuth_kaab(dem: np.ndarray, reference: np.ndarray, *, mask: np.ndarray | None = None,
+              max_iterations: int = 30, tolerance_px: float = 1e-4,
+              coarse_sigmas: tuple[float, ...] = (2.0,), max_step_px: float = 2.0,
+              bootstrap: bool = True, seed: int = 0) -> ShiftResult:
+    """Horizontal and vertical shift of a DEM to a reference (linearised Nuth & Kääb).
+
+    Parameters
+    ----------
+    dem, reference : (H, W) float arrays, metres, NaN = invalid, on one grid
+        The DEM to align and the reference.  Not modified.
+    mask : (H, W) bool, optional
+        True where pixels may be used (stable terrain).
+    max_iterations : int
+        Iterations per level of the coarse-to-fine schedule.
+    tolerance_px : float
+        Convergence: horizontal increment below this many pixels.
+    coarse_sigmas : tuple of float
+        Gaussian smoothing (pixels) applied to both DEMs on the coarse levels, run
+        before the full-resolution level; widens the capture range to a few pixels.
+    max_step_px : float
+        Largest horizontal increment per iteration (a trust region).
+    bootstrap : bool
+        Estimate the uncertainty by a block bootstrap too (the reported sigma is the
+        larger of bootstrap and formal values).
+    seed : int
+        Seed of the bootstrap.
+
+    Returns
+    -------
+    ShiftResult
+        The total shift to add to the DEM, with its one-sigma uncertainty.
+
+    Notes
+    -----
+    Model (Nuth & Kääb 2011, eq. 2–3, before the division by the slope): a DEM that is
+    the reference displaced by ``−t`` and offset by ``−c`` differs from it by
+    ``dh = z_dem − z_ref ≈ t · ∇z_ref − c``.  Each iteration solves this for the
+    increment ``(δx, δy, δz)`` over all valid pixels (with one pass of 4·NMAD outlier
+    rejection), shifts the DEM by it (cubic convolution) and refits.
+    """
+    usable = _check_pair(dem, reference, mask)
+    if int((usable & np.isfinite(dem)).sum()) < MIN_PIXELS:
+        raise ProcessingError(f"fewer than {MIN_PIXELS} common valid pixels for Nuth & Kääb")
+    shift = np.zeros(3)
+    shift[2] = float(np.nanmedian(reference[usable] - dem[usable]))
+    total_iterations = 0
+    for sigma_px in coarse_sigmas:
+        shift, its, _, _ = _gradient_fit(_smooth(dem, sigma_px), _smooth(reference, sigma_px),
+                                         usable, shift, max_iterations=max_iterations,
+                                         tolerance_px=max(tolerance_px, 1e-2),
+                                         max_step_px=max_step_px)
+        total_iterations += its
+    shift, its, converged, last = _gradient_fit(dem, reference, usable, shift,
+                                                max_iterations=max_iterations,
+                                                tolerance_px=tolerance_px,
+                                                max_step_px=max_step_px)
+    total_iterations += its
+    sigma = last["sigma"].copy()
+    if bootstrap and np.all(np.isfinite(sigma)):
+        sigma = np.fmax(sigma, _final_bootstrap(last, _block_ids(dem.shape), seed))
+    if not converged:
+        log.warning("Nuth & Kääb did not converge in %d iterations (last shift %.3f, %.3f px)",
+                    max_iterations, shift[0], shift[1])
+    return ShiftResult(float(shift[0]), float(shift[1]), float(shift[2]), float(sigma[0]),
+                       float(sigma[1]), float(sigma[2]), total_iterations, converged,
+                       int(last["count"]))

@@ -1,0 +1,402 @@
+"""Dense area-based matching of a rectified pair: the HiRISE Dense Matcher scheme.
+
+1. Seeds (:mod:`demtool.match.seeds`) are triangulated; every pixel gets an initial
+   disparity (barycentric interpolation) and a search range (its triangle's vertex
+   disparities ± a margin) — :mod:`demtool.match.triangles`.
+2. Coarse to fine through a Gaussian pyramid, NCC (:mod:`demtool.match.ncc`) finds
+   the best disparity of every pixel inside its range; each level's result, cleaned
+   by a 3 × 3 median test, narrows the next finer level's range to ±2 pixels around
+   it (still inside the triangle range).
+3. At full resolution least-squares matching (:mod:`demtool.match.lsm`) refines
+   each template centre on the grid to sub-pixel precision with its standard
+   deviation; a match is accepted when LSM converges with a correlation coefficient
+   of at least the acceptance threshold, stays on its row and inside its range.
+4. Densification: accepted matches (one per ``template``-sized cell, the best
+   correlated) join the seeds, the triangulation is rebuilt and the rejected grid
+   nodes are matched again inside the tighter triangles, for a few rounds.
+
+With a grid spacing ``s > 1`` only every ``s``-th row and column is matched; the
+other pixels get the bilinear interpolation of the four surrounding nodes when all
+four were accepted, and stay NaN otherwise.
+
+References
+----------
+Grün, A. (1985). Adaptive least squares correlation. S. Afr. J. Photogramm. 14(3).
+Wu, B., Zhang, Y., Zhu, Q. (2012). Integrated point and edge matching on poor
+    textural images constrained by self-adaptive triangulations. ISPRS J. 68, 40-55.
+Kirk, R. L., et al. (2008). Ultrahigh resolution topographic mapping of Mars with
+    MRO HiRISE stereo images. JGR 113, E00A24 (the SOCET SET/NGATE workflow).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from demtool.errors import ParameterError, ProcessingError
+from demtool.logs import get_logger
+from demtool.match.lsm import CONVERGED, lsm_match
+from demtool.match.ncc import build_pyramid, ncc_search
+from demtool.match.seeds import Seeds, check_seed_points, find_seeds
+from demtool.match.triangles import SeedTriangulation
+
+log = get_logger(__name__)
+
+#: NCC correlation a coarse pyramid level's match needs to guide the next level.
+COARSE_MIN_CORRELATION = 0.5
+#: Half-width (pixels of the finer level) of the range around the coarser result.
+PYRAMID_RADIUS = 2
+
+
+@dataclass(frozen=True)
+class MatchResult:
+    """Result of :func:`match`.
+
+    Attributes
+    ----------
+    disparity : (H, W) float32
+        Disparity in the left (rectified) frame, pixels, ``x_right = x_left − d``;
+        NaN where no match was accepted.
+    correlation : (H, W) float32
+        LSM correlation coefficient of every evaluated template (accepted or not;
+        NaN where LSM did not converge or nothing was evaluated).
+    sigma : (H, W) float32
+        LSM standard deviation of the accepted disparities, pixels; NaN elsewhere.
+    seeds : Seeds
+        The verified seed matches used (after blunder removal).
+    summary : dict
+        Completeness, counts per stage and round, timings.
+    """
+
+    disparity: np.ndarray
+    correlation: np.ndarray
+    sigma: np.ndarray
+    seeds: Seeds
+    summary: dict = field(default_factory=dict)
+
+    @property
+    def completeness(self) -> float:
+        """Percentage of the left image's valid pixels with an accepted disparity."""
+        return float(self.summary.get("completeness_percent", 0.0))
+
+
+def check_parameters(template: int, threshold: float, grid_spacing: int, levels: int,
+                     search_margin: float, rounds: int) -> None:
+    """Raise ParameterError for option values outside their ranges."""
+    if not (9 <= template <= 25 and template % 2 == 1):
+        raise ParameterError(f"template must be an odd size from 9 to 25 pixels, got {template}")
+    if not 0.0 < threshold < 1.0:
+        raise ParameterError(f"threshold must be a correlation in (0, 1), got {threshold}")
+    if grid_spacing < 1:
+        raise ParameterError(f"grid spacing must be >= 1 pixel, got {grid_spacing}")
+    if not 1 <= levels <= 8:
+        raise ParameterError(f"levels must be 1 to 8, got {levels}")
+    if not (np.isfinite(search_margin) and search_margin >= 0):
+        raise ParameterError(f"search margin must be >= 0 pixels, got {search_margin}")
+    if rounds < 0:
+        raise ParameterError(f"densification rounds must be >= 0, got {rounds}")
+
+
+def _nan_median3(grid: np.ndarray) -> np.ndarray:
+    """3 × 3 median of the finite neighbours (NaN where none)."""
+    padded = np.pad(grid, 1, constant_values=np.nan)
+    height, width = grid.shape
+    stack = np.stack([padded[dy:dy + height, dx:dx + width]
+                      for dy in range(3) for dx in range(3)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN neighbourhoods
+        return np.nanmedian(stack, axis=0)
+
+
+def _sample_coarse(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Bilinear sample of a NaN-holed coarse grid at fractional (row, col); NaN if empty."""
+    from scipy import ndimage
+
+    valid = np.isfinite(grid)
+    filled = np.where(valid, grid, 0.0)
+    coords = np.vstack([rows, cols])
+    num = ndimage.map_coordinates(filled, coords, order=1, mode="nearest")
+    den = ndimage.map_coordinates(valid.astype(np.float64), coords, order=1, mode="nearest")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0.5, num / den, np.nan)
+
+
+def _ranges(tri: SeedTriangulation, rows: np.ndarray, cols: np.ndarray, scale: int,
+            margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Triangle initial disparity and integer search range at a pyramid level."""
+    bounds = tri.evaluate(cols * scale, rows * scale)
+    margin_level = max(1.0, margin / scale)
+    low = np.floor(bounds.low / scale - margin_level).astype(np.int64)
+    high = np.ceil(bounds.high / scale + margin_level).astype(np.int64)
+    return bounds.disparity / scale, low, high
+
+
+def _densify_points(rows: np.ndarray, cols: np.ndarray, disparity: np.ndarray,
+                    correlation: np.ndarray, cell: int) -> tuple[np.ndarray, np.ndarray]:
+    """Best-correlated accepted match per ``cell`` × ``cell`` block: new seeds."""
+    if rows.size == 0:
+        return np.zeros((0, 2)), np.zeros(0)
+    key = (rows // cell) * (int(cols.max()) // cell + 1) + cols // cell
+    order = np.lexsort((-correlation, key))
+    _, first = np.unique(key[order], return_index=True)
+    chosen = order[first]
+    return np.column_stack([cols[chosen], rows[chosen]]).astype(np.float64), disparity[chosen]
+
+
+def _grid_to_image(node_values: np.ndarray, shape: tuple[int, int], spacing: int) -> np.ndarray:
+    """Spread node values (on rows/cols multiple of ``spacing``) to every pixel.
+
+    Bilinear between four finite nodes; NaN where a corner is NaN or beyond the last
+    node (except on the nodes themselves).
+    """
+    height, width = shape
+    if spacing == 1:
+        return node_values
+    n_rows, n_cols = node_values.shape
+    rows = np.arange(height)
+    cols = np.arange(width)
+    i0 = np.minimum(rows // spacing, n_rows - 1)
+    j0 = np.minimum(cols // spacing, n_cols - 1)
+    fy = (rows - i0 * spacing) / spacing
+    fx = (cols - j0 * spacing) / spacing
+    i1 = np.minimum(i0 + 1, n_rows - 1)
+    j1 = np.minimum(j0 + 1, n_cols - 1)
+    fy = fy[:, None]
+    fx = fx[None, :]
+    v00 = node_values[i0][:, j0]
+    v01 = node_values[i0][:, j1]
+    v10 = node_values[i1][:, j0]
+    v11 = node_values[i1][:, j1]
+    out = (v00 * (1 - fy) * (1 - fx) + v01 * (1 - fy) * fx + v10 * fy * (1 - fx)
+           + v11 * fy * fx)
+    # pixels past the last node row/column would extrapolate: keep only exact nodes
+    beyond = (rows > (n_rows - 1) * spacing)[:, None] | (cols > (n_cols - 1) * spacing)[None, :]
+    return np.where(beyond, np.nan, out)
+
+
+def _usable_levels(shape: tuple[int, int], levels: int, template: int) -> int:
+    """Levels whose coarsest image is still at least 3 templates wide and tall."""
+    usable = levels
+    while usable > 1 and min(shape) / 2 ** (usable - 1) < 3 * template:
+        usable -= 1
+    return usable
+
+
+def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold: float = 0.9,
+          grid_spacing: int = 1, levels: int = 3, search_margin: float = 2.0, rounds: int = 2,
+          seed_points: tuple[np.ndarray, np.ndarray] | None = None,
+          disparity_range: tuple[float, float] | None = None, use_sift: bool = True,
+          max_vertical: float = 1.5) -> MatchResult:
+    """Dense disparity of a rectified pair by seeds, triangles, pyramid NCC and LSM.
+
+    Parameters
+    ----------
+    left, right : (H, W) float
+        Rectified grey images of the same shape (any DN scale); NaN = nodata (never
+        matched).  Not modified.
+    template : int
+        Template size (odd, 9 … 25 pixels; 17 in the HiRISE study).
+    threshold : float
+        Acceptance threshold on the LSM correlation coefficient (0.9 in the HiRISE
+        study; 0.8 relaxed).
+    grid_spacing : int
+        Pixels between template centres at full resolution (1 = every pixel); other
+        pixels are interpolated between four accepted nodes.
+    levels : int
+        Pyramid levels (reduced when the coarsest would be narrower than 3 templates).
+    search_margin : float
+        Pixels added on both sides of the triangle's vertex-disparity range (scaled
+        with the pyramid level, at least 1 level pixel).
+    rounds : int
+        Densification rounds after the first full-resolution pass.
+    seed_points : ((N, 2), (N, 2)) float, optional
+        Prior matches (x, y) in the left and right image (e.g. rectify.npz inliers).
+    disparity_range : (float, float), optional
+        Disparity range for the corner seed search when there are no SIFT/prior seeds.
+    use_sift : bool
+        Detect SIFT seeds (:mod:`demtool.features`).
+    max_vertical : float
+        Largest row offset (pixels) of an accepted match in the rectified pair.
+
+    Returns
+    -------
+    MatchResult
+
+    Raises
+    ------
+    ParameterError
+        Bad option values, images of different shapes, seeds outside the images.
+    ProcessingError
+        No valid pixel, or fewer than 3 usable seeds (no texture, no overlap).
+    """
+    started = time.perf_counter()
+    check_parameters(template, threshold, grid_spacing, levels, search_margin, rounds)
+    left = np.asarray(left, dtype=np.float64)
+    right = np.asarray(right, dtype=np.float64)
+    if left.ndim != 2 or right.ndim != 2:
+        raise ParameterError(f"images must be 2-D, got shapes {left.shape} and {right.shape}")
+    if left.shape != right.shape:
+        raise ParameterError(f"the rectified images differ in size: left {left.shape[1]} x "
+                             f"{left.shape[0]}, right {right.shape[1]} x {right.shape[0]}")
+    if min(left.shape) < template + 4:
+        raise ParameterError(f"images of {left.shape[1]} x {left.shape[0]} pixels are too small "
+                             f"for a {template}-pixel template")
+    left_valid = np.isfinite(left)
+    if not left_valid.any() or not np.isfinite(right).any():
+        raise ProcessingError("an image has no valid (finite) pixel")
+    if seed_points is not None:
+        seed_points = check_seed_points(seed_points[0], seed_points[1], left.shape, right.shape)
+
+    seed_threshold = min(threshold, 0.8)
+    seeds = find_seeds(left, right, template=template, min_correlation=seed_threshold,
+                       max_vertical=max_vertical, prior=seed_points,
+                       disparity_range=disparity_range, use_sift=use_sift)
+    if len(seeds.points) < 3:
+        raise ProcessingError(
+            f"only {len(seeds.points)} reliable seed match(es) between the images "
+            f"(candidates: {seeds.counts}); at least 3 are needed — are the images "
+            "textured, overlapping and rectified?")
+    log.info("seeds: %d verified (%s), disparity %.1f … %.1f px", len(seeds.points),
+             ", ".join(f"{k} {v}" for k, v in seeds.counts.items()),
+             seeds.disparity.min(), seeds.disparity.max())
+    tri = SeedTriangulation(seeds.points, seeds.disparity)
+    t_seeds = time.perf_counter() - started
+
+    n_levels = _usable_levels(left.shape, levels, template)
+    if n_levels < levels:
+        log.info("pyramid: %d level(s) instead of %d (image too small)", n_levels, levels)
+    pyr_left = build_pyramid(left, n_levels)
+    pyr_right = build_pyramid(right, n_levels)
+
+    # --- coarse levels: NCC on every pixel, the result guides the next level -------
+    guide: np.ndarray | None = None
+    level_stats = []
+    for level in range(n_levels - 1, 0, -1):
+        img_l, ok_l = pyr_left[level]
+        img_r, ok_r = pyr_right[level]
+        scale = 2 ** level
+        rows, cols = np.nonzero(ok_l)
+        _, low, high = _ranges(tri, rows, cols, scale, search_margin)
+        low, high = _narrow(low, high, guide, rows, cols)
+        ncc = ncc_search(img_l, img_r, rows, cols, low, high, template=template,
+                         left_valid=ok_l, right_valid=ok_r)
+        good = np.isfinite(ncc.disparity) & (ncc.correlation >= COARSE_MIN_CORRELATION)
+        grid = np.full(img_l.shape, np.nan)
+        grid[rows[good], cols[good]] = ncc.disparity[good]
+        median = _nan_median3(grid)
+        grid[np.abs(grid - median) > 1.0] = np.nan  # isolated blunders
+        guide = grid
+        level_stats.append({"level": level, "shape": list(img_l.shape),
+                            "matched_percent": round(100.0 * np.isfinite(grid).sum()
+                                                     / max(1, ok_l.sum()), 2)})
+    t_pyramid = time.perf_counter() - started - t_seeds
+
+    # --- full resolution: NCC + LSM on the grid nodes, then densification rounds -------
+    height, width = left.shape
+    node_rows = np.arange(0, height, grid_spacing)
+    node_cols = np.arange(0, width, grid_spacing)
+    rr, cc = np.meshgrid(node_rows, node_cols, indexing="ij")
+    rows_all, cols_all = rr.ravel(), cc.ravel()
+    node_disp = np.full(rows_all.size, np.nan)
+    node_corr = np.full(rows_all.size, np.nan)
+    node_sigma = np.full(rows_all.size, np.nan)
+    # only nodes whose template lies on valid left pixels can ever match
+    half = template // 2
+    from demtool.match.ncc import integral_invalid
+
+    table = integral_invalid(left_valid)
+    r0, r1 = rows_all - half, rows_all + half + 1
+    c0, c1 = cols_all - half, cols_all + half + 1
+    inside = (r0 >= 0) & (c0 >= 0) & (r1 <= height) & (c1 <= width)
+    todo = np.zeros(rows_all.size, dtype=bool)
+    todo[inside] = (table[r1[inside], c1[inside]] - table[r0[inside], c1[inside]]
+                    - table[r1[inside], c0[inside]] + table[r0[inside], c0[inside]]) == 0
+    candidates = int(todo.sum())
+    round_stats = []
+    right_valid = np.isfinite(right)
+    for round_index in range(rounds + 1):
+        idx = np.nonzero(todo)[0]
+        if idx.size == 0:
+            break
+        rows, cols = rows_all[idx], cols_all[idx]
+        _, low, high = _ranges(tri, rows, cols, 1, search_margin)
+        if round_index == 0:
+            low, high = _narrow(low, high, guide, rows, cols)
+        ncc = ncc_search(left, right, rows, cols, low, high, template=template,
+                         left_valid=left_valid, right_valid=right_valid)
+        has = np.isfinite(ncc.disparity)
+        lsm = lsm_match(left, right, rows[has], cols[has], cols[has] - ncc.disparity[has],
+                        rows[has].astype(np.float64), template=template,
+                        left_valid=left_valid, right_valid=right_valid)
+        d = cols[has] - lsm.x_right
+        accepted = ((lsm.status == CONVERGED) & (lsm.correlation >= threshold)
+                    & (np.abs(lsm.y_right - rows[has]) <= max_vertical)
+                    & (d >= low[has] - 1.0) & (d <= high[has] + 1.0))
+        where = idx[has]
+        node_corr[where] = lsm.correlation
+        node_disp[where[accepted]] = d[accepted]
+        node_sigma[where[accepted]] = lsm.sigma_x[accepted]
+        todo[where[accepted]] = False
+        round_stats.append({"round": round_index, "evaluated": int(idx.size),
+                            "accepted": int(accepted.sum())})
+        log.info("round %d: %d of %d nodes accepted", round_index, int(accepted.sum()), idx.size)
+        if round_index == rounds or not accepted.any():
+            break
+        done = np.isfinite(node_disp)
+        new_points, new_disp = _densify_points(rows_all[done], cols_all[done], node_disp[done],
+                                               node_corr[done], max(template, grid_spacing))
+        tri = SeedTriangulation(np.concatenate([seeds.points, new_points]),
+                                np.concatenate([seeds.disparity, new_disp]))
+
+    shape_nodes = (node_rows.size, node_cols.size)
+    disparity = _grid_to_image(node_disp.reshape(shape_nodes), left.shape, grid_spacing)
+    correlation = _grid_to_image(node_corr.reshape(shape_nodes), left.shape, grid_spacing)
+    sigma = _grid_to_image(node_sigma.reshape(shape_nodes), left.shape, grid_spacing)
+    disparity = np.where(left_valid, disparity, np.nan)
+    accepted_pixels = int(np.isfinite(disparity).sum())
+    completeness = 100.0 * accepted_pixels / int(left_valid.sum())
+    accepted_nodes = int(np.isfinite(node_disp).sum())
+    finite_d = disparity[np.isfinite(disparity)]
+    summary = {
+        "completeness_percent": round(completeness, 3),
+        "accepted_pixels": accepted_pixels,
+        "valid_left_pixels": int(left_valid.sum()),
+        "grid_nodes": int(rows_all.size),
+        "grid_nodes_matchable": candidates,
+        "grid_nodes_accepted": accepted_nodes,
+        "seeds": len(seeds.points),
+        "seed_counts": seeds.counts,
+        "pyramid_levels": n_levels,
+        "levels": level_stats,
+        "rounds": round_stats,
+        "disparity_min": float(finite_d.min()) if finite_d.size else None,
+        "disparity_max": float(finite_d.max()) if finite_d.size else None,
+        "median_sigma_px": float(np.nanmedian(node_sigma)) if accepted_nodes else None,
+        "mean_correlation_accepted": (float(np.nanmean(node_corr[np.isfinite(node_disp)]))
+                                      if accepted_nodes else None),
+        "time_seeds_s": round(t_seeds, 3),
+        "time_pyramid_s": round(t_pyramid, 3),
+        "time_total_s": round(time.perf_counter() - started, 3),
+    }
+    log.info("completeness %.1f %% (%d of %d valid pixels), median sigma %s px",
+             completeness, accepted_pixels, int(left_valid.sum()), summary["median_sigma_px"])
+    return MatchResult(disparity=disparity.astype(np.float32),
+                       correlation=correlation.astype(np.float32),
+                       sigma=sigma.astype(np.float32), seeds=seeds, summary=summary)
+
+
+def _narrow(low: np.ndarray, high: np.ndarray, guide: np.ndarray | None, rows: np.ndarray,
+            cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Narrow a level's triangle range to ±PYRAMID_RADIUS around the coarser result."""
+    if guide is None:
+        return low, high
+    estimate = 2.0 * _sample_coarse(guide, rows / 2.0, cols / 2.0)
+    have = np.isfinite(estimate)
+    est = np.where(have, estimate, 0.0)
+    new_low = np.maximum(low, np.floor(est - PYRAMID_RADIUS).astype(np.int64))
+    new_high = np.minimum(high, np.ceil(est + PYRAMID_RADIUS).astype(np.int64))
+    use = have & (new_low <= new_high)
+    return np.where(use, new_low, low), np.where(use, new_high, high)

@@ -1,0 +1,239 @@
+"""Comparison figures (matplotlib, Agg backend): each function returns PNG bytes.
+
+Figures take arrays on the comparison grid (row 0 at the top, x right, y down) and the
+pixel spacing in metres; axes are in metres from the grid's top-left corner.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "coherence_figure",
+    "completeness_figure",
+    "default_profiles",
+    "dems_figure",
+    "difference_figure",
+    "hillshade",
+    "histogram_figure",
+    "profile_samples",
+    "profiles_figure",
+]
+
+DPI = 110
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _png(figure) -> bytes:
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=DPI, bbox_inches="tight")
+    _pyplot().close(figure)
+    return buffer.getvalue()
+
+
+def _extent(shape: tuple[int, int], spacing: tuple[float, float]) -> list[float]:
+    return [0.0, shape[1] * spacing[0], shape[0] * spacing[1], 0.0]
+
+
+def hillshade(dem: np.ndarray, spacing: tuple[float, float] = (1.0, 1.0), *,
+              azimuth_deg: float = 315.0, altitude_deg: float = 45.0) -> np.ndarray:
+    """Lambertian hillshade in [0, 1] (NaN at holes), light from ``azimuth_deg``.
+
+    Azimuth is clockwise from up (north for a north-up grid); the grid's y axis points
+    down (row order).
+    """
+    grad_row, grad_col = np.gradient(np.asarray(dem, dtype=np.float64))
+    dzdx = grad_col / spacing[0]
+    dzdy_up = -grad_row / spacing[1]
+    az, alt = np.radians(azimuth_deg), np.radians(altitude_deg)
+    light = np.array([np.sin(az) * np.cos(alt), np.cos(az) * np.cos(alt), np.sin(alt)])
+    norm = np.sqrt(1.0 + dzdx**2 + dzdy_up**2)
+    shade = (-dzdx * light[0] - dzdy_up * light[1] + light[2]) / norm
+    return np.clip(shade, 0.0, 1.0)
+
+
+def _symmetric_limit(values: np.ndarray) -> float:
+    finite = np.abs(values[np.isfinite(values)])
+    if finite.size == 0:
+        return 1.0
+    limit = float(np.percentile(finite, 98))
+    return limit if limit > 0 else float(max(finite.max(), 1e-6))
+
+
+def difference_figure(difference: np.ndarray, spacing: tuple[float, float], *,
+                      title: str = "", stats: dict[str, Any] | None = None) -> bytes:
+    """Difference map, diverging colour map with symmetric limits (±98th pct of |dh|)."""
+    plt = _pyplot()
+    limit = _symmetric_limit(difference)
+    figure, axis = plt.subplots(figsize=(7, 6))
+    image = axis.imshow(difference, cmap="RdBu_r", vmin=-limit, vmax=limit,
+                        extent=_extent(difference.shape, spacing), interpolation="nearest")
+    axis.set_facecolor("0.8")
+    figure.colorbar(image, ax=axis, label="DEM − reference (m)", extend="both")
+    axis.set_xlabel("x (m)")
+    axis.set_ylabel("y (m, down)")
+    text = title
+    if stats:
+        text += (f"\nRMSE {stats['rmse']:.3g} m, NMAD {stats['nmad']:.3g} m, "
+                 f"mean {stats['mean']:.3g} m")
+    axis.set_title(text.strip())
+    return _png(figure)
+
+
+def dems_figure(dems: Sequence[tuple[str, np.ndarray]], spacing: tuple[float, float], *,
+                contours: int = 20) -> bytes:
+    """Each DEM colour-coded over its hillshade with ``contours`` equally spaced contours.
+
+    One panel per (name, DEM); all share the colour scale and contour levels (the
+    NavCam study's figure 4 style).
+    """
+    plt = _pyplot()
+    finite = np.concatenate([d[np.isfinite(d)] for _, d in dems])
+    low, high = (float(np.percentile(finite, 0.5)), float(np.percentile(finite, 99.5))) \
+        if finite.size else (0.0, 1.0)
+    if high <= low:
+        high = low + 1e-6
+    levels = np.linspace(low, high, contours + 2)[1:-1]
+    count = len(dems)
+    figure, axes = plt.subplots(1, count, figsize=(5.2 * count, 5), squeeze=False)
+    image = None
+    for axis, (name, dem) in zip(axes[0], dems, strict=True):
+        extent = _extent(dem.shape, spacing)
+        shade = hillshade(dem, spacing)
+        axis.set_facecolor("0.85")
+        axis.imshow(shade, cmap="gray", vmin=0, vmax=1, extent=extent,
+                    interpolation="nearest")
+        image = axis.imshow(dem, cmap="terrain", vmin=low, vmax=high, alpha=0.55,
+                            extent=extent, interpolation="nearest")
+        rows, cols = dem.shape
+        x = (np.arange(cols) + 0.5) * spacing[0]
+        y = (np.arange(rows) + 0.5) * spacing[1]
+        if np.isfinite(dem).sum() > 4:
+            axis.contour(x, y, np.ma.masked_invalid(dem), levels=levels, colors="k",
+                         linewidths=0.5)
+        axis.set_title(name)
+        axis.set_xlabel("x (m)")
+    axes[0][0].set_ylabel("y (m, down)")
+    figure.colorbar(image, ax=list(axes[0]), label="height (m)", shrink=0.85)
+    return _png(figure)
+
+
+def default_profiles(shape: tuple[int, int]) -> list[tuple[float, float, float, float]]:
+    """One horizontal and one vertical line through the centre, in pixels (x0, y0, x1, y1)."""
+    rows, cols = shape
+    cy, cx = (rows - 1) / 2.0, (cols - 1) / 2.0
+    return [(0.0, cy, cols - 1.0, cy), (cx, 0.0, cx, rows - 1.0)]
+
+
+def profile_samples(dem: np.ndarray, line: tuple[float, float, float, float],
+                    spacing: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Heights along a line (pixels x0, y0, x1, y1), one sample per pixel of length.
+
+    Returns distance along the line (metres) and bilinearly interpolated heights
+    (NaN at holes and outside).
+    """
+    from demtool.compare.grids import sample_bilinear
+
+    x0, y0, x1, y1 = line
+    length_px = float(np.hypot(x1 - x0, y1 - y0))
+    count = max(2, int(np.ceil(length_px)) + 1)
+    t = np.linspace(0.0, 1.0, count)
+    xs, ys = x0 + t * (x1 - x0), y0 + t * (y1 - y0)
+    distance = t * float(np.hypot((x1 - x0) * spacing[0], (y1 - y0) * spacing[1]))
+    return distance, sample_bilinear(dem, ys, xs)
+
+
+def profiles_figure(dems: Sequence[tuple[str, np.ndarray]],
+                    lines: Sequence[tuple[float, float, float, float]],
+                    spacing: tuple[float, float]) -> bytes:
+    """Height profiles of every DEM along each line (one panel per line)."""
+    plt = _pyplot()
+    figure, axes = plt.subplots(len(lines), 1, figsize=(9, 3.2 * len(lines)), squeeze=False)
+    for axis, line in zip(axes[:, 0], lines, strict=True):
+        for index, (name, dem) in enumerate(dems):
+            distance, heights = profile_samples(dem, line, spacing)
+            axis.plot(distance, heights, label=name, linewidth=1.6 if index == 0 else 1.0,
+                      color="k" if index == 0 else None)
+        axis.set_title("profile ({:.0f}, {:.0f}) → ({:.0f}, {:.0f}) px".format(*line))
+        axis.set_xlabel("distance along the profile (m)")
+        axis.set_ylabel("height (m)")
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=8)
+    figure.tight_layout()
+    return _png(figure)
+
+
+def histogram_figure(difference: np.ndarray, *, stats: dict[str, Any] | None = None,
+                     title: str = "") -> bytes:
+    """Histogram of the differences with a normal curve of the NMAD for comparison."""
+    plt = _pyplot()
+    values = difference[np.isfinite(difference)]
+    figure, axis = plt.subplots(figsize=(7, 4.5))
+    if values.size:
+        limit = _symmetric_limit(values) * 1.5
+        inside = values[np.abs(values - np.median(values)) <= limit]
+        axis.hist(inside, bins=100, density=True, color="0.55", label="DEM − reference")
+        if stats and stats.get("nmad"):
+            grid = np.linspace(inside.min(), inside.max(), 400)
+            nmad = stats["nmad"]
+            axis.plot(grid, np.exp(-0.5 * ((grid - stats["median"]) / nmad) ** 2)
+                      / (nmad * np.sqrt(2 * np.pi)), "r-", label="normal (median, NMAD)")
+            axis.axvline(stats["mean"], color="b", linestyle="--", label="mean")
+    axis.set_xlabel("DEM − reference (m)")
+    axis.set_ylabel("density")
+    if stats:
+        title = (title + f"\nn={stats['count']}, RMSE {stats['rmse']:.3g} m, "
+                 f"NMAD {stats['nmad']:.3g} m, LE90 {stats['le90']:.3g} m").strip()
+    axis.set_title(title)
+    axis.legend(fontsize=8)
+    return _png(figure)
+
+
+def completeness_figure(coverage: np.ndarray, spacing: tuple[float, float], *,
+                        percent: float, title: str = "") -> bytes:
+    """Where the DEM has a value (grey) and where it lacks one (red) over the reference."""
+    from matplotlib.colors import ListedColormap
+
+    plt = _pyplot()
+    figure, axis = plt.subplots(figsize=(7, 6))
+    axis.set_facecolor("white")
+    axis.imshow(coverage, cmap=ListedColormap(["tab:red", "0.7"]), vmin=0, vmax=1,
+                extent=_extent(coverage.shape, spacing), interpolation="nearest")
+    axis.set_title(f"{title} completeness {percent:.2f} % (red: no DEM value)".strip())
+    axis.set_xlabel("x (m)")
+    axis.set_ylabel("y (m, down)")
+    return _png(figure)
+
+
+def coherence_figure(frequency: np.ndarray, coherence: np.ndarray, *,
+                     cutoff_per_m: float | None, threshold: float = 0.5,
+                     title: str = "") -> bytes:
+    """Coherence against wavelength, with the threshold and the coherent cut-off."""
+    plt = _pyplot()
+    figure, axis = plt.subplots(figsize=(7, 4.5))
+    axis.semilogx(1.0 / frequency, coherence, "k.-", markersize=3)
+    axis.axhline(threshold, color="r", linestyle="--", linewidth=1,
+                 label=f"threshold {threshold}")
+    if cutoff_per_m:
+        axis.axvline(1.0 / cutoff_per_m, color="b", linewidth=1,
+                     label=f"effective resolution {1.0 / cutoff_per_m:.3g} m")
+    axis.invert_xaxis()
+    axis.set_xlabel("wavelength (m)")
+    axis.set_ylabel("coherence")
+    axis.set_ylim(0, 1.05)
+    axis.grid(alpha=0.3, which="both")
+    axis.set_title(title)
+    axis.legend(fontsize=8)
+    return _png(figure)

@@ -1,0 +1,117 @@
+"""Synthetic rectified pairs with known disparity for the sgm tests (and benchmarks).
+
+Disparity convention: ``x_right = x_left − d``; the truth is in the left image's frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+
+def texture(rng: np.random.Generator, shape: tuple[int, int], *, blur: float = 1.0,
+            sigma: float = 40.0, mean: float = 1000.0) -> np.ndarray:
+    """Band-limited random texture (Gaussian-smoothed white noise), float64 grey levels."""
+    field = ndimage.gaussian_filter(rng.normal(size=shape), blur, mode="wrap")
+    return (field - field.mean()) / field.std() * sigma + mean
+
+
+def smooth_disparity_pair(height: int = 96, width: int = 128, *, seed: int = 1,
+                          offset: float = 0.0, amplitude: float = 4.0, noise: float = 2.0,
+                          gain: float = 1.0, bias: float = 0.0, blur: float = 1.0,
+                          sigma: float = 40.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A textured pair related by a smooth disparity field.
+
+    The right image samples the texture at ``x_r + f(x_r, y)`` with
+    ``f = offset + amplitude·sin(x/30) + 3·y/H``; the left image is the texture
+    itself, so the left-frame truth solves ``d(x) = f(x − d(x))``.  The right image
+    has gain ``gain`` and offset ``bias``; both get Gaussian noise ``noise``.
+
+    Returns
+    -------
+    left, right : (H, W) float32 grey levels (about 1000 ± ``sigma``)
+    truth : (H, W) float32 disparity of the left pixels, px
+    """
+    rng = np.random.default_rng(seed)
+    margin = int(abs(offset) + amplitude + 8)
+    base = texture(rng, (height, width + 2 * margin), blur=blur, sigma=sigma)
+    rows, cols = np.mgrid[0:height, 0:width].astype(np.float64)
+
+    def field(x, y):
+        return offset + amplitude * np.sin(x / 30.0) + 3.0 * y / height
+
+    truth = field(cols, rows)
+    for _ in range(40):
+        truth = field(cols - truth, rows)
+    left = base[:, margin:margin + width]
+    right = ndimage.map_coordinates(base, [rows, cols + margin + field(cols, rows)], order=3)
+    right = gain * right + bias
+    left = left + rng.normal(0.0, noise, left.shape)
+    right = right + rng.normal(0.0, noise, right.shape)
+    return left.astype(np.float32), right.astype(np.float32), truth.astype(np.float32)
+
+
+def fractional_shift_pair(shift: float, height: int = 64, width: int = 128, *, seed: int = 3
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """A pair related by a constant fractional disparity ``shift`` (exact Fourier shift).
+
+    The texture is periodic along x and band-limited, so the right image
+    ``right(x) = left(x + shift)`` is exact (no interpolation error).
+    """
+    rng = np.random.default_rng(seed)
+    left = texture(rng, (height, width), blur=1.2)
+    spectrum = np.fft.fft(left, axis=1)
+    frequencies = np.fft.fftfreq(width)
+    right = np.real(np.fft.ifft(spectrum * np.exp(2j * np.pi * frequencies * shift), axis=1))
+    return left.astype(np.float32), right.astype(np.float32)
+
+
+def occlusion_pair(height: int = 96, width: int = 128, *, seed: int = 5, background: int = 4,
+                   foreground: int = 14, box: tuple[int, int, int, int] = (30, 66, 56, 100),
+                   noise: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A fronto-parallel box in front of a background plane, integer disparities.
+
+    The box (rows ``box[0]:box[1]``, left columns ``box[2]:box[3]``) has disparity
+    ``foreground``, the rest ``background``; the right image is composed so that the
+    box hides the background strip of width ``foreground − background`` to the left
+    of the box in the left image (occluded: no correct match exists there).
+
+    Returns
+    -------
+    left, right : (H, W) float32
+    truth : (H, W) float32 disparity of the left pixels
+    occluded : (H, W) bool, left pixels hidden in the right image
+    """
+    rng = np.random.default_rng(seed)
+    pad = foreground + 4
+    back = texture(rng, (height, width + 2 * pad), blur=1.0)
+    front = texture(rng, (height, width + 2 * pad), blur=1.0, mean=1100.0)
+    r0, r1, c0, c1 = box
+    rows, cols = np.mgrid[0:height, 0:width]
+    in_box = (rows >= r0) & (rows < r1) & (cols >= c0) & (cols < c1)
+    left = np.where(in_box, front[:, pad:pad + width], back[:, pad:pad + width])
+    # right pixel x_r shows the box where x_r + foreground falls inside it, else background
+    box_in_right = (rows >= r0) & (rows < r1) & (cols + foreground >= c0) & (cols + foreground < c1)
+    right = np.where(box_in_right, front[:, pad + foreground:pad + foreground + width],
+                     back[:, pad + background:pad + background + width])
+    truth = np.where(in_box, foreground, background).astype(np.float32)
+    occluded = ((rows >= r0) & (rows < r1) & (cols >= c0 - (foreground - background))
+                & (cols < c0))
+    left = left + rng.normal(0.0, noise, left.shape)
+    right = right + rng.normal(0.0, noise, right.shape)
+    return left.astype(np.float32), right.astype(np.float32), truth, occluded
+
+
+def error_rates(disparity: np.ndarray, truth: np.ndarray, mask: np.ndarray
+                ) -> dict[str, float]:
+    """Density, bad-1, bad-2 and mean absolute error of ``disparity`` on ``mask``.
+
+    Bad rates and the MAE are over the valid (finite) pixels of the mask; density
+    is the valid fraction of the mask.
+    """
+    valid = mask & np.isfinite(disparity)
+    error = np.abs(disparity[valid] - truth[valid])
+    return {"density": float(valid.sum() / max(mask.sum(), 1)),
+            "bad1": float((error > 1).mean()) if error.size else float("nan"),
+            "bad2": float((error > 2).mean()) if error.size else float("nan"),
+            "mae": float(error.mean()) if error.size else float("nan")}

@@ -1,0 +1,235 @@
+"""Tests of the semi-global matching core (demtool.sgm) on small synthetic pairs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sgm_helpers import error_rates, fractional_shift_pair, occlusion_pair, smooth_disparity_pair
+
+from demtool.errors import InputError, ParameterError
+from demtool.sgm import plan_strips, sgm
+from demtool.sgm.aggregate import aggregate_costs
+from demtool.sgm.cost import census_transform, mi_cost_table, mutual_information_table
+from demtool.sgm.disparity import median_filter, remove_speckles, select_disparities
+
+COSTS = ["hmi", "mi", "census", "ad"]
+
+
+def nonoccluded(truth: np.ndarray) -> np.ndarray:
+    """Left pixels whose match lies inside the right image (at least 1 px in)."""
+    columns = np.arange(truth.shape[1])[None, :]
+    return (columns - truth) >= 1
+
+
+@pytest.fixture(scope="module")
+def smooth_pair():
+    return smooth_disparity_pair(offset=0.0)
+
+
+@pytest.mark.parametrize("cost", COSTS)
+def test_each_cost_recovers_a_smooth_disparity_field(smooth_pair, cost):
+    left, right, truth = smooth_pair
+    result = sgm(left, right, min_disparity=-12, num_disparities=24, cost=cost)
+    rates = error_rates(result.disparity, truth, nonoccluded(truth))
+    assert rates["bad2"] < 0.05, rates
+    assert rates["mae"] < 0.2, rates
+    assert rates["density"] > 0.9, rates
+    assert result.disparity.dtype == np.float32 and result.disparity.shape == left.shape
+    assert np.isfinite(result.disparity).any()
+    # confidence is NaN exactly where the disparity is, and within 0..1 elsewhere
+    assert np.array_equal(np.isnan(result.confidence), np.isnan(result.disparity))
+    conf = result.confidence[np.isfinite(result.confidence)]
+    assert conf.min() >= 0.0 and conf.max() <= 1.0
+    assert result.timings["total"] > 0
+
+
+def test_sixteen_paths_and_options(smooth_pair):
+    left, right, truth = smooth_pair
+    result = sgm(left, right, min_disparity=-12, num_disparities=24, cost="census", paths=16,
+                 census_window="9x7", cost_window=3, adaptive_p2=True, median=1,
+                 speckle_size=0)
+    rates = error_rates(result.disparity, truth, nonoccluded(truth))
+    assert rates["bad2"] < 0.05, rates
+    assert result.parameters["paths"] == 16 and result.parameters["cost_window"] == 3
+
+
+def test_left_right_check_marks_the_occlusion_invalid():
+    left, right, truth, occluded = occlusion_pair()
+    checked = sgm(left, right, min_disparity=0, num_disparities=20, cost="census")
+    unchecked = sgm(left, right, min_disparity=0, num_disparities=20, cost="census",
+                    lr_check=False)
+    assert np.isnan(checked.disparity[occluded]).mean() > 0.7
+    assert np.isnan(unchecked.disparity[occluded]).mean() < 0.1
+    visible = nonoccluded(truth) & ~occluded
+    rates = error_rates(checked.disparity, truth, visible)
+    assert rates["bad2"] < 0.02 and rates["density"] > 0.95, rates
+
+
+@pytest.mark.parametrize("shift", [2.25, 2.5])
+@pytest.mark.parametrize("cost", ["census", "hmi"])
+def test_subpixel_accuracy_on_a_fractional_shift(cost, shift):
+    left, right = fractional_shift_pair(shift)
+    result = sgm(left, right, min_disparity=0, num_disparities=8, cost=cost)
+    found = result.disparity[:, 8:]
+    assert np.isfinite(found).mean() > 0.95
+    assert abs(np.nanmean(found) - shift) < 0.1
+    assert np.nanmean(np.abs(found - shift)) < 0.12
+    integer = sgm(left, right, min_disparity=0, num_disparities=8, cost=cost, subpixel="none",
+                  median=1)
+    assert np.nanmean(np.abs(integer.disparity[:, 8:] - shift)) > 0.2
+
+
+@pytest.mark.parametrize("cost", ["hmi", "mi"])
+def test_mutual_information_is_robust_to_a_gain_change(cost):
+    left, right, truth = smooth_disparity_pair(offset=0.0, gain=0.6, bias=300.0)
+    squared = (right / 700.0) ** 2 * 1000.0  # and to a monotonic non-linear response
+    for partner in (right, squared):
+        result = sgm(left, partner, min_disparity=-12, num_disparities=24, cost=cost)
+        rates = error_rates(result.disparity, truth, nonoccluded(truth))
+        assert rates["bad2"] < 0.05 and rates["density"] > 0.9, rates
+    # absolute difference is not: the same pair defeats it
+    result = sgm(left, right, min_disparity=-12, num_disparities=24, cost="ad")
+    assert error_rates(result.disparity, truth, nonoccluded(truth))["bad2"] > 0.5
+
+
+def test_nan_pixels_never_match_and_come_out_nan(smooth_pair):
+    left, right, truth = (a.copy() for a in smooth_pair)
+    left[:, :10] = np.nan  # outside the warped left image
+    left[40:50, 60:70] = np.nan
+    right[20:40, 30:50] = np.nan
+    result = sgm(left, right, min_disparity=-12, num_disparities=24, cost="hmi")
+    disparity = result.disparity
+    assert np.isnan(disparity[:, :10]).all() and np.isnan(disparity[40:50, 60:70]).all()
+    rows, cols = np.nonzero(np.isfinite(disparity))
+    matched = np.rint(cols - disparity[rows, cols]).astype(int)
+    inside = (matched >= 0) & (matched < right.shape[1])
+    assert inside.all()
+    assert np.isfinite(right[rows, matched]).all()
+    mask = nonoccluded(truth) & np.isfinite(left)
+    assert error_rates(disparity, truth, mask)["bad2"] < 0.05
+
+
+def test_strips_match_the_whole_image():
+    left, right, truth = smooth_disparity_pair(height=200, width=96, offset=0.0)
+    assert len(plan_strips(200, 96, 24, workers=2, max_memory_mb=2.0)) > 2
+    whole = sgm(left, right, min_disparity=-12, num_disparities=24, cost="census", workers=1)
+    strips = sgm(left, right, min_disparity=-12, num_disparities=24, cost="census", workers=2,
+                 max_memory_mb=2.0)
+    same = np.isclose(whole.disparity, strips.disparity, atol=0.05, equal_nan=True)
+    assert same.mean() > 0.97
+    rates = error_rates(strips.disparity, truth, nonoccluded(truth))
+    assert rates["bad2"] < 0.05, rates
+
+
+def test_plan_strips_bounds_memory():
+    strips = plan_strips(2048, 2048, 128, workers=2, max_memory_mb=1400)
+    assert strips[0][0] == 0 and strips[-1][1] == 2048 and len(strips) % 2 == 0
+    for start, stop in strips:
+        rows = stop - start + 2 * 32
+        assert 2 * rows * 2048 * 128 * 2 * 2 <= 1400 * 2**20
+    assert plan_strips(100, 120, 16, workers=4, max_memory_mb=1400) == [(0, 100)]
+    with pytest.raises(ParameterError, match="max-memory-mb"):
+        plan_strips(2048, 2048, 128, workers=2, max_memory_mb=10)
+
+
+def test_bad_inputs_raise_clear_errors(smooth_pair):
+    left, right, _ = smooth_pair
+    with pytest.raises(InputError, match="differ in size"):
+        sgm(left, right[:, :-1], min_disparity=0, num_disparities=8)
+    with pytest.raises(InputError, match="right image contains no valid"):
+        sgm(left, np.full_like(right, np.nan), min_disparity=0, num_disparities=8)
+    with pytest.raises(ParameterError, match="wider than the image"):
+        sgm(left, right, min_disparity=0, num_disparities=200)
+    with pytest.raises(ParameterError, match="wider than the image"):
+        sgm(left, right, min_disparity=-300, num_disparities=10)
+    with pytest.raises(ParameterError, match="unknown cost"):
+        sgm(left, right, min_disparity=0, num_disparities=8, cost="ncc")
+    with pytest.raises(ParameterError, match="P1"):
+        sgm(left, right, min_disparity=0, num_disparities=8, p1=100, p2=10)
+    with pytest.raises(ParameterError, match="overflow"):
+        sgm(left, right, min_disparity=0, num_disparities=8, cost="census", paths=16,
+            cost_window=15, p2=2000)
+    with pytest.raises(ParameterError, match="odd"):
+        sgm(left, right, min_disparity=0, num_disparities=8, cost_window=4)
+
+
+def test_census_transform_bits():
+    image = np.arange(25, dtype=np.float32).reshape(5, 5)
+    codes = census_transform(image, (3, 3))
+    # at the centre, the four neighbours before it in raster order are darker
+    assert codes[2, 2] == 0b11110000
+    assert census_transform(image, (5, 5)).dtype == np.uint64
+    with pytest.raises(ValueError):
+        census_transform(image, (4, 5))
+
+
+def test_mutual_information_favours_corresponding_levels():
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 32, size=(64, 64)).astype(np.uint8)
+    right = (31 - left).astype(np.uint8)  # inverted contrast: MI does not mind
+    valid = np.ones(left.shape, dtype=bool)
+    mi, pairs = mutual_information_table(left, right, valid, valid,
+                                         np.zeros(left.shape, np.float32), levels=32)
+    assert pairs == left.size
+    table = mi_cost_table(mi)
+    levels = np.arange(32)
+    assert (table[levels, 31 - levels] <= table.min(axis=1) + 1).all()
+    assert table[levels, levels].mean() > table[levels, 31 - levels].mean() + 10
+
+
+def test_aggregation_follows_the_recursion():
+    rng = np.random.default_rng(2)
+    cost = rng.integers(0, 50, size=(5, 7, 6)).astype(np.uint16)
+    total = aggregate_costs(cost, p1=3, p2=20, paths=8)
+
+    def path(dy, dx):
+        out = np.zeros(cost.shape, dtype=np.int64)
+        h, w, _ = cost.shape
+        ys = range(h) if dy >= 0 else range(h - 1, -1, -1)
+        xs = list(range(w)) if dx >= 0 else list(range(w - 1, -1, -1))
+        for y in ys:
+            for x in xs:
+                yp, xp = y - dy, x - dx
+                if not (0 <= yp < h and 0 <= xp < w):
+                    out[y, x] = cost[y, x]
+                    continue
+                prev = out[yp, xp]
+                low = prev.min()
+                shifted = np.minimum(np.r_[prev[1:], 10**6], np.r_[10**6, prev[:-1]]) + 3
+                out[y, x] = cost[y, x] + np.minimum(np.minimum(prev, shifted), low + 20) - low
+        return out
+
+    directions = [(0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1)]
+    expected = sum(path(dy, dx) for dy, dx in directions)
+    assert np.array_equal(total, expected)
+
+
+def test_selection_takes_the_right_disparity_from_the_same_cost():
+    # one row, disparities 0..3: the left pixel 5 prefers d=2, its right pixel 3 prefers d=0
+    total = np.full((1, 8, 4), 100, dtype=np.uint16)
+    total[0, :, 2] = 10
+    total[0, 3, 0] = 1  # right pixel 3 = left pixel 3 at d=0: better than left 5 at d=2
+    valid = np.ones((1, 8), dtype=bool)
+    disparity, confidence = select_disparities(total, min_disparity=0, left_valid=valid,
+                                               right_valid=valid, lr_threshold=1.0)
+    assert np.isnan(disparity[0, 5])  # inconsistent with the right image
+    assert disparity[0, 4] == pytest.approx(2.0)
+    assert confidence[0, 4] == pytest.approx(0.9)
+    unchecked, _ = select_disparities(total, min_disparity=0, left_valid=valid,
+                                      right_valid=valid, lr_threshold=None)
+    assert unchecked[0, 5] == pytest.approx(2.0)
+    assert np.isnan(unchecked[0, 1])  # x − d < 0: no right pixel
+
+
+def test_speckles_and_median():
+    disparity = np.full((20, 20), 5.0, dtype=np.float32)
+    disparity[3:5, 3:5] = 15.0  # a 4-pixel speckle
+    disparity[10, 10] = np.nan
+    cleaned = remove_speckles(disparity, max_size=10, max_difference=1.0)
+    assert np.isnan(cleaned[3:5, 3:5]).all() and np.isnan(cleaned[10, 10])
+    assert np.isfinite(cleaned).sum() == 400 - 5
+    noisy = np.full((9, 9), 2.0, dtype=np.float32)
+    noisy[4, 4] = 9.0
+    noisy[0, 0] = np.nan
+    smoothed = median_filter(noisy, 3)
+    assert smoothed[4, 4] == 2.0 and np.isnan(smoothed[0, 0])

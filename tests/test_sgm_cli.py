@@ -1,0 +1,179 @@
+"""Tests of `demtool sgm` through the command line (CliRunner)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from sgm_helpers import error_rates, smooth_disparity_pair
+
+from demtool import io as dio
+from demtool.cli import cli
+
+PRESETS = Path(__file__).resolve().parents[1] / "configs"
+
+
+@pytest.fixture(scope="module")
+def pair_dir(tmp_path_factory):
+    """left_rect.tif / right_rect.tif of a smooth pair, its truth and a rectify.npz."""
+    folder = tmp_path_factory.mktemp("sgm_pair")
+    left, right, truth = smooth_disparity_pair(offset=0.0)
+    left[:, :4] = np.nan  # outside the warped image
+    dio.write_raster(folder / "left_rect.tif", left, tags={"frame": "image:view_00_rect"})
+    dio.write_raster(folder / "right_rect.tif", right, tags={"frame": "image:view_01_rect"})
+    np.save(folder / "truth.npy", truth)
+    points = np.array([[10.0, 10.0], [50.0, 40.0], [90.0, 70.0]])
+    dio.write_npz(folder / "rectify.npz", "rectification", {
+        "H_left": np.eye(3), "H_right": np.eye(3), "F": np.zeros((3, 3)),
+        "size_left": np.array([128, 96]), "size_right": np.array([128, 96]),
+        "size_rect": np.array([128, 96]), "points_left": points, "points_right": points,
+        "points_left_rect": points, "points_right_rect": points,
+        "disparity_range": np.array([-11.5, 11.2]), "left_name": np.asarray("view_00"),
+        "right_name": np.asarray("view_01")})
+    return folder
+
+
+def invoke(*args: str):
+    return CliRunner().invoke(cli, ["-q", "sgm", *map(str, args)])
+
+
+def test_cli_writes_disparity_confidence_and_sidecar(pair_dir, tmp_path):
+    out = tmp_path / "disparity.tif"
+    confidence = tmp_path / "confidence.tif"
+    result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out", out,
+                    "--rectify", pair_dir / "rectify.npz", "--confidence", confidence,
+                    "--cost", "census", "--paths", "16")
+    assert result.exit_code == 0, result.output
+    raster = dio.read_raster(out)
+    truth = np.load(pair_dir / "truth.npy")
+    columns = np.arange(truth.shape[1])[None, :]
+    rates = error_rates(raster.data, truth, (columns - truth >= 1) & (columns >= 4))
+    assert rates["bad2"] < 0.05 and rates["density"] > 0.9, rates
+    assert np.isnan(raster.data[:, :4]).all()
+    assert raster.tags["frame"] == "image:view_00_rect"
+    assert raster.tags["demtool_stage"] == "sgm"
+    assert raster.tag_json("min_disparity") == -12  # floor(-11.5) from rectify.npz
+    assert raster.tag_json("num_disparities") == 25  # -12 … ceil(11.2) = 12
+    conf = dio.read_raster(confidence)
+    assert np.array_equal(np.isnan(conf.data), np.isnan(raster.data))
+    sidecar = json.loads((tmp_path / "disparity.tif.json").read_text())
+    summary = sidecar["summary"]
+    assert summary["min_disparity"] == -12 and summary["num_disparities"] == 25
+    assert summary["resolved"]["paths"] == 16 and summary["resolved"]["cost"] == "census"
+    assert 0.9 < summary["valid_fraction"] <= 1.0
+    assert {"cost", "aggregate", "select", "total"} <= set(summary["timings_s"])
+    assert sidecar["parameters"]["paths"] == 16
+    assert sorted(sidecar["outputs"]) == sorted([str(out), str(confidence)])
+
+
+def test_cli_default_hmi_with_explicit_range(pair_dir, tmp_path):
+    out = tmp_path / "d.tif"
+    result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out", out,
+                    "--min-disparity", "-12", "--num-disparities", "24")
+    assert result.exit_code == 0, result.output
+    sidecar = json.loads((tmp_path / "d.tif.json").read_text())
+    assert sidecar["summary"]["resolved"]["cost"] == "hmi"
+    assert [p["scale"] for p in sidecar["summary"]["passes"]][-1] == 1
+    truth = np.load(pair_dir / "truth.npy")
+    columns = np.arange(truth.shape[1])[None, :]
+    rates = error_rates(dio.read_raster(out).data, truth, (columns - truth >= 1) & (columns >= 4))
+    assert rates["bad2"] < 0.05, rates
+
+
+def _no_outputs(folder) -> bool:
+    return not any(p.name.startswith(("d.tif", ".d.tif")) for p in folder.iterdir())
+
+
+def test_cli_rejects_images_of_different_sizes(pair_dir, tmp_path):
+    small = tmp_path / "small.tif"
+    dio.write_raster(small, np.ones((90, 128), dtype=np.float32))
+    result = invoke(pair_dir / "left_rect.tif", small, "--out", tmp_path / "d.tif",
+                    "--rectify", pair_dir / "rectify.npz")
+    assert result.exit_code == 1
+    assert "differ in size" in result.output and "small.tif" in result.output
+    assert _no_outputs(tmp_path)
+
+
+def test_cli_rejects_a_nan_only_image(pair_dir, tmp_path):
+    empty = tmp_path / "empty.tif"
+    dio.write_raster(empty, np.full((96, 128), np.nan, dtype=np.float32))
+    result = invoke(pair_dir / "left_rect.tif", empty, "--out", tmp_path / "d.tif",
+                    "--rectify", pair_dir / "rectify.npz")
+    assert result.exit_code == 1
+    assert "empty.tif" in result.output and "no valid" in result.output
+    assert _no_outputs(tmp_path)
+
+
+def test_cli_rejects_a_disparity_range_wider_than_the_image(pair_dir, tmp_path):
+    result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out",
+                    tmp_path / "d.tif", "--min-disparity", "0", "--num-disparities", "500")
+    assert result.exit_code == 1
+    assert "wider than the images" in result.output
+    assert _no_outputs(tmp_path)
+
+
+def test_cli_needs_a_disparity_range(pair_dir, tmp_path):
+    result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out",
+                    tmp_path / "d.tif", "--min-disparity", "0")
+    assert result.exit_code == 1
+    assert "--rectify" in result.output and "--num-disparities" in result.output
+    assert _no_outputs(tmp_path)
+
+
+def test_cli_rejects_a_missing_or_wrong_rectify_file(pair_dir, tmp_path):
+    result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out",
+                    tmp_path / "d.tif", "--rectify", tmp_path / "nothing.npz")
+    assert result.exit_code == 1 and "nothing.npz" in result.output
+    matches = tmp_path / "matches.npz"
+    dio.write_npz(matches, "matches", {"points_left": np.zeros((3, 2)),
+                                       "points_right": np.zeros((3, 2)),
+                                       "left_name": np.asarray("a"),
+                                       "right_name": np.asarray("b")})
+    result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out",
+                    tmp_path / "d.tif", "--rectify", matches)
+    assert result.exit_code == 1 and "expected a rectification file" in result.output
+    assert _no_outputs(tmp_path)
+
+
+def test_cli_missing_input(pair_dir, tmp_path):
+    result = invoke(tmp_path / "absent.tif", pair_dir / "right_rect.tif", "--out",
+                    tmp_path / "d.tif", "--rectify", pair_dir / "rectify.npz")
+    assert result.exit_code == 1
+    assert "absent.tif" in result.output and "not found" in result.output
+    assert _no_outputs(tmp_path)
+
+
+@pytest.mark.parametrize("option, value", [("--paths", "4"), ("--cost", "ncc"),
+                                           ("--cost-window", "4"), ("--median", "2"),
+                                           ("--subpixel", "cubic"), ("--p1", "0"),
+                                           ("--census-window", "3x3"),
+                                           ("--mi-iterations", "0")])
+def test_cli_bad_option_values_are_usage_errors(pair_dir, tmp_path, option, value):
+    result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out",
+                    tmp_path / "d.tif", "--rectify", pair_dir / "rectify.npz", option, value)
+    assert result.exit_code == 2
+    assert option in result.output
+    assert _no_outputs(tmp_path)
+
+
+def test_cli_penalties_out_of_order(pair_dir, tmp_path):
+    result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out",
+                    tmp_path / "d.tif", "--rectify", pair_dir / "rectify.npz", "--p1", "50",
+                    "--p2", "10")
+    assert result.exit_code == 1 and "P1" in result.output
+    assert _no_outputs(tmp_path)
+
+
+def test_cli_navcam_preset(pair_dir, tmp_path):
+    result = CliRunner().invoke(cli, ["-q", "--config", str(PRESETS / "navcam.toml"), "sgm",
+                                      str(pair_dir / "left_rect.tif"),
+                                      str(pair_dir / "right_rect.tif"), "--out",
+                                      str(tmp_path / "d.tif"), "--rectify",
+                                      str(pair_dir / "rectify.npz")])
+    assert result.exit_code == 0, result.output
+    resolved = json.loads((tmp_path / "d.tif.json").read_text())["summary"]["resolved"]
+    assert resolved["cost"] == "mi" and resolved["paths"] == 16
+    assert resolved["mi_iterations"] == 3

@@ -49,6 +49,8 @@ log = get_logger(__name__)
 COARSE_MIN_CORRELATION = 0.5
 #: Half-width (pixels of the finer level) of the range around the coarser result.
 PYRAMID_RADIUS = 2
+#: LSM is tried only where the NCC peak reaches the acceptance threshold minus this.
+LSM_NCC_SLACK = 0.3
 
 
 @dataclass(frozen=True)
@@ -327,7 +329,7 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
             low, high = _narrow(low, high, guide, rows, cols)
         ncc = ncc_search(left, right, rows, cols, low, high, template=template,
                          left_valid=left_valid, right_valid=right_valid)
-        has = np.isfinite(ncc.disparity)
+        has = np.isfinite(ncc.disparity) & (ncc.correlation >= threshold - LSM_NCC_SLACK)
         lsm = lsm_match(left, right, rows[has], cols[has], cols[has] - ncc.disparity[has],
                         rows[has].astype(np.float64), template=template,
                         left_valid=left_valid, right_valid=right_valid)

@@ -95,8 +95,8 @@ def check_seed_points(points_left: np.ndarray, points_right: np.ndarray,
         raise ParameterError(f"{what}: seed coordinates contain NaN or infinity")
     for name, pts, (height, width) in (("left", left, left_shape),
                                        ("right", right, right_shape)):
-        outside = ((pts[:, 0] < 0) | (pts[:, 0] > width - 1)
-                   | (pts[:, 1] < 0) | (pts[:, 1] > height - 1))
+        outside = ((pts[:, 0] < -0.5) | (pts[:, 0] > width - 0.5)
+                   | (pts[:, 1] < -0.5) | (pts[:, 1] > height - 0.5))
         if outside.any():
             raise ParameterError(
                 f"{what}: {int(outside.sum())} of {len(pts)} {name} seed points lie outside "

@@ -1,0 +1,64 @@
+"""Local albedo for shape from shading (Grumpe et al. 2015, as used by the NavCam study).
+
+The albedo absorbs what the DEM's shading cannot explain at large scales: the image's
+calibration (DN per unit reflectance), slow albedo variations and photometric model
+errors.  At scales below the filter width the remaining intensity variations are
+attributed to topography, which is what shape from shading recovers.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from demtool.refine.filters import masked_gaussian_lowpass
+
+
+def estimate_albedo(image: np.ndarray, modelled: np.ndarray, *, sigma: float,
+                    weight: np.ndarray | None = None) -> np.ndarray:
+    """Local albedo ``ρ = f_σ(I) / f_σ(R)``, the ratio of the low-passed image to the
+    low-passed modelled unit-albedo reflectance of the current DEM.
+
+    Grumpe et al. (2015): the albedo map is the ratio of the Gaussian-filtered
+    observed intensities to the Gaussian-filtered intensities modelled from the
+    current DEM, re-estimated as the DEM changes; σ_ρ = 21 px in the NavCam and
+    LRO NAC studies.  Filtering numerator and
+    denominator separately (rather than the pixelwise ratio) keeps dark, steep pixels
+    from dominating.  Shadows and nodata are excluded through ``weight``
+    (normalised convolution).
+
+    Parameters
+    ----------
+    image : (H, W) float
+        Observed intensities (any linear unit: DN, I/F); NaN = no data.
+    modelled : (H, W) float
+        Reflectance of the current DEM with unit albedo (same grid).
+    sigma : float
+        σ_ρ of the Gaussian low-pass, pixels.
+    weight : (H, W) bool or float, optional
+        Where the pixels count (default: finite image and modelled reflectance > 0).
+
+    Returns
+    -------
+    albedo : (H, W) float32
+        In the image's unit per unit reflectance (for an image in DN: DN; for I/F: the
+        normal albedo), positive everywhere.
+
+    Raises
+    ------
+    ValueError
+        No pixel with a positive weight.
+    """
+    image = np.asarray(image, dtype=np.float32)
+    modelled = np.asarray(modelled, dtype=np.float32)
+    usable = np.isfinite(image) & np.isfinite(modelled) & (modelled > 0)
+    w = usable.astype(np.float32) if weight is None else \
+        np.where(usable, np.asarray(weight, dtype=np.float32), np.float32(0.0))
+    if not (w > 0).any():
+        raise ValueError("estimate_albedo: no lit, valid pixel to estimate the albedo from")
+    smooth_image = masked_gaussian_lowpass(image, w, sigma)
+    smooth_model = masked_gaussian_lowpass(modelled, w, sigma)
+    floor = np.float32(1e-6 * max(float(np.max(smooth_model)), 1e-12))
+    albedo = smooth_image / np.maximum(smooth_model, floor)
+    positive = albedo[albedo > 0]
+    fallback = np.float32(np.median(positive)) if positive.size else np.float32(1.0)
+    return np.where(albedo > 0, albedo, fallback).astype(np.float32)

@@ -1,0 +1,137 @@
+"""Preparing the inputs of shape from shading: the coarse DEM's gaps and spikes, and the
+image resampled onto the DEM grid."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy import ndimage
+
+from demtool.errors import ProcessingError
+from demtool.logs import get_logger
+from demtool.refine.filters import median_filter
+
+log = get_logger(__name__)
+
+
+class PreparedDem(NamedTuple):
+    """The coarse DEM ready for :func:`demtool.refine.refine_heights`.
+
+    Attributes
+    ----------
+    dem : (H, W) float32
+        Heights, metres, finite.
+    filled : (H, W) bool
+        Pixels that were NaN and were filled.
+    nan_fraction : float
+        Fraction of the grid that was NaN.
+    """
+
+    dem: np.ndarray
+    filled: np.ndarray
+    nan_fraction: float
+
+
+def prepare_dem(dem: np.ndarray, *, median_size: int = 15,
+                max_nan_fraction: float = 0.2) -> PreparedDem:
+    """Fill the gaps of a coarse DEM, then median-filter it (the study's spike removal).
+
+    Gaps are filled with :func:`demtool.interpolate.inpaint_springs` (the spring
+    metaphor of the NavCam study); shape from shading then refines them from the
+    shading like any other pixel.  The median filter (15 px in the NavCam study)
+    removes isolated matching blunders that would otherwise anchor the low-passed
+    heights.
+
+    Parameters
+    ----------
+    dem : (H, W) float
+        Heights, metres; NaN = no data.
+    median_size : int
+        Odd window of the median filter in pixels; 0 or 1 disables it.
+    max_nan_fraction : float
+        Refuse a DEM with a larger fraction of NaN pixels.
+
+    Returns
+    -------
+    PreparedDem
+
+    Raises
+    ------
+    ProcessingError
+        No finite height, or more gaps than ``max_nan_fraction``.
+    """
+    values = np.asarray(dem, dtype=np.float32)
+    missing = ~np.isfinite(values)
+    fraction = float(missing.mean())
+    if missing.all():
+        raise ProcessingError("the DEM has no finite height")
+    if fraction > max_nan_fraction:
+        raise ProcessingError(
+            f"{100 * fraction:.1f}% of the DEM is NaN, more than the allowed "
+            f"{100 * max_nan_fraction:.1f}% (--max-nan-fraction); fill or crop the DEM first")
+    if missing.any():
+        from demtool.interpolate import inpaint_springs
+
+        values = np.asarray(inpaint_springs(values), dtype=np.float32)
+        if not np.all(np.isfinite(values)):
+            raise ProcessingError("filling the DEM's gaps left non-finite heights")
+        log.info("filled %.2f%% of the DEM (%d pixels) by spring-metaphor inpainting",
+                 100 * fraction, int(missing.sum()))
+    if median_size > 1:
+        values = median_filter(values, int(median_size))
+    return PreparedDem(dem=values, filled=missing, nan_fraction=fraction)
+
+
+def resample_to_grid(values: np.ndarray, source_transform, target_shape: tuple[int, int],
+                     target_transform) -> np.ndarray:
+    """Resample a raster onto another grid (bilinear; Gaussian anti-aliasing when shrinking).
+
+    Parameters
+    ----------
+    values : (h, w) float
+        Source raster; NaN = no data.
+    source_transform, target_transform : affine.Affine
+        Pixel-to-map transforms of the source and the target grid (same map units).
+    target_shape : (H, W)
+        Shape of the target grid.
+
+    Returns
+    -------
+    (H, W) float32
+        NaN where the target pixel falls outside the source or next to its nodata.
+
+    Raises
+    ------
+    ProcessingError
+        The grids do not overlap.
+    """
+    source = np.asarray(values, dtype=np.float32)
+    height, width = target_shape
+    rows, cols = np.mgrid[0:height, 0:width].astype(np.float64)
+    # map coordinates of target pixel centres, then source pixel indices
+    x, y = target_transform * (cols + 0.5, rows + 0.5)
+    col_s, row_s = ~source_transform * (x, y)
+    col_s -= 0.5
+    row_s -= 0.5
+    inside = ((row_s >= -0.5) & (row_s <= source.shape[0] - 0.5)
+              & (col_s >= -0.5) & (col_s <= source.shape[1] - 0.5))
+    if not inside.any():
+        raise ProcessingError("the image and the DEM do not overlap")
+    # pixels of the source per target pixel: anti-alias before sampling a coarser grid
+    scale = np.sqrt(abs(target_transform.determinant) / abs(source_transform.determinant))
+    valid = np.isfinite(source)
+    filled = np.where(valid, source, 0.0).astype(np.float32)
+    weight = valid.astype(np.float32)
+    if scale > 1.25:
+        sigma = 0.5 * np.sqrt(scale**2 - 1.0)
+        filled = ndimage.gaussian_filter(filled, sigma, mode="nearest")
+        weight = ndimage.gaussian_filter(weight, sigma, mode="nearest")
+    coordinates = np.stack([np.clip(row_s, 0, source.shape[0] - 1),
+                            np.clip(col_s, 0, source.shape[1] - 1)])
+    sampled = ndimage.map_coordinates(filled, coordinates, order=1, mode="nearest")
+    sampled_weight = ndimage.map_coordinates(weight, coordinates, order=1, mode="nearest")
+    good = inside & (sampled_weight > 0.99)
+    out = np.full(target_shape, np.nan, dtype=np.float32)
+    out[good] = sampled[good] / sampled_weight[good]
+    return out

@@ -1,0 +1,442 @@
+"""Shape from shading constrained by a coarse DEM: the energy and its alternating solver.
+
+Energy (Grumpe & Wöhler 2014, *Recovery of elevation from estimated gradient fields
+constrained by digital elevation maps of lower lateral resolution*, ISPRS J.
+Photogramm. Remote Sens. 94, 37–54; Horn 1990, IJCV 5(1), 37–75), over the slope
+field (p, q) and the heights z, all sums over pixels::
+
+    E  = EI + δ Egrad + γ Eint + τ Edepth
+    EI    = Σ w (I/ρ − R(p, q))²                    intensity error, local albedo ρ
+    Egrad = Σ |f(p) − f(∂z0/∂x)|² + |f(q) − f(∂z0/∂y)|²
+    Eint  = Σ (p − ∂z/∂x)² + (q − ∂z/∂y)²           integrability
+    Edepth= Σ (f(z) − f(z0))²                       low-passed heights stay put
+
+with f a Gaussian low-pass (σ = 21 px), z0 the coarse DEM and R the unit-albedo
+reflectance model.  Units: slopes are dimensionless; heights enter in units of the
+x pixel spacing (z / dx), so the study's weights (δ = 0.001, γ = 0.2, τ = 10) do not
+depend on the map unit.  ``w`` is 0 in shadows and off the image, and tapers to 0 at
+the grid border.  The reported energies are per-pixel means.
+
+Solver, alternating:
+
+* slopes: one Gauss–Newton step of EI + δ Egrad + γ Eint per pixel (a 2 × 2 system
+  solved in closed form; Egrad majorised with ‖f‖ ≤ 1), with Levenberg–Marquardt
+  damping raised when a step does not lower the energy;
+* heights: one majorise–minimise step of γ Eint + τ Edepth.  The central-difference
+  gradient G of Eint is majorised by the forward-difference Neumann Laplacian
+  (GᵀG ≤ DᵀD), which the DCT diagonalises together with the Gaussian f, so the step is
+  an exact O(N log N) solve (Simchony, Chellappa & Shao 1990) that never raises the
+  energy, keeps the mean height exactly, and has no periodic wrap at the borders.
+
+The albedo and the shadow mask are re-estimated from the current DEM every few
+iterations (Grumpe et al. 2015).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from demtool.errors import ParameterError, ProcessingError
+from demtool.logs import get_logger, progress
+from demtool.refine.albedo import estimate_albedo
+from demtool.refine.filters import (
+    dct2,
+    gaussian_transfer,
+    idct2,
+    neumann_laplacian_eigenvalues,
+)
+from demtool.refine.shading import Illumination, reflectance_and_gradient, reflectance_map
+from demtool.refine.shadows import shadow_mask
+from demtool.reflectance import MODELS
+
+log = get_logger(__name__)
+
+#: Fewest lit, valid pixels (fraction of the grid) shape from shading works with.
+MIN_LIT_FRACTION = 0.05
+
+
+@dataclass(frozen=True)
+class SfsParameters:
+    """Parameters of :func:`refine_heights` (defaults: the NavCam / LRO NAC studies).
+
+    Attributes
+    ----------
+    delta, gamma, tau : float
+        Weights of Egrad, Eint and Edepth (δ = 0.001, γ = 0.2, τ = 10).
+    lowpass_sigma : float
+        σ of the low-pass f in Egrad and Edepth, pixels (21).
+    albedo_sigma : float
+        σ_ρ of the local albedo estimate, pixels (21).
+    model : str
+        Reflectance model, a name of :data:`demtool.reflectance.MODELS`.
+    iterations : int
+        Maximum number of outer iterations.
+    tolerance : float
+        Stop when an iteration lowers the energy by less than this fraction.
+    shadow_threshold : float
+        Pixels darker than this fraction of the median image are shadow (0: off).
+    cast_shadows : bool
+        Also drop the cast shadows of the current DEM.
+    update_every : int
+        Re-estimate albedo and shadows every this many iterations.
+    border_px : float
+        Width of the taper of the intensity weight at the grid border, pixels.
+    """
+
+    delta: float = 0.001
+    gamma: float = 0.2
+    tau: float = 10.0
+    lowpass_sigma: float = 21.0
+    albedo_sigma: float = 21.0
+    model: str = "lunar-lambert"
+    iterations: int = 60
+    tolerance: float = 1e-4
+    shadow_threshold: float = 0.05
+    cast_shadows: bool = True
+    update_every: int = 5
+    border_px: float = 8.0
+
+    def check(self) -> None:
+        """Raise ParameterError naming the first invalid parameter."""
+        for name in ("gamma", "tau", "lowpass_sigma", "albedo_sigma"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ParameterError(f"{name} must be positive, got {value}")
+        for name in ("delta", "tolerance", "shadow_threshold", "border_px"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ParameterError(f"{name} must not be negative, got {value}")
+        if self.shadow_threshold >= 1:
+            raise ParameterError(f"shadow_threshold is a fraction of the median image and "
+                                 f"must be below 1, got {self.shadow_threshold}")
+        if self.iterations < 1 or self.update_every < 1:
+            raise ParameterError("iterations and update_every must be at least 1")
+        if self.model not in MODELS:
+            raise ParameterError(f"unknown reflectance model {self.model!r}: should be one "
+                                 "of " + ", ".join(MODELS))
+
+    def as_dict(self) -> dict:
+        """All parameters as a plain dict (for tags and sidecars)."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Energies:
+    """The energy terms, per-pixel means (heights in units of the pixel spacing)."""
+
+    intensity: float
+    gradient: float
+    integrability: float
+    depth: float
+    total: float
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+    def __str__(self) -> str:
+        return (f"E={self.total:.6g} (EI={self.intensity:.4g}, Egrad={self.gradient:.4g}, "
+                f"Eint={self.integrability:.4g}, Edepth={self.depth:.4g})")
+
+
+@dataclass(frozen=True)
+class RefineResult:
+    """What :func:`refine_heights` returns.
+
+    Attributes
+    ----------
+    dem : (H, W) float32
+        Refined heights, metres, same grid as the input.
+    albedo : (H, W) float32
+        Local albedo of the final DEM, in the image's unit per unit reflectance.
+    shadow : (H, W) bool
+        Pixels whose intensity was ignored in the last iterations (shadow, dark).
+    energies, initial_energies : Energies
+        Energy terms at the end and at the start (with the first albedo estimate).
+    history : tuple of Energies
+        One entry per accepted iteration.
+    iterations : int
+        Outer iterations run (accepted or not).
+    converged : bool
+        True when the relative energy decrease fell below the tolerance.
+    stop_reason : str
+        Why the loop ended.
+    intensity_rms : float
+        RMS of I/ρ − R over the lit pixels at the end (unit-albedo reflectance).
+    """
+
+    dem: np.ndarray
+    albedo: np.ndarray
+    shadow: np.ndarray
+    energies: Energies
+    initial_energies: Energies
+    history: tuple[Energies, ...] = field(default_factory=tuple)
+    iterations: int = 0
+    converged: bool = False
+    stop_reason: str = ""
+    intensity_rms: float = float("nan")
+
+
+# --------------------------------------------------------------------------------------
+# Difference operators (heights in pixel units, rows down, y up)
+# --------------------------------------------------------------------------------------
+
+
+def central_gradient(z: np.ndarray, aspect: float) -> tuple[np.ndarray, np.ndarray]:
+    """G z: central differences with mirrored borders; ``aspect = dx / dy``.
+
+    Equals :func:`demtool.refine.shading.slopes` of ``z · dx`` with spacing (dx, dy).
+    """
+    gx = np.empty_like(z)
+    gx[:, 1:-1] = 0.5 * (z[:, 2:] - z[:, :-2])
+    gx[:, 0] = 0.5 * (z[:, 1] - z[:, 0])
+    gx[:, -1] = 0.5 * (z[:, -1] - z[:, -2])
+    gy = np.empty_like(z)
+    half = np.float32(-0.5 * aspect)  # y up: rows down
+    gy[1:-1] = half * (z[2:] - z[:-2])
+    gy[0] = half * (z[1] - z[0])
+    gy[-1] = half * (z[-1] - z[-2])
+    return gx, gy
+
+
+def central_gradient_adjoint(ex: np.ndarray, ey: np.ndarray, aspect: float) -> np.ndarray:
+    """Gᵀ (ex, ey), the adjoint of :func:`central_gradient`."""
+    out = np.empty_like(ex)
+    out[:, 1:-1] = 0.5 * (ex[:, :-2] - ex[:, 2:])
+    out[:, 0] = -0.5 * (ex[:, 0] + ex[:, 1])
+    out[:, -1] = 0.5 * (ex[:, -2] + ex[:, -1])
+    half = np.float32(-0.5 * aspect)
+    out[1:-1] += half * (ey[:-2] - ey[2:])
+    out[0] += half * -(ey[0] + ey[1])
+    out[-1] += half * (ey[-2] + ey[-1])
+    return out
+
+
+def border_taper(shape: tuple[int, int], width: float) -> np.ndarray:
+    """Weight rising from 0 at the outermost pixels to 1 at ``width`` pixels (sin²).
+
+    Returns
+    -------
+    (H, W) float32
+    """
+    height, width_px = shape
+    if width <= 0:
+        return np.ones(shape, dtype=np.float32)
+    rows = np.arange(height)
+    cols = np.arange(width_px)
+    distance = np.minimum(np.minimum(rows, height - 1 - rows)[:, None],
+                          np.minimum(cols, width_px - 1 - cols)[None, :])
+    ramp = np.clip(distance / width, 0.0, 1.0)
+    return (np.sin(0.5 * np.pi * ramp) ** 2).astype(np.float32)
+
+
+# --------------------------------------------------------------------------------------
+# The solver
+# --------------------------------------------------------------------------------------
+
+
+class _State:
+    """Slopes, heights and the quantities derived from them (kept between iterations)."""
+
+    def __init__(self, p, q, z, z_hat, solver: _Solver) -> None:
+        self.p, self.q, self.z, self.z_hat = p, q, z, z_hat
+        self.gx, self.gy = central_gradient(z, solver.aspect)
+        self.R, self.Rp, self.Rq = reflectance_and_gradient(p, q, solver.illumination,
+                                                            solver.params.model)
+        self.bp = solver.lowpass_twice(p - solver.p0)
+        self.bq = solver.lowpass_twice(q - solver.q0)
+
+
+class _Solver:
+    def __init__(self, image, dem, spacing, illumination, params, valid) -> None:
+        self.params = params
+        self.illumination = illumination
+        self.spacing = (float(spacing[0]), float(spacing[1]))
+        self.aspect = self.spacing[0] / self.spacing[1]
+        self.shape = dem.shape
+        self.count = dem.size
+        self.mean_height = float(np.mean(dem, dtype=np.float64))
+        self.z0 = ((dem - self.mean_height) / self.spacing[0]).astype(np.float32)
+        self.valid = valid
+        self.image = np.where(valid, image, 0.0).astype(np.float32)
+        self.taper = border_taper(self.shape, params.border_px)
+        self.g2 = gaussian_transfer(self.shape, params.lowpass_sigma) ** 2
+        self.laplacian = neumann_laplacian_eigenvalues(self.shape, self.aspect)
+        self.z0_hat = dct2(self.z0)
+        self.p0, self.q0 = central_gradient(self.z0, self.aspect)
+        gamma, tau = np.float32(params.gamma), np.float32(params.tau)
+        self.height_denominator = gamma * self.laplacian + tau * self.g2
+
+    def lowpass_twice(self, values: np.ndarray) -> np.ndarray:
+        """fᵀf values (the Gaussian applied twice), reflect borders."""
+        return idct2(dct2(values) * self.g2)
+
+    def heights_metres(self, z: np.ndarray) -> np.ndarray:
+        return (z.astype(np.float64) * self.spacing[0] + self.mean_height).astype(np.float32)
+
+    def photometry(self, state: _State) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Shadow mask, albedo and intensity weight for the current DEM."""
+        p = self.params
+        shadow = shadow_mask(self.heights_metres(state.z), np.where(self.valid, self.image,
+                                                                     np.nan),
+                             self.spacing, self.illumination, threshold=p.shadow_threshold,
+                             use_dem=p.cast_shadows)
+        lit = self.valid & ~shadow
+        if lit.mean() < MIN_LIT_FRACTION:
+            raise ProcessingError(
+                f"only {100 * lit.mean():.1f}% of the grid is lit and covered by the image "
+                f"(at least {100 * MIN_LIT_FRACTION:.0f}% needed): check the sun direction "
+                "and --shadow-threshold")
+        modelled = reflectance_map(state.gx, state.gy, self.illumination, p.model)
+        albedo = estimate_albedo(self.image, modelled, sigma=p.albedo_sigma, weight=lit)
+        weight = (self.taper * lit).astype(np.float32)
+        return shadow, albedo, weight
+
+    def energies(self, state: _State, normalised: np.ndarray, weight: np.ndarray) -> Energies:
+        p = self.params
+        n = self.count
+        residual = normalised - state.R
+        e_i = float(np.sum(weight * residual * residual, dtype=np.float64)) / n
+        e_grad = float(np.sum((state.p - self.p0) * state.bp + (state.q - self.q0) * state.bq,
+                              dtype=np.float64)) / n
+        dp = state.p - state.gx
+        dq = state.q - state.gy
+        e_int = float(np.sum(dp * dp + dq * dq, dtype=np.float64)) / n
+        dz = state.z_hat - self.z0_hat
+        e_depth = float(np.sum(self.g2 * dz * dz, dtype=np.float64)) / n
+        total = e_i + p.delta * e_grad + p.gamma * e_int + p.tau * e_depth
+        return Energies(e_i, e_grad, e_int, e_depth, total)
+
+    def step(self, state: _State, normalised: np.ndarray, weight: np.ndarray,
+             damping: float) -> _State:
+        """One slope (Gauss–Newton) and one height (DCT) update."""
+        prm = self.params
+        gamma, delta = np.float32(prm.gamma), np.float32(prm.delta)
+        w_residual = weight * (normalised - state.R)
+        bx = w_residual * state.Rp - gamma * (state.p - state.gx) - delta * state.bp
+        by = w_residual * state.Rq - gamma * (state.q - state.gy) - delta * state.bq
+        c = np.float32(prm.gamma + prm.delta + damping)
+        # (c I + w u uᵀ)⁻¹ b by Sherman–Morrison, u = (∂R/∂p, ∂R/∂q)
+        k = weight * (state.Rp * bx + state.Rq * by) / (
+            c + weight * (state.Rp * state.Rp + state.Rq * state.Rq))
+        p = state.p + (bx - state.Rp * k) / c
+        q = state.q + (by - state.Rq * k) / c
+        # heights: (γ DᵀD + τ fᵀf) z = γ (DᵀD z_k + Gᵀ(p − G z_k)) + τ fᵀf z0
+        correction = central_gradient_adjoint(p - state.gx, q - state.gy, self.aspect)
+        numerator = np.float32(prm.gamma) * (self.laplacian * state.z_hat + dct2(correction)) \
+            + np.float32(prm.tau) * self.g2 * self.z0_hat
+        z_hat = numerator / np.where(self.height_denominator > 0, self.height_denominator, 1)
+        z_hat[0, 0] = self.z0_hat[0, 0]  # the mean height is the coarse DEM's
+        return _State(p, q, idct2(z_hat), z_hat, self)
+
+
+def refine_heights(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, float],
+                   illumination: Illumination, parameters: SfsParameters | None = None,
+                   valid: np.ndarray | None = None) -> RefineResult:
+    """Refine a coarse DEM by shape from shading of one image on the same grid.
+
+    Parameters
+    ----------
+    image : (H, W) float
+        Intensities on the DEM grid, any linear unit (DN, I/F): the local albedo
+        absorbs the scale; NaN = no data.
+    dem : (H, W) float
+        Coarse heights, metres, finite (fill gaps and median-filter first, see
+        :mod:`demtool.refine.prepare`).
+    spacing : (dx, dy)
+        Grid spacing along x (columns) and y (rows), metres.
+    illumination : Illumination
+        Sun and view unit vectors in the grid frame.
+    parameters : SfsParameters, optional
+        Weights, filters and stopping rule (defaults: the studies').
+    valid : (H, W) bool, optional
+        Pixels whose intensity may be used (default: finite image pixels).
+
+    Returns
+    -------
+    RefineResult
+
+    Raises
+    ------
+    ParameterError
+        Invalid parameters.
+    ProcessingError
+        Shapes differ, non-finite heights, a grid too small for the filters, or too
+        few lit pixels.
+    """
+    params = parameters or SfsParameters()
+    params.check()
+    image = np.asarray(image, dtype=np.float32)
+    dem = np.asarray(dem, dtype=np.float64)
+    if image.shape != dem.shape or dem.ndim != 2:
+        raise ProcessingError(f"image {image.shape} and DEM {dem.shape} must be 2-D arrays "
+                              "on the same grid")
+    if min(dem.shape) < 8:
+        raise ProcessingError(f"the grid {dem.shape} is too small for shape from shading "
+                              "(at least 8 × 8 pixels)")
+    if not np.all(np.isfinite(dem)):
+        raise ProcessingError("the DEM has non-finite heights; fill them first")
+    usable = np.isfinite(image) if valid is None else (np.asarray(valid, bool)
+                                                       & np.isfinite(image))
+    solver = _Solver(image, dem, spacing, illumination, params, usable)
+
+    state = _State(solver.p0.copy(), solver.q0.copy(), solver.z0.copy(),
+                   solver.z0_hat.copy(), solver)
+    shadow, albedo, weight = solver.photometry(state)
+    normalised = solver.image / albedo
+    energy = solver.energies(state, normalised, weight)
+    initial = energy
+    log.info("sun elevation %.1f°, azimuth %.1f°, phase %.1f°; %.1f%% of the grid in "
+             "shadow or without image; initial %s", illumination.sun_elevation_deg,
+             illumination.sun_azimuth_deg, illumination.phase_deg, 100 * shadow.mean(),
+             energy)
+    history = [energy]
+    damping = 0.0
+    converged = False
+    stop_reason = f"reached {params.iterations} iterations"
+    iteration = 0
+    for iteration in progress(range(1, params.iterations + 1), "refine: SfS iterations",
+                              total=params.iterations):
+        candidate = solver.step(state, normalised, weight, damping)
+        new_energy = solver.energies(candidate, normalised, weight)
+        retries = 0
+        while new_energy.total > energy.total and retries < 6:
+            damping = max(4.0 * damping, 0.05 * params.gamma)
+            candidate = solver.step(state, normalised, weight, damping)
+            new_energy = solver.energies(candidate, normalised, weight)
+            retries += 1
+        if new_energy.total > energy.total:
+            stop_reason = f"energy stopped decreasing at iteration {iteration}"
+            break
+        decrease = (energy.total - new_energy.total) / max(energy.total, 1e-30)
+        state, energy = candidate, new_energy
+        damping = damping / 4.0 if damping > 1e-4 * params.gamma else 0.0
+        history.append(energy)
+        log.debug("iteration %d: %s, relative decrease %.2e, damping %.3g", iteration, energy,
+                  decrease, damping)
+        if decrease < params.tolerance:
+            converged = True
+            stop_reason = (f"converged at iteration {iteration} (relative energy decrease "
+                           f"{decrease:.1e} < {params.tolerance:g})")
+            break
+        if iteration % params.update_every == 0:
+            shadow, albedo, weight = solver.photometry(state)
+            normalised = solver.image / albedo
+            energy = solver.energies(state, normalised, weight)
+            log.debug("iteration %d: albedo and shadows updated (%.1f%% shadow), %s",
+                      iteration, 100 * shadow.mean(), energy)
+    shadow, albedo, weight = solver.photometry(state)
+    normalised = solver.image / albedo
+    final = solver.energies(state, normalised, weight)
+    lit = weight > 0
+    residual = (normalised - state.R)[lit]
+    rms = float(np.sqrt(np.mean(residual.astype(np.float64) ** 2))) if residual.size else \
+        float("nan")
+    log.info("%s after %d iterations; final %s; intensity residual RMS %.4f",
+             stop_reason, iteration, final, rms)
+    return RefineResult(dem=solver.heights_metres(state.z), albedo=albedo, shadow=shadow,
+                        energies=final, initial_energies=initial, history=tuple(history),
+                        iterations=iteration, converged=converged, stop_reason=stop_reason,
+                        intensity_rms=rms)

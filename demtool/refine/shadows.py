@@ -1,0 +1,152 @@
+"""Shadow masks for shape from shading: cast shadows from a DEM, dark pixels of an image.
+
+In a shadow the image carries no shading information, so the intensity term of the
+SfS energy is dropped there and the surface follows the coarse DEM (Grumpe & Wöhler
+2014 exclude shadowed pixels the same way).  Directions use the grid frame of
+:mod:`demtool.refine.shading` (x image right, y image up, z toward the camera).
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+from scipy import ndimage
+
+from demtool.refine.shading import Illumination, cosine, slopes
+
+
+@nb.njit(cache=True, inline="always")
+def _bilinear(dem: np.ndarray, row: float, col: float) -> float:
+    height, width = dem.shape
+    r0 = min(max(int(np.floor(row)), 0), height - 2)
+    c0 = min(max(int(np.floor(col)), 0), width - 2)
+    fr = row - r0
+    fc = col - c0
+    top = dem[r0, c0] * (1.0 - fc) + dem[r0, c0 + 1] * fc
+    bottom = dem[r0 + 1, c0] * (1.0 - fc) + dem[r0 + 1, c0 + 1] * fc
+    return top * (1.0 - fr) + bottom * fr
+
+
+@nb.njit(parallel=True, cache=True)
+def _march_toward_sun(dem: np.ndarray, step_row: float, step_col: float, rise: float,
+                      z_max: float) -> np.ndarray:
+    """Per pixel, step toward the sun; shadowed if the terrain rises above the ray."""
+    height, width = dem.shape
+    shadow = np.zeros((height, width), dtype=np.bool_)
+    for r in nb.prange(height):
+        for c in range(width):
+            ray = dem[r, c]
+            row = float(r)
+            col = float(c)
+            while True:
+                row += step_row
+                col += step_col
+                ray += rise
+                if ray > z_max or row < 0.0 or col < 0.0 or row > height - 1 \
+                        or col > width - 1:
+                    break
+                if _bilinear(dem, row, col) > ray:
+                    shadow[r, c] = True
+                    break
+    return shadow
+
+
+def cast_shadows(dem: np.ndarray, spacing: tuple[float, float],
+                 illumination: Illumination) -> np.ndarray:
+    """Pixels in the cast or attached shadow of a DEM under a directional sun.
+
+    Marches from each pixel toward the sun in steps of at most one pixel, bilinearly
+    sampling the DEM, until the ray rises above the DEM's maximum or leaves the grid
+    (terrain outside the grid casts no shadow).  Pixels whose own surface faces away
+    from the sun (μ0 ≤ 0, attached shadow) are included.
+
+    Parameters
+    ----------
+    dem : (H, W) float
+        Heights, metres, finite.
+    spacing : (dx, dy)
+        Pixel spacing along x (columns) and y (rows), metres.
+    illumination : Illumination
+        Sun direction in the grid frame (z > 0).
+
+    Returns
+    -------
+    shadow : (H, W) bool
+        True where the pixel does not see the sun.
+    """
+    z = np.ascontiguousarray(dem, dtype=np.float64)
+    sx, sy, sz = (float(v) for v in illumination.sun)
+    horizontal = np.hypot(sx, sy)
+    p, q = slopes(z, spacing)
+    attached = cosine(p, q, illumination.sun) <= 0.0
+    if horizontal < 1e-9 or z.shape[0] < 2 or z.shape[1] < 2:
+        return attached
+    # displacement toward the sun per metre of horizontal travel, in pixels
+    per_metre_col = sx / horizontal / spacing[0]
+    per_metre_row = -sy / horizontal / spacing[1]  # y up = rows decreasing
+    metres_per_step = 1.0 / max(abs(per_metre_col), abs(per_metre_row))
+    rise = sz / horizontal * metres_per_step
+    shadow = _march_toward_sun(z, per_metre_row * metres_per_step,
+                               per_metre_col * metres_per_step, rise, float(z.max()))
+    return shadow | attached
+
+
+def dark_pixels(image: np.ndarray, threshold: float, valid: np.ndarray | None = None
+                ) -> np.ndarray:
+    """Pixels darker than ``threshold`` × the median of the valid image.
+
+    Parameters
+    ----------
+    image : (H, W) float
+        Image values (any linear unit: DN, I/F); NaN = no data.
+    threshold : float
+        Fraction of the median; 0 disables the test.
+    valid : (H, W) bool, optional
+        Pixels to consider (default: finite ones).
+
+    Returns
+    -------
+    (H, W) bool
+        True for dark (shadowed) pixels.
+    """
+    values = np.asarray(image, dtype=np.float32)
+    valid = np.isfinite(values) if valid is None else valid & np.isfinite(values)
+    if threshold <= 0 or not valid.any():
+        return np.zeros(values.shape, dtype=bool)
+    level = threshold * float(np.median(values[valid]))
+    return valid & (values < level)
+
+
+def shadow_mask(dem: np.ndarray, image: np.ndarray, spacing: tuple[float, float],
+                illumination: Illumination, *, threshold: float = 0.0,
+                use_dem: bool = True, dilate_px: int = 1) -> np.ndarray:
+    """Combined shadow mask: cast/attached shadows of ``dem`` or dark image pixels.
+
+    Parameters
+    ----------
+    dem : (H, W) float
+        Current heights, metres.
+    image : (H, W) float
+        The image on the same grid; NaN = no data.
+    spacing : (dx, dy)
+        Pixel spacing, metres.
+    illumination : Illumination
+        Sun direction.
+    threshold : float
+        Dark-pixel threshold (fraction of the median); 0 disables it.
+    use_dem : bool
+        Include the cast shadows of ``dem``.
+    dilate_px : int
+        Grow the mask by this many pixels (penumbra, DEM errors at shadow edges).
+
+    Returns
+    -------
+    (H, W) bool
+        True where the intensity term must be dropped.
+    """
+    shadow = dark_pixels(image, threshold)
+    if use_dem:
+        shadow |= cast_shadows(dem, spacing, illumination)
+    if dilate_px > 0 and shadow.any():
+        shadow = ndimage.binary_dilation(shadow, iterations=int(dilate_px))
+    return shadow

@@ -200,8 +200,6 @@ def run_synth(out: str | os.PathLike, params: SceneParams,
              params.n_views, params.image_size, params.image_size, params.dem_size,
              params.dem_size, params.spacing_m, params.seed)
     scene = make_scene(params)
-    for name in scene.names:
-        log.info("%s rendered in %.2f s", name, scene.timings[name])
     written = write_scene(scene, out, prov)
     log.info("scene rendered in %.1f s: heights %.1f … %.1f m, target %s, partner %s "
              "(B/H %.2f)", scene.render_time_s, float(scene.dem.min()), float(scene.dem.max()),

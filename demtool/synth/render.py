@@ -209,6 +209,27 @@ def _cast_rays(origins, directions, dem, x_first, y_first, spacing, z_min, z_max
     return t
 
 
+def _run_kernel(kernel, *args):
+    """Call a numba kernel; a Ctrl-C/SIGTERM that lands inside it stays an interrupt.
+
+    When a Python signal handler raises while numba's dispatcher is returning, the
+    dispatcher reports ``SystemError: ... returned a result with an exception set``
+    with the interrupt as its cause; re-raise the interrupt so the command line
+    rolls back its outputs and reports the interruption as such.
+    """
+    try:
+        return kernel(*args)
+    except SystemError as exc:
+        cause: BaseException | None = exc
+        for _ in range(100):  # the interrupt may sit several SystemErrors deep
+            cause = cause.__cause__ or cause.__context__
+            if cause is None:
+                break
+            if isinstance(cause, KeyboardInterrupt):
+                raise cause from None
+        raise
+
+
 # --------------------------------------------------------------------------------------
 # Public functions
 # --------------------------------------------------------------------------------------
@@ -234,8 +255,8 @@ def intersect_rays(field: HeightField, origins: np.ndarray, directions: np.ndarr
     o = np.ascontiguousarray(np.atleast_2d(origins), dtype=np.float64)
     d = np.ascontiguousarray(np.atleast_2d(directions), dtype=np.float64)
     o = np.broadcast_to(o, d.shape).copy() if o.shape != d.shape else o
-    t = _cast_rays(o, d, field.dem, field.x_first, field.y_first, field.spacing, field.z_min,
-                   field.z_max)
+    t = _run_kernel(_cast_rays, o, d, field.dem, field.x_first, field.y_first, field.spacing,
+                    field.z_min, field.z_max)
     return o + t[:, None] * d
 
 
@@ -293,8 +314,9 @@ def view_geometry(field: HeightField, albedo: np.ndarray, camera: PinholeCamera,
     pixel_to_ray = camera.R.T @ np.linalg.inv(camera.K)
     sun = np.asarray(sun_vector, dtype=np.float64)
     sun = sun / np.linalg.norm(sun)
-    result = _render_geometry(
-        np.ascontiguousarray(pixel_to_ray), camera.center, np.ascontiguousarray(camera.R[2]),
+    result = _run_kernel(
+        _render_geometry, np.ascontiguousarray(pixel_to_ray), camera.center,
+        np.ascontiguousarray(camera.R[2]),
         camera.height, camera.width, field.dem, field.grad_x, field.grad_y,
         np.ascontiguousarray(albedo, dtype=np.float64), field.x_first, field.y_first,
         field.spacing, field.z_min, field.z_max, sun)

@@ -267,7 +267,7 @@ def make_scene(params: SceneParams | None = None, *, dem: np.ndarray | None = No
         if index == 0:
             truth_target = geometry.hit[:, :, 2].astype(np.float32)
         timings[name] = time.perf_counter() - step_start
-        log.debug("%s rendered in %.2f s (%.1f %% in shadow)", name, timings[name],
+        log.info("%s rendered in %.2f s (%.1f %% in shadow)", name, timings[name],
                   100.0 * geometry.shadow.mean())
     names = tuple(cameras)
     return Scene(params=params, dem=dem, dem_transform=transform,

@@ -110,8 +110,8 @@ def resample_to_grid(values: np.ndarray, source_transform, target_shape: tuple[i
     height, width = target_shape
     rows, cols = np.mgrid[0:height, 0:width].astype(np.float64)
     # map coordinates of target pixel centres, then source pixel indices
-    x, y = target_transform * (cols + 0.5, rows + 0.5)
-    col_s, row_s = ~source_transform * (x, y)
+    x, y = target_transform @ (cols + 0.5, rows + 0.5)
+    col_s, row_s = ~source_transform @ (x, y)
     col_s -= 0.5
     row_s -= 0.5
     inside = ((row_s >= -0.5) & (row_s <= source.shape[0] - 0.5)

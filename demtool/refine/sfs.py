@@ -262,6 +262,8 @@ class _Solver:
         self.valid = valid
         self.image = np.where(valid, image, 0.0).astype(np.float32)
         self.taper = border_taper(self.shape, params.border_px)
+        self.inner = np.zeros(self.shape, dtype=bool)
+        self.inner[1:-1, 1:-1] = True
         self.g2 = gaussian_transfer(self.shape, params.lowpass_sigma) ** 2
         self.laplacian = neumann_laplacian_eigenvalues(self.shape, self.aspect)
         self.z0_hat = dct2(self.z0)
@@ -290,7 +292,10 @@ class _Solver:
                 f"(at least {100 * MIN_LIT_FRACTION:.0f}% needed): check the sun direction "
                 "and --shadow-threshold")
         modelled = reflectance_map(state.gx, state.gy, self.illumination, p.model)
-        albedo = estimate_albedo(self.image, modelled, sigma=p.albedo_sigma, weight=lit)
+        # the outermost ring has mirrored (halved) slopes: its modelled reflectance is
+        # wrong, so it is left out of the albedo (the taper is 0 there)
+        albedo = estimate_albedo(self.image, modelled, sigma=p.albedo_sigma,
+                                 weight=lit & self.inner)
         weight = (self.taper * lit).astype(np.float32)
         return shadow, albedo, weight
 

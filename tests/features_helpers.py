@@ -53,11 +53,11 @@ def band_pass_noise(n: int, rng: np.random.Generator, sigmas=(1.0, 2.5, 6.0)) ->
     return (total - total.mean()) / total.std()
 
 
-def make_terrain(n: int = 768, spacing: float = 1.0, relief: float = 25.0,
+def make_terrain(n: int = 768, spacing: float = 1.0, relief: float = 60.0,
                  seed: int = 0) -> Terrain:
     """Smooth hills with ``relief`` metres of amplitude and a band-pass albedo texture."""
     rng = np.random.default_rng(seed)
-    hills = cv2.GaussianBlur(rng.standard_normal((n, n)).astype(np.float32), (0, 0), n / 12)
+    hills = cv2.GaussianBlur(rng.standard_normal((n, n)).astype(np.float32), (0, 0), n / 24)
     hills = hills / np.abs(hills).max() * relief
     albedo = 0.5 + 0.12 * band_pass_noise(n, rng)
     return Terrain(hills.astype(np.float32), albedo.astype(np.float32), spacing,

@@ -14,11 +14,13 @@ Methods
   ``dh ≈ −t · ∇z + dz`` of a translated surface, divided by the slope.  We solve the
   expansion itself — ``dh = δx ∂z/∂x + δy ∂z/∂y − δz`` — by least squares over every
   valid pixel (no binning, no division by a small slope), then shift the DEM by the
-  increment with cubic convolution and repeat until the increment is below a
-  tolerance.  This is a Gauss–Newton / Lucas–Kanade (1981) iteration on the same model;
-  it stays well conditioned on near-flat terrain, where ``dh / tan(slope)`` is
-  dominated by noise, and it gives a parameter covariance.  A coarse-to-fine
-  schedule (both DEMs smoothed by the same Gaussian first) widens the capture range.
+  accumulated shift and repeat until the increment is below a tolerance.  Both DEMs
+  are compared after the same Gaussian smoothing (σ = 1 px), the DEM's shift applied
+  by the same convolution, so interpolation cannot bias the result.  This is a
+  Gauss–Newton / Lucas–Kanade (1981) iteration on the same model; it stays well
+  conditioned on near-flat terrain, where ``dh / tan(slope)`` is dominated by noise,
+  and it gives a parameter covariance.  A coarse level (σ = 3 px) run first widens
+  the capture range to several pixels.
 * ICP lives in :mod:`demtool.compare.icp`, the chaining in :mod:`demtool.compare.align`.
 
 Uncertainty.  Every fit reports the standard deviation of its parameters as the larger
@@ -35,7 +37,7 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 
-from demtool.compare.grids import shift_dem
+from demtool.compare.grids import gaussian_shift
 from demtool.errors import ProcessingError
 from demtool.logs import get_logger
 
@@ -198,21 +200,6 @@ def vertical_offset(dem: np.ndarray, reference: np.ndarray, *,
 # --------------------------------------------------------------------------------------
 
 
-def _smooth(values: np.ndarray, sigma: float) -> np.ndarray:
-    """NaN-aware Gaussian smoothing (normalised convolution)."""
-    from scipy.ndimage import gaussian_filter
-
-    if sigma <= 0:
-        return values
-    valid = np.isfinite(values)
-    num = gaussian_filter(np.where(valid, values, 0.0), sigma, mode="nearest")
-    den = gaussian_filter(valid.astype(np.float64), sigma, mode="nearest")
-    out = np.full(values.shape, np.nan)
-    good = den > 0.999  # keep only pixels whose footprint is (almost) entirely valid
-    out[good] = num[good] / den[good]
-    return out
-
-
 @njit(parallel=True, cache=True)
 def _gradient_sums(grad_x, grad_y, dh, usable, params, centre, halfwidth):
     # Normal equations of dh = p0 gx + p1 gy - p2 over usable pixels with finite dh,
@@ -272,8 +259,10 @@ def _solve_sums(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, int]:
 
 
 def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
-                  shift: np.ndarray, *, max_iterations: int, tolerance_px: float,
-                  max_step_px: float) -> tuple[np.ndarray, int, bool, dict[str, Any]]:
+                  shift: np.ndarray, *, sigma_px: float, max_iterations: int,
+                  tolerance_px: float, max_step_px: float
+                  ) -> tuple[np.ndarray, int, bool, dict[str, Any]]:
+    reference = gaussian_shift(reference, 0.0, 0.0, sigma_px)
     grad_y, grad_x = np.gradient(reference)  # metres per pixel, y down, x right
     usable = np.ascontiguousarray(usable)
     converged = False
@@ -281,7 +270,7 @@ def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
     iteration = 0
     subsample = max(1, int(np.sqrt(dem.size / 250_000)))  # for the robust thresholds
     for iteration in range(1, max_iterations + 1):  # noqa: B007 - used after the loop
-        aligned = shift_dem(dem, shift[0], shift[1], shift[2])
+        aligned = gaussian_shift(dem, shift[0], shift[1], sigma_px) + shift[2]
         dh = aligned - reference
         sums = _gradient_sums(grad_x, grad_y, dh, usable, np.zeros(3), 0.0, 0.0)
         if sums[5] < MIN_PIXELS:
@@ -329,8 +318,9 @@ def _final_bootstrap(last: dict[str, Any], blocks: np.ndarray, seed: int) -> np.
 
 def nuth_kaab(dem: np.ndarray, reference: np.ndarray, *, mask: np.ndarray | None = None,
               max_iterations: int = 30, tolerance_px: float = 1e-4,
-              coarse_sigmas: tuple[float, ...] = (2.0,), max_step_px: float = 2.0,
-              bootstrap: bool = True, seed: int = 0) -> ShiftResult:
+              fit_sigma_px: float = 1.0, coarse_sigmas: tuple[float, ...] = (3.0,),
+              max_step_px: float = 2.0, bootstrap: bool = True, seed: int = 0
+              ) -> ShiftResult:
     """Horizontal and vertical shift of a DEM to a reference (linearised Nuth & Kääb).
 
     Parameters
@@ -343,9 +333,15 @@ def nuth_kaab(dem: np.ndarray, reference: np.ndarray, *, mask: np.ndarray | None
         Iterations per level of the coarse-to-fine schedule.
     tolerance_px : float
         Convergence: horizontal increment below this many pixels.
+    fit_sigma_px : float
+        Both DEMs are compared after Gaussian smoothing of this standard deviation
+        (pixels), the DEM's shift being applied by the same convolution
+        (:func:`demtool.compare.grids.gaussian_shift`).  This removes the
+        shift-dependent phase error of polynomial interpolators, which biases the
+        estimate by 0.005–0.02 px on rough terrain, and damps noise.  ≥ 0.8.
     coarse_sigmas : tuple of float
-        Gaussian smoothing (pixels) applied to both DEMs on the coarse levels, run
-        before the full-resolution level; widens the capture range to a few pixels.
+        Larger smoothing (pixels) for coarse levels run first; widens the capture range
+        to several pixels.
     max_step_px : float
         Largest horizontal increment per iteration (a trust region).
     bootstrap : bool
@@ -365,7 +361,8 @@ def nuth_kaab(dem: np.ndarray, reference: np.ndarray, *, mask: np.ndarray | None
     the reference displaced by ``−t`` and offset by ``−c`` differs from it by
     ``dh = z_dem − z_ref ≈ t · ∇z_ref − c``.  Each iteration solves this for the
     increment ``(δx, δy, δz)`` over all valid pixels (with one pass of 4·NMAD outlier
-    rejection), shifts the DEM by it (cubic convolution) and refits.
+    rejection), shifts the DEM by the accumulated shift (Gaussian-smoothed, as the
+    reference) and refits.
     """
     usable = _check_pair(dem, reference, mask)
     if int((usable & np.isfinite(dem)).sum()) < MIN_PIXELS:
@@ -373,13 +370,16 @@ def nuth_kaab(dem: np.ndarray, reference: np.ndarray, *, mask: np.ndarray | None
     shift = np.zeros(3)
     shift[2] = float(np.nanmedian(reference[usable] - dem[usable]))
     total_iterations = 0
+    if not fit_sigma_px >= 0.8:
+        raise ValueError(f"fit_sigma_px must be at least 0.8 px, got {fit_sigma_px}")
     for sigma_px in coarse_sigmas:
-        shift, its, _, _ = _gradient_fit(_smooth(dem, sigma_px), _smooth(reference, sigma_px),
-                                         usable, shift, max_iterations=max_iterations,
+        shift, its, _, _ = _gradient_fit(dem, reference, usable, shift, sigma_px=sigma_px,
+                                         max_iterations=max_iterations,
                                          tolerance_px=max(tolerance_px, 1e-2),
                                          max_step_px=max_step_px)
         total_iterations += its
     shift, its, converged, last = _gradient_fit(dem, reference, usable, shift,
+                                                sigma_px=fit_sigma_px,
                                                 max_iterations=max_iterations,
                                                 tolerance_px=tolerance_px,
                                                 max_step_px=max_step_px)

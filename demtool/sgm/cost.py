@@ -8,9 +8,10 @@ does with ``blockSize``), which makes it robust on weakly textured, noisy planet
 images where a pixelwise cost is not.
 
 Invalid correspondences never match: where the right pixel is NaN in the input or
-falls outside the image the pixelwise cost is the cost's maximum; where the left
-pixel is NaN the cost is 0 for every disparity (neutral: the path costs carry the
-smoothness term across it, and the output is NaN there anyway).
+falls outside the image the pixelwise cost is that of a random match (half the
+maximum, :func:`unmatched_cost`) and a disparity that wins there comes out NaN; where
+the left pixel is NaN the cost is 0 for every disparity (neutral: the path costs carry
+the smoothness term across it, and the output is NaN there anyway).
 
 References
 ----------
@@ -350,7 +351,7 @@ class PixelCost:
     table : (L, L) uint16
         Cost of each (left level, right level) pair; unused (1×1) for census.
     max_cost : int
-        The largest pixel cost (the cost of an invalid correspondence).
+        The largest pixel cost.
     """
 
     name: str
@@ -379,10 +380,23 @@ def table_pixel_cost(name: str, left_levels: np.ndarray, right_levels: np.ndarra
     return PixelCost(name, left_levels, right_levels, table, int(table.max()))
 
 
+def unmatched_cost(pixel_cost: PixelCost, fraction: float = 0.5) -> int:
+    """Pixel cost of a correspondence that does not exist (outside or NaN in the right image).
+
+    About the cost of a random, wrong match (half the census bits differ), so that
+    such disparities neither win by default nor repel the smoothness term: a left
+    pixel whose true match left the right image (the left border band, a NaN area)
+    takes its neighbours' disparity, points outside and comes out NaN, instead of
+    snapping to the nearest disparity that stays inside.
+    """
+    return int(round(fraction * pixel_cost.max_cost))
+
+
 def windowed_cost_volume(pixel_cost: PixelCost, left_valid: np.ndarray,
                          right_valid: np.ndarray, *, min_disparity: int,
                          num_disparities: int, window: int, rows: tuple[int, int],
-                         out: np.ndarray | None = None) -> np.ndarray:
+                         unmatched_fraction: float = 0.5, out: np.ndarray | None = None
+                         ) -> np.ndarray:
     """Cost volume of image rows ``rows[0] .. rows[1]``, summed over a square window.
 
     Parameters
@@ -396,6 +410,9 @@ def windowed_cost_volume(pixel_cost: PixelCost, left_valid: np.ndarray,
         Side of the square window the pixel costs are summed over (1 = pixelwise).
     rows : (start, stop)
         The image rows to compute (a strip); windows reach beyond it into the image.
+    unmatched_fraction : float
+        Pixel cost of a correspondence outside the right image or on a NaN pixel, as
+        a fraction of ``pixel_cost.max_cost`` (see :func:`unmatched_cost`).
     out : (stop − start, W, D) uint16, optional
         Where to write (a preallocated strip volume).
 
@@ -416,5 +433,6 @@ def windowed_cost_volume(pixel_cost: PixelCost, left_valid: np.ndarray,
         levels_left, levels_right = pixel_cost.left, pixel_cost.right
     _cost_volume(0 if pixel_cost.is_census else 1, codes_left, codes_right, levels_left,
                  levels_right, pixel_cost.table, left_valid, right_valid, int(min_disparity),
-                 np.uint16(pixel_cost.max_cost), window // 2, window // 2, int(start), out)
+                 np.uint16(unmatched_cost(pixel_cost, unmatched_fraction)), window // 2,
+                 window // 2, int(start), out)
     return out

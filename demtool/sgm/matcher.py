@@ -44,17 +44,20 @@ class CostDefaults:
     p2: int
 
 
-# Tuned on bench/stereo_accuracy.py (synthetic pairs and Middlebury); see README.
+# Tuned with bench/stereo_accuracy.py (synthetic pairs and Middlebury) with the
+# adaptive P2 on; MI pixel costs are 0..64 (8 per nat), census 0..24 (5×5 bits),
+# absolute difference 0..24 grey levels, all summed over the window.
 COST_DEFAULTS: dict[str, CostDefaults] = {
     "census": CostDefaults(window=5, p1=60, p2=600),
-    "mi": CostDefaults(window=5, p1=150, p2=1200),
-    "ad": CostDefaults(window=5, p1=80, p2=600),
+    "mi": CostDefaults(window=3, p1=40, p2=400),
+    "ad": CostDefaults(window=5, p1=60, p2=600),
 }
 MI_LEVELS = 128  # most grey levels of the MI histogram (fewer on small images)
 MI_PAIRS_PER_CELL = 8  # the MI histogram has at least this many pixels per cell
 MI_SIGMA = 1.0  # Parzen window, grey levels
 AD_TRUNCATION = 24  # grey levels (of 256)
 P2_KAPPA = 8  # grey levels (of 256) above which the adaptive P2 shrinks
+UNMATCHED_FRACTION = 0.35  # cost of a match outside/NaN in the right image, of the maximum
 STRIP_OVERLAP = 32  # rows shared by neighbouring strips
 MIN_LEVEL_SIZE = 24  # smallest image side of an HMI level, pixels
 
@@ -154,7 +157,8 @@ def _match_pass(pixel_cost: costs.PixelCost, left_valid: np.ndarray, right_valid
         hi = min(height, stop + STRIP_OVERLAP)
         volume = timer.run("cost", costs.windowed_cost_volume, pixel_cost, left_valid,
                            right_valid, min_disparity=min_disparity,
-                           num_disparities=num_disparities, window=window, rows=(lo, hi))
+                           num_disparities=num_disparities, window=window, rows=(lo, hi),
+                           unmatched_fraction=UNMATCHED_FRACTION)
         total = timer.run("aggregate", aggregate_costs, volume, p1=p1, p2=p2, paths=paths,
                           guide=guide[lo:hi], p2_kappa=p2_kappa, max_cost=max_cost)
         del volume
@@ -174,9 +178,11 @@ def _match_pass(pixel_cost: costs.PixelCost, left_valid: np.ndarray, right_valid
 
 
 def _postprocess(disparity: np.ndarray, confidence: np.ndarray, *, speckle_size: int,
-                 speckle_range: float, median: int, timer: _Timer
+                 speckle_range: float, median: int, timer: _Timer, uniqueness: float = 0.0
                  ) -> tuple[np.ndarray, np.ndarray]:
     start = time.perf_counter()
+    if uniqueness > 0:
+        disparity = np.where(confidence >= uniqueness, disparity, np.float32(np.nan))
     if speckle_size > 0:
         disparity = remove_speckles(disparity, max_size=speckle_size,
                                     max_difference=speckle_range)
@@ -239,9 +245,9 @@ def _check_inputs(left: np.ndarray, right: np.ndarray, min_disparity: int,
 def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparities: int,
         cost: str = "hmi", census_window: str = "5x5", cost_window: int | None = None,
         paths: int = 8, p1: int | None = None, p2: int | None = None,
-        adaptive_p2: bool = False, mi_iterations: int = 3, subpixel: str = "equiangular",
+        adaptive_p2: bool = True, mi_iterations: int = 3, subpixel: str = "equiangular",
         lr_check: bool = True, lr_threshold: float = 1.0, speckle_size: int = 100,
-        speckle_range: float = 2.0, median: int = 3, workers: int = 0,
+        speckle_range: float = 2.0, median: int = 3, uniqueness: float = 0.0, workers: int = 0,
         max_memory_mb: float = 1400.0, seed: int = 0) -> SGMResult:
     """Dense disparity of a rectified pair by semi-global matching (Hirschmüller 2008).
 
@@ -283,6 +289,9 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         Largest disparity step inside a region, pixels.
     median : int
         Side of the NaN-aware median filter (1 = off).
+    uniqueness : float
+        Invalidate pixels whose confidence (S₂ − S₁)/S₂ is below this (0 = off;
+        0.1 is OpenCV's ``uniquenessRatio=10``).
     workers : int
         Parallel strips (0 = all cores).
     max_memory_mb : float
@@ -321,6 +330,8 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         raise ParameterError(f"paths must be 8 or 16, got {paths}")
     if mi_iterations < 1:
         raise ParameterError(f"mi_iterations must be at least 1, got {mi_iterations}")
+    if not 0.0 <= uniqueness < 1.0:
+        raise ParameterError(f"uniqueness must be in [0, 1), got {uniqueness}")
     if median > 1 and median % 2 == 0:
         raise ParameterError(f"median size must be odd, got {median}")
     workers = available_cores() if workers <= 0 else int(workers)
@@ -362,7 +373,7 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
 
     disparity, confidence = _postprocess(disparity, confidence, speckle_size=speckle_size,
                                          speckle_range=speckle_range, median=median,
-                                         timer=timer)
+                                         timer=timer, uniqueness=uniqueness)
     timings = {k: round(v, 3) for k, v in timer.seconds.items()}
     timings["total"] = round(time.perf_counter() - start, 3)
     parameters = dict(cost=cost, census_window=census_window, cost_window=window,
@@ -371,6 +382,7 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
                       mi_levels=MI_LEVELS, mi_sigma=MI_SIGMA, subpixel=subpixel,
                       lr_check=lr_check, lr_threshold=lr_threshold,
                       speckle_size=speckle_size, speckle_range=speckle_range, median=median,
+                      uniqueness=uniqueness,
                       min_disparity=min_disparity, num_disparities=num_disparities,
                       workers=workers, max_memory_mb=max_memory_mb, seed=seed)
     return SGMResult(disparity, confidence, parameters, timings, levels)

@@ -182,9 +182,11 @@ def test_plane_renders_to_closed_form_lunar_lambert(sun):
 
 
 def test_shadows_fall_behind_a_tall_ridge_and_match_the_analytic_outline():
-    params = SceneParams(**PLANE, sun_incidence_deg=60.0, sun_azimuth_deg=270.0)  # sun in west
+    params = SceneParams(**{**PLANE, "image_size": 160},  # the target sees X = -40 … 40 m
+                         sun_incidence_deg=60.0, sun_azimuth_deg=270.0)  # sun in the west
     x = (np.arange(params.dem_size) + 0.5) - 0.5 * params.dem_size
-    profile = 15.0 * np.exp(-0.5 * (x / 2.5) ** 2)  # north-south ridge at X = 0, 15 m high
+    ridge_x = -12.0
+    profile = 15.0 * np.exp(-0.5 * ((x - ridge_x) / 2.5) ** 2)  # north-south ridge, 15 m
     scene = make_scene(params, dem=np.tile(profile, (params.dem_size, 1)))
     camera = scene.cameras[scene.target]
     rows, cols = np.mgrid[0:camera.height, 0:camera.width]
@@ -193,20 +195,24 @@ def test_shadows_fall_behind_a_tall_ridge_and_match_the_analytic_outline():
     hx = hits[:, 0].reshape(rows.shape)
     # Analytic: shadowed where some terrain west of the point rises above the sun ray.
     tan_elevation = np.tan(np.radians(30.0))
-    fine = np.arange(-20.0, 40.0, 0.01)
+    fine = np.arange(-64.0, 64.0, 0.01)
     fine_h = np.interp(fine, x, profile)
     blocker = np.maximum.accumulate(fine_h + fine * tan_elevation)  # max of h(x') + x' tanε
     hz = np.interp(hx, fine, fine_h)
     analytic = np.interp(hx, fine, blocker) > hz + hx * tan_elevation + 1e-3
-    analytic &= hx > 0
+    shadow_start, shadow_end = hx[analytic].min(), hx[analytic].max()
+    assert ridge_x < shadow_start < ridge_x + 5  # on the lee slope
+    assert shadow_end == pytest.approx(ridge_x + 15.0 / tan_elevation, abs=3.0)
+    assert hx.max() > shadow_end + 10 and hx.min() < ridge_x - 10  # both ends in view
     shadow = scene.shadows[scene.target]
-    assert shadow[(hx > 5) & (hx < 20)].all()  # behind the ridge
-    assert not shadow[hx < 0].any() and not shadow[hx > 35].any()
-    # the shadow's start on the lee slope and its end on the plain, ±0.5 m
-    outline = (np.abs(hx - hx[analytic].max()) < 0.5) | (np.abs(hx - hx[analytic].min()) < 0.5)
+    assert shadow[(hx > ridge_x + 5) & (hx < ridge_x + 20)].all()  # behind the ridge
+    assert not shadow[hx < ridge_x].any() and not shadow[hx > shadow_end + 1].any()
+    # the mask equals the analytic outline except within ±0.5 m of its two edges
+    outline = (np.abs(hx - shadow_end) < 0.5) | (np.abs(hx - shadow_start) < 0.5)
     assert np.all(shadow[~outline] == analytic[~outline])
     image = scene.images[scene.target]
-    assert np.all(image[shadow] == 0) and image[hx < -10].min() > 1000
+    assert np.all(image[shadow] == 0)
+    assert image[hx < ridge_x - 8].min() > 1000 and image[hx > shadow_end + 1].min() > 1000
 
 
 def test_same_seed_same_images_other_seed_other_scene():

@@ -208,3 +208,13 @@ def test_sigterm_mid_run_leaves_no_output(tmp_path):
     assert process.returncode != 0, remaining
     assert "Traceback" not in remaining
     assert not out.exists() or not list(out.iterdir())
+
+
+def test_load_scene_names_a_missing_or_foreign_file(tmp_path):
+    from demtool.errors import InputError
+
+    with pytest.raises(InputError, match=r"scene\.json.*not found"):
+        load_scene(tmp_path)
+    (tmp_path / "scene.json").write_text('{"target": "a"}')
+    with pytest.raises(InputError, match=r"scene\.json.*not a demtool synth scene"):
+        load_scene(tmp_path)

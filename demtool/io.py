@@ -99,6 +99,10 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
                                     dir=final.parent)
     os.close(handle)
     temporary = Path(name)
+    # mkstemp creates 0600 files; outputs get the permissions any new file would get.
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(temporary, 0o666 & ~umask)
     try:
         yield temporary
     except BaseException:

@@ -157,3 +157,12 @@ def test_atomic_write_replaces_existing_file_only_on_success(tmp_path):
         dio.write_json(target, {"v": object()})
     assert json.loads(target.read_text()) == {"v": 1}
     assert os.listdir(tmp_path) == ["keep.json"]
+
+
+def test_outputs_get_the_usual_file_permissions(tmp_path):
+    umask = os.umask(0o022)
+    try:
+        path = dio.write_json(tmp_path / "perm.json", {"a": 1})
+    finally:
+        os.umask(umask)
+    assert (path.stat().st_mode & 0o777) == 0o644

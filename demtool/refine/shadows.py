@@ -119,8 +119,16 @@ def dark_pixels(image: np.ndarray, threshold: float, valid: np.ndarray | None = 
 
 def shadow_mask(dem: np.ndarray, image: np.ndarray, spacing: tuple[float, float],
                 illumination: Illumination, *, threshold: float = 0.0,
-                use_dem: bool = True, dilate_px: int = 1) -> np.ndarray:
-    """Combined shadow mask: cast/attached shadows of ``dem`` or dark image pixels.
+                use_dem: bool = True, dim_fraction: float = 0.2,
+                dilate_px: int = 1) -> np.ndarray:
+    """Combined shadow mask: dark image pixels, and the DEM's shadows where the image is dim.
+
+    The image decides: a pixel darker than ``threshold`` × the median is shadow.  The
+    cast and attached shadows of the current DEM add the pixels that are dim (below
+    ``dim_fraction`` × the median) but above the threshold — penumbrae and the dark
+    fringes of shadows.  Where the image is bright the DEM's shadow is not trusted: a
+    lit pixel in a predicted shadow means the DEM is wrong there, which is what the
+    shading has to correct (a noisy coarse DEM under a low sun "shadows" half the grid).
 
     Parameters
     ----------
@@ -135,7 +143,9 @@ def shadow_mask(dem: np.ndarray, image: np.ndarray, spacing: tuple[float, float]
     threshold : float
         Dark-pixel threshold (fraction of the median); 0 disables it.
     use_dem : bool
-        Include the cast shadows of ``dem``.
+        Include the cast and attached shadows of ``dem`` (where the image is dim).
+    dim_fraction : float
+        Fraction of the median image below which a DEM shadow is believed.
     dilate_px : int
         Grow the mask by this many pixels (penumbra, DEM errors at shadow edges).
 
@@ -146,7 +156,7 @@ def shadow_mask(dem: np.ndarray, image: np.ndarray, spacing: tuple[float, float]
     """
     shadow = dark_pixels(image, threshold)
     if use_dem:
-        shadow |= cast_shadows(dem, spacing, illumination)
+        shadow |= cast_shadows(dem, spacing, illumination) & dark_pixels(image, dim_fraction)
     if dilate_px > 0 and shadow.any():
         shadow = ndimage.binary_dilation(shadow, iterations=int(dilate_px))
     return shadow

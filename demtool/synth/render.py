@@ -5,7 +5,8 @@ holds the height at the cell centre ``x = x_first + c·s``, ``y = y_first − r�
 (world metres, X east, Y north, Z up) and is interpolated bilinearly in between.
 A ray hits the surface where ``z(t) = h(x(t), y(t))``; the kernels march along the
 ray in steps of at most half a cell horizontally and refine the first sign change by
-bisection to ~1e-9 m, far below 0.1 px at any sensible ground sampling distance.
+regula falsi (Illinois) to ~1e-9 m, far below 0.1 px at any sensible ground sampling
+distance.
 
 Shading: the normal at the hit comes from the DEM gradient (central differences at
 the nodes, interpolated bilinearly), the reflectance from
@@ -25,7 +26,8 @@ from demtool.camera import PinholeCamera
 from demtool.reflectance import lunar_lambert
 
 MARCH_STEP_CELLS = 0.5  # horizontal ray-marching step, in cells
-BISECTION_ITERATIONS = 52
+REFINE_ITERATIONS = 100
+REFINE_TOLERANCE_M = 1e-9  # clearance (vertical metres) or bracket length at the hit
 SHADOW_EPSILON_M = 1e-4  # terrain must rise this far above a sun ray to cast a shadow
 
 
@@ -111,22 +113,52 @@ def _intersect(ox, oy, oz, dx, dy, dz, dem, x_first, y_first, spacing, z_min, z_
     if horizontal * span > MARCH_STEP_CELLS * spacing:
         step = MARCH_STEP_CELLS * spacing / horizontal
     t_prev = t_start
-    if _clearance(ox, oy, oz, dx, dy, dz, t_prev, dem, x_first, y_first, spacing) <= 0.0:
+    f_prev = _clearance(ox, oy, oz, dx, dy, dz, t_prev, dem, x_first, y_first, spacing)
+    if f_prev <= 0.0:
         return t_prev
     while t_prev < t_end:
         t = min(t_prev + step, t_end)
-        if _clearance(ox, oy, oz, dx, dy, dz, t, dem, x_first, y_first, spacing) <= 0.0:
-            lo, hi = t_prev, t
-            for _ in range(BISECTION_ITERATIONS):
-                mid = 0.5 * (lo + hi)
-                if _clearance(ox, oy, oz, dx, dy, dz, mid, dem, x_first, y_first,
-                              spacing) <= 0.0:
-                    hi = mid
-                else:
-                    lo = mid
-            return 0.5 * (lo + hi)
+        f = _clearance(ox, oy, oz, dx, dy, dz, t, dem, x_first, y_first, spacing)
+        if f <= 0.0:
+            return _refine_root(ox, oy, oz, dx, dy, dz, t_prev, f_prev, t, f, dem, x_first,
+                                y_first, spacing)
         t_prev = t
+        f_prev = f
     return np.nan
+
+
+@njit(cache=True)
+def _refine_root(ox, oy, oz, dx, dy, dz, lo, f_lo, hi, f_hi, dem, x_first, y_first, spacing):
+    """Root of the clearance in [lo, hi] (f_lo > 0 ≥ f_hi) by the Illinois method.
+
+    Regula falsi with the Illinois modification (Dowell & Jarratt 1971, BIT 11, 168–174):
+    the bracket always holds the crossing; bisection steps are used where the secant is
+    unusable (a bracket end outside the DEM).  Stops at |clearance| < REFINE_TOLERANCE_M
+    or a bracket shorter than that.
+    """
+    side = 0
+    for _ in range(REFINE_ITERATIONS):
+        if hi - lo < REFINE_TOLERANCE_M:
+            break
+        mid = 0.5 * (lo + hi)
+        if np.isfinite(f_lo) and f_lo - f_hi > 0.0:
+            secant = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
+            if lo < secant < hi:
+                mid = secant
+        f_mid = _clearance(ox, oy, oz, dx, dy, dz, mid, dem, x_first, y_first, spacing)
+        if abs(f_mid) < REFINE_TOLERANCE_M:
+            return mid
+        if f_mid < 0.0:
+            hi, f_hi = mid, f_mid
+            if side == -1:
+                f_lo *= 0.5
+            side = -1
+        else:
+            lo, f_lo = mid, f_mid
+            if side == 1:
+                f_hi *= 0.5
+            side = 1
+    return 0.5 * (lo + hi)
 
 
 @njit(cache=True)

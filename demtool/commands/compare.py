@@ -126,7 +126,8 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     import numpy as np
 
     from demtool import io as dio
-    from demtool.compare import compare_dems, plots
+    from demtool.compare import compare_dems
+    from demtool.compare import plots as figure_maker
     from demtool.errors import InputError
     from demtool.logs import get_logger
     from demtool.provenance import Provenance
@@ -154,7 +155,7 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     mask = _read_mask(mask_path, target) if mask_path else None
     sx, sy = target.spacing
     lines = [tuple(float(v) for v in line) for line in profiles] or \
-        plots.default_profiles(target.shape)
+        figure_maker.default_profiles(target.shape)
     _check_profiles(lines, target.shape)
 
     label = label or Path(dem_path).stem
@@ -189,21 +190,21 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     if plots:
         spacing = (sx, sy)
         stats = main.report
-        figures["difference.png"] = plots.difference_figure(
+        figures["difference.png"] = figure_maker.difference_figure(
             main.difference, spacing, title=f"{label} − reference", stats=stats)
-        figures["dems.png"] = plots.dems_figure(
+        figures["dems.png"] = figure_maker.dems_figure(
             [(label, main.aligned), *[(n, c.aligned) for n, c in comparisons[1:]],
              ("reference", reference_values)], spacing)
-        figures["profiles.png"] = plots.profiles_figure(
+        figures["profiles.png"] = figure_maker.profiles_figure(
             [("reference", reference_values), (label, main.aligned),
              *[(n, c.aligned) for n, c in comparisons[1:]]], lines, spacing)
-        figures["histogram.png"] = plots.histogram_figure(main.difference, stats=stats,
+        figures["histogram.png"] = figure_maker.histogram_figure(main.difference, stats=stats,
                                                           title=f"{label} − reference")
-        figures["completeness.png"] = plots.completeness_figure(
+        figures["completeness.png"] = figure_maker.completeness_figure(
             main.coverage, spacing, percent=main.report["completeness"], title=label)
         resolution = main.report["effective_resolution"]
         if main.spectrum is not None and resolution is not None:
-            figures["coherence.png"] = plots.coherence_figure(
+            figures["coherence.png"] = figure_maker.coherence_figure(
                 main.spectrum.frequency, main.spectrum.coherence,
                 cutoff_per_m=resolution["coherent_frequency_per_m"],
                 threshold=resolution["threshold"], title=f"{label} vs reference")

@@ -262,9 +262,15 @@ def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
                   shift: np.ndarray, *, sigma_px: float, max_iterations: int,
                   tolerance_px: float, max_step_px: float
                   ) -> tuple[np.ndarray, int, bool, dict[str, Any]]:
+    from scipy.ndimage import binary_erosion
+
     reference = gaussian_shift(reference, 0.0, 0.0, sigma_px)
     grad_y, grad_x = np.gradient(reference)  # metres per pixel, y down, x right
-    usable = np.ascontiguousarray(usable)
+    # Fix the pixel set for the level: where the DEM, shifted as it starts, is valid,
+    # eroded by 2 px, so that holes and edges moving with the shift do not change the
+    # objective from one iteration to the next (which would stall convergence).
+    start = np.isfinite(gaussian_shift(dem, shift[0], shift[1], sigma_px))
+    usable = np.ascontiguousarray(usable & binary_erosion(start, iterations=2))
     converged = False
     last: dict[str, Any] = {}
     iteration = 0

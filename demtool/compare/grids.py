@@ -190,21 +190,31 @@ def _shift_cubic(values, dx, dy, dz, out):
             out[r, c] = np.nan if bad else total + dz
 
 
+@njit(cache=True)
+def _gaussian_taps(frac, sigma, radius):
+    # Taps j = -radius .. radius + 1 around the floor position, at distance j - frac.
+    # The Gaussian minus its value at the radius, clipped at zero, goes continuously to
+    # zero there: the weights vary continuously with the shift (no truncation jumps).
+    taps = 2 * radius + 2
+    floor_value = np.exp(-0.5 * radius * radius / (sigma * sigma))
+    weights = np.empty(taps)
+    for k in range(taps):
+        d = (k - radius) - frac
+        weights[k] = max(0.0, np.exp(-0.5 * d * d / (sigma * sigma)) - floor_value)
+    weights /= weights.sum()
+    return taps, weights
+
+
 @njit(parallel=True, cache=True)
 def _gaussian_shift_rows(values, shift, sigma, radius, out):
     # out[r, c] = sum_k w_k values[r, c0 + k], sampled at x = c - shift (along axis 1)
     height, width = values.shape
     offset = int(np.floor(-shift))
     frac = -shift - offset
-    taps = 2 * radius
-    weights = np.empty(taps)
-    for k in range(taps):
-        d = (k - radius + 1) - frac
-        weights[k] = np.exp(-0.5 * d * d / (sigma * sigma))
-    weights /= weights.sum()
+    taps, weights = _gaussian_taps(frac, sigma, radius)
     for r in prange(height):
         for c in range(width):
-            start = c + offset - radius + 1
+            start = c + offset - radius
             if start < 0 or start + taps > width:
                 out[r, c] = np.nan
                 continue
@@ -220,14 +230,9 @@ def _gaussian_shift_columns(values, shift, sigma, radius, out):
     height, width = values.shape
     offset = int(np.floor(-shift))
     frac = -shift - offset
-    taps = 2 * radius
-    weights = np.empty(taps)
-    for k in range(taps):
-        d = (k - radius + 1) - frac
-        weights[k] = np.exp(-0.5 * d * d / (sigma * sigma))
-    weights /= weights.sum()
+    taps, weights = _gaussian_taps(frac, sigma, radius)
     for r in prange(height):
-        start = r + offset - radius + 1
+        start = r + offset - radius
         if start < 0 or start + taps > height:
             out[r, :] = np.nan
             continue
@@ -244,7 +249,8 @@ def gaussian_shift(values: np.ndarray, dx_px: float, dy_px: float, sigma_px: flo
     """Gaussian smoothing and sub-pixel translation in one separable convolution.
 
     ``out[y, x] = Σ g(y − dy − i) g(x − dx − j) values[i, j]`` with ``g`` the Gaussian
-    of standard deviation ``sigma_px`` (normalised over its taps, ±4σ).  For
+    of standard deviation ``sigma_px``, tapered to zero at ±4.5σ (minus its value there)
+    and normalised, so the weights vary continuously with the shift.  For
     σ ≥ 0.7 px the sampled Gaussian is practically band-limited (its gain at the
     Nyquist frequency is below 0.1 %), so this equals an ideal band-limited shift
     followed by Gaussian smoothing: unlike polynomial interpolators it has no
@@ -266,7 +272,7 @@ def gaussian_shift(values: np.ndarray, dx_px: float, dy_px: float, sigma_px: flo
     """
     if not sigma_px > 0:
         raise ValueError(f"sigma_px must be positive, got {sigma_px}")
-    radius = max(1, int(np.ceil(4.0 * sigma_px)))
+    radius = max(2, int(np.ceil(4.5 * sigma_px)))
     data = np.ascontiguousarray(values, dtype=np.float64)
     along_x = np.empty(data.shape)
     _gaussian_shift_rows(data, float(dx_px), float(sigma_px), radius, along_x)

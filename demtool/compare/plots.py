@@ -38,7 +38,7 @@ def _pyplot():
 
 def _png(figure) -> bytes:
     buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=DPI, bbox_inches="tight")
+    figure.savefig(buffer, format="png", dpi=DPI)
     _pyplot().close(figure)
     return buffer.getvalue()
 
@@ -77,7 +77,7 @@ def difference_figure(difference: np.ndarray, spacing: tuple[float, float], *,
     """Difference map, diverging colour map with symmetric limits (±98th pct of |dh|)."""
     plt = _pyplot()
     limit = _symmetric_limit(difference)
-    figure, axis = plt.subplots(figsize=(7, 6))
+    figure, axis = plt.subplots(figsize=(7, 6), layout="constrained")
     image = axis.imshow(difference, cmap="RdBu_r", vmin=-limit, vmax=limit,
                         extent=_extent(difference.shape, spacing), interpolation="nearest")
     axis.set_facecolor("0.8")
@@ -107,7 +107,8 @@ def dems_figure(dems: Sequence[tuple[str, np.ndarray]], spacing: tuple[float, fl
         high = low + 1e-6
     levels = np.linspace(low, high, contours + 2)[1:-1]
     count = len(dems)
-    figure, axes = plt.subplots(1, count, figsize=(5.2 * count, 5), squeeze=False)
+    figure, axes = plt.subplots(1, count, figsize=(5.2 * count, 5), squeeze=False,
+                                layout="constrained")
     image = None
     for axis, (name, dem) in zip(axes[0], dems, strict=True):
         extent = _extent(dem.shape, spacing)
@@ -160,7 +161,8 @@ def profiles_figure(dems: Sequence[tuple[str, np.ndarray]],
                     spacing: tuple[float, float]) -> bytes:
     """Height profiles of every DEM along each line (one panel per line)."""
     plt = _pyplot()
-    figure, axes = plt.subplots(len(lines), 1, figsize=(9, 3.2 * len(lines)), squeeze=False)
+    figure, axes = plt.subplots(len(lines), 1, figsize=(9, 3.2 * len(lines)), squeeze=False,
+                                layout="constrained")
     for axis, line in zip(axes[:, 0], lines, strict=True):
         for index, (name, dem) in enumerate(dems):
             distance, heights = profile_samples(dem, line, spacing)
@@ -171,7 +173,6 @@ def profiles_figure(dems: Sequence[tuple[str, np.ndarray]],
         axis.set_ylabel("height (m)")
         axis.grid(alpha=0.3)
         axis.legend(fontsize=8)
-    figure.tight_layout()
     return _png(figure)
 
 
@@ -180,7 +181,7 @@ def histogram_figure(difference: np.ndarray, *, stats: dict[str, Any] | None = N
     """Histogram of the differences with a normal curve of the NMAD for comparison."""
     plt = _pyplot()
     values = difference[np.isfinite(difference)]
-    figure, axis = plt.subplots(figsize=(7, 4.5))
+    figure, axis = plt.subplots(figsize=(7, 4.5), layout="constrained")
     if values.size:
         limit = _symmetric_limit(values) * 1.5
         inside = values[np.abs(values - np.median(values)) <= limit]
@@ -207,7 +208,7 @@ def completeness_figure(coverage: np.ndarray, spacing: tuple[float, float], *,
     from matplotlib.colors import ListedColormap
 
     plt = _pyplot()
-    figure, axis = plt.subplots(figsize=(7, 6))
+    figure, axis = plt.subplots(figsize=(7, 6), layout="constrained")
     axis.set_facecolor("white")
     axis.imshow(coverage, cmap=ListedColormap(["tab:red", "0.7"]), vmin=0, vmax=1,
                 extent=_extent(coverage.shape, spacing), interpolation="nearest")
@@ -222,7 +223,7 @@ def coherence_figure(frequency: np.ndarray, coherence: np.ndarray, *,
                      title: str = "") -> bytes:
     """Coherence against wavelength, with the threshold and the coherent cut-off."""
     plt = _pyplot()
-    figure, axis = plt.subplots(figsize=(7, 4.5))
+    figure, axis = plt.subplots(figsize=(7, 4.5), layout="constrained")
     axis.semilogx(1.0 / frequency, coherence, "k.-", markersize=3)
     axis.axhline(threshold, color="r", linestyle="--", linewidth=1,
                  label=f"threshold {threshold}")

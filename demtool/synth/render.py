@@ -28,6 +28,7 @@ from demtool.reflectance import lunar_lambert
 MARCH_STEP_CELLS = 0.5  # horizontal ray-marching step, in cells
 REFINE_ITERATIONS = 100
 REFINE_TOLERANCE_M = 1e-9  # clearance (vertical metres) or bracket length at the hit
+SHADOW_BLOCK_CELLS = 8  # sun rays skip blocks of this many cells whose top they clear
 SHADOW_EPSILON_M = 1e-4  # terrain must rise this far above a sun ray to cast a shadow
 
 
@@ -46,6 +47,10 @@ class HeightField(NamedTuple):
         Cell size, metres.
     z_min, z_max : float
         Bounds of the heights (padded by a millimetre).
+    block_max : (ceil((H-1)/B), ceil((W-1)/B)) float64
+        Highest node of each block of B × B cells (B = ``SHADOW_BLOCK_CELLS``, node
+        rows/columns ``B·i … B·i + B``): no bilinear height inside the block exceeds it,
+        so sun rays above it skip the block.
     """
 
     dem: np.ndarray
@@ -56,6 +61,19 @@ class HeightField(NamedTuple):
     spacing: float
     z_min: float
     z_max: float
+    block_max: np.ndarray
+
+
+def block_maxima(heights: np.ndarray, block: int) -> np.ndarray:
+    """Maximum of the nodes ``[B·i, B·i + B] × [B·j, B·j + B]`` of each block (B = block)."""
+    rows, cols = heights.shape
+    n_rows, n_cols = -(-(rows - 1) // block), -(-(cols - 1) // block)
+    out = np.empty((n_rows, n_cols))
+    for i in range(n_rows):
+        band = heights[block * i: block * i + block + 1].max(axis=0)
+        for j in range(n_cols):
+            out[i, j] = band[block * j: block * j + block + 1].max()
+    return out
 
 
 def height_field(dem: np.ndarray, transform) -> HeightField:
@@ -69,7 +87,8 @@ def height_field(dem: np.ndarray, transform) -> HeightField:
         dem=heights, grad_x=np.ascontiguousarray(grad_cols),
         grad_y=np.ascontiguousarray(-grad_rows),  # rows run south
         x_first=float(transform.c) + 0.5 * spacing, y_first=float(transform.f) - 0.5 * spacing,
-        spacing=spacing, z_min=float(heights.min()) - 1e-3, z_max=float(heights.max()) + 1e-3)
+        spacing=spacing, z_min=float(heights.min()) - 1e-3, z_max=float(heights.max()) + 1e-3,
+        block_max=block_maxima(heights, SHADOW_BLOCK_CELLS))
 
 
 # --------------------------------------------------------------------------------------
@@ -162,28 +181,54 @@ def _refine_root(ox, oy, oz, dx, dy, dz, lo, f_lo, hi, f_hi, dem, x_first, y_fir
 
 
 @njit(cache=True)
-def _in_shadow(px, py, pz, sx, sy, sz, dem, x_first, y_first, spacing, z_max):
-    """True when the terrain blocks the ray from (px, py, pz) toward the sun s."""
+def _in_shadow(px, py, pz, sx, sy, sz, dem, block_max, x_first, y_first, spacing, z_max):
+    """True when the terrain blocks the ray from (px, py, pz) toward the sun s.
+
+    Marches in eighth-cell steps over the first cell, then half-cell steps; where the
+    ray is above the highest node of the current block of ``SHADOW_BLOCK_CELLS`` cells
+    it jumps to the block's exit (the ray only rises, so nothing in the block can
+    block it).
+    """
     horizontal = math.sqrt(sx * sx + sy * sy)
     if horizontal < 1e-12:
         return False
     step = MARCH_STEP_CELLS * spacing / horizontal
-    u = step
+    dc = sx / spacing  # columns per unit of u
+    dr = -sy / spacing  # rows per unit of u
+    n_rows, n_cols = block_max.shape
+    fine_until = 2.0 * step  # first cell: eighth-cell steps, for blockers right beside p
+    u = 0.25 * step
     while True:
         z = pz + u * sz
         if z > z_max:
             return False
-        h = _bilinear(dem, (px + u * sx - x_first) / spacing, (y_first - (py + u * sy)) / spacing)
+        fc = (px + u * sx - x_first) / spacing
+        fr = (y_first - (py + u * sy)) / spacing
+        h = _bilinear(dem, fc, fr)
         if np.isnan(h):
             return False
         if h > z + SHADOW_EPSILON_M:
             return True
-        u += step
+        bi = min(int(fr) // SHADOW_BLOCK_CELLS, n_rows - 1)
+        bj = min(int(fc) // SHADOW_BLOCK_CELLS, n_cols - 1)
+        if z > block_max[bi, bj] + SHADOW_EPSILON_M:
+            exit_u = np.inf
+            if dc > 0.0:
+                exit_u = min(exit_u, ((bj + 1) * SHADOW_BLOCK_CELLS - fc) / dc)
+            elif dc < 0.0:
+                exit_u = min(exit_u, (bj * SHADOW_BLOCK_CELLS - fc) / dc)
+            if dr > 0.0:
+                exit_u = min(exit_u, ((bi + 1) * SHADOW_BLOCK_CELLS - fr) / dr)
+            elif dr < 0.0:
+                exit_u = min(exit_u, (bi * SHADOW_BLOCK_CELLS - fr) / dr)
+            u += max(exit_u + 1e-6 / horizontal, 1e-3 * step)
+        else:
+            u += 0.25 * step if u < fine_until else step
 
 
 @njit(cache=True, parallel=True)
-def _render_geometry(pixel_to_ray, center, depth_axis, height, width, dem, grad_x, grad_y,
-                     albedo, x_first, y_first, spacing, z_min, z_max, sun):
+def _render_geometry(pixel_to_ray, center, depth_axis, height, width, dem, block_max, grad_x,
+                     grad_y, albedo, x_first, y_first, spacing, z_min, z_max, sun):
     depth = np.full((height, width), np.nan)
     hit = np.full((height, width, 3), np.nan)
     mu0 = np.full((height, width), np.nan)
@@ -224,7 +269,8 @@ def _render_geometry(pixel_to_ray, center, depth_axis, height, width, dem, grad_
             phase[r, c] = math.degrees(math.acos(max(-1.0, min(1.0, cos_phase))))
             rho[r, c] = _bilinear(albedo, fc, fr)
             shadow[r, c] = cos_i <= 0.0 or _in_shadow(x, y, z, sun[0], sun[1], sun[2], dem,
-                                                      x_first, y_first, spacing, z_max)
+                                                      block_max, x_first, y_first, spacing,
+                                                      z_max)
     return depth, hit, mu0, mu, phase, rho, shadow
 
 
@@ -349,7 +395,7 @@ def view_geometry(field: HeightField, albedo: np.ndarray, camera: PinholeCamera,
     result = _run_kernel(
         _render_geometry, np.ascontiguousarray(pixel_to_ray), camera.center,
         np.ascontiguousarray(camera.R[2]),
-        camera.height, camera.width, field.dem, field.grad_x, field.grad_y,
+        camera.height, camera.width, field.dem, field.block_max, field.grad_x, field.grad_y,
         np.ascontiguousarray(albedo, dtype=np.float64), field.x_first, field.y_first,
         field.spacing, field.z_min, field.z_max, sun)
     return ViewGeometry(*result)

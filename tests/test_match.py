@@ -27,14 +27,15 @@ def _shifted(image: np.ndarray, dx: float, dy: float = 0.0) -> np.ndarray:
     return ndimage.map_coordinates(image, [yy + dy, xx + dx], order=3, mode="reflect")
 
 
-def test_lsm_recovers_a_pure_subpixel_shift():
+@pytest.mark.parametrize("weighting", [0.0, 3.0])
+def test_lsm_recovers_a_pure_subpixel_shift(weighting):
     tex = texture(90, 90, seed=1)
     left = tex
     right = 1.7 * _shifted(tex, 0.3) - 4.0  # d = 0.3 px, with gain and offset
     rows, cols = np.meshgrid(np.arange(25, 66, 8), np.arange(25, 66, 8), indexing="ij")
     rows, cols = rows.ravel(), cols.ravel()
     result = lsm_match(left, right, rows, cols, cols.astype(float), rows.astype(float),
-                       template=17)
+                       template=17, weighting=weighting)
     assert np.all(result.status == CONVERGED)
     disparity = cols - result.x_right
     assert np.max(np.abs(disparity - 0.3)) < 0.05
@@ -266,6 +267,8 @@ def test_match_rejects_bad_inputs(pair):
         match(left, right, threshold=1.0)
     with pytest.raises(ParameterError, match="grid spacing"):
         match(left, right, grid_spacing=0)
+    with pytest.raises(ParameterError, match="weighting"):
+        match(left, right, weighting=-1.0)
     with pytest.raises(ProcessingError, match="no valid"):
         match(np.full_like(left, np.nan), right)
     with pytest.raises(ParameterError, match="outside"):

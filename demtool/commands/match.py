@@ -77,7 +77,7 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
               out: str | os.PathLike, *, rectify: str | os.PathLike | None = None,
               template: int = 17, threshold: float = 0.9, grid_spacing: int = 1,
               levels: int = 3, search_margin: float = 2.0, rounds: int = 2,
-              max_vertical: float = 1.5, sift: bool = True,
+              max_vertical: float = 1.5, sift: bool = True, weighting: float = 0.0,
               correlation_out: str | os.PathLike | None = None,
               sigma_out: str | os.PathLike | None = None, workers: int = 0,
               params: dict[str, Any] | None = None):
@@ -102,7 +102,8 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
     from demtool.provenance import Provenance
 
     log = get_logger("demtool.match")
-    check_parameters(template, threshold, grid_spacing, levels, search_margin, rounds)
+    check_parameters(template, threshold, grid_spacing, levels, search_margin, rounds,
+                     weighting)
     out_path = Path(out)
     extra = {"--correlation-out": correlation_out, "--sigma-out": sigma_out}
     for option, path in extra.items():
@@ -137,7 +138,7 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
     result = match(left_rect, right_rect, template=template, threshold=threshold,
                    grid_spacing=grid_spacing, levels=levels, search_margin=search_margin,
                    rounds=rounds, seed_points=seed_points, disparity_range=disparity_range,
-                   use_sift=sift, max_vertical=max_vertical)
+                   use_sift=sift, max_vertical=max_vertical, weighting=weighting)
 
     if warped:
         frame = f"image:{Path(left_path).stem}_rect"
@@ -210,6 +211,9 @@ when its final LSM correlation coefficient reaches --threshold.""")
                    "rejected nodes are matched again.")
 @click.option("--max-vertical", type=click.FloatRange(min=0.0, min_open=True), default=1.5,
               show_default=True, help="Largest row offset of an accepted match, px.")
+@click.option("--weighting", type=click.FloatRange(min=0.0), default=0.0, show_default=True,
+              help="Gaussian LSM observation weights of this sigma, px (0 = uniform, the "
+                   "HiRISE study's LSM); about template/5 resolves fine relief better.")
 @click.option("--sift/--no-sift", default=True, show_default=True,
               help="Detect SIFT seed matches (besides Förstner corners and --rectify's).")
 @click.option("--correlation-out", type=click.Path(dir_okay=False), default=None,

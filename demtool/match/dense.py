@@ -49,7 +49,8 @@ log = get_logger(__name__)
 COARSE_MIN_CORRELATION = 0.5
 #: Half-width (pixels of the finer level) of the range around the coarser result.
 PYRAMID_RADIUS = 2
-#: LSM is tried only where the NCC peak reaches the acceptance threshold minus this.
+#: LSM is tried only where the NCC peak reaches the acceptance threshold minus this,
+#: and gives up after two iterations still this far below the threshold.
 LSM_NCC_SLACK = 0.3
 
 
@@ -86,8 +87,11 @@ class MatchResult:
 
 
 def check_parameters(template: int, threshold: float, grid_spacing: int, levels: int,
-                     search_margin: float, rounds: int) -> None:
+                     search_margin: float, rounds: int, weighting: float = 0.0) -> None:
     """Raise ParameterError for option values outside their ranges."""
+    if not (np.isfinite(weighting) and weighting >= 0):
+        raise ParameterError(f"weighting must be a Gaussian sigma >= 0 pixels (0 = uniform), "
+                             f"got {weighting}")
     if not (9 <= template <= 25 and template % 2 == 1):
         raise ParameterError(f"template must be an odd size from 9 to 25 pixels, got {template}")
     if not 0.0 < threshold < 1.0:
@@ -191,7 +195,7 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
           grid_spacing: int = 1, levels: int = 3, search_margin: float = 2.0, rounds: int = 2,
           seed_points: tuple[np.ndarray, np.ndarray] | None = None,
           disparity_range: tuple[float, float] | None = None, use_sift: bool = True,
-          max_vertical: float = 1.5) -> MatchResult:
+          max_vertical: float = 1.5, weighting: float = 0.0) -> MatchResult:
     """Dense disparity of a rectified pair by seeds, triangles, pyramid NCC and LSM.
 
     Parameters
@@ -222,6 +226,11 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
         Detect SIFT seeds (:mod:`demtool.features`).
     max_vertical : float
         Largest row offset (pixels) of an accepted match in the rectified pair.
+    weighting : float
+        Gaussian observation weights of σ = ``weighting`` pixels in LSM (0: uniform,
+        Grün's ordinary LSM as in the HiRISE study).  Centre weighting reduces the
+        smoothing of relief finer than the template; the acceptance test then uses
+        the weighted correlation coefficient.
 
     Returns
     -------
@@ -235,7 +244,8 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
         No valid pixel, or fewer than 3 usable seeds (no texture, no overlap).
     """
     started = time.perf_counter()
-    check_parameters(template, threshold, grid_spacing, levels, search_margin, rounds)
+    check_parameters(template, threshold, grid_spacing, levels, search_margin, rounds,
+                     weighting)
     left = np.asarray(left, dtype=np.float64)
     right = np.asarray(right, dtype=np.float64)
     if left.ndim != 2 or right.ndim != 2:
@@ -319,20 +329,30 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
     candidates = int(todo.sum())
     round_stats = []
     right_valid = np.isfinite(right)
+    tried_low = np.full(rows_all.size, np.iinfo(np.int64).min)
+    tried_high = np.full(rows_all.size, np.iinfo(np.int64).min)
     for round_index in range(rounds + 1):
         idx = np.nonzero(todo)[0]
-        if idx.size == 0:
-            break
         rows, cols = rows_all[idx], cols_all[idx]
         _, low, high = _ranges(tri, rows, cols, 1, search_margin)
         if round_index == 0:
             low, high = _narrow(low, high, guide, rows, cols)
+        else:  # a node whose search range did not change would fail the same way
+            changed = (low != tried_low[idx]) | (high != tried_high[idx])
+            idx, rows, cols, low, high = (a[changed] for a in (idx, rows, cols, low, high))
+        if idx.size == 0:
+            break
+        tried_low[idx] = low
+        tried_high[idx] = high
+        t_round = time.perf_counter()
         ncc = ncc_search(left, right, rows, cols, low, high, template=template,
                          left_valid=left_valid, right_valid=right_valid)
+        t_ncc = time.perf_counter() - t_round
         has = np.isfinite(ncc.disparity) & (ncc.correlation >= threshold - LSM_NCC_SLACK)
         lsm = lsm_match(left, right, rows[has], cols[has], cols[has] - ncc.disparity[has],
                         rows[has].astype(np.float64), template=template,
-                        left_valid=left_valid, right_valid=right_valid)
+                        left_valid=left_valid, right_valid=right_valid,
+                        give_up_below=threshold - LSM_NCC_SLACK, weighting=weighting)
         d = cols[has] - lsm.x_right
         accepted = ((lsm.status == CONVERGED) & (lsm.correlation >= threshold)
                     & (np.abs(lsm.y_right - rows[has]) <= max_vertical)
@@ -343,7 +363,10 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
         node_sigma[where[accepted]] = lsm.sigma_x[accepted]
         todo[where[accepted]] = False
         round_stats.append({"round": round_index, "evaluated": int(idx.size),
-                            "accepted": int(accepted.sum())})
+                            "lsm_tried": int(has.sum()), "accepted": int(accepted.sum()),
+                            "mean_search_range_px": round(float(np.mean(high - low + 1)), 2),
+                            "time_ncc_s": round(t_ncc, 3),
+                            "time_lsm_s": round(time.perf_counter() - t_round - t_ncc, 3)})
         log.info("round %d: %d of %d nodes accepted", round_index, int(accepted.sum()), idx.size)
         if round_index == rounds or not accepted.any():
             break

@@ -14,7 +14,8 @@ of the centre's position in the right image, until the shift updates fall below 
 tolerance.  At convergence ``(a0, b0)`` is the sub-pixel position in the right image
 of the template centre, its standard deviation is ``σ0 sqrt(Q[0, 0])`` with
 ``Q = (AᵀA)⁻¹`` and ``σ0² = vᵀv / (n − 8)`` (eq. 14-15), and the quality of the match
-is the correlation coefficient between the template and the resampled window.
+is the correlation coefficient between the template and the resampled window
+(both evaluated in the last Gauss–Newton pass, within the tolerance of the solution).
 
 The right image is resampled with Keys' (1981) cubic convolution (a = −1/2); the
 image gradients in the design matrix are the exact derivatives of that interpolant,
@@ -47,6 +48,9 @@ LEFT_INVALID = 2  # the template touches nodata or the image border
 RIGHT_INVALID = 3  # the resampled window left the image or touched nodata
 SINGULAR = 4  # normal equations not positive definite (no texture)
 DIVERGED = 5  # the shift or the affine terms ran away
+
+# IEEE-safe fast-math flags (no 'nnan'/'ninf': NaN marks failures here)
+_FASTMATH = {"contract", "reassoc", "arcp", "nsz"}
 
 STATUS_NAMES = ("converged", "not converged", "template invalid", "window invalid",
                 "singular", "diverged")
@@ -160,15 +164,19 @@ def _cholesky_solve(normal: np.ndarray, rhs: np.ndarray, out: np.ndarray,
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FASTMATH)
 def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4: np.ndarray,
             row: int, col: int, x0: float, y0: float, half: int, max_iterations: int,
-            tolerance: float, max_shift: float, result: np.ndarray) -> None:
+            tolerance: float, max_shift: float, give_up_below: float, weights: np.ndarray,
+            result: np.ndarray) -> None:
     """Least-squares match of the template centred on left pixel (row, col).
 
     ``result`` (float64, 6) receives x_right, y_right, correlation, sigma_x,
-    iterations, status.  ``right_ok4[y, x]`` is True when the 4 × 4 cubic-convolution
-    neighbourhood of (x + [0, 1), y + [0, 1)) is valid.  See :func:`lsm_match`.
+    iterations, status.  ``weights`` (template-sized, mean 1) weight the
+    observations (ones: ordinary LSM).  From the third iteration on, a correlation below
+    ``give_up_below`` stops the iterations (status ``NOT_CONVERGED``).
+    ``right_ok4[y, x]`` is True when the 4 × 4 cubic-convolution neighbourhood of
+    (x + [0, 1), y + [0, 1)) is valid.  See :func:`lsm_match`.
     """
     height_l, width_l = left.shape
     height_r, width_r = right.shape
@@ -230,9 +238,9 @@ def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4:
 
     status = NOT_CONVERGED
     iteration = 0
-    # One pass more than the iterations: the last pass (``final``) only evaluates
-    # residuals, correlation and the normal matrix at the solution.
-    final = False
+    # Residuals, correlation and the normal matrix of the last pass serve for the
+    # solution's quality and covariance: they were evaluated at most ``tolerance``
+    # pixels from it, so a separate final pass would change nothing that matters.
     sum_vv = 0.0
     corr = np.nan
     while True:
@@ -260,6 +268,7 @@ def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4:
                     return
                 g, gx, gy = _cubic_sample(right, xi, yi, xs - xi, ys - yi)
                 f = left[row + v, col + u]
+                w = weights[v + half, u + half]
                 residual = f - (p[6] + p[7] * g)
                 jac[0] = p[7] * gx
                 jac[1] = p[7] * gx * u
@@ -270,15 +279,16 @@ def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4:
                 jac[6] = 1.0
                 jac[7] = g
                 for i in range(N_PARAMS):
-                    rhs[i] += jac[i] * residual
+                    weighted = w * jac[i]
+                    rhs[i] += weighted * residual
                     for j in range(i + 1):
-                        normal[i, j] += jac[i] * jac[j]
-                sum_vv += residual * residual
-                sf += f
-                sg += g
-                sff += f * f
-                sgg += g * g
-                sfg += f * g
+                        normal[i, j] += weighted * jac[j]
+                sum_vv += w * residual * residual
+                sf += w * f
+                sg += w * g
+                sff += w * f * f
+                sgg += w * g * g
+                sfg += w * f * g
         var_f = sff - sf * sf / n
         var_g = sgg - sg * sg / n
         if var_f <= 0.0 or var_g <= 0.0:
@@ -288,8 +298,10 @@ def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4:
         for i in range(N_PARAMS):
             for j in range(i + 1, N_PARAMS):
                 normal[i, j] = normal[j, i]
-        if final:
-            break
+        if iteration >= 2 and corr < give_up_below:
+            result[4] = iteration
+            result[5] = NOT_CONVERGED
+            return
         if not _cholesky_solve(normal, rhs, delta, lower):
             result[5] = SINGULAR
             return
@@ -303,9 +315,9 @@ def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4:
             return
         if abs(delta[0]) < tolerance and abs(delta[3]) < tolerance:
             status = CONVERGED
-            final = True
-        elif iteration >= max_iterations:
-            final = True
+            break
+        if iteration >= max_iterations:
+            break
     if status != CONVERGED:
         result[4] = iteration
         result[5] = status
@@ -327,10 +339,26 @@ def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4:
 
 @njit(cache=True, parallel=True)
 def _lsm_batch(left, left_ok, right, right_ok4, rows, cols, x0, y0, half, max_iterations,
-               tolerance, max_shift, out):
+               tolerance, max_shift, give_up_below, weights, out):
     for k in prange(rows.shape[0]):
         lsm_one(left, left_ok, right, right_ok4, rows[k], cols[k], x0[k], y0[k], half,
-                max_iterations, tolerance, max_shift, out[k])
+                max_iterations, tolerance, max_shift, give_up_below, weights, out[k])
+
+
+def template_weights(template: int, weighting: float) -> np.ndarray:
+    """Observation weights of a template, (template, template) float64 with mean 1.
+
+    Uniform for ``weighting`` 0, else a Gaussian of standard deviation ``weighting``
+    pixels centred on the template.
+    """
+    if weighting < 0:
+        raise ValueError(f"weighting must be >= 0, got {weighting}")
+    if weighting == 0:
+        return np.ones((template, template))
+    offsets = np.arange(template) - template // 2
+    gauss = np.exp(-0.5 * (offsets / weighting) ** 2)
+    weights = np.outer(gauss, gauss)
+    return weights * (weights.size / weights.sum())
 
 
 def cubic_support_mask(valid: np.ndarray) -> np.ndarray:
@@ -362,8 +390,9 @@ def cubic_support_mask(valid: np.ndarray) -> np.ndarray:
 def lsm_match(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.ndarray,
               x_start: np.ndarray, y_start: np.ndarray, *, template: int = 17,
               left_valid: np.ndarray | None = None, right_valid: np.ndarray | None = None,
-              max_iterations: int = 20, tolerance: float = 5e-3,
-              max_shift: float | None = None) -> LSMResult:
+              max_iterations: int = 10, tolerance: float = 5e-3,
+              max_shift: float | None = None, give_up_below: float = -1.0,
+              weighting: float = 0.0) -> LSMResult:
     """Least-squares matching (Grün 1985) of templates of ``left`` in ``right``.
 
     Parameters
@@ -387,6 +416,14 @@ def lsm_match(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.nd
     max_shift : float, optional
         A solution whose shift moves farther than this from the start (pixels) has
         diverged; default half the template size.
+    give_up_below : float
+        Stop a template whose correlation is still below this after two iterations
+        (it could not be accepted anyway); -1 never gives up.
+    weighting : float
+        Standard deviation (pixels) of Gaussian observation weights centred on the
+        template (0: uniform weights, Grün's ordinary LSM).  Centre weighting makes
+        the estimate describe the centre pixel more than the template's mean, which
+        reduces the smoothing of relief finer than the template.
 
     Returns
     -------
@@ -410,7 +447,8 @@ def lsm_match(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.nd
     if rows.shape[0]:
         _lsm_batch(left_filled, left_ok, right_filled, cubic_support_mask(right_ok), rows, cols,
                    x_start, y_start, half, int(max_iterations), float(tolerance),
-                   float(half if max_shift is None else max_shift), out)
+                   float(half if max_shift is None else max_shift), float(give_up_below),
+                   template_weights(template, weighting), out)
     return LSMResult(x_right=out[:, 0], y_right=out[:, 1], correlation=out[:, 2],
                      sigma_x=out[:, 3], iterations=out[:, 4].astype(np.int32),
                      status=out[:, 5].astype(np.int8))

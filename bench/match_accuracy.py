@@ -1,0 +1,240 @@
+"""Accuracy of `demtool match` (LSM) beside `demtool sgm` on stereo pairs with truth.
+
+For every pair, `demtool.match.match` runs with templates 9, 13, 17, 21, 25 px and
+acceptance thresholds 0.9 and 0.8 (the HiRISE Dense Matcher study's settings; its
+figures 2 and 8 report completeness against template size and threshold, here with
+truth), and `demtool.sgm.sgm` runs with parabola and equiangular sub-pixel fits (plus
+OpenCV's StereoSGBM MODE_HH, the reference of the shared data README).
+
+Metrics, over the scored mask: ``compl`` = percentage of the mask with a disparity;
+``MAE`` = mean absolute error (px) of those pixels; ``bad.5`` / ``bad1`` = percentage
+of them with error above 0.5 / 1 px.
+
+On the synthetic pair, centre-weighted LSM (``--weighting``, Gaussian σ = 3 px) runs
+too, at the first threshold.
+
+Target (issue 7): on the synthetic pair, LSM's MAE on its accepted pixels is below
+SGM's with the parabola sub-pixel fit.
+
+Pairs
+-----
+synthetic
+    The synthetic scene's target/partner pair (``demtool.synth``), rectified by
+    ``demtool.rectify``; truth from ``demtool.synth.truth.truth_disparity``, scored on
+    its visible pixels.  Needs no outside data.
+tsukuba, venus, cones, teddy
+    Middlebury pairs from ``../shared/data/middlebury`` when that folder exists
+    (skipped otherwise).  © Middlebury College; Scharstein, D., Szeliski, R. (2002),
+    A taxonomy and evaluation of dense two-frame stereo correspondence algorithms,
+    IJCV 47, 7-42; (2003) High-accuracy stereo depth maps using structured light,
+    CVPR.  Scored on all pixels with truth, and for cones and teddy also on
+    ``derived/nonocc_lrcheck.png`` (a stand-in for the official non-occlusion mask,
+    see the data README).  The truths are quantised (tsukuba 1 px, venus 1/8 px,
+    cones and teddy 1/4 px), which puts a floor under every method's MAE.
+
+Usage: ``.venv/bin/python bench/match_accuracy.py [--quick] [--pairs synthetic,cones]
+[--templates 9,17] [--thresholds 0.9,0.8]``.  ``--quick`` uses a 256-px synthetic
+scene, templates 9, 17, 25 and the pairs synthetic, tsukuba, venus.  Timings depend
+on the machine's load; they are printed for orientation only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+MIDDLEBURY = ROOT.parent / "shared" / "data" / "middlebury"
+# pair: left, right, truth, scale (d = value / scale), disparities searched, nonocc mask
+MIDDLEBURY_PAIRS = {
+    "tsukuba": ("im3.png", "im4.png", "disp3.pgm", 16, 16, None),
+    "venus": ("im2.png", "im6.png", "disp2.pgm", 8, 32, None),
+    "cones": ("im2.png", "im6.png", "disp2.png", 4, 64, "derived/nonocc_lrcheck.png"),
+    "teddy": ("im2.png", "im6.png", "disp2.png", 4, 64, "derived/nonocc_lrcheck.png"),
+}
+ALL_TEMPLATES = (9, 13, 17, 21, 25)
+ALL_THRESHOLDS = (0.9, 0.8)
+
+
+def synthetic_pair(quick: bool):
+    """The synthetic target/partner pair, rectified, its truth and disparity range."""
+    from demtool.homography import warp_to_rectified
+    from demtool.rectify import rectify_pair
+    from demtool.synth import SceneParams, make_scene, truth_disparity
+
+    params = (SceneParams(seed=0, dem_size=256, image_size=256, n_views=2, crater_count=20,
+                          crater_max_diameter_m=50.0) if quick else SceneParams(n_views=2))
+    scene = make_scene(params)
+    left, right = scene.images[scene.target], scene.images[scene.partner]
+    rect = rectify_pair(left, right)
+    size = rect.size_rect
+    left_rect = warp_to_rectified(left, rect.H_left, size)
+    right_rect = warp_to_rectified(right, rect.H_right, size)
+    truth = truth_disparity(scene, rect.H_left, rect.H_right, (int(size[1]), int(size[0])))
+    low, high = rect.disparity_range
+    min_disparity = int(math.floor(low))
+    count = int(math.ceil(high)) - min_disparity + 1
+    mask = truth.visible & np.isfinite(left_rect) & np.isfinite(right_rect)
+    seeds = (rect.points_left_rect, rect.points_right_rect)
+    return (left_rect, right_rect, truth.disparity, {"visible": mask}, min_disparity, count,
+            seeds)
+
+
+def middlebury_pair(name: str):
+    """A Middlebury pair (grey), its truth (px) and masks (all with truth, nonocc)."""
+    from demtool import io as dio
+
+    folder = MIDDLEBURY / name
+    left_name, right_name, truth_name, scale, count, mask_name = MIDDLEBURY_PAIRS[name]
+    left = dio.read_image(folder / left_name).data
+    right = dio.read_image(folder / right_name).data
+    raw = dio.read_image(folder / truth_name).data
+    truth = (raw / scale).astype(np.float32)
+    masks = {"all": raw > 0}
+    if mask_name is not None:
+        masks["nonocc"] = masks["all"] & (dio.read_image(folder / mask_name).data > 127)
+    return left, right, truth, masks, 0, count, None
+
+
+def scores(disparity: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict[str, float]:
+    """Completeness, MAE, bad-0.5 and bad-1 (percent) of ``disparity`` over ``mask``."""
+    valid = mask & np.isfinite(disparity)
+    error = np.abs(disparity[valid] - truth[valid])
+    empty = error.size == 0
+    return {"compl": 100.0 * valid.sum() / max(int(mask.sum()), 1),
+            "mae": math.nan if empty else float(error.mean()),
+            "bad05": math.nan if empty else 100.0 * float((error > 0.5).mean()),
+            "bad1": math.nan if empty else 100.0 * float((error > 1.0).mean())}
+
+
+def opencv_sgbm(left: np.ndarray, right: np.ndarray, min_disparity: int,
+                num_disparities: int, block_size: int = 5) -> np.ndarray:
+    """OpenCV StereoSGBM MODE_HH (OpenCV's recommended penalties); NaN = invalid."""
+    import cv2
+
+    from demtool.features import to_uint8
+
+    count = int(math.ceil(num_disparities / 16) * 16)
+    matcher = cv2.StereoSGBM_create(minDisparity=int(min_disparity), numDisparities=count,
+                                    blockSize=block_size, P1=8 * block_size ** 2,
+                                    P2=32 * block_size ** 2, disp12MaxDiff=1,
+                                    uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,
+                                    mode=cv2.STEREO_SGBM_MODE_HH)
+    raw = matcher.compute(to_uint8(left)[0], to_uint8(right)[0])
+    disparity = raw.astype(np.float32) / 16.0
+    disparity[raw <= (min_disparity - 1) * 16] = np.nan
+    disparity[~(np.isfinite(left) & np.isfinite(right))] = np.nan
+    return disparity
+
+
+def run_pair(name: str, data, templates, thresholds, weighting: float = 0.0) -> list[dict]:
+    """Every method on one pair; prints its table and returns the rows."""
+    from demtool.errors import DemtoolError
+    from demtool.match import match
+
+    left, right, truth, masks, min_disparity, count, seeds = data
+    print(f"\n{name}: {left.shape[1]} x {left.shape[0]} px, disparities {min_disparity} … "
+          f"{min_disparity + count - 1}; scored pixels: "
+          + ", ".join(f"{k} {int(m.sum())}" for k, m in masks.items()), flush=True)
+    runs: list[tuple[str, np.ndarray, float]] = []
+    try:
+        from demtool.sgm import sgm
+    except ImportError:
+        print("  demtool.sgm is not available: SGM rows skipped")
+        sgm = None
+    if sgm is not None:
+        for subpixel in ("parabola", "equiangular"):
+            start = time.perf_counter()
+            result = sgm(left, right, min_disparity=min_disparity, num_disparities=count,
+                         subpixel=subpixel)
+            runs.append((f"sgm hmi {subpixel}", result.disparity, time.perf_counter() - start))
+    start = time.perf_counter()
+    runs.append(("OpenCV SGBM HH", opencv_sgbm(left, right, min_disparity, count),
+                 time.perf_counter() - start))
+    configs = [(t, r, 0.0) for t in templates for r in thresholds]
+    if weighting > 0:  # centre-weighted LSM at the study's threshold
+        configs += [(t, thresholds[0], weighting) for t in templates]
+    for template, threshold, sigma_w in configs:
+        label = f"match t={template} r>={threshold}" + (f" w={sigma_w:g}" if sigma_w else "")
+        start = time.perf_counter()
+        try:
+            result = match(left, right, template=template, threshold=threshold,
+                           seed_points=seeds, weighting=sigma_w)
+            disparity = result.disparity
+        except DemtoolError as exc:
+            print(f"  {label}: failed: {exc}")
+            disparity = np.full(left.shape, np.nan, np.float32)
+        runs.append((label, disparity, time.perf_counter() - start))
+        print(f"  … {label}: {runs[-1][2]:.1f} s", flush=True)
+    rows = []
+    for mask_name, mask in masks.items():
+        print(f"  [{mask_name}]\n  {'method':<24} {'compl%':>7} {'MAE':>7} {'bad.5%':>7} "
+              f"{'bad1%':>7} {'time s':>7}")
+        for label, disparity, seconds in runs:
+            s = scores(disparity, truth, mask)
+            rows.append({"pair": name, "mask": mask_name, "method": label, **s,
+                         "seconds": seconds})
+            print(f"  {label:<24} {s['compl']:7.1f} {s['mae']:7.3f} {s['bad05']:7.2f} "
+                  f"{s['bad1']:7.2f} {seconds:7.1f}")
+    return rows
+
+
+def verdict(rows: list[dict]) -> None:
+    """The issue's target on the synthetic pair."""
+    synthetic = [r for r in rows if r["pair"] == "synthetic"]
+    reference = [r for r in synthetic if r["method"] == "sgm hmi parabola"]
+    if not synthetic:
+        return
+    if not reference:
+        print("\ntarget: SGM (parabola) did not run; cannot compare")
+        return
+    sgm_mae = reference[0]["mae"]
+    print(f"\ntarget (synthetic): LSM MAE on accepted pixels < SGM parabola MAE "
+          f"{sgm_mae:.3f} px")
+    for r in synthetic:
+        if r["method"].startswith("match"):
+            state = "met" if r["mae"] < sgm_mae else "NOT met"
+            print(f"  {r['method']:<24} MAE {r['mae']:.3f} px, completeness "
+                  f"{r['compl']:.1f} %: {state}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="smaller, faster run")
+    parser.add_argument("--pairs", default=None,
+                        help="comma-separated: synthetic, tsukuba, venus, cones, teddy")
+    parser.add_argument("--templates", default=None, help="comma-separated template sizes")
+    parser.add_argument("--thresholds", default=None, help="comma-separated thresholds")
+    parser.add_argument("--weighting", type=float, default=3.0,
+                        help="also run centre-weighted LSM (Gaussian sigma, px) on the "
+                             "synthetic pair; 0 = no")
+    args = parser.parse_args()
+    default_pairs = ["synthetic", "tsukuba", "venus"] if args.quick else \
+        ["synthetic", *MIDDLEBURY_PAIRS]
+    pairs = args.pairs.split(",") if args.pairs else default_pairs
+    templates = ([int(t) for t in args.templates.split(",")] if args.templates
+                 else ([9, 17, 25] if args.quick else list(ALL_TEMPLATES)))
+    thresholds = ([float(t) for t in args.thresholds.split(",")] if args.thresholds
+                  else list(ALL_THRESHOLDS))
+    rows: list[dict] = []
+    for name in pairs:
+        if name == "synthetic":
+            rows += run_pair(name, synthetic_pair(args.quick), templates, thresholds,
+                             args.weighting)
+        elif name in MIDDLEBURY_PAIRS:
+            if not (MIDDLEBURY / name).is_dir():
+                print(f"\n{name}: {MIDDLEBURY / name} not found; skipped")
+                continue
+            rows += run_pair(name, middlebury_pair(name), templates, thresholds)
+        else:
+            raise SystemExit(f"unknown pair {name!r}; choose from synthetic, "
+                             + ", ".join(MIDDLEBURY_PAIRS))
+    verdict(rows)
+
+
+if __name__ == "__main__":
+    main()

@@ -160,8 +160,10 @@ def test_bad_option_values_exit_2_and_write_nothing(tmp_path, args, message):
 
 @pytest.mark.parametrize("args, message", [
     (["--gsd", "3"], "sees ground up to"),
-    (["--crater-min", "30", "--crater-max", "10"], "crater_max_diameter_m"),
-    (["--bh-min", "0.4", "--bh-max", "0.2"], "bh_max"),
+    (["--altitude", "5", "--gsd", "0.01"], "--altitude (5.0) must be above the highest"),
+    (["--crater-min", "30", "--crater-max", "10"], "--crater-max must not be smaller than "
+                                                   "--crater-min"),
+    (["--bh-min", "0.4", "--bh-max", "0.2"], "--bh-max must not be smaller than --bh-min"),
 ])
 def test_impossible_scenes_exit_1_with_one_line_and_write_nothing(tmp_path, args, message):
     out = tmp_path / "scene"

@@ -190,16 +190,24 @@ def run_synth(out: str | os.PathLike, params: SceneParams,
         The command's resolved options, for the provenance record (defaults to
         ``params.as_dict()``).
     """
+    from demtool.errors import ParameterError
     from demtool.logs import get_logger
     from demtool.provenance import Provenance
-    from demtool.synth import make_scene
+    from demtool.synth import check_parameters, make_scene
 
     log = get_logger("synth")
     prov = Provenance("synth", resolved or params.as_dict(), inputs=[])
+    try:
+        check_parameters(params)
+    except ParameterError as exc:
+        raise ParameterError(option_names(str(exc))) from None
     log.info("rendering %d views of %d × %d px over a %d × %d DEM (%.2f m cells), seed %d",
              params.n_views, params.image_size, params.image_size, params.dem_size,
              params.dem_size, params.spacing_m, params.seed)
-    scene = make_scene(params)
+    try:
+        scene = make_scene(params)
+    except ParameterError as exc:
+        raise ParameterError(option_names(str(exc))) from None
     written = write_scene(scene, out, prov)
     log.info("scene rendered in %.1f s: heights %.1f … %.1f m, target %s, partner %s "
              "(B/H %.2f)", scene.render_time_s, float(scene.dem.min()), float(scene.dem.max()),
@@ -264,6 +272,15 @@ def load_scene(folder: str | os.PathLike, *, with_geometry: bool = True) -> Scen
                  dn_per_reflectance=float(description.get("dn_per_reflectance", np.nan)),
                  render_time_s=float(description.get("render_time_s", np.nan)),
                  timings=dict(description.get("timings_s", {})))
+
+
+def option_names(message: str) -> str:
+    """A core message with SceneParams field names replaced by the command's options."""
+    import re
+
+    for option, name in OPTION_TO_PARAM.items():
+        message = re.sub(rf"\b{name}\b", "--" + option.replace("_", "-"), message)
+    return message
 
 
 def params_from_options(options: dict[str, Any]) -> SceneParams:

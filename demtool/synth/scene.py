@@ -164,9 +164,9 @@ def check_footprints(params: SceneParams, cameras: dict[str, PinholeCamera], z_m
         if reach > limit:
             raise ParameterError(
                 f"{name} sees ground up to {reach:.1f} m from the centre, but the DEM "
-                f"(dem_size {params.dem_size} × spacing {params.spacing_m} m) keeps only "
-                f"±{limit:.1f} m with its margin; use a larger dem_size or spacing, a "
-                f"smaller gsd_m or image_size, or smaller B/H ratios")
+                f"(dem_size {params.dem_size} × spacing_m {params.spacing_m}) keeps only "
+                f"±{limit:.1f} m with its margin; use a larger dem_size or spacing_m, a "
+                f"smaller gsd_m or image_size, or smaller B/H ratios (partner_bh, bh_max)")
 
 
 def flat_dn_per_reflectance(params: SceneParams) -> float:

@@ -197,6 +197,8 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     ProcessingError
         Too many DEM gaps, too few lit pixels.
     """
+    import time
+
     import numpy as np
 
     from demtool import io
@@ -229,12 +231,17 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     if not all(np.isfinite(s) and s > 0 for s in spacing):
         raise InputError(f"{dem.path}: the DEM's transform has no usable pixel spacing "
                          f"({spacing})")
+    started = time.perf_counter()
     try:
         prepared = prepare_dem(dem.data, median_size=median, max_nan_fraction=max_nan_fraction)
     except ProcessingError as exc:
         raise ProcessingError(f"{dem.path}: {exc}") from None
+    prepared_s = time.perf_counter() - started
     result = refine_heights(values, prepared.dem, spacing=spacing, illumination=illumination,
                             parameters=params)
+    sfs_s = time.perf_counter() - started - prepared_s
+    log.info("DEM preparation (gap filling, median) %.1f s, shape from shading %.1f s",
+             prepared_s, sfs_s)
     shift = float(np.mean(result.dem, dtype=np.float64) - np.mean(prepared.dem,
                                                                   dtype=np.float64))
     change = result.dem.astype(np.float64) - prepared.dem
@@ -256,6 +263,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
         "phase_deg": illumination.phase_deg,
         "spacing_m": list(spacing), "grid": list(dem.data.shape),
         "image_resampled": note,
+        "timings_s": {"prepare_dem": round(prepared_s, 3), "sfs": round(sfs_s, 3)},
     }
     inherited = {k: v for k, v in dem.tags.items() if not k.startswith("demtool_")}
     tags = {**inherited, **prov.tags(

@@ -13,8 +13,9 @@ so depth discontinuities at intensity edges are cheaper (Hirschmüller 2008, §3
 
 The kernel sweeps the rows twice: top-down for the directions with a downward
 component plus left-to-right, then bottom-up for the opposite directions plus
-right-to-left.  Each sweep keeps only the last three rows of path costs per
-direction, so memory besides the cost and sum volumes is O(W·D).  Costs are uint16,
+right-to-left.  Each sweep keeps only the last two rows (three for the 16-path
+knight moves) of path costs per direction, so memory besides the cost and sum
+volumes is O(W·D).  Costs are uint16,
 path costs int16 (L ≤ C_max + P2) and the sum uint16 (≤ n_paths · (C_max + P2)).
 The inner loop over disparities is branch-free so LLVM vectorises it (16 lanes of
 int16 on AVX2).
@@ -47,36 +48,39 @@ def downward_directions(paths: int) -> np.ndarray:
 
 
 @njit(nogil=True, cache=True, fastmath=True)
-def _path_step(prev, cur, cost, p1, p2, prev_min, total):
-    """One step of eq. 13 for all disparities; adds L_r(p, ·) to ``total``; returns its min.
+def _path_step(path, j, prev_slot, prev_x, slot, x, cost, y, cost_x, acc, p1, jump, prev_min):
+    """One step of eq. 13 for all disparities, from L_r(p − r) to L_r(p); returns min_d L_r(p).
 
-    ``prev`` and ``cur`` are (D + 2) int16 with sentinels at both ends.
+    ``path[j, slot, x]`` holds L_r of direction j, with int16 sentinels at both ends
+    of the disparity axis; L_r(p, ·) is also added to ``acc``.  Everything is
+    indexed on the full arrays (no array views in the hot loop, which would cost a
+    reference-count update each), so the loop over d vectorises.  The cost is
+    ``cost[y, cost_x]``.
     """
-    n_disp = cost.shape[0]
-    p1s = np.int16(p1)
-    jump = np.int16(prev_min + p2)
+    n_disp = cost.shape[2]
+    low = np.int16(32767)
     for k in range(1, n_disp + 1):
-        best = min(prev[k], np.int16(min(prev[k - 1], prev[k + 1]) + p1s))
+        best = min(path[j, prev_slot, prev_x, k],
+                   np.int16(min(path[j, prev_slot, prev_x, k - 1],
+                                path[j, prev_slot, prev_x, k + 1]) + p1))
         best = min(best, jump)
-        value = np.int16(np.int16(cost[k - 1]) + np.int16(best - prev_min))
-        cur[k] = value
-        total[k - 1] = np.uint16(total[k - 1] + np.uint16(value))
-    low = cur[1]
-    for k in range(2, n_disp + 1):
-        low = min(low, cur[k])
+        value = np.int16(np.int16(cost[y, cost_x, k - 1]) + np.int16(best - prev_min))
+        path[j, slot, x, k] = value
+        acc[k - 1] = np.uint16(acc[k - 1] + np.uint16(value))
+        low = min(low, value)
     return low
 
 
 @njit(nogil=True, cache=True, fastmath=True)
-def _path_start(cur, cost, total):
-    """First pixel of a path: L_r(p, ·) = C(p, ·); adds it to ``total``; returns its min."""
-    n_disp = cost.shape[0]
+def _path_start(path, j, slot, x, cost, y, cost_x, acc):
+    """First pixel of a path: L_r(p, ·) = C(p, ·), added to ``acc``; returns its minimum."""
+    n_disp = cost.shape[2]
+    low = np.int16(32767)
     for k in range(n_disp):
-        cur[k + 1] = np.int16(cost[k])
-        total[k] = np.uint16(total[k] + cost[k])
-    low = cur[1]
-    for k in range(2, n_disp + 1):
-        low = min(low, cur[k])
+        value = np.int16(cost[y, cost_x, k])
+        path[j, slot, x, k + 1] = value
+        acc[k] = np.uint16(acc[k] + cost[y, cost_x, k])
+        low = min(low, value)
     return low
 
 
@@ -90,43 +94,66 @@ def _adapted_p2(p1, p2, kappa, guide, y, x, yp, xp):
     return max(p1, (p2 * kappa) // step)
 
 
+@njit(nogil=True, cache=True)
+def _add_to_total(total, y, x, acc, first):
+    n_disp = acc.shape[0]
+    if first:
+        for k in range(n_disp):
+            total[y, x, k] = acc[k]
+    else:
+        for k in range(n_disp):
+            total[y, x, k] = np.uint16(total[y, x, k] + acc[k])
+    for k in range(n_disp):
+        acc[k] = 0
+
+
 @njit(nogil=True, cache=True, fastmath=True)
 def _aggregate(cost, guide, directions, p1, p2, kappa, total):
-    """Both sweeps of SGM over a cost volume; ``total`` (zeroed) receives S."""
+    """Both sweeps of SGM over a cost volume; ``total`` receives S (overwritten)."""
     n_rows, width, n_disp = cost.shape
     n_dirs = directions.shape[0]
-    ring = np.full((n_dirs, 3, width, n_disp + 2), SENTINEL, dtype=np.int16)
-    ring_min = np.zeros((n_dirs, 3, width), dtype=np.int16)
-    prev = np.full(n_disp + 2, SENTINEL, dtype=np.int16)
-    cur = np.full(n_disp + 2, SENTINEL, dtype=np.int16)
+    n_slots = 2
+    for j in range(n_dirs):
+        n_slots = max(n_slots, directions[j, 0] + 1)
+    # path costs of the last rows for each direction; a 2-slot buffer for the horizontal
+    ring = np.full((max(n_dirs, 1), n_slots, width, n_disp + 2), SENTINEL, dtype=np.int16)
+    ring_min = np.zeros((max(n_dirs, 1), n_slots, width), dtype=np.int16)
+    line = np.full((1, 2, 1, n_disp + 2), SENTINEL, dtype=np.int16)
+    acc = np.zeros(n_disp, dtype=np.uint16)
+    p1s = np.int16(p1)
     for sweep in range(2):
         sign = 1 if sweep == 0 else -1
         for i in range(n_rows):
             y = i if sign == 1 else n_rows - 1 - i
             # horizontal path: left to right in the first sweep, right to left in the second
             x = 0 if sign == 1 else width - 1
-            low = _path_start(prev, cost[y, x], total[y, x])
+            low = _path_start(line, 0, 0, 0, cost, y, x, acc)
+            _add_to_total(total, y, x, acc, sweep == 0)
+            current = 1
             for _ in range(1, width):
                 xp = x
                 x += sign
                 p2e = _adapted_p2(p1, p2, kappa, guide, y, x, y, xp)
-                low = _path_step(prev, cur, cost[y, x], p1, p2e, low, total[y, x])
-                prev, cur = cur, prev
+                low = _path_step(line, 0, 1 - current, 0, current, 0, cost, y, x, acc, p1s,
+                                 np.int16(low + p2e), low)
+                _add_to_total(total, y, x, acc, sweep == 0)
+                current = 1 - current
             # the paths that come from the previous row(s)
-            slot = y % 3
+            slot = y % n_slots
             for x in range(width):
-                c = cost[y, x]
-                t = total[y, x]
                 for j in range(n_dirs):
                     yp = y - sign * directions[j, 0]
                     xp = x - sign * directions[j, 1]
-                    here = ring[j, slot, x]
                     if yp < 0 or yp >= n_rows or xp < 0 or xp >= width:
-                        ring_min[j, slot, x] = _path_start(here, c, t)
+                        ring_min[j, slot, x] = _path_start(ring, j, slot, x, cost, y, x, acc)
                     else:
                         p2e = _adapted_p2(p1, p2, kappa, guide, y, x, yp, xp)
-                        ring_min[j, slot, x] = _path_step(ring[j, yp % 3, xp], here, c, p1,
-                                                          p2e, ring_min[j, yp % 3, xp], t)
+                        prev_slot = yp % n_slots
+                        prev_min = ring_min[j, prev_slot, xp]
+                        ring_min[j, slot, x] = _path_step(ring, j, prev_slot, xp, slot, x, cost,
+                                                          y, x, acc, p1s,
+                                                          np.int16(prev_min + p2e), prev_min)
+                _add_to_total(total, y, x, acc, False)
 
 
 def aggregate_costs(cost: np.ndarray, *, p1: int, p2: int, paths: int = 8,
@@ -177,7 +204,7 @@ def aggregate_costs(cost: np.ndarray, *, p1: int, p2: int, paths: int = 8,
         raise ValueError("adaptive P2 needs the guide image")
     if guide is None:
         guide = np.zeros((1, 1), dtype=np.uint8)
-    total = np.zeros(cost.shape, dtype=np.uint16)
+    total = np.empty(cost.shape, dtype=np.uint16)
     _aggregate(np.ascontiguousarray(cost), np.ascontiguousarray(guide, dtype=np.uint8),
                downward_directions(paths), int(p1), int(p2), int(p2_kappa), total)
     return total

@@ -111,21 +111,17 @@ def quantize(image: np.ndarray, valid: np.ndarray, levels: int,
 
 
 @njit(nogil=True, cache=True)
-def _census(image, radius_y, radius_x, out):
-    height, width = image.shape
+def _census(padded, radius_y, radius_x, out):
+    height, width = out.shape
     for y in range(height):
         for x in range(width):
-            centre = image[y, x]
+            centre = padded[y + radius_y, x + radius_x]
             bits = np.uint64(0)
-            for dy in range(-radius_y, radius_y + 1):
-                yy = min(max(y + dy, 0), height - 1)
-                for dx in range(-radius_x, radius_x + 1):
-                    if dy == 0 and dx == 0:
+            for dy in range(2 * radius_y + 1):
+                for dx in range(2 * radius_x + 1):
+                    if dy == radius_y and dx == radius_x:
                         continue
-                    xx = min(max(x + dx, 0), width - 1)
-                    bits = bits << np.uint64(1)
-                    if image[yy, xx] < centre:
-                        bits = bits | np.uint64(1)
+                    bits = (bits << np.uint64(1)) | np.uint64(padded[y + dy, x + dx] < centre)
             out[y, x] = bits
 
 
@@ -147,7 +143,8 @@ def census_transform(image: np.ndarray, window: tuple[int, int]) -> np.ndarray:
     if rows % 2 == 0 or cols % 2 == 0 or rows * cols - 1 > 64:
         raise ValueError(f"census window {rows}x{cols}: sizes must be odd with at most 64 bits")
     out = np.empty(image.shape, dtype=np.uint64)
-    _census(np.ascontiguousarray(image, dtype=np.float32), rows // 2, cols // 2, out)
+    padded = np.pad(np.asarray(image, dtype=np.float32), ((rows // 2,), (cols // 2,)), mode="edge")
+    _census(padded, rows // 2, cols // 2, out)
     return out
 
 
@@ -256,20 +253,36 @@ def _pixel_cost_row(kind, y, left_codes, right_codes, left_levels, right_levels,
     """Pixelwise costs of image row ``y`` into ``out`` (W, D)."""
     width = left_valid.shape[1]
     n_disp = out.shape[1]
+    right_all_valid = True
     for x in range(width):
-        row = out[x]
+        if not right_valid[y, x]:
+            right_all_valid = False
+            break
+    for x in range(width):
         if not left_valid[y, x]:
             for k in range(n_disp):
-                row[k] = 0
+                out[x, k] = 0
             continue
-        for k in range(n_disp):
-            xr = x - (min_disparity + k)
-            if xr < 0 or xr >= width or not right_valid[y, xr]:
-                row[k] = invalid_cost
-            elif kind == 0:
-                row[k] = np.uint16(_popcount64(left_codes[y, x] ^ right_codes[y, xr]))
-            else:
-                row[k] = table[left_levels[y, x], right_levels[y, xr]]
+        # disparities whose right pixel x − d lies inside the image: k_lo <= k < k_hi
+        k_hi = max(0, min(n_disp, x - min_disparity + 1))
+        k_lo = min(k_hi, max(0, x - min_disparity - width + 1))
+        for k in range(k_lo):
+            out[x, k] = invalid_cost
+        for k in range(k_hi, n_disp):
+            out[x, k] = invalid_cost
+        base = x - min_disparity
+        if kind == 0:
+            code = left_codes[y, x]
+            for k in range(k_lo, k_hi):
+                out[x, k] = np.uint16(_popcount64(code ^ right_codes[y, base - k]))
+        else:
+            level = left_levels[y, x]
+            for k in range(k_lo, k_hi):
+                out[x, k] = table[level, right_levels[y, base - k]]
+        if not right_all_valid:
+            for k in range(k_lo, k_hi):
+                if not right_valid[y, base - k]:
+                    out[x, k] = invalid_cost
 
 
 @njit(nogil=True, cache=True)

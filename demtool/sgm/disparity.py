@@ -210,13 +210,17 @@ def _median(disparity, radius, out):
                 for xx in range(max(x - radius, 0), min(x + radius + 1, width)):
                     value = disparity[yy, xx]
                     if np.isfinite(value):
-                        window[count] = value
+                        # insertion sort as the window fills (at most 25 values)
+                        j = count
+                        while j > 0 and window[j - 1] > value:
+                            window[j] = window[j - 1]
+                            j -= 1
+                        window[j] = value
                         count += 1
-            values = np.sort(window[:count])
             if count % 2 == 1:
-                out[y, x] = values[count // 2]
+                out[y, x] = window[count // 2]
             else:
-                out[y, x] = 0.5 * (values[count // 2 - 1] + values[count // 2])
+                out[y, x] = 0.5 * (window[count // 2 - 1] + window[count // 2])
 
 
 def median_filter(disparity: np.ndarray, size: int) -> np.ndarray:

@@ -1,0 +1,155 @@
+"""Speed and memory of `demtool sgm` against an equivalent OpenCV StereoSGBM script.
+
+Times, in one run and after a warm-up run (so numba's compiled code is cached), the
+``demtool sgm`` command on a 2048×2048 pair with 128 disparities (census and
+hierarchical MI, 8 paths, left–right check and sub-pixel) and an OpenCV script that
+does the same job (reads the same GeoTIFFs, StereoSGBM MODE_HH with disp12MaxDiff=1,
+writes the disparity GeoTIFF).  Each command runs as a child process; wall time and
+peak resident memory (``getrusage(RUSAGE_CHILDREN)``, measured by a small wrapper
+process per command) are printed beside the ratio and the targets of issue 3:
+census ≤ 1.0× OpenCV's time, MI (HMI) ≤ 1.5×, peak memory ≤ 2 GB.
+
+Usage: ``.venv/bin/python bench/stereo_speed.py [--quick] [--size N] [--disparities D]``
+(``--quick``: 1024×1024, 64 disparities).  Timings depend on the machine's load: run
+it on a quiet machine, and compare only numbers from the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DEMTOOL = str(Path(sys.executable).with_name("demtool"))
+
+# Runs a command, then prints its wall time and peak memory (this wrapper's children).
+WRAPPER = """
+import json, resource, subprocess, sys, time
+start = time.perf_counter()
+code = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE).returncode
+wall = time.perf_counter() - start
+peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
+print(json.dumps({"code": code, "wall_s": wall, "peak_mb": peak}))
+"""
+
+# The OpenCV equivalent of `demtool sgm --cost census`: read, match (with LR check), write.
+OPENCV_SCRIPT = """
+import sys
+import cv2
+import numpy as np
+from demtool import io as dio
+
+left = dio.read_raster(sys.argv[1]).data
+right = dio.read_raster(sys.argv[2]).data
+min_disparity, count, block = int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6])
+
+def to_uint8(image):
+    valid = np.isfinite(image)
+    low, high = np.percentile(image[valid], [0.5, 99.5])
+    scaled = (np.where(valid, image, low) - low) * (255.0 / max(high - low, 1e-6))
+    return np.clip(np.rint(scaled), 0, 255).astype(np.uint8)
+
+matcher = cv2.StereoSGBM_create(minDisparity=min_disparity, numDisparities=count,
+                                blockSize=block, P1=8 * block**2, P2=32 * block**2,
+                                disp12MaxDiff=1, uniquenessRatio=10, speckleWindowSize=100,
+                                speckleRange=2, mode=cv2.STEREO_SGBM_MODE_HH)
+raw = matcher.compute(to_uint8(left), to_uint8(right))
+disparity = raw.astype(np.float32) / 16.0
+disparity[raw <= (min_disparity - 1) * 16] = np.nan
+dio.write_raster(sys.argv[3], disparity)
+"""
+
+
+def make_pair(size: int, disparities: int, folder: Path, seed: int = 0) -> tuple[Path, Path]:
+    """A textured 12-bit-like pair related by a smooth disparity field, as GeoTIFFs."""
+    from scipy import ndimage
+
+    from demtool import io as dio
+
+    rng = np.random.default_rng(seed)
+    margin = disparities + 8
+    base = ndimage.gaussian_filter(rng.normal(size=(size, size + margin)), 1.2)
+    base = 2000.0 + 300.0 * base / base.std()
+    rows, cols = np.mgrid[0:size, 0:size].astype(np.float32)
+    field = (0.5 * disparities + 0.3 * disparities * np.sin(2 * np.pi * cols / size)
+             * np.cos(2 * np.pi * rows / size))
+    left = base[:, :size] + rng.normal(0.0, 5.0, (size, size))
+    right = ndimage.map_coordinates(base, [rows, cols + field], order=1)
+    right = right + rng.normal(0.0, 5.0, (size, size))
+    paths = folder / "left_rect.tif", folder / "right_rect.tif"
+    for path, image in zip(paths, (left, right), strict=True):
+        dio.write_raster(path, image.astype(np.float32), tags={"frame": f"image:{path.stem}"})
+    return paths
+
+
+def timed(command: list[str]) -> dict:
+    output = subprocess.run([sys.executable, "-c", WRAPPER, *command], capture_output=True,
+                            text=True, check=True)
+    result = json.loads(output.stdout.strip().splitlines()[-1])
+    if result["code"] != 0:
+        raise RuntimeError(f"{' '.join(command)} failed with status {result['code']}")
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="1024×1024, 64 disparities")
+    parser.add_argument("--size", type=int, default=None, help="image side, px")
+    parser.add_argument("--disparities", type=int, default=None, help="disparities searched")
+    parser.add_argument("--workers", type=int, default=0, help="demtool --workers")
+    args = parser.parse_args(argv)
+    size = args.size or (1024 if args.quick else 2048)
+    count = args.disparities or (64 if args.quick else 128)
+    with tempfile.TemporaryDirectory(prefix="stereo_speed_") as tmp:
+        folder = Path(tmp)
+        left, right = make_pair(size, count, folder)
+        small = folder / "small"
+        small.mkdir()
+        small_left, small_right = make_pair(160, 32, small)
+        script = folder / "opencv_sgbm.py"
+        script.write_text(OPENCV_SCRIPT)
+
+        def ours(cost: str, l_path: Path, r_path: Path, n: int, out: str) -> list[str]:
+            return [DEMTOOL, "-q", "sgm", str(l_path), str(r_path), "--out", str(folder / out),
+                    "--min-disparity", "0", "--num-disparities", str(n), "--cost", cost,
+                    "--paths", "8", "--lr-check", "--subpixel", "equiangular",
+                    "--workers", str(args.workers)]
+
+        def opencv(l_path: Path, r_path: Path, n: int, out: str) -> list[str]:
+            return [sys.executable, str(script), str(l_path), str(r_path), str(folder / out),
+                    "0", str(n), "5"]
+
+        # warm-up: fill numba's cache and the OS file cache
+        for cost in ("census", "hmi"):
+            timed(ours(cost, small_left, small_right, 32, "warm.tif"))
+        timed(opencv(small_left, small_right, 32, "warm_cv.tif"))
+        results = {
+            "OpenCV SGBM HH (bs=5)": timed(opencv(left, right, count, "cv.tif")),
+            "demtool sgm census": timed(ours("census", left, right, count, "census.tif")),
+            "demtool sgm hmi": timed(ours("hmi", left, right, count, "hmi.tif")),
+        }
+    reference = results["OpenCV SGBM HH (bs=5)"]["wall_s"]
+    targets = {"demtool sgm census": 1.0, "demtool sgm hmi": 1.5}
+    print(f"\n{size}×{size} px, {count} disparities, 8 paths, LR check, sub-pixel; "
+          f"{os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.1f}")
+    print(f"{'command':<24} {'wall s':>8} {'× OpenCV':>9} {'target':>7} {'peak MB':>8} "
+          f"{'≤ 2000 MB':>9}")
+    for label, result in results.items():
+        ratio = result["wall_s"] / reference
+        target = targets.get(label)
+        met = "" if target is None else ("met" if ratio <= target else "NOT met")
+        print(f"{label:<24} {result['wall_s']:8.2f} {ratio:9.2f} "
+              f"{'' if target is None else f'≤{target:.1f}':>7} {result['peak_mb']:8.0f} "
+              f"{'met' if result['peak_mb'] <= 2000 else 'NOT met':>9}  {met}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -137,14 +137,13 @@ def write_scene(scene: Scene, out: str | os.PathLike, prov: Provenance) -> list[
                 **view_angles(camera, sun))
             written.append(io.write_raster(folder / f"{name}.tif", scene.images[name],
                                            transform=io.image_frame_transform(1.0), tags=tags))
-        map_tags = {"frame": "map:local", "units": "m"}
-        written.append(io.write_raster(folder / "truth_dem.tif", scene.dem,
-                                       transform=scene.dem_transform,
-                                       tags=prov.tags(**map_tags, content="truth heights")))
-        written.append(io.write_raster(folder / "albedo.tif", scene.albedo,
-                                       transform=scene.dem_transform,
-                                       tags=prov.tags(frame="map:local",
-                                                      content="normal albedo")))
+        written.append(io.write_raster(
+            folder / "truth_dem.tif", scene.dem, transform=scene.dem_transform,
+            tags=prov.tags(frame="map:local", units="m",
+                           content="truth heights above the mean surface")))
+        written.append(io.write_raster(
+            folder / "albedo.tif", scene.albedo, transform=scene.dem_transform,
+            tags=prov.tags(frame="map:local", units="1", content="normal albedo")))
         written.append(io.write_raster(
             folder / "truth_dem_target.tif", scene.truth_target,
             transform=io.image_frame_transform(scene.gsd_m),

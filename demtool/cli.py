@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import importlib
 import signal
-import sys
 from dataclasses import dataclass
 
 import click
@@ -71,16 +70,34 @@ class DemtoolGroup(click.Group):
             formatter.write_dl(list(STAGES.items()))
 
     def invoke(self, ctx: click.Context):
+        sub = ctx.invoked_subcommand
+        prefix = f"demtool {sub}" if sub else "demtool"
         try:
             return super().invoke(ctx)
         except DemtoolError as exc:
             state = ctx.find_object(AppState)
             if state is not None and state.debug:
                 raise
-            sub = ctx.invoked_subcommand
-            prefix = f"demtool {sub}" if sub else "demtool"
             click.echo(f"Error: {prefix}: {exc}", err=True)
             ctx.exit(1)
+        except (KeyboardInterrupt, SystemError) as exc:
+            if not _is_interrupt(exc):
+                raise
+            # Outputs were rolled back by io.output_transaction while unwinding.
+            click.echo(f"Error: {prefix}: interrupted; no output written", err=True)
+            ctx.exit(130)
+
+
+def _is_interrupt(exc: BaseException) -> bool:
+    """True for Ctrl-C/SIGTERM, also when numba's dispatcher wrapped it in SystemErrors."""
+    seen = 0
+    current: BaseException | None = exc
+    while current is not None and seen < 100:
+        if isinstance(current, KeyboardInterrupt):
+            return True
+        current = current.__cause__ or current.__context__
+        seen += 1
+    return False
 
 
 @click.group(cls=DemtoolGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -114,11 +131,7 @@ def _raise_on_sigterm(signum, frame):  # pragma: no cover - exercised through su
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: SIGTERM unwinds like Ctrl-C so no partial output stays."""
     signal.signal(signal.SIGTERM, _raise_on_sigterm)
-    try:
-        cli.main(args=argv, prog_name="demtool")
-    except KeyboardInterrupt:
-        click.echo("Error: demtool: interrupted; no output written", err=True)
-        sys.exit(130)
+    cli.main(args=argv, prog_name="demtool")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+import click
 import pytest
 from click.testing import CliRunner
 
@@ -83,3 +84,24 @@ def test_config_errors_through_the_cli(tmp_path):
 def test_load_config_missing_file(tmp_path):
     with pytest.raises(InputError, match="config file not found"):
         load_config(tmp_path / "absent.toml")
+
+
+def test_interrupt_inside_a_stage_is_reported_and_rolled_back(tmp_path, monkeypatch):
+    import numpy as np
+
+    from demtool import io as dio
+
+    @click.command(name="synth")
+    def interrupted():
+        with dio.output_transaction():
+            dio.write_raster(tmp_path / "half.tif", np.zeros((4, 4)))
+            try:
+                raise KeyboardInterrupt("terminated by signal 15")
+            except KeyboardInterrupt as exc:  # as numba's dispatcher reports it
+                raise SystemError("returned a result with an exception set") from exc
+
+    monkeypatch.setattr("demtool.cli.load_command", lambda name: interrupted)
+    result = CliRunner().invoke(cli, ["synth"])
+    assert result.exit_code == 130
+    assert "demtool synth: interrupted; no output written" in result.output
+    assert list(tmp_path.iterdir()) == []

@@ -70,22 +70,25 @@ class DemtoolGroup(click.Group):
             formatter.write_dl(list(STAGES.items()))
 
     def invoke(self, ctx: click.Context):
-        sub = ctx.invoked_subcommand
-        prefix = f"demtool {sub}" if sub else "demtool"
         try:
             return super().invoke(ctx)
         except DemtoolError as exc:
             state = ctx.find_object(AppState)
             if state is not None and state.debug:
                 raise
-            click.echo(f"Error: {prefix}: {exc}", err=True)
+            click.echo(f"Error: {_prefix(ctx)}: {exc}", err=True)
             ctx.exit(1)
         except (KeyboardInterrupt, SystemError) as exc:
             if not _is_interrupt(exc):
                 raise
             # Outputs were rolled back by io.output_transaction while unwinding.
-            click.echo(f"Error: {prefix}: interrupted; no output written", err=True)
+            click.echo(f"Error: {_prefix(ctx)}: interrupted; no output written", err=True)
             ctx.exit(130)
+
+
+def _prefix(ctx: click.Context) -> str:
+    sub = ctx.invoked_subcommand
+    return f"demtool {sub}" if sub else "demtool"
 
 
 def _is_interrupt(exc: BaseException) -> bool:

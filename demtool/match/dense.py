@@ -39,7 +39,7 @@ import numpy as np
 from demtool.errors import ParameterError, ProcessingError
 from demtool.logs import get_logger
 from demtool.match.lsm import CONVERGED, lsm_match
-from demtool.match.ncc import build_pyramid, ncc_search
+from demtool.match.ncc import build_pyramid, integral_invalid, ncc_search
 from demtool.match.seeds import Seeds, check_seed_points, find_seeds
 from demtool.match.triangles import SeedTriangulation
 
@@ -317,8 +317,6 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
     node_sigma = np.full(rows_all.size, np.nan)
     # only nodes whose template lies on valid left pixels can ever match
     half = template // 2
-    from demtool.match.ncc import integral_invalid
-
     table = integral_invalid(left_valid)
     r0, r1 = rows_all - half, rows_all + half + 1
     c0, c1 = cols_all - half, cols_all + half + 1

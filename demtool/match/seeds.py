@@ -34,10 +34,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from demtool.errors import ParameterError
+from demtool.errors import ParameterError, ProcessingError
 from demtool.logs import get_logger
 from demtool.match.lsm import CONVERGED, lsm_match
 from demtool.match.ncc import ncc_search
+from demtool.match.triangles import SeedTriangulation
 
 log = get_logger(__name__)
 
@@ -242,9 +243,6 @@ def remove_blunders(points: np.ndarray, disparity: np.ndarray, *, tolerance: flo
     (N,) bool
         True for the seeds kept.
     """
-    from demtool.errors import ProcessingError
-    from demtool.match.triangles import SeedTriangulation
-
     keep = np.ones(len(points), dtype=bool)
     for _ in range(rounds):
         if keep.sum() < 4:

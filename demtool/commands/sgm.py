@@ -179,6 +179,10 @@ default cost is hierarchical mutual information (HMI, 1/16 → 1).""")
               show_default=True, help="Largest disparity step within a region, px.")
 @click.option("--median", type=int, default=3, show_default=True, callback=_odd_or_none,
               help="Side of the median filter of the disparity (1 = off).")
+@click.option("--uniqueness", type=click.FloatRange(0.0, 1.0, max_open=True), default=0.0,
+              show_default=True,
+              help="Drop pixels whose confidence (S2-S1)/S2 is below this (0.1 = OpenCV's "
+                   "uniquenessRatio 10).")
 @click.option("--confidence", "confidence", type=click.Path(dir_okay=False), default=None,
               help="Also write a confidence raster (0..1) here.")
 @click.option("--max-memory-mb", type=click.FloatRange(min=64), default=1400.0,

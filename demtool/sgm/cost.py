@@ -286,22 +286,22 @@ def _pixel_cost_row(kind, y, left_codes, right_codes, left_levels, right_levels,
 
 
 @njit(nogil=True, cache=True)
-def _box_rows(row, radius_x, out):
-    """Horizontal box sum of a (W, D) row of costs along x (edges replicated) into ``out``."""
+def _box_rows(row, radius_x, out, out_index):
+    """Horizontal box sum of a (W, D) row of costs along x (edges replicated) into
+    ``out[out_index]``.  Sums wrap modulo 2¹⁶ while running, which is exact because
+    every window sum fits uint16 (checked by the caller)."""
     width, n_disp = row.shape
-    acc = np.zeros(n_disp, dtype=np.int32)
+    acc = np.zeros(n_disp, dtype=np.uint16)
     for j in range(-radius_x, radius_x + 1):
-        src = row[min(max(j, 0), width - 1)]
+        src = min(max(j, 0), width - 1)
         for k in range(n_disp):
-            acc[k] += src[k]
+            acc[k] += row[src, k]
     for x in range(width):
-        dst = out[x]
+        add = min(x + radius_x + 1, width - 1)
+        sub = max(x - radius_x, 0)
         for k in range(n_disp):
-            dst[k] = acc[k]
-        add = row[min(x + radius_x + 1, width - 1)]
-        sub = row[max(x - radius_x, 0)]
-        for k in range(n_disp):
-            acc[k] += np.int32(add[k]) - np.int32(sub[k])
+            out[out_index, x, k] = acc[k]
+            acc[k] = acc[k] + row[add, k] - row[sub, k]
 
 
 @njit(nogil=True, cache=True)
@@ -312,43 +312,41 @@ def _cost_volume(kind, left_codes, right_codes, left_levels, right_levels, table
 
     A ring of horizontally box-summed rows and a running vertical sum make the window
     cost O(1) per cell whatever the window size.  Rows beyond the image replicate
-    the edge rows.
+    the edge rows.  Running sums are uint16 and wrap while running (exact, since
+    every window sum fits uint16), so the loops vectorise 16 lanes wide.
     """
     height = left_valid.shape[0]
     n_rows, width, n_disp = out.shape
     ring_size = 2 * radius_y + 1
     ring = np.zeros((ring_size, width, n_disp), dtype=np.uint16)
     pixel = np.empty((width, n_disp), dtype=np.uint16)
-    running = np.zeros((width, n_disp), dtype=np.int32)
+    running = np.zeros((width, n_disp), dtype=np.uint16)
     # fill the ring with the rows of the first output row's window
     for j in range(ring_size):
         yy = min(max(row_start - radius_y + j, 0), height - 1)
         _pixel_cost_row(kind, yy, left_codes, right_codes, left_levels, right_levels, table,
                         left_valid, right_valid, min_disparity, invalid_cost, pixel)
-        _box_rows(pixel, radius_x, ring[j])
-        slot = ring[j]
+        _box_rows(pixel, radius_x, ring, j)
         for x in range(width):
             for k in range(n_disp):
-                running[x, k] += slot[x, k]
+                running[x, k] += ring[j, x, k]
     oldest = 0
     for i in range(n_rows):
-        dst = out[i]
         for x in range(width):
             for k in range(n_disp):
-                dst[x, k] = running[x, k]
+                out[i, x, k] = running[x, k]
         if i + 1 == n_rows:
             break
         yy = min(max(row_start + i + radius_y + 1, 0), height - 1)
         _pixel_cost_row(kind, yy, left_codes, right_codes, left_levels, right_levels, table,
                         left_valid, right_valid, min_disparity, invalid_cost, pixel)
-        slot = ring[oldest]
         for x in range(width):
             for k in range(n_disp):
-                running[x, k] -= slot[x, k]
-        _box_rows(pixel, radius_x, slot)
+                running[x, k] -= ring[oldest, x, k]
+        _box_rows(pixel, radius_x, ring, oldest)
         for x in range(width):
             for k in range(n_disp):
-                running[x, k] += slot[x, k]
+                running[x, k] += ring[oldest, x, k]
         oldest = (oldest + 1) % ring_size
 
 

@@ -194,8 +194,8 @@ def run_pair(name: str, data, rows: list[dict]) -> None:
     bad2_ref = min(results[k][0]["bad2"] for k in results if k.startswith("OpenCV"))
     mae_ref = min(results[k][0]["mae"] for k in results if k.startswith("OpenCV"))
     verdict = "met" if ours["bad2"] <= bad2_ref else "NOT met"
-    print(f"  target bad2: hmi {100 * ours['bad2']:.2f}% <= best OpenCV "
-          f"{100 * bad2_ref:.2f}%: {verdict}")
+    print(f"  target bad2: hmi {100 * ours['bad2']:.3f}% <= best OpenCV "
+          f"{100 * bad2_ref:.3f}%: {verdict}")
     if name == "synthetic":
         verdict = "met" if ours["mae"] <= mae_ref else "NOT met"
         print(f"  target MAE: hmi {ours['mae']:.3f} <= best OpenCV {mae_ref:.3f} px: {verdict}")

@@ -35,8 +35,9 @@ import json, resource, subprocess, sys, time
 start = time.perf_counter()
 code = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE).returncode
 wall = time.perf_counter() - start
-peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
-print(json.dumps({"code": code, "wall_s": wall, "peak_mb": peak}))
+usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+print(json.dumps({"code": code, "wall_s": wall, "peak_mb": usage.ru_maxrss / 1024.0,
+                  "cpu_s": usage.ru_utime + usage.ru_stime}))
 """
 
 # The OpenCV equivalent of `demtool sgm --cost census`: read, match (with LR check), write.
@@ -139,15 +140,19 @@ def main(argv: list[str] | None = None) -> int:
     targets = {"demtool sgm census": 1.0, "demtool sgm hmi": 1.5}
     print(f"\n{size}×{size} px, {count} disparities, 8 paths, LR check, sub-pixel; "
           f"{os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.1f}")
-    print(f"{'command':<24} {'wall s':>8} {'× OpenCV':>9} {'target':>7} {'peak MB':>8} "
-          f"{'≤ 2000 MB':>9}")
+    cpu_reference = results["OpenCV SGBM HH (bs=5)"]["cpu_s"]
+    print(f"{'command':<24} {'wall s':>8} {'× OpenCV':>9} {'target':>7} {'time':>8} "
+          f"{'CPU s':>7} {'× OpenCV':>9} {'peak MB':>8} {'≤ 2000 MB':>9}")
     for label, result in results.items():
         ratio = result["wall_s"] / reference
         target = targets.get(label)
         met = "" if target is None else ("met" if ratio <= target else "NOT met")
         print(f"{label:<24} {result['wall_s']:8.2f} {ratio:9.2f} "
-              f"{'' if target is None else f'≤{target:.1f}':>7} {result['peak_mb']:8.0f} "
-              f"{'met' if result['peak_mb'] <= 2000 else 'NOT met':>9}  {met}")
+              f"{'' if target is None else f'≤{target:.1f}':>7} {met:>8} "
+              f"{result['cpu_s']:7.2f} {result['cpu_s'] / cpu_reference:9.2f} "
+              f"{result['peak_mb']:8.0f} {'met' if result['peak_mb'] <= 2000 else 'NOT met':>9}")
+    print("wall time is the target; CPU time (user + system, all threads) is given because "
+          "it depends less on other processes' load.  OpenCV's MODE_HH runs on one thread.")
     return 0
 
 

@@ -150,13 +150,24 @@ def test_cli_missing_input(pair_dir, tmp_path):
                                            ("--cost-window", "4"), ("--median", "2"),
                                            ("--subpixel", "cubic"), ("--p1", "0"),
                                            ("--census-window", "3x3"),
-                                           ("--mi-iterations", "0")])
+                                           ("--mi-iterations", "0"), ("--uniqueness", "1.5")])
 def test_cli_bad_option_values_are_usage_errors(pair_dir, tmp_path, option, value):
     result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out",
                     tmp_path / "d.tif", "--rectify", pair_dir / "rectify.npz", option, value)
     assert result.exit_code == 2
     assert option in result.output
     assert _no_outputs(tmp_path)
+
+
+def test_cli_uniqueness_drops_ambiguous_pixels(pair_dir, tmp_path):
+    fractions = []
+    for name, extra in (("d.tif", []), ("u.tif", ["--uniqueness", "0.3"])):
+        result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out",
+                        tmp_path / name, "--rectify", pair_dir / "rectify.npz", "--cost",
+                        "census", *extra)
+        assert result.exit_code == 0, result.output
+        fractions.append(np.isfinite(dio.read_raster(tmp_path / name).data).mean())
+    assert fractions[1] < fractions[0]
 
 
 def test_cli_penalties_out_of_order(pair_dir, tmp_path):

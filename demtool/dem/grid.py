@@ -1,0 +1,230 @@
+"""From scattered height samples to a complete grid: splatting, outliers, gap filling.
+
+Shared by both routes of ``demtool dem`` (bundle points and disparity maps).  All
+functions are pure: arrays in, arrays out.  Pixel coordinates follow demtool's
+convention: the centre of pixel (row r, column c) is at (x, y) = (c, r).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from demtool.errors import ParameterError, ProcessingError
+from demtool.interpolate import inpaint_springs
+
+NMAD_FACTOR = 1.4826  # normalised median absolute deviation of a Gaussian
+
+
+def _inside(pixels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    height, width = shape
+    x, y = pixels[:, 0], pixels[:, 1]
+    return (np.isfinite(x) & np.isfinite(y) & (x > -0.5) & (x < width - 0.5)
+            & (y > -0.5) & (y < height - 0.5))
+
+
+def splat_median(pixels: np.ndarray, values: np.ndarray,
+                 shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Grid of the median of the samples falling in each cell (nearest pixel).
+
+    Parameters
+    ----------
+    pixels : (N, 2) float
+        Sample positions (x, y) in the grid's pixel frame.
+    values : (N,) float
+        Sample values (heights, metres).
+    shape : (H, W)
+        Grid shape.
+
+    Returns
+    -------
+    grid : (H, W) float64
+        Median per cell, NaN where no sample fell.
+    counts : (H, W) int64
+        Number of samples per cell.
+    """
+    pixels = np.asarray(pixels, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    keep = _inside(pixels, shape) & np.isfinite(values)
+    height, width = shape
+    cols = np.rint(pixels[keep, 0]).astype(np.int64)
+    rows = np.rint(pixels[keep, 1]).astype(np.int64)
+    cells = rows * width + cols
+    kept = values[keep]
+    grid = np.full(height * width, np.nan)
+    counts = np.bincount(cells, minlength=height * width)
+    if len(cells):
+        order = np.lexsort((kept, cells))
+        sorted_cells, sorted_values = cells[order], kept[order]
+        starts = np.flatnonzero(np.r_[True, sorted_cells[1:] != sorted_cells[:-1]])
+        sizes = np.diff(np.r_[starts, len(sorted_cells)])
+        lower = sorted_values[starts + (sizes - 1) // 2]
+        upper = sorted_values[starts + sizes // 2]
+        grid[sorted_cells[starts]] = 0.5 * (lower + upper)
+    return grid.reshape(shape), counts.reshape(shape)
+
+
+def splat_bilinear(pixels: np.ndarray, values: np.ndarray, shape: tuple[int, int], *,
+                   min_weight: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """Resample off-grid samples onto a grid: bilinear splatting with a local linear fit.
+
+    Each sample spreads over the four surrounding cells with bilinear weights.  A
+    cell's value is the intercept of the weighted least-squares plane through the
+    samples it received (weighted local linear regression), so planes are reproduced
+    exactly whatever the sample pattern; where the samples cannot support a plane
+    (too few, or collinear) the weighted mean is used.  Cells whose total weight is
+    below ``min_weight`` (no sample within about a pixel) are NaN.  Suited to dense
+    samples landing off the grid (disparities mapped back through the inverse
+    rectification).
+
+    Parameters
+    ----------
+    pixels : (N, 2) float
+        Sample positions (x, y).
+    values : (N,) float
+    shape : (H, W)
+    min_weight : float
+        Smallest total weight for a cell to count as measured.
+
+    Returns
+    -------
+    grid : (H, W) float64
+        Resampled values, NaN where unmeasured.
+    weight : (H, W) float64
+        Total weight received per cell.
+    """
+    pixels = np.asarray(pixels, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    keep = np.isfinite(pixels).all(axis=1) & np.isfinite(values)
+    x, y, z = pixels[keep, 0], pixels[keep, 1], values[keep]
+    height, width = shape
+    size = height * width
+    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+    fx, fy = x - x0, y - y0
+    # Weighted moments per cell of the offsets (dx, dy) = sample - cell centre.
+    moments = np.zeros((9, size))  # w, w dx, w dy, w dx2, w dxdy, w dy2, w z, w z dx, w z dy
+    for step_x, step_y, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
+                              (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+        cols, rows = x0 + step_x, y0 + step_y
+        ok = (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height) & (w > 0)
+        cells = rows[ok] * width + cols[ok]
+        wk, dx, dy, zk = w[ok], (fx - step_x)[ok], (fy - step_y)[ok], z[ok]
+        for i, term in enumerate((wk, wk * dx, wk * dy, wk * dx * dx, wk * dx * dy,
+                                  wk * dy * dy, wk * zk, wk * zk * dx, wk * zk * dy)):
+            moments[i] += np.bincount(cells, weights=term, minlength=size)
+    total = moments[0]
+    grid = np.full(size, np.nan)
+    measured = total >= min_weight
+    m = moments[:, measured] / total[measured]
+    mean = m[6]
+    # Normal equations of z = a + b dx + c dy; a by Cramer's rule, guarded by the
+    # determinant of the (normalised) offset covariance.
+    var_x, var_y = m[3] - m[1] ** 2, m[5] - m[2] ** 2
+    cov_xy = m[4] - m[1] * m[2]
+    matrix = np.stack([np.stack([np.ones_like(mean), m[1], m[2]], -1),
+                       np.stack([m[1], m[3], m[4]], -1),
+                       np.stack([m[2], m[4], m[5]], -1)], -2)
+    rhs = np.stack([m[6], m[7], m[8]], -1)
+    supported = var_x * var_y - cov_xy**2 > 1e-4
+    intercept = mean.copy()
+    if supported.any():
+        intercept[supported] = np.linalg.solve(matrix[supported],
+                                               rhs[supported][..., None])[:, 0, 0]
+    grid[measured] = intercept
+    return grid.reshape(shape), total.reshape(shape)
+
+
+def local_median_inliers(pixels: np.ndarray, values: np.ndarray, *, neighbours: int = 16,
+                         threshold: float = 3.0) -> np.ndarray:
+    """Robust local-median outlier test of scattered heights.
+
+    A sample is an outlier when it differs from the median of its ``neighbours``
+    nearest samples (in the image plane) by more than ``threshold`` times the local
+    normalised median absolute deviation (NMAD) of those neighbours; the local NMAD is
+    floored at the median local NMAD of all samples, so that smooth areas do not flag
+    noise-level differences.  The normalised median test of Westerweel & Scarano
+    (2005), as used for PIV and DEM point clouds.
+
+    Parameters
+    ----------
+    pixels : (N, 2) float
+        Sample positions (x, y), pixels.
+    values : (N,) float
+        Heights.
+    neighbours : int
+        Neighbours compared with (≥ 3).
+    threshold : float
+        Multiple of the NMAD beyond which a sample is rejected (≤ 0 disables the test).
+
+    Returns
+    -------
+    (N,) bool
+        True for the samples kept.
+    """
+    from scipy.spatial import cKDTree
+
+    values = np.asarray(values, dtype=np.float64)
+    count = len(values)
+    if threshold <= 0 or count <= 3:
+        return np.ones(count, dtype=bool)
+    k = int(min(max(neighbours, 3), count - 1))
+    tree = cKDTree(np.asarray(pixels, dtype=np.float64))
+    _, index = tree.query(pixels, k=k + 1)
+    neighbour_values = values[index[:, 1:]]
+    local_median = np.median(neighbour_values, axis=1)
+    local_nmad = NMAD_FACTOR * np.median(np.abs(neighbour_values - local_median[:, None]), axis=1)
+    floor = max(float(np.median(local_nmad)), 1e-12)
+    return np.abs(values - local_median) <= threshold * np.maximum(local_nmad, floor)
+
+
+@dataclass(frozen=True)
+class FilledDem:
+    """A complete DEM grid and where it was interpolated.
+
+    Attributes
+    ----------
+    dem : (H, W) float64
+        Heights, metres, positive toward the camera; no NaN.
+    interpolated : (H, W) bool
+        True where the value was filled by interpolation rather than measured.
+    """
+
+    dem: np.ndarray
+    interpolated: np.ndarray
+
+
+def fill_and_smooth(measured: np.ndarray, *, median_px: int = 0) -> FilledDem:
+    """Fill gaps with spring-metaphor interpolation, then optionally median-filter.
+
+    Parameters
+    ----------
+    measured : (H, W) float
+        Heights with NaN where nothing was measured.
+    median_px : int
+        Side of the square median filter applied after filling (0 or 1 = none;
+        the NavCam study used 15 px before shape from shading).
+
+    Returns
+    -------
+    FilledDem
+
+    Raises
+    ------
+    ProcessingError
+        If no cell is measured.
+    ParameterError
+        If ``median_px`` is negative or even (> 1).
+    """
+    from scipy.ndimage import median_filter
+
+    if median_px < 0 or (median_px > 1 and median_px % 2 == 0):
+        raise ParameterError(f"median filter size must be 0 or an odd number of pixels, "
+                             f"got {median_px}")
+    interpolated = ~np.isfinite(measured)
+    if interpolated.all():
+        raise ProcessingError("no measured height in the target grid")
+    dem = inpaint_springs(measured)
+    if median_px > 1:
+        dem = median_filter(dem, size=median_px, mode="nearest")
+    return FilledDem(dem=dem, interpolated=interpolated)

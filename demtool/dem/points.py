@@ -1,0 +1,164 @@
+"""DEM from bundle-adjusted sparse points (the BAM route of the Rosetta NavCam study).
+
+The points are projected into the target camera; their depths become heights
+(positive toward the camera) either by eq. 2 of the study, when the model has an
+arbitrary scale, or directly in metres when the bundle was aligned to known cameras.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from demtool.bundle import project_points
+from demtool.camera import PinholeCamera
+from demtool.errors import ProcessingError
+
+
+@dataclass(frozen=True)
+class TargetSamples:
+    """Height samples in the target image.
+
+    Attributes
+    ----------
+    pixels : (N, 2) float64
+        Positions (x, y) in the target image, pixels.
+    heights : (N,) float64
+        Heights, metres, positive toward the camera.
+    depth : (N,) float64
+        Camera z of each point, model units (metres when aligned).
+    index : (N,) int64
+        Index of each sample's point in the input point array.
+    """
+
+    pixels: np.ndarray
+    heights: np.ndarray
+    depth: np.ndarray
+    index: np.ndarray
+
+
+def project_to_target(points: np.ndarray, camera: PinholeCamera,
+                      distortion: Sequence[float] = (0.0, 0.0)) -> tuple[np.ndarray, np.ndarray,
+                                                                          np.ndarray]:
+    """Project points into the target camera and keep those that land in the image.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        Model (or world) coordinates.
+    camera : PinholeCamera
+        The target camera.
+    distortion : (2,) float
+        Radial distortion (k1, k2) of the camera (``bundle.npz`` key ``distortion``).
+
+    Returns
+    -------
+    pixels : (M, 2) float64
+    depth : (M,) float64
+    index : (M,) int64
+        Indices of the kept points.
+
+    Raises
+    ------
+    ProcessingError
+        If no point is in front of the camera and inside the image.
+    """
+    pixels, depth = project_points(camera, points, distortion)
+    inside = (np.isfinite(pixels).all(axis=1) & (depth > 0)
+              & (pixels[:, 0] > -0.5) & (pixels[:, 0] < camera.width - 0.5)
+              & (pixels[:, 1] > -0.5) & (pixels[:, 1] < camera.height - 0.5))
+    if not inside.any():
+        raise ProcessingError(f"none of the {len(points)} points projects into the target "
+                              f"image ({camera.width}×{camera.height} px)")
+    index = np.flatnonzero(inside)
+    return pixels[index], depth[index], index
+
+
+def heights_from_relative_depth(depth: np.ndarray, distance_m: float) -> np.ndarray:
+    """Metric heights from the depths of a model of arbitrary scale (NavCam study, eq. 2).
+
+    The depth offset of a point from the mean depth, in metres, is
+    ``(z / mean(z) - 1) * d`` with d the spacecraft–surface distance; the height
+    (positive toward the camera) is its negative.
+
+    Parameters
+    ----------
+    depth : (N,) float
+        Camera z of the points in the target camera, model units (any scale).
+    distance_m : float
+        Spacecraft–surface distance d, metres.
+
+    Returns
+    -------
+    (N,) float64
+        Heights, metres, positive toward the camera, zero at the mean depth.
+    """
+    depth = np.asarray(depth, dtype=np.float64)
+    if distance_m <= 0:
+        raise ValueError(f"the spacecraft-surface distance must be positive, got {distance_m}")
+    return -(depth / np.mean(depth) - 1.0) * distance_m
+
+
+def heights_along_view(points: np.ndarray, camera: PinholeCamera) -> np.ndarray:
+    """Metric heights of world points along the target's view direction.
+
+    ``h = -a · X`` with ``a`` the camera's viewing axis: the coordinate of X toward
+    the camera (world Z for a nadir camera), metres.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        World coordinates, metres (an aligned bundle).
+    """
+    return -(np.asarray(points, dtype=np.float64) @ camera.axis)
+
+
+def target_samples(points: np.ndarray, camera: PinholeCamera, *, aligned: bool,
+                   distance_m: float | None = None,
+                   distortion: Sequence[float] = (0.0, 0.0)) -> TargetSamples:
+    """Height samples of bundle points in the target image.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        Bundle points.
+    camera : PinholeCamera
+        Target camera of the bundle.
+    aligned : bool
+        The bundle is metric (world frame): heights along the view, metres.
+        Otherwise eq. 2 with ``distance_m``.
+    distance_m : float, optional
+        Spacecraft–surface distance (required when not aligned).
+    distortion : (2,) float
+        Radial distortion of the target camera.
+
+    Raises
+    ------
+    ProcessingError
+        No point in the target image.
+    ValueError
+        ``distance_m`` missing for an unaligned bundle.
+    """
+    pixels, depth, index = project_to_target(points, camera, distortion)
+    if aligned:
+        heights = heights_along_view(np.asarray(points)[index], camera)
+    else:
+        if distance_m is None:
+            raise ValueError("an unaligned bundle needs the spacecraft-surface distance")
+        heights = heights_from_relative_depth(depth, distance_m)
+    return TargetSamples(pixels=pixels, heights=heights, depth=depth, index=index)
+
+
+def estimate_gsd(camera: PinholeCamera, *, aligned: bool, depth: np.ndarray,
+                 distance_m: float | None) -> float:
+    """Ground sampling distance of the target, metres per pixel: distance / focal length.
+
+    The distance is the median depth of the points when the bundle is metric, else the
+    given spacecraft–surface distance.
+    """
+    distance = float(np.median(depth)) if aligned else float(distance_m or np.nan)
+    if not np.isfinite(distance) or distance <= 0:
+        raise ProcessingError("cannot estimate the GSD: give --gsd or the distance")
+    return distance / camera.focal_px

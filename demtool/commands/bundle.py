@@ -34,7 +34,7 @@ Umeyama 1991) so that it is metric, in the world frame.
               help="Also write the COLMAP model (binary) into this folder, for COLMAP's GUI.")
 @click.option("--focal-px", type=click.FloatRange(min=0.0, min_open=True),
               help="Known focal length, pixels (principal point at the image centre).")
-@click.option("--cameras", "cameras_path", type=click.Path(dir_okay=False),
+@click.option("--cameras", type=click.Path(dir_okay=False),
               help="cameras.npz with known intrinsics K of the images (matched by name).")
 @click.option("--refine-intrinsics", is_flag=True,
               help="Let bundle adjustment refine known focal lengths (default: fixed).")
@@ -53,18 +53,18 @@ Umeyama 1991) so that it is metric, in the world frame.
                    "(auto: exhaustive up to 100 images).")
 @click.option("--max-features", type=click.IntRange(min=64), default=8192, show_default=True,
               help="SIFT features per image.")
-@click.option("--align-cameras", "align_path", type=click.Path(dir_okay=False),
+@click.option("--align-cameras", type=click.Path(dir_okay=False),
               help="cameras.npz with known camera centres: align the model to them "
                    "(metric world frame).")
 @opt.seed()
 @opt.workers()
 @click.pass_context
 def command(ctx: click.Context, selection: str, out: str, colmap_dir: str | None,
-            focal_px: float | None, cameras_path: str | None, refine_intrinsics: bool,
+            focal_px: float | None, cameras: str | None, refine_intrinsics: bool,
             shared_camera: bool, camera_model: str | None, radial_k2: bool, matcher: str,
             max_features: int,
-            align_path: str | None, seed: int, workers: int) -> None:
-    if focal_px is not None and cameras_path is not None:
+            align_cameras: str | None, seed: int, workers: int) -> None:
+    if focal_px is not None and cameras is not None:
         raise click.BadParameter("give either --focal-px or --cameras, not both",
                                  param_hint="--focal-px")
     from demtool.cli import AppState
@@ -72,10 +72,10 @@ def command(ctx: click.Context, selection: str, out: str, colmap_dir: str | None
     state = ctx.find_object(AppState)
     verbose = state is not None and state.verbosity > 0
     run_bundle(selection, out, colmap_dir=colmap_dir, focal_px=focal_px,
-               cameras_path=cameras_path, refine_intrinsics=refine_intrinsics,
+               cameras_path=cameras, refine_intrinsics=refine_intrinsics,
                shared_camera=shared_camera, camera_model=camera_model, radial_k2=radial_k2,
                matcher=matcher,
-               max_features=max_features, align_path=align_path, seed=seed,
+               max_features=max_features, align_path=align_cameras, seed=seed,
                workers=workers, verbose=verbose, params=opt.resolved_params(ctx))
 
 

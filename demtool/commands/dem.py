@@ -32,45 +32,47 @@ as distance / focal length), heights in metres positive toward the camera.
 
 
 @click.command(name="dem", help=HELP)
-@click.option("--points", "points_path", type=click.Path(dir_okay=False),
+@click.option("--points", type=click.Path(dir_okay=False),
               help="bundle.npz from `demtool bundle` (BAM route).")
-@click.option("--disparity", "disparity_path", type=click.Path(dir_okay=False),
+@click.option("--disparity", type=click.Path(dir_okay=False),
               help="Disparity GeoTIFF in the left rectified frame (SIAM route).")
-@click.option("--rectify", "rectify_path", type=click.Path(dir_okay=False),
+@click.option("--rectify", type=click.Path(dir_okay=False),
               help="rectify.npz of the pair (with --disparity).")
-@click.option("--reference", "reference_path", type=click.Path(dir_okay=False),
+@click.option("--reference", type=click.Path(dir_okay=False),
               help="Reference DEM on the target grid (e.g. the BAM DEM): uncalibrated "
                    "projective fit.")
-@click.option("--cameras", "cameras_path", type=click.Path(dir_okay=False),
+@click.option("--cameras", type=click.Path(dir_okay=False),
               help="cameras.npz with the pair's cameras: calibrated triangulation.")
 @click.option("--target", help="Target view name (default: the bundle's target, or the "
                                "left image of the pair).")
-@click.option("--distance", "distance_m", type=click.FloatRange(min=0.0, min_open=True),
+@click.option("--distance", type=click.FloatRange(min=0.0, min_open=True),
               help="Spacecraft-surface distance D, metres (eq. 2; unaligned bundles).")
-@click.option("--scene", "scene_path", type=click.Path(dir_okay=False),
+@click.option("--scene", type=click.Path(dir_okay=False),
               help="scene.json with distance_m and gsd_m (metadata from synth).")
-@click.option("--gsd", "gsd_m", type=click.FloatRange(min=0.0, min_open=True),
+@click.option("--gsd", type=click.FloatRange(min=0.0, min_open=True),
               help="Pixel spacing of the output, metres (default: from metadata or "
                    "estimated).")
-@click.option("--median", "median_px", type=click.IntRange(min=0), default=0,
+@click.option("--median", type=click.IntRange(min=0), default=0,
               show_default=True, help="Median filter after filling, odd size in px (0 = off).")
 @click.option("--outlier-neighbours", type=click.IntRange(min=3), default=16,
               show_default=True, help="Neighbours of the local median outlier test.")
 @click.option("--outlier-threshold", type=float, default=3.0, show_default=True,
               help="Outlier threshold in local NMADs (0 = no outlier removal).")
-@click.option("--interpolated-mask", "mask_path", type=click.Path(dir_okay=False),
+@click.option("--interpolated-mask", type=click.Path(dir_okay=False),
               help="Also write a raster: 1 where interpolated, 0 where measured.")
 @click.option("--mask-band", is_flag=True,
               help="Write the interpolation mask as a second band of OUT.")
 @opt.seed()
 @opt.out_file("Output DEM GeoTIFF.")
 @click.pass_context
-def command(ctx: click.Context, points_path: str | None, disparity_path: str | None,
-            rectify_path: str | None, reference_path: str | None, cameras_path: str | None,
-            target: str | None, distance_m: float | None, scene_path: str | None,
-            gsd_m: float | None, median_px: int, outlier_neighbours: int,
-            outlier_threshold: float, mask_path: str | None, mask_band: bool, seed: int,
-            out: str) -> None:
+def command(ctx: click.Context, points: str | None, disparity: str | None,
+            rectify: str | None, reference: str | None, cameras: str | None,
+            target: str | None, distance: float | None, scene: str | None,
+            gsd: float | None, median: int, outlier_neighbours: int,
+            outlier_threshold: float, interpolated_mask: str | None, mask_band: bool,
+            seed: int, out: str) -> None:
+    points_path, disparity_path, rectify_path = points, disparity, rectify
+    reference_path, cameras_path, median_px = reference, cameras, median
     if (points_path is None) == (disparity_path is None):
         raise click.BadParameter("give exactly one of --points or --disparity",
                                  param_hint="--points/--disparity")
@@ -88,10 +90,10 @@ def command(ctx: click.Context, points_path: str | None, disparity_path: str | N
         raise click.BadParameter(f"must be odd, got {median_px}", param_hint="--median")
     run_dem(out, points_path=points_path, disparity_path=disparity_path,
             rectify_path=rectify_path, reference_path=reference_path,
-            cameras_path=cameras_path, target=target, distance_m=distance_m,
-            scene_path=scene_path, gsd_m=gsd_m, median_px=median_px,
+            cameras_path=cameras_path, target=target, distance_m=distance,
+            scene_path=scene, gsd_m=gsd, median_px=median_px,
             outlier_neighbours=outlier_neighbours, outlier_threshold=outlier_threshold,
-            mask_path=mask_path, mask_band=mask_band, seed=seed,
+            mask_path=interpolated_mask, mask_band=mask_band, seed=seed,
             params=opt.resolved_params(ctx))
 
 

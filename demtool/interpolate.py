@@ -164,6 +164,42 @@ def _multigrid_preconditioner(A: sp.csr_matrix, rows: np.ndarray, cols: np.ndarr
                                dtype=np.float64)
 
 
+#: Jacobi-preconditioned CG iterations tried before building the multigrid hierarchy.
+JACOBI_ITERATIONS = 60
+
+
+def _solve_iterative(A: sp.csr_matrix, rhs: np.ndarray, unknown: np.ndarray, *, rtol: float,
+                     max_iterations: int) -> np.ndarray:
+    """CG on the spring system: cheap Jacobi preconditioning first (enough when the gaps
+    are small, e.g. scattered missing cells), multigrid when the gaps are wide."""
+    count = len(rhs)
+    iterations = 0
+
+    def count_iteration(_: np.ndarray) -> None:
+        nonlocal iterations
+        iterations += 1
+
+    inverse_diagonal = 1.0 / A.diagonal()
+    jacobi = spla.LinearOperator(A.shape, matvec=lambda b: inverse_diagonal * np.ravel(b),
+                                 dtype=np.float64)
+    solution, info = spla.cg(A, rhs, M=jacobi, rtol=rtol, atol=0.0,
+                             maxiter=JACOBI_ITERATIONS, callback=count_iteration)
+    if info == 0:
+        log.debug("springs: %d unknowns, %d Jacobi-CG iterations", count, iterations)
+        return solution
+    rows, cols = np.nonzero(unknown)
+    preconditioner = _multigrid_preconditioner(A, rows, cols)
+    iterations = 0
+    solution, info = spla.cg(A, rhs, x0=solution, M=preconditioner, rtol=rtol, atol=0.0,
+                             maxiter=max_iterations, callback=count_iteration)
+    if info != 0:
+        raise ProcessingError(f"spring interpolation did not converge in {max_iterations} "
+                              f"iterations ({count} unknowns)")
+    log.debug("springs: %d unknowns, %d Jacobi-CG then %d multigrid-CG iterations", count,
+              JACOBI_ITERATIONS, iterations)
+    return solution
+
+
 # --------------------------------------------------------------------------------------
 # Public interface
 # --------------------------------------------------------------------------------------
@@ -222,20 +258,6 @@ def inpaint_springs(values: np.ndarray, *, rtol: float = 1e-10, max_iterations: 
     if count <= direct_max_unknowns:
         solution = spla.spsolve(A.tocsc(), rhs)
     else:
-        rows, cols = np.nonzero(unknown)
-        preconditioner = _multigrid_preconditioner(A, rows, cols)
-        iterations = 0
-
-        def count_iteration(_: np.ndarray) -> None:
-            nonlocal iterations
-            iterations += 1
-
-        solution, info = spla.cg(A, rhs, M=preconditioner, rtol=rtol, atol=0.0,
-                                 maxiter=max_iterations, callback=count_iteration)
-        if info != 0:
-            raise ProcessingError(
-                f"spring interpolation did not converge in {max_iterations} iterations "
-                f"({count} unknowns)")
-        log.debug("springs: %d unknowns, %d multigrid-CG iterations", count, iterations)
+        solution = _solve_iterative(A, rhs, unknown, rtol=rtol, max_iterations=max_iterations)
     result[unknown] = solution
     return result

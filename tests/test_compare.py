@@ -42,16 +42,30 @@ def test_cubic_shift_is_exact_on_quadratics_and_keeps_holes():
         # Keys' kernel (a = -1/2) reproduces polynomials up to degree 2 exactly
         return 0.01 * c**2 - 0.02 * r * c + 0.03 * r**2 + 0.5 * r + 3.0
 
-    shifted = shift_dem(poly(rows, cols), 0.3, -1.6, 2.0)
+    shifted = shift_dem(poly(rows, cols), 0.3, -1.6, 2.0, method="cubic")
     inner = np.s_[3:-3, 3:-3]
     np.testing.assert_allclose(shifted[inner], poly(rows + 1.6, cols - 0.3)[inner] + 2.0,
                                atol=1e-9)
     holed = poly(rows, cols)
     holed[20, 25] = np.nan
-    shifted = shift_dem(holed, 0.5, 0.5)
+    shifted = shift_dem(holed, 0.5, 0.5, method="cubic")
     assert np.isnan(shifted[19:23, 24:28]).all()  # the 4x4 taps that see the hole
     assert np.isfinite(shifted[10, 10])
-    np.testing.assert_array_equal(shift_dem(holed, 0.0, 0.0), holed)  # identity is exact
+    np.testing.assert_array_equal(shift_dem(holed, 0.0, 0.0, method="cubic"), holed)
+
+
+def test_lanczos_shift_is_close_to_the_band_limited_shift():
+    surface = fractal(128, beta=4.0, relief=20.0, seed=8)
+    exact = fourier_shift(surface, 2.4, -0.35)
+    inner = np.s_[6:-6, 6:-6]
+    lanczos = shift_dem(surface, 2.4, -0.35)[inner] - exact[inner]
+    cubic = shift_dem(surface, 2.4, -0.35, method="cubic")[inner] - exact[inner]
+    assert np.sqrt(np.mean(lanczos**2)) < 0.8 * np.sqrt(np.mean(cubic**2))
+    assert np.sqrt(np.mean(lanczos**2)) < 2e-3 * 20.0
+    holed = surface.copy()
+    holed[60, 60] = np.nan
+    grown = np.isnan(shift_dem(holed, 0.5, 0.5))
+    assert grown[58:64, 58:64].all() and grown[8:-8, 8:-8].sum() == 36  # 6 x 6 taps
 
 
 def test_resample_between_image_frame_grids_with_different_spacing():

@@ -34,7 +34,8 @@ class Alignment:
     shift : dict
         ``dx_px``, ``dy_px``, ``dz``: the total translation that, added to the DEM,
         aligns it with the reference (x right, y down, grid pixels; dz metres).  With
-        ICP, the translation of the DEM's centroid.
+        ICP, the translation of the DEM's centroid (ICP starts from the Nuth & Kääb
+        shift in ``nuth-kaab+icp``, so its translation is the total).
     shift_uncertainty : dict
         One-sigma uncertainties of the same three numbers (inf: unconstrained).
     steps : list of dict
@@ -126,14 +127,25 @@ def coregister(dem: np.ndarray, reference: np.ndarray, *, method: str = "nuth-ka
             alignment.warnings.append(f"Nuth & Kääb did not converge in {result.iterations} "
                                       "iterations")
     if method in ("icp", "nuth-kaab+icp"):
+        # ICP starts from the shift found so far but moves the original DEM's points
+        # (no resampling of the DEM before the fit); its translation is the total one.
         sx, sy = float(spacing[0]), float(spacing[1])
-        icp = icp_point_to_plane(aligned, reference, spacing=(sx, sy), mask=mask,
-                                 estimate_scale=icp_scale, seed=seed)
-        aligned = apply_similarity(aligned, icp, spacing=(sx, sy))
-        step = {"method": "icp", **icp.as_dict()}
-        alignment.steps.append(step)
+        start = alignment.shift
+        if method == "icp":
+            start = {"dx_px": 0.0, "dy_px": 0.0,
+                     "dz": vertical_offset(dem, reference, mask=mask).dz}
+        icp = icp_point_to_plane(
+            np.asarray(dem, dtype=np.float64), reference, spacing=(sx, sy), mask=mask,
+            estimate_scale=icp_scale, seed=seed,
+            initial_translation_m=np.array([start["dx_px"] * sx, -start["dy_px"] * sy,
+                                            start["dz"]]))
+        aligned = apply_similarity(np.asarray(dem, dtype=np.float64), icp, spacing=(sx, sy))
+        alignment.steps.append({"method": "icp", **icp.as_dict()})
         t, st = icp.translation_m, icp.sigma_translation_m
-        alignment._add(t[0] / sx, -t[1] / sy, t[2], st[0] / sx, st[1] / sy, st[2])
+        alignment.shift = {"dx_px": float(t[0] / sx), "dy_px": float(-t[1] / sy),
+                           "dz": float(t[2])}
+        alignment.shift_uncertainty = {"dx_px": float(st[0] / sx), "dy_px": float(st[1] / sy),
+                                       "dz": float(st[2])}
         if not icp.converged:
             alignment.warnings.append(f"ICP did not converge in {icp.iterations} iterations")
     sigma = alignment.shift_uncertainty

@@ -21,6 +21,7 @@ from demtool.logs import get_logger
 __all__ = [
     "Grid",
     "gaussian_shift",
+    "lanczos_shift",
     "resample_to_grid",
     "sample_bilinear",
     "sample_cubic",
@@ -190,49 +191,51 @@ def _shift_cubic(values, dx, dy, dz, out):
             out[r, c] = np.nan if bad else total + dz
 
 
-@njit(cache=True)
-def _gaussian_taps(frac, sigma, radius):
-    # Taps j = -radius .. radius + 1 around the floor position, at distance j - frac.
-    # The Gaussian minus its value at the radius, clipped at zero, goes continuously to
-    # zero there: the weights vary continuously with the shift (no truncation jumps).
-    taps = 2 * radius + 2
-    floor_value = np.exp(-0.5 * radius * radius / (sigma * sigma))
-    weights = np.empty(taps)
-    for k in range(taps):
-        d = (k - radius) - frac
-        weights[k] = max(0.0, np.exp(-0.5 * d * d / (sigma * sigma)) - floor_value)
-    weights /= weights.sum()
-    return taps, weights
+def _gaussian_taps(frac: float, sigma: float, radius: int) -> np.ndarray:
+    """Weights of taps j = −radius … radius + 1 (around the floor position) for a sample at
+    distance ``j − frac``: the Gaussian minus its value at the radius, clipped at zero, so
+    the weights go continuously to zero there and vary continuously with the shift."""
+    d = np.arange(-radius, radius + 2) - frac
+    weights = np.maximum(np.exp(-0.5 * (d / sigma) ** 2) - np.exp(-0.5 * (radius / sigma) ** 2),
+                         0.0)
+    return weights / weights.sum()
+
+
+def _lanczos_taps(frac: float, lobes: int) -> np.ndarray:
+    """Lanczos weights ``sinc(d) sinc(d / a)`` (|d| < a) for taps j = −a … a + 1, normalised
+    to sum 1 (Duchon 1979, J. Appl. Meteor. 18, eq. 22 with the Lanczos window)."""
+    d = np.arange(-lobes, lobes + 2) - frac
+    if frac == 0.0:  # integer shift: exact copy (np.sinc(k) is ~1e-17, not 0)
+        return (d == 0).astype(np.float64)
+    weights = np.where(np.abs(d) < lobes, np.sinc(d) * np.sinc(d / lobes), 0.0)
+    return weights / weights.sum()
 
 
 @njit(parallel=True, cache=True)
-def _gaussian_shift_rows(values, shift, sigma, radius, out):
-    # out[r, c] = sum_k w_k values[r, c0 + k], sampled at x = c - shift (along axis 1)
+def _convolve_rows(values, offset, weights, out):
+    # out[r, c] = sum_k weights[k] values[r, c + offset + k]; NaN taps propagate, taps
+    # outside the array give NaN
     height, width = values.shape
-    offset = int(np.floor(-shift))
-    frac = -shift - offset
-    taps, weights = _gaussian_taps(frac, sigma, radius)
+    taps = weights.size
     for r in prange(height):
         for c in range(width):
-            start = c + offset - radius
+            start = c + offset
             if start < 0 or start + taps > width:
                 out[r, c] = np.nan
                 continue
             total = 0.0
             for k in range(taps):
                 total += weights[k] * values[r, start + k]
-            out[r, c] = total  # NaN taps propagate
+            out[r, c] = total
 
 
 @njit(parallel=True, cache=True)
-def _gaussian_shift_columns(values, shift, sigma, radius, out):
+def _convolve_columns(values, offset, weights, out):
     # the same along axis 0, accumulating whole rows (contiguous memory)
     height, width = values.shape
-    offset = int(np.floor(-shift))
-    frac = -shift - offset
-    taps, weights = _gaussian_taps(frac, sigma, radius)
+    taps = weights.size
     for r in prange(height):
-        start = r + offset - radius
+        start = r + offset
         if start < 0 or start + taps > height:
             out[r, :] = np.nan
             continue
@@ -244,18 +247,38 @@ def _gaussian_shift_columns(values, shift, sigma, radius, out):
                 out[r, c] += w * values[start + k, c]
 
 
+def _separable_shift(values: np.ndarray, dx_px: float, dy_px: float, taps_for) -> np.ndarray:
+    """Shift by (dx, dy) with a separable kernel; ``taps_for(frac)`` gives the weights of
+    taps ``floor(−shift) − n … floor(−shift) + n + 1`` (n = (len − 2) / 2)."""
+    data = np.ascontiguousarray(values, dtype=np.float64)
+    along_x = np.empty(data.shape)
+    out = np.empty(data.shape)
+    for source, target, shift, kernel in ((data, along_x, dx_px, _convolve_rows),
+                                          (along_x, out, dy_px, _convolve_columns)):
+        if abs(shift - round(shift)) < 1e-6:  # snap: an integer shift stays exact
+            shift = float(round(shift))
+        base = int(np.floor(-shift))
+        weights = np.asarray(taps_for(-shift - base), dtype=np.float64)
+        half = (weights.size - 2) // 2
+        nonzero = np.nonzero(weights)[0]  # drop zero taps: a NaN there must not count
+        first, last = int(nonzero[0]), int(nonzero[-1])
+        kernel(source, base - half + first, np.ascontiguousarray(weights[first:last + 1]),
+               target)
+    return out
+
+
 def gaussian_shift(values: np.ndarray, dx_px: float, dy_px: float, sigma_px: float
                    ) -> np.ndarray:
     """Gaussian smoothing and sub-pixel translation in one separable convolution.
 
     ``out[y, x] = Σ g(y − dy − i) g(x − dx − j) values[i, j]`` with ``g`` the Gaussian
     of standard deviation ``sigma_px``, tapered to zero at ±4.5σ (minus its value there)
-    and normalised, so the weights vary continuously with the shift.  For
-    σ ≥ 0.7 px the sampled Gaussian is practically band-limited (its gain at the
-    Nyquist frequency is below 0.1 %), so this equals an ideal band-limited shift
-    followed by Gaussian smoothing: unlike polynomial interpolators it has no
-    shift-dependent phase error, so comparing ``gaussian_shift(dem, dx, dy, σ)`` with
-    ``gaussian_shift(reference, 0, 0, σ)`` gives an unbiased shift estimate.
+    and normalised, so the weights vary continuously with the shift.  For σ ≥ 0.8 px the
+    sampled Gaussian is practically band-limited (its gain at the Nyquist frequency is
+    below 0.5 %), so this equals an ideal band-limited shift followed by Gaussian
+    smoothing: unlike polynomial interpolators it has no shift-dependent phase error, so
+    comparing ``gaussian_shift(dem, dx, dy, σ)`` with ``gaussian_shift(reference, 0, 0, σ)``
+    gives an unbiased shift estimate.
 
     Parameters
     ----------
@@ -273,12 +296,25 @@ def gaussian_shift(values: np.ndarray, dx_px: float, dy_px: float, sigma_px: flo
     if not sigma_px > 0:
         raise ValueError(f"sigma_px must be positive, got {sigma_px}")
     radius = max(2, int(np.ceil(4.5 * sigma_px)))
-    data = np.ascontiguousarray(values, dtype=np.float64)
-    along_x = np.empty(data.shape)
-    _gaussian_shift_rows(data, float(dx_px), float(sigma_px), radius, along_x)
-    out = np.empty(data.shape)
-    _gaussian_shift_columns(along_x, float(dy_px), float(sigma_px), radius, out)
-    return out
+    return _separable_shift(values, dx_px, dy_px,
+                            lambda frac: _gaussian_taps(frac, sigma_px, radius))
+
+
+def lanczos_shift(values: np.ndarray, dx_px: float, dy_px: float, *, lobes: int = 4
+                  ) -> np.ndarray:
+    """Sub-pixel translation by separable Lanczos (windowed-sinc) interpolation.
+
+    ``out[y, x] = values[y − dy, x − dx]`` interpolated with the Lanczos kernel of
+    ``lobes`` lobes (2·lobes taps per axis): close to the ideal band-limited shift (flat
+    gain and small phase error up to ~0.4 cycles per pixel for 4 lobes), exact for
+    integer shifts.
+
+    Returns
+    -------
+    (H, W) float64
+        NaN where any tap is NaN or outside the array.
+    """
+    return _separable_shift(values, dx_px, dy_px, lambda frac: _lanczos_taps(frac, lobes))
 
 
 def _prepare(values: np.ndarray, rows: np.ndarray, cols: np.ndarray):
@@ -322,7 +358,7 @@ def sample_bilinear(values: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> n
 
 
 def shift_dem(dem: np.ndarray, dx_px: float, dy_px: float, dz: float = 0.0, *,
-              order: int = 3) -> np.ndarray:
+              method: str = "lanczos") -> np.ndarray:
     """Translate a DEM on its own grid: ``out[y, x] = dem[y − dy, x − dx] + dz``.
 
     Parameters
@@ -332,21 +368,26 @@ def shift_dem(dem: np.ndarray, dx_px: float, dy_px: float, dz: float = 0.0, *,
         Translation in pixels, x right, y down (the content moves by this much).
     dz : float
         Height offset added, metres.
-    order : {1, 3}
-        Bilinear or cubic convolution.
+    method : {"lanczos", "cubic", "linear"}
+        Lanczos-3 windowed sinc (default: the most faithful on rough terrain, holes grow
+        by 3 px), Keys cubic convolution (2 px) or bilinear (1 px).
 
     Returns
     -------
     (H, W) float64
         Shifted DEM; NaN where the source is outside or has holes.
     """
-    if order == 3:
+    if method == "lanczos":
+        return lanczos_shift(dem, dx_px, dy_px, lobes=3) + dz
+    if method == "cubic":
         out = np.empty(dem.shape, dtype=np.float64)
         _shift_cubic(np.ascontiguousarray(dem, dtype=np.float64), float(dx_px), float(dy_px),
                      float(dz), out)
         return out
-    rows, cols = np.indices(dem.shape, dtype=np.float64)
-    return sample_bilinear(dem, rows - dy_px, cols - dx_px) + dz
+    if method == "linear":
+        rows, cols = np.indices(dem.shape, dtype=np.float64)
+        return sample_bilinear(dem, rows - dy_px, cols - dx_px) + dz
+    raise ValueError(f"unknown method {method!r}: should be lanczos, cubic or linear")
 
 
 def _check_overlap(src: Grid, dst: Grid) -> None:

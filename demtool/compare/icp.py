@@ -26,7 +26,7 @@ from demtool.compare.coreg import (
     _nmad,
     _solve,
 )
-from demtool.compare.grids import sample_bilinear, sample_cubic
+from demtool.compare.grids import gaussian_shift, sample_bilinear, sample_cubic
 from demtool.errors import ProcessingError
 from demtool.logs import get_logger
 
@@ -131,7 +131,9 @@ def icp_point_to_plane(dem: np.ndarray, reference: np.ndarray, *,
                        spacing: tuple[float, float] = (1.0, 1.0),
                        mask: np.ndarray | None = None, estimate_scale: bool = False,
                        max_iterations: int = 50, tolerance: float = 1e-6,
-                       max_points: int = 200_000, seed: int = 0) -> IcpResult:
+                       max_points: int = 200_000, smooth_sigma_px: float = 1.0,
+                       initial_translation_m: np.ndarray | None = None,
+                       seed: int = 0) -> IcpResult:
     """Rigid (or similarity) point-to-plane ICP of a DEM onto a reference surface.
 
     Parameters
@@ -150,6 +152,12 @@ def icp_point_to_plane(dem: np.ndarray, reference: np.ndarray, *,
         extent, as a fraction of the pixel spacing.
     max_points : int
         DEM points used (a regular subsample of the valid pixels).
+    smooth_sigma_px : float
+        Both surfaces are smoothed by the same Gaussian (pixels; 0 = none) first, so
+        that interpolating the reference between its nodes is accurate (cubic
+        interpolation of pixel-scale roughness would bias the fit) and noise is damped.
+    initial_translation_m : (3,) float, optional
+        Starting translation (X, Y, Z metres), e.g. a Nuth & Kääb shift.
     seed : int
         Seed of the block bootstrap.
 
@@ -166,6 +174,9 @@ def icp_point_to_plane(dem: np.ndarray, reference: np.ndarray, *,
     if dem.shape != reference.shape:
         raise ValueError(f"dem and reference differ in shape: {dem.shape} vs {reference.shape}")
     sx, sy = float(spacing[0]), float(spacing[1])
+    if smooth_sigma_px > 0:
+        dem = gaussian_shift(dem, 0.0, 0.0, smooth_sigma_px)
+        reference = gaussian_shift(reference, 0.0, 0.0, smooth_sigma_px)
     usable = np.isfinite(dem)
     if mask is not None:
         usable &= mask.astype(bool)
@@ -181,7 +192,8 @@ def icp_point_to_plane(dem: np.ndarray, reference: np.ndarray, *,
     extent = float(np.abs(local).max()) + max(sx, sy)
     rotation = np.eye(3)
     scale = 1.0
-    translation = np.zeros(3)
+    translation = np.zeros(3) if initial_translation_m is None else \
+        np.asarray(initial_translation_m, dtype=np.float64).copy()
     converged = False
     iteration = 0
     for iteration in range(1, max_iterations + 1):  # noqa: B007 - used after the loop

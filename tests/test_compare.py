@@ -221,10 +221,14 @@ def test_chained_alignment_reports_the_total_shift(truth, displaced):
     assert np.sqrt(np.nanmean((aligned - truth)[8:-8, 8:-8] ** 2)) < 0.04
 
 
-def test_icp_on_a_plane_is_degenerate():
+def test_icp_on_a_plane_is_degenerate_and_compare_falls_back_to_unaligned():
     plane = np.zeros((40, 40))
     with pytest.raises(ProcessingError, match="too flat"):
         icp_point_to_plane(plane + 1.0, plane)
+    report = compare_dems(plane + 1.0, plane, align="icp").report
+    assert report["alignment"]["method"] == "none"
+    assert report["mean"] == pytest.approx(1.0)
+    assert any("alignment 'icp' failed" in w and "too flat" in w for w in report["warnings"])
 
 
 # ----------------------------------------------------------------------------- statistics

@@ -165,8 +165,15 @@ def compare_dems(dem: np.ndarray, reference: np.ndarray, *,
                               + (" inside the mask" if mask is not None else ""))
     percent, coverage = completeness(dem, reference, mask)
     before = difference_statistics(dem - reference, mask)
-    aligned, alignment = coregister(dem, reference, method=align, spacing=(sx, sy),
-                                    mask=mask, icp_scale=icp_scale, seed=seed)
+    try:
+        aligned, alignment = coregister(dem, reference, method=align, spacing=(sx, sy),
+                                        mask=mask, icp_scale=icp_scale, seed=seed)
+    except ProcessingError as exc:
+        # a DEM too sparse or too flat to align is still measured, unaligned, with a warning
+        aligned, alignment = coregister(dem, reference, method="none")
+        alignment.warnings.append(f"alignment '{align}' failed, statistics are unaligned: "
+                                  f"{exc}")
+        log.warning("alignment '%s' failed, statistics are unaligned: %s", align, exc)
     difference = aligned - reference
     if mask is not None:
         difference = np.where(mask, difference, np.nan)

@@ -344,7 +344,8 @@ def nuth_kaab(dem: np.ndarray, reference: np.ndarray, *, mask: np.ndarray | None
         (pixels), the DEM's shift being applied by the same convolution
         (:func:`demtool.compare.grids.gaussian_shift`).  This removes the
         shift-dependent phase error of polynomial interpolators, which biases the
-        estimate by 0.005–0.02 px on rough terrain, and damps noise.  ≥ 0.8.
+        estimate by 0.005–0.02 px on rough terrain, and damps noise.  At least 0.8
+        (1 or more keeps the kernel practically band-limited).
     coarse_sigmas : tuple of float
         Larger smoothing (pixels) for coarse levels run first; widens the capture range
         to several pixels.

@@ -273,9 +273,9 @@ def gaussian_shift(values: np.ndarray, dx_px: float, dy_px: float, sigma_px: flo
 
     ``out[y, x] = Σ g(y − dy − i) g(x − dx − j) values[i, j]`` with ``g`` the Gaussian
     of standard deviation ``sigma_px``, tapered to zero at ±4.5σ (minus its value there)
-    and normalised, so the weights vary continuously with the shift.  For σ ≥ 0.8 px the
+    and normalised, so the weights vary continuously with the shift.  For σ ≥ 1 px the
     sampled Gaussian is practically band-limited (its gain at the Nyquist frequency is
-    below 0.5 %), so this equals an ideal band-limited shift followed by Gaussian
+    below 1 %), so this equals an ideal band-limited shift followed by Gaussian
     smoothing: unlike polynomial interpolators it has no shift-dependent phase error, so
     comparing ``gaussian_shift(dem, dx, dy, σ)`` with ``gaussian_shift(reference, 0, 0, σ)``
     gives an unbiased shift estimate.

@@ -138,10 +138,16 @@ def test_mask_restricts_the_statistics(pair, tmp_path):
     assert report["mean"] == pytest.approx(0.5, abs=1e-5)
 
 
-@pytest.mark.parametrize("case", ["missing", "corrupt", "all_nan", "no_overlap"])
+@pytest.mark.parametrize("case", ["missing", "corrupt", "all_nan", "no_overlap", "empty_mask"])
 def test_bad_inputs_fail_cleanly_without_output(pair, tmp_path, case):
     dem = tmp_path / "dem.tif"
-    if case == "missing":
+    extra = []
+    if case == "empty_mask":
+        dio.write_raster(dem, np.zeros((96, 96)), transform=dio.image_frame_transform(SPACING))
+        extra = ["--mask", dem]  # all zeros: selects nothing
+        dem = pair / "dem.tif"
+        expected = "mask selects no pixel"
+    elif case == "missing":
         expected = "not found"
     elif case == "corrupt":
         dem.write_bytes(b"this is not a GeoTIFF" * 20)
@@ -155,10 +161,10 @@ def test_bad_inputs_fail_cleanly_without_output(pair, tmp_path, case):
         dio.write_raster(dem, np.zeros((20, 20)), transform=Affine(2, 0, 5000, 0, -2, 0))
         expected = "do not overlap"
     out = tmp_path / "report"
-    result = _invoke(dem, pair / "reference.tif", "--out", out)
+    result = _invoke(dem, pair / "reference.tif", "--out", out, *extra)
     assert result.exit_code == 1
     assert expected in result.output
-    assert str(dem) in result.output
+    assert str(extra[1] if extra else dem) in result.output
     assert len(result.output.strip().splitlines()) == 1
     assert not out.exists() or not any(out.iterdir())
 

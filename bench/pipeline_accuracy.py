@@ -155,9 +155,11 @@ def run(args: argparse.Namespace, work: Path) -> list[dict]:
                 label="dem bam")
         add("BAM (eq. 2)", "select+bundle+dem --points", bam, 2.0,
             ["select", "bundle", "dem bam"])
+        start = time.perf_counter()
         griddata_reference(work / "bundle.npz", scene, work / "dem_griddata.tif")
+        timings["griddata"] = time.perf_counter() - start
         add("  ref: griddata-linear", "same points, SciPy griddata", work / "dem_griddata.tif",
-            None, [])
+            None, ["select", "bundle", "griddata"])
     except StageFailed as exc:
         add("BAM (eq. 2)", "select+bundle+dem --points", None, 2.0, [], str(exc))
     try:

@@ -18,8 +18,10 @@ COLMAP's radial distortion models.
 
 from __future__ import annotations
 
+import contextlib
 import os
-from collections.abc import Mapping, Sequence
+import sys
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -149,13 +151,36 @@ class BundleResult:
 # --------------------------------------------------------------------------------------
 
 
+_colmap_verbose = False
+
+
 def set_colmap_verbosity(verbose: bool) -> None:
     """Show COLMAP's own (glog) log on stderr only when ``verbose``."""
     import pycolmap
 
+    global _colmap_verbose
+    _colmap_verbose = bool(verbose)
     pycolmap.logging.minloglevel = 0 if verbose else 3
     pycolmap.logging.stderrthreshold = 0 if verbose else 3
     pycolmap.logging.logtostderr = bool(verbose)
+
+
+@contextlib.contextmanager
+def _colmap_output() -> Iterator[None]:
+    """Silence what COLMAP's C++ code writes to the stderr file descriptor, unless
+    verbose (some of its messages ignore glog's level flags)."""
+    if _colmap_verbose:
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "wb") as devnull:
+            os.dup2(devnull.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def colmap_camera_params(model: str, K: np.ndarray) -> str:
@@ -243,9 +268,10 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
     extraction.sift.max_num_features = int(options.max_features)
     extraction.use_gpu = False
     log.info("extracting SIFT features from %d images", len(files))
-    pycolmap.extract_features(database_path, image_folder, image_names=list(files),
-                              camera_mode=mode, reader_options=reader,
-                              extraction_options=extraction, device=pycolmap.Device.cpu)
+    with _colmap_output():
+        pycolmap.extract_features(database_path, image_folder, image_names=list(files),
+                                  camera_mode=mode, reader_options=reader,
+                                  extraction_options=extraction, device=pycolmap.Device.cpu)
     if intrinsics and mode == pycolmap.CameraMode.PER_IMAGE:
         _set_known_intrinsics(database_path, options.camera_model, intrinsics, files)
 
@@ -259,16 +285,19 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
         matcher = "exhaustive" if len(files) <= EXHAUSTIVE_MAX_IMAGES else "sequential"
     log.info("matching features (%s)", matcher)
     if matcher == "exhaustive":
-        pycolmap.match_exhaustive(database_path, matching_options=matching,
-                                  verification_options=verification,
-                                  device=pycolmap.Device.cpu)
+        with _colmap_output():
+            pycolmap.match_exhaustive(database_path, matching_options=matching,
+                                      verification_options=verification,
+                                      device=pycolmap.Device.cpu)
     else:
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = 10
         pairing.quadratic_overlap = True
-        pycolmap.match_sequential(database_path, matching_options=matching,
-                                  pairing_options=pairing, verification_options=verification,
-                                  device=pycolmap.Device.cpu)
+        with _colmap_output():
+            pycolmap.match_sequential(database_path, matching_options=matching,
+                                      pairing_options=pairing,
+                                      verification_options=verification,
+                                      device=pycolmap.Device.cpu)
 
     pipeline = pycolmap.IncrementalPipelineOptions()
     pipeline.random_seed = int(options.seed)
@@ -284,10 +313,41 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
     for key, value in options.extra.items():
         setattr(pipeline, key, value)
     log.info("incremental mapping and bundle adjustment")
-    models = pycolmap.incremental_mapping(database_path, image_folder, work / "sparse",
-                                          options=pipeline)
+    with _colmap_output():
+        models = pycolmap.incremental_mapping(database_path, image_folder, work / "sparse",
+                                              options=pipeline)
     return sorted(models.values(),
                   key=lambda r: (r.num_reg_images(), r.num_points3D()), reverse=True)
+
+
+def impose_intrinsics(reconstruction, intrinsics: Mapping[str, KnownIntrinsics],
+                      file_to_name: Mapping[str, str], *, workers: int = 0) -> None:
+    """Replace the cameras' intrinsics by known ones (PINHOLE) and re-run global BA.
+
+    The fallback when COLMAP cannot initialise with the known intrinsics fixed (very
+    narrow fields of view, where the calibrated two-view geometry of a nearly planar
+    scene is degenerate): map with free intrinsics, then impose the known ones and
+    re-adjust poses and points (focal lengths refined only if asked).  Changes
+    ``reconstruction`` in place.
+    """
+    import pycolmap
+
+    refine = any(k.refine for k in intrinsics.values())
+    for image_id in reconstruction.reg_image_ids():
+        image = reconstruction.image(image_id)
+        camera = reconstruction.camera(image.camera_id)
+        K = intrinsics[file_to_name[image.name]].K
+        camera.model = pycolmap.CameraModelId.PINHOLE
+        camera.params = [float(v) for v in colmap_camera_params("PINHOLE", K).split(",")]
+    options = pycolmap.BundleAdjustmentOptions()
+    options.print_summary = False
+    options.refine_focal_length = refine
+    options.refine_principal_point = False
+    options.refine_extra_params = False
+    options.ceres.solver_options.num_threads = workers if workers > 0 else -1
+    with _colmap_output():
+        pycolmap.bundle_adjustment(reconstruction, options)
+    reconstruction.update_point_3d_errors()
 
 
 def refine_second_radial_term(reconstruction, *, workers: int = 0) -> bool:
@@ -319,7 +379,8 @@ def refine_second_radial_term(reconstruction, *, workers: int = 0) -> bool:
     options = pycolmap.BundleAdjustmentOptions()
     options.print_summary = False
     options.ceres.solver_options.num_threads = workers if workers > 0 else -1
-    pycolmap.bundle_adjustment(reconstruction, options)
+    with _colmap_output():
+        pycolmap.bundle_adjustment(reconstruction, options)
     reconstruction.update_point_3d_errors()
     return True
 

@@ -190,6 +190,30 @@ def test_bundle_registers_synthetic_views_and_aligns(small_scene_dir, tmp_path):
     assert (tmp_path / "colmap" / "points3D.bin").is_file()
 
 
+@pytest.mark.slow
+def test_bundle_with_known_intrinsics_keeps_them(small_scene_dir, tmp_path):
+    """--cameras: the output cameras carry exactly the known K (fixed), all views
+    registered; on this narrow field of view COLMAP needs the free-mapping fallback."""
+    selection = scene_selection(small_scene_dir, tmp_path)
+    out = tmp_path / "bundle.npz"
+    cameras_file = small_scene_dir / "cameras.npz"
+    result = CliRunner().invoke(cli, ["-q", "bundle", str(selection), "--out", str(out),
+                                      "--cameras", str(cameras_file),
+                                      "--align-cameras", str(cameras_file)])
+    assert result.exit_code == 0, result.output
+    bundle = dio.read_npz(out, "bundle")
+    truth = cameras_from_arrays(dio.read_npz(cameras_file, "cameras"))
+    cameras = cameras_from_arrays(bundle)
+    assert sorted(cameras) == sorted(truth)
+    for name, camera in cameras.items():
+        np.testing.assert_allclose(camera.K, truth[name].K, atol=1e-9)
+        assert np.linalg.norm(camera.center - truth[name].center) < 10.0
+    np.testing.assert_array_equal(bundle["distortion"], 0.0)
+    assert float(np.mean(bundle["reprojection_error"])) < 1.0
+    summary = json.loads((tmp_path / "bundle.npz.json").read_text())["summary"]
+    assert summary["intrinsics"].startswith("known")
+
+
 def test_bundle_needs_two_images(tmp_path, small_scene_dir):
     selection = write_selection(tmp_path / "sel.json",
                                 [("view_00", small_scene_dir / "view_00.tif")])

@@ -143,6 +143,7 @@ def run_bundle(selection: str | os.PathLike, out: str | os.PathLike, *,
     import shutil
     import tempfile
     import time
+    from dataclasses import replace
 
     import cv2
     import numpy as np
@@ -206,6 +207,20 @@ def run_bundle(selection: str | os.PathLike, out: str | os.PathLike, *,
             intrinsics=intrinsics or None, matcher=matcher, max_features=max_features,
             seed=seed, workers=workers)
         models = core.run_sfm(image_folder, files, scratch_path, options)
+        imposed = False
+        if intrinsics and (not models or models[0].num_reg_images() < len(images)):
+            log.warning("COLMAP registered %d of %d images with the known intrinsics; "
+                        "mapping with free intrinsics and imposing the known ones after",
+                        models[0].num_reg_images() if models else 0, len(images))
+            free_folder = scratch_path / "free"
+            free_folder.mkdir()
+            free = core.run_sfm(image_folder, files, free_folder,
+                                replace(options, intrinsics=None, camera_model="SIMPLE_RADIAL",
+                                        shared_camera=options.shared_camera))
+            if free and (not models or free[0].num_reg_images() > models[0].num_reg_images()):
+                core.set_colmap_verbosity(verbose)
+                core.impose_intrinsics(free[0], intrinsics, files, workers=workers)
+                models, imposed = free, True
         selected_names = [n for n, _ in images]
         if not models or models[0].num_reg_images() < 2:
             registered = ([files[models[0].image(i).name] for i in models[0].reg_image_ids()]
@@ -215,7 +230,7 @@ def run_bundle(selection: str | os.PathLike, out: str | os.PathLike, *,
                 f"({', '.join(registered) or 'none'}); the images may not overlap enough or "
                 f"lack texture (try more --max-features)")
         model = models[0]
-        if radial_k2 and (not intrinsics or refine_intrinsics):
+        if radial_k2 and not intrinsics:
             core.set_colmap_verbosity(verbose)
             if core.refine_second_radial_term(model, workers=workers):
                 log.info("final bundle adjustment with a second radial term (RADIAL)")
@@ -242,6 +257,8 @@ def run_bundle(selection: str | os.PathLike, out: str | os.PathLike, *,
             .model_name,
             "target": target,
             "aligned": result.aligned,
+            "intrinsics": ("estimated" if not intrinsics else
+                           "known, imposed after free mapping" if imposed else "known"),
             "alignment": alignment,
         }
         log.info("registered %d/%d images (%s), %d points, reprojection error mean "

@@ -120,7 +120,7 @@ def test_projection_matches_colmap_with_half_pixel_convention(model, extra):
     converted = from_pycolmap(image, colmap_camera)
     np.testing.assert_allclose(converted.K, camera.K, atol=1e-12)
     np.testing.assert_allclose(converted.R, camera.R, atol=1e-12)
-    distortion = core._radial_terms(colmap_camera)
+    distortion = core.radial_terms(colmap_camera)
     rng = np.random.default_rng(2)
     points = np.column_stack([rng.uniform(-60, 60, (20, 2)), rng.normal(0, 3, 20)])
     ours, depth = core.project_points(converted, points, distortion)

@@ -1,0 +1,61 @@
+"""Structure from motion and bundle adjustment of a set of overlapping images (pycolmap).
+
+The BAM route of the Rosetta NavCam study (Tyszkiewicz et al.): SIFT features,
+pairwise matching with geometric verification, incremental mapping and bundle
+adjustment, i.e. the minimisation of eq. 1 of the study,
+
+    E = sum_i sum_j || x_ij - pi(K_j, R_j, t_j, X_i) ||^2,
+
+the squared reprojection error over all 3-D points X_i and the cameras j that see them,
+carried out by COLMAP (Schönberger & Frahm 2016) through pycolmap.
+
+This module holds the pycolmap driver (which needs a scratch folder: COLMAP works
+on an image folder and an SQLite database) and pure functions on the result:
+conversion to demtool's camera convention and arrays, summary statistics, the
+Umeyama (1991) similarity alignment to known camera centres, and projection with
+COLMAP's radial distortion models.
+"""
+
+from demtool.bundle.align import align_to_centres, apply_similarity, umeyama
+from demtool.bundle.colmap import (
+    CAMERA_MODELS,
+    EXHAUSTIVE_MAX_IMAGES,
+    MATCHERS,
+    KnownIntrinsics,
+    SfmOptions,
+    colmap_camera_params,
+    impose_intrinsics,
+    refine_second_radial_term,
+    run_sfm,
+    set_colmap_verbosity,
+)
+from demtool.bundle.model import (
+    BundleResult,
+    distort_normalized,
+    project_points,
+    radial_terms,
+    reconstruction_to_result,
+    reprojection_summary,
+)
+
+__all__ = [
+    "CAMERA_MODELS",
+    "EXHAUSTIVE_MAX_IMAGES",
+    "MATCHERS",
+    "BundleResult",
+    "KnownIntrinsics",
+    "SfmOptions",
+    "align_to_centres",
+    "apply_similarity",
+    "colmap_camera_params",
+    "distort_normalized",
+    "impose_intrinsics",
+    "project_points",
+    "radial_terms",
+    "reconstruction_to_result",
+    "refine_second_radial_term",
+    "reprojection_summary",
+    "run_sfm",
+    "set_colmap_verbosity",
+    "umeyama",
+]

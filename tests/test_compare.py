@@ -142,6 +142,15 @@ def test_uncertainty_grows_on_flat_terrain_and_warns():
     assert any("poorly constrained" in w for w in last.warnings)
 
 
+def test_divergence_is_reported_and_compare_falls_back(truth):
+    unrelated = fractal(160, relief=30.0, seed=99)
+    with pytest.raises(ProcessingError, match="diverged"):
+        nuth_kaab(unrelated, truth, max_iterations=8)
+    report = compare_dems(unrelated, truth).report
+    assert report["alignment"]["method"] == "none"
+    assert any("diverged" in w for w in report["warnings"])
+
+
 def test_vertical_offset_is_the_median():
     reference = np.zeros((20, 20))
     dem = np.full((20, 20), -3.0)

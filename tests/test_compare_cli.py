@@ -138,7 +138,8 @@ def test_mask_restricts_the_statistics(pair, tmp_path):
     assert report["mean"] == pytest.approx(0.5, abs=1e-5)
 
 
-@pytest.mark.parametrize("case", ["missing", "corrupt", "all_nan", "no_overlap", "empty_mask"])
+@pytest.mark.parametrize("case", ["missing", "corrupt", "all_nan", "no_overlap", "empty_mask",
+                                  "other_frame"])
 def test_bad_inputs_fail_cleanly_without_output(pair, tmp_path, case):
     dem = tmp_path / "dem.tif"
     extra = []
@@ -149,6 +150,10 @@ def test_bad_inputs_fail_cleanly_without_output(pair, tmp_path, case):
         expected = "mask selects no pixel"
     elif case == "missing":
         expected = "not found"
+    elif case == "other_frame":
+        dio.write_raster(dem, np.zeros((96, 96)), transform=dio.image_frame_transform(SPACING),
+                         tags={"frame": "map:local"})
+        expected = "is in frame 'map:local' but the reference"
     elif case == "corrupt":
         dem.write_bytes(b"this is not a GeoTIFF" * 20)
         expected = "cannot read DEM"

@@ -41,6 +41,20 @@ def _onto(raster, grid, what: str):
         raise ProcessingError(f"{raster.path}: {what}: {exc}") from None
 
 
+def _check_frames(reference, dems) -> None:
+    """Rasters without CRS must carry the same ``frame`` tag (when they carry one)."""
+    from demtool.errors import InputError
+
+    frame = reference.tags.get("frame")
+    for raster in dems:
+        other = raster.tags.get("frame")
+        if raster.crs is None and reference.crs is None and frame and other and \
+                other != frame:
+            raise InputError(f"{raster.path}: is in frame '{other}' but the reference "
+                             f"{reference.path} is in frame '{frame}'; compare rasters of "
+                             "one frame (e.g. a target-frame DEM with truth_dem_target.tif)")
+
+
 def _read_mask(path: str | os.PathLike, grid):
     """Mask raster (non-zero = use) resampled onto the comparison grid."""
     import numpy as np
@@ -141,6 +155,7 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     dem = _read_dem(dem_path, "DEM")
     reference = _read_dem(reference_path, "reference DEM")
     extra = [_read_dem(path, "DEM (--also)") for path in also]
+    _check_frames(reference, [dem, *extra])
     if grid == "reference":
         target = _grid_of(reference)
         reference_values = reference.data.astype(np.float64)

@@ -301,7 +301,7 @@ def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
             params = params * (max_step_px / step)
         last = {"dh": dh, "grad_x": grad_x, "grad_y": grad_y, "usable": usable,
                 "params": params, "centre": centre, "halfwidth": halfwidth,
-                "sigma": sigma, "variance": variance, "count": count}
+                "sigma": sigma, "variance": variance, "count": count, "step": step}
         shift = shift + params
         if step < tolerance_px:
             converged = True
@@ -325,8 +325,8 @@ def _final_bootstrap(last: dict[str, Any], blocks: np.ndarray, seed: int) -> np.
 def nuth_kaab(dem: np.ndarray, reference: np.ndarray, *, mask: np.ndarray | None = None,
               max_iterations: int = 30, tolerance_px: float = 1e-4,
               fit_sigma_px: float = 1.0, coarse_sigmas: tuple[float, ...] = (3.0,),
-              max_step_px: float = 2.0, bootstrap: bool = True, seed: int = 0
-              ) -> ShiftResult:
+              max_step_px: float = 2.0, max_shift_fraction: float = 0.1,
+              bootstrap: bool = True, seed: int = 0) -> ShiftResult:
     """Horizontal and vertical shift of a DEM to a reference (linearised Nuth & Kääb).
 
     Parameters
@@ -351,6 +351,9 @@ def nuth_kaab(dem: np.ndarray, reference: np.ndarray, *, mask: np.ndarray | None
         to several pixels.
     max_step_px : float
         Largest horizontal increment per iteration (a trust region).
+    max_shift_fraction : float
+        A shift beyond this fraction of the grid's shorter side, or no convergence with
+        a last step above 0.01 px, is a divergence (ProcessingError).
     bootstrap : bool
         Estimate the uncertainty by a block bootstrap too (the reported sigma is the
         larger of bootstrap and formal values).
@@ -361,6 +364,11 @@ def nuth_kaab(dem: np.ndarray, reference: np.ndarray, *, mask: np.ndarray | None
     -------
     ShiftResult
         The total shift to add to the DEM, with its one-sigma uncertainty.
+
+    Raises
+    ------
+    ProcessingError
+        Fewer than 100 common valid pixels, or divergence (see ``max_shift_fraction``).
 
     Notes
     -----
@@ -391,6 +399,14 @@ def nuth_kaab(dem: np.ndarray, reference: np.ndarray, *, mask: np.ndarray | None
                                                 tolerance_px=tolerance_px,
                                                 max_step_px=max_step_px)
     total_iterations += its
+    limit = max_shift_fraction * min(dem.shape)
+    size = float(np.hypot(shift[0], shift[1]))
+    if not np.isfinite(size) or size > limit or (not converged and last["step"] > 0.01):
+        raise ProcessingError(
+            f"Nuth & Kääb diverged (shift {shift[0]:.2f}, {shift[1]:.2f} px after "
+            f"{total_iterations} iterations, last step {last['step']:.3f} px; at most "
+            f"{limit:.0f} px accepted): the DEMs do not match here (another frame? no "
+            "common relief?)")
     sigma = last["sigma"].copy()
     if bootstrap and np.all(np.isfinite(sigma)):
         sigma = np.fmax(sigma, _final_bootstrap(last, _block_ids(dem.shape), seed))

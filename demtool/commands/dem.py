@@ -98,6 +98,7 @@ def command(ctx: click.Context, points: str | None, disparity: str | None,
 
 
 def _scene_metadata(scene_path: str | os.PathLike | None) -> dict[str, Any]:
+    """scene.json content ({} without one); InputError if it is not a JSON object."""
     from demtool import io as dio
     from demtool.errors import InputError
 
@@ -110,6 +111,7 @@ def _scene_metadata(scene_path: str | os.PathLike | None) -> dict[str, Any]:
 
 
 def _positive(value: Any, path: Any, key: str) -> float:
+    """A metadata value as a positive float; InputError naming the file and key."""
     from demtool.errors import InputError
 
     try:
@@ -121,8 +123,11 @@ def _positive(value: Any, path: Any, key: str) -> float:
     return number
 
 
-def _points_route(points_path, *, target, distance_m, scene, scene_path, outliers,
-                  median_px):
+def _points_route(points_path: str | os.PathLike, *, target: str | None,
+                  distance_m: float | None, scene: dict[str, Any],
+                  scene_path: str | os.PathLike | None, outliers: Any,
+                  median_px: int) -> tuple[Any, str, str, float, dict[str, Any]]:
+    """BAM route: (DemResult, target name, route tag, estimated GSD, extra summary)."""
     import numpy as np
 
     from demtool import dem as core
@@ -158,8 +163,12 @@ def _points_route(points_path, *, target, distance_m, scene, scene_path, outlier
     return result, target_name, route, estimated_gsd, {"distance_m": distance_m}
 
 
-def _disparity_route(disparity_path, rectify_path, *, reference_path, cameras_path, target,
-                     outliers, median_px, seed):
+def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.PathLike, *,
+                     reference_path: str | os.PathLike | None,
+                     cameras_path: str | os.PathLike | None, target: str | None,
+                     outliers: Any, median_px: int,
+                     seed: int) -> tuple[Any, str, str, float, dict[str, Any]]:
+    """SIAM routes: (DemResult, target name, route tag, estimated GSD, extra summary)."""
     from demtool import dem as core
     from demtool import io as dio
     from demtool.camera import cameras_from_arrays
@@ -213,12 +222,17 @@ def _disparity_route(disparity_path, rectify_path, *, reference_path, cameras_pa
     return result, target_name, "disparity-projective", reference.spacing[0], {}
 
 
-def run_dem(out: str | os.PathLike, *, points_path=None, disparity_path=None,
-            rectify_path=None, reference_path=None, cameras_path=None,
-            target: str | None = None, distance_m: float | None = None, scene_path=None,
-            gsd_m: float | None = None, median_px: int = 0, outlier_neighbours: int = 16,
-            outlier_threshold: float = 3.0, mask_path=None, mask_band: bool = False,
-            seed: int = 0, params: dict | None = None) -> dict:
+PathLike = str | os.PathLike | None
+
+
+def run_dem(out: str | os.PathLike, *, points_path: PathLike = None,
+            disparity_path: PathLike = None, rectify_path: PathLike = None,
+            reference_path: PathLike = None, cameras_path: PathLike = None,
+            target: str | None = None, distance_m: float | None = None,
+            scene_path: PathLike = None, gsd_m: float | None = None, median_px: int = 0,
+            outlier_neighbours: int = 16, outlier_threshold: float = 3.0,
+            mask_path: PathLike = None, mask_band: bool = False, seed: int = 0,
+            params: dict | None = None) -> dict:
     """Run the dem stage: read the inputs, build the DEM, write it with its sidecar.
 
     Returns the sidecar summary.

@@ -156,13 +156,6 @@ def _solve(design: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return params, sigma, variance
 
 
-def _robust_inliers(residual: np.ndarray, k: float = 4.0) -> np.ndarray:
-    nmad = _nmad(residual)
-    if nmad == 0:
-        return np.ones(residual.shape, bool)
-    return np.abs(residual - np.median(residual)) <= k * nmad
-
-
 # --------------------------------------------------------------------------------------
 # vertical offset
 # --------------------------------------------------------------------------------------

@@ -26,8 +26,8 @@ if TYPE_CHECKING:
 # the preset/option defaults (the NavCam and LRO NAC studies)
 DEFAULTS: dict[str, Any] = {
     "model": "lunar-lambert", "albedo_sigma": 21.0, "lowpass_sigma": 21.0, "delta": 0.001,
-    "gamma": 0.2, "tau": 10.0, "median": 15, "max_nan_fraction": 0.2, "iterations": 60,
-    "tolerance": 1e-4, "shadow_threshold": 0.05, "border_taper": 8.0,
+    "gamma": 0.2, "tau": 10.0, "median": 15, "spike_threshold": 4.0, "max_nan_fraction": 0.2,
+    "iterations": 60, "tolerance": 1e-4, "shadow_threshold": 0.05, "border_taper": 8.0,
 }
 
 
@@ -176,7 +176,8 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
                view_vector: tuple[float, float, float] | None = None,
                model: str = "lunar-lambert", albedo_sigma: float = 21.0,
                lowpass_sigma: float = 21.0, delta: float = 0.001, gamma: float = 0.2,
-               tau: float = 10.0, median: int = 15, max_nan_fraction: float = 0.2,
+               tau: float = 10.0, median: int = 15, spike_threshold: float = 4.0,
+               max_nan_fraction: float = 0.2,
                iterations: int = 60, tolerance: float = 1e-4,
                shadow_threshold: float = 0.05, cast_shadows: bool = True,
                border_taper: float = 8.0, albedo_out: str | os.PathLike | None = None,
@@ -215,6 +216,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
                            cast_shadows=cast_shadows, border_px=border_taper)
     params.check()
     prov = Provenance("refine", resolved or {**params.as_dict(), "median": median,
+                                             "spike_threshold": spike_threshold,
                                              "max_nan_fraction": max_nan_fraction},
                       inputs=[image_path, dem_path])
     dem = io.read_raster(dem_path, what="DEM")
@@ -233,12 +235,13 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
                          f"({spacing})")
     started = time.perf_counter()
     try:
-        prepared = prepare_dem(dem.data, median_size=median, max_nan_fraction=max_nan_fraction)
+        prepared = prepare_dem(dem.data, median_size=median, spike_threshold=spike_threshold,
+                               max_nan_fraction=max_nan_fraction)
     except ProcessingError as exc:
         raise ProcessingError(f"{dem.path}: {exc}") from None
     prepared_s = time.perf_counter() - started
     result = refine_heights(values, prepared.dem, spacing=spacing, illumination=illumination,
-                            parameters=params)
+                            parameters=params, initial=prepared.initial)
     sfs_s = time.perf_counter() - started - prepared_s
     log.info("DEM preparation (gap filling, median) %.1f s, shape from shading %.1f s",
              prepared_s, sfs_s)
@@ -254,6 +257,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
         "intensity_residual_rms": result.intensity_rms,
         "shadow_fraction": float(result.shadow.mean()),
         "dem_nan_fraction_filled": prepared.nan_fraction,
+        "dem_spike_fraction": float(prepared.spikes.mean()),
         "mean_height_shift_m": shift,
         "rms_height_change_m": float(np.sqrt(np.mean(change**2))),
         "sun_vector_grid": illumination.sun.tolist(), "sun_source": sources["sun"],
@@ -363,6 +367,12 @@ LRO NAC studies.""")
 @click.option("--median", type=click.IntRange(min=0), default=DEFAULTS["median"],
               show_default=True, callback=_median,
               help="Median prefilter of the input DEM, odd window in pixels (0 = off).")
+@click.option("--spike-threshold", type=_NON_NEGATIVE, default=DEFAULTS["spike_threshold"],
+              show_default=True,
+              help="Pixels farther from the median than this many robust standard "
+                   "deviations are spikes and take the median in the anchor DEM; the "
+                   "iterations start from the median-filtered DEM (0: the median "
+                   "everywhere).")
 @click.option("--max-nan-fraction", type=click.FloatRange(min=0.0, max=1.0),
               default=DEFAULTS["max_nan_fraction"], show_default=True,
               help="Refuse a DEM with more NaN than this fraction (gaps below it are filled).")

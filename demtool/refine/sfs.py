@@ -233,8 +233,39 @@ def border_taper(shape: tuple[int, int], width: float) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------
-# The solver
 # --------------------------------------------------------------------------------------
+
+
+#: Egrad's low-pass runs on blocks of this many pixels per σ_f / 5 (σ_f = 21 px: 4 × 4).
+_BLOCK_PER_SIGMA = 0.2
+
+
+class _GradientLowpass:
+    """fᵀf of Egrad, evaluated on b × b block means (b ≈ σ_f / 5).
+
+    f here is the Gaussian of std σ_f / b (DCT domain) on the b × b block means: the box
+    and the Gaussian together are a Gaussian of std sqrt(σ_f² + (b² − 1)/12) ≈ σ_f
+    (21.03 px for σ_f = 21, b = 4) at the frequencies f passes, on b² times fewer
+    samples.  ``apply(x) = b² Aᵀ F² A (x − x0)`` is the exact gradient of
+    ``b² ‖F A (x − x0)‖²``, the Egrad that is reported, and its norm is at most 1, so
+    the slope step's majoriser δ I stays valid.
+    """
+
+    def __init__(self, shape: tuple[int, int], sigma: float) -> None:
+        from demtool.refine import kernels
+
+        self._kernels = kernels
+        self.block = int(max(1, min(sigma * _BLOCK_PER_SIGMA, min(shape) // 2)))
+        self.coarse_shape = (-(-shape[0] // self.block), -(-shape[1] // self.block))
+        self.transfer2 = gaussian_transfer(self.coarse_shape, sigma / self.block) ** 2
+        self._coarse = np.empty(self.coarse_shape, dtype=np.float32)
+
+    def apply(self, values: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        self._kernels.block_mean(values, reference, self.block, self._coarse)
+        smoothed = idct2(dct2(self._coarse) * self.transfer2).astype(np.float32)
+        out = np.empty_like(values)
+        self._kernels.block_mean_adjoint(smoothed, self.block, out)
+        return out
 
 
 class _State:
@@ -242,38 +273,76 @@ class _State:
 
     def __init__(self, p, q, z, z_hat, solver: _Solver) -> None:
         self.p, self.q, self.z, self.z_hat = p, q, z, z_hat
-        self.gx, self.gy = central_gradient(z, solver.aspect)
-        self.R, self.Rp, self.Rq = reflectance_and_gradient(p, q, solver.illumination,
-                                                            solver.params.model)
-        self.bp = solver.lowpass_twice(p - solver.p0)
-        self.bq = solver.lowpass_twice(q - solver.q0)
+        self.gx = np.empty_like(z)
+        self.gy = np.empty_like(z)
+        solver.kernels.central_gradient(z, solver.aspect, self.gx, self.gy)
+        self.R, self.Rp, self.Rq = solver.photometric_terms(p, q)
+        self.bp = solver.lowpass.apply(p, solver.p0)
+        self.bq = solver.lowpass.apply(q, solver.q0)
 
 
 class _Solver:
     def __init__(self, image, dem, spacing, illumination, params, valid) -> None:
+        from demtool.refine import kernels
+        from demtool.reflectance import mcewen_L
+
+        self.kernels = kernels
         self.params = params
         self.illumination = illumination
+        self.model_code = kernels.COMPILED_MODELS.get(params.model, -1)
+        self.limb = float(mcewen_L(illumination.phase_deg))
+        self.sun = np.ascontiguousarray(illumination.sun, dtype=np.float64)
+        self.view = np.ascontiguousarray(illumination.view, dtype=np.float64)
         self.spacing = (float(spacing[0]), float(spacing[1]))
         self.aspect = self.spacing[0] / self.spacing[1]
         self.shape = dem.shape
         self.count = dem.size
         self.mean_height = float(np.mean(dem, dtype=np.float64))
-        self.z0 = ((dem - self.mean_height) / self.spacing[0]).astype(np.float32)
+        self.z0 = self.to_pixel_units(dem)
         self.valid = valid
         self.image = np.where(valid, image, 0.0).astype(np.float32)
         self.taper = border_taper(self.shape, params.border_px)
         self.inner = np.zeros(self.shape, dtype=bool)
         self.inner[1:-1, 1:-1] = True
         self.g2 = gaussian_transfer(self.shape, params.lowpass_sigma) ** 2
+        self.lowpass = _GradientLowpass(self.shape, params.lowpass_sigma)
         self.laplacian = neumann_laplacian_eigenvalues(self.shape, self.aspect)
         self.z0_hat = dct2(self.z0)
-        self.p0, self.q0 = central_gradient(self.z0, self.aspect)
+        self.p0 = np.empty_like(self.z0)
+        self.q0 = np.empty_like(self.z0)
+        kernels.central_gradient(self.z0, self.aspect, self.p0, self.q0)
         gamma, tau = np.float32(params.gamma), np.float32(params.tau)
-        self.height_denominator = gamma * self.laplacian + tau * self.g2
+        denominator = gamma * self.laplacian + tau * self.g2
+        self.inverse_denominator = np.where(denominator > 0, 1.0 / np.where(
+            denominator > 0, denominator, 1.0), 0.0).astype(np.float32)
+        self.anchor_hat = (tau * self.g2 * self.z0_hat).astype(np.float32)
 
-    def lowpass_twice(self, values: np.ndarray) -> np.ndarray:
-        """fᵀf values (the Gaussian applied twice), reflect borders."""
-        return idct2(dct2(values) * self.g2)
+    def to_pixel_units(self, heights: np.ndarray) -> np.ndarray:
+        """Heights in metres → pixel units about the coarse DEM's mean, C-ordered float32."""
+        return np.ascontiguousarray((np.asarray(heights, dtype=np.float64) - self.mean_height)
+                                    / self.spacing[0], dtype=np.float32)
+
+    def state_from_heights(self, heights: np.ndarray) -> _State:
+        """The state with z from ``heights`` (metres; the mean is reset to the coarse
+        DEM's) and slopes ``(p, q) = G z``."""
+        z = self.to_pixel_units(heights)
+        z_hat = dct2(z)
+        z_hat[0, 0] = self.z0_hat[0, 0]
+        z = np.ascontiguousarray(idct2(z_hat), dtype=np.float32)
+        p = np.empty_like(z)
+        q = np.empty_like(z)
+        self.kernels.central_gradient(z, self.aspect, p, q)
+        return _State(p, q, z, z_hat, self)
+
+    def photometric_terms(self, p: np.ndarray, q: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """R, ∂R/∂p, ∂R/∂q (compiled kernel, or numpy for models without one)."""
+        if self.model_code < 0:
+            return reflectance_and_gradient(p, q, self.illumination, self.params.model)
+        R, Rp, Rq = (np.empty_like(p) for _ in range(3))
+        self.kernels.reflectance_partials(p, q, self.sun, self.view, self.limb,
+                                          self.model_code, R, Rp, Rq)
+        return R, Rp, Rq
 
     def heights_metres(self, z: np.ndarray) -> np.ndarray:
         return (z.astype(np.float64) * self.spacing[0] + self.mean_height).astype(np.float32)
@@ -302,15 +371,11 @@ class _Solver:
     def energies(self, state: _State, normalised: np.ndarray, weight: np.ndarray) -> Energies:
         p = self.params
         n = self.count
-        residual = normalised - state.R
-        e_i = float(np.sum(weight * residual * residual, dtype=np.float64)) / n
-        e_grad = float(np.sum((state.p - self.p0) * state.bp + (state.q - self.q0) * state.bq,
-                              dtype=np.float64)) / n
-        dp = state.p - state.gx
-        dq = state.q - state.gy
-        e_int = float(np.sum(dp * dp + dq * dq, dtype=np.float64)) / n
-        dz = state.z_hat - self.z0_hat
-        e_depth = float(np.sum(self.g2 * dz * dz, dtype=np.float64)) / n
+        e_i, e_grad, e_int = self.kernels.energy_sums(
+            state.p, state.q, state.gx, state.gy, self.p0, self.q0, state.bp, state.bq,
+            state.R, normalised, weight)
+        e_depth = self.kernels.weighted_square_sum(self.g2, state.z_hat, self.z0_hat)
+        e_i, e_grad, e_int, e_depth = e_i / n, e_grad / n, e_int / n, e_depth / n
         total = e_i + p.delta * e_grad + p.gamma * e_int + p.tau * e_depth
         return Energies(e_i, e_grad, e_int, e_depth, total)
 
@@ -318,28 +383,26 @@ class _Solver:
              damping: float) -> _State:
         """One slope (Gauss–Newton) and one height (DCT) update."""
         prm = self.params
-        gamma, delta = np.float32(prm.gamma), np.float32(prm.delta)
-        w_residual = weight * (normalised - state.R)
-        bx = w_residual * state.Rp - gamma * (state.p - state.gx) - delta * state.bp
-        by = w_residual * state.Rq - gamma * (state.q - state.gy) - delta * state.bq
-        c = np.float32(prm.gamma + prm.delta + damping)
-        # (c I + w u uᵀ)⁻¹ b by Sherman–Morrison, u = (∂R/∂p, ∂R/∂q)
-        k = weight * (state.Rp * bx + state.Rq * by) / (
-            c + weight * (state.Rp * state.Rp + state.Rq * state.Rq))
-        p = state.p + (bx - state.Rp * k) / c
-        q = state.q + (by - state.Rq * k) / c
+        k = self.kernels
+        p = np.empty_like(state.p)
+        q = np.empty_like(state.q)
+        k.slope_step(state.p, state.q, state.gx, state.gy, state.R, state.Rp, state.Rq,
+                     normalised, weight, state.bp, state.bq, np.float32(prm.gamma),
+                     np.float32(prm.delta), np.float32(damping), p, q)
         # heights: (γ DᵀD + τ fᵀf) z = γ (DᵀD z_k + Gᵀ(p − G z_k)) + τ fᵀf z0
-        correction = central_gradient_adjoint(p - state.gx, q - state.gy, self.aspect)
-        numerator = np.float32(prm.gamma) * (self.laplacian * state.z_hat + dct2(correction)) \
-            + np.float32(prm.tau) * self.g2 * self.z0_hat
-        z_hat = numerator / np.where(self.height_denominator > 0, self.height_denominator, 1)
+        correction = np.empty_like(p)
+        k.integrability_adjoint(p, q, state.gx, state.gy, self.aspect, correction)
+        z_hat = np.empty_like(state.z_hat)
+        k.height_update(state.z_hat, dct2(correction), self.laplacian, self.anchor_hat,
+                        self.inverse_denominator, np.float32(prm.gamma), z_hat)
         z_hat[0, 0] = self.z0_hat[0, 0]  # the mean height is the coarse DEM's
-        return _State(p, q, idct2(z_hat), z_hat, self)
+        return _State(p, q, np.ascontiguousarray(idct2(z_hat)), z_hat, self)
 
 
 def refine_heights(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, float],
                    illumination: Illumination, parameters: SfsParameters | None = None,
-                   valid: np.ndarray | None = None) -> RefineResult:
+                   valid: np.ndarray | None = None,
+                   initial: np.ndarray | None = None) -> RefineResult:
     """Refine a coarse DEM by shape from shading of one image on the same grid.
 
     Parameters
@@ -348,8 +411,8 @@ def refine_heights(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, 
         Intensities on the DEM grid, any linear unit (DN, I/F): the local albedo
         absorbs the scale; NaN = no data.
     dem : (H, W) float
-        Coarse heights, metres, finite (fill gaps and median-filter first, see
-        :mod:`demtool.refine.prepare`).
+        Coarse heights, metres, finite (fill gaps and remove spikes first, see
+        :mod:`demtool.refine.prepare`): the anchor of Egrad and Edepth.
     spacing : (dx, dy)
         Grid spacing along x (columns) and y (rows), metres.
     illumination : Illumination
@@ -358,6 +421,12 @@ def refine_heights(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, 
         Weights, filters and stopping rule (defaults: the studies').
     valid : (H, W) bool, optional
         Pixels whose intensity may be used (default: finite image pixels).
+    initial : (H, W) float, optional
+        Heights (metres) the iterations start from (default: ``dem``); its mean is
+        replaced by the DEM's.  The parts of the relief a single image does not
+        constrain (slopes across the sun) keep what they have here, so a smoothed
+        (median-filtered) DEM is a better start than a noisy one
+        (:func:`demtool.refine.prepare.prepare_dem` gives both).
 
     Returns
     -------
@@ -378,17 +447,19 @@ def refine_heights(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, 
     if image.shape != dem.shape or dem.ndim != 2:
         raise ProcessingError(f"image {image.shape} and DEM {dem.shape} must be 2-D arrays "
                               "on the same grid")
+    if initial is not None and np.shape(initial) != dem.shape:
+        raise ProcessingError(f"initial heights {np.shape(initial)} and DEM {dem.shape} must "
+                              "be on the same grid")
     if min(dem.shape) < 8:
         raise ProcessingError(f"the grid {dem.shape} is too small for shape from shading "
                               "(at least 8 × 8 pixels)")
-    if not np.all(np.isfinite(dem)):
+    if not np.all(np.isfinite(dem)) or (initial is not None
+                                        and not np.all(np.isfinite(initial))):
         raise ProcessingError("the DEM has non-finite heights; fill them first")
     usable = np.isfinite(image) if valid is None else (np.asarray(valid, bool)
                                                        & np.isfinite(image))
     solver = _Solver(image, dem, spacing, illumination, params, usable)
-
-    state = _State(solver.p0.copy(), solver.q0.copy(), solver.z0.copy(),
-                   solver.z0_hat.copy(), solver)
+    state = solver.state_from_heights(dem if initial is None else initial)
     shadow, albedo, weight = solver.photometry(state)
     normalised = solver.image / albedo
     energy = solver.energies(state, normalised, weight)

@@ -1,0 +1,248 @@
+"""Compiled (numba) kernels of the shape-from-shading solver in :mod:`demtool.refine.sfs`.
+
+Each kernel fuses what would otherwise be a dozen full-array numpy passes (and their
+temporaries) into one parallel loop over rows; all arrays are float32 (H, W), C order.
+Frame and units as in :mod:`demtool.refine.sfs`: x = columns, y = up (−rows), heights
+in units of the x pixel spacing, slopes dimensionless.
+
+The photometric kernel evaluates the reflectance models of
+:mod:`demtool.reflectance` with their analytic partial derivatives (McEwen 1991,
+eq. 4 for lunar-Lambert); models without a compiled form use the numpy path of
+:func:`demtool.refine.shading.reflectance_and_gradient` instead
+(:data:`COMPILED_MODELS`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+#: Reflectance models with a compiled kernel, name → code used by the kernels.
+COMPILED_MODELS: dict[str, int] = {"lunar-lambert": 0, "lambert": 1}
+
+#: Cosines are clamped to this before dividing (as :mod:`demtool.reflectance`).
+_COSINE_FLOOR = 1e-6
+
+
+@nb.njit(parallel=True, cache=True)
+def reflectance_partials(p: np.ndarray, q: np.ndarray, sun: np.ndarray, view: np.ndarray,
+                         limb: float, model: int, out_r: np.ndarray, out_rp: np.ndarray,
+                         out_rq: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Unit-albedo reflectance R(p, q) and ∂R/∂p, ∂R/∂q into ``out_*``.
+
+    ``model`` 0: lunar-Lambert ``R = 2L μ0/(μ0 + μ) + (1 − L) μ0`` (0 where μ0 ≤ 0 or
+    μ ≤ 0; partials of the lit branch at the clamped cosines); 1: Lambert ``max(μ0, 0)``
+    (∂R/∂μ0 = 1).  ``limb`` is McEwen's L(α).  Chain rule through
+    ``μ = (d_z − p d_x − q d_y)/N``, ``N = sqrt(1 + p² + q²)``:
+    ``∂μ/∂p = −d_x/N − μ p/N²`` (Horn 1990, eq. 1–2).
+    """
+    height, width = p.shape
+    sx, sy, sz = sun[0], sun[1], sun[2]
+    vx, vy, vz = view[0], view[1], view[2]
+    for r in nb.prange(height):
+        for c in range(width):
+            pp = np.float64(p[r, c])
+            qq = np.float64(q[r, c])
+            inv = 1.0 / math.sqrt(1.0 + pp * pp + qq * qq)
+            mu0 = (sz - pp * sx - qq * sy) * inv
+            mu = (vz - pp * vx - qq * vy) * inv
+            if model == 0:
+                c0 = max(mu0, _COSINE_FLOOR)
+                cv = max(mu, _COSINE_FLOOR)
+                it = 1.0 / (c0 + cv)
+                value = 2.0 * limb * c0 * it + (1.0 - limb) * c0 if (mu0 > 0 and mu > 0) \
+                    else 0.0
+                d_mu0 = 2.0 * limb * cv * it * it + (1.0 - limb)
+                d_mu = -2.0 * limb * c0 * it * it
+            else:
+                value = max(mu0, 0.0)
+                d_mu0 = 1.0
+                d_mu = 0.0
+            inv2 = inv * inv
+            out_r[r, c] = value
+            out_rp[r, c] = d_mu0 * (-sx * inv - mu0 * pp * inv2) \
+                + d_mu * (-vx * inv - mu * pp * inv2)
+            out_rq[r, c] = d_mu0 * (-sy * inv - mu0 * qq * inv2) \
+                + d_mu * (-vy * inv - mu * qq * inv2)
+
+
+@nb.njit(parallel=True, cache=True)
+def central_gradient(z: np.ndarray, aspect: float, gx: np.ndarray,
+                     gy: np.ndarray) -> None:  # pragma: no cover - compiled
+    """G z into ``gx``, ``gy``: central differences, mirrored borders (``z[−1] = z[0]``);
+    ``gy`` points up (−rows) and is scaled by ``aspect = dx / dy``."""
+    height, width = z.shape
+    half = np.float32(0.5)
+    half_y = np.float32(-0.5 * aspect)
+    for r in nb.prange(height):
+        up = max(r - 1, 0)
+        down = min(r + 1, height - 1)
+        for c in range(width):
+            left = max(c - 1, 0)
+            right = min(c + 1, width - 1)
+            gx[r, c] = half * (z[r, right] - z[r, left])
+            gy[r, c] = half_y * (z[down, c] - z[up, c])
+
+
+@nb.njit(parallel=True, cache=True)
+def slope_step(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.ndarray, R: np.ndarray,
+               Rp: np.ndarray, Rq: np.ndarray, normalised: np.ndarray, weight: np.ndarray,
+               bp: np.ndarray, bq: np.ndarray, gamma: float, delta: float, damping: float,
+               p_out: np.ndarray, q_out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """One Gauss–Newton step of EI + δ Egrad + γ Eint in (p, q) at every pixel.
+
+    Solves ``(c I + w u uᵀ) Δ = b`` with ``u = (∂R/∂p, ∂R/∂q)``, ``c = γ + δ + λ``
+    (Egrad's Hessian δ fᵀf majorised by δ I since ‖f‖ ≤ 1; λ the Levenberg–Marquardt
+    damping) and ``b = w (I/ρ − R) u − γ (p − Gz) − δ fᵀf (p − p0)`` by
+    Sherman–Morrison: ``Δ = (b − u k)/c``, ``k = w uᵀb / (c + w |u|²)``.
+    """
+    height, width = p.shape
+    c_total = gamma + delta + damping
+    for r in nb.prange(height):
+        for c in range(width):
+            w = weight[r, c]
+            up = Rp[r, c]
+            uq = Rq[r, c]
+            w_res = w * (normalised[r, c] - R[r, c])
+            bx = w_res * up - gamma * (p[r, c] - gx[r, c]) - delta * bp[r, c]
+            by = w_res * uq - gamma * (q[r, c] - gy[r, c]) - delta * bq[r, c]
+            k = w * (up * bx + uq * by) / (c_total + w * (up * up + uq * uq))
+            p_out[r, c] = p[r, c] + (bx - up * k) / c_total
+            q_out[r, c] = q[r, c] + (by - uq * k) / c_total
+
+
+@nb.njit(parallel=True, cache=True)
+def integrability_adjoint(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.ndarray,
+                          aspect: float, out: np.ndarray) -> None:  # pragma: no cover
+    """``Gᵀ (p − gx, q − gy)`` into ``out``: the adjoint of :func:`central_gradient` applied
+    to the integrability residual (the mirrored border of G folds into the edge pixels)."""
+    height, width = p.shape
+    half = np.float32(0.5)
+    half_y = np.float32(-0.5 * aspect)
+    for r in nb.prange(height):
+        for c in range(width):
+            # x part: (Gxᵀ e)[c] = ½ (e[c−1] − e[c+1]), e[−1] = −e[0], e[W] = −e[W−1]
+            if width == 1:
+                sx = np.float32(0.0)
+            elif c == 0:
+                sx = -(p[r, 0] - gx[r, 0]) - (p[r, 1] - gx[r, 1])
+            elif c == width - 1:
+                sx = (p[r, c - 1] - gx[r, c - 1]) + (p[r, c] - gx[r, c])
+            else:
+                sx = (p[r, c - 1] - gx[r, c - 1]) - (p[r, c + 1] - gx[r, c + 1])
+            if height == 1:
+                sy = np.float32(0.0)
+            elif r == 0:
+                sy = -(q[0, c] - gy[0, c]) - (q[1, c] - gy[1, c])
+            elif r == height - 1:
+                sy = (q[r - 1, c] - gy[r - 1, c]) + (q[r, c] - gy[r, c])
+            else:
+                sy = (q[r - 1, c] - gy[r - 1, c]) - (q[r + 1, c] - gy[r + 1, c])
+            out[r, c] = half * sx + half_y * sy
+
+
+@nb.njit(parallel=True, cache=True)
+def energy_sums(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.ndarray,
+                p0: np.ndarray, q0: np.ndarray, bp: np.ndarray, bq: np.ndarray,
+                R: np.ndarray, normalised: np.ndarray, weight: np.ndarray
+                ) -> tuple[float, float, float]:  # pragma: no cover - compiled
+    """Sums (float64) of ``w (I/ρ − R)²``, ``(p − p0)·bp + (q − q0)·bq`` (= ‖f(p − p0)‖² +
+    ‖f(q − q0)‖² when ``bp = fᵀf (p − p0)``) and ``(p − gx)² + (q − gy)²``."""
+    height, width = p.shape
+    rows = np.zeros((height, 3))
+    for r in nb.prange(height):
+        e_i = 0.0
+        e_grad = 0.0
+        e_int = 0.0
+        for c in range(width):
+            res = np.float64(normalised[r, c]) - R[r, c]
+            e_i += weight[r, c] * res * res
+            e_grad += (np.float64(p[r, c]) - p0[r, c]) * bp[r, c] \
+                + (np.float64(q[r, c]) - q0[r, c]) * bq[r, c]
+            dp = np.float64(p[r, c]) - gx[r, c]
+            dq = np.float64(q[r, c]) - gy[r, c]
+            e_int += dp * dp + dq * dq
+        rows[r, 0] = e_i
+        rows[r, 1] = e_grad
+        rows[r, 2] = e_int
+    return rows[:, 0].sum(), rows[:, 1].sum(), rows[:, 2].sum()
+
+
+@nb.njit(parallel=True, cache=True)
+def height_update(z_hat: np.ndarray, correction_hat: np.ndarray, laplacian: np.ndarray,
+                  anchor_hat: np.ndarray, inverse_denominator: np.ndarray, gamma: float,
+                  out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """DCT-domain height step ``(γ (λ ẑ + ĉ) + a) / (γ λ + τ g²)`` into ``out``, with
+    ``a = τ g² ẑ0`` and the inverse denominator precomputed."""
+    height, width = z_hat.shape
+    for r in nb.prange(height):
+        for c in range(width):
+            out[r, c] = (gamma * (laplacian[r, c] * z_hat[r, c] + correction_hat[r, c])
+                         + anchor_hat[r, c]) * inverse_denominator[r, c]
+
+
+@nb.njit(parallel=True, cache=True)
+def weighted_square_sum(weight: np.ndarray, a: np.ndarray,
+                        b: np.ndarray) -> float:  # pragma: no cover - compiled
+    """``Σ weight (a − b)²`` in float64 (Edepth in the DCT domain)."""
+    height, width = a.shape
+    rows = np.zeros(height)
+    for r in nb.prange(height):
+        total = 0.0
+        for c in range(width):
+            d = np.float64(a[r, c]) - b[r, c]
+            total += weight[r, c] * d * d
+        rows[r] = total
+    return rows.sum()
+
+
+@nb.njit(parallel=True, cache=True)
+def block_mean(values: np.ndarray, reference: np.ndarray, block: int,
+               out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Means of ``values − reference`` over ``block × block`` blocks into ``out``
+    (shape ``(ceil(H/b), ceil(W/b))``); a partial block at the far edges is completed
+    by mirroring (``symmetric`` padding)."""
+    height, width = values.shape
+    rows_out, cols_out = out.shape
+    scale = 1.0 / (block * block)
+    for i in nb.prange(rows_out):
+        for j in range(cols_out):
+            total = 0.0
+            for a in range(block):
+                r = i * block + a
+                if r >= height:
+                    r = 2 * height - 1 - r
+                for b in range(block):
+                    c = j * block + b
+                    if c >= width:
+                        c = 2 * width - 1 - c
+                    total += values[r, c] - reference[r, c]
+            out[i, j] = total * scale
+
+
+@nb.njit(parallel=True, cache=True)
+def block_mean_adjoint(coarse: np.ndarray, block: int,
+                       out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Adjoint of :func:`block_mean` (times b²): each pixel takes its block's value, and
+    the mirrored padding folds back onto the edge pixels it copied."""
+    height, width = out.shape
+    rows_out, cols_out = coarse.shape
+    for r in nb.prange(height):
+        i = r // block
+        # a mirrored row outside the grid, r' = 2H − 1 − r, lands in block row r' // b
+        r_mirror = 2 * height - 1 - r
+        i_mirror = r_mirror // block if r_mirror < rows_out * block else -1
+        for c in range(width):
+            j = c // block
+            c_mirror = 2 * width - 1 - c
+            j_mirror = c_mirror // block if c_mirror < cols_out * block else -1
+            value = coarse[i, j]
+            if i_mirror >= 0:
+                value += coarse[i_mirror, j]
+            if j_mirror >= 0:
+                value += coarse[i, j_mirror]
+                if i_mirror >= 0:
+                    value += coarse[i_mirror, j_mirror]
+            out[r, c] = value

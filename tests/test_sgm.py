@@ -9,7 +9,15 @@ from sgm_helpers import error_rates, fractional_shift_pair, occlusion_pair, smoo
 from demtool.errors import InputError, ParameterError
 from demtool.sgm import plan_strips, sgm
 from demtool.sgm.aggregate import aggregate_costs
-from demtool.sgm.cost import census_transform, mi_cost_table, mutual_information_table
+from demtool.sgm.cost import (
+    census_pixel_cost,
+    census_transform,
+    gaussian_matrix,
+    mi_cost_table,
+    mutual_information_table,
+    quantize,
+    windowed_cost_volume,
+)
 from demtool.sgm.disparity import median_filter, remove_speckles, select_disparities
 
 COSTS = ["hmi", "mi", "census", "ad"]
@@ -254,3 +262,76 @@ def test_speckles_and_median():
     noisy[0, 0] = np.nan
     smoothed = median_filter(noisy, 3)
     assert smoothed[4, 4] == 2.0 and np.isnan(smoothed[0, 0])
+
+
+def test_census_transform_matches_a_direct_count():
+    rng = np.random.default_rng(4)
+    image = rng.normal(size=(11, 14)).astype(np.float32)
+    codes = census_transform(image, (3, 5))  # 3 rows, 5 columns
+    padded = np.pad(image, ((1,), (2,)), mode="edge")
+    for y, x in [(0, 0), (5, 7), (10, 13), (3, 1)]:
+        bits = [padded[y + dy, x + dx] < image[y, x]
+                for dy in range(3) for dx in range(5) if (dy, dx) != (1, 2)]
+        assert codes[y, x] == int("".join("1" if b else "0" for b in bits), 2)
+
+
+def test_windowed_cost_rows_match_a_direct_window_sum():
+    rng = np.random.default_rng(6)
+    left = rng.normal(size=(9, 20)).astype(np.float32)
+    right = rng.normal(size=(9, 20)).astype(np.float32)
+    valid = np.ones(left.shape, dtype=bool)
+    right_valid = valid.copy()
+    right_valid[4, 6] = False
+    pixel_cost = census_pixel_cost(left, right, (3, 3))
+    volume = windowed_cost_volume(pixel_cost, valid, right_valid, min_disparity=-2,
+                                  num_disparities=5, window=3, rows=(2, 8),
+                                  unmatched_fraction=0.5)
+    # pixel costs by brute force: Hamming distance, 4 (half of 8 bits) outside or on NaN
+    pixel = np.full((9, 20, 5), 4, dtype=np.int64)
+    for y in range(9):
+        for x in range(20):
+            for k, d in enumerate(range(-2, 3)):
+                xr = x - d
+                if 0 <= xr < 20 and right_valid[y, xr]:
+                    code = int(pixel_cost.left[y, x]) ^ int(pixel_cost.right[y, xr])
+                    pixel[y, x, k] = bin(code).count("1")
+    padded = np.pad(pixel, ((1,), (1,), (0,)), mode="edge")
+    expected = sum(padded[1 + dy:10 + dy, 1 + dx:21 + dx] for dy in (-1, 0, 1)
+                   for dx in (-1, 0, 1))
+    assert np.array_equal(volume, expected[2:8])
+
+
+@pytest.mark.parametrize("mode", ["constant", "nearest"])
+def test_gaussian_matrix_is_scipys_gaussian_filter(mode):
+    from scipy import ndimage
+
+    values = np.random.default_rng(8).random((32, 32))
+    matrix = gaussian_matrix(32, 1.3, mode)
+    expected = ndimage.gaussian_filter(values, 1.3, mode=mode)
+    assert np.allclose(matrix @ values @ matrix.T, expected, atol=1e-12)
+
+
+def test_median_of_nine_network_is_the_median():
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    rng = np.random.default_rng(9)
+    disparity = np.round(rng.normal(size=(30, 31)) * 3).astype(np.float32)  # with ties
+    disparity[7, 9] = np.nan
+    filtered = median_filter(disparity, 3)
+    windows = sliding_window_view(disparity, (3, 3))
+    expected = np.nanmedian(windows.reshape(28, 29, 9), axis=2)
+    inner = filtered[1:-1, 1:-1]
+    assert np.isnan(inner[6, 8]) and np.isnan(filtered[7, 9])
+    keep = np.isfinite(disparity[1:-1, 1:-1])
+    assert np.allclose(inner[keep], expected[keep])
+
+
+def test_quantize_stretches_and_fills_nan():
+    image = np.linspace(0.0, 1000.0, 200, dtype=np.float32).reshape(10, 20)
+    image[0, 0] = np.nan
+    valid = np.isfinite(image)
+    levels = quantize(image, valid, 64, value_range=(100.0, 900.0))
+    assert levels.dtype == np.uint8 and levels.min() == 0 and levels.max() == 63
+    expected = np.clip(np.rint((image - 100.0) * 63 / 800.0), 0, 63)
+    assert np.array_equal(levels[valid], expected[valid])
+    assert levels[0, 0] == levels[0, 1]  # nearest valid neighbour

@@ -66,13 +66,13 @@ def fill_invalid(image: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
     Returns
     -------
-    (H, W) float32, a copy.
+    (H, W) float32; ``image`` itself when it is float32 and all valid, else a new array.
     """
-    from scipy import ndimage
-
-    out = np.asarray(image, dtype=np.float32).copy()
+    out = np.asarray(image, dtype=np.float32)
     if valid.all():
         return out
+    from scipy import ndimage  # only here: its import costs about a second
+
     _, (rows, cols) = ndimage.distance_transform_edt(~valid, return_indices=True)
     return out[rows, cols]
 
@@ -80,11 +80,20 @@ def fill_invalid(image: np.ndarray, valid: np.ndarray) -> np.ndarray:
 def robust_range(images: list[np.ndarray], masks: list[np.ndarray],
                  percentiles: tuple[float, float] = (0.5, 99.5)) -> tuple[float, float]:
     """Low and high percentiles of the valid pixels of one or more images (a robust stretch)."""
-    values = np.concatenate([np.asarray(i)[m] for i, m in zip(images, masks, strict=True)])
+    values = np.concatenate([np.asarray(i).ravel() if m.all() else np.asarray(i)[m]
+                             for i, m in zip(images, masks, strict=True)])
     low, high = np.percentile(values, percentiles)
     if not high > low:
         high = low + 1.0
     return float(low), float(high)
+
+
+@njit(nogil=True, cache=True)
+def _quantize(image, low, scale, top, out):
+    flat_in = image.ravel()
+    flat_out = out.ravel()
+    for i in range(flat_in.size):
+        flat_out[i] = np.uint8(min(max(np.rint((flat_in[i] - low) * scale), 0.0), top))
 
 
 def quantize(image: np.ndarray, valid: np.ndarray, levels: int,
@@ -105,24 +114,28 @@ def quantize(image: np.ndarray, valid: np.ndarray, levels: int,
     (H, W) uint8; invalid pixels get the level of their nearest valid neighbour.
     """
     low, high = value_range if value_range is not None else robust_range([image], [valid])
-    filled = fill_invalid(image, valid)
-    scaled = (filled - low) * ((levels - 1) / (high - low))
-    return np.clip(np.rint(scaled), 0, levels - 1).astype(np.uint8)
+    filled = np.ascontiguousarray(fill_invalid(image, valid))
+    out = np.empty(filled.shape, dtype=np.uint8)
+    _quantize(filled, np.float32(low), np.float32((levels - 1) / (high - low)),
+              np.float32(levels - 1), out)
+    return out
 
 
 @njit(nogil=True, cache=True)
 def _census(padded, radius_y, radius_x, out):
+    """Census codes, one image row at a time and one neighbour at a time along the row
+    (so the loop over x vectorises)."""
     height, width = out.shape
     for y in range(height):
         for x in range(width):
-            centre = padded[y + radius_y, x + radius_x]
-            bits = np.uint64(0)
-            for dy in range(2 * radius_y + 1):
-                for dx in range(2 * radius_x + 1):
-                    if dy == radius_y and dx == radius_x:
-                        continue
-                    bits = (bits << np.uint64(1)) | np.uint64(padded[y + dy, x + dx] < centre)
-            out[y, x] = bits
+            out[y, x] = 0
+        for dy in range(2 * radius_y + 1):
+            for dx in range(2 * radius_x + 1):
+                if dy == radius_y and dx == radius_x:
+                    continue
+                for x in range(width):
+                    darker = padded[y + dy, x + dx] < padded[y + radius_y, x + radius_x]
+                    out[y, x] = (out[y, x] << np.uint64(1)) | np.uint64(darker)
 
 
 def census_transform(image: np.ndarray, window: tuple[int, int]) -> np.ndarray:
@@ -201,8 +214,6 @@ def mutual_information_table(left_levels: np.ndarray, right_levels: np.ndarray,
     mi : (levels, levels) float64, nats (higher = more likely a correct match)
     count : int, number of pixel pairs in the histogram
     """
-    from scipy import ndimage
-
     histogram = _joint_histogram(left_levels, right_levels, left_valid, right_valid,
                                  np.asarray(disparity, dtype=np.float32), levels)
     count = int(histogram.sum())
@@ -210,16 +221,43 @@ def mutual_information_table(left_levels: np.ndarray, right_levels: np.ndarray,
         return np.zeros((levels, levels)), 0
     joint = histogram / count
     tiny = 1e-12
-    h_joint = ndimage.gaussian_filter(
-        -np.log(np.maximum(ndimage.gaussian_filter(joint, sigma, mode="constant"), tiny)),
-        sigma, mode="nearest")
-    h_left = ndimage.gaussian_filter1d(
-        -np.log(np.maximum(ndimage.gaussian_filter1d(joint.sum(1), sigma, mode="constant"),
-                           tiny)), sigma, mode="nearest")
-    h_right = ndimage.gaussian_filter1d(
-        -np.log(np.maximum(ndimage.gaussian_filter1d(joint.sum(0), sigma, mode="constant"),
-                           tiny)), sigma, mode="nearest")
+    inside = gaussian_matrix(levels, sigma, "constant")  # Parzen window, zero outside
+    edge = gaussian_matrix(levels, sigma, "nearest")  # smoothing of −log P, edges extended
+    h_joint = edge @ -np.log(np.maximum(inside @ joint @ inside.T, tiny)) @ edge.T
+    h_left = edge @ -np.log(np.maximum(inside @ joint.sum(1), tiny))
+    h_right = edge @ -np.log(np.maximum(inside @ joint.sum(0), tiny))
     return h_left[:, None] + h_right[None, :] - h_joint, count
+
+
+def gaussian_matrix(size: int, sigma: float, mode: str, truncate: float = 4.0) -> np.ndarray:
+    """Matrix G of a 1-D Gaussian filter: ``G @ v`` smooths a vector of ``size`` samples.
+
+    The kernel is ``scipy.ndimage.gaussian_filter1d``'s (normalised, radius
+    ``int(truncate·σ + 0.5)``); ``mode`` "constant" treats samples outside as 0,
+    "nearest" repeats the edge samples.  A 2-D array A is smoothed along both axes by
+    ``G @ A @ G.T`` — cheap for the small (levels × levels) MI histograms, and it
+    spares the import of scipy.ndimage.
+
+    Returns
+    -------
+    (size, size) float64
+    """
+    radius = int(truncate * sigma + 0.5)
+    offsets = np.arange(-radius, radius + 1)
+    weights = np.exp(-0.5 * (offsets / sigma) ** 2)
+    weights /= weights.sum()
+    matrix = np.zeros((size, size))
+    rows = np.arange(size)
+    for offset, weight in zip(offsets, weights, strict=True):
+        columns = rows + offset
+        if mode == "constant":
+            inside = (columns >= 0) & (columns < size)
+            matrix[rows[inside], columns[inside]] += weight
+        elif mode == "nearest":
+            np.add.at(matrix, (rows, np.clip(columns, 0, size - 1)), weight)
+        else:
+            raise ValueError(f"unknown mode {mode!r}: should be 'constant' or 'nearest'")
+    return matrix
 
 
 def mi_cost_table(mi: np.ndarray) -> np.ndarray:

@@ -226,6 +226,36 @@ def remove_speckles(disparity: np.ndarray, *, max_size: int, max_difference: flo
 
 
 @njit(nogil=True, cache=True)
+def _median_of_nine(disparity, y, x):
+    """Median of the 3×3 neighbourhood by a 19-exchange sorting network (Paeth 1990,
+    Graphics Gems), or NaN when a value in it is not finite."""
+    p0, p1, p2 = disparity[y - 1, x - 1], disparity[y - 1, x], disparity[y - 1, x + 1]
+    p3, p4, p5 = disparity[y, x - 1], disparity[y, x], disparity[y, x + 1]
+    p6, p7, p8 = disparity[y + 1, x - 1], disparity[y + 1, x], disparity[y + 1, x + 1]
+    if not np.isfinite(p0 + p1 + p2 + p3 + p4 + p5 + p6 + p7 + p8):
+        return np.float32(np.nan)
+    p1, p2 = min(p1, p2), max(p1, p2)
+    p4, p5 = min(p4, p5), max(p4, p5)
+    p7, p8 = min(p7, p8), max(p7, p8)
+    p0, p1 = min(p0, p1), max(p0, p1)
+    p3, p4 = min(p3, p4), max(p3, p4)
+    p6, p7 = min(p6, p7), max(p6, p7)
+    p1, p2 = min(p1, p2), max(p1, p2)
+    p4, p5 = min(p4, p5), max(p4, p5)
+    p7, p8 = min(p7, p8), max(p7, p8)
+    p3 = max(p0, p3)
+    p5 = min(p5, p8)
+    p4, p7 = min(p4, p7), max(p4, p7)
+    p6 = max(p3, p6)
+    p4 = max(p1, p4)
+    p2 = min(p2, p5)
+    p4 = min(p4, p7)
+    p4, p2 = min(p4, p2), max(p4, p2)
+    p4 = max(p6, p4)
+    return min(p4, p2)
+
+
+@njit(nogil=True, cache=True)
 def _median(disparity, radius, out):
     height, width = disparity.shape
     window = np.empty((2 * radius + 1) ** 2, dtype=np.float32)
@@ -234,6 +264,11 @@ def _median(disparity, radius, out):
             if not np.isfinite(disparity[y, x]):
                 out[y, x] = np.nan
                 continue
+            if radius == 1 and 0 < y < height - 1 and 0 < x < width - 1:
+                value = _median_of_nine(disparity, y, x)
+                if np.isfinite(value):  # all nine valid
+                    out[y, x] = value
+                    continue
             count = 0
             for yy in range(max(y - radius, 0), min(y + radius + 1, height)):
                 for xx in range(max(x - radius, 0), min(x + radius + 1, width)):

@@ -12,6 +12,7 @@ from demtool.refine import (
     SfsParameters,
     cast_shadows,
     estimate_albedo,
+    kernels,
     make_illumination,
     refine_heights,
     render_dem,
@@ -27,8 +28,13 @@ from demtool.refine.filters import (
     median_filter,
     neumann_laplacian_eigenvalues,
 )
-from demtool.refine.prepare import prepare_dem, resample_to_grid
-from demtool.refine.sfs import border_taper, central_gradient, central_gradient_adjoint
+from demtool.refine.prepare import despike, prepare_dem, resample_to_grid
+from demtool.refine.sfs import (
+    _GradientLowpass,
+    border_taper,
+    central_gradient,
+    central_gradient_adjoint,
+)
 from demtool.refine.shading import reflectance_and_gradient, reflectance_map
 
 FAST = SfsParameters(iterations=60)
@@ -261,9 +267,13 @@ def test_lowpass_filters():
 def test_median_filter_equals_scipy():
     rng = np.random.default_rng(5)
     values = rng.normal(size=(41, 37)).astype(np.float32)
-    for size in (3, 15):
-        expected = ndimage.median_filter(values, size=size, mode="reflect")
-        assert np.array_equal(median_filter(values, size), expected)
+    ties = np.round(rng.normal(size=(50, 70)) * 2).astype(np.float32)  # many equal values
+    small = rng.normal(size=(7, 9)).astype(np.float32)  # window wider than the grid
+    ramp = np.add.outer(np.arange(300.0), np.arange(40.0)).astype(np.float32)  # >1024 ranks
+    for array in (values, ties, small, ramp):
+        for size in (3, 15):
+            expected = ndimage.median_filter(array, size=size, mode="reflect")
+            assert np.array_equal(median_filter(array, size), expected)
     assert np.array_equal(median_filter(values, 0), values)
     with pytest.raises(ValueError, match="odd"):
         median_filter(values, 4)
@@ -340,6 +350,103 @@ def test_prepare_dem_median_removes_spikes():
     prepared = prepare_dem(dem, median_size=15)
     assert np.abs(prepared.dem).max() == 0.0
     assert prepare_dem(dem, median_size=0).dem.max() == 50.0
+
+
+def test_despike_keeps_relief_and_finds_blunders():
+    rng = np.random.default_rng(6)
+    rows, cols = np.mgrid[0:80, 0:80].astype(float)
+    bowl = 3.0 * np.exp(-((rows - 40) ** 2 + (cols - 40) ** 2) / (2 * 6.0**2))  # 12 px wide
+    dem = (-bowl + rng.normal(0, 0.05, bowl.shape)).astype(np.float32)
+    dem[10, 60] += 5.0
+    dem[65:67, 15:17] -= 4.0
+    prepared = prepare_dem(dem, median_size=15)
+    assert prepared.spikes[10, 60] and prepared.spikes[65:67, 15:17].all()
+    assert prepared.spikes.sum() < 20
+    # the anchor keeps the bowl the median flattens; the start surface is the median
+    assert prepared.dem[40, 40] < -2.8 and prepared.initial[40, 40] > -2.5
+    assert np.array_equal(prepared.initial, median_filter(dem, 15))
+    everywhere = prepare_dem(dem, median_size=15, spike_threshold=0.0)
+    assert everywhere.spikes.all() and np.array_equal(everywhere.dem, everywhere.initial)
+    off = prepare_dem(dem, median_size=0)
+    assert np.array_equal(off.dem, dem) and not off.spikes.any()
+    assert not despike(dem, dem, 4.0, 15).any()
+
+
+def test_refine_starts_from_the_initial_surface():
+    scene = hills_scene(size=64)
+    illumination = make_illumination(scene.sun)
+    shifted = scene.coarse + 5.0  # the mean height always comes from the DEM
+    short = SfsParameters(iterations=1)
+    a = refine_heights(scene.image, scene.coarse, spacing=(1.0, 1.0),
+                       illumination=illumination, parameters=short, initial=shifted)
+    b = refine_heights(scene.image, scene.coarse, spacing=(1.0, 1.0),
+                       illumination=illumination, parameters=short)
+    assert abs(a.dem.mean() - scene.coarse.mean()) < 1e-4
+    assert np.allclose(a.dem, b.dem, atol=1e-4)
+    flat = np.full_like(scene.coarse, scene.coarse.mean())
+    c = refine_heights(scene.image, scene.coarse, spacing=(1.0, 1.0),
+                       illumination=illumination, parameters=short, initial=flat)
+    assert rmse(c.dem, flat) < 0.9 * rmse(b.dem, flat)  # measured 0.61 vs 0.76
+    with pytest.raises(ProcessingError, match="initial heights"):
+        refine_heights(scene.image, scene.coarse, spacing=(1.0, 1.0),
+                       illumination=illumination, initial=flat[:-1])
+
+
+# -------------------------------------------------------------------------- kernels
+
+
+def test_kernels_match_the_numpy_operators():
+    rng = np.random.default_rng(7)
+    shape = (23, 31)
+    p, q, gx, gy, other = (rng.uniform(-0.4, 0.4, shape).astype(np.float32)
+                           for _ in range(5))
+    aspect = 0.8
+    out_x, out_y = np.empty_like(p), np.empty_like(p)
+    kernels.central_gradient(p, aspect, out_x, out_y)
+    ref_x, ref_y = central_gradient(p, aspect)
+    assert np.allclose(out_x, ref_x, atol=1e-6) and np.allclose(out_y, ref_y, atol=1e-6)
+    adjoint = np.empty_like(p)
+    kernels.integrability_adjoint(p, q, gx, gy, aspect, adjoint)
+    assert np.allclose(adjoint, central_gradient_adjoint(p - gx, q - gy, aspect), atol=1e-6)
+    illumination = make_illumination(sun_vector(60.0, 40.0), (0.1, -0.05, 1.0))
+    from demtool.reflectance import mcewen_L
+
+    for model, code in kernels.COMPILED_MODELS.items():
+        R, Rp, Rq = (np.empty_like(p) for _ in range(3))
+        kernels.reflectance_partials(p, q, illumination.sun, illumination.view,
+                                     float(mcewen_L(illumination.phase_deg)), code, R, Rp, Rq)
+        for got, expected in zip((R, Rp, Rq), reflectance_and_gradient(p, q, illumination,
+                                                                       model), strict=True):
+            assert np.allclose(got, expected, atol=1e-5)
+    weight = rng.uniform(0, 1, shape).astype(np.float32)
+    sums = kernels.energy_sums(p, q, gx, gy, other, other, gx, gy, q, p, weight)
+    expected = (np.sum(weight * (p - q) ** 2.0), np.sum((p - other) * gx + (q - other) * gy),
+                np.sum((p - gx) ** 2.0 + (q - gy) ** 2.0))
+    assert np.allclose(sums, expected, rtol=1e-5)
+
+
+def test_gradient_lowpass_is_the_gaussian_and_symmetric():
+    rng = np.random.default_rng(8)
+    shape = (152, 132)
+    lowpass = _GradientLowpass(shape, 21.0)
+    assert lowpass.block == 4
+    assert _GradientLowpass((150, 130), 21.0).block == 2  # the largest common divisor ≤ 4
+    assert _GradientLowpass((97, 130), 21.0).block == 1
+    x, y = (rng.normal(size=shape).astype(np.float32) for _ in range(2))
+    zero = np.zeros(shape, np.float32)
+    fx, fy = lowpass.apply(x, zero), lowpass.apply(y, zero)
+    # self-adjoint and positive, norm ≤ 1 (the slope step majorises it by δ I)
+    assert np.sum(fx * y, dtype=float) == pytest.approx(np.sum(x * fy, dtype=float), rel=1e-4)
+    assert 0 <= np.sum(fx * x, dtype=float) <= np.sum(x * x, dtype=float)
+    # on a smooth field it is the Gaussian σ = 21 px applied twice (fᵀf), per 4 × 4 block
+    rows, cols = np.mgrid[0:152, 0:132]
+    smooth = np.sin(2 * np.pi * cols / 90.0 + 0.3) * np.cos(2 * np.pi * rows / 110.0)
+    smooth = smooth.astype(np.float32)
+    expected = gaussian_lowpass(gaussian_lowpass(smooth, 21.0), 21.0)
+    expected_blocks = expected.reshape(38, 4, 33, 4).mean(axis=(1, 3))
+    got = lowpass.apply(smooth, zero)
+    assert np.abs(got[::4, ::4] - expected_blocks).max() < 0.02 * np.abs(expected).max()
+    assert np.allclose(lowpass.apply(smooth + 1.0, zero + 1.0), got, atol=1e-5)
 
 
 def test_prepare_dem_fills_gaps():

@@ -187,6 +187,7 @@ def test_missing_files_are_refused(tmp_path, scene):
     (["--sun-vector", "0,0,0"], "zero length"),
     (["--sun-vector", "0,0,1", "--sun-azimuth", "3", "--sun-elevation", "40"], "either"),
     (["--median", "4"], "odd"),
+    (["--spike-threshold", "-1"], "--spike-threshold"),
     (["--model", "hapke"], "lunar-lambert"),
     (["--gamma", "0"], "--gamma"),
     (["--shadow-threshold", "1.5"], "--shadow-threshold"),
@@ -195,6 +196,25 @@ def test_bad_options_are_usage_errors(tmp_path, scene, args, message):
     image, dem = write_inputs(tmp_path, scene)
     result = invoke(image, dem, "--out", tmp_path / "refined.tif", *args)
     assert_failed(result, message, code=2, folder=tmp_path)
+
+
+def test_spikes_are_removed_and_reported(tmp_path, scene):
+    """Blunders of the coarse DEM are replaced by the median in the anchor; the rest of
+    the DEM keeps its relief (no 15-px flattening of the heights that Edepth holds)."""
+    dem = scene.coarse.copy()
+    dem[20, 30] += 40.0
+    dem[60:62, 70:72] -= 25.0
+    image, dem_path = write_inputs(tmp_path, scene, dem=dem)
+    out = tmp_path / "refined.tif"
+    result = invoke(image, dem_path, "--out", out, "--iterations", "30")
+    assert result.exit_code == 0, result.output
+    refined = io.read_raster(out).data
+    assert abs(refined[20, 30] - scene.truth[20, 30]) < 1.0
+    assert np.abs(refined[60:62, 70:72] - scene.truth[60:62, 70:72]).max() < 1.0
+    assert rmse(refined, scene.truth) < 0.5 * rmse(scene.coarse, scene.truth)
+    sidecar = json.loads(Path(f"{out}.json").read_text())
+    assert 5 / dem.size <= sidecar["summary"]["dem_spike_fraction"] < 0.01
+    assert sidecar["parameters"]["spike_threshold"] == 4.0
 
 
 @pytest.mark.parametrize("preset", ["configs/navcam.toml", "configs/lro-nac.toml"])

@@ -206,47 +206,24 @@ def weighted_square_sum(weight: np.ndarray, a: np.ndarray,
 def block_mean(values: np.ndarray, reference: np.ndarray, block: int,
                out: np.ndarray) -> None:  # pragma: no cover - compiled
     """Means of ``values − reference`` over ``block × block`` blocks into ``out``
-    (shape ``(ceil(H/b), ceil(W/b))``); a partial block at the far edges is completed
-    by mirroring (``symmetric`` padding)."""
-    height, width = values.shape
+    (``(H/b, W/b)``; b divides H and W)."""
     rows_out, cols_out = out.shape
-    scale = 1.0 / (block * block)
+    scale = np.float32(1.0 / (block * block))
     for i in nb.prange(rows_out):
         for j in range(cols_out):
-            total = 0.0
-            for a in range(block):
-                r = i * block + a
-                if r >= height:
-                    r = 2 * height - 1 - r
-                for b in range(block):
-                    c = j * block + b
-                    if c >= width:
-                        c = 2 * width - 1 - c
-                    total += values[r, c] - reference[r, c]
+            total = np.float32(0.0)
+            for a in range(i * block, i * block + block):
+                for b in range(j * block, j * block + block):
+                    total += values[a, b] - reference[a, b]
             out[i, j] = total * scale
 
 
 @nb.njit(parallel=True, cache=True)
-def block_mean_adjoint(coarse: np.ndarray, block: int,
-                       out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """Adjoint of :func:`block_mean` (times b²): each pixel takes its block's value, and
-    the mirrored padding folds back onto the edge pixels it copied."""
+def block_replicate(coarse: np.ndarray, block: int,
+                    out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Each pixel takes its block's value: b² times the adjoint of :func:`block_mean`."""
     height, width = out.shape
-    rows_out, cols_out = coarse.shape
     for r in nb.prange(height):
         i = r // block
-        # a mirrored row outside the grid, r' = 2H − 1 − r, lands in block row r' // b
-        r_mirror = 2 * height - 1 - r
-        i_mirror = r_mirror // block if r_mirror < rows_out * block else -1
         for c in range(width):
-            j = c // block
-            c_mirror = 2 * width - 1 - c
-            j_mirror = c_mirror // block if c_mirror < cols_out * block else -1
-            value = coarse[i, j]
-            if i_mirror >= 0:
-                value += coarse[i_mirror, j]
-            if j_mirror >= 0:
-                value += coarse[i, j_mirror]
-                if i_mirror >= 0:
-                    value += coarse[i_mirror, j_mirror]
-            out[r, c] = value
+            out[r, c] = coarse[i, c // block]

@@ -44,30 +44,37 @@ class PreparedDem(NamedTuple):
 NMAD_SCALE = 1.4826
 
 
-def despike(dem: np.ndarray, median: np.ndarray, threshold: float) -> np.ndarray:
+def despike(dem: np.ndarray, median: np.ndarray, threshold: float, size: int) -> np.ndarray:
     """Pixels that stand out of their local median by more than ``threshold`` spreads.
 
     A Hampel identifier (Hampel 1974; Pearson et al. 2016, *Generalized Hampel
-    filters*, EURASIP J. Adv. Signal Process. 2016:87): the deviation ``d = z − m``
-    from the moving median ``m`` is a spike where ``|d − median(d)|`` exceeds
-    ``threshold`` × the grid's normalised median absolute deviation of ``d``
-    (1.4826 MAD, the standard deviation for Gaussian scatter).
+    filters*, EURASIP J. Adv. Signal Process. 2016:87): with ``d = z − m`` the deviation
+    from the moving median ``m`` and ``c`` the grid's median of ``d``, a pixel is a
+    spike where ``|d − c|`` exceeds ``threshold`` × the normalised median absolute
+    deviation (1.4826 MAD, the standard deviation of Gaussian scatter) of ``d`` in the
+    same ``size`` × ``size`` window — or of the whole grid, where that is larger.  The
+    local spread keeps real relief narrower than the window (a crater the median
+    flattens deviates together with its neighbours) from counting as spikes, while an
+    isolated blunder stands out of its window's spread.
 
     Parameters
     ----------
     dem, median : (H, W) float
         Heights and their moving median, metres, finite.
     threshold : float
-        In robust standard deviations; 0 marks every pixel that differs from its median.
+        In robust standard deviations.
+    size : int
+        Odd window of the median, pixels.
 
     Returns
     -------
     (H, W) bool
     """
     deviation = np.asarray(dem, dtype=np.float32) - np.asarray(median, dtype=np.float32)
-    centre = float(np.median(deviation))
-    spread = NMAD_SCALE * float(np.median(np.abs(deviation - centre)))
-    return np.abs(deviation - centre) > threshold * spread
+    spread = np.abs(deviation - np.float32(np.median(deviation)))
+    global_spread = NMAD_SCALE * float(np.median(spread))
+    local_spread = np.float32(NMAD_SCALE) * median_filter(spread, size)
+    return spread > threshold * np.maximum(local_spread, np.float32(global_spread))
 
 
 def prepare_dem(dem: np.ndarray, *, median_size: int = 15, spike_threshold: float = 4.0,
@@ -131,7 +138,7 @@ def prepare_dem(dem: np.ndarray, *, median_size: int = 15, spike_threshold: floa
     if median_size > 1:
         initial = median_filter(values, int(median_size))
         spikes = np.ones(values.shape, dtype=bool) if spike_threshold <= 0 else \
-            despike(values, initial, spike_threshold)
+            despike(values, initial, spike_threshold, int(median_size))
         values = np.where(spikes, initial, values).astype(np.float32)
         log.info("median filter %d px: %d spikes (%.2f%%) replaced in the anchor DEM",
                  median_size, int(spikes.sum()), 100 * spikes.mean())

@@ -241,30 +241,35 @@ _BLOCK_PER_SIGMA = 0.2
 
 
 class _GradientLowpass:
-    """fᵀf of Egrad, evaluated on b × b block means (b ≈ σ_f / 5).
+    """fᵀf of Egrad, evaluated on b × b block means (b ≈ σ_f / 5, dividing the grid).
 
-    f here is the Gaussian of std σ_f / b (DCT domain) on the b × b block means: the box
-    and the Gaussian together are a Gaussian of std sqrt(σ_f² + (b² − 1)/12) ≈ σ_f
-    (21.03 px for σ_f = 21, b = 4) at the frequencies f passes, on b² times fewer
-    samples.  ``apply(x) = b² Aᵀ F² A (x − x0)`` is the exact gradient of
-    ``b² ‖F A (x − x0)‖²``, the Egrad that is reported, and its norm is at most 1, so
-    the slope step's majoriser δ I stays valid.
+    f here is the Gaussian of std σ_f / b (DCT domain, reflect borders) on the b × b
+    block means: the box and the Gaussian together are a Gaussian of std
+    sqrt(σ_f² + (b² − 1)/12) ≈ σ_f (21.03 px for σ_f = 21, b = 4) at the frequencies f
+    passes, on b² times fewer samples.  ``apply(x, x0) = b² Aᵀ F² A (x − x0)`` (A the
+    block mean, b² Aᵀ the replication) is the exact gradient of ``b² ‖F A (x − x0)‖²``,
+    the Egrad that is reported, and its norm is at most 1, so the slope step's
+    majoriser δ I stays valid.  b is the largest integer ≤ σ_f / 5 that divides both
+    sides of the grid (1 — the plain DCT — when none does).
     """
 
     def __init__(self, shape: tuple[int, int], sigma: float) -> None:
         from demtool.refine import kernels
 
         self._kernels = kernels
-        self.block = int(max(1, min(sigma * _BLOCK_PER_SIGMA, min(shape) // 2)))
-        self.coarse_shape = (-(-shape[0] // self.block), -(-shape[1] // self.block))
+        largest = int(max(1, min(sigma * _BLOCK_PER_SIGMA, min(shape) // 4)))
+        self.block = next(b for b in range(largest, 0, -1)
+                          if shape[0] % b == 0 and shape[1] % b == 0)
+        self.coarse_shape = (shape[0] // self.block, shape[1] // self.block)
         self.transfer2 = gaussian_transfer(self.coarse_shape, sigma / self.block) ** 2
         self._coarse = np.empty(self.coarse_shape, dtype=np.float32)
 
     def apply(self, values: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        """``b² Aᵀ F² A (values − reference)``, (H, W) float32."""
         self._kernels.block_mean(values, reference, self.block, self._coarse)
         smoothed = idct2(dct2(self._coarse) * self.transfer2).astype(np.float32)
         out = np.empty_like(values)
-        self._kernels.block_mean_adjoint(smoothed, self.block, out)
+        self._kernels.block_replicate(smoothed, self.block, out)
         return out
 
 

@@ -77,7 +77,7 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
               out: str | os.PathLike, *, rectify: str | os.PathLike | None = None,
               template: int = 17, threshold: float = 0.9, grid_spacing: int = 1,
               levels: int = 3, search_margin: float = 2.0, rounds: int = 2,
-              max_vertical: float = 1.5, sift: bool = True, weighting: float = 0.0,
+              max_vertical: float = 1.5, sift: bool = True, weighting: float = 3.0,
               correlation_out: str | os.PathLike | None = None,
               sigma_out: str | os.PathLike | None = None, workers: int = 0,
               params: dict[str, Any] | None = None):
@@ -211,9 +211,10 @@ when its final LSM correlation coefficient reaches --threshold.""")
                    "rejected nodes are matched again.")
 @click.option("--max-vertical", type=click.FloatRange(min=0.0, min_open=True), default=1.5,
               show_default=True, help="Largest row offset of an accepted match, px.")
-@click.option("--weighting", type=click.FloatRange(min=0.0), default=0.0, show_default=True,
+@click.option("--weighting", type=click.FloatRange(min=0.0), default=3.0, show_default=True,
               help="Gaussian LSM observation weights of this sigma, px (0 = uniform, the "
-                   "HiRISE study's LSM); about template/5 resolves fine relief better.")
+                   "HiRISE study's LSM). Centre weighting resolves fine relief that a "
+                   "uniform template averages away.")
 @click.option("--sift/--no-sift", default=True, show_default=True,
               help="Detect SIFT seed matches (besides Förstner corners and --rectify's).")
 @click.option("--correlation-out", type=click.Path(dir_okay=False), default=None,

@@ -195,7 +195,7 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
           grid_spacing: int = 1, levels: int = 3, search_margin: float = 2.0, rounds: int = 2,
           seed_points: tuple[np.ndarray, np.ndarray] | None = None,
           disparity_range: tuple[float, float] | None = None, use_sift: bool = True,
-          max_vertical: float = 1.5, weighting: float = 0.0) -> MatchResult:
+          max_vertical: float = 1.5, weighting: float = 3.0) -> MatchResult:
     """Dense disparity of a rectified pair by seeds, triangles, pyramid NCC and LSM.
 
     Parameters

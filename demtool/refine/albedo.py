@@ -62,6 +62,9 @@ def estimate_albedo(image: np.ndarray, modelled: np.ndarray, *, sigma: float,
     smooth_model = masked_gaussian_lowpass(modelled, w, sigma)
     floor = np.float32(1e-6 * max(float(np.max(smooth_model)), 1e-12))
     albedo = smooth_image / np.maximum(smooth_model, floor)
-    positive = albedo[albedo > 0]
+    bad = ~(albedo > 0)
+    if not bad.any():
+        return albedo.astype(np.float32, copy=False)
+    positive = albedo[~bad]
     fallback = np.float32(np.median(positive)) if positive.size else np.float32(1.0)
-    return np.where(albedo > 0, albedo, fallback).astype(np.float32)
+    return np.where(bad, fallback, albedo).astype(np.float32)

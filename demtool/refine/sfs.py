@@ -48,7 +48,7 @@ from demtool.refine.filters import (
     idct2,
     neumann_laplacian_eigenvalues,
 )
-from demtool.refine.shading import Illumination, reflectance_and_gradient, reflectance_map
+from demtool.refine.shading import Illumination, reflectance_and_gradient
 from demtool.refine.shadows import shadow_mask
 from demtool.reflectance import MODELS
 
@@ -306,6 +306,8 @@ class _Solver:
         self.z0 = self.to_pixel_units(dem)
         self.valid = valid
         self.image = np.where(valid, image, 0.0).astype(np.float32)
+        self.image_nan = np.where(valid, image, np.nan).astype(np.float32)
+        self.image_median = float(np.median(image[valid])) if valid.any() else 0.0
         self.taper = border_taper(self.shape, params.border_px)
         self.inner = np.zeros(self.shape, dtype=bool)
         self.inner[1:-1, 1:-1] = True
@@ -355,17 +357,16 @@ class _Solver:
     def photometry(self, state: _State) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Shadow mask, albedo and intensity weight for the current DEM."""
         p = self.params
-        shadow = shadow_mask(self.heights_metres(state.z), np.where(self.valid, self.image,
-                                                                     np.nan),
-                             self.spacing, self.illumination, threshold=p.shadow_threshold,
-                             use_dem=p.cast_shadows)
+        shadow = shadow_mask(self.heights_metres(state.z), self.image_nan, self.spacing,
+                             self.illumination, threshold=p.shadow_threshold,
+                             use_dem=p.cast_shadows, median=self.image_median)
         lit = self.valid & ~shadow
         if lit.mean() < MIN_LIT_FRACTION:
             raise ProcessingError(
                 f"only {100 * lit.mean():.1f}% of the grid is lit and covered by the image "
                 f"(at least {100 * MIN_LIT_FRACTION:.0f}% needed): check the sun direction "
                 "and --shadow-threshold")
-        modelled = reflectance_map(state.gx, state.gy, self.illumination, p.model)
+        modelled = self.photometric_terms(state.gx, state.gy)[0]
         # the outermost ring has mirrored (halved) slopes: its modelled reflectance is
         # wrong, so it is left out of the albedo (the taper is 0 there)
         albedo = estimate_albedo(self.image, modelled, sigma=p.albedo_sigma,

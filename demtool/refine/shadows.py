@@ -29,12 +29,15 @@ def _bilinear(dem: np.ndarray, row: float, col: float) -> float:
 
 @nb.njit(parallel=True, cache=True)
 def _march_toward_sun(dem: np.ndarray, step_row: float, step_col: float, rise: float,
-                      z_max: float) -> np.ndarray:
-    """Per pixel, step toward the sun; shadowed if the terrain rises above the ray."""
+                      z_max: float, candidates: np.ndarray) -> np.ndarray:
+    """Per candidate pixel, step toward the sun; shadowed if the terrain rises above the
+    ray."""
     height, width = dem.shape
     shadow = np.zeros((height, width), dtype=np.bool_)
     for r in nb.prange(height):
         for c in range(width):
+            if not candidates[r, c]:
+                continue
             ray = dem[r, c]
             row = float(r)
             col = float(c)
@@ -52,7 +55,8 @@ def _march_toward_sun(dem: np.ndarray, step_row: float, step_col: float, rise: f
 
 
 def cast_shadows(dem: np.ndarray, spacing: tuple[float, float],
-                 illumination: Illumination) -> np.ndarray:
+                 illumination: Illumination, candidates: np.ndarray | None = None
+                 ) -> np.ndarray:
     """Pixels in the cast or attached shadow of a DEM under a directional sun.
 
     Marches from each pixel toward the sun in steps of at most one pixel, bilinearly
@@ -68,6 +72,9 @@ def cast_shadows(dem: np.ndarray, spacing: tuple[float, float],
         Pixel spacing along x (columns) and y (rows), metres.
     illumination : Illumination
         Sun direction in the grid frame (z > 0).
+    candidates : (H, W) bool, optional
+        Only these pixels are ray-marched (default: all); the others are False unless
+        in attached shadow.
 
     Returns
     -------
@@ -86,13 +93,15 @@ def cast_shadows(dem: np.ndarray, spacing: tuple[float, float],
     per_metre_row = -sy / horizontal / spacing[1]  # y up = rows decreasing
     metres_per_step = 1.0 / max(abs(per_metre_col), abs(per_metre_row))
     rise = sz / horizontal * metres_per_step
+    march = np.ones(z.shape, dtype=bool) if candidates is None else \
+        np.ascontiguousarray(candidates, dtype=bool)
     shadow = _march_toward_sun(z, per_metre_row * metres_per_step,
-                               per_metre_col * metres_per_step, rise, float(z.max()))
+                               per_metre_col * metres_per_step, rise, float(z.max()), march)
     return shadow | attached
 
 
-def dark_pixels(image: np.ndarray, threshold: float, valid: np.ndarray | None = None
-                ) -> np.ndarray:
+def dark_pixels(image: np.ndarray, threshold: float, valid: np.ndarray | None = None,
+                median: float | None = None) -> np.ndarray:
     """Pixels darker than ``threshold`` × the median of the valid image.
 
     Parameters
@@ -103,6 +112,8 @@ def dark_pixels(image: np.ndarray, threshold: float, valid: np.ndarray | None = 
         Fraction of the median; 0 disables the test.
     valid : (H, W) bool, optional
         Pixels to consider (default: finite ones).
+    median : float, optional
+        The median of the valid image, if already known.
 
     Returns
     -------
@@ -113,14 +124,14 @@ def dark_pixels(image: np.ndarray, threshold: float, valid: np.ndarray | None = 
     valid = np.isfinite(values) if valid is None else valid & np.isfinite(values)
     if threshold <= 0 or not valid.any():
         return np.zeros(values.shape, dtype=bool)
-    level = threshold * float(np.median(values[valid]))
+    level = threshold * (float(np.median(values[valid])) if median is None else median)
     return valid & (values < level)
 
 
 def shadow_mask(dem: np.ndarray, image: np.ndarray, spacing: tuple[float, float],
                 illumination: Illumination, *, threshold: float = 0.0,
                 use_dem: bool = True, dim_fraction: float = 0.2,
-                dilate_px: int = 1) -> np.ndarray:
+                dilate_px: int = 1, median: float | None = None) -> np.ndarray:
     """Combined shadow mask: dark image pixels, and the DEM's shadows where the image is dim.
 
     The image decides: a pixel darker than ``threshold`` × the median is shadow.  The
@@ -148,15 +159,22 @@ def shadow_mask(dem: np.ndarray, image: np.ndarray, spacing: tuple[float, float]
         Fraction of the median image below which a DEM shadow is believed.
     dilate_px : int
         Grow the mask by this many pixels (penumbra, DEM errors at shadow edges).
+    median : float, optional
+        The median of the valid image, if already known (saves a selection).
 
     Returns
     -------
     (H, W) bool
         True where the intensity term must be dropped.
     """
-    shadow = dark_pixels(image, threshold)
+    values = np.asarray(image, dtype=np.float32)
+    if median is None:
+        finite = np.isfinite(values)
+        median = float(np.median(values[finite])) if finite.any() else 0.0
+    shadow = dark_pixels(values, threshold, median=median)
     if use_dem:
-        shadow |= cast_shadows(dem, spacing, illumination) & dark_pixels(image, dim_fraction)
+        dim = dark_pixels(values, dim_fraction, median=median)
+        shadow |= cast_shadows(dem, spacing, illumination, candidates=dim) & dim
     if dilate_px > 0 and shadow.any():
         shadow = ndimage.binary_dilation(shadow, iterations=int(dilate_px))
     return shadow

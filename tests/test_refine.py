@@ -166,6 +166,20 @@ def test_cast_shadow_length_of_a_wall():
     assert not shadow[20, :10].any()  # lit side
 
 
+def test_cast_shadows_only_where_asked():
+    dem = np.zeros((40, 60))
+    dem[:, 10:12] = 5.0
+    illumination = make_illumination(sun_from_angles(270.0, 30.0))
+    full = cast_shadows(dem, (1.0, 1.0), illumination)
+    candidates = np.zeros(dem.shape, bool)
+    candidates[15:25] = True
+    part = cast_shadows(dem, (1.0, 1.0), illumination, candidates=candidates)
+    assert np.array_equal(part[candidates], full[candidates]) and part[15:25].any()
+    attached = cast_shadows(dem, (1.0, 1.0), illumination, candidates=~np.ones_like(candidates))
+    assert np.array_equal(part[~candidates], attached[~candidates])
+    assert attached.sum() < 0.3 * full.sum()  # the wall's far face only, not its shadow
+
+
 def test_cast_shadows_respect_anisotropic_spacing():
     dem = np.zeros((60, 40))
     dem[10:12, :] = 4.0  # an east-west wall; sun from image up (+y, north)

@@ -227,6 +227,7 @@ def test_study_presets_set_the_refine_parameters(preset):
     assert defaults["albedo_sigma"] == 21 and defaults["lowpass_sigma"] == 21
     assert (defaults["delta"], defaults["gamma"], defaults["tau"]) == (0.001, 0.2, 10)
     assert defaults["median"] == 15 and defaults["model"] == "lunar-lambert"
+    assert defaults["spike_threshold"] == 0  # the study's median applies to every pixel
 
 
 @pytest.mark.slow

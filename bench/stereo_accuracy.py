@@ -14,8 +14,10 @@ synthetic
     ``demtool.rectify``; truth from ``demtool.synth.truth.truth_disparity`` (visible
     pixels).  Needs no outside data.
 hard
-    Weak texture (σ = 5 grey levels), noise σ = 3, a 20 % gain difference, warped
-    by a known smooth disparity field (planetary images look like this).
+    Weak planetary-like texture: a fractal albedo pattern (power spectrum ∝ k^-2.3)
+    of σ = 5 grey levels, a 20 % gain difference, noise σ = 3 added after the gain,
+    8-bit integer levels, warped by a known smooth disparity field (see
+    :func:`hard_pair`).  OpenCV SGBM HH lands at a few % bad-1 on it, as in issue 3.
 Middlebury
     tsukuba, venus, cones, teddy from ``../shared/data/middlebury`` when that folder
     exists (skipped otherwise).  © Middlebury College; Scharstein & Szeliski (2002),
@@ -117,16 +119,29 @@ def synthetic_pair(quick: bool):
     return left_rect, right_rect, truth.disparity, mask, min_disparity, count
 
 
-def hard_pair(quick: bool, seed: int = 11):
-    """Weak texture σ=5 (1-px correlation), noise σ=3, 20 % gain, smooth disparity 10 … 30 px."""
+HARD_SPECTRAL_EXPONENT = 2.3  # β of the texture's power spectrum P(k) ∝ k^-β
+
+
+def hard_pair(quick: bool, seed: int = 11, spectral_exponent: float = HARD_SPECTRAL_EXPONENT):
+    """Weak planetary-like texture: fractal albedo σ = 5 grey levels, 20 % gain, noise σ = 3.
+
+    The texture is a fractal (power spectrum ∝ k^-β, ``demtool.synth.terrain.
+    fractal_surface``), so most of its variance is at low spatial frequencies and the
+    fine detail that matching relies on is weaker than the noise; β = 2.3 puts OpenCV
+    SGBM HH (5×5) at about the issue's 2.4 % bad-1.  The right image samples the texture
+    through a smooth disparity field (10 … 30 px) and gets a gain of 1.2; then both get
+    Gaussian noise σ = 3 and are rounded to integer (8-bit) grey levels around 100.
+    """
     from scipy import ndimage
+
+    from demtool.synth.terrain import fractal_surface
 
     height, width = (256, 320) if quick else (480, 640)
     rng = np.random.default_rng(seed)
     margin = 48
-    field_image = ndimage.gaussian_filter(rng.normal(size=(height, width + 2 * margin)), 1.0,
-                                          mode="wrap")
-    base = 100.0 + 5.0 * field_image / field_image.std()
+    surface = fractal_surface(1024, 1.0, spectral_exponent=spectral_exponent, rms_m=1.0,
+                              rng=rng)[:height, :width + 2 * margin]
+    base = 100.0 + 5.0 * (surface - surface.mean()) / surface.std()
     rows, cols = np.mgrid[0:height, 0:width].astype(np.float64)
 
     def field(x, y):
@@ -136,10 +151,11 @@ def hard_pair(quick: bool, seed: int = 11):
     truth = field(cols, rows)
     for _ in range(50):
         truth = field(cols - truth, rows)
-    left = base[:, margin:margin + width] + rng.normal(0.0, 3.0, (height, width))
+    left = base[:, margin:margin + width]
     right = 1.2 * ndimage.map_coordinates(base, [rows, cols + margin + field(cols, rows)],
                                           order=3)
-    right = right + rng.normal(0.0, 3.0, (height, width))
+    left = np.round(left + rng.normal(0.0, 3.0, left.shape))
+    right = np.round(right + rng.normal(0.0, 3.0, right.shape))
     mask = (cols - truth) >= 1
     return (left.astype(np.float32), right.astype(np.float32), truth.astype(np.float32), mask,
             0, 48)
@@ -191,11 +207,14 @@ def run_pair(name: str, data, rows: list[dict]) -> None:
               f"{seconds:7.2f}")
     ours = results["demtool hmi"][0]
     # the reference is the better of OpenCV's two block sizes
-    bad2_ref = min(results[k][0]["bad2"] for k in results if k.startswith("OpenCV"))
-    mae_ref = min(results[k][0]["mae"] for k in results if k.startswith("OpenCV"))
+    opencv = [k for k in results if k.startswith("OpenCV")]
+    best = min(opencv, key=lambda k: results[k][0]["bad2"])
+    bad2_ref = results[best][0]["bad2"]
+    mae_ref = min(results[k][0]["mae"] for k in opencv)
     verdict = "met" if ours["bad2"] <= bad2_ref else "NOT met"
-    print(f"  target bad2: hmi {100 * ours['bad2']:.3f}% <= best OpenCV "
-          f"{100 * bad2_ref:.3f}%: {verdict}")
+    print(f"  target bad2: hmi {100 * ours['bad2']:.3f}% (density {100 * ours['dens']:.1f}%) "
+          f"<= best OpenCV {100 * bad2_ref:.3f}% ({best}, density "
+          f"{100 * results[best][0]['dens']:.1f}%): {verdict}")
     if name == "synthetic":
         verdict = "met" if ours["mae"] <= mae_ref else "NOT met"
         print(f"  target MAE: hmi {ours['mae']:.3f} <= best OpenCV {mae_ref:.3f} px: {verdict}")

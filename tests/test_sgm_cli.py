@@ -163,7 +163,7 @@ def test_cli_bad_option_values_are_usage_errors(pair_dir, tmp_path, option, valu
 
 def test_cli_uniqueness_drops_ambiguous_pixels(pair_dir, tmp_path):
     fractions = []
-    for name, extra in (("d.tif", []), ("u.tif", ["--uniqueness", "0.3"])):
+    for name, extra in (("d.tif", []), ("u.tif", ["--uniqueness", "0.7"])):
         result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out",
                         tmp_path / name, "--rectify", pair_dir / "rectify.npz", "--cost",
                         "census", *extra)

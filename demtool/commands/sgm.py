@@ -186,7 +186,9 @@ default cost is hierarchical mutual information (HMI, 1/16 → 1).""")
 @click.option("--confidence", "confidence", type=click.Path(dir_okay=False), default=None,
               help="Also write a confidence raster (0..1) here.")
 @click.option("--max-memory-mb", type=click.FloatRange(min=64), default=1400.0,
-              show_default=True, help="Budget of the cost volumes of concurrent strips, MiB.")
+              show_default=True,
+              help="Budget of the aggregated-cost volumes (and row buffers) of the strips "
+                   "matched at once, MiB; the image is cut into strips beyond it.")
 @options.workers()
 @options.seed()
 @click.pass_context

@@ -22,6 +22,11 @@ after both are done, continues into the other half, where it adds its own sum to
 stored one and selects the disparity of the finished row (:func:`sweep_rows`).  No
 row is computed twice and no strip overlap is needed.
 
+numba's on-disk cache of :func:`sweep_rows` does not notice edits to the functions it
+inlines from :mod:`demtool.sgm.cost` and :mod:`demtool.sgm.disparity`: after editing
+those, delete ``demtool/sgm/__pycache__/*.nb[ic]`` (an installed release is fine: its
+files change together).
+
 Four path directions are updated in one loop over the disparities (int16, branch-free,
 16 lanes per AVX2 vector), so their sum is formed in registers.  Path costs are int16
 (L ≤ C_max + P2) and sums uint16 (≤ n_paths · (C_max + P2)); callers check the bound.

@@ -1,9 +1,10 @@
 """Semi-global matching of a rectified pair: costs, strips, MI iterations and HMI pyramid.
 
-:func:`sgm` is the stage's core (arrays in, arrays out).  The image is processed in
-horizontal strips with an overlap, so that at most two uint16 volumes (cost C and
-aggregated cost S) of ``workers`` strips exist at once whatever the image size;
-strips run in parallel threads (the numba kernels release the GIL).
+:func:`sgm` is the stage's core (arrays in, arrays out).  Each SGM pass holds one
+uint16 volume, the aggregated cost S; the matching cost is computed row by row inside
+the sweeps (:mod:`demtool.sgm.aggregate`).  The down and up sweeps run in two threads
+(the numba kernels release the GIL).  Only when S does not fit the memory budget is the
+image cut into horizontal strips with an overlap.
 
 References
 ----------
@@ -53,12 +54,17 @@ class CostDefaults:
     p2: int
 
 
-# Tuned with bench/stereo_accuracy.py (synthetic pairs and Middlebury) with the
-# adaptive P2 on; MI pixel costs are 0..64 (8 per nat), census 0..24 (5×5 bits),
+# Tuned with bench/stereo_accuracy.py (the synthetic scene, the weak-texture "hard" pair
+# and Middlebury tsukuba, venus, cones, teddy) with the adaptive P2 on.  Larger penalties
+# help the noisy weak-texture pair (MI 40/400 → 50/700: hard bad-2 0.31 % → 0.07 %,
+# density 71 % → 89 %; census 60/600 → 70/1200: 0.88 % → 0.65 %) until bad-2 on
+# Middlebury rises above OpenCV SGBM's (MI venus needs P1 ≥ 50, tsukuba P2 ≤ ~800), and a
+# larger P1 locks the sub-pixel fit to integers (census P1 = 200: −0.15 px bias at a
+# quarter-pixel shift).  MI pixel costs are 0..64 (8 per nat), census 0..24 (5×5 bits),
 # absolute difference 0..24 grey levels, all summed over the window.
 COST_DEFAULTS: dict[str, CostDefaults] = {
-    "census": CostDefaults(window=5, p1=60, p2=600),
-    "mi": CostDefaults(window=3, p1=40, p2=400),
+    "census": CostDefaults(window=5, p1=70, p2=1200),
+    "mi": CostDefaults(window=3, p1=50, p2=700),
     "ad": CostDefaults(window=5, p1=60, p2=600),
 }
 MI_LEVELS = 128  # most grey levels of the MI histogram (fewer on small images)
@@ -395,9 +401,11 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         Invalidate pixels whose confidence (S₂ − S₁)/S₂ is below this (0 = off;
         0.1 is OpenCV's ``uniquenessRatio=10``).
     workers : int
-        Parallel strips (0 = all cores).
+        Threads (0 = all cores): two run the down and up sweeps of a strip; more match
+        ``workers // 2`` strips at once.
     max_memory_mb : float
-        Budget of the cost volumes of all concurrent strips, MiB.
+        Budget of the aggregated-cost volumes S and row buffers of the strips matched
+        at once, MiB (one strip, exact, when S fits).
     seed : int
         Seed of the random initial disparity of "hmi".
 

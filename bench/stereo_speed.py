@@ -136,6 +136,9 @@ def main(argv: list[str] | None = None) -> int:
             "demtool sgm census": timed(ours("census", left, right, count, "census.tif")),
             "demtool sgm hmi": timed(ours("hmi", left, right, count, "hmi.tif")),
         }
+        phases = {label: json.loads((folder / f"{name}.tif.json").read_text())["summary"]
+                  ["timings_s"] for label, name in (("demtool sgm census", "census"),
+                                                    ("demtool sgm hmi", "hmi"))}
     reference = results["OpenCV SGBM HH (bs=5)"]["wall_s"]
     targets = {"demtool sgm census": 1.0, "demtool sgm hmi": 1.5}
     print(f"\n{size}×{size} px, {count} disparities, 8 paths, LR check, sub-pixel; "
@@ -153,6 +156,14 @@ def main(argv: list[str] | None = None) -> int:
               f"{result['peak_mb']:8.0f} {'met' if result['peak_mb'] <= 2000 else 'NOT met':>9}")
     print("wall time is the target; CPU time (user + system, all threads) is given because "
           "it depends less on other processes' load.  OpenCV's MODE_HH runs on one thread.")
+    print("\ndemtool phases (from the sidecar), wall / CPU seconds; 'startup + I/O' = the "
+          "command's wall time minus the matcher's (imports, numba, reading, writing):")
+    for label, timing in phases.items():
+        names = [k for k in timing if not k.endswith("_cpu") and k != "total"]
+        cells = [f"{k} {timing[k]:.2f}/{timing.get(k + '_cpu', float('nan')):.2f}"
+                 for k in names]
+        startup = results[label]["wall_s"] - timing["total"]
+        print(f"  {label:<22} " + ", ".join(cells) + f"; startup + I/O {startup:.2f}")
     return 0
 
 

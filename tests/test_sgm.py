@@ -8,7 +8,7 @@ from sgm_helpers import error_rates, fractional_shift_pair, occlusion_pair, smoo
 
 from demtool.errors import InputError, ParameterError
 from demtool.sgm import plan_strips, sgm
-from demtool.sgm.aggregate import aggregate_costs
+from demtool.sgm.aggregate import adapted_p2_table, aggregate_costs
 from demtool.sgm.cost import (
     census_pixel_cost,
     census_transform,
@@ -335,3 +335,12 @@ def test_quantize_stretches_and_fills_nan():
     expected = np.clip(np.rint((image - 100.0) * 63 / 800.0), 0, 63)
     assert np.array_equal(levels[valid], expected[valid])
     assert levels[0, 0] == levels[0, 1]  # nearest valid neighbour
+
+
+def test_adapted_p2_table():
+    table = adapted_p2_table(50, 700, 8)
+    assert table.shape == (256,) and (table[:9] == 700).all()  # steps up to κ keep P2
+    assert table[16] == 350 and table[28] == 200  # P2·κ/|ΔI|
+    assert table[255] == 50  # never below P1
+    assert (np.diff(table) <= 0).all()
+    assert (adapted_p2_table(50, 700, 0) == 700).all()  # κ = 0: constant P2

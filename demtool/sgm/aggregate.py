@@ -114,19 +114,25 @@ def _four_paths(buf, mins, j0, slot, col, prev, jump, prev_min, cost, x, p1, out
     mins[slot, j3, col] = low3
 
 
-@njit(nogil=True, cache=True)
-def _adapted_p2(p1, p2, kappa, guide, y, x, yp, xp):
-    """P2 lowered across an intensity step of the guide image (Hirschmüller 2008, §3.1.3)."""
+def adapted_p2_table(p1: int, p2: int, kappa: int) -> np.ndarray:
+    """P2 for every grey-level step 0..255 along a path (Hirschmüller 2008, §3.1.3).
+
+    ``max(P1, P2·κ/|ΔI|)`` where |ΔI| > κ, else P2 (κ ≤ 0: P2 everywhere); a table, so
+    the sweeps do no division per pixel and path.
+
+    Returns
+    -------
+    (256,) int64
+    """
+    steps = np.arange(256)
     if kappa <= 0:
-        return p2
-    step = abs(np.int32(guide[y, x]) - np.int32(guide[yp, xp]))
-    if step <= kappa:
-        return p2
-    return max(p1, (p2 * kappa) // step)
+        return np.full(256, p2, dtype=np.int64)
+    lowered = np.maximum(p1, (p2 * kappa) // np.maximum(steps, 1))
+    return np.where(steps <= kappa, p2, lowered).astype(np.int64)
 
 
 @njit(nogil=True, cache=True, fastmath=True)
-def sweep_rows(source, radius, guide, groups, p1, p2, kappa, sign, first, stop, lo, hi,
+def sweep_rows(source, radius, guide, groups, p1, p2_table, sign, first, stop, lo, hi,
                buf, mins, ring, running, pixel, window_state, mode, total, scratch,
                subpixel, lr_threshold, out_start, disparity, confidence, right_best,
                right_low):
@@ -134,8 +140,10 @@ def sweep_rows(source, radius, guide, groups, p1, p2, kappa, sign, first, stop, 
 
     One sweep (``sign`` = +1 down, −1 up) of the path directions ``groups`` (see
     :func:`path_groups`) over the strip of rows ``lo .. hi`` (paths start at its
-    edges).  The window-summed cost of each row comes from ``source`` (see
-    :func:`demtool.sgm.cost.advance_window`, window radius ``radius``).  The state
+    edges), with penalties P1 and ``p2_table[|ΔI|]`` (:func:`adapted_p2_table`, the
+    guide image's grey-level step along the path).  The window-summed cost of each
+    row comes from ``source`` (see :func:`demtool.sgm.cost.advance_window`, window
+    radius ``radius``).  The state
     (``buf``, ``mins``, ``ring``, ``running``, ``window_state``; see
     :func:`new_sweep_state`) carries over between calls, so a sweep may be split into
     consecutive calls.  What happens to each row's sum of path costs ``mode``:
@@ -173,9 +181,9 @@ def sweep_rows(source, radius, guide, groups, p1, p2, kappa, sign, first, stop, 
                         previous_slot = zero_slot
                     # xp outside the image falls on the zero padding: the path starts here
                     previous_min = mins[previous_slot, 4 * g + t, xp + PAD]
-                    step = p2
-                    if kappa > 0 and previous_slot != zero_slot and 0 <= xp < width:
-                        step = _adapted_p2(p1, p2, kappa, guide, y, x, yp, xp)
+                    step = p2_table[0]
+                    if previous_slot != zero_slot and 0 <= xp < width:
+                        step = p2_table[abs(np.int32(guide[y, x]) - np.int32(guide[yp, xp]))]
                     prev[t, 0] = previous_slot
                     prev[t, 1] = xp + PAD
                     prev_min[t] = previous_min
@@ -311,8 +319,8 @@ def aggregate_costs(cost: np.ndarray, *, p1: int, p2: int, paths: int = 8,
     for sign, mode in ((1, MODE_STORE), (-1, MODE_ADD)):
         state = new_sweep_state(width, n_disp, paths, 0)
         first, stop = (0, height) if sign > 0 else (height - 1, -1)
-        sweep_rows(source, 0, guide, groups, int(p1), int(p2), int(p2_kappa), sign, first, stop,
-                   0, height, state.buf, state.mins, state.ring, state.running, state.pixel,
-                   state.window_state, mode, total, state.scratch, 0, -1, 0, no_rows, no_rows,
-                   state.right_best, state.right_low)
+        sweep_rows(source, 0, guide, groups, int(p1), adapted_p2_table(p1, p2, p2_kappa), sign,
+                   first, stop, 0, height, state.buf, state.mins, state.ring, state.running,
+                   state.pixel, state.window_state, mode, total, state.scratch, 0, -1, 0,
+                   no_rows, no_rows, state.right_best, state.right_low)
     return total

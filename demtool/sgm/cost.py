@@ -459,12 +459,23 @@ class PixelCost:
                 np.uint16(unmatched_cost(self, unmatched_fraction)))
 
 
-def census_pixel_cost(left: np.ndarray, right: np.ndarray, window: tuple[int, int]
-                      ) -> PixelCost:
-    """Census pixel cost (Hamming distance of the census codes) of a NaN-filled pair."""
+def census_pixel_cost(left: np.ndarray, right: np.ndarray, window: tuple[int, int], *,
+                      workers: int = 1) -> PixelCost:
+    """Census pixel cost (Hamming distance of the census codes) of a NaN-filled pair.
+
+    With ``workers`` > 1 the two transforms run in two threads.
+    """
     bits = window[0] * window[1] - 1
-    return PixelCost("census", census_transform(left, window), census_transform(right, window),
-                     np.zeros((1, 1), dtype=np.uint16), bits)
+    if workers > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            future = pool.submit(census_transform, right, window)
+            codes_left = census_transform(left, window)
+            codes_right = future.result()
+    else:
+        codes_left, codes_right = census_transform(left, window), census_transform(right, window)
+    return PixelCost("census", codes_left, codes_right, np.zeros((1, 1), dtype=np.uint16), bits)
 
 
 def table_pixel_cost(name: str, left_levels: np.ndarray, right_levels: np.ndarray,

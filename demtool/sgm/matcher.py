@@ -33,6 +33,7 @@ from demtool.sgm.aggregate import (
     MODE_FINISH,
     MODE_STORE,
     SweepState,
+    adapted_p2_table,
     new_sweep_state,
     path_groups,
     sweep_rows,
@@ -204,10 +205,11 @@ def _match_strip(source: tuple, radius: int, guide: np.ndarray, *, n_disp: int, 
     threshold = -1 if lr_threshold is None else int(np.floor(lr_threshold))
     down = new_sweep_state(width, n_disp, paths, radius)
     up = new_sweep_state(width, n_disp, paths, radius)
+    p2_table = adapted_p2_table(p1, p2, p2_kappa)
 
     def sweep(state: SweepState, sign: int, first: int, last: int, sweep_mode: int) -> None:
         cpu = time.thread_time()
-        sweep_rows(source, radius, guide, groups, p1, p2, p2_kappa, sign, first, last, lo, hi,
+        sweep_rows(source, radius, guide, groups, p1, p2_table, sign, first, last, lo, hi,
                    state.buf, state.mins, state.ring, state.running, state.pixel,
                    state.window_state, sweep_mode, total, state.scratch, mode, threshold,
                    start, disparity, confidence, state.right_best, state.right_low)
@@ -461,7 +463,8 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
             if cost == "census":
                 pixel_cost = costs.census_pixel_cost(costs.fill_invalid(left, left_valid),
                                                      costs.fill_invalid(right, right_valid),
-                                                     CENSUS_WINDOWS[census_window])
+                                                     CENSUS_WINDOWS[census_window],
+                                                     workers=workers)
             else:
                 value_range = costs.robust_range([left, right], [left_valid, right_valid])
                 pixel_cost = costs.table_pixel_cost(

@@ -21,6 +21,10 @@ from demtool.refine import (
     sun_from_angles,
 )
 from demtool.refine.filters import (
+    BlockGaussianLowpass,
+    border_taper,
+    central_gradient,
+    central_gradient_adjoint,
     dct2,
     gaussian_lowpass,
     idct2,
@@ -29,12 +33,6 @@ from demtool.refine.filters import (
     neumann_laplacian_eigenvalues,
 )
 from demtool.refine.prepare import despike, prepare_dem, resample_to_grid
-from demtool.refine.sfs import (
-    _GradientLowpass,
-    border_taper,
-    central_gradient,
-    central_gradient_adjoint,
-)
 from demtool.refine.shading import reflectance_and_gradient, reflectance_map
 
 FAST = SfsParameters(iterations=60)
@@ -442,10 +440,10 @@ def test_kernels_match_the_numpy_operators():
 def test_gradient_lowpass_is_the_gaussian_and_symmetric():
     rng = np.random.default_rng(8)
     shape = (152, 132)
-    lowpass = _GradientLowpass(shape, 21.0)
+    lowpass = BlockGaussianLowpass(shape, 21.0)
     assert lowpass.block == 4
-    assert _GradientLowpass((150, 130), 21.0).block == 2  # the largest common divisor ≤ 4
-    assert _GradientLowpass((97, 130), 21.0).block == 1
+    assert BlockGaussianLowpass((150, 130), 21.0).block == 2  # the largest common divisor ≤ 4
+    assert BlockGaussianLowpass((97, 130), 21.0).block == 1
     x, y = (rng.normal(size=shape).astype(np.float32) for _ in range(2))
     zero = np.zeros(shape, np.float32)
     fx, fy = lowpass.apply(x, zero), lowpass.apply(y, zero)

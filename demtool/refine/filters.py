@@ -7,6 +7,10 @@ update are therefore both diagonal in the DCT domain, which makes the height upd
 an exact O(N log N) solve and keeps the borders free of wrap-around jumps
 (Simchony, Chellappa & Shao 1990, *Direct analytical methods for solving Poisson
 equations in computer vision problems*, IEEE PAMI 12(5), 435–446).
+
+Also here: the central-difference gradient G of the integrability term and its
+adjoint (numpy references of the compiled kernels in :mod:`demtool.refine.kernels`),
+the border taper, Egrad's block low-pass, and the exact sliding-rank median filter.
 """
 
 from __future__ import annotations
@@ -133,6 +137,96 @@ def masked_gaussian_lowpass(array: np.ndarray, weight: np.ndarray, sigma: float,
     safe = denominator > floor
     return np.where(safe, numerator / np.where(safe, denominator, 1.0), fallback).astype(
         np.float32)
+
+
+# --------------------------------------------------------------------------------------
+# Difference operators (heights in pixel units, rows down, y up)
+# --------------------------------------------------------------------------------------
+
+
+def central_gradient(z: np.ndarray, aspect: float) -> tuple[np.ndarray, np.ndarray]:
+    """G z: central differences with mirrored borders; ``aspect = dx / dy``.
+
+    Equals :func:`demtool.refine.shading.slopes` of ``z · dx`` with spacing (dx, dy).
+    """
+    gx = np.empty_like(z)
+    gx[:, 1:-1] = 0.5 * (z[:, 2:] - z[:, :-2])
+    gx[:, 0] = 0.5 * (z[:, 1] - z[:, 0])
+    gx[:, -1] = 0.5 * (z[:, -1] - z[:, -2])
+    gy = np.empty_like(z)
+    half = np.float32(-0.5 * aspect)  # y up: rows down
+    gy[1:-1] = half * (z[2:] - z[:-2])
+    gy[0] = half * (z[1] - z[0])
+    gy[-1] = half * (z[-1] - z[-2])
+    return gx, gy
+
+
+def central_gradient_adjoint(ex: np.ndarray, ey: np.ndarray, aspect: float) -> np.ndarray:
+    """Gᵀ (ex, ey), the adjoint of :func:`central_gradient`."""
+    out = np.empty_like(ex)
+    out[:, 1:-1] = 0.5 * (ex[:, :-2] - ex[:, 2:])
+    out[:, 0] = -0.5 * (ex[:, 0] + ex[:, 1])
+    out[:, -1] = 0.5 * (ex[:, -2] + ex[:, -1])
+    half = np.float32(-0.5 * aspect)
+    out[1:-1] += half * (ey[:-2] - ey[2:])
+    out[0] += half * -(ey[0] + ey[1])
+    out[-1] += half * (ey[-2] + ey[-1])
+    return out
+
+
+def border_taper(shape: tuple[int, int], width: float) -> np.ndarray:
+    """Weight rising from 0 at the outermost pixels to 1 at ``width`` pixels (sin²).
+
+    Returns
+    -------
+    (H, W) float32
+    """
+    height, width_px = shape
+    if width <= 0:
+        return np.ones(shape, dtype=np.float32)
+    rows = np.arange(height)
+    cols = np.arange(width_px)
+    distance = np.minimum(np.minimum(rows, height - 1 - rows)[:, None],
+                          np.minimum(cols, width_px - 1 - cols)[None, :])
+    ramp = np.clip(distance / width, 0.0, 1.0)
+    return (np.sin(0.5 * np.pi * ramp) ** 2).astype(np.float32)
+
+
+#: Egrad's low-pass runs on blocks of this many pixels per σ_f / 5 (σ_f = 21 px: 4 × 4).
+_BLOCK_PER_SIGMA = 0.2
+
+
+class BlockGaussianLowpass:
+    """fᵀf of Egrad, evaluated on b × b block means (b ≈ σ_f / 5, dividing the grid).
+
+    f here is the Gaussian of std σ_f / b (DCT domain, reflect borders) on the b × b
+    block means: the box and the Gaussian together are a Gaussian of std
+    sqrt(σ_f² + (b² − 1)/12) ≈ σ_f (21.03 px for σ_f = 21, b = 4) at the frequencies f
+    passes, on b² times fewer samples.  ``apply(x, x0) = b² Aᵀ F² A (x − x0)`` (A the
+    block mean, b² Aᵀ the replication) is the exact gradient of ``b² ‖F A (x − x0)‖²``,
+    the Egrad that is reported, and its norm is at most 1, so the slope step's
+    majoriser δ I stays valid.  b is the largest integer ≤ σ_f / 5 that divides both
+    sides of the grid (1 — the plain DCT — when none does).
+    """
+
+    def __init__(self, shape: tuple[int, int], sigma: float) -> None:
+        from demtool.refine import kernels  # numba kernels: compiled on first use
+
+        self._kernels = kernels
+        largest = int(max(1, min(sigma * _BLOCK_PER_SIGMA, min(shape) // 4)))
+        self.block = next(b for b in range(largest, 0, -1)
+                          if shape[0] % b == 0 and shape[1] % b == 0)
+        self.coarse_shape = (shape[0] // self.block, shape[1] // self.block)
+        self.transfer2 = gaussian_transfer(self.coarse_shape, sigma / self.block) ** 2
+        self._coarse = np.empty(self.coarse_shape, dtype=np.float32)
+
+    def apply(self, values: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        """``b² Aᵀ F² A (values − reference)``, (H, W) float32."""
+        self._kernels.block_mean(values, reference, self.block, self._coarse)
+        smoothed = idct2(dct2(self._coarse) * self.transfer2).astype(np.float32)
+        out = np.empty_like(values)
+        self._kernels.block_replicate(smoothed, self.block, out)
+        return out
 
 
 # --------------------------------------------------------------------------------------

@@ -374,12 +374,14 @@ def test_despike_keeps_relief_and_finds_blunders():
     prepared = prepare_dem(dem, median_size=15)
     assert prepared.spikes[10, 60] and prepared.spikes[65:67, 15:17].all()
     assert prepared.spikes.sum() < 20
-    # the anchor keeps the bowl the median flattens; the start surface is the median
-    assert prepared.dem[40, 40] < -2.8 and prepared.initial[40, 40] > -2.5
-    assert np.array_equal(prepared.initial, median_filter(dem, 15))
-    everywhere = prepare_dem(dem, median_size=15, spike_threshold=0.0)
-    assert everywhere.spikes.all() and np.array_equal(everywhere.dem, everywhere.initial)
-    off = prepare_dem(dem, median_size=0)
+    # the anchor keeps the bowl the median flattens; the start surface is it smoothed
+    assert prepared.dem[40, 40] < -2.8 and median_filter(dem, 15)[40, 40] > -2.5
+    assert np.allclose(prepared.initial, gaussian_lowpass(prepared.dem, 2.0))
+    assert prepared.initial[40, 40] < -2.7 and np.std(prepared.initial[:20, :20]) < 0.02
+    everywhere = prepare_dem(dem, median_size=15, spike_threshold=0.0, start_sigma=0.0)
+    assert everywhere.spikes.all() and np.array_equal(everywhere.dem, median_filter(dem, 15))
+    assert np.array_equal(everywhere.initial, everywhere.dem)
+    off = prepare_dem(dem, median_size=0, start_sigma=0.0)
     assert np.array_equal(off.dem, dem) and not off.spikes.any()
     assert not despike(dem, dem, 4.0, 15).any()
 

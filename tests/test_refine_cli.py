@@ -188,6 +188,7 @@ def test_missing_files_are_refused(tmp_path, scene):
     (["--sun-vector", "0,0,1", "--sun-azimuth", "3", "--sun-elevation", "40"], "either"),
     (["--median", "4"], "odd"),
     (["--spike-threshold", "-1"], "--spike-threshold"),
+    (["--start-sigma", "-2"], "--start-sigma"),
     (["--model", "hapke"], "lunar-lambert"),
     (["--gamma", "0"], "--gamma"),
     (["--shadow-threshold", "1.5"], "--shadow-threshold"),
@@ -215,6 +216,7 @@ def test_spikes_are_removed_and_reported(tmp_path, scene):
     sidecar = json.loads(Path(f"{out}.json").read_text())
     assert 5 / dem.size <= sidecar["summary"]["dem_spike_fraction"] < 0.01
     assert sidecar["parameters"]["spike_threshold"] == 4.0
+    assert sidecar["parameters"]["start_sigma"] == 2.0
 
 
 @pytest.mark.parametrize("preset", ["configs/navcam.toml", "configs/lro-nac.toml"])

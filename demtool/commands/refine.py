@@ -26,7 +26,8 @@ if TYPE_CHECKING:
 # the preset/option defaults (the NavCam and LRO NAC studies)
 DEFAULTS: dict[str, Any] = {
     "model": "lunar-lambert", "albedo_sigma": 21.0, "lowpass_sigma": 21.0, "delta": 0.001,
-    "gamma": 0.2, "tau": 10.0, "median": 15, "spike_threshold": 4.0, "max_nan_fraction": 0.2,
+    "gamma": 0.2, "tau": 10.0, "median": 15, "spike_threshold": 4.0, "start_sigma": 2.0,
+    "max_nan_fraction": 0.2,
     "iterations": 60, "tolerance": 1e-4, "shadow_threshold": 0.05, "border_taper": 8.0,
 }
 
@@ -177,7 +178,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
                model: str = "lunar-lambert", albedo_sigma: float = 21.0,
                lowpass_sigma: float = 21.0, delta: float = 0.001, gamma: float = 0.2,
                tau: float = 10.0, median: int = 15, spike_threshold: float = 4.0,
-               max_nan_fraction: float = 0.2,
+               start_sigma: float = 2.0, max_nan_fraction: float = 0.2,
                iterations: int = 60, tolerance: float = 1e-4,
                shadow_threshold: float = 0.05, cast_shadows: bool = True,
                border_taper: float = 8.0, albedo_out: str | os.PathLike | None = None,
@@ -217,6 +218,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     params.check()
     prov = Provenance("refine", resolved or {**params.as_dict(), "median": median,
                                              "spike_threshold": spike_threshold,
+                                             "start_sigma": start_sigma,
                                              "max_nan_fraction": max_nan_fraction},
                       inputs=[image_path, dem_path])
     dem = io.read_raster(dem_path, what="DEM")
@@ -236,7 +238,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     started = time.perf_counter()
     try:
         prepared = prepare_dem(dem.data, median_size=median, spike_threshold=spike_threshold,
-                               max_nan_fraction=max_nan_fraction)
+                               start_sigma=start_sigma, max_nan_fraction=max_nan_fraction)
     except ProcessingError as exc:
         raise ProcessingError(f"{dem.path}: {exc}") from None
     prepared_s = time.perf_counter() - started
@@ -370,9 +372,12 @@ LRO NAC studies.""")
 @click.option("--spike-threshold", type=_NON_NEGATIVE, default=DEFAULTS["spike_threshold"],
               show_default=True,
               help="Pixels farther from the median than this many robust standard "
-                   "deviations are spikes and take the median in the anchor DEM; the "
-                   "iterations start from the median-filtered DEM (0: the median "
-                   "everywhere).")
+                   "deviations are spikes and take the median in the anchor DEM that "
+                   "Edepth and Egrad hold (0: the median everywhere).")
+@click.option("--start-sigma", type=_NON_NEGATIVE, default=DEFAULTS["start_sigma"],
+              show_default=True,
+              help="The iterations start from the anchor DEM smoothed by a Gaussian of "
+                   "this σ, pixels (0: from the anchor itself).")
 @click.option("--max-nan-fraction", type=click.FloatRange(min=0.0, max=1.0),
               default=DEFAULTS["max_nan_fraction"], show_default=True,
               help="Refuse a DEM with more NaN than this fraction (gaps below it are filled).")

@@ -10,7 +10,7 @@ from scipy import ndimage
 
 from demtool.errors import ProcessingError
 from demtool.logs import get_logger
-from demtool.refine.filters import median_filter
+from demtool.refine.filters import gaussian_lowpass, median_filter
 
 log = get_logger(__name__)
 
@@ -24,7 +24,8 @@ class PreparedDem(NamedTuple):
         Heights, metres, finite: gaps filled and spikes replaced by the local median
         (the anchor of the low-passed heights and slopes).
     initial : (H, W) float32
-        The median-filtered DEM: where the iterations start.
+        ``dem`` smoothed by a Gaussian of ``start_sigma`` pixels: where the iterations
+        start.
     filled : (H, W) bool
         Pixels that were NaN and were filled.
     spikes : (H, W) bool
@@ -78,7 +79,7 @@ def despike(dem: np.ndarray, median: np.ndarray, threshold: float, size: int) ->
 
 
 def prepare_dem(dem: np.ndarray, *, median_size: int = 15, spike_threshold: float = 4.0,
-                max_nan_fraction: float = 0.2) -> PreparedDem:
+                start_sigma: float = 2.0, max_nan_fraction: float = 0.2) -> PreparedDem:
     """Fill the gaps of a coarse DEM, then remove its spikes with a median filter.
 
     Gaps are filled with :func:`demtool.interpolate.inpaint_springs` (the spring
@@ -90,9 +91,15 @@ def prepare_dem(dem: np.ndarray, *, median_size: int = 15, spike_threshold: floa
     (on the default synthetic scene the 21-px low-pass of a 15-px median is 0.030 m RMS
     from the truth's, of the input itself 0.020 m).  So the anchor (``dem``) takes the
     median only at spikes (:func:`despike`, ``spike_threshold`` robust standard
-    deviations; 0 = everywhere, the study's use), while the fully filtered DEM
-    (``initial``) is where the iterations start: the relief a single image cannot
-    see (slopes across the sun) keeps its smooth shape rather than its noise.
+    deviations; 0 = everywhere, the study's use).
+
+    The iterations start from the anchor smoothed by a Gaussian of ``start_sigma``
+    pixels (``initial``; half power at the wavelength σ/0.187, 11 px for σ = 2,
+    about the effective resolution of a stereo DEM matched with windows of 7–15 px):
+    the relief a single image cannot see (slopes across the sun) keeps the coarse
+    DEM's shape rather than its pixel-scale noise.  Measured on the default scene
+    (slope-error ratio, noisy σ6 input / SIAM DEM): 0.488 / 0.486 from σ = 2,
+    0.493 / 0.512 from the 15 px median, 0.577 / 0.535 from the anchor itself.
 
     Parameters
     ----------
@@ -104,6 +111,9 @@ def prepare_dem(dem: np.ndarray, *, median_size: int = 15, spike_threshold: floa
     spike_threshold : float
         Spike threshold of the anchor in robust standard deviations (NMAD) of the
         deviation from the median; 0 replaces every pixel by the median.
+    start_sigma : float
+        σ of the Gaussian (pixels, reflect borders) that smooths the anchor into the
+        start surface; 0 starts from the anchor itself.
     max_nan_fraction : float
         Refuse a DEM with a larger fraction of NaN pixels.
 
@@ -134,14 +144,14 @@ def prepare_dem(dem: np.ndarray, *, median_size: int = 15, spike_threshold: floa
         log.info("filled %.2f%% of the DEM (%d pixels) by spring-metaphor inpainting",
                  100 * fraction, int(missing.sum()))
     spikes = np.zeros(values.shape, dtype=bool)
-    initial = values
     if median_size > 1:
-        initial = median_filter(values, int(median_size))
+        median = median_filter(values, int(median_size))
         spikes = np.ones(values.shape, dtype=bool) if spike_threshold <= 0 else \
-            despike(values, initial, spike_threshold, int(median_size))
-        values = np.where(spikes, initial, values).astype(np.float32)
+            despike(values, median, spike_threshold, int(median_size))
+        values = np.where(spikes, median, values).astype(np.float32)
         log.info("median filter %d px: %d spikes (%.2f%%) replaced in the anchor DEM",
                  median_size, int(spikes.sum()), 100 * spikes.mean())
+    initial = gaussian_lowpass(values, start_sigma) if start_sigma > 0 else values
     return PreparedDem(dem=values, initial=initial, filled=missing, spikes=spikes,
                        nan_fraction=fraction)
 

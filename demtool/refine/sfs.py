@@ -34,8 +34,8 @@ Solver, alternating:
 
 The albedo and the shadow mask are re-estimated from the current DEM every few
 iterations (Grumpe et al. 2015).  The iterations start from ``initial`` (the
-median-filtered DEM): what a single image does not constrain (slopes across the sun)
-keeps that smooth shape.  Per-pixel work runs in the numba kernels of
+coarse DEM smoothed at its noise scale): what a single image does not constrain
+(slopes across the sun) keeps that smooth shape.  Per-pixel work runs in the numba kernels of
 :mod:`demtool.refine.kernels`; Egrad's fᵀf runs on 4 × 4 block means
 (:class:`demtool.refine.filters.BlockGaussianLowpass`; δ = 0.001 makes Egrad a
 tie-breaker: δ = 0 changes the default benchmark by < 0.001 in every ratio).
@@ -352,8 +352,8 @@ def refine_heights(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, 
     initial : (H, W) float, optional
         Heights (metres) the iterations start from (default: ``dem``); its mean is
         replaced by the DEM's.  The parts of the relief a single image does not
-        constrain (slopes across the sun) keep what they have here, so a smoothed
-        (median-filtered) DEM is a better start than a noisy one
+        constrain (slopes across the sun) keep what they have here, so a slightly
+        smoothed DEM is a better start than a noisy one
         (:func:`demtool.refine.prepare.prepare_dem` gives both).
 
     Returns

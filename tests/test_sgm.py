@@ -187,7 +187,8 @@ def test_census_transform_bits():
     codes = census_transform(image, (3, 3))
     # at the centre, the four neighbours before it in raster order are darker
     assert codes[2, 2] == 0b11110000
-    assert census_transform(image, (5, 5)).dtype == np.uint64
+    assert census_transform(image, (5, 5)).dtype == np.uint32  # 24 bits
+    assert census_transform(image, (7, 9)).dtype == np.uint64  # 62 bits
     with pytest.raises(ValueError):
         census_transform(image, (4, 5))
 
@@ -206,10 +207,14 @@ def test_mutual_information_favours_corresponding_levels():
     assert table[levels, levels].mean() > table[levels, 31 - levels].mean() + 10
 
 
-def test_aggregation_follows_the_recursion():
+@pytest.mark.parametrize("paths", [8, 16])
+@pytest.mark.parametrize("kappa", [0, 8])
+def test_aggregation_follows_the_recursion(paths, kappa):
     rng = np.random.default_rng(2)
-    cost = rng.integers(0, 50, size=(5, 7, 6)).astype(np.uint16)
-    total = aggregate_costs(cost, p1=3, p2=20, paths=8)
+    cost = rng.integers(0, 50, size=(6, 9, 6)).astype(np.uint16)
+    guide = rng.integers(0, 40, size=(6, 9)).astype(np.uint8)
+    total = aggregate_costs(cost, p1=3, p2=20, paths=paths, guide=guide, p2_kappa=kappa)
+    p2_of_step = adapted_p2_table(3, 20, kappa)
 
     def path(dy, dx):
         out = np.zeros(cost.shape, dtype=np.int64)
@@ -225,10 +230,14 @@ def test_aggregation_follows_the_recursion():
                 prev = out[yp, xp]
                 low = prev.min()
                 shifted = np.minimum(np.r_[prev[1:], 10**6], np.r_[10**6, prev[:-1]]) + 3
-                out[y, x] = cost[y, x] + np.minimum(np.minimum(prev, shifted), low + 20) - low
+                p2 = p2_of_step[abs(int(guide[y, x]) - int(guide[yp, xp]))]
+                out[y, x] = cost[y, x] + np.minimum(np.minimum(prev, shifted), low + p2) - low
         return out
 
-    directions = [(0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1)]
+    directions = [(0, 1), (1, 0), (1, 1), (1, -1)]
+    if paths == 16:
+        directions += [(1, 2), (1, -2), (2, 1), (2, -1)]
+    directions += [(-dy, -dx) for dy, dx in directions]
     expected = sum(path(dy, dx) for dy, dx in directions)
     assert np.array_equal(total, expected)
 

@@ -68,23 +68,24 @@ def path_groups(paths: int) -> np.ndarray:
 
 
 @njit(nogil=True, cache=True, fastmath=True)
-def _four_paths(buf, mins, j0, slot, col, prev, jump, prev_min, cost, x, p1, out, accumulate):
+def _four_paths(buf, mins, j0, slot, col, s0, c0, e0, s1, c1, e1, s2, c2, e2, s3, c3, e3, cost,
+                x, p1, out, accumulate):
     """Eq. 13 for four path directions j0 .. j0 + 3 at pixel x, all disparities.
 
     ``buf[s, j, c, 1:D+1]`` holds L_r of direction j in ring slot s at buffer column c,
-    with sentinels at both ends of the disparity axis; ``prev[t]`` = (slot, column) of
-    L_r(p − r) of path t, ``jump[t]`` = min_k L_r(p − r, k) + P2 and ``prev_min[t]``
-    = min_k L_r(p − r, k).  The new L_r go to column ``col`` of ``slot``, their minima
-    to ``mins``; their sum is written to (or, with ``accumulate``, added to) ``out[x]``.
-    Everything is indexed on the full arrays (no views in the hot loop) so the loop
-    over d vectorises.
+    with sentinels at both ends of the disparity axis; path t reads L_r(p − r) at
+    slot ``s<t>``, column ``c<t>`` (its minimum over d at ``mins[s<t>, j, c<t>]``) and
+    uses P2 = ``e<t>``.  The new L_r go to column ``col`` of ``slot``, their minima to
+    ``mins``; their sum is written to (or, with ``accumulate``, added to) ``out[x]``.
+    Everything is indexed on the full arrays and passed as scalars (no views or small
+    arrays in the hot loop), so the loop over d vectorises.
     """
     n_disp = cost.shape[1]
-    s0, c0, s1, c1 = prev[0, 0], prev[0, 1], prev[1, 0], prev[1, 1]
-    s2, c2, s3, c3 = prev[2, 0], prev[2, 1], prev[3, 0], prev[3, 1]
-    a0, a1, a2, a3 = jump[0], jump[1], jump[2], jump[3]
-    m0, m1, m2, m3 = prev_min[0], prev_min[1], prev_min[2], prev_min[3]
     j1, j2, j3 = j0 + 1, j0 + 2, j0 + 3
+    m0, m1 = mins[s0, j0, c0], mins[s1, j1, c1]
+    m2, m3 = mins[s2, j2, c2], mins[s3, j3, c3]
+    a0, a1 = np.int16(m0 + e0), np.int16(m1 + e1)
+    a2, a3 = np.int16(m2 + e2), np.int16(m3 + e3)
     # branch-free accumulation (a conditional load in the loop would stop vectorisation)
     keep = np.uint16(0xFFFF) if accumulate else np.uint16(0)
     low0 = low1 = low2 = low3 = np.int16(32767)
@@ -154,47 +155,62 @@ def sweep_rows(source, radius, guide, groups, p1, p2_table, sign, first, stop, l
     """
     width = guide.shape[1]
     n_groups = groups.shape[0]
+    n_dirs = 4 * n_groups
     n_slots = buf.shape[0] - 1
     zero_slot = n_slots
-    prev = np.empty((4, 2), dtype=np.int64)
-    jump = np.empty(4, dtype=np.int16)
-    prev_min = np.empty(4, dtype=np.int16)
+    previous_slot = np.empty(n_dirs, dtype=np.int64)
+    column_step = np.empty(n_dirs, dtype=np.int64)
+    penalty = np.empty((n_dirs, width), dtype=np.int64)
     p1s = np.int16(p1)
     n_out = disparity.shape[0]
     y = first
     while y != stop:
         advance_window(source, y, sign, radius, ring, running, pixel, window_state)
         slot = y % n_slots
+        # per row and direction: where L_r(p − r) is, and P2 for every pixel (adapted to
+        # the guide image's step along the path); predecessors outside the strip or the
+        # image fall on the all-zero slot or padding, so the path starts there (L_r = C)
+        for j in range(n_dirs):
+            dy = groups[j // 4, j % 4, 0]
+            yp = y - sign * dy
+            if dy == 0:
+                previous_slot[j] = slot
+            elif yp >= lo and yp < hi:
+                previous_slot[j] = yp % n_slots
+            else:
+                previous_slot[j] = zero_slot
+            step = -sign * groups[j // 4, j % 4, 1]
+            column_step[j] = step
+            for x in range(width):
+                xp = x + step
+                if previous_slot[j] != zero_slot and 0 <= xp < width:
+                    penalty[j, x] = p2_table[abs(np.int32(guide[y, x]) - np.int32(guide[yp, xp]))]
+                else:
+                    penalty[j, x] = p2_table[0]
         out = total[y - lo] if mode == MODE_STORE else scratch
         for i in range(width):
             x = i if sign > 0 else width - 1 - i
+            col = x + PAD
             for g in range(n_groups):
-                for t in range(4):
-                    dy = groups[g, t, 0]
-                    yp = y - sign * dy
-                    xp = x - sign * groups[g, t, 1]
-                    if dy == 0:
-                        previous_slot = slot
-                    elif yp >= lo and yp < hi:
-                        previous_slot = yp % n_slots
-                    else:
-                        previous_slot = zero_slot
-                    # xp outside the image falls on the zero padding: the path starts here
-                    previous_min = mins[previous_slot, 4 * g + t, xp + PAD]
-                    step = p2_table[0]
-                    if previous_slot != zero_slot and 0 <= xp < width:
-                        step = p2_table[abs(np.int32(guide[y, x]) - np.int32(guide[yp, xp]))]
-                    prev[t, 0] = previous_slot
-                    prev[t, 1] = xp + PAD
-                    prev_min[t] = previous_min
-                    jump[t] = np.int16(previous_min + step)
+                j = 4 * g
                 # literal flags: two specialisations, the first without the load of out
                 if g == 0:
-                    _four_paths(buf, mins, 0, slot, x + PAD, prev, jump, prev_min, running, x,
-                                p1s, out, False)
+                    _four_paths(buf, mins, 0, slot, col,
+                                previous_slot[0], col + column_step[0], penalty[0, x],
+                                previous_slot[1], col + column_step[1], penalty[1, x],
+                                previous_slot[2], col + column_step[2], penalty[2, x],
+                                previous_slot[3], col + column_step[3], penalty[3, x],
+                                running, x, p1s, out, False)
                 else:
-                    _four_paths(buf, mins, 4 * g, slot, x + PAD, prev, jump, prev_min, running,
-                                x, p1s, out, True)
+                    _four_paths(buf, mins, j, slot, col,
+                                previous_slot[j], col + column_step[j], penalty[j, x],
+                                previous_slot[j + 1], col + column_step[j + 1],
+                                penalty[j + 1, x],
+                                previous_slot[j + 2], col + column_step[j + 2],
+                                penalty[j + 2, x],
+                                previous_slot[j + 3], col + column_step[j + 3],
+                                penalty[j + 3, x],
+                                running, x, p1s, out, True)
         if mode == MODE_ADD:
             stored = total[y - lo]
             for x in range(width):

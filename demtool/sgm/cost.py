@@ -39,16 +39,16 @@ MI_MAX_NATS = 8.0
 
 
 @intrinsic
-def _popcount64(typingctx, value):
-    """Number of set bits of a uint64 (LLVM ``ctpop``; one instruction on x86-64)."""
+def _popcount(typingctx, value):
+    """Number of set bits of an integer (LLVM ``ctpop``: one instruction on x86-64, and
+    vectorised as VPOPCNTD/Q where the CPU has them)."""
     if not isinstance(value, types.Integer):
         return None
-    signature = types.uint64(types.uint64)
 
     def codegen(context, builder, sig, args):
         return builder.ctpop(args[0])
 
-    return signature, codegen
+    return value(value), codegen
 
 
 # --------------------------------------------------------------------------------------
@@ -150,12 +150,13 @@ def census_transform(image: np.ndarray, window: tuple[int, int]) -> np.ndarray:
 
     Returns
     -------
-    (H, W) uint64 bit strings.
+    (H, W) bit strings: uint32 for windows of at most 32 bits (5×5: twice as many
+    Hamming distances per vector instruction), else uint64.
     """
     rows, cols = window
     if rows % 2 == 0 or cols % 2 == 0 or rows * cols - 1 > 64:
         raise ValueError(f"census window {rows}x{cols}: sizes must be odd with at most 64 bits")
-    out = np.empty(image.shape, dtype=np.uint64)
+    out = np.empty(image.shape, dtype=np.uint32 if rows * cols - 1 <= 32 else np.uint64)
     padded = np.pad(np.asarray(image, dtype=np.float32), ((rows // 2,), (cols // 2,)), mode="edge")
     _census(padded, rows // 2, cols // 2, out)
     return out
@@ -329,7 +330,7 @@ def _pixel_cost_row(source, y, out):
         if kind == KIND_CENSUS:
             code = left_codes[y, x]
             for i in range(count):
-                out[x, k_lo + i] = np.uint16(_popcount64(
+                out[x, k_lo + i] = np.uint16(_popcount(
                     code ^ right_codes[y, np.uint64(start - i)]))
         else:
             level = left_levels[y, x]
@@ -417,7 +418,7 @@ class PixelCost:
     ----------
     name : str
         "census", "mi" or "ad" (for messages and reports).
-    left, right : (H, W) uint64 census codes, or (H, W) uint8 grey levels
+    left, right : (H, W) uint32/uint64 census codes, or (H, W) uint8 grey levels
     table : (L, L) uint16
         Cost of each (left level, right level) pair; unused (1×1) for census.
     max_cost : int
@@ -446,7 +447,7 @@ class PixelCost:
             Pixel cost of a correspondence outside the right image or on a NaN pixel,
             as a fraction of :attr:`max_cost` (see :func:`unmatched_cost`).
         """
-        no_codes = np.zeros((1, 1), dtype=np.uint64)
+        no_codes = np.zeros((1, 1), dtype=np.uint32)  # the type of 5×5 census codes
         no_levels = np.zeros((1, 1), dtype=np.uint8)
         no_volume = np.zeros((1, 1, 1), dtype=np.uint16)
         if self.is_census:
@@ -499,7 +500,7 @@ def unmatched_cost(pixel_cost: PixelCost, fraction: float = 0.5) -> int:
 
 def volume_source(volume: np.ndarray) -> tuple:
     """The kernels' ``source`` tuple for a given (H, W, D) uint16 volume of pixel costs."""
-    no_codes = np.zeros((1, 1), dtype=np.uint64)
+    no_codes = np.zeros((1, 1), dtype=np.uint32)
     no_levels = np.zeros((1, 1), dtype=np.uint8)
     valid = np.ones(volume.shape[:2], dtype=np.bool_)
     return (KIND_VOLUME, no_codes, no_codes, no_levels, no_levels,

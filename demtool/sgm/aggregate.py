@@ -136,7 +136,7 @@ def adapted_p2_table(p1: int, p2: int, kappa: int) -> np.ndarray:
 def sweep_rows(source, radius, guide, groups, p1, p2_table, sign, first, stop, lo, hi,
                buf, mins, ring, running, pixel, window_state, mode, total, scratch,
                subpixel, lr_threshold, out_start, disparity, confidence, right_best,
-               right_low):
+               right_key):
     """Aggregate image rows ``first, first + sign, ...`` (up to ``stop``, exclusive).
 
     One sweep (``sign`` = +1 down, −1 up) of the path directions ``groups`` (see
@@ -223,7 +223,7 @@ def sweep_rows(source, radius, guide, groups, p1, p2_table, sign, first, stop, l
                     scratch[x, k] = np.uint16(scratch[x, k] + stored[x, k])
             if out_start <= y < out_start + n_out:
                 select_row(scratch, y, source[9], subpixel, lr_threshold, source[7], source[8],
-                           right_best, right_low, disparity[y - out_start],
+                           right_best, right_key, disparity[y - out_start],
                            confidence[y - out_start])
         y += sign
 
@@ -240,7 +240,7 @@ class SweepState:
     window_state: np.ndarray
     scratch: np.ndarray
     right_best: np.ndarray
-    right_low: np.ndarray
+    right_key: np.ndarray
 
     @property
     def nbytes(self) -> int:
@@ -267,7 +267,7 @@ def new_sweep_state(width: int, num_disparities: int, paths: int, radius: int) -
         pixel=np.zeros((width, num_disparities), dtype=np.uint16),
         window_state=np.zeros(2, dtype=np.int64),
         scratch=np.zeros((width, num_disparities), dtype=np.uint16),
-        right_best=np.zeros(width, dtype=np.int16), right_low=np.zeros(width, dtype=np.uint16))
+        right_best=np.zeros(width, dtype=np.int16), right_key=np.zeros(width, dtype=np.uint32))
 
 
 def check_penalties(p1: int, p2: int, paths: int, max_cost: int) -> None:
@@ -338,5 +338,5 @@ def aggregate_costs(cost: np.ndarray, *, p1: int, p2: int, paths: int = 8,
         sweep_rows(source, 0, guide, groups, int(p1), adapted_p2_table(p1, p2, p2_kappa), sign,
                    first, stop, 0, height, state.buf, state.mins, state.ring, state.running,
                    state.pixel, state.window_state, mode, total, state.scratch, 0, -1, 0,
-                   no_rows, no_rows, state.right_best, state.right_low)
+                   no_rows, no_rows, state.right_best, state.right_key)
     return total

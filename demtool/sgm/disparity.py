@@ -33,19 +33,18 @@ def _subpixel_offset(mode, minus, centre, plus):
 
 
 @njit(nogil=True, cache=True)
-def _right_disparities(srow, min_disparity, right_best, right_low):
+def _right_disparities(srow, min_disparity, right_best, right_key):
     """Right image's WTA disparity index d_R(x_r) = argmin_k S(x_r + d_k, k) of one row.
 
     The diagonal of the left row's S: for every left pixel x the loop over k visits the
-    right pixels x − d_k, all distinct, so it vectorises (a running minimum and its
-    index per right pixel, updated branch-free).  Ties keep the smallest k, the order
-    the left pixels visit them in.  ``right_best`` (W) int16 gets −1 where no
-    disparity reaches the right pixel.
+    right pixels x − d_k, all distinct, so it vectorises.  Each candidate is the key
+    S·2¹⁶ + k (uint32), so one running minimum per right pixel (``right_key``, (W)
+    uint32 scratch) keeps the lowest cost and, among equal costs, the smallest k.
+    ``right_best`` (W) int16 gets k, or −1 where no disparity reaches the right pixel.
     """
     width, n_disp = srow.shape
     for xr in range(width):
-        right_low[xr] = 65535
-        right_best[xr] = -1
+        right_key[xr] = 0xFFFFFFFF
     for x in range(width):
         base = x - min_disparity
         k_hi = max(0, min(n_disp, base + 1))
@@ -54,37 +53,40 @@ def _right_disparities(srow, min_disparity, right_best, right_low):
         # k = k_lo + i, right pixel start − i (>= 0: unsigned, so numba adds no
         # wraparound; counted from 0, so the reversed accesses vectorise)
         for i in range(k_hi - k_lo):
-            value = srow[x, k_lo + i]
             xr = np.uint64(start - i)
-            better = value < right_low[xr]
-            right_low[xr] = min(value, right_low[xr])
-            right_best[xr] = np.int16(k_lo + i) if better else right_best[xr]
+            key = (np.uint32(srow[x, k_lo + i]) << np.uint32(16)) | np.uint32(k_lo + i)
+            right_key[xr] = min(right_key[xr], key)
+    for xr in range(width):
+        key = right_key[xr]
+        right_best[xr] = -1 if key == 0xFFFFFFFF else np.int16(key & np.uint32(0xFFFF))
 
 
 @njit(nogil=True, cache=True)
 def select_row(srow, y, min_disparity, mode, lr_threshold, left_valid, right_valid,
-               right_best, right_low, disparity, confidence):
+               right_best, right_key, disparity, confidence):
     """WTA, sub-pixel and LR check of one image row (see :func:`select_disparities`).
 
     ``srow`` (W, D) uint16 is the row's aggregated cost; ``y`` its image row (for the
-    validity masks); ``right_best`` (W) int16 and ``right_low`` (W) uint16 are
+    validity masks); ``right_best`` (W) int16 and ``right_key`` (W) uint32 are
     scratch; results go to ``disparity`` and ``confidence`` (W) float32.
     """
     width, n_disp = srow.shape
     if lr_threshold >= 0:
-        _right_disparities(srow, min_disparity, right_best, right_low)
+        _right_disparities(srow, min_disparity, right_best, right_key)
     for x in range(width):
-        low = srow[x, 0]
-        for k in range(1, n_disp):
-            low = min(low, srow[x, k])
-        best = 0
-        while srow[x, best] != low:
-            best += 1
+        # argmin as the minimum of the keys S·2¹⁶ + k: one vectorised pass, and ties
+        # keep the smallest k
+        best_key = np.uint32(0xFFFFFFFF)
+        for k in range(n_disp):
+            best_key = min(best_key, (np.uint32(srow[x, k]) << np.uint32(16)) | np.uint32(k))
+        best = np.int64(best_key & np.uint32(0xFFFF))
+        low = np.uint16(best_key >> np.uint32(16))
+        # the best cost at least two disparities away: one branch-free loop over all k
+        # (two loops around the minimum do not vectorise)
         second = np.uint16(65535)
-        for k in range(0, best - 1):
-            second = min(second, srow[x, k])
-        for k in range(best + 2, n_disp):
-            second = min(second, srow[x, k])
+        for k in range(n_disp):
+            value = srow[x, k]
+            second = min(second, np.uint16(65535) if abs(k - best) <= 1 else value)
         d_int = min_disparity + best
         xr = x - d_int
         valid = left_valid[y, x] and xr >= 0 and xr < width and right_valid[y, xr]
@@ -111,10 +113,10 @@ def _select_rows(total, min_disparity, mode, lr_threshold, left_valid, right_val
                  disparity, confidence):
     n_rows, width, _ = total.shape
     right_best = np.empty(width, dtype=np.int16)
-    right_low = np.empty(width, dtype=np.uint16)
+    right_key = np.empty(width, dtype=np.uint32)
     for i in range(n_rows):
         select_row(total[i], row_start + i, min_disparity, mode, lr_threshold, left_valid,
-                   right_valid, right_best, right_low, disparity[i], confidence[i])
+                   right_valid, right_best, right_key, disparity[i], confidence[i])
 
 
 def select_disparities(total: np.ndarray, *, min_disparity: int, left_valid: np.ndarray,

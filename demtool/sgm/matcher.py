@@ -212,7 +212,7 @@ def _match_strip(source: tuple, radius: int, guide: np.ndarray, *, n_disp: int, 
         sweep_rows(source, radius, guide, groups, p1, p2_table, sign, first, last, lo, hi,
                    state.buf, state.mins, state.ring, state.running, state.pixel,
                    state.window_state, sweep_mode, total, state.scratch, mode, threshold,
-                   start, disparity, confidence, state.right_best, state.right_low)
+                   start, disparity, confidence, state.right_best, state.right_key)
         timer.add_cpu("match", time.thread_time() - cpu)
 
     if threads < 2 or hi - lo < 2:

@@ -295,6 +295,75 @@ KIND_CENSUS, KIND_TABLE, KIND_VOLUME = 0, 1, 2
 
 
 @njit(nogil=True, cache=True)
+def _disparity_span(x, min_disparity, width, n_disp):
+    """Disparity indices k_lo <= k < k_hi whose right pixel x − d lies inside the image."""
+    k_hi = max(0, min(n_disp, x - min_disparity + 1))
+    k_lo = min(k_hi, max(0, x - min_disparity - width + 1))
+    return k_lo, k_hi
+
+
+# The row kernels below are separate functions with one simple loop nest each: merged
+# into one loop over x (with the fills and the right-image mask), LLVM vectorised the
+# Hamming distances half as well.  Inside [k_lo, k_hi) the right pixel of k = k_lo + i
+# is x − d = start − i: an unsigned index (>= 0 there), so numba adds no negative-index
+# wraparound, and a loop counted from 0, so LLVM sees the reversed loads as consecutive.
+
+@njit(nogil=True, cache=True)
+def _census_row(left_codes, right_codes, left_valid, y, min_disparity, invalid_cost, out):
+    width, n_disp = out.shape
+    for x in range(width):
+        k_lo, k_hi = _disparity_span(x, min_disparity, width, n_disp)
+        start = x - min_disparity - k_lo
+        code = left_codes[y, x]
+        for i in range(k_hi - k_lo):
+            out[x, k_lo + i] = np.uint16(_popcount(code ^ right_codes[y, np.uint64(start - i)]))
+    _fill_outside(left_valid, y, min_disparity, invalid_cost, out)
+
+
+@njit(nogil=True, cache=True)
+def _table_row(left_levels, right_levels, table, left_valid, y, min_disparity, invalid_cost,
+               out):
+    width, n_disp = out.shape
+    for x in range(width):
+        k_lo, k_hi = _disparity_span(x, min_disparity, width, n_disp)
+        start = x - min_disparity - k_lo
+        level = left_levels[y, x]
+        for i in range(k_hi - k_lo):
+            out[x, k_lo + i] = table[level, right_levels[y, np.uint64(start - i)]]
+    _fill_outside(left_valid, y, min_disparity, invalid_cost, out)
+
+
+@njit(nogil=True, cache=True)
+def _fill_outside(left_valid, y, min_disparity, invalid_cost, out):
+    """Unmatched cost where x − d leaves the image; 0 (neutral) for invalid left pixels."""
+    width, n_disp = out.shape
+    for x in range(width):
+        if not left_valid[y, x]:
+            for k in range(n_disp):
+                out[x, k] = 0
+            continue
+        k_lo, k_hi = _disparity_span(x, min_disparity, width, n_disp)
+        for k in range(k_lo):
+            out[x, k] = invalid_cost
+        for k in range(k_hi, n_disp):
+            out[x, k] = invalid_cost
+
+
+@njit(nogil=True, cache=True)
+def _mask_right_invalid(left_valid, right_valid, y, min_disparity, invalid_cost, out):
+    """Unmatched cost where the right pixel x − d is invalid (NaN in the input)."""
+    width, n_disp = out.shape
+    for x in range(width):
+        if not left_valid[y, x]:
+            continue
+        k_lo, k_hi = _disparity_span(x, min_disparity, width, n_disp)
+        start = x - min_disparity - k_lo
+        for i in range(k_hi - k_lo):
+            if not right_valid[y, np.uint64(start - i)]:
+                out[x, k_lo + i] = invalid_cost
+
+
+@njit(nogil=True, cache=True)
 def _pixel_cost_row(source, y, out):
     """Pixelwise costs of image row ``y`` into ``out`` (W, D) uint16."""
     (kind, left_codes, right_codes, left_levels, right_levels, table, volume, left_valid,
@@ -305,41 +374,15 @@ def _pixel_cost_row(source, y, out):
             for k in range(n_disp):
                 out[x, k] = volume[y, x, k]
         return
-    right_all_valid = True
+    if kind == KIND_CENSUS:
+        _census_row(left_codes, right_codes, left_valid, y, min_disparity, invalid_cost, out)
+    else:
+        _table_row(left_levels, right_levels, table, left_valid, y, min_disparity,
+                   invalid_cost, out)
     for x in range(width):
         if not right_valid[y, x]:
-            right_all_valid = False
+            _mask_right_invalid(left_valid, right_valid, y, min_disparity, invalid_cost, out)
             break
-    for x in range(width):
-        if not left_valid[y, x]:
-            for k in range(n_disp):
-                out[x, k] = 0
-            continue
-        # disparities whose right pixel x − d lies inside the image: k_lo <= k < k_hi
-        k_hi = max(0, min(n_disp, x - min_disparity + 1))
-        k_lo = min(k_hi, max(0, x - min_disparity - width + 1))
-        for k in range(k_lo):
-            out[x, k] = invalid_cost
-        for k in range(k_hi, n_disp):
-            out[x, k] = invalid_cost
-        # the right pixel of k = k_lo + i is x − d = start − i: an unsigned index (>= 0
-        # here), so numba adds no negative-index wraparound, and a loop counted from 0,
-        # so LLVM sees the reversed loads as consecutive and vectorises them
-        start = x - min_disparity - k_lo
-        count = k_hi - k_lo
-        if kind == KIND_CENSUS:
-            code = left_codes[y, x]
-            for i in range(count):
-                out[x, k_lo + i] = np.uint16(_popcount(
-                    code ^ right_codes[y, np.uint64(start - i)]))
-        else:
-            level = left_levels[y, x]
-            for i in range(count):
-                out[x, k_lo + i] = table[level, right_levels[y, np.uint64(start - i)]]
-        if not right_all_valid:
-            for i in range(count):
-                if not right_valid[y, np.uint64(start - i)]:
-                    out[x, k_lo + i] = invalid_cost
 
 
 @njit(nogil=True, cache=True)

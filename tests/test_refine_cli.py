@@ -189,6 +189,7 @@ def test_missing_files_are_refused(tmp_path, scene):
     (["--median", "4"], "odd"),
     (["--spike-threshold", "-1"], "--spike-threshold"),
     (["--start-sigma", "-2"], "--start-sigma"),
+    (["--shadow-weight", "-0.1"], "--shadow-weight"),
     (["--model", "hapke"], "lunar-lambert"),
     (["--gamma", "0"], "--gamma"),
     (["--shadow-threshold", "1.5"], "--shadow-threshold"),
@@ -217,6 +218,7 @@ def test_spikes_are_removed_and_reported(tmp_path, scene):
     assert 5 / dem.size <= sidecar["summary"]["dem_spike_fraction"] < 0.01
     assert sidecar["parameters"]["spike_threshold"] == 4.0
     assert sidecar["parameters"]["start_sigma"] == 2.0
+    assert sidecar["parameters"]["shadow_weight"] == 0.005
 
 
 @pytest.mark.parametrize("preset", ["configs/navcam.toml", "configs/lro-nac.toml"])

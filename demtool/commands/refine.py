@@ -27,8 +27,8 @@ if TYPE_CHECKING:
 DEFAULTS: dict[str, Any] = {
     "model": "lunar-lambert", "albedo_sigma": 21.0, "lowpass_sigma": 21.0, "delta": 0.001,
     "gamma": 0.2, "tau": 10.0, "median": 15, "spike_threshold": 4.0, "start_sigma": 2.0,
-    "max_nan_fraction": 0.2,
-    "iterations": 60, "tolerance": 1e-4, "shadow_threshold": 0.05, "border_taper": 8.0,
+    "max_nan_fraction": 0.2, "iterations": 60, "tolerance": 1e-4, "shadow_threshold": 0.05,
+    "border_taper": 8.0, "shadow_weight": 0.005,
 }
 
 
@@ -181,7 +181,8 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
                start_sigma: float = 2.0, max_nan_fraction: float = 0.2,
                iterations: int = 60, tolerance: float = 1e-4,
                shadow_threshold: float = 0.05, cast_shadows: bool = True,
-               border_taper: float = 8.0, albedo_out: str | os.PathLike | None = None,
+               border_taper: float = 8.0, shadow_weight: float = 0.005,
+               albedo_out: str | os.PathLike | None = None,
                resolved: dict[str, Any] | None = None) -> RefineResult:
     """Refine the DEM at ``dem_path`` with the shading of ``image_path``; write ``out``.
 
@@ -214,7 +215,8 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     params = SfsParameters(delta=delta, gamma=gamma, tau=tau, lowpass_sigma=lowpass_sigma,
                            albedo_sigma=albedo_sigma, model=model, iterations=iterations,
                            tolerance=tolerance, shadow_threshold=shadow_threshold,
-                           cast_shadows=cast_shadows, border_px=border_taper)
+                           cast_shadows=cast_shadows, border_px=border_taper,
+                           shadow_weight=shadow_weight)
     params.check()
     prov = Provenance("refine", resolved or {**params.as_dict(), "median": median,
                                              "spike_threshold": spike_threshold,
@@ -394,6 +396,10 @@ LRO NAC studies.""")
 @click.option("--border-taper", type=_NON_NEGATIVE, default=DEFAULTS["border_taper"],
               show_default=True,
               help="Width over which the intensity term fades out at the grid border, pixels.")
+@click.option("--shadow-weight", type=_NON_NEGATIVE, default=DEFAULTS["shadow_weight"],
+              show_default=True,
+              help="Weight of the shadow-length term: across each shadow of the image the "
+                   "height drop is the shadow's length × tan(sun elevation) (0 = off).")
 @click.option("--albedo-out", type=click.Path(dir_okay=False), default=None,
               help="Also write the local albedo map (GeoTIFF, DEM grid).")
 @click.pass_context

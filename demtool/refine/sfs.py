@@ -5,11 +5,13 @@ constrained by digital elevation maps of lower lateral resolution*, ISPRS J.
 Photogramm. Remote Sens. 94, 37–54; Horn 1990, IJCV 5(1), 37–75), over the slope
 field (p, q) and the heights z, all sums over pixels::
 
-    E  = EI + δ Egrad + γ Eint + τ Edepth
+    E  = EI + δ Egrad + γ Eint + τ Edepth + ω Eshadow
     EI    = Σ w (I/ρ − R(p, q))²                    intensity error, local albedo ρ
     Egrad = Σ |f(p) − f(∂z0/∂x)|² + |f(q) − f(∂z0/∂y)|²
     Eint  = Σ (p − ∂z/∂x)² + (q − ∂z/∂y)²           integrability
     Edepth= Σ (f(z) − f(z0))²                       low-passed heights stay put
+    Eshadow = Σ_crossings (aᵀ(p, q) − L tan ε)²      shadow lengths (ours, see
+                                                    :mod:`demtool.refine.shadow_lengths`)
 
 with f a Gaussian low-pass (σ = 21 px), z0 the coarse DEM and R the unit-albedo
 reflectance model.  Units: slopes are dimensionless; heights enter in units of the
@@ -20,8 +22,9 @@ the grid border.  The reported energies are per-pixel means.
 Solver, alternating:
 
 * slopes: one Gauss–Newton step of EI + δ Egrad + γ Eint per pixel (a 2 × 2 system
-  solved in closed form; Egrad majorised with ‖f‖ ≤ 1), with Levenberg–Marquardt
-  damping raised when a step does not lower the energy;
+  solved in closed form; Egrad majorised with ‖f‖ ≤ 1), plus a rank-one update per
+  shadow crossing for ω Eshadow, with Levenberg–Marquardt damping raised when a step
+  does not lower the energy;
 * heights: one majorise–minimise step of γ Eint + τ Edepth.  The central-difference
   gradient G of Eint is majorised by the forward-difference Neumann Laplacian
   (GᵀG ≤ DᵀD), which the DCT diagonalises together with the Gaussian f, so the step is

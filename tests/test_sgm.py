@@ -8,7 +8,7 @@ from sgm_helpers import error_rates, fractional_shift_pair, occlusion_pair, smoo
 
 from demtool.errors import InputError, ParameterError
 from demtool.sgm import plan_strips, sgm
-from demtool.sgm.aggregate import adapted_p2_table, aggregate_costs
+from demtool.sgm.aggregate import adapted_p2_table, aggregate_costs, callee_sources_digest
 from demtool.sgm.cost import (
     census_pixel_cost,
     census_transform,
@@ -353,3 +353,19 @@ def test_adapted_p2_table():
     assert table[255] == 50  # never below P1
     assert (np.diff(table) <= 0).all()
     assert (adapted_p2_table(50, 700, 0) == 700).all()  # κ = 0: constant P2
+
+
+def test_sweep_kernel_cache_key_covers_the_kernels_it_inlines():
+    # numba's cache keys a function on its own file and closure only: sweep_rows closes
+    # over a digest of cost.py and disparity.py, so editing them recompiles it
+    import hashlib
+    from pathlib import Path
+
+    from demtool.sgm import aggregate
+
+    folder = Path(aggregate.__file__).parent
+    expected = hashlib.sha256((folder / "cost.py").read_bytes()
+                              + (folder / "disparity.py").read_bytes()).hexdigest()
+    assert callee_sources_digest() == expected
+    cells = [c.cell_contents for c in aggregate.sweep_rows.py_func.__closure__]
+    assert expected in cells

@@ -22,10 +22,9 @@ after both are done, continues into the other half, where it adds its own sum to
 stored one and selects the disparity of the finished row (:func:`sweep_rows`).  No
 row is computed twice and no strip overlap is needed.
 
-numba's on-disk cache of :func:`sweep_rows` does not notice edits to the functions it
-inlines from :mod:`demtool.sgm.cost` and :mod:`demtool.sgm.disparity`: after editing
-those, delete ``demtool/sgm/__pycache__/*.nb[ic]`` (an installed release is fine: its
-files change together).
+numba's on-disk cache would not notice edits to the kernels :func:`sweep_rows` inlines
+from :mod:`demtool.sgm.cost` and :mod:`demtool.sgm.disparity`; it closes over a digest
+of those files (:func:`callee_sources_digest`) so that their edits recompile it.
 
 Four path directions are updated in one loop over the disparities (int16, branch-free,
 16 lanes per AVX2 vector), so their sum is formed in registers.  Path costs are int16
@@ -34,7 +33,9 @@ Four path directions are updated in one loop over the disparities (int16, branch
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from numba import njit
@@ -132,100 +133,123 @@ def adapted_p2_table(p1: int, p2: int, kappa: int) -> np.ndarray:
     return np.where(steps <= kappa, p2, lowered).astype(np.int64)
 
 
-@njit(nogil=True, cache=True, fastmath=True)
-def sweep_rows(source, radius, guide, groups, p1, p2_table, sign, first, stop, lo, hi,
-               buf, mins, ring, running, pixel, window_state, mode, total, scratch,
-               subpixel, lr_threshold, out_start, disparity, confidence, right_best,
-               right_key):
-    """Aggregate image rows ``first, first + sign, ...`` (up to ``stop``, exclusive).
+def callee_sources_digest() -> str:
+    """SHA-256 of :mod:`demtool.sgm.cost` and :mod:`demtool.sgm.disparity`, whose
+    kernels :func:`sweep_rows` inlines.
 
-    One sweep (``sign`` = +1 down, −1 up) of the path directions ``groups`` (see
-    :func:`path_groups`) over the strip of rows ``lo .. hi`` (paths start at its
-    edges), with penalties P1 and ``p2_table[|ΔI|]`` (:func:`adapted_p2_table`, the
-    guide image's grey-level step along the path).  The window-summed cost of each
-    row comes from ``source`` (see :func:`demtool.sgm.cost.advance_window`, window
-    radius ``radius``).  The state
-    (``buf``, ``mins``, ``ring``, ``running``, ``window_state``; see
-    :func:`new_sweep_state`) carries over between calls, so a sweep may be split into
-    consecutive calls.  What happens to each row's sum of path costs ``mode``:
-    MODE_STORE writes it to ``total[y − lo]``, MODE_ADD adds it there, MODE_FINISH
-    adds the stored sum and, for rows ``out_start .. out_start + len(disparity)``,
-    selects the disparity into ``disparity`` and ``confidence`` (see
-    :func:`demtool.sgm.disparity.select_row`).
+    numba's on-disk cache knows only the compiled function's own file and bytecode (and
+    its closure variables), so :func:`sweep_rows` closes over this digest: an edit of
+    those modules then recompiles it instead of running stale machine code.
     """
-    width = guide.shape[1]
-    n_groups = groups.shape[0]
-    n_dirs = 4 * n_groups
-    n_slots = buf.shape[0] - 1
-    zero_slot = n_slots
-    previous_slot = np.empty(n_dirs, dtype=np.int64)
-    column_step = np.empty(n_dirs, dtype=np.int64)
-    penalty = np.empty((n_dirs, width), dtype=np.int64)
-    p1s = np.int16(p1)
-    n_out = disparity.shape[0]
-    y = first
-    while y != stop:
-        advance_window(source, y, sign, radius, ring, running, pixel, window_state)
-        slot = y % n_slots
-        # per row and direction: where L_r(p − r) is, and P2 for every pixel (adapted to
-        # the guide image's step along the path); predecessors outside the strip or the
-        # image fall on the all-zero slot or padding, so the path starts there (L_r = C)
-        for j in range(n_dirs):
-            dy = groups[j // 4, j % 4, 0]
-            yp = y - sign * dy
-            if dy == 0:
-                previous_slot[j] = slot
-            elif yp >= lo and yp < hi:
-                previous_slot[j] = yp % n_slots
-            else:
-                previous_slot[j] = zero_slot
-            step = -sign * groups[j // 4, j % 4, 1]
-            column_step[j] = step
-            for x in range(width):
-                xp = x + step
-                if previous_slot[j] != zero_slot and 0 <= xp < width:
-                    penalty[j, x] = p2_table[abs(np.int32(guide[y, x]) - np.int32(guide[yp, xp]))]
+    digest = hashlib.sha256()
+    for name in ("cost.py", "disparity.py"):
+        digest.update((Path(__file__).with_name(name)).read_bytes())
+    return digest.hexdigest()
+
+
+def _define_sweep_rows(callee_digest: str):
+    @njit(nogil=True, cache=True, fastmath=True)
+    def sweep_rows(source, radius, guide, groups, p1, p2_table, sign, first, stop, lo, hi,
+                   buf, mins, ring, running, pixel, window_state, mode, total, scratch,
+                   subpixel, lr_threshold, out_start, disparity, confidence, right_best,
+                   right_key):
+        """Aggregate image rows ``first, first + sign, ...`` (up to ``stop``, exclusive).
+
+        One sweep (``sign`` = +1 down, −1 up) of the path directions ``groups`` (see
+        :func:`path_groups`) over the strip of rows ``lo .. hi`` (paths start at its
+        edges), with penalties P1 and ``p2_table[|ΔI|]`` (:func:`adapted_p2_table`, the
+        guide image's grey-level step along the path).  The window-summed cost of each
+        row comes from ``source`` (see :func:`demtool.sgm.cost.advance_window`, window
+        radius ``radius``).  The state
+        (``buf``, ``mins``, ``ring``, ``running``, ``window_state``; see
+        :func:`new_sweep_state`) carries over between calls, so a sweep may be split into
+        consecutive calls.  What happens to each row's sum of path costs ``mode``:
+        MODE_STORE writes it to ``total[y − lo]``, MODE_ADD adds it there, MODE_FINISH
+        adds the stored sum and, for rows ``out_start .. out_start + len(disparity)``,
+        selects the disparity into ``disparity`` and ``confidence`` (see
+        :func:`demtool.sgm.disparity.select_row`).
+        """
+        if callee_digest == "":  # never: it puts the digest into numba's cache key
+            return
+        width = guide.shape[1]
+        n_groups = groups.shape[0]
+        n_dirs = 4 * n_groups
+        n_slots = buf.shape[0] - 1
+        zero_slot = n_slots
+        previous_slot = np.empty(n_dirs, dtype=np.int64)
+        column_step = np.empty(n_dirs, dtype=np.int64)
+        penalty = np.empty((n_dirs, width), dtype=np.int64)
+        p1s = np.int16(p1)
+        n_out = disparity.shape[0]
+        y = first
+        while y != stop:
+            advance_window(source, y, sign, radius, ring, running, pixel, window_state)
+            slot = y % n_slots
+            # per row and direction: where L_r(p − r) is, and P2 for every pixel (adapted to
+            # the guide image's step along the path); predecessors outside the strip or the
+            # image fall on the all-zero slot or padding, so the path starts there (L_r = C)
+            for j in range(n_dirs):
+                dy = groups[j // 4, j % 4, 0]
+                yp = y - sign * dy
+                if dy == 0:
+                    previous_slot[j] = slot
+                elif yp >= lo and yp < hi:
+                    previous_slot[j] = yp % n_slots
                 else:
-                    penalty[j, x] = p2_table[0]
-        out = total[y - lo] if mode == MODE_STORE else scratch
-        for i in range(width):
-            x = i if sign > 0 else width - 1 - i
-            col = x + PAD
-            for g in range(n_groups):
-                j = 4 * g
-                # literal flags: two specialisations, the first without the load of out
-                if g == 0:
-                    _four_paths(buf, mins, 0, slot, col,
-                                previous_slot[0], col + column_step[0], penalty[0, x],
-                                previous_slot[1], col + column_step[1], penalty[1, x],
-                                previous_slot[2], col + column_step[2], penalty[2, x],
-                                previous_slot[3], col + column_step[3], penalty[3, x],
-                                running, x, p1s, out, False)
-                else:
-                    _four_paths(buf, mins, j, slot, col,
-                                previous_slot[j], col + column_step[j], penalty[j, x],
-                                previous_slot[j + 1], col + column_step[j + 1],
-                                penalty[j + 1, x],
-                                previous_slot[j + 2], col + column_step[j + 2],
-                                penalty[j + 2, x],
-                                previous_slot[j + 3], col + column_step[j + 3],
-                                penalty[j + 3, x],
-                                running, x, p1s, out, True)
-        if mode == MODE_ADD:
-            stored = total[y - lo]
-            for x in range(width):
-                for k in range(scratch.shape[1]):
-                    stored[x, k] = np.uint16(stored[x, k] + scratch[x, k])
-        elif mode == MODE_FINISH:
-            stored = total[y - lo]
-            for x in range(width):
-                for k in range(scratch.shape[1]):
-                    scratch[x, k] = np.uint16(scratch[x, k] + stored[x, k])
-            if out_start <= y < out_start + n_out:
-                select_row(scratch, y, source[9], subpixel, lr_threshold, source[7], source[8],
-                           right_best, right_key, disparity[y - out_start],
-                           confidence[y - out_start])
-        y += sign
+                    previous_slot[j] = zero_slot
+                step = -sign * groups[j // 4, j % 4, 1]
+                column_step[j] = step
+                for x in range(width):
+                    xp = x + step
+                    if previous_slot[j] != zero_slot and 0 <= xp < width:
+                        grey_step = abs(np.int32(guide[y, x]) - np.int32(guide[yp, xp]))
+                        penalty[j, x] = p2_table[grey_step]
+                    else:
+                        penalty[j, x] = p2_table[0]
+            out = total[y - lo] if mode == MODE_STORE else scratch
+            for i in range(width):
+                x = i if sign > 0 else width - 1 - i
+                col = x + PAD
+                for g in range(n_groups):
+                    j = 4 * g
+                    # literal flags: two specialisations, the first without the load of out
+                    if g == 0:
+                        _four_paths(buf, mins, 0, slot, col,
+                                    previous_slot[0], col + column_step[0], penalty[0, x],
+                                    previous_slot[1], col + column_step[1], penalty[1, x],
+                                    previous_slot[2], col + column_step[2], penalty[2, x],
+                                    previous_slot[3], col + column_step[3], penalty[3, x],
+                                    running, x, p1s, out, False)
+                    else:
+                        _four_paths(buf, mins, j, slot, col,
+                                    previous_slot[j], col + column_step[j], penalty[j, x],
+                                    previous_slot[j + 1], col + column_step[j + 1],
+                                    penalty[j + 1, x],
+                                    previous_slot[j + 2], col + column_step[j + 2],
+                                    penalty[j + 2, x],
+                                    previous_slot[j + 3], col + column_step[j + 3],
+                                    penalty[j + 3, x],
+                                    running, x, p1s, out, True)
+            if mode == MODE_ADD:
+                stored = total[y - lo]
+                for x in range(width):
+                    for k in range(scratch.shape[1]):
+                        stored[x, k] = np.uint16(stored[x, k] + scratch[x, k])
+            elif mode == MODE_FINISH:
+                stored = total[y - lo]
+                for x in range(width):
+                    for k in range(scratch.shape[1]):
+                        scratch[x, k] = np.uint16(scratch[x, k] + stored[x, k])
+                if out_start <= y < out_start + n_out:
+                    select_row(scratch, y, source[9], subpixel, lr_threshold, source[7],
+                               source[8], right_best, right_key, disparity[y - out_start],
+                               confidence[y - out_start])
+            y += sign
+
+    return sweep_rows
+
+
+sweep_rows = _define_sweep_rows(callee_sources_digest())
 
 
 @dataclass

@@ -147,9 +147,10 @@ def integrability_adjoint(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.n
 def energy_sums(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.ndarray,
                 p0: np.ndarray, q0: np.ndarray, bp: np.ndarray, bq: np.ndarray,
                 R: np.ndarray, normalised: np.ndarray, weight: np.ndarray
-                ) -> tuple[float, float, float]:  # pragma: no cover - compiled
-    """Sums of ``w (I/ρ − R)²``, ``(p − p0)·bp + (q − q0)·bq`` (= ‖f(p − p0)‖² +
-    ‖f(q − q0)‖² when ``bp = fᵀf (p − p0)``) and ``(p − gx)² + (q − gy)²``.
+                ) -> np.ndarray:  # pragma: no cover - compiled
+    """The sums, as a (3,) float64 array, of ``w (I/ρ − R)²``, of ``(p − p0)·bp +
+    (q − q0)·bq`` (= ‖f(p − p0)‖² + ‖f(q − q0)‖² when ``bp = fᵀf (p − p0)``) and of
+    ``(p − gx)² + (q − gy)²``.
 
     Rows are summed in float32 (vectorised; relative error ~1e-6 for a row of a few
     thousand pixels), the row sums in float64.
@@ -170,7 +171,7 @@ def energy_sums(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.ndarray,
         rows[r, 0] = e_i
         rows[r, 1] = e_grad
         rows[r, 2] = e_int
-    return rows[:, 0].sum(), rows[:, 1].sum(), rows[:, 2].sum()
+    return rows.sum(axis=0)  # (3,); three strided column sums here run 2.5× slower
 
 
 @nb.njit(parallel=True, cache=True)

@@ -321,9 +321,9 @@ class _Solver:
     def energies(self, state: _State, normalised: np.ndarray, weight: np.ndarray) -> Energies:
         p = self.params
         n = self.count
-        e_i, e_grad, e_int = self.kernels.energy_sums(
+        e_i, e_grad, e_int = (float(v) for v in self.kernels.energy_sums(
             state.p, state.q, state.gx, state.gy, self.p0, self.q0, state.bp, state.bq,
-            state.R, normalised, weight)
+            state.R, normalised, weight))
         e_depth = self.kernels.weighted_square_sum(self.g2, state.z_hat, self.z0_hat)
         e_shadow = 0.0
         if p.shadow_weight > 0 and self.segments.count:

@@ -43,61 +43,18 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from pathlib import Path
 
 import numpy as np
+from stereo_pairs import (
+    MIDDLEBURY,
+    MIDDLEBURY_PAIRS,
+    middlebury_pair,
+    opencv_sgbm,
+    synthetic_pair,
+)
 
-ROOT = Path(__file__).resolve().parents[1]
-MIDDLEBURY = ROOT.parent / "shared" / "data" / "middlebury"
-# pair: left, right, truth, scale (d = value / scale), disparities searched, nonocc mask
-MIDDLEBURY_PAIRS = {
-    "tsukuba": ("im3.png", "im4.png", "disp3.pgm", 16, 16, None),
-    "venus": ("im2.png", "im6.png", "disp2.pgm", 8, 32, None),
-    "cones": ("im2.png", "im6.png", "disp2.png", 4, 64, "derived/nonocc_lrcheck.png"),
-    "teddy": ("im2.png", "im6.png", "disp2.png", 4, 64, "derived/nonocc_lrcheck.png"),
-}
 ALL_TEMPLATES = (9, 13, 17, 21, 25)
 ALL_THRESHOLDS = (0.9, 0.8)
-
-
-def synthetic_pair(quick: bool):
-    """The synthetic target/partner pair, rectified, its truth and disparity range."""
-    from demtool.homography import warp_to_rectified
-    from demtool.rectify import rectify_pair
-    from demtool.synth import SceneParams, make_scene, truth_disparity
-
-    params = (SceneParams(seed=0, dem_size=256, image_size=256, n_views=2, crater_count=20,
-                          crater_max_diameter_m=50.0) if quick else SceneParams(n_views=2))
-    scene = make_scene(params)
-    left, right = scene.images[scene.target], scene.images[scene.partner]
-    rect = rectify_pair(left, right)
-    size = rect.size_rect
-    left_rect = warp_to_rectified(left, rect.H_left, size)
-    right_rect = warp_to_rectified(right, rect.H_right, size)
-    truth = truth_disparity(scene, rect.H_left, rect.H_right, (int(size[1]), int(size[0])))
-    low, high = rect.disparity_range
-    min_disparity = int(math.floor(low))
-    count = int(math.ceil(high)) - min_disparity + 1
-    mask = truth.visible & np.isfinite(left_rect) & np.isfinite(right_rect)
-    seeds = (rect.points_left_rect, rect.points_right_rect)
-    return (left_rect, right_rect, truth.disparity, {"visible": mask}, min_disparity, count,
-            seeds)
-
-
-def middlebury_pair(name: str):
-    """A Middlebury pair (grey), its truth (px) and masks (all with truth, nonocc)."""
-    from demtool import io as dio
-
-    folder = MIDDLEBURY / name
-    left_name, right_name, truth_name, scale, count, mask_name = MIDDLEBURY_PAIRS[name]
-    left = dio.read_image(folder / left_name).data
-    right = dio.read_image(folder / right_name).data
-    raw = dio.read_image(folder / truth_name).data
-    truth = (raw / scale).astype(np.float32)
-    masks = {"all": raw > 0}
-    if mask_name is not None:
-        masks["nonocc"] = masks["all"] & (dio.read_image(folder / mask_name).data > 127)
-    return left, right, truth, masks, 0, count, None
 
 
 def scores(disparity: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict[str, float]:
@@ -109,26 +66,6 @@ def scores(disparity: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict[s
             "mae": math.nan if empty else float(error.mean()),
             "bad05": math.nan if empty else 100.0 * float((error > 0.5).mean()),
             "bad1": math.nan if empty else 100.0 * float((error > 1.0).mean())}
-
-
-def opencv_sgbm(left: np.ndarray, right: np.ndarray, min_disparity: int,
-                num_disparities: int, block_size: int = 5) -> np.ndarray:
-    """OpenCV StereoSGBM MODE_HH (OpenCV's recommended penalties); NaN = invalid."""
-    import cv2
-
-    from demtool.features import to_uint8
-
-    count = int(math.ceil(num_disparities / 16) * 16)
-    matcher = cv2.StereoSGBM_create(minDisparity=int(min_disparity), numDisparities=count,
-                                    blockSize=block_size, P1=8 * block_size ** 2,
-                                    P2=32 * block_size ** 2, disp12MaxDiff=1,
-                                    uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,
-                                    mode=cv2.STEREO_SGBM_MODE_HH)
-    raw = matcher.compute(to_uint8(left)[0], to_uint8(right)[0])
-    disparity = raw.astype(np.float32) / 16.0
-    disparity[raw <= (min_disparity - 1) * 16] = np.nan
-    disparity[~(np.isfinite(left) & np.isfinite(right))] = np.nan
-    return disparity
 
 
 def run_pair(name: str, data, templates, thresholds, weighting: float = 0.0) -> list[dict]:
@@ -153,7 +90,7 @@ def run_pair(name: str, data, templates, thresholds, weighting: float = 0.0) -> 
                          subpixel=subpixel)
             runs.append((f"sgm hmi {subpixel}", result.disparity, time.perf_counter() - start))
     start = time.perf_counter()
-    runs.append(("OpenCV SGBM HH", opencv_sgbm(left, right, min_disparity, count),
+    runs.append(("OpenCV SGBM HH", opencv_sgbm(left, right, min_disparity, count)[0],
                  time.perf_counter() - start))
     configs = [(t, r, 0.0) for t in templates for r in thresholds]
     if weighting > 0:  # centre-weighted LSM at the study's threshold

@@ -40,47 +40,15 @@ import argparse
 import math
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
-
-ROOT = Path(__file__).resolve().parents[1]
-MIDDLEBURY = ROOT.parent / "shared" / "data" / "middlebury"
-# pair: left, right, truth, scale (d = value / scale), disparities, non-occlusion mask
-MIDDLEBURY_PAIRS = {
-    "tsukuba": ("im3.png", "im4.png", "disp3.pgm", 16, 16, None),
-    "venus": ("im2.png", "im6.png", "disp2.pgm", 8, 32, None),
-    "cones": ("im2.png", "im6.png", "disp2.png", 4, 64, "derived/nonocc_lrcheck.png"),
-    "teddy": ("im2.png", "im6.png", "disp2.png", 4, 64, "derived/nonocc_lrcheck.png"),
-}
-
-
-def to_uint8(image: np.ndarray) -> np.ndarray:
-    """8-bit version of an image: its own 0.5–99.5 percentile stretch, NaN → 0."""
-    valid = np.isfinite(image)
-    low, high = np.percentile(image[valid], [0.5, 99.5])
-    scaled = (np.where(valid, image, low) - low) * (255.0 / max(high - low, 1e-6))
-    return np.clip(np.rint(scaled), 0, 255).astype(np.uint8)
-
-
-def opencv_sgbm(left: np.ndarray, right: np.ndarray, min_disparity: int, num_disparities: int,
-                block_size: int = 5) -> tuple[np.ndarray, float]:
-    """OpenCV StereoSGBM MODE_HH with OpenCV's recommended penalties; NaN = invalid."""
-    import cv2
-
-    count = int(math.ceil(num_disparities / 16) * 16)
-    matcher = cv2.StereoSGBM_create(minDisparity=int(min_disparity), numDisparities=count,
-                                    blockSize=block_size, P1=8 * block_size**2,
-                                    P2=32 * block_size**2, disp12MaxDiff=1,
-                                    uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,
-                                    mode=cv2.STEREO_SGBM_MODE_HH)
-    start = time.perf_counter()
-    raw = matcher.compute(to_uint8(left), to_uint8(right))
-    seconds = time.perf_counter() - start
-    disparity = raw.astype(np.float32) / 16.0
-    disparity[raw <= (min_disparity - 1) * 16] = np.nan
-    disparity[~(np.isfinite(left) & np.isfinite(right))] = np.nan
-    return disparity, seconds
+from stereo_pairs import (
+    MIDDLEBURY,
+    MIDDLEBURY_PAIRS,
+    middlebury_pair,
+    opencv_sgbm,
+    synthetic_pair,
+)
 
 
 def scores(disparity: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict[str, float]:
@@ -95,28 +63,6 @@ def scores(disparity: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict[s
 
 
 # ------------------------------------------------------------------------------- pairs
-
-
-def synthetic_pair(quick: bool):
-    """The synthetic scene's target/partner pair, rectified, with its truth."""
-    from demtool.homography import warp_to_rectified
-    from demtool.rectify import rectify_pair
-    from demtool.synth import SceneParams, make_scene, truth_disparity
-
-    params = SceneParams(seed=0, dem_size=256, image_size=256, n_views=2, crater_count=20,
-                         crater_max_diameter_m=50.0) if quick else SceneParams(n_views=2)
-    scene = make_scene(params)
-    left, right = scene.images[scene.target], scene.images[scene.partner]
-    rect = rectify_pair(left, right)
-    size = rect.size_rect
-    left_rect = warp_to_rectified(left, rect.H_left, size)
-    right_rect = warp_to_rectified(right, rect.H_right, size)
-    truth = truth_disparity(scene, rect.H_left, rect.H_right, (int(size[1]), int(size[0])))
-    low, high = rect.disparity_range
-    min_disparity = int(math.floor(low))
-    count = int(math.ceil(high)) - min_disparity + 1
-    mask = truth.visible & np.isfinite(left_rect) & np.isfinite(right_rect)
-    return left_rect, right_rect, truth.disparity, mask, min_disparity, count
 
 
 HARD_SPECTRAL_EXPONENT = 2.3  # β of the texture's power spectrum P(k) ∝ k^-β
@@ -161,25 +107,16 @@ def hard_pair(quick: bool, seed: int = 11, spectral_exponent: float = HARD_SPECT
             0, 48)
 
 
-def middlebury_pair(name: str):
-    from demtool import io as dio
-
-    folder = MIDDLEBURY / name
-    left_name, right_name, truth_name, scale, count, mask_name = MIDDLEBURY_PAIRS[name]
-    left = dio.read_image(folder / left_name).data
-    right = dio.read_image(folder / right_name).data
-    raw = dio.read_image(folder / truth_name).data
-    truth = raw / scale
-    mask = raw > 0
-    if mask_name is not None:
-        mask &= dio.read_image(folder / mask_name).data > 127
-    return left, right, truth.astype(np.float32), mask, 0, count
-
-
 # ------------------------------------------------------------------------------- main
 
 
 TARGET_NOTE = {"bad2": "demtool hmi bad2 <= OpenCV", "mae": "MAE <= OpenCV (synthetic)"}
+
+
+def _as_tuple(pair):
+    """(left, right, truth, mask, min_disparity, count) on the non-occluded pixels."""
+    return (pair.left, pair.right, pair.truth, pair.evaluation_mask, pair.min_disparity,
+            pair.num_disparities)
 
 
 def run_pair(name: str, data, rows: list[dict]) -> None:
@@ -231,14 +168,14 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict] = []
     for name in wanted:
         if name == "synthetic":
-            run_pair(name, synthetic_pair(args.quick), rows)
+            run_pair(name, _as_tuple(synthetic_pair(args.quick)), rows)
         elif name == "hard":
             run_pair(name, hard_pair(args.quick), rows)
         elif name in MIDDLEBURY_PAIRS:
             if not (MIDDLEBURY / name).is_dir():
                 print(f"\n{name}: skipped ({MIDDLEBURY / name} not found)")
                 continue
-            run_pair(f"{name}", middlebury_pair(name), rows)
+            run_pair(f"{name}", _as_tuple(middlebury_pair(name)), rows)
         else:
             print(f"unknown pair {name!r}", file=sys.stderr)
             return 2

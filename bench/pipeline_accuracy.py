@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from demtool import io
+from demtool.robust import nmad
 
 QUICK_SCENE = ["--seed", "0", "--size", "256", "--views", "4", "--image-size", "192",
                "--craters", "20", "--crater-max", "50", "--boulders", "100"]
@@ -68,7 +69,7 @@ def metrics(dem_path: Path, truth: np.ndarray) -> dict[str, float]:
     sidecar = json.loads(Path(f"{dem_path}.json").read_text())["summary"]
     return {
         "rmse": float(np.sqrt(np.mean(difference**2))),
-        "nmad": float(1.4826 * np.median(np.abs(difference))),
+        "nmad": nmad(difference),
         "complete": float(finite.mean()),
         "measured": float(sidecar.get("measured_fraction", finite.mean())),
     }

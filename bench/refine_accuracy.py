@@ -38,6 +38,7 @@ from demtool import io
 from demtool.commands.refine import run_refine
 from demtool.commands.synth import run_synth
 from demtool.logs import configure_logging
+from demtool.robust import nmad
 from demtool.spectral import coherence_cutoff
 from demtool.synth import SceneParams
 
@@ -59,7 +60,7 @@ def metrics(dem: np.ndarray, truth: np.ndarray, gsd: float) -> dict[str, float]:
     error = (dem - truth)[np.isfinite(dem - truth)]
     vector, angle = gradient_error(dem, truth, gsd)
     return {"rmse": float(np.sqrt(np.mean(error**2))),
-            "nmad": float(1.4826 * np.median(np.abs(error - np.median(error)))),
+            "nmad": nmad(error),
             "slope": vector, "slope_deg": angle,
             "coherent": coherence_cutoff(dem, truth, spacing=gsd, threshold=0.5),
             "mean": float(np.mean(error))}

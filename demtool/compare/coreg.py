@@ -40,6 +40,7 @@ from numba import njit, prange
 from demtool.compare.grids import gaussian_shift
 from demtool.errors import ProcessingError
 from demtool.logs import get_logger
+from demtool.robust import nmad
 
 __all__ = ["ShiftResult", "nuth_kaab", "vertical_offset"]
 
@@ -82,10 +83,6 @@ class ShiftResult:
 # --------------------------------------------------------------------------------------
 # helpers
 # --------------------------------------------------------------------------------------
-
-
-def _nmad(values: np.ndarray) -> float:
-    return float(1.4826 * np.median(np.abs(values - np.median(values))))
 
 
 def _check_pair(dem: np.ndarray, reference: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
@@ -184,7 +181,7 @@ def vertical_offset(dem: np.ndarray, reference: np.ndarray, *,
                               "vertical offset")
     dh = (reference - dem)[usable]
     dz = float(np.median(dh))
-    sigma = 1.2533 * _nmad(dh) / np.sqrt(count)
+    sigma = 1.2533 * nmad(dh) / np.sqrt(count)
     return ShiftResult(0.0, 0.0, dz, 0.0, 0.0, float(sigma), 1, True, count)
 
 
@@ -283,7 +280,7 @@ def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
                                - params[2]))[usable[sub]]
         residual = residual[np.isfinite(residual)]
         centre = float(np.median(residual)) if residual.size else 0.0
-        halfwidth = 4.0 * _nmad(residual) if residual.size else 0.0
+        halfwidth = 4.0 * nmad(residual) if residual.size else 0.0
         if halfwidth > 0:
             sums = _gradient_sums(grad_x, grad_y, dh, usable, params, centre, halfwidth)
             params, sigma, variance, count = _solve_sums(sums)

@@ -23,12 +23,12 @@ from demtool.compare.coreg import (
     MIN_PIXELS,
     _block_ids,
     _bootstrap_sigma,
-    _nmad,
     _solve,
 )
 from demtool.compare.grids import gaussian_shift, sample_bilinear, sample_cubic
 from demtool.errors import ProcessingError
 from demtool.logs import get_logger
+from demtool.robust import nmad
 
 __all__ = ["IcpResult", "apply_similarity", "icp_point_to_plane", "rotation_matrix"]
 
@@ -215,7 +215,7 @@ def icp_point_to_plane(dem: np.ndarray, reference: np.ndarray, *,
             columns.append(np.sum(normal * arm, axis=1)[:, None])
         design = np.column_stack(columns)
         residual = distance - np.median(distance)
-        inliers = np.abs(residual) <= 4.0 * max(_nmad(distance), 1e-12)
+        inliers = np.abs(residual) <= 4.0 * max(nmad(distance), 1e-12)
         if inliers.sum() < MIN_PIXELS:
             inliers = np.ones(distance.size, bool)
         increment, sigma, variance = _solve(design[inliers], -distance[inliers])

@@ -7,6 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from demtool.robust import nmad
+
 __all__ = [
     "STAT_KEYS",
     "completeness",
@@ -50,7 +52,7 @@ def difference_statistics(difference: np.ndarray, mask: np.ndarray | None = None
         "median": median,
         "std": float(x.std()),
         "rmse": float(np.sqrt(np.mean(x * x))),
-        "nmad": float(1.4826 * np.median(np.abs(x - median))),
+        "nmad": nmad(x),
         "le90": float(np.percentile(np.abs(x), 90)),
         "min": float(x.min()),
         "max": float(x.max()),

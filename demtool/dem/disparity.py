@@ -15,6 +15,7 @@ import numpy as np
 
 from demtool.camera import PinholeCamera, triangulate_midpoint
 from demtool.errors import ProcessingError
+from demtool.robust import nmad
 
 
 @dataclass(frozen=True)
@@ -236,11 +237,10 @@ def fit_projective_3d(source: np.ndarray, target: np.ndarray, *, iterations: int
     if inliers.sum() < 5:
         raise ProcessingError("the projective fit is degenerate (fewer than 5 inliers)")
     heights = apply_projective_3d(T_full, src[inliers])[:, 2]
-    nmad = 1.4826 * float(np.median(np.abs(heights - dst[inliers, 2]
-                                           - np.median(heights - dst[inliers, 2]))))
+    residual_nmad = nmad(heights - dst[inliers, 2])
     full_inliers = np.zeros(len(finite), dtype=bool)
     full_inliers[np.flatnonzero(finite)[inliers]] = True
-    return ProjectiveFit(T=T_full, inliers=full_inliers, residual_nmad=nmad)
+    return ProjectiveFit(T=T_full, inliers=full_inliers, residual_nmad=residual_nmad)
 
 
 def sample_bilinear(grid: np.ndarray, pixels: np.ndarray) -> np.ndarray:

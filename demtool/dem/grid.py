@@ -13,8 +13,7 @@ import numpy as np
 
 from demtool.errors import ParameterError, ProcessingError
 from demtool.interpolate import inpaint_springs
-
-NMAD_FACTOR = 1.4826  # normalised median absolute deviation of a Gaussian
+from demtool.robust import NMAD_FACTOR
 
 
 def _inside(pixels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

@@ -39,6 +39,7 @@ from demtool.logs import get_logger
 from demtool.match.lsm import CONVERGED, lsm_match
 from demtool.match.ncc import ncc_search
 from demtool.match.triangles import SeedTriangulation
+from demtool.robust import nmad
 
 log = get_logger(__name__)
 
@@ -254,8 +255,7 @@ def remove_blunders(points: np.ndarray, disparity: np.ndarray, *, tolerance: flo
         if len(tri) != keep.sum():  # duplicates collapsed: skip the test
             break
         deviation = disparity[keep] - tri.neighbour_median()
-        mad = 1.4826 * np.median(np.abs(deviation - np.median(deviation)))
-        bad = np.abs(deviation) > max(tolerance, 3.0 * mad)
+        bad = np.abs(deviation) > max(tolerance, 3.0 * nmad(deviation))
         if not bad.any():
             break
         idx = np.nonzero(keep)[0]

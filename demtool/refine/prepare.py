@@ -11,6 +11,7 @@ from scipy import ndimage
 from demtool.errors import ProcessingError
 from demtool.logs import get_logger
 from demtool.refine.filters import gaussian_lowpass, median_filter
+from demtool.robust import NMAD_FACTOR
 
 log = get_logger(__name__)
 
@@ -41,8 +42,6 @@ class PreparedDem(NamedTuple):
     nan_fraction: float
 
 
-#: Robust standard deviations (NMAD) per unit of the spike threshold.
-NMAD_SCALE = 1.4826
 
 
 def despike(dem: np.ndarray, median: np.ndarray, threshold: float, size: int) -> np.ndarray:
@@ -73,8 +72,8 @@ def despike(dem: np.ndarray, median: np.ndarray, threshold: float, size: int) ->
     """
     deviation = np.asarray(dem, dtype=np.float32) - np.asarray(median, dtype=np.float32)
     spread = np.abs(deviation - np.float32(np.median(deviation)))
-    global_spread = NMAD_SCALE * float(np.median(spread))
-    local_spread = np.float32(NMAD_SCALE) * median_filter(spread, size)
+    global_spread = NMAD_FACTOR * float(np.median(spread))
+    local_spread = np.float32(NMAD_FACTOR) * median_filter(spread, size)
     return spread > threshold * np.maximum(local_spread, np.float32(global_spread))
 
 

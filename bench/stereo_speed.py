@@ -150,10 +150,12 @@ def main(argv: list[str] | None = None) -> int:
         ratio = result["wall_s"] / reference
         target = targets.get(label)
         met = "" if target is None else ("met" if ratio <= target else "NOT met")
+        # The 2 GB memory target is demtool's; the reference's memory is shown as measured.
+        memory = "" if target is None else ("met" if result["peak_mb"] <= 2000 else "NOT met")
         print(f"{label:<24} {result['wall_s']:8.2f} {ratio:9.2f} "
               f"{'' if target is None else f'≤{target:.1f}':>7} {met:>8} "
               f"{result['cpu_s']:7.2f} {result['cpu_s'] / cpu_reference:9.2f} "
-              f"{result['peak_mb']:8.0f} {'met' if result['peak_mb'] <= 2000 else 'NOT met':>9}")
+              f"{result['peak_mb']:8.0f} {memory:>9}")
     print("wall time is the target; CPU time (user + system, all threads) is given because "
           "it depends less on other processes' load.  OpenCV's MODE_HH runs on one thread.")
     print("\ndemtool phases (from the sidecar), wall / CPU seconds; 'startup + I/O' = the "

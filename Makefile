@@ -2,7 +2,8 @@
 #
 #   make demo            synthetic scene → every route → refined DEM → comparison table
 #   make test            test suite (installs the test extras into .venv)
-#   make bench           benchmarks (installs the bench extras into .venv)
+#   make bench           benchmarks (installs the bench extras into .venv); bench/_*.py
+#                        are modules the benchmarks share, not benchmarks
 #
 # Variables: WORK (work folder), CONFIG (TOML preset), SYNTH_ARGS (extra synth options),
 # TARGET / PARTNER (view names of the target image and its stereo partner).
@@ -58,7 +59,7 @@ lint: $(VENV)/.installed-test
 	$(BIN)/ruff check demtool tests bench
 
 bench: $(VENV)/.installed-bench
-	@set -e; for script in bench/*.py; do \
+	@set -e; for script in $(filter-out bench/_%,$(wildcard bench/*.py)); do \
 	  echo "=== $$script"; $(BIN)/python $$script; \
 	done
 

@@ -45,7 +45,7 @@ import math
 import time
 
 import numpy as np
-from stereo_pairs import (
+from _stereo_pairs import (
     MIDDLEBURY,
     MIDDLEBURY_PAIRS,
     middlebury_pair,

@@ -42,7 +42,7 @@ import sys
 import time
 
 import numpy as np
-from stereo_pairs import (
+from _stereo_pairs import (
     MIDDLEBURY,
     MIDDLEBURY_PAIRS,
     middlebury_pair,

@@ -16,17 +16,14 @@ from demtool import io as dio
 from demtool.errors import DemtoolError
 
 
-def _lookup(report: dict[str, Any], *keys: str) -> Any:
-    """First present key, with dotted paths into nested dicts."""
-    for key in keys:
-        value: Any = report
-        for part in key.split("."):
-            if not isinstance(value, dict) or part not in value:
-                break
-            value = value[part]
-        else:
-            return value
-    return None
+def _lookup(report: dict[str, Any], key: str) -> Any:
+    """A value by dotted path into nested dicts (``effective_resolution.wavelength_m``)."""
+    value: Any = report
+    for part in key.split("."):
+        if not isinstance(value, dict) or part not in value:
+            return None
+        value = value[part]
+    return value
 
 
 def _fmt(value: Any, spec: str) -> str:
@@ -43,8 +40,7 @@ def summary_rows(reports: Sequence[str | Path]) -> list[dict[str, Any]]:
             "rmse": _lookup(report, "rmse"),
             "nmad": _lookup(report, "nmad"),
             "completeness": _lookup(report, "completeness"),
-            "coherent_wavelength_m": _lookup(report, "effective_resolution.wavelength_m",
-                                             "coherence.wavelength_m"),
+            "coherent_wavelength_m": _lookup(report, "effective_resolution.wavelength_m"),
         })
     return rows
 

@@ -1,8 +1,9 @@
 """The ``demtool`` command line: a click group of chained stages.
 
-Each stage lives in ``demtool/commands/<stage>.py`` as a thin click command that
-resolves options, calls the stage's runner and lets :class:`DemtoolError` reach the
-group, which prints it on one line and exits with status 1.  Commands are imported
+Each stage (:data:`demtool.stages.STAGES`) lives in ``demtool/commands/<stage>.py``
+as a thin click command that resolves options, calls the stage's runner
+(``demtool.runs.<stage>``) and lets :class:`DemtoolError` reach the group, which
+prints it on one line and exits with status 1.  Commands are imported
 lazily so ``demtool --help`` stays fast.
 """
 
@@ -16,19 +17,8 @@ import click
 
 from demtool import __version__
 from demtool.errors import DemtoolError
+from demtool.stages import STAGES
 
-# stage name -> one-line description, in pipeline order
-STAGES: dict[str, str] = {
-    "synth": "Render a synthetic planetary scene: terrain, albedo, cameras, images, truth.",
-    "select": "Select the images that overlap a target image (SIFT, ratio test, RANSAC).",
-    "bundle": "Structure from motion and bundle adjustment of selected images (pycolmap).",
-    "rectify": "Uncalibrated rectification of a stereo pair (SIFT, RANSAC F, Hartley).",
-    "sgm": "Semi-global matching of a rectified pair (mutual information, census).",
-    "match": "Area-based matching: seeds, Delaunay, pyramid NCC, least-squares matching.",
-    "dem": "Dense DEM in the target frame from bundle points or a disparity map.",
-    "refine": "Shape-from-shading refinement of a coarse DEM (lunar-Lambert).",
-    "compare": "Measure a DEM against a reference: co-registration, statistics, plots.",
-}
 
 
 @dataclass

@@ -6,11 +6,11 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy import ndimage
 
 from demtool.errors import ProcessingError
 from demtool.logs import get_logger
 from demtool.refine.filters import gaussian_lowpass, median_filter
+from demtool.refine.params import RefineParams
 from demtool.robust import NMAD_FACTOR
 
 log = get_logger(__name__)
@@ -77,8 +77,10 @@ def despike(dem: np.ndarray, median: np.ndarray, threshold: float, size: int) ->
     return spread > threshold * np.maximum(local_spread, np.float32(global_spread))
 
 
-def prepare_dem(dem: np.ndarray, *, median_size: int = 15, spike_threshold: float = 4.0,
-                start_sigma: float = 2.0, max_nan_fraction: float = 0.2) -> PreparedDem:
+def prepare_dem(dem: np.ndarray, *, median_size: int = RefineParams.median,
+                spike_threshold: float = RefineParams.spike_threshold,
+                start_sigma: float = RefineParams.start_sigma,
+                max_nan_fraction: float = RefineParams.max_nan_fraction) -> PreparedDem:
     """Fill the gaps of a coarse DEM, then remove its spikes with a median filter.
 
     Gaps are filled with :func:`demtool.interpolate.inpaint_springs` (the spring
@@ -153,57 +155,3 @@ def prepare_dem(dem: np.ndarray, *, median_size: int = 15, spike_threshold: floa
     initial = gaussian_lowpass(values, start_sigma) if start_sigma > 0 else values
     return PreparedDem(dem=values, initial=initial, filled=missing, spikes=spikes,
                        nan_fraction=fraction)
-
-
-def resample_to_grid(values: np.ndarray, source_transform, target_shape: tuple[int, int],
-                     target_transform) -> np.ndarray:
-    """Resample a raster onto another grid (bilinear; Gaussian anti-aliasing when shrinking).
-
-    Parameters
-    ----------
-    values : (h, w) float
-        Source raster; NaN = no data.
-    source_transform, target_transform : affine.Affine
-        Pixel-to-map transforms of the source and the target grid (same map units).
-    target_shape : (H, W)
-        Shape of the target grid.
-
-    Returns
-    -------
-    (H, W) float32
-        NaN where the target pixel falls outside the source or next to its nodata.
-
-    Raises
-    ------
-    ProcessingError
-        The grids do not overlap.
-    """
-    source = np.asarray(values, dtype=np.float32)
-    height, width = target_shape
-    rows, cols = np.mgrid[0:height, 0:width].astype(np.float64)
-    # map coordinates of target pixel centres, then source pixel indices
-    x, y = target_transform @ (cols + 0.5, rows + 0.5)
-    col_s, row_s = ~source_transform @ (x, y)
-    col_s -= 0.5
-    row_s -= 0.5
-    inside = ((row_s >= -0.5) & (row_s <= source.shape[0] - 0.5)
-              & (col_s >= -0.5) & (col_s <= source.shape[1] - 0.5))
-    if not inside.any():
-        raise ProcessingError("the image and the DEM do not overlap")
-    # pixels of the source per target pixel: anti-alias before sampling a coarser grid
-    scale = np.sqrt(abs(target_transform.determinant) / abs(source_transform.determinant))
-    valid = np.isfinite(source)
-    filled = np.where(valid, source, 0.0).astype(np.float32)
-    weight = valid.astype(np.float32)
-    if scale > 1.25:
-        sigma = 0.5 * np.sqrt(scale**2 - 1.0)
-        filled = ndimage.gaussian_filter(filled, sigma, mode="nearest")
-        weight = ndimage.gaussian_filter(weight, sigma, mode="nearest")
-    coordinates = np.stack([np.clip(row_s, 0, source.shape[0] - 1),
-                            np.clip(col_s, 0, source.shape[1] - 1)])
-    sampled = ndimage.map_coordinates(filled, coordinates, order=1, mode="nearest")
-    sampled_weight = ndimage.map_coordinates(weight, coordinates, order=1, mode="nearest")
-    good = inside & (sampled_weight > 0.99)
-    out = np.full(target_shape, np.nan, dtype=np.float32)
-    out[good] = sampled[good] / sampled_weight[good]
-    return out

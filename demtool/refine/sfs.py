@@ -46,12 +46,11 @@ tie-breaker: δ = 0 changes the default benchmark by < 0.001 in every ratio).
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from demtool.errors import ParameterError, ProcessingError
+from demtool.errors import ProcessingError
 from demtool.logs import get_logger, progress
 from demtool.refine.albedo import estimate_albedo
 from demtool.refine.filters import (
@@ -62,6 +61,7 @@ from demtool.refine.filters import (
     idct2,
     neumann_laplacian_eigenvalues,
 )
+from demtool.refine.params import SfsParameters
 from demtool.refine.shading import Illumination, reflectance_and_gradient
 from demtool.refine.shadow_lengths import (
     correct_slope_step,
@@ -69,86 +69,11 @@ from demtool.refine.shadow_lengths import (
     shadow_segments,
 )
 from demtool.refine.shadows import dark_pixels, shadow_mask
-from demtool.reflectance import MODELS
 
 log = get_logger(__name__)
 
 #: Fewest lit, valid pixels (fraction of the grid) shape from shading works with.
 MIN_LIT_FRACTION = 0.05
-
-
-@dataclass(frozen=True)
-class SfsParameters:
-    """Parameters of :func:`refine_heights` (defaults: the NavCam / LRO NAC studies).
-
-    Attributes
-    ----------
-    delta, gamma, tau : float
-        Weights of Egrad, Eint and Edepth (δ = 0.001, γ = 0.2, τ = 10).
-    lowpass_sigma : float
-        σ of the low-pass f in Egrad and Edepth, pixels (21).
-    albedo_sigma : float
-        σ_ρ of the local albedo estimate, pixels (21).
-    model : str
-        Reflectance model, a name of :data:`demtool.reflectance.MODELS`.
-    iterations : int
-        Maximum number of outer iterations.
-    tolerance : float
-        Stop when an iteration lowers the energy by less than this fraction.
-    shadow_threshold : float
-        Pixels darker than this fraction of the median image are shadow (0: off).
-    cast_shadows : bool
-        Also drop the cast shadows of the current DEM.
-    update_every : int
-        Re-estimate albedo and shadows every this many iterations.
-    border_px : float
-        Width of the taper of the intensity weight at the grid border, pixels.
-    shadow_weight : float
-        Weight ω of Eshadow, the shadow-length heights of the image's shadows
-        (:mod:`demtool.refine.shadow_lengths`); 0 disables it.  0.005: about the ratio
-        of the intensity residual's variance (EI ≈ 2–3·10⁻³ at convergence on the
-        synthetic scenes, model error included) to that of a shadow-length height
-        read with ±1 px at the shadow's ends (tan ε² px², 0.07–0.33 for ε = 15–30°);
-        measured on the synthetic scenes (30°, 15°, 45°; seeds 0, 1): 0.003–0.005 best,
-        0.01 slightly worse, ≥ 0.1 worse than none at 30°.
-    """
-
-    delta: float = 0.001
-    gamma: float = 0.2
-    tau: float = 10.0
-    lowpass_sigma: float = 21.0
-    albedo_sigma: float = 21.0
-    model: str = "lunar-lambert"
-    iterations: int = 60
-    tolerance: float = 1e-4
-    shadow_threshold: float = 0.05
-    cast_shadows: bool = True
-    update_every: int = 5
-    border_px: float = 8.0
-    shadow_weight: float = 0.005
-
-    def check(self) -> None:
-        """Raise ParameterError naming the first invalid parameter."""
-        for name in ("gamma", "tau", "lowpass_sigma", "albedo_sigma"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ParameterError(f"{name} must be positive, got {value}")
-        for name in ("delta", "tolerance", "shadow_threshold", "border_px", "shadow_weight"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ParameterError(f"{name} must not be negative, got {value}")
-        if self.shadow_threshold >= 1:
-            raise ParameterError(f"shadow_threshold is a fraction of the median image and "
-                                 f"must be below 1, got {self.shadow_threshold}")
-        if self.iterations < 1 or self.update_every < 1:
-            raise ParameterError("iterations and update_every must be at least 1")
-        if self.model not in MODELS:
-            raise ParameterError(f"unknown reflectance model {self.model!r}: should be one "
-                                 "of " + ", ".join(MODELS))
-
-    def as_dict(self) -> dict:
-        """All parameters as a plain dict (for tags and sidecars)."""
-        return asdict(self)
 
 
 @dataclass(frozen=True)

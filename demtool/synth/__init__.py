@@ -15,7 +15,6 @@ from typing import Any
 
 _EXPORTS = {
     "SceneParams": "demtool.synth.params",
-    "check_parameters": "demtool.synth.params",
     "Scene": "demtool.synth.scene",
     "make_scene": "demtool.synth.scene",
     "make_cameras": "demtool.synth.scene",

@@ -1,15 +1,18 @@
-"""Parameters of a synthetic scene (a light module: no numpy, so the CLI imports it fast)."""
+"""Parameters of a synthetic scene (a light module: no numpy, so the CLI imports it fast).
+
+The fields carry their option names, ranges and help (:mod:`demtool.parameters`);
+``demtool synth``'s options are generated from them.
+"""
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any
+from dataclasses import dataclass
 
-from demtool.errors import ParameterError
+from demtool.parameters import Parameters, parameter, seed_parameter
 
 
 @dataclass(frozen=True)
-class SceneParams:
+class SceneParams(Parameters):
     """Every parameter of a synthetic scene (defaults: the demo scene).
 
     Terrain
@@ -36,72 +39,75 @@ class SceneParams:
         (both off when ``noise`` is False); quantised to ``bit_depth`` bits.
     """
 
-    seed: int = 0
-    dem_size: int = 512
-    spacing_m: float = 1.0
-    fractal_rms_m: float = 2.0
-    spectral_exponent: float = 3.0
-    crater_count: int = 60
-    crater_exponent: float = 2.0
-    crater_min_diameter_m: float = 6.0
-    crater_max_diameter_m: float = 100.0
-    crater_depth_ratio: float = 0.2
-    rim_height_ratio: float = 0.04
-    boulder_count: int = 200
-    boulder_height_m: float = 1.0
-    albedo_mean: float = 0.12
-    albedo_variation: float = 0.10
-    albedo_correlation_m: float = 40.0
-    n_views: int = 8
-    image_size: int = 512
-    altitude_m: float = 1000.0
-    gsd_m: float = 0.5
-    partner_bh: float = 0.3
-    bh_min: float = 0.1
-    bh_max: float = 0.5
-    sun_incidence_deg: float = 60.0
-    sun_azimuth_deg: float = 225.0
-    exposure_dn: float = 1500.0
-    gain_e_per_dn: float = 10.0
-    read_noise_dn: float = 2.0
-    noise: bool = True
-    bit_depth: int = 12
+    seed: int = seed_parameter()
+    dem_size: int = parameter(512, "DEM size in cells (square).", option="size", minimum=16)
+    spacing_m: float = parameter(1.0, "DEM cell size, metres.", option="spacing", minimum=0,
+                                 min_open=True)
+    fractal_rms_m: float = parameter(2.0, "RMS height of the fractal relief, metres.",
+                                     option="relief", minimum=0)
+    spectral_exponent: float = parameter(
+        3.0, "Exponent β of the relief's power spectrum P(k) ∝ k^-β (β = 2H + 2).",
+        minimum=1.0, maximum=5.0)
+    crater_count: int = parameter(60, "Number of craters (0 = none).", option="craters",
+                                  minimum=0)
+    crater_exponent: float = parameter(
+        2.0, "Slope b of the cumulative size-frequency law N(>D) ∝ D^-b.", minimum=0,
+        min_open=True)
+    crater_min_diameter_m: float = parameter(6.0, "Smallest crater diameter, metres.",
+                                             option="crater-min", minimum=0, min_open=True)
+    crater_max_diameter_m: float = parameter(100.0, "Largest crater diameter, metres.",
+                                             option="crater-max", minimum=0, min_open=True)
+    crater_depth_ratio: float = parameter(
+        0.2, "Crater depth (rim crest to floor) / diameter (Pike 1977).",
+        option="crater-depth", minimum=0.0, maximum=1.0)
+    rim_height_ratio: float = parameter(
+        0.04, "Crater rim height above the surroundings / diameter (Pike 1977).",
+        option="rim-height", minimum=0.0, maximum=1.0)
+    boulder_count: int = parameter(200, "Number of boulders (0 = none).", option="boulders",
+                                   minimum=0)
+    boulder_height_m: float = parameter(1.0, "Mean boulder height, metres.",
+                                        option="boulder-height", minimum=0)
+    albedo_mean: float = parameter(0.12, "Mean normal albedo.", option="albedo", minimum=0.0,
+                                   maximum=1.0, min_open=True)
+    albedo_variation: float = parameter(0.10, "Relative albedo variation (±, low frequency).",
+                                        minimum=0.0, maximum=1.0, max_open=True)
+    albedo_correlation_m: float = parameter(40.0, "Correlation length of the albedo, metres.",
+                                            minimum=0, min_open=True, cli=False)
+    n_views: int = parameter(8, "Number of views (target, partner, others).", option="views",
+                             minimum=2, maximum=99)
+    image_size: int = parameter(512, "Image width and height, pixels.", minimum=16)
+    altitude_m: float = parameter(1000.0, "Camera height above the mean surface, metres.",
+                                  option="altitude", minimum=0, min_open=True)
+    gsd_m: float = parameter(0.5, "Target ground sampling distance, metres/pixel.",
+                             option="gsd", minimum=0, min_open=True)
+    partner_bh: float = parameter(
+        0.3, "Base-to-height ratio of the stereo partner (baseline along image x).",
+        minimum=0.0, maximum=2.0, min_open=True)
+    bh_min: float = parameter(0.1, "Smallest B/H (to the target) of the other views.",
+                              minimum=0)
+    bh_max: float = parameter(0.5, "Largest B/H (to the target) of the other views.",
+                              minimum=0)
+    sun_incidence_deg: float = parameter(60.0, "Sun incidence angle from the zenith, degrees.",
+                                         option="sun-incidence", minimum=0.0, maximum=90.0,
+                                         max_open=True)
+    sun_azimuth_deg: float = parameter(225.0, "Sun azimuth, degrees clockwise from north.",
+                                       option="sun-azimuth")
+    exposure_dn: float = parameter(
+        1500.0, "Expected DN of a flat mean-albedo surface seen at nadir.", option="exposure",
+        minimum=0, min_open=True)
+    gain_e_per_dn: float = parameter(10.0, "Photon gain, electrons per DN.", option="gain",
+                                     minimum=0, min_open=True)
+    read_noise_dn: float = parameter(2.0, "Read noise, DN (standard deviation).",
+                                     option="read-noise", minimum=0)
+    noise: bool = parameter(True, "Add photon (Poisson) and read (Gaussian) noise.")
+    bit_depth: int = parameter(12, "Bits per pixel of the quantised images.", minimum=1,
+                               maximum=16, cli=False)
 
-    def as_dict(self) -> dict[str, Any]:
-        """All parameters as a plain dict (for JSON and tags)."""
-        return asdict(self)
-
-
-
-def check_parameters(params: SceneParams) -> None:
-    """Raise ParameterError (naming the parameter) for values that cannot make a scene."""
-    positive = ["dem_size", "spacing_m", "image_size", "altitude_m", "gsd_m", "exposure_dn",
-                "gain_e_per_dn", "albedo_mean", "crater_min_diameter_m", "crater_exponent",
-                "albedo_correlation_m", "bit_depth"]
-    for name in positive:
-        if not getattr(params, name) > 0:
-            raise ParameterError(f"{name} must be positive, got {getattr(params, name)}")
-    non_negative = ["fractal_rms_m", "crater_count", "boulder_count", "boulder_height_m",
-                    "read_noise_dn", "crater_depth_ratio", "rim_height_ratio", "partner_bh",
-                    "bh_min", "bh_max"]
-    for name in non_negative:
-        if not getattr(params, name) >= 0:
-            raise ParameterError(f"{name} must not be negative, got {getattr(params, name)}")
-    if params.n_views < 2:
-        raise ParameterError(f"n_views must be at least 2 (target and partner), "
-                             f"got {params.n_views}")
-    if params.dem_size < 16:
-        raise ParameterError(f"dem_size must be at least 16 cells, got {params.dem_size}")
-    if params.crater_max_diameter_m < params.crater_min_diameter_m:
-        raise ParameterError("crater_max_diameter_m must not be smaller than "
-                             "crater_min_diameter_m")
-    if params.bh_max < params.bh_min:
-        raise ParameterError("bh_max must not be smaller than bh_min")
-    if not 0.0 <= params.sun_incidence_deg < 90.0:
-        raise ParameterError(f"sun_incidence_deg must be in [0, 90), got "
-                             f"{params.sun_incidence_deg}")
-    if not 0.0 <= params.albedo_variation < 1.0:
-        raise ParameterError(f"albedo_variation must be in [0, 1), got "
-                             f"{params.albedo_variation}")
-    if params.bit_depth > 16:
-        raise ParameterError(f"bit_depth must be at most 16, got {params.bit_depth}")
+    def check(self) -> None:
+        """Raise ParameterError (naming the option) for values that cannot make a scene."""
+        super().check()
+        if self.crater_max_diameter_m < self.crater_min_diameter_m:
+            self.fail("crater_max_diameter_m",
+                      f"must not be smaller than {self.label('crater_min_diameter_m')}")
+        if self.bh_max < self.bh_min:
+            self.fail("bh_max", f"must not be smaller than {self.label('bh_min')}")

@@ -25,7 +25,7 @@ from demtool.errors import ParameterError
 from demtool.logs import get_logger
 from demtool.reflectance import lunar_lambert, sun_vector
 from demtool.synth import render, terrain
-from demtool.synth.params import SceneParams, check_parameters
+from demtool.synth.params import SceneParams
 
 log = get_logger(__name__)
 
@@ -153,20 +153,23 @@ def check_footprints(params: SceneParams, cameras: dict[str, PinholeCamera], z_m
     inside its edges, so rays never miss and the terrain casting shadows into the
     views is modelled.
     """
+    label = params.label
     half = 0.5 * params.dem_size * params.spacing_m
     limit = half * (1.0 - 2.0 * FOOTPRINT_MARGIN)
     if z_max >= params.altitude_m:
-        raise ParameterError(f"altitude_m ({params.altitude_m}) must be above the highest "
-                             f"terrain ({z_max:.1f} m)")
+        params.fail("altitude_m", f"({params.altitude_m}) must be above the highest terrain "
+                                  f"({z_max:.1f} m)")
     for name, camera in cameras.items():
         x0, x1, y0, y1 = footprint_bounds(camera, z_min, z_max)
         reach = max(abs(x0), abs(x1), abs(y0), abs(y1))
         if reach > limit:
             raise ParameterError(
                 f"{name} sees ground up to {reach:.1f} m from the centre, but the DEM "
-                f"(dem_size {params.dem_size} × spacing_m {params.spacing_m}) keeps only "
-                f"±{limit:.1f} m with its margin; use a larger dem_size or spacing_m, a "
-                f"smaller gsd_m or image_size, or smaller B/H ratios (partner_bh, bh_max)")
+                f"({label('dem_size')} {params.dem_size} × {label('spacing_m')} "
+                f"{params.spacing_m}) keeps only ±{limit:.1f} m with its margin; use a larger "
+                f"{label('dem_size')} or {label('spacing_m')}, a smaller {label('gsd_m')} or "
+                f"{label('image_size')}, or smaller B/H ratios ({label('partner_bh')}, "
+                f"{label('bh_max')})")
 
 
 def flat_dn_per_reflectance(params: SceneParams) -> float:
@@ -227,7 +230,7 @@ def make_scene(params: SceneParams | None = None, *, dem: np.ndarray | None = No
         Invalid parameters, or a view that would see beyond the DEM.
     """
     params = params or SceneParams()
-    check_parameters(params)
+    params.check()
     started = time.perf_counter()
     timings: dict[str, float] = {}
     generated_dem, generated_albedo = make_terrain(params)

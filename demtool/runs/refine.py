@@ -1,0 +1,260 @@
+"""Runner of ``demtool refine``: shape-from-shading refinement of a DEM with one image.
+
+:func:`run_refine` reads the image and the DEM, resolves sun and view
+(:func:`resolve_illumination`), puts the image on the DEM grid
+(:func:`image_on_dem_grid`), calls the core (:mod:`demtool.refine`) and writes the
+refined DEM, the optional albedo and the sidecar in one transaction.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from demtool.runs import StageRun, check_same_frame
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from demtool.io import Raster
+    from demtool.refine import Illumination, RefineResult
+    from demtool.refine.params import RefineParams
+
+
+def resolve_illumination(image: Raster, *, sun_azimuth: float | None = None,
+                         sun_elevation: float | None = None,
+                         sun_vector: tuple[float, float, float] | None = None,
+                         view_vector: tuple[float, float, float] | None = None
+                         ) -> tuple[Illumination, dict[str, str]]:
+    """Sun and view directions (grid frame) from the options, else the image's tags.
+
+    Returns
+    -------
+    illumination : Illumination
+    sources : dict
+        Where each vector came from (``"option"``, ``"tag sun_vector_grid"``, …).
+
+    Raises
+    ------
+    ParameterError
+        No sun direction anywhere, or a sun at or below the horizon.
+    """
+    from demtool.errors import ParameterError
+    from demtool.refine import make_illumination, sun_from_angles
+
+    if sun_vector is not None:
+        sun, sun_source = sun_vector, "--sun-vector"
+    elif sun_azimuth is not None and sun_elevation is not None:
+        if sun_elevation <= 0:
+            raise ParameterError(f"--sun-elevation {sun_elevation:g}: the sun is below the "
+                                 "horizon; shape from shading needs a lit surface")
+        sun, sun_source = sun_from_angles(sun_azimuth, sun_elevation), \
+            "--sun-azimuth/--sun-elevation"
+    elif image.tag_json("sun_vector_grid") is not None:
+        sun, sun_source = image.tag_json("sun_vector_grid"), f"tag sun_vector_grid of {image.path}"
+    else:
+        raise ParameterError(f"{image.path}: no sun direction: the image has no "
+                             "'sun_vector_grid' tag; give --sun-azimuth and --sun-elevation "
+                             "or --sun-vector (grid frame: x image right, y image up, z up)")
+    if view_vector is not None:
+        view, view_source = view_vector, "--view"
+    elif image.tag_json("view_vector_grid") is not None:
+        view, view_source = image.tag_json("view_vector_grid"), \
+            f"tag view_vector_grid of {image.path}"
+    else:
+        view, view_source = (0.0, 0.0, 1.0), "default (nadir)"
+    try:
+        make_illumination(sun)  # checks the sun alone, against a nadir view
+    except ParameterError as exc:
+        raise ParameterError(f"{sun_source}: {exc}") from None
+    try:
+        illumination = make_illumination(sun, view)
+    except ParameterError as exc:
+        raise ParameterError(f"{view_source}: {exc}") from None
+    return illumination, {"sun": sun_source, "view": view_source}
+
+
+def _is_unit_pixel_transform(transform) -> bool:
+    return (transform.a, transform.b, transform.c, transform.d, transform.e, transform.f) == \
+        (1.0, 0.0, 0.0, 0.0, -1.0, 0.0)
+
+
+def image_on_dem_grid(image: Raster, dem: Raster) -> tuple[np.ndarray, str | None]:
+    """The image's values on the DEM's grid, resampled if the grids differ.
+
+    An image in its own pixel frame (unit transform, no CRS) and a DEM in an image
+    frame (CONTRIBUTING.md) are the same grid when their shapes agree; with different
+    shapes the image is taken to cover the DEM's extent.  Otherwise both transforms
+    must be in the same map units (and CRS), and the image is resampled bilinearly
+    (:func:`demtool.compare.grids.resample_to_grid`, NaN-aware).
+
+    Returns
+    -------
+    values : (H, W) float32
+        Image on the DEM grid, NaN outside the image.
+    note : str or None
+        What was done when resampling (for the log and the sidecar), None otherwise.
+
+    Raises
+    ------
+    InputError
+        Different CRSs, or grids that do not overlap.
+    """
+    import numpy as np
+    from affine import Affine
+
+    from demtool.compare.grids import Grid, resample_to_grid
+    from demtool.errors import InputError, ProcessingError
+
+    dem_shape = dem.data.shape
+    if image.data.shape == dem_shape and image.transform == dem.transform:
+        return image.data, None
+    pixel_frame = (_is_unit_pixel_transform(image.transform) and image.crs is None
+                   and dem.crs is None)
+    if pixel_frame and image.data.shape == dem_shape:
+        check_same_frame(image, dem, "give the image the DEM was computed for", "the DEM")
+        return image.data, None
+    if image.crs != dem.crs and image.crs is not None and dem.crs is not None:
+        raise InputError(f"{image.path}: the image's CRS ({image.crs}) differs from the DEM's "
+                         f"({dem.crs}); reproject one of them")
+    source_transform = image.transform
+    if pixel_frame:
+        # an image in pixel units over the extent of an image-frame DEM
+        height, width = image.data.shape
+        sx = dem.transform.a * dem_shape[1] / width
+        sy = dem.transform.e * dem_shape[0] / height
+        if abs(abs(sx) / abs(sy) - abs(dem.transform.a) / abs(dem.transform.e)) > 0.02 * abs(
+                sx / sy):
+            raise InputError(f"{image.path}: image ({height} × {width} px) and DEM "
+                             f"{dem.path} ({dem_shape[0]} × {dem_shape[1]}) have different "
+                             "aspect ratios and the image has no map transform: their grids "
+                             "cannot be matched")
+        source_transform = Affine(sx, 0.0, dem.transform.c, 0.0, sy, dem.transform.f)
+    try:
+        values = resample_to_grid(image.data, Grid(image.data.shape, source_transform),
+                                  Grid(dem_shape, dem.transform)).astype(np.float32)
+    except ProcessingError:
+        raise InputError(f"{image.path}: the image does not overlap the DEM {dem.path} "
+                         "(compare their transforms); nothing to refine") from None
+    note = (f"image {image.data.shape[0]} × {image.data.shape[1]} resampled onto the DEM grid "
+            f"{dem_shape[0]} × {dem_shape[1]} ({100 * np.isfinite(values).mean():.1f}% "
+            "covered)")
+    return values, note
+
+
+def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
+               out: str | os.PathLike, params: RefineParams | None = None, *,
+               sun_azimuth: float | None = None, sun_elevation: float | None = None,
+               sun_vector: tuple[float, float, float] | None = None,
+               view_vector: tuple[float, float, float] | None = None,
+               albedo_out: str | os.PathLike | None = None,
+               resolved: dict[str, Any] | None = None) -> RefineResult:
+    """Refine the DEM at ``dem_path`` with the shading of ``image_path``; write ``out``.
+
+    Writes ``out`` (float32 GeoTIFF, the DEM's grid, transform, CRS and tags plus the
+    refine parameters, final energies and iteration count), ``<out>.json`` (the
+    provenance sidecar with the energies per iteration) and, if asked, the albedo map,
+    all in one transaction.  ``params`` defaults to :class:`RefineParams()`; the
+    sun and view directions default to the image's tags.
+
+    Raises
+    ------
+    InputError
+        Missing/unreadable files, a NaN-only DEM, grids that cannot be matched.
+    ParameterError
+        Invalid parameters, no sun direction, a sun below the horizon.
+    ProcessingError
+        Too many DEM gaps, too few lit pixels.
+    """
+    import time
+
+    import numpy as np
+
+    from demtool import io
+    from demtool.errors import InputError, ProcessingError
+    from demtool.refine import refine_heights
+    from demtool.refine.params import RefineParams
+    from demtool.refine.prepare import prepare_dem
+
+    params = params or RefineParams()
+    params.check()
+    run = StageRun("refine", resolved or params.as_dict(),
+                   inputs={"IMAGE": image_path, "DEM": dem_path},
+                   outputs={"--out": out, "--albedo-out": albedo_out})
+    log, prov = run.log, run.provenance
+    dem = io.read_raster(dem_path, what="DEM")
+    image = io.read_image(image_path, what="image")
+    illumination, sources = resolve_illumination(
+        image, sun_azimuth=sun_azimuth, sun_elevation=sun_elevation, sun_vector=sun_vector,
+        view_vector=view_vector)
+    log.info("sun %s from %s; view %s from %s", np.round(illumination.sun, 4).tolist(),
+             sources["sun"], np.round(illumination.view, 4).tolist(), sources["view"])
+    values, note = image_on_dem_grid(image, dem)
+    if note:
+        log.warning("%s and %s are on different grids: %s", image.path, dem.path, note)
+    spacing = dem.spacing
+    if not all(np.isfinite(s) and s > 0 for s in spacing):
+        raise InputError(f"{dem.path}: the DEM's transform has no usable pixel spacing "
+                         f"({spacing})")
+    started = time.perf_counter()
+    try:
+        prepared = prepare_dem(dem.data, median_size=params.median,
+                               spike_threshold=params.spike_threshold,
+                               start_sigma=params.start_sigma,
+                               max_nan_fraction=params.max_nan_fraction)
+    except ProcessingError as exc:
+        raise ProcessingError(f"{dem.path}: {exc}") from None
+    prepared_s = time.perf_counter() - started
+    result = refine_heights(values, prepared.dem, spacing=spacing, illumination=illumination,
+                            parameters=params.sfs(), initial=prepared.initial)
+    sfs_s = time.perf_counter() - started - prepared_s
+    log.info("DEM preparation (gap filling, median) %.1f s, shape from shading %.1f s",
+             prepared_s, sfs_s)
+    shift = float(np.mean(result.dem, dtype=np.float64) - np.mean(prepared.dem,
+                                                                  dtype=np.float64))
+    change = result.dem.astype(np.float64) - prepared.dem
+    summary = {
+        "iterations": result.iterations, "converged": result.converged,
+        "stop_reason": result.stop_reason,
+        "energies_final": result.energies.as_dict(),
+        "energies_initial": result.initial_energies.as_dict(),
+        "energy_history": [e.total for e in result.history],
+        "intensity_residual_rms": result.intensity_rms,
+        "shadow_fraction": float(result.shadow.mean()),
+        "dem_nan_fraction_filled": prepared.nan_fraction,
+        "dem_spike_fraction": float(prepared.spikes.mean()),
+        "mean_height_shift_m": shift,
+        "rms_height_change_m": float(np.sqrt(np.mean(change**2))),
+        "sun_vector_grid": illumination.sun.tolist(), "sun_source": sources["sun"],
+        "view_vector_grid": illumination.view.tolist(), "view_source": sources["view"],
+        "sun_elevation_deg": illumination.sun_elevation_deg,
+        "sun_azimuth_deg": illumination.sun_azimuth_deg,
+        "phase_deg": illumination.phase_deg,
+        "spacing_m": list(spacing), "grid": list(dem.data.shape),
+        "image_resampled": note,
+        "timings_s": {"prepare_dem": round(prepared_s, 3), "sfs": round(sfs_s, 3)},
+    }
+    inherited = {k: v for k, v in dem.tags.items() if not k.startswith("demtool_")}
+    tags = {**inherited, **prov.tags(
+        frame=dem.tags.get("frame", "unknown"), units="m",
+        content="heights refined by shape from shading",
+        refine_energies=result.energies.as_dict(), refine_iterations=result.iterations,
+        refine_converged=result.converged, sun_vector_grid=illumination.sun.tolist(),
+        view_vector_grid=illumination.view.tolist(), reflectance_model=params.model)}
+    outputs = [Path(out)]
+    with io.output_transaction():
+        io.write_raster(out, result.dem, transform=dem.transform, crs=dem.crs, tags=tags)
+        if albedo_out is not None:
+            io.write_raster(albedo_out, result.albedo, transform=dem.transform, crs=dem.crs,
+                            tags=prov.tags(frame=dem.tags.get("frame", "unknown"),
+                                           units=f"{image.tags.get('units', 'image unit')} "
+                                                 "per unit reflectance",
+                                           content=f"local albedo (Gaussian σ = "
+                                                   f"{params.albedo_sigma:g} px) of the "
+                                                   "refined DEM"))
+            outputs.append(Path(albedo_out))
+        prov.write_sidecar(out, summary, outputs=outputs)
+    log.info("wrote %s (%d iterations, mean height shift %.3g m, RMS change %.3g m)", out,
+             result.iterations, shift, summary["rms_height_change_m"])
+    return result

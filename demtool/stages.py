@@ -1,0 +1,23 @@
+"""The stage registry: every ``demtool`` stage, in pipeline order, with its one-line summary.
+
+A light module (no click, no numpy) shared by the command line (:mod:`demtool.cli`,
+which lists the stages and loads ``demtool.commands.<stage>``), the runners
+(``demtool.runs.<stage>``) and the tests.  A new stage is added here first; see
+CONTRIBUTING.md ("Adding a stage").
+"""
+
+from __future__ import annotations
+
+# stage name -> one-line description, in pipeline order
+STAGES: dict[str, str] = {
+    "synth": "Render a synthetic planetary scene: terrain, albedo, cameras, images, truth.",
+    "select": "Select the images that overlap a target image (SIFT, ratio test, RANSAC).",
+    "bundle": "Structure from motion and bundle adjustment of selected images (pycolmap).",
+    "rectify": "Uncalibrated rectification of a stereo pair (SIFT, RANSAC F, Hartley).",
+    "sgm": "Semi-global matching of a rectified pair (mutual information, census).",
+    "match": "Area-based matching: seeds, Delaunay, pyramid NCC, least-squares matching.",
+    "dem": "Dense DEM in the target frame from bundle points or a disparity map.",
+    "refine": "Shape-from-shading refinement of a coarse DEM (lunar-Lambert).",
+    "compare": "Measure a DEM against a reference: co-registration, statistics, plots.",
+}
+

@@ -20,7 +20,6 @@ from demtool.errors import DemtoolError
 from demtool.stages import STAGES
 
 
-
 @dataclass
 class AppState:
     """What the group's options leave for the subcommands (``ctx.obj``)."""

@@ -74,6 +74,19 @@ def exclusive(given: dict[str, bool], *, exactly_one: bool = False) -> None:
                                  param_hint="/".join(given))
 
 
+def parse_numbers(text: str, count: int | None, what: str) -> tuple[float, ...]:
+    """Comma-separated finite numbers (``count`` of them when given), else BadParameter."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: {what} must be comma-separated numbers") from None
+    if count is not None and len(values) != count:
+        raise click.BadParameter(f"{text!r}: {what} needs {count} numbers, got {len(values)}")
+    if not all(v == v and abs(v) != float("inf") for v in values):
+        raise click.BadParameter(f"{text!r}: {what} must be finite numbers")
+    return values
+
+
 def resolved_params(ctx: click.Context) -> dict:
     """The command's parameters after config preset and command line (for provenance)."""
     return dict(ctx.params)
@@ -117,7 +130,7 @@ def option_type_for(field: dataclasses.Field, kind: type) -> Any:
 
 def _odd_callback(ctx: click.Context, param: click.Parameter, value: Any) -> Any:
     if value is not None and value > 1 and value % 2 == 0:
-        raise click.BadParameter(f"must be odd (or 0/1 for off), got {value}")
+        raise click.BadParameter(f"must be odd, got {value}")
     return value
 
 

@@ -65,6 +65,16 @@ def parameter(default: Any, help: str, *, option: str | None = None,  # noqa: A0
     return dataclasses.field(default=default, metadata=metadata)
 
 
+def core_default(function: Any, name: str) -> Any:
+    """The default of keyword ``name`` of a core function (so it is written only there)."""
+    import inspect
+
+    default = inspect.signature(function).parameters[name].default
+    if default is inspect.Parameter.empty:
+        raise TypeError(f"{function.__name__}() has no default for {name!r}")
+    return default
+
+
 def seed_parameter() -> Any:
     """The ``seed`` field every stage with random choices has (RANSAC, noise)."""
     return parameter(0, "Random seed, for reproducible runs.")
@@ -144,14 +154,14 @@ class Parameters:
             if below or above:
                 self.fail(field.name, f"must be {describe_range(meta)}, got {value:g}")
             if meta.get("odd") and value > 1 and value % 2 == 0:
-                self.fail(field.name, f"must be odd (or 0/1 for off), got {value}")
+                self.fail(field.name, f"must be odd, got {value}")
 
     @classmethod
     def from_options(cls, values: typing.Mapping[str, Any]):
-        """Build from click's parameter values (keyed by option name); unset keep defaults."""
+        """Build from click's parameter values (keyed by option name); absent keep defaults."""
         chosen = {}
         for field in dataclasses.fields(cls):  # type: ignore[arg-type]
             key = option_name(field)
-            if field.metadata.get("cli", True) and key in values:
+            if key in values:
                 chosen[field.name] = values[key]
         return cls(**chosen)

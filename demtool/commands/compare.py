@@ -1,267 +1,25 @@
-"""`demtool compare`: measure a DEM against a reference (runner and command)."""
+"""`demtool compare`: the options of :class:`demtool.compare.params.CompareParams` and one
+call."""
 
 from __future__ import annotations
 
-import os
-from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import click
 
 from demtool import options
-from demtool.cli import STAGES
-
-REPORT = "report.json"
-DIFFERENCE = "difference.tif"
-ALIGN_CHOICES = ("none", "offset", "nuth-kaab", "icp", "nuth-kaab+icp")
-FIGURES = ("difference.png", "dems.png", "profiles.png", "histogram.png", "completeness.png",
-           "coherence.png")
+from demtool.compare.params import CompareParams
+from demtool.stages import STAGES
 
 
-def _read_dem(path: str | os.PathLike, what: str):
-    from demtool import io as dio
-
-    return dio.read_raster(path, what=what)
+def _profiles(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]):
+    return tuple(options.parse_numbers(v, 4, "a profile (x0,y0,x1,y1)") for v in value)
 
 
-def _grid_of(raster):
-    from demtool.compare.grids import Grid
-
-    return Grid(shape=raster.data.shape, transform=raster.transform, crs=raster.crs)
-
-
-def _onto(raster, grid, what: str):
-    from demtool.compare.grids import resample_to_grid
-    from demtool.errors import ProcessingError
-
-    try:
-        return resample_to_grid(raster.data, _grid_of(raster), grid)
-    except ProcessingError as exc:
-        raise ProcessingError(f"{raster.path}: {what}: {exc}") from None
-
-
-def _check_frames(reference, dems) -> None:
-    """Rasters without CRS must carry the same ``frame`` tag (when they carry one)."""
-    from demtool.errors import InputError
-
-    frame = reference.tags.get("frame")
-    for raster in dems:
-        other = raster.tags.get("frame")
-        if raster.crs is None and reference.crs is None and frame and other and \
-                other != frame:
-            raise InputError(f"{raster.path}: is in frame '{other}' but the reference "
-                             f"{reference.path} is in frame '{frame}'; compare rasters of "
-                             "one frame (e.g. a target-frame DEM with truth_dem_target.tif)")
-
-
-def _read_mask(path: str | os.PathLike, grid):
-    """Mask raster (non-zero = use) resampled onto the comparison grid."""
-    import numpy as np
-
-    from demtool import io as dio
-    from demtool.errors import InputError
-
-    raster = dio.read_raster(path, what="mask", allow_all_nan=False)
-    values = _onto(raster, grid, "mask")
-    with np.errstate(invalid="ignore"):
-        mask = np.isfinite(values) & (np.abs(values) > 0.5)
-    if not mask.any():
-        raise InputError(f"{path}: mask selects no pixel of the comparison grid")
-    return mask
-
-
-def _check_profiles(profiles: Sequence[Sequence[float]], shape: tuple[int, int]) -> None:
-    from demtool.errors import ParameterError
-
-    rows, cols = shape
-    for line in profiles:
-        x0, y0, x1, y1 = line
-        inside = all(-0.5 <= x <= cols - 0.5 for x in (x0, x1)) and \
-            all(-0.5 <= y <= rows - 0.5 for y in (y0, y1))
-        if not inside:
-            raise ParameterError(f"--profile {','.join(f'{v:g}' for v in line)} leaves the "
-                                 f"comparison grid (x 0..{cols - 1}, y 0..{rows - 1} px)")
-        if x0 == x1 and y0 == y1:
-            raise ParameterError(f"--profile {','.join(f'{v:g}' for v in line)} has zero "
-                                 "length")
-
-
-def _headline(report: dict[str, Any]) -> dict[str, Any]:
-    keys = ("count", "completeness", "mean", "median", "std", "rmse", "nmad", "le90", "min",
-            "max")
-    resolution = report.get("effective_resolution") or {}
-    return {**{k: report[k] for k in keys}, "shift": report["shift"],
-            "shift_uncertainty": report["shift_uncertainty"],
-            "wavelength_m": resolution.get("wavelength_m")}
-
-
-def format_table(rows: Sequence[tuple[str, dict[str, Any]]]) -> str:
-    """Short plain-text table: one row per compared DEM."""
-    def fmt(value: Any, spec: str) -> str:
-        return "—" if value is None else format(value, spec)
-
-    header = (f"{'DEM':<20} {'n':>9} {'compl %':>8} {'mean':>8} {'RMSE':>8} {'NMAD':>8} "
-              f"{'LE90':>8} {'dx px':>7} {'dy px':>7} {'dz m':>8} {'λ coh m':>8}")
-    lines = [header]
-    for label, r in rows:
-        resolution = r.get("effective_resolution") or {}
-        lines.append(
-            f"{label[:20]:<20} {r['count']:>9d} {fmt(r['completeness'], '8.2f')} "
-            f"{fmt(r['mean'], '8.3f')} {fmt(r['rmse'], '8.3f')} {fmt(r['nmad'], '8.3f')} "
-            f"{fmt(r['le90'], '8.3f')} {r['shift']['dx_px']:7.3f} {r['shift']['dy_px']:7.3f} "
-            f"{r['shift']['dz']:8.3f} {fmt(resolution.get('wavelength_m'), '8.2f')}")
-    return "\n".join(lines)
-
-
-def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
-                out_dir: str | os.PathLike, *, grid: str = "reference",
-                align: str = "nuth-kaab", icp_scale: bool = False,
-                mask_path: str | os.PathLike | None = None,
-                slope_bins: Sequence[float] = (0.0, 5.0, 10.0, 20.0, 30.0, 90.0),
-                profiles: Sequence[Sequence[float]] = (), also: Sequence[str] = (),
-                label: str | None = None, plots: bool = True, seed: int = 0,
-                params: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Compare DEM (and ``also`` DEMs) with REFERENCE; write the report folder.
-
-    Reads the rasters, puts them on one grid (the reference's, or the DEM's with
-    ``grid="dem"``; reprojected when both have a different CRS), calls
-    :func:`demtool.compare.compare_dems` for each DEM, and writes into ``out_dir`` —
-    in one output transaction — ``report.json`` (figures, transform, the ``also`` DEMs
-    and the provenance under ``provenance``), ``difference.tif`` (aligned DEM −
-    reference, with provenance tags), the PNG figures and the standard provenance
-    sidecar ``report.json.json``.
-
-    Returns
-    -------
-    dict
-        The report (as written to ``report.json``).
-    """
-    import numpy as np
-
-    from demtool import io as dio
-    from demtool.compare import compare_dems
-    from demtool.compare import plots as figure_maker
-    from demtool.errors import InputError
-    from demtool.logs import get_logger
-    from demtool.provenance import Provenance
-
-    log = get_logger("demtool.compare")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: --out must be a folder, but a file of that name exists")
-    inputs = [dem_path, reference_path, *also] + ([mask_path] if mask_path else [])
-    provenance = Provenance("compare", params or {}, inputs)
-    dem = _read_dem(dem_path, "DEM")
-    reference = _read_dem(reference_path, "reference DEM")
-    extra = [_read_dem(path, "DEM (--also)") for path in also]
-    _check_frames(reference, [dem, *extra])
-    if grid == "reference":
-        target = _grid_of(reference)
-        reference_values = reference.data.astype(np.float64)
-        dem_values = _onto(dem, target, "DEM")
-        frame = reference.tags.get("frame")
-    else:
-        target = _grid_of(dem)
-        dem_values = dem.data.astype(np.float64)
-        reference_values = _onto(reference, target, "reference DEM")
-        frame = dem.tags.get("frame")
-    extra_values = [_onto(raster, target, "DEM (--also)") for raster in extra]
-    mask = _read_mask(mask_path, target) if mask_path else None
-    sx, sy = target.spacing
-    lines = [tuple(float(v) for v in line) for line in profiles] or \
-        figure_maker.default_profiles(target.shape)
-    _check_profiles(lines, target.shape)
-
-    label = label or Path(dem_path).stem
-    labels = [Path(p).stem for p in also]
-    log.info("%s vs %s on the %s grid (%d x %d, %.4g x %.4g m), alignment %s", dem_path,
-             reference_path, grid, target.shape[1], target.shape[0], sx, sy, align)
-    comparisons = []
-    for name, values in ((label, dem_values), *zip(labels, extra_values, strict=True)):
-        comparison = compare_dems(values, reference_values, spacing=(sx, sy), align=align,
-                                  mask=mask, slope_bins=slope_bins, icp_scale=icp_scale,
-                                  seed=seed)
-        comparisons.append((name, comparison))
-    main = comparisons[0][1]
-    report: dict[str, Any] = {
-        "label": label,
-        "dem": str(dem_path),
-        "reference": str(reference_path),
-        **main.report,
-    }
-    report["grid"] = {**main.report["grid"], "on": grid,
-                      "crs": target.crs.to_string() if target.crs else None,
-                      "transform": list(target.transform)[:6], "frame": frame}
-    report["profiles_px"] = [list(line) for line in lines]
-    report["also"] = [{"label": name, "dem": str(path), **_headline(c.report),
-                       "alignment": c.report["alignment"], "warnings": c.report["warnings"]}
-                      for (name, c), path in zip(comparisons[1:], also, strict=True)]
-    log.info("\n%s", format_table([(name, c.report) for name, c in comparisons]))
-    for message in report["warnings"]:
-        log.warning("%s: %s", label, message)
-
-    figures: dict[str, bytes] = {}
-    if plots:
-        spacing = (sx, sy)
-        stats = main.report
-        figures["difference.png"] = figure_maker.difference_figure(
-            main.difference, spacing, title=f"{label} − reference", stats=stats)
-        figures["dems.png"] = figure_maker.dems_figure(
-            [(label, main.aligned), *[(n, c.aligned) for n, c in comparisons[1:]],
-             ("reference", reference_values)], spacing)
-        figures["profiles.png"] = figure_maker.profiles_figure(
-            [("reference", reference_values), (label, main.aligned),
-             *[(n, c.aligned) for n, c in comparisons[1:]]], lines, spacing)
-        figures["histogram.png"] = figure_maker.histogram_figure(main.difference, stats=stats,
-                                                          title=f"{label} − reference")
-        figures["completeness.png"] = figure_maker.completeness_figure(
-            main.coverage, spacing, percent=main.report["completeness"], title=label)
-        resolution = main.report["effective_resolution"]
-        if main.spectrum is not None and resolution is not None:
-            figures["coherence.png"] = figure_maker.coherence_figure(
-                main.spectrum.frequency, main.spectrum.coherence,
-                cutoff_per_m=resolution["coherent_frequency_per_m"],
-                threshold=resolution["threshold"], title=f"{label} vs reference")
-    report["figures"] = sorted(figures)
-
-    report_path = out / REPORT
-    outputs = [report_path, out / DIFFERENCE, *[out / name for name in figures]]
-    report["provenance"] = provenance.record(_headline(report), outputs)
-    with dio.output_transaction():
-        dio.write_raster(out / DIFFERENCE, main.difference, transform=target.transform,
-                         crs=target.crs,
-                         tags=provenance.tags(frame=frame or "unknown", label=label,
-                                              quantity="aligned DEM - reference (m)",
-                                              shift=report["shift"]))
-        for name, content in figures.items():
-            with dio.atomic_path(out / name, suffix=".png") as temporary:
-                temporary.write_bytes(content)
-        dio.write_json(report_path, report)
-        provenance.write_sidecar(report_path, _headline(report), outputs=outputs)
-    return report
-
-
-def _parse_numbers(text: str, count: int | None, what: str) -> tuple[float, ...]:
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise click.BadParameter(f"{text!r}: {what} must be comma-separated numbers") from None
-    if count is not None and len(values) != count:
-        raise click.BadParameter(f"{text!r}: {what} needs {count} numbers, got {len(values)}")
-    if not all(map(lambda v: v == v and abs(v) != float("inf"), values)):
-        raise click.BadParameter(f"{text!r}: {what} must be finite numbers")
-    return values
-
-
-def _profiles_option(ctx, param, value):
-    return tuple(_parse_numbers(v, 4, "a profile (x0,y0,x1,y1)") for v in value)
-
-
-def _slope_bins_option(ctx, param, value):
-    if isinstance(value, (list, tuple)):
+def _slope_bins(ctx: click.Context, param: click.Parameter, value: Any):
+    if isinstance(value, (list, tuple)):  # from a config preset
         value = ",".join(str(v) for v in value)
-    bins = _parse_numbers(value, None, "slope bins")
+    bins = options.parse_numbers(value, None, "slope bins")
     if len(bins) < 2 or any(b <= a for a, b in zip(bins[:-1], bins[1:], strict=True)):
         raise click.BadParameter(f"{value!r}: slope bins must be at least two increasing "
                                  "values (degrees)")
@@ -282,33 +40,26 @@ dems.png, profiles.png, histogram.png, completeness.png, coherence.png.""")
 @options.input_file("dem")
 @options.input_file("reference")
 @options.out_dir("Report folder (created if needed).")
-@click.option("--grid", type=click.Choice(["reference", "dem"]), default="reference",
-              show_default=True, help="Which raster's grid the comparison is made on.")
-@click.option("--align", type=click.Choice(ALIGN_CHOICES), default="nuth-kaab",
-              show_default=True,
-              help="Co-registration: median vertical offset, Nuth & Kääb shift, "
-                   "point-to-plane ICP, or the shift followed by ICP.")
-@click.option("--icp-scale/--no-icp-scale", default=False, show_default=True,
-              help="Let ICP fit an isotropic scale too.")
-@click.option("--mask", "mask_path", type=click.Path(dir_okay=False), default=None,
-              help="Raster of the pixels to use (non-zero = use), e.g. stable terrain.")
-@click.option("--slope-bins", default="0,5,10,20,30,90", show_default=True,
-              callback=_slope_bins_option, help="Slope class edges, degrees.")
-@click.option("--profile", "profiles", multiple=True, callback=_profiles_option,
+@options.parameter_options(CompareParams)
+@options.path_option("--mask", "Raster of the pixels to use (non-zero = use), e.g. stable "
+                     "terrain.")
+@click.option("--slope-bins", default=",".join(f"{v:g}" for v in CompareParams.slope_bins),
+              show_default=True, callback=_slope_bins, help="Slope class edges, degrees.")
+@click.option("--profile", "profiles", multiple=True, callback=_profiles,
               metavar="X0,Y0,X1,Y1",
               help="Profile line in comparison-grid pixels (x right, y down); repeatable. "
                    "Default: through the centre, horizontal and vertical.")
 @click.option("--also", multiple=True, type=click.Path(dir_okay=False),
               help="Another DEM to compare and overlay on the figures; repeatable.")
-@click.option("--label", default=None, help="Name of DEM in the report (default: file stem).")
 @click.option("--json", "as_json", is_flag=True, help="Print the report to stdout.")
-@click.option("--plots/--no-plots", default=True, show_default=True,
-              help="Write the PNG figures.")
-@options.seed()
 @click.pass_context
-def command(ctx: click.Context, dem: str, reference: str, out: str, as_json: bool,
-            **kwargs) -> None:
-    report = run_compare(dem, reference, out, params=options.resolved_params(ctx), **kwargs)
+def command(ctx: click.Context, dem: str, reference: str, out: str, mask: str | None,
+            also: tuple[str, ...], as_json: bool, **values: Any) -> None:
+    """Options → CompareParams → :func:`demtool.runs.compare.run_compare`."""
+    from demtool.runs.compare import run_compare
+
+    report = run_compare(dem, reference, out, CompareParams.from_options(values),
+                         mask_path=mask, also=also, resolved=options.resolved_params(ctx))
     if as_json:
         from demtool import io as dio
 

@@ -1,238 +1,14 @@
-"""`demtool select`: choose the images that overlap a target (runner and command)."""
+"""`demtool select`: the options of :class:`demtool.select_params.SelectParams` and one call."""
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
 from typing import Any
 
 import click
 
 from demtool import options
-from demtool.cli import STAGES
-
-DEFAULT_CACHE_NAME = ".demtool-features"
-
-
-def _load_geometry_sources(cameras_path, scene_path):
-    """Cameras by name (from cameras.npz) and the scene's sun vector (from scene.json)."""
-    import numpy as np
-
-    from demtool import io as dio
-    from demtool.camera import cameras_from_arrays
-
-    cameras = {}
-    if cameras_path is not None:
-        cameras = cameras_from_arrays(dio.read_npz(cameras_path, "cameras"))
-    sun = None
-    if scene_path is not None:
-        scene = dio.read_json(scene_path, "scene file")
-        if isinstance(scene, dict) and scene.get("sun_vector") is not None:
-            sun = np.asarray(scene["sun_vector"], np.float64).reshape(3)
-    return cameras, sun
-
-
-def _camera_from_tags(raster):
-    """A PinholeCamera from an image's ``camera`` tag (written by synth), or None."""
-    from demtool.camera import PinholeCamera
-
-    value = raster.tag_json("camera")
-    if not isinstance(value, dict):
-        return None
-    try:
-        return PinholeCamera(K=value["K"], R=value["R"], t=value["t"], width=value["width"],
-                             height=value["height"])
-    except (KeyError, TypeError, ValueError):
-        return None
-
-
-def _sun_from_tags(raster, default):
-    import numpy as np
-
-    value = raster.tag_json("sun_vector")
-    try:
-        return np.asarray(value, np.float64).reshape(3) if value is not None else default
-    except (TypeError, ValueError):
-        return default
-
-
-def _format_table(rows: list[dict[str, Any]]) -> str:
-    """Plain text table of the per-image figures (for the INFO log)."""
-    header = f"{'image':<20} {'matches':>7} {'inliers':>7} {'overlap':>7} {'conv°':>6} " \
-             f"{'score':>6}  status"
-    lines = [header]
-    for row in rows:
-        conv = row.get("convergence_deg")
-        score = row.get("score")
-        status = "selected" if row["selected"] else f"rejected: {row['reason']}"
-        lines.append(f"{row['name'][:20]:<20} {row.get('matches', 0):>7} "
-                     f"{row.get('inliers', 0):>7} {row.get('overlap', 0.0):>7.2f} "
-                     f"{'-' if conv is None else format(conv, '.1f'):>6} "
-                     f"{'-' if score is None else format(score, '.3f'):>6}  {status}")
-    return "\n".join(lines)
-
-
-def run_select(images: list[str], target: str, out: str | os.PathLike, *,
-               roi: tuple[float, float, float, float] | None = None, min_matches: int = 50,
-               min_inliers: int = 25, min_overlap: float = 0.0, ratio: float = 0.8,
-               ransac_threshold: float = 1.0, max_features: int = 0,
-               contrast_threshold: float = 0.04, cameras: str | None = None,
-               scene: str | None = None, rank: bool = False, workers: int = 0,
-               cache_dir: str | None = None, no_cache: bool = False, seed: int = 0,
-               params: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Compare every image with the target and write ``selection.json``.
-
-    Returns
-    -------
-    dict
-        The content written to ``out`` (see CONTRIBUTING.md, "selection.json").
-    """
-    from concurrent.futures import ThreadPoolExecutor, as_completed
-
-    import numpy as np
-
-    from demtool import features, selection
-    from demtool import io as dio
-    from demtool.errors import InputError, ParameterError, ProcessingError
-    from demtool.feature_cache import FeatureCache
-    from demtool.logs import get_logger, progress
-    from demtool.provenance import Provenance
-
-    log = get_logger("demtool.select")
-    out = Path(out)
-    target_image = dio.read_image(target, what="target image")
-    target_resolved = Path(target).resolve()
-    candidates: list[str] = []
-    seen = {target_resolved}
-    for path in images:
-        resolved = Path(path).resolve()
-        if resolved not in seen:
-            seen.add(resolved)
-            candidates.append(path)
-    if not candidates:
-        raise ParameterError("no candidate image besides the target; give the images to "
-                             "compare with the target as IMAGES")
-    stems: dict[str, str] = {}
-    for path in [target, *candidates]:
-        stem = Path(path).stem
-        if stem in stems:
-            raise ParameterError(f"two images share the name '{stem}' ({stems[stem]} and {path}); "
-                                 "views are identified by file stem, rename one")
-        stems[stem] = path
-    region = selection.check_roi(roi, target_image.data.shape, what=f"target {target}")
-    provenance = Provenance("select", params or {},
-                            [target, *candidates, *(p for p in (cameras, scene) if p)])
-    camera_by_name, scene_sun = _load_geometry_sources(cameras, scene)
-    target_name = Path(target).stem
-    target_camera = camera_by_name.get(target_name) or _camera_from_tags(target_image)
-    if cameras is not None and target_name not in camera_by_name:
-        raise InputError(f"{cameras}: has no camera for the target '{target_name}' "
-                         f"(cameras: {', '.join(sorted(camera_by_name)) or 'none'})")
-    point = None
-    if target_camera is not None:
-        point = selection.surface_point(target_camera, region.centre)
-    target_sun = _sun_from_tags(target_image, scene_sun)
-
-    cache = FeatureCache(None if no_cache else (cache_dir or out.parent / DEFAULT_CACHE_NAME))
-    sift = {"max_features": max_features, "contrast_threshold": contrast_threshold}
-
-    def detect(image, **extra):
-        return features.detect_sift(image, **sift, **extra)
-
-    target_crop = target_image.data[region.y0:region.y1, region.x0:region.x1]
-    target_features = cache.get_or_compute(
-        target, {**sift, "roi": region.as_list()},
-        lambda: detect(target_crop, offset=(region.x0, region.y0)))
-    log.info("target %s: %d SIFT keypoints in the ROI %s", target_name, len(target_features),
-             region.as_list())
-    if len(target_features) < min_matches:
-        raise ProcessingError(f"{target}: only {len(target_features)} SIFT keypoints in the "
-                              f"ROI {region.as_list()}, fewer than --min-matches {min_matches}; "
-                              "choose a larger or more textured ROI")
-
-    def examine(path: str) -> dict[str, Any]:
-        name = Path(path).stem
-        record: dict[str, Any] = {"name": name, "path": path}
-        try:
-            raster = dio.read_image(path, what="image")
-        except InputError as exc:
-            return {**record, "selected": False, "reason": f"unreadable ({exc})",
-                    "matches": 0, "inliers": 0, "overlap": 0.0}
-        found = cache.get_or_compute(path, sift, lambda: detect(raster.data))
-        height, width = raster.data.shape
-        match = selection.compare_with_target(
-            target_features, found, roi=region, candidate_size=(width, height), ratio=ratio,
-            min_matches=min_matches, min_inliers=min_inliers, min_overlap=min_overlap,
-            ransac_threshold=ransac_threshold, seed=seed)
-        record.update(selected=match.accepted, reason=match.reason, keypoints=match.keypoints,
-                      matches=match.matches, inliers=match.inliers,
-                      overlap=round(match.overlap, 4),
-                      inlier_coverage=round(match.inlier_coverage, 4))
-        camera = camera_by_name.get(name) or _camera_from_tags(raster)
-        geometry = None
-        if point is not None and camera is not None:
-            geometry = selection.view_geometry(target_camera, camera, point,
-                                               _sun_from_tags(raster, scene_sun))
-            record.update(geometry.as_dict())
-        if rank and match.accepted:
-            target_azimuth = (None if target_sun is None else
-                              float(np.degrees(np.arctan2(target_sun[0], target_sun[1])) % 360))
-            score, terms = selection.rank_score(match, geometry, min_matches=min_matches,
-                                                target_sun_azimuth_deg=target_azimuth)
-            record.update(score=round(score, 4), score_terms=terms)
-        return record
-
-    n_workers = workers or os.cpu_count() or 1
-    records: list[dict[str, Any]] = []
-    with ThreadPoolExecutor(max_workers=n_workers) as pool:
-        futures = [pool.submit(examine, path) for path in candidates]
-        for future in progress(as_completed(futures), "select", total=len(futures)):
-            records.append(future.result())
-    order = {path: i for i, path in enumerate(candidates)}
-    records.sort(key=lambda r: order[r["path"]])
-    chosen = [r for r in records if r["selected"]]
-    rejected = [r for r in records if not r["selected"]]
-    if rank:
-        chosen.sort(key=lambda r: -r.get("score", 0.0))
-        for position, record in enumerate(chosen, start=1):
-            record["rank"] = position
-    log.info("%d candidate(s) compared with %s (feature cache: %d hit(s), %d miss(es))\n%s",
-             len(records), target_name, cache.hits, cache.misses, _format_table(records))
-    if not chosen:
-        best = max(records, key=lambda r: (r.get("inliers", 0), r.get("matches", 0)))
-        raise ProcessingError(
-            f"no image passes the selection against {target}: {len(records)} candidate(s), "
-            f"best {best['name']} with {best.get('matches', 0)} matches and "
-            f"{best.get('inliers', 0)} inliers (need >= {min_matches} matches, "
-            f">= {min_inliers} inliers); lower --min-matches or check the images overlap")
-    target_entry: dict[str, Any] = {
-        "name": target_name, "path": target, "role": "target",
-        "keypoints": len(target_features), "matches": len(target_features),
-        "inliers": len(target_features), "overlap": 1.0, "inlier_coverage": 1.0,
-    }
-    if point is not None:
-        target_entry.update(selection.view_geometry(target_camera, target_camera, point,
-                                                    target_sun).as_dict())
-    for record in chosen:
-        record.pop("selected", None)
-        record.pop("reason", None)
-    for record in rejected:
-        record.pop("selected", None)
-    result = {
-        "target": {"name": target_name, "path": target},
-        "roi": None if roi is None else region.as_list(),
-        "selected": [target_entry, *chosen],
-        "rejected": rejected,
-        "parameters": provenance.params,
-    }
-    summary = {"candidates": len(records), "selected": len(chosen), "rejected": len(rejected),
-               "target_keypoints": len(target_features), "cache_hits": cache.hits,
-               "cache_misses": cache.misses, "geometry": point is not None}
-    with dio.output_transaction():
-        dio.write_json(out, result)
-        provenance.write_sidecar(out, summary)
-    log.info("selected %d of %d image(s) for target %s", len(chosen), len(records), target_name)
-    return result
+from demtool.select_params import SelectParams
+from demtool.stages import STAGES
 
 
 @click.command(name="select", help=STAGES["select"] + """
@@ -250,31 +26,18 @@ overlap, a 25° convergence and sun-azimuth diversity.""")
 @click.option("--roi", nargs=4, type=float, default=None,
               metavar="X0 Y0 X1 Y1", help="Region of interest in target pixels "
               "(columns X0..X1-1, rows Y0..Y1-1); default: the whole target.")
-@click.option("--min-matches", type=click.IntRange(min=8), default=50, show_default=True,
-              help="Fewest ratio-test matches to keep an image (the study's 50).")
-@click.option("--min-inliers", type=click.IntRange(min=8), default=25, show_default=True,
-              help="Fewest matches agreeing with one fundamental matrix.")
-@click.option("--min-overlap", type=click.FloatRange(0.0, 1.0), default=0.0, show_default=True,
-              help="Smallest fraction of the ROI an image must cover (0 = no test).")
-@click.option("--ratio", type=click.FloatRange(0.0, 1.0, min_open=True), default=0.8,
-              show_default=True, help="Lowe's ratio-test threshold.")
-@click.option("--ransac-threshold", type=click.FloatRange(0.0, min_open=True), default=1.0,
-              show_default=True, help="Inlier threshold of the fundamental-matrix RANSAC, px.")
-@click.option("--max-features", type=click.IntRange(min=0), default=0, show_default=True,
-              help="SIFT keypoints kept per image, strongest first (0 = all).")
-@click.option("--contrast-threshold", type=click.FloatRange(0.0, min_open=True), default=0.04,
-              show_default=True, help="SIFT contrast threshold (lower: more keypoints).")
-@click.option("--cameras", type=click.Path(dir_okay=False), default=None,
-              help="cameras.npz (from synth) for viewing geometry.")
-@click.option("--scene", type=click.Path(dir_okay=False), default=None,
-              help="scene.json (from synth) for the sun direction.")
-@click.option("--rank", is_flag=True, help="Order the selected images by the ranking score.")
-@options.workers()
+@options.path_option("--cameras", "cameras.npz (from synth) for viewing geometry.")
+@options.path_option("--scene", "scene.json (from synth) for the sun direction.")
 @click.option("--cache-dir", type=click.Path(file_okay=False), default=None,
-              help=f"Feature cache folder [default: {DEFAULT_CACHE_NAME}/ beside OUT].")
-@click.option("--no-cache", is_flag=True, help="Do not read or write the feature cache.")
-@options.seed()
+              help="Feature cache folder [default: .demtool-features/ beside OUT].")
+@options.parameter_options(SelectParams)
 @click.pass_context
 def command(ctx: click.Context, images: tuple[str, ...], target: str, out: str,
-            **kwargs) -> None:
-    run_select(list(images), target, out, params=options.resolved_params(ctx), **kwargs)
+            roi: tuple[float, float, float, float] | None, cameras: str | None,
+            scene: str | None, cache_dir: str | None, **values: Any) -> None:
+    """Options → SelectParams → :func:`demtool.runs.select.run_select`."""
+    from demtool.runs.select import run_select
+
+    run_select(list(images), target, out, SelectParams.from_options(values), roi=roi,
+               cameras=cameras, scene=scene, cache_dir=cache_dir,
+               resolved=options.resolved_params(ctx))

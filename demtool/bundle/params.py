@@ -1,0 +1,49 @@
+"""Parameters of ``demtool bundle`` (defaults: :class:`demtool.bundle.colmap.SfmOptions`).
+
+The command's options are generated from these fields; each SfM default is read from
+the core's :class:`SfmOptions`, so it is written once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from demtool.bundle.colmap import CAMERA_MODELS, MATCHERS, SfmOptions
+from demtool.parameters import (
+    Parameters,
+    core_default,
+    parameter,
+    seed_parameter,
+    workers_parameter,
+)
+
+
+def _default(name: str):
+    return core_default(SfmOptions, name)
+
+
+@dataclass(frozen=True)
+class BundleParams(Parameters):
+    """Every option of ``demtool bundle`` except its files."""
+
+    focal_px: float | None = parameter(None, "Known focal length, pixels (principal point at "
+                                       "the image centre).", minimum=0.0, min_open=True)
+    refine_intrinsics: bool = parameter(False, "Let bundle adjustment refine known focal "
+                                        "lengths (default: fixed).",
+                                        flag="--refine-intrinsics")
+    shared_camera: bool = parameter(_default("shared_camera"), "One camera for all images "
+                                    "(one instrument) or one per image.",
+                                    flag="--shared-camera/--per-image-camera")
+    camera_model: str | None = parameter(
+        None, "COLMAP camera model (pinhole, optionally with radial distortion); default "
+        "SIMPLE_RADIAL (f, k), or PINHOLE with known intrinsics.", choices=CAMERA_MODELS,
+        what="camera model")
+    radial_k2: bool = parameter(True, "After mapping with SIMPLE_RADIAL, free a second radial "
+                                "term k2 in a final global bundle adjustment (RADIAL model).")
+    matcher: str = parameter(_default("matcher"), "Pair selection: all pairs, or neighbours in "
+                             "selection order (auto: exhaustive up to 100 images).",
+                             choices=MATCHERS, what="matcher")
+    max_features: int = parameter(_default("max_features"), "SIFT features per image.",
+                                  minimum=64)
+    seed: int = seed_parameter()
+    workers: int = workers_parameter()

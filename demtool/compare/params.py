@@ -1,0 +1,42 @@
+"""Parameters of ``demtool compare`` (defaults: :func:`demtool.compare.compare_dems`).
+
+The command's options are generated from these fields; the alignment methods come from
+:data:`demtool.compare.align.ALIGN_METHODS` and each default from the core's signature.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from demtool.compare.align import ALIGN_METHODS
+from demtool.compare.core import compare_dems
+from demtool.parameters import Parameters, core_default, parameter, seed_parameter
+
+#: the grid a comparison is made on
+GRIDS = ("reference", "dem")
+
+
+@dataclass(frozen=True)
+class CompareParams(Parameters):
+    """Every option of ``demtool compare`` except its files.
+
+    ``slope_bins`` (degrees) and ``profiles`` (x0, y0, x1, y1 in comparison-grid pixels)
+    are lists, given by their own options.
+    """
+
+    grid: str = parameter("reference", "Which raster's grid the comparison is made on.",
+                          choices=GRIDS, what="grid")
+    align: str = parameter(core_default(compare_dems, "align"), "Co-registration: median "
+                           "vertical offset, Nuth & Kääb shift, point-to-plane ICP, or the "
+                           "shift followed by ICP.", choices=ALIGN_METHODS,
+                           what="alignment method")
+    icp_scale: bool = parameter(core_default(compare_dems, "icp_scale"), "Let ICP fit an "
+                                "isotropic scale too.")
+    slope_bins: tuple[float, ...] = parameter(core_default(compare_dems, "slope_bins"),
+                                              "Slope class edges, degrees.", cli=False)
+    profiles: tuple[tuple[float, float, float, float], ...] = parameter(
+        (), "Profile lines in comparison-grid pixels; default: through the centre.",
+        cli=False)
+    label: str | None = parameter(None, "Name of DEM in the report (default: file stem).")
+    plots: bool = parameter(True, "Write the PNG figures.")
+    seed: int = seed_parameter()

@@ -1,0 +1,40 @@
+"""Parameters of ``demtool dem`` (defaults: the core's, :mod:`demtool.dem.routes`).
+
+The command's options are generated from these fields; the outlier test's defaults are
+read from the core's :class:`OutlierOptions`, so each is written once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from demtool.dem.routes import OutlierOptions
+from demtool.parameters import Parameters, core_default, parameter, seed_parameter
+
+
+@dataclass(frozen=True)
+class DemParams(Parameters):
+    """Every option of ``demtool dem`` except its files."""
+
+    target: str | None = parameter(None, "Target view name (default: the bundle's target, or "
+                                   "the left image of the pair).")
+    distance: float | None = parameter(None, "Spacecraft-surface distance D, metres (eq. 2; "
+                                       "unaligned bundles).", minimum=0.0, min_open=True)
+    gsd: float | None = parameter(None, "Pixel spacing of the output, metres (default: from "
+                                  "metadata or estimated).", minimum=0.0, min_open=True)
+    median: int = parameter(0, "Median filter after filling, odd size in px (0 = off).",
+                            minimum=0, odd=True)
+    outlier_neighbours: int = parameter(core_default(OutlierOptions, "neighbours"),
+                                        "Neighbours of the local median outlier test.",
+                                        minimum=3)
+    outlier_threshold: float = parameter(core_default(OutlierOptions, "threshold"),
+                                         "Outlier threshold in local NMADs (0 = no outlier "
+                                         "removal).")
+    mask_band: bool = parameter(False, "Write the interpolation mask as a second band of OUT.",
+                                flag="--mask-band")
+    seed: int = seed_parameter()
+
+    def outliers(self) -> OutlierOptions:
+        """The outlier test of the core."""
+        return OutlierOptions(neighbours=self.outlier_neighbours,
+                              threshold=self.outlier_threshold)

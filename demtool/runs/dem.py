@@ -1,0 +1,198 @@
+"""Runner of ``demtool dem``: a dense DEM in the target frame from bundle points (BAM
+route) or from a disparity map (SIAM routes: projective fit or triangulation)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from demtool.runs import StageRun
+from demtool.runs.scene import read_scene_description, scene_number
+
+if TYPE_CHECKING:
+    from demtool.dem import OutlierOptions
+    from demtool.dem.params import DemParams
+
+
+def _points_route(points_path: str | os.PathLike, *, target: str | None,
+                  distance_m: float | None, scene: dict[str, Any],
+                  scene_path: str | os.PathLike | None, outliers: OutlierOptions,
+                  median_px: int) -> tuple[Any, str, str, float, dict[str, Any]]:
+    """BAM route: (DemResult, target name, route tag, estimated GSD, extra summary)."""
+    import numpy as np
+
+    from demtool import dem as core
+    from demtool import io as dio
+    from demtool.camera import cameras_from_arrays
+    from demtool.errors import InputError, ParameterError
+
+    bundle = dio.read_npz(points_path, "bundle")
+    names = [str(n) for n in bundle["image_names"]]
+    cameras = cameras_from_arrays(bundle)
+    target_name = target or names[int(bundle["target_index"])]
+    if target_name not in cameras:
+        raise InputError(f"{points_path}: target {target_name} is not among the registered "
+                         f"images ({', '.join(names)})")
+    index = names.index(target_name)
+    aligned = bool(bundle["aligned"])
+    distortion = (bundle["distortion"][index] if "distortion" in bundle
+                  else np.zeros(2))
+    if not aligned and distance_m is None:
+        distance_m = scene_number(scene, scene_path, "distance_m")
+        if distance_m is None:
+            raise ParameterError("the bundle is not aligned: give the spacecraft-surface "
+                                 "distance with --distance or --scene scene.json")
+    camera = cameras[target_name]
+    result = core.dem_from_points(bundle["points"], camera, aligned=aligned,
+                                  distance_m=distance_m, distortion=distortion,
+                                  outliers=outliers, median_px=median_px)
+    estimated_gsd = core.estimate_gsd(camera, aligned=aligned,
+                                      depth=np.array([result.report["median_depth"]]),
+                                      distance_m=distance_m)
+    route = "points-metric" if aligned else "points-eq2"
+    return result, target_name, route, estimated_gsd, {"distance_m": distance_m}
+
+
+def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.PathLike, *,
+                     reference_path: str | os.PathLike | None,
+                     cameras_path: str | os.PathLike | None, target: str | None,
+                     outliers: OutlierOptions, median_px: int,
+                     seed: int) -> tuple[Any, str, str, float, dict[str, Any]]:
+    """SIAM routes: (DemResult, target name, route tag, estimated GSD, extra summary)."""
+    from demtool import dem as core
+    from demtool import io as dio
+    from demtool.camera import cameras_from_arrays
+    from demtool.errors import InputError
+
+    rectification = dio.read_npz(rectify_path, "rectification")
+    disparity = dio.read_raster(disparity_path, what="disparity")
+    width_rect, height_rect = (int(v) for v in rectification["size_rect"])
+    if disparity.data.shape != (height_rect, width_rect):
+        raise InputError(f"{disparity_path}: disparity is {disparity.data.shape[1]}×"
+                         f"{disparity.data.shape[0]} px but {rectify_path} has a "
+                         f"{width_rect}×{height_rect} rectified canvas")
+    left_name = str(rectification["left_name"])
+    right_name = str(rectification["right_name"])
+    target_name = target or left_name
+    if target_name not in (left_name, right_name):
+        raise InputError(f"{rectify_path}: target {target_name} is neither the left "
+                         f"({left_name}) nor the right ({right_name}) image of the pair")
+    side = "left" if target_name == left_name else "right"
+    width, height = (int(v) for v in rectification[f"size_{side}"])
+    H_left, H_right = rectification["H_left"], rectification["H_right"]
+    if cameras_path is not None:
+        cameras = cameras_from_arrays(dio.read_npz(cameras_path, "cameras"))
+        missing = [n for n in (left_name, right_name) if n not in cameras]
+        if missing:
+            raise InputError(f"{cameras_path}: no camera for {', '.join(missing)}")
+        for name, side_name in ((left_name, "left"), (right_name, "right")):
+            size = tuple(int(v) for v in rectification[f"size_{side_name}"])
+            if (cameras[name].width, cameras[name].height) != size:
+                raise InputError(f"{cameras_path}: camera {name} is {cameras[name].width}×"
+                                 f"{cameras[name].height} px but {rectify_path} says the "
+                                 f"{side_name} image is {size[0]}×{size[1]}")
+        result = core.dem_from_disparity_calibrated(
+            disparity.data, H_left, H_right, cameras[left_name], cameras[right_name],
+            target=side, outliers=outliers, median_px=median_px)
+        target_camera = cameras[target_name]
+        estimated_gsd = result.report["median_depth_m"] / target_camera.focal_px
+        return result, target_name, "disparity-calibrated", estimated_gsd, {}
+    reference = dio.read_raster(reference_path, what="reference DEM")
+    if reference.data.shape != (height, width):
+        raise InputError(f"{reference_path}: reference DEM is {reference.data.shape[1]}×"
+                         f"{reference.data.shape[0]} px but the target image {target_name} is "
+                         f"{width}×{height}; it must be on the target's pixel grid")
+    frame = reference.tags.get("frame")
+    if frame is not None and frame != f"image:{target_name}":
+        raise InputError(f"{reference_path}: reference DEM is in frame {frame}, expected "
+                         f"image:{target_name}")
+    result = core.dem_from_disparity_projective(
+        disparity.data, H_left, H_right, reference.data, target=side, outliers=outliers,
+        median_px=median_px, seed=seed)
+    return result, target_name, "disparity-projective", reference.spacing[0], {}
+
+
+PathLike = str | os.PathLike | None
+
+
+def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
+            points_path: PathLike = None, disparity_path: PathLike = None,
+            rectify_path: PathLike = None, reference_path: PathLike = None,
+            cameras_path: PathLike = None, scene_path: PathLike = None,
+            mask_path: PathLike = None, resolved: dict | None = None) -> dict:
+    """Run the dem stage: read the inputs, build the DEM, write it with its sidecar.
+
+    Give ``points_path`` (BAM route) or ``disparity_path`` with ``rectify_path`` and
+    one of ``reference_path`` (projective fit) or ``cameras_path`` (triangulation).
+    ``mask_path`` also writes the interpolation mask.  Returns the sidecar summary.
+    """
+    import numpy as np
+
+    from demtool import io as dio
+    from demtool.dem.params import DemParams
+
+    params = params or DemParams()
+    params.check()
+    run = StageRun("dem", resolved or params.as_dict(),
+                   inputs={"--points": points_path, "--disparity": disparity_path,
+                           "--rectify": rectify_path, "--reference": reference_path,
+                           "--cameras": cameras_path, "--scene": scene_path},
+                   outputs={"--out": out, "--interpolated-mask": mask_path})
+    log, prov = run.log, run.provenance
+    for path in run.input_paths():
+        dio.require_file(path, "input file")
+    scene = read_scene_description(scene_path) if scene_path is not None else {}
+    outliers = params.outliers()
+    target, median_px, mask_band = params.target, params.median, params.mask_band
+    if points_path is not None:
+        result, target_name, route, estimated_gsd, extra = _points_route(
+            points_path, target=target, distance_m=params.distance, scene=scene,
+            scene_path=scene_path, outliers=outliers, median_px=median_px)
+    else:
+        result, target_name, route, estimated_gsd, extra = _disparity_route(
+            disparity_path, rectify_path, reference_path=reference_path,
+            cameras_path=cameras_path, target=target, outliers=outliers,
+            median_px=median_px, seed=params.seed)
+    if params.gsd is not None:
+        gsd, gsd_source = float(params.gsd), "--gsd"
+    elif "gsd_m" in scene:
+        gsd, gsd_source = scene_number(scene, scene_path, "gsd_m"), "scene"
+    else:
+        gsd, gsd_source = float(estimated_gsd), (
+            "reference spacing" if route == "disparity-projective" else "estimated")
+    interpolated = result.interpolated.astype(np.float32)
+    summary: dict[str, Any] = {
+        "route": route,
+        "target": target_name,
+        "shape": list(result.dem.shape),
+        "gsd_m": gsd,
+        "gsd_source": gsd_source,
+        "median_px": median_px,
+        "height_min_m": float(result.dem.min()),
+        "height_max_m": float(result.dem.max()),
+        "interpolated_fraction": float(interpolated.mean()),
+        **extra,
+        **result.report,
+    }
+    log.info("DEM %d×%d of %s (%s), GSD %.4g m, %.1f %% measured, heights %.3g … %.3g m",
+             result.dem.shape[1], result.dem.shape[0], target_name, route, gsd,
+             100 * result.report["measured_fraction"], summary["height_min_m"],
+             summary["height_max_m"])
+    tags = prov.tags(frame=f"image:{target_name}", dem_route=route, gsd_m=gsd,
+                     units="metres, positive toward the camera", target=target_name,
+                     **({"distance_m": extra["distance_m"]} if extra.get("distance_m") else {}))
+    transform = dio.image_frame_transform(gsd)
+    data = np.stack([result.dem, interpolated]) if mask_band else result.dem
+    band_names = ["height", "interpolated"] if mask_band else ["height"]
+    outputs = [Path(out)]
+    with dio.output_transaction():
+        dio.write_raster(out, data, transform=transform, tags=tags, band_names=band_names)
+        if mask_path is not None:
+            dio.write_raster(mask_path, interpolated, transform=transform,
+                             tags=prov.tags(frame=f"image:{target_name}",
+                                            meaning="1 = interpolated, 0 = measured"),
+                             band_names=["interpolated"])
+            outputs.append(Path(mask_path))
+        prov.write_sidecar(out, summary, outputs=outputs)
+    return summary

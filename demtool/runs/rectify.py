@@ -1,0 +1,105 @@
+"""Runner of ``demtool rectify``: uncalibrated rectification of a stereo pair."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from demtool.runs import StageRun
+
+if TYPE_CHECKING:
+    from demtool.rectify_params import RectifyParams
+
+LEFT_RECT = "left_rect.tif"
+RIGHT_RECT = "right_rect.tif"
+RECTIFY_NPZ = "rectify.npz"
+
+
+def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
+                out_dir: str | os.PathLike, params: RectifyParams | None = None, *,
+                resolved: dict[str, Any] | None = None):
+    """Rectify LEFT and RIGHT into ``out_dir``: left_rect.tif, right_rect.tif, rectify.npz.
+
+    Reads both images, calls :func:`demtool.rectify.rectify_pair`, warps the images onto
+    the common rectified canvas and writes everything (plus the sidecar
+    ``rectify.npz.json``) in one output transaction.
+
+    Returns
+    -------
+    demtool.rectify.Rectification
+    """
+    import numpy as np
+
+    from demtool import io as dio
+    from demtool.rectify import rectify_pair, warp_to_rectified
+    from demtool.rectify_params import RectifyParams
+
+    params = params or RectifyParams()
+    params.check()
+    run = StageRun("rectify", resolved or params.as_dict(),
+                   inputs={"LEFT": left_path, "RIGHT": right_path}, folders={"--out": out_dir})
+    log, provenance = run.log, run.provenance
+    out = Path(out_dir)
+    left_image = dio.read_image(left_path, what="left image")
+    right_image = dio.read_image(right_path, what="right image")
+    left_name, right_name = Path(left_path).stem, Path(right_path).stem
+    pair = f"{left_path} / {right_path}"
+    if left_image.data.shape != right_image.data.shape:
+        log.info("%s: the images differ in size (%d x %d and %d x %d); that is fine", pair,
+                 left_image.data.shape[1], left_image.data.shape[0],
+                 right_image.data.shape[1], right_image.data.shape[0])
+    result = rectify_pair(left_image.data, right_image.data, **params.as_dict(), what=pair)
+    left_rect = warp_to_rectified(left_image.data, result.H_left, result.size_rect)
+    right_rect = warp_to_rectified(right_image.data, result.H_right, result.size_rect)
+    residuals = result.vertical_residuals
+    summary = {
+        "left": left_name,
+        "right": right_name,
+        "matches": result.n_matches,
+        "ransac_inliers": result.n_ransac_inliers,
+        "inliers": len(result.points_left),
+        "outlier_iterations": result.iterations,
+        "rms_vertical_residual_px": round(result.rms_vertical_residual, 4),
+        "max_abs_vertical_residual_px": round(float(np.max(np.abs(residuals))), 4),
+        "disparity_range_px": [round(float(v), 3) for v in result.disparity_range],
+        "inlier_disparity_px": [round(float(result.disparities.min()), 3),
+                                round(float(result.disparities.max()), 3)],
+        "size_left": result.size_left.tolist(),
+        "size_right": result.size_right.tolist(),
+        "size_rect": result.size_rect.tolist(),
+    }
+    log.info("%s: %d matches, %d RANSAC inliers, %d control points after %d outlier "
+             "pass(es)", pair, result.n_matches, result.n_ransac_inliers,
+             len(result.points_left), result.iterations)
+    log.info("RMS vertical residual %.3f px (max %.3f px); disparity range %.1f … %.1f px "
+             "(inliers %.1f … %.1f); rectified canvas %d x %d",
+             result.rms_vertical_residual, summary["max_abs_vertical_residual_px"],
+             *result.disparity_range, *summary["inlier_disparity_px"], *result.size_rect)
+    arrays = {
+        "H_left": result.H_left, "H_right": result.H_right, "F": result.F,
+        "size_left": result.size_left, "size_right": result.size_right,
+        "size_rect": result.size_rect,
+        "points_left": result.points_left, "points_right": result.points_right,
+        "points_left_rect": result.points_left_rect,
+        "points_right_rect": result.points_right_rect,
+        "disparity_range": result.disparity_range,
+        "left_name": np.asarray(left_name), "right_name": np.asarray(right_name),
+        "vertical_residuals": residuals,
+        "rms_vertical_residual": np.asarray(result.rms_vertical_residual),
+        "n_matches": np.asarray(result.n_matches),
+        "n_ransac_inliers": np.asarray(result.n_ransac_inliers),
+        "iterations": np.asarray(result.iterations),
+    }
+    npz_path = out / RECTIFY_NPZ
+    with dio.output_transaction():
+        for path, image, name, H in ((out / LEFT_RECT, left_rect, left_name, result.H_left),
+                                     (out / RIGHT_RECT, right_rect, right_name, result.H_right)):
+            dio.write_raster(path, image, transform=dio.image_frame_transform(1.0),
+                             tags=provenance.tags(frame=f"image:{name}_rect", rectified_from=name,
+                                                  homography=H.tolist(),
+                                                  disparity_range=result.disparity_range.tolist()))
+        dio.write_npz(npz_path, "rectification", arrays)
+        provenance.write_sidecar(npz_path, summary,
+                                 outputs=[out / LEFT_RECT, out / RIGHT_RECT, npz_path])
+    return result

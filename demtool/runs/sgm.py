@@ -1,0 +1,127 @@
+"""Runner of ``demtool sgm``: semi-global matching of a rectified pair."""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from demtool.runs import StageRun
+
+if TYPE_CHECKING:
+    from demtool.sgm.params import SgmParams
+
+
+def disparity_range_from_rectify(path: str | os.PathLike) -> tuple[int, int]:
+    """(min_disparity, num_disparities) covering ``disparity_range`` of a rectify.npz."""
+    from demtool import io as dio
+    from demtool.errors import InputError
+
+    content = dio.read_npz(path, "rectification")
+    low, high = (float(v) for v in content["disparity_range"])
+    if not (math.isfinite(low) and math.isfinite(high)) or high < low:
+        raise InputError(f"{path}: disparity_range {low:g} … {high:g} is not a valid range")
+    min_disparity = math.floor(low)
+    return min_disparity, math.ceil(high) - min_disparity + 1
+
+
+def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
+            out: str | os.PathLike, params: SgmParams | None = None, *,
+            rectify: str | os.PathLike | None = None,
+            confidence: str | os.PathLike | None = None,
+            resolved: dict[str, Any] | None = None):
+    """Match LEFT_RECT and RIGHT_RECT; write the disparity GeoTIFF (and confidence).
+
+    The disparity range is ``params.min_disparity/num_disparities`` when given, else
+    the ``disparity_range`` of ``rectify``.  Writes ``out`` (float32 disparity in the left
+    rectified image's frame, ``x_right = x_left − d``, NaN = invalid), optionally the
+    confidence raster, and the sidecar ``<out>.json``, all in one output transaction.
+
+    Returns
+    -------
+    demtool.sgm.SGMResult
+    """
+    import numpy as np
+
+    from demtool import io as dio
+    from demtool.errors import InputError, ParameterError
+    from demtool.sgm import sgm
+    from demtool.sgm.params import SgmParams
+
+    params = params or SgmParams()
+    params.check()
+    run = StageRun("sgm", resolved or params.as_dict(),
+                   inputs={"LEFT_RECT": left_path, "RIGHT_RECT": right_path,
+                           "--rectify": rectify},
+                   outputs={"--out": out, "--confidence": confidence})
+    log, provenance = run.log, run.provenance
+    out_path = Path(out)
+    sgm_options = params.matcher_options()
+    min_disparity, num_disparities = params.min_disparity, params.num_disparities
+    left = dio.read_raster(left_path, what="left rectified image")
+    right = dio.read_raster(right_path, what="right rectified image")
+    if left.data.shape != right.data.shape:
+        raise InputError(
+            f"{left_path} and {right_path}: the rectified images differ in size "
+            f"({left.data.shape[1]}×{left.data.shape[0]} and {right.data.shape[1]}×"
+            f"{right.data.shape[0]}, width×height); use the pair written by demtool rectify")
+    source = "--min-disparity/--num-disparities"
+    if min_disparity is None or num_disparities is None:
+        if rectify is None:
+            raise ParameterError("give the disparity range: --rectify RECTIFY_NPZ, or both "
+                                 "--min-disparity and --num-disparities")
+        from_file = disparity_range_from_rectify(rectify)
+        min_disparity = from_file[0] if min_disparity is None else min_disparity
+        num_disparities = from_file[1] if num_disparities is None else num_disparities
+        source = f"{rectify} (disparity_range)"
+    width = left.data.shape[1]
+    max_disparity = min_disparity + num_disparities - 1
+    if num_disparities >= width or max(abs(min_disparity), abs(max_disparity)) >= width:
+        raise ParameterError(f"disparity range {min_disparity} … {max_disparity} from {source} "
+                             f"is wider than the images ({width} px)")
+    log.info("matching %s / %s: %d×%d px, disparities %d … %d, cost %s, %d paths",
+             left_path, right_path, width, left.data.shape[0], min_disparity, max_disparity,
+             params.cost, params.paths)
+    result = sgm(left.data, right.data, min_disparity=min_disparity,
+                 num_disparities=num_disparities, **sgm_options)
+    disparity = result.disparity
+    valid = np.isfinite(disparity)
+    input_valid = np.isfinite(left.data)
+    values = disparity[valid]
+    stats: dict[str, Any] = {"valid_fraction": round(float(valid.mean()), 4),
+                             "valid_fraction_of_input": round(
+                                 float(valid.sum() / max(int(input_valid.sum()), 1)), 4)}
+    if values.size:
+        percentiles = np.percentile(values, [1, 50, 99])
+        stats.update(disparity_min=float(values.min()), disparity_max=float(values.max()),
+                     disparity_mean=float(values.mean()), disparity_std=float(values.std()),
+                     disparity_p01=float(percentiles[0]), disparity_median=float(percentiles[1]),
+                     disparity_p99=float(percentiles[2]),
+                     confidence_mean=float(np.nanmean(result.confidence)))
+    else:
+        log.warning("no valid disparity: check the disparity range and the image pair")
+    log.info("%.1f %% of the pixels valid; disparity %s; %.1f s (%s)",
+             100 * stats["valid_fraction"],
+             f"{stats['disparity_min']:.1f} … {stats['disparity_max']:.1f}" if values.size
+             else "none", result.timings["total"],
+             ", ".join(f"{k} {v:.1f} s" for k, v in result.timings.items() if k != "total"))
+    summary = {**stats, "min_disparity": min_disparity, "num_disparities": num_disparities,
+               "disparity_range_source": source, "resolved": result.parameters,
+               "timings_s": result.timings, "passes": result.levels,
+               "convention": "x_right = x_left - d, pixels, NaN = invalid"}
+    frame = left.tags.get("frame", f"image:{Path(left_path).stem}")
+    tags = provenance.tags(frame=frame, disparity_convention="x_right = x_left - d",
+                           min_disparity=min_disparity, num_disparities=num_disparities,
+                           cost=result.parameters["cost"])
+    outputs: list[str | os.PathLike] = [out_path]
+    with dio.output_transaction():
+        dio.write_raster(out_path, disparity, transform=left.transform, tags=tags,
+                         band_names=["disparity"])
+        if confidence is not None:
+            dio.write_raster(confidence, result.confidence, transform=left.transform,
+                             tags={**tags, "quantity": "sgm confidence (S2 - S1) / S2"},
+                             band_names=["confidence"])
+            outputs.append(confidence)
+        provenance.write_sidecar(out_path, summary, outputs=outputs)
+    return result

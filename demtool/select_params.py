@@ -1,0 +1,51 @@
+"""Parameters of ``demtool select`` (defaults: the core's, :mod:`demtool.selection`).
+
+Beside the single-module core :mod:`demtool.selection`.  The command's options are
+generated from these fields; each default is read from the core function's signature.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from demtool.features import detect_sift
+from demtool.parameters import (
+    Parameters,
+    core_default,
+    parameter,
+    seed_parameter,
+    workers_parameter,
+)
+from demtool.selection import compare_with_target
+
+
+def _default(name: str):
+    return core_default(compare_with_target, name)
+
+
+@dataclass(frozen=True)
+class SelectParams(Parameters):
+    """Every option of ``demtool select`` except its files and ROI."""
+
+    min_matches: int = parameter(_default("min_matches"), "Fewest ratio-test matches to keep "
+                                 "an image (the study's 50).", minimum=8)
+    min_inliers: int = parameter(_default("min_inliers"), "Fewest matches agreeing with one "
+                                 "fundamental matrix.", minimum=8)
+    min_overlap: float = parameter(_default("min_overlap"), "Smallest fraction of the ROI an "
+                                   "image must cover (0 = no test).", minimum=0.0, maximum=1.0)
+    ratio: float = parameter(_default("ratio"), "Lowe's ratio-test threshold.", minimum=0.0,
+                             maximum=1.0, min_open=True)
+    ransac_threshold: float = parameter(_default("ransac_threshold"), "Inlier threshold of the "
+                                        "fundamental-matrix RANSAC, px.", minimum=0.0,
+                                        min_open=True)
+    max_features: int = parameter(core_default(detect_sift, "max_features"), "SIFT keypoints "
+                                  "kept per image, strongest first (0 = all).", minimum=0)
+    contrast_threshold: float = parameter(
+        core_default(detect_sift, "contrast_threshold"), "SIFT contrast threshold (lower: "
+        "more keypoints).", minimum=0.0, min_open=True)
+    rank: bool = parameter(False, "Order the selected images by the ranking score.",
+                           flag="--rank")
+    workers: int = workers_parameter()
+    no_cache: bool = parameter(False, "Do not read or write the feature cache.",
+                               flag="--no-cache")
+    seed: int = seed_parameter()

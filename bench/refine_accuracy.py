@@ -35,10 +35,10 @@ import numpy as np
 from scipy import ndimage
 
 from demtool import io
-from demtool.commands.refine import run_refine
-from demtool.commands.synth import run_synth
 from demtool.logs import configure_logging
 from demtool.robust import nmad
+from demtool.runs.refine import run_refine
+from demtool.runs.synth import run_synth
 from demtool.spectral import coherence_cutoff
 from demtool.synth import SceneParams
 
@@ -74,26 +74,37 @@ def input_a(truth: np.ndarray, gsd: float, seed: int) -> np.ndarray:
 
 def input_b(scene_dir: Path, work: Path) -> tuple[Path | None, str]:
     """The SIAM DEM from rectify → sgm → dem --cameras, or (None, why not)."""
-    from click.testing import CliRunner
+    import logging
 
-    from demtool.cli import cli
+    from demtool.errors import DemtoolError
+    from demtool.runs.dem import run_dem
+    from demtool.runs.rectify import run_rectify
+    from demtool.runs.sgm import run_sgm
 
     description = io.read_json(scene_dir / "scene.json")
     target, partner = description["target"], description["partner"]
     stereo = work / "stereo"
     steps = [
-        ["rectify", scene_dir / f"{target}.tif", scene_dir / f"{partner}.tif", "--out", stereo],
-        ["sgm", stereo / "left_rect.tif", stereo / "right_rect.tif", "--rectify",
-         stereo / "rectify.npz", "--out", stereo / "disparity_sgm.tif"],
-        ["dem", "--disparity", stereo / "disparity_sgm.tif", "--rectify",
-         stereo / "rectify.npz", "--cameras", scene_dir / "cameras.npz", "--scene",
-         scene_dir / "scene.json", "--out", work / "dem_siam.tif"],
+        ("rectify", lambda: run_rectify(scene_dir / f"{target}.tif",
+                                        scene_dir / f"{partner}.tif", stereo)),
+        ("sgm", lambda: run_sgm(stereo / "left_rect.tif", stereo / "right_rect.tif",
+                                stereo / "disparity_sgm.tif", rectify=stereo / "rectify.npz")),
+        ("dem", lambda: run_dem(work / "dem_siam.tif", disparity_path=stereo /
+                                "disparity_sgm.tif", rectify_path=stereo / "rectify.npz",
+                                cameras_path=scene_dir / "cameras.npz",
+                                scene_path=scene_dir / "scene.json")),
     ]
-    for step in steps:
-        result = CliRunner().invoke(cli, ["-q", *map(str, step)])
-        if result.exit_code != 0:
-            message = (result.output.strip().splitlines() or [repr(result.exception)])[-1]
-            return None, f"SIAM chain stopped at `{step[0]}`: {message[:90]}"
+    logger = logging.getLogger("demtool")
+    level = logger.level
+    logger.setLevel(logging.WARNING)  # quiet, as `demtool -q`
+    try:
+        for name, step in steps:
+            try:
+                step()
+            except DemtoolError as exc:
+                return None, f"SIAM chain stopped at `{name}`: {str(exc)[:90]}"
+    finally:
+        logger.setLevel(level)
     return work / "dem_siam.tif", ""
 
 

@@ -34,8 +34,8 @@ import numpy as np
 from scipy import ndimage
 
 from demtool import io
-from demtool.commands.synth import run_synth
 from demtool.logs import configure_logging
+from demtool.runs.synth import run_synth
 from demtool.synth import SceneParams
 
 DEMTOOL = Path(sys.executable).with_name("demtool")

@@ -41,8 +41,8 @@ def main(argv: list[str] | None = None) -> int:
 
     import numba
 
-    from demtool.commands.synth import write_scene
     from demtool.provenance import Provenance
+    from demtool.runs.synth import write_scene
     from demtool.synth import SceneParams, make_scene
 
     threads = args.threads or numba.config.NUMBA_NUM_THREADS

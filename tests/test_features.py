@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from features_helpers import make_stereo_scene
 
 from demtool import features
 from demtool.errors import ParameterError, ProcessingError
+from tests.helpers.features import make_stereo_scene
 
 
 @pytest.fixture(scope="module")

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from match_helpers import textured_pair
 
 from demtool import io as dio
 from demtool.cli import cli
+from tests.helpers.match import textured_pair
 
 
 @pytest.fixture(scope="module")

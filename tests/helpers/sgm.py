@@ -8,12 +8,14 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from tests.helpers.texture import texture as band_limited
+
 
 def texture(rng: np.random.Generator, shape: tuple[int, int], *, blur: float = 1.0,
             sigma: float = 40.0, mean: float = 1000.0) -> np.ndarray:
     """Band-limited random texture (Gaussian-smoothed white noise), float64 grey levels."""
-    field = ndimage.gaussian_filter(rng.normal(size=shape), blur, mode="wrap")
-    return (field - field.mean()) / field.std() * sigma + mean
+    return band_limited(shape, rng, blurs=(blur,), mode="wrap", centred=True, sigma=sigma,
+                        mean=mean)
 
 
 def smooth_disparity_pair(height: int = 96, width: int = 128, *, seed: int = 1,

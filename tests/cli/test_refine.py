@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from refine_helpers import hills_scene, rmse, slope_error
 
 from demtool import io
 from demtool.cli import cli
+from tests.helpers.refine import hills_scene, rmse, slope_error
 
 GSD = 0.5
 
@@ -226,7 +226,7 @@ def test_study_presets_set_the_refine_parameters(preset):
     from demtool.cli import stage_param_names
     from demtool.config import load_config, to_default_map
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     defaults = to_default_map(load_config(root / preset), preset, stage_param_names)["refine"]
     assert defaults["albedo_sigma"] == 21 and defaults["lowpass_sigma"] == 21
     assert (defaults["delta"], defaults["gamma"], defaults["tau"]) == (0.001, 0.2, 10)

@@ -8,13 +8,11 @@ import shutil
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from features_helpers import make_camera, make_terrain, render
 
-from demtool import features, selection
+from demtool import features
 from demtool import io as dio
-from demtool.camera import PinholeCamera, look_at
 from demtool.cli import cli
-from demtool.errors import ParameterError
+from tests.helpers.features import make_camera, make_terrain, render
 
 
 @pytest.fixture(scope="module")
@@ -114,71 +112,6 @@ def test_roi_crops_the_target(scene_files, tmp_path):
     assert len(result["selected"]) == 4
     for entry in result["selected"][1:]:
         assert 0.8 < entry["overlap"] <= 1.0 and entry["inlier_coverage"] <= 1.0
-
-
-def test_check_roi():
-    assert selection.check_roi(None, (100, 200)).as_list() == [0, 0, 200, 100]
-    roi = selection.check_roi([10, 20, 30, 60], (100, 200))
-    assert roi.area == 800 and roi.centre.tolist() == [19.5, 39.5]
-    with pytest.raises(ParameterError, match="outside the target image .200 x 100"):
-        selection.check_roi([150, 20, 250, 60], (100, 200))
-    with pytest.raises(ParameterError, match="empty"):
-        selection.check_roi([30, 20, 10, 60], (100, 200))
-
-
-def test_false_matches_are_rejected_by_the_epipolar_test():
-    """Descriptors that match but sit at random places: many matches, no geometry."""
-    rng = np.random.default_rng(2)
-    count = 300
-    descriptors = rng.uniform(0, 100, (count, 128)).astype(np.float32)
-    zeros = np.zeros(count, np.float32)
-    target = features.Features(rng.uniform(0, 200, (count, 2)).astype(np.float32), descriptors,
-                               zeros, zeros, zeros)
-    shuffled = features.Features(rng.uniform(0, 200, (count, 2)).astype(np.float32),
-                                 descriptors + 0.1, zeros, zeros, zeros)
-    roi = selection.Roi(0, 0, 200, 200)
-    result = selection.compare_with_target(target, shuffled, roi=roi, candidate_size=(200, 200))
-    assert result.matches == count and not result.accepted
-    assert "epipolar" in result.reason
-    same = selection.compare_with_target(target, target, roi=roi, candidate_size=(200, 200))
-    assert not same.accepted and "identical" in same.reason
-
-
-def test_view_geometry_of_a_known_configuration():
-    target = look_at((0, 0, 1000), (0, 0, 0), focal_px=1000, width=100, height=100)
-    other = look_at((300, 0, 1000), (0, 0, 0), focal_px=1000, width=100, height=100)
-    point = selection.surface_point(target, np.array([49.5, 49.5]))
-    np.testing.assert_allclose(point, [0, 0, 0], atol=1e-9)
-    sun = np.array([-np.sin(np.radians(60)) * np.sqrt(0.5), -np.sin(np.radians(60)) * np.sqrt(0.5),
-                    np.cos(np.radians(60))])
-    geometry = selection.view_geometry(target, other, point, sun)
-    assert geometry.convergence_deg == pytest.approx(np.degrees(np.arctan(0.3)))
-    assert geometry.emission_deg == pytest.approx(np.degrees(np.arctan(0.3)))
-    assert geometry.incidence_deg == pytest.approx(60.0)
-    assert geometry.sun_azimuth_deg == pytest.approx(225.0)
-    assert geometry.base_to_height == pytest.approx(0.3)
-    to_camera = np.array([300.0, 0, 1000]) / np.hypot(300, 1000)
-    assert geometry.phase_deg == pytest.approx(np.degrees(np.arccos(sun @ to_camera)))
-    flipped = PinholeCamera(K=target.K, R=np.diag([1.0, -1.0, -1.0]) @ target.R, t=[0, 0, -1000],
-                            width=100, height=100)
-    with pytest.raises(Exception, match="does not reach"):
-        selection.surface_point(flipped, np.array([49.5, 49.5]))
-
-
-def test_rank_score_prefers_the_stereo_sweet_spot_and_sun_diversity():
-    match = selection.CandidateMatch(keypoints=500, matches=300, inliers=250, overlap=0.9,
-                                     inlier_coverage=0.8, accepted=True)
-
-    def geometry(convergence, azimuth):
-        return selection.ViewGeometry(60.0, convergence, 70.0, convergence, 300.0, 0.3, azimuth)
-
-    def score(g):
-        return selection.rank_score(match, g, min_matches=50, target_sun_azimuth_deg=225.0)[0]
-
-    assert score(geometry(25, 225)) > score(geometry(5, 225)) > score(geometry(60, 225)) * 0.99
-    assert score(geometry(25, 45)) > score(geometry(25, 225))
-    plain, terms = selection.rank_score(match, None, min_matches=50)
-    assert set(terms) == {"inliers", "overlap"} and 0 < plain <= 1
 
 
 def test_target_given_separately_is_not_matched_with_itself(scene_files, tmp_path):

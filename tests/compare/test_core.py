@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 from affine import Affine
-from compare_helpers import fourier_shift, fractal, wavy
 
 from demtool.compare import compare_dems, coregister, summarize
 from demtool.compare.coreg import nuth_kaab, vertical_offset
@@ -16,6 +15,7 @@ from demtool.compare.icp import (
 )
 from demtool.compare.stats import completeness, difference_statistics, slope_class_statistics
 from demtool.errors import ParameterError, ProcessingError
+from tests.helpers.compare import fourier_shift, fractal, wavy
 
 TRUE_SHIFT = (1.3, -0.7, 2.0)  # how the DEM was displaced from the truth (x, y px; z m)
 

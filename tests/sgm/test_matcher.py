@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from sgm_helpers import error_rates, fractional_shift_pair, occlusion_pair, smooth_disparity_pair
 
 from demtool.errors import InputError, ParameterError
 from demtool.sgm import plan_strips, sgm
@@ -19,6 +18,12 @@ from demtool.sgm.cost import (
     windowed_cost_volume,
 )
 from demtool.sgm.disparity import median_filter, remove_speckles, select_disparities
+from tests.helpers.sgm import (
+    error_rates,
+    fractional_shift_pair,
+    occlusion_pair,
+    smooth_disparity_pair,
+)
 
 COSTS = ["hmi", "mi", "census", "ad"]
 

@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from sgm_helpers import error_rates, smooth_disparity_pair
 
 from demtool import io as dio
 from demtool.cli import cli
+from tests.helpers.sgm import error_rates, smooth_disparity_pair
 
-PRESETS = Path(__file__).resolve().parents[1] / "configs"
+PRESETS = Path(__file__).resolve().parents[2] / "configs"
 
 
 @pytest.fixture(scope="module")

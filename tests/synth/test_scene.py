@@ -274,11 +274,11 @@ def test_footprint_beyond_the_dem_is_a_clear_parameter_error():
 
 
 @pytest.mark.parametrize("change, message", [
-    ({"n_views": 1}, "n_views"),
-    ({"sun_incidence_deg": 95.0}, "sun_incidence_deg"),
-    ({"crater_min_diameter_m": 30.0, "crater_max_diameter_m": 10.0}, "crater_max"),
-    ({"altitude_m": -5.0}, "altitude_m"),
-    ({"albedo_variation": 1.5}, "albedo_variation"),
+    ({"n_views": 1}, "--views"),
+    ({"sun_incidence_deg": 95.0}, "--sun-incidence"),
+    ({"crater_min_diameter_m": 30.0, "crater_max_diameter_m": 10.0}, "--crater-max"),
+    ({"altitude_m": -5.0}, "--altitude"),
+    ({"albedo_variation": 1.5}, "--albedo-variation"),
 ])
 def test_invalid_parameters_are_named(change, message):
     with pytest.raises(ParameterError, match=message):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from match_helpers import texture, textured_pair
 from scipy import ndimage
 
 from demtool.errors import ParameterError, ProcessingError
@@ -17,6 +16,7 @@ from demtool.match import (
 )
 from demtool.match.lsm import CONVERGED, SINGULAR
 from demtool.match.seeds import forstner_points, remove_blunders
+from tests.helpers.match import texture, textured_pair
 
 # ------------------------------------------------------------------------------ LSM
 

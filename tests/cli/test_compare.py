@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from compare_helpers import fourier_shift, fractal, wavy
 
 from demtool import io as dio
 from demtool.cli import cli
+from tests.helpers.compare import fourier_shift, fractal, wavy
 
 SPACING = 2.0
 FIGURES = {"difference.png", "dems.png", "profiles.png", "histogram.png", "completeness.png",

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from refine_helpers import hills_scene, render, rmse, slope_error, sun_vector
 from scipy import ndimage
 
 from demtool.errors import ParameterError, ProcessingError
@@ -32,9 +31,10 @@ from demtool.refine.filters import (
     median_filter,
     neumann_laplacian_eigenvalues,
 )
-from demtool.refine.prepare import despike, prepare_dem, resample_to_grid
+from demtool.refine.prepare import despike, prepare_dem
 from demtool.refine.shading import reflectance_and_gradient, reflectance_map
 from demtool.refine.shadow_lengths import ShadowSegments, correct_slope_step, shadow_segments
+from tests.helpers.refine import hills_scene, render, rmse, slope_error, sun_vector
 
 FAST = SfsParameters(iterations=60)
 
@@ -385,24 +385,6 @@ def test_border_taper():
     taper = border_taper((20, 30), 5.0)
     assert taper[0].max() == 0 and taper[:, -1].max() == 0
     assert taper[10, 15] == 1.0 and 0 < taper[2, 15] < 1
-
-
-def test_resample_to_grid_linear_ramp():
-    from affine import Affine
-
-    rows, cols = np.mgrid[0:50, 0:60].astype(np.float32)
-    image = 3.0 * cols + rows  # value = 3·col + row
-    source = Affine(0.5, 0, 0, 0, -0.5, 0)  # 0.5 m pixels
-    target = Affine(1.0, 0, 2.0, 0, -1.0, -3.0)  # 1 m pixels, shifted by (2, −3) m
-    out = resample_to_grid(image, source, (20, 20), target)
-    r, c = np.mgrid[0:20, 0:20]
-    col_s = (2.0 + (c + 0.5)) / 0.5 - 0.5
-    row_s = (3.0 + (r + 0.5)) / 0.5 - 0.5
-    good = np.isfinite(out)
-    assert good[:10, :10].all()
-    assert np.allclose(out[good], (3 * col_s + row_s)[good], atol=0.3)
-    with pytest.raises(ProcessingError, match="do not overlap"):
-        resample_to_grid(image, source, (10, 10), Affine(1.0, 0, 1e5, 0, -1.0, 0))
 
 
 # -------------------------------------------------------------------------- bad input

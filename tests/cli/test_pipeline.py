@@ -17,7 +17,7 @@ from demtool import io as dio
 from demtool.cli import cli
 from demtool.summary import format_table, summary_rows
 
-NAVCAM = str(Path(__file__).parent.parent / "configs" / "navcam.toml")
+NAVCAM = str(Path(__file__).parents[2] / "configs" / "navcam.toml")
 
 pytestmark = pytest.mark.slow
 

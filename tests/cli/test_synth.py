@@ -19,7 +19,7 @@ from scipy.ndimage import map_coordinates
 from demtool import io
 from demtool.camera import cameras_from_arrays
 from demtool.cli import cli
-from demtool.commands.synth import load_scene
+from demtool.runs.scene import load_scene
 
 SCENE_FILES = ["view_00.tif", "view_01.tif", "view_02.tif", "view_03.tif", "truth_dem.tif",
                "truth_dem_target.tif", "albedo.tif", "cameras.npz", "scene.json",
@@ -198,7 +198,7 @@ def test_sigterm_mid_run_leaves_no_output(tmp_path):
     process = subprocess.Popen(
         [sys.executable, "-m", "demtool", "synth", "--out", str(out), "--views", "12",
          "--image-size", "400", "--size", "512"],
-        stderr=subprocess.PIPE, text=True, env=env, cwd=Path(__file__).parent.parent)
+        stderr=subprocess.PIPE, text=True, env=env, cwd=Path(__file__).parents[2])
     started = time.monotonic()
     line = ""
     while "view_00 rendered" not in line:  # the run is under way: views are rendering

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from tests.helpers.texture import texture as band_limited
+
 
 def texture(height: int, width: int, seed: int = 0) -> np.ndarray:
-    """A band-limited random texture (two scales), float64, zero mean."""
-    rng = np.random.default_rng(seed)
-    fine = ndimage.gaussian_filter(rng.normal(size=(height, width)), 1.2)
-    coarse = ndimage.gaussian_filter(rng.normal(size=(height, width)), 4.0)
-    return fine / fine.std() + 0.5 * coarse / coarse.std()
+    """A band-limited random texture (two scales), float64, about zero mean."""
+    return band_limited(
+        (height, width), np.random.default_rng(seed), blurs=(1.2, 4.0), weights=(1.0, 0.5))
 
 
 def smooth_disparity(x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -1,0 +1,87 @@
+"""Tests of uncalibrated rectification (demtool.rectify, demtool rectify)."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from demtool import io as dio
+from demtool.cli import cli
+from demtool.homography import (
+    rectified_to_original,
+)
+from tests.helpers.features import make_stereo_scene
+
+SIZE = 256
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_stereo_scene(size=SIZE)
+
+
+@pytest.fixture(scope="module")
+def pair_files(scene, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("pair")
+    dio.write_raster(folder / "view_00.tif", scene.left)
+    dio.write_raster(folder / "view_01.tif", scene.right)
+    return folder / "view_00.tif", folder / "view_01.tif"
+
+
+def test_cli_writes_rectified_pair(pair_files, tmp_path, scene):
+    left, right = pair_files
+    out = tmp_path / "stereo"
+    run = CliRunner().invoke(cli, ["rectify", str(left), str(right), "--out", str(out),
+                                   "--min-matches", "50"])
+    assert run.exit_code == 0, run.output
+    assert "RMS vertical residual" in run.output
+    data = dio.read_npz(out / "rectify.npz", "rectification")
+    assert str(data["left_name"]) == "view_00" and str(data["right_name"]) == "view_01"
+    assert float(data["rms_vertical_residual"]) < 0.5
+    width, height = data["size_rect"]
+    left_rect = dio.read_raster(out / "left_rect.tif")
+    right_rect = dio.read_raster(out / "right_rect.tif")
+    assert left_rect.data.shape == right_rect.data.shape == (height, width)
+    assert left_rect.tags["frame"] == "image:view_00_rect"
+    assert right_rect.tags["frame"] == "image:view_01_rect"
+    assert np.isnan(left_rect.data).any() and np.isfinite(left_rect.data).mean() > 0.5
+    # the rectified image is the original resampled through H_left
+    row, col = np.argwhere(np.isfinite(left_rect.data))[len(left_rect.data) * 3]
+    x, y = rectified_to_original(np.array([[col, row]], float), data["H_left"])[0]
+    expected = cv2.getRectSubPix(scene.left, (1, 1), (float(x), float(y)))[0, 0]
+    assert left_rect.data[row, col] == pytest.approx(expected, rel=2e-3)
+    sidecar = json.loads((out / "rectify.npz.json").read_text())
+    assert sidecar["stage"] == "rectify"
+    assert sidecar["summary"]["inliers"] == len(data["points_left"])
+    assert sidecar["summary"]["rms_vertical_residual_px"] < 0.5
+    assert sidecar["parameters"]["min_matches"] == 50
+
+
+def test_cli_bad_inputs_leave_no_output(pair_files, tmp_path, scene):
+    left, right = pair_files
+    out = tmp_path / "out"
+    runner = CliRunner()
+    missing = runner.invoke(cli, ["rectify", str(left), str(tmp_path / "nope.tif"),
+                                  "--out", str(out)])
+    assert missing.exit_code == 1
+    assert "nope.tif" in missing.output and "not found" in missing.output
+    empty = tmp_path / "empty.tif"
+    dio.write_raster(empty, np.full((64, 64), np.nan, np.float32))
+    nan_only = runner.invoke(cli, ["rectify", str(left), str(empty), "--out", str(out)])
+    assert nan_only.exit_code == 1 and "empty.tif" in nan_only.output
+    assert "no valid" in nan_only.output
+    same = runner.invoke(cli, ["rectify", str(left), str(left), "--out", str(out)])
+    assert same.exit_code == 1 and "view_00.tif" in same.output
+    errors = [line for line in same.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and "identical" in errors[0]
+    strict = runner.invoke(cli, ["rectify", str(left), str(right), "--out", str(out),
+                                 "--min-matches", "100000"])
+    assert strict.exit_code == 1 and "at least 100000" in strict.output
+    bad_option = runner.invoke(cli, ["rectify", str(left), str(right), "--out", str(out),
+                                     "--ratio", "1.5"])
+    assert bad_option.exit_code == 2
+    assert not out.exists() or not any(out.iterdir())

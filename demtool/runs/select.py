@@ -107,9 +107,9 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
     candidates: list[str] = []
     seen = {target_resolved}
     for path in images:
-        resolved = Path(path).resolve()
-        if resolved not in seen:
-            seen.add(resolved)
+        absolute = Path(path).resolve()
+        if absolute not in seen:
+            seen.add(absolute)
             candidates.append(path)
     if not candidates:
         raise ParameterError("no candidate image besides the target; give the images to "

@@ -67,20 +67,33 @@ def parameter(default: Any, help: str, *, option: str | None = None,  # noqa: A0
 
 def core_default(function: Any, name: str) -> Any:
     """The default of keyword ``name`` of a core function (so it is written only there)."""
+    return core_defaults(function)[name]
+
+
+def core_defaults(function: Any) -> dict[str, Any]:
+    """The defaults of a core function's (or dataclass's) keywords, by name.
+
+    Raises
+    ------
+    TypeError
+        Asked for through :func:`core_default`, a keyword without a default.
+    """
     import inspect
 
-    default = inspect.signature(function).parameters[name].default
-    if default is inspect.Parameter.empty:
-        raise TypeError(f"{function.__name__}() has no default for {name!r}")
-    return default
+    class Defaults(dict):
+        def __missing__(self, name: str) -> Any:
+            raise TypeError(f"{function.__name__}() has no default for {name!r}")
+
+    return Defaults({name: p.default for name, p in inspect.signature(function).parameters
+                     .items() if p.default is not inspect.Parameter.empty})
 
 
-def seed_parameter() -> Any:
+def seed_field() -> Any:
     """The ``seed`` field every stage with random choices has (RANSAC, noise)."""
     return parameter(0, "Random seed, for reproducible runs.")
 
 
-def workers_parameter() -> Any:
+def workers_field() -> Any:
     """The ``workers`` field of the stages that run in parallel (0 = all cores)."""
     return parameter(0, "Parallel workers (0 = all cores).", minimum=0)
 

@@ -8,12 +8,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from demtool.parameters import Parameters, core_default, parameter, seed_parameter
+from demtool.parameters import Parameters, core_defaults, parameter, seed_field
 from demtool.rectify import rectify_pair
 
-
-def _default(name: str):
-    return core_default(rectify_pair, name)
+CORE = core_defaults(rectify_pair)
 
 
 @dataclass(frozen=True)
@@ -21,24 +19,24 @@ class RectifyParams(Parameters):
     """Every option of ``demtool rectify`` except its files (see
     :func:`demtool.rectify.rectify_pair`)."""
 
-    min_matches: int = parameter(_default("min_matches"), "Fewest SIFT matches (and final "
+    min_matches: int = parameter(CORE["min_matches"], "Fewest SIFT matches (and final "
                                  "control points) accepted.", minimum=8)
-    ratio: float = parameter(_default("ratio"), "Lowe's ratio-test threshold.", minimum=0.0,
+    ratio: float = parameter(CORE["ratio"], "Lowe's ratio-test threshold.", minimum=0.0,
                              maximum=1.0, min_open=True)
-    ransac_threshold: float = parameter(_default("ransac_threshold"), "Inlier threshold of "
+    ransac_threshold: float = parameter(CORE["ransac_threshold"], "Inlier threshold of "
                                         "the robust F (Sampson distance), px.", minimum=0.0,
                                         min_open=True)
     max_vertical_residual: float = parameter(
-        _default("max_vertical_residual"), "Drop control points whose rectified rows differ "
+        CORE["max_vertical_residual"], "Drop control points whose rectified rows differ "
         "by more (px), re-estimate.", minimum=0.0, min_open=True)
-    shear: bool = parameter(_default("shear"), "Loop-Zhang shear keeping rectified pixels "
+    shear: bool = parameter(CORE["shear"], "Loop-Zhang shear keeping rectified pixels "
                             "square.")
     disparity_margin: float = parameter(
-        _default("disparity_margin"), "Pixels added to each side of the inliers' disparity "
+        CORE["disparity_margin"], "Pixels added to each side of the inliers' disparity "
         "range (plus 10 % of its span).", minimum=0.0)
-    max_features: int = parameter(_default("max_features"), "SIFT keypoints kept per image, "
+    max_features: int = parameter(CORE["max_features"], "SIFT keypoints kept per image, "
                                   "strongest first (0 = all).", minimum=0)
     contrast_threshold: float = parameter(
-        _default("contrast_threshold"), "SIFT contrast threshold (lower: more keypoints).",
+        CORE["contrast_threshold"], "SIFT contrast threshold (lower: more keypoints).",
         minimum=0.0, min_open=True)
-    seed: int = seed_parameter()
+    seed: int = seed_field()

@@ -51,3 +51,15 @@ def small_scene_dir(tmp_path_factory) -> Path:
     result = CliRunner().invoke(cli, ["-q", "synth", "--out", str(out), *SMALL_SCENE_ARGS])
     assert result.exit_code == 0, result.output
     return out
+
+
+#: side of the ``stereo_scene`` images, pixels
+STEREO_SCENE_SIZE = 256
+
+
+@pytest.fixture(scope="session")
+def stereo_scene():
+    """A textured terrain seen by two cameras with known geometry (rectify tests)."""
+    from tests.helpers.features import make_stereo_scene
+
+    return make_stereo_scene(size=STEREO_SCENE_SIZE)

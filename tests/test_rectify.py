@@ -14,34 +14,27 @@ from demtool.homography import (
     rectified_to_original,
     warp_to_rectified,
 )
-from tests.helpers.features import make_stereo_scene
-
-SIZE = 256
+from tests.conftest import STEREO_SCENE_SIZE as SIZE
 
 
 @pytest.fixture(scope="module")
-def scene():
-    return make_stereo_scene(size=SIZE)
+def result(stereo_scene):
+    return rectify.rectify_pair(stereo_scene.left, stereo_scene.right, what="L / R")
 
 
-@pytest.fixture(scope="module")
-def result(scene):
-    return rectify.rectify_pair(scene.left, scene.right, what="L / R")
-
-
-def _truth_points(scene, count=600, seed=5):
+def _truth_points(stereo_scene, count=600, seed=5):
     """Surface points seen by both cameras and their pixel coordinates."""
-    points = scene.terrain.surface_points(count, np.random.default_rng(seed))
-    ul, ur = scene.left_camera.project(points), scene.right_camera.project(points)
+    points = stereo_scene.terrain.surface_points(count, np.random.default_rng(seed))
+    ul, ur = stereo_scene.left_camera.project(points), stereo_scene.right_camera.project(points)
     inside = np.all((ul > 1) & (ul < SIZE - 2) & (ur > 1) & (ur < SIZE - 2), axis=1)
     return points[inside], ul[inside], ur[inside]
 
 
-def test_rectified_truth_points_share_rows(scene, result):
+def test_rectified_truth_points_share_rows(stereo_scene, result):
     assert result.rms_vertical_residual < 0.5
     assert np.all(np.abs(result.vertical_residuals) <= 1.0)
     assert len(result.points_left) > 200 and result.n_ransac_inliers <= result.n_matches
-    points, ul, ur = _truth_points(scene)
+    points, ul, ur = _truth_points(stereo_scene)
     left_rect = apply_homography(result.H_left, ul)
     right_rect = apply_homography(result.H_right, ur)
     row_error = left_rect[:, 1] - right_rect[:, 1]
@@ -102,22 +95,22 @@ def test_loop_zhang_shear_undoes_a_shear():
     assert S[1, 1] == 1 and S[1, 0] == 0  # rows untouched
 
 
-def test_identical_images_are_refused(scene):
+def test_identical_images_are_refused(stereo_scene):
     with pytest.raises(ProcessingError, match=r"L / L.*(coincide|identical)"):
-        rectify.rectify_pair(scene.left, scene.left, what="L / L")
+        rectify.rectify_pair(stereo_scene.left, stereo_scene.left, what="L / L")
 
 
-def test_pure_rotation_is_refused(scene):
+def test_pure_rotation_is_refused(stereo_scene):
     angle = np.deg2rad(8)
     rotation = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0],
                          [0, 0, 1]])
     centre = np.array([[1, 0, SIZE / 2], [0, 1, SIZE / 2], [0, 0, 1]])
     H = centre @ rotation @ np.linalg.inv(centre)
     H[2, :2] = [2e-4, -1e-4]  # plus some perspective: still a homography
-    rotated = cv2.warpPerspective(scene.left, H, (SIZE, SIZE), flags=cv2.INTER_LINEAR,
+    rotated = cv2.warpPerspective(stereo_scene.left, H, (SIZE, SIZE), flags=cv2.INTER_LINEAR,
                                   borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
     with pytest.raises(ProcessingError, match="no parallax"):
-        rectify.rectify_pair(scene.left, rotated, what="L / rotated")
+        rectify.rectify_pair(stereo_scene.left, rotated, what="L / rotated")
 
 
 def test_noise_pair_has_too_few_matches():
@@ -128,12 +121,12 @@ def test_noise_pair_has_too_few_matches():
         rectify.rectify_pair(a, b, min_matches=30, what="noise / noise")
 
 
-def test_images_of_different_sizes(scene):
-    right = scene.right[10:230, 5:250]
-    result = rectify.rectify_pair(scene.left, right, what="L / cropped R")
+def test_images_of_different_sizes(stereo_scene):
+    right = stereo_scene.right[10:230, 5:250]
+    result = rectify.rectify_pair(stereo_scene.left, right, what="L / cropped R")
     assert result.size_right.tolist() == [245, 220]
     assert result.rms_vertical_residual < 0.5
-    _, ul, ur = _truth_points(scene)
+    _, ul, ur = _truth_points(stereo_scene)
     ur = ur - [5, 10]
     inside = np.all((ur > 1) & (ur < [243, 218]), axis=1)
     rows = (apply_homography(result.H_left, ul[inside])[:, 1]

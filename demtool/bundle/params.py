@@ -9,17 +9,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from demtool.bundle.colmap import CAMERA_MODELS, MATCHERS, SfmOptions
-from demtool.parameters import (
-    Parameters,
-    core_default,
-    parameter,
-    seed_parameter,
-    workers_parameter,
-)
+from demtool.parameters import Parameters, core_defaults, parameter, seed_field, workers_field
 
-
-def _default(name: str):
-    return core_default(SfmOptions, name)
+CORE = core_defaults(SfmOptions)
 
 
 @dataclass(frozen=True)
@@ -31,7 +23,7 @@ class BundleParams(Parameters):
     refine_intrinsics: bool = parameter(False, "Let bundle adjustment refine known focal "
                                         "lengths (default: fixed).",
                                         flag="--refine-intrinsics")
-    shared_camera: bool = parameter(_default("shared_camera"), "One camera for all images "
+    shared_camera: bool = parameter(CORE["shared_camera"], "One camera for all images "
                                     "(one instrument) or one per image.",
                                     flag="--shared-camera/--per-image-camera")
     camera_model: str | None = parameter(
@@ -40,10 +32,10 @@ class BundleParams(Parameters):
         what="camera model")
     radial_k2: bool = parameter(True, "After mapping with SIMPLE_RADIAL, free a second radial "
                                 "term k2 in a final global bundle adjustment (RADIAL model).")
-    matcher: str = parameter(_default("matcher"), "Pair selection: all pairs, or neighbours in "
+    matcher: str = parameter(CORE["matcher"], "Pair selection: all pairs, or neighbours in "
                              "selection order (auto: exhaustive up to 100 images).",
                              choices=MATCHERS, what="matcher")
-    max_features: int = parameter(_default("max_features"), "SIFT features per image.",
+    max_features: int = parameter(CORE["max_features"], "SIFT features per image.",
                                   minimum=64)
-    seed: int = seed_parameter()
-    workers: int = workers_parameter()
+    seed: int = seed_field()
+    workers: int = workers_field()

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 from demtool.compare.align import ALIGN_METHODS
 from demtool.compare.core import compare_dems
-from demtool.parameters import Parameters, core_default, parameter, seed_parameter
+from demtool.parameters import Parameters, core_default, parameter, seed_field
 
 #: the grid a comparison is made on
 GRIDS = ("reference", "dem")
@@ -39,4 +39,4 @@ class CompareParams(Parameters):
         cli=False)
     label: str | None = parameter(None, "Name of DEM in the report (default: file stem).")
     plots: bool = parameter(True, "Write the PNG figures.")
-    seed: int = seed_parameter()
+    seed: int = seed_field()

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from demtool.dem.routes import OutlierOptions
-from demtool.parameters import Parameters, core_default, parameter, seed_parameter
+from demtool.parameters import Parameters, core_default, parameter, seed_field
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,7 @@ class DemParams(Parameters):
                                          "removal).")
     mask_band: bool = parameter(False, "Write the interpolation mask as a second band of OUT.",
                                 flag="--mask-band")
-    seed: int = seed_parameter()
+    seed: int = seed_field()
 
     def outliers(self) -> OutlierOptions:
         """The outlier test of the core."""

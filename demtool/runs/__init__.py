@@ -4,8 +4,8 @@
 ``demtool.commands.<stage>`` calls, and the one benchmarks, tests and notebooks call.
 Runners never import click.  Each starts by declaring its files in a
 :class:`StageRun`, the one place that knows a run's inputs and outputs: it checks
-them, builds the :class:`~demtool.provenance.Provenance` and names the stage's
-logger (``demtool.<stage>``).
+them and the parameters, builds the :class:`~demtool.provenance.Provenance` and
+names the stage's logger (``demtool.<stage>``).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from typing import Any
 
 from demtool.errors import InputError, ParameterError
 from demtool.logs import get_logger
+from demtool.parameters import Parameters
 from demtool.provenance import Provenance
 from demtool.stages import STAGES
 
@@ -40,8 +41,8 @@ class StageRun:
     ----------
     stage : str
         The stage's name (a key of :data:`demtool.stages.STAGES`).
-    params : mapping
-        The resolved parameters, for the provenance record.
+    params : Parameters
+        The stage's parameters, checked here (:meth:`Parameters.check`).
     inputs : mapping
         Option or argument label (``"DEM"``, ``"--rectify"``) → input path(s) or None,
         in the order the provenance lists them.
@@ -57,27 +58,34 @@ class StageRun:
     log : logging.Logger
         The stage's logger, ``demtool.<stage>``.
 
+    resolved : mapping, optional
+        The command's resolved options, for the provenance record (default:
+        ``params.as_dict()``).
+
     Raises
     ------
     InputError
         An output file that is an existing folder, or an output folder that is a file.
     ParameterError
-        Two outputs that are the same file.
+        An invalid parameter, or two outputs that are the same file.
     """
 
-    def __init__(self, stage: str, params: Mapping[str, Any], *,
+    def __init__(self, stage: str, params: Parameters, *,
+                 resolved: Mapping[str, Any] | None = None,
                  inputs: Mapping[str, FileSpec] = {},  # noqa: B006 - read only
                  outputs: Mapping[str, FileSpec] = {},  # noqa: B006
                  folders: Mapping[str, FileSpec] = {}) -> None:  # noqa: B006
         if stage not in STAGES:
             raise KeyError(f"unknown stage {stage!r}")
+        params.check()
         self.stage = stage
+        self.params = params
         self.log = get_logger(stage)
         self.inputs = {k: _paths(v) for k, v in inputs.items() if v is not None}
         self.outputs = {k: _paths(v) for k, v in outputs.items() if v is not None}
         self.folders = {k: _paths(v) for k, v in folders.items() if v is not None}
         self.check_outputs()
-        self.provenance = Provenance(stage, params, self.input_paths())
+        self.provenance = Provenance(stage, resolved or params.as_dict(), self.input_paths())
 
     def input_paths(self) -> list[Path]:
         """Every input path, in declaration order."""

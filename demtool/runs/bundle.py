@@ -77,7 +77,6 @@ def run_bundle(selection: str | os.PathLike, out: str | os.PathLike,
     from demtool.features import to_uint8
 
     params = params or BundleParams()
-    params.check()
     focal_px, refine_intrinsics = params.focal_px, params.refine_intrinsics
     workers, radial_k2 = params.workers, params.radial_k2
     started = time.perf_counter()
@@ -98,7 +97,7 @@ def run_bundle(selection: str | os.PathLike, out: str | os.PathLike,
     if align_path is not None:
         known_centres = {n: c.center for n, c in
                          cameras_from_arrays(dio.read_npz(align_path, "cameras")).items()}
-    run = StageRun("bundle", resolved or params.as_dict(),
+    run = StageRun("bundle", params, resolved=resolved,
                    inputs={"SELECTION": selection_path, "images": [p for _, p in images],
                            "--cameras": cameras_path, "--align-cameras": align_path},
                    outputs={"--out": out}, folders={"--colmap-dir": colmap_dir})

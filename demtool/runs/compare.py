@@ -126,8 +126,7 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     from demtool.compare.params import CompareParams
 
     params = params or CompareParams()
-    params.check()
-    run = StageRun("compare", resolved or params.as_dict(),
+    run = StageRun("compare", params, resolved=resolved,
                    inputs={"DEM": dem_path, "REFERENCE": reference_path, "--also": also,
                            "--mask": mask_path}, folders={"--out": out_dir})
     log, provenance = run.log, run.provenance

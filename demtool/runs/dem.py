@@ -133,8 +133,7 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
     from demtool.dem.params import DemParams
 
     params = params or DemParams()
-    params.check()
-    run = StageRun("dem", resolved or params.as_dict(),
+    run = StageRun("dem", params, resolved=resolved,
                    inputs={"--points": points_path, "--disparity": disparity_path,
                            "--rectify": rectify_path, "--reference": reference_path,
                            "--cameras": cameras_path, "--scene": scene_path},

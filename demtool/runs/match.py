@@ -98,8 +98,7 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
     from demtool.match.params import MatchParams
 
     params = params or MatchParams()
-    params.check()
-    run = StageRun("match", resolved or params.as_dict(),
+    run = StageRun("match", params, resolved=resolved,
                    inputs={"LEFT": left_path, "RIGHT": right_path, "--rectify": rectify},
                    outputs={"--out": out, "--correlation-out": correlation_out,
                             "--sigma-out": sigma_out})

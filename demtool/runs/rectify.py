@@ -36,8 +36,7 @@ def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
     from demtool.rectify_params import RectifyParams
 
     params = params or RectifyParams()
-    params.check()
-    run = StageRun("rectify", resolved or params.as_dict(),
+    run = StageRun("rectify", params, resolved=resolved,
                    inputs={"LEFT": left_path, "RIGHT": right_path}, folders={"--out": out_dir})
     log, provenance = run.log, run.provenance
     out = Path(out_dir)

@@ -178,8 +178,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     from demtool.refine.prepare import prepare_dem
 
     params = params or RefineParams()
-    params.check()
-    run = StageRun("refine", resolved or params.as_dict(),
+    run = StageRun("refine", params, resolved=resolved,
                    inputs={"IMAGE": image_path, "DEM": dem_path},
                    outputs={"--out": out, "--albedo-out": albedo_out})
     log, prov = run.log, run.provenance

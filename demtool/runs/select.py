@@ -99,7 +99,6 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
     from demtool.select_params import SelectParams
 
     params = params or SelectParams()
-    params.check()
     min_matches, min_inliers, seed = params.min_matches, params.min_inliers, params.seed
     out = Path(out)
     target_image = dio.read_image(target, what="target image")
@@ -122,7 +121,7 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
                                  "views are identified by file stem, rename one")
         stems[stem] = path
     region = selection.check_roi(roi, target_image.data.shape, what=f"target {target}")
-    run = StageRun("select", resolved or params.as_dict(),
+    run = StageRun("select", params, resolved=resolved,
                    inputs={"--target": target, "IMAGES": candidates, "--cameras": cameras,
                            "--scene": scene}, outputs={"--out": out})
     log, provenance = run.log, run.provenance

@@ -50,8 +50,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     from demtool.sgm.params import SgmParams
 
     params = params or SgmParams()
-    params.check()
-    run = StageRun("sgm", resolved or params.as_dict(),
+    run = StageRun("sgm", params, resolved=resolved,
                    inputs={"LEFT_RECT": left_path, "RIGHT_RECT": right_path,
                            "--rectify": rectify},
                    outputs={"--out": out, "--confidence": confidence})

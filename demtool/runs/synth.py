@@ -107,8 +107,7 @@ def run_synth(out: str | os.PathLike, params: SceneParams | None = None, *,
     from demtool.synth import SceneParams, make_scene
 
     params = params or SceneParams()
-    run = StageRun("synth", resolved or params.as_dict(), folders={"--out": out})
-    params.check()
+    run = StageRun("synth", params, resolved=resolved, folders={"--out": out})
     run.log.info("rendering %d views of %d × %d px over a %d × %d DEM (%.2f m cells), "
                  "seed %d", params.n_views, params.image_size, params.image_size,
                  params.dem_size, params.dem_size, params.spacing_m, params.seed)

@@ -8,19 +8,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from demtool.parameters import (
-    Parameters,
-    core_default,
-    parameter,
-    seed_parameter,
-    workers_parameter,
-)
+from demtool.parameters import Parameters, core_defaults, parameter, seed_field, workers_field
 from demtool.sgm.disparity import SUBPIXEL_MODES
 from demtool.sgm.matcher import CENSUS_WINDOWS, COSTS, sgm
 
-
-def _default(name: str):
-    return core_default(sgm, name)
+CORE = core_defaults(sgm)
 
 
 @dataclass(frozen=True)
@@ -35,46 +27,46 @@ class SgmParams(Parameters):
         None, "Smallest disparity searched, px (overrides --rectify).")
     num_disparities: int | None = parameter(
         None, "Number of disparities searched (overrides --rectify).", minimum=1)
-    cost: str = parameter(_default("cost"), "hmi: hierarchical mutual information; mi: MI "
+    cost: str = parameter(CORE["cost"], "hmi: hierarchical mutual information; mi: MI "
                           "iterated at full resolution from zero disparity; census; ad: "
                           "absolute difference.", choices=COSTS, what="cost")
-    census_window: str = parameter(_default("census_window"), "Census window (width x "
+    census_window: str = parameter(CORE["census_window"], "Census window (width x "
                                    "height).", choices=tuple(CENSUS_WINDOWS),
                                    what="census window")
     cost_window: int | None = parameter(
-        _default("cost_window"), "Odd side of the window the pixel cost is summed over "
+        CORE["cost_window"], "Odd side of the window the pixel cost is summed over "
         "[default per cost: 3 for MI, 5 for census and ad].", minimum=1, odd=True)
-    paths: int = parameter(_default("paths"), "Aggregation paths.", choices=(8, 16),
+    paths: int = parameter(CORE["paths"], "Aggregation paths.", choices=(8, 16),
                            what="number of paths")
-    p1: int | None = parameter(_default("p1"), "Penalty of a 1-px disparity step, cost units "
+    p1: int | None = parameter(CORE["p1"], "Penalty of a 1-px disparity step, cost units "
                                "[default per cost].", minimum=1)
-    p2: int | None = parameter(_default("p2"), "Penalty of a larger disparity step, cost "
+    p2: int | None = parameter(CORE["p2"], "Penalty of a larger disparity step, cost "
                                "units [default per cost].", minimum=1)
-    adaptive_p2: bool = parameter(_default("adaptive_p2"), "Lower P2 across intensity edges "
+    adaptive_p2: bool = parameter(CORE["adaptive_p2"], "Lower P2 across intensity edges "
                                   "(Hirschmüller 2008).")
-    mi_iterations: int = parameter(_default("mi_iterations"), "MI iterations (mi: at full "
+    mi_iterations: int = parameter(CORE["mi_iterations"], "MI iterations (mi: at full "
                                    "resolution; hmi: at the coarsest level).", minimum=1)
-    subpixel: str = parameter(_default("subpixel"), "Sub-pixel fit of the cost.",
+    subpixel: str = parameter(CORE["subpixel"], "Sub-pixel fit of the cost.",
                               choices=tuple(SUBPIXEL_MODES)[::-1], what="sub-pixel fit")
-    lr_check: bool = parameter(_default("lr_check"), "Left-right consistency check (right "
+    lr_check: bool = parameter(CORE["lr_check"], "Left-right consistency check (right "
                                "disparity from the same cost).")
-    lr_threshold: float = parameter(_default("lr_threshold"), "Largest left-right difference "
+    lr_threshold: float = parameter(CORE["lr_threshold"], "Largest left-right difference "
                                     "kept, px.", minimum=0.0)
-    speckle_size: int = parameter(_default("speckle_size"), "Remove disparity regions "
+    speckle_size: int = parameter(CORE["speckle_size"], "Remove disparity regions "
                                   "smaller than this, px (0 = off).", minimum=0)
-    speckle_range: float = parameter(_default("speckle_range"), "Largest disparity step "
+    speckle_range: float = parameter(CORE["speckle_range"], "Largest disparity step "
                                      "within a region, px.", minimum=0.0)
-    median: int = parameter(_default("median"), "Side of the median filter of the disparity "
+    median: int = parameter(CORE["median"], "Side of the median filter of the disparity "
                             "(1 = off).", minimum=1, odd=True)
-    uniqueness: float = parameter(_default("uniqueness"), "Drop pixels whose confidence "
+    uniqueness: float = parameter(CORE["uniqueness"], "Drop pixels whose confidence "
                                   "(S2-S1)/S2 is below this (0.1 = OpenCV's uniquenessRatio "
                                   "10).", minimum=0.0, maximum=1.0, max_open=True)
     max_memory_mb: float = parameter(
-        _default("max_memory_mb"), "Budget of the aggregated-cost volumes (and row buffers) "
+        CORE["max_memory_mb"], "Budget of the aggregated-cost volumes (and row buffers) "
         "of the strips matched at once, MiB; the image is cut into strips beyond it.",
         minimum=64)
-    workers: int = workers_parameter()
-    seed: int = seed_parameter()
+    workers: int = workers_field()
+    seed: int = seed_field()
 
     def matcher_options(self) -> dict:
         """Keywords of :func:`demtool.sgm.sgm` besides the images and the range."""

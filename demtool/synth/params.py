@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from demtool.parameters import Parameters, parameter, seed_parameter
+from demtool.parameters import Parameters, parameter, seed_field
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,7 @@ class SceneParams(Parameters):
         (both off when ``noise`` is False); quantised to ``bit_depth`` bits.
     """
 
-    seed: int = seed_parameter()
+    seed: int = seed_field()
     dem_size: int = parameter(512, "DEM size in cells (square).", option="size", minimum=16)
     spacing_m: float = parameter(1.0, "DEM cell size, metres.", option="spacing", minimum=0,
                                  min_open=True)

@@ -14,25 +14,17 @@ from demtool.cli import cli
 from demtool.homography import (
     rectified_to_original,
 )
-from tests.helpers.features import make_stereo_scene
-
-SIZE = 256
 
 
 @pytest.fixture(scope="module")
-def scene():
-    return make_stereo_scene(size=SIZE)
-
-
-@pytest.fixture(scope="module")
-def pair_files(scene, tmp_path_factory):
+def pair_files(stereo_scene, tmp_path_factory):
     folder = tmp_path_factory.mktemp("pair")
-    dio.write_raster(folder / "view_00.tif", scene.left)
-    dio.write_raster(folder / "view_01.tif", scene.right)
+    dio.write_raster(folder / "view_00.tif", stereo_scene.left)
+    dio.write_raster(folder / "view_01.tif", stereo_scene.right)
     return folder / "view_00.tif", folder / "view_01.tif"
 
 
-def test_cli_writes_rectified_pair(pair_files, tmp_path, scene):
+def test_cli_writes_rectified_pair(pair_files, tmp_path, stereo_scene):
     left, right = pair_files
     out = tmp_path / "stereo"
     run = CliRunner().invoke(cli, ["rectify", str(left), str(right), "--out", str(out),
@@ -52,7 +44,7 @@ def test_cli_writes_rectified_pair(pair_files, tmp_path, scene):
     # the rectified image is the original resampled through H_left
     row, col = np.argwhere(np.isfinite(left_rect.data))[len(left_rect.data) * 3]
     x, y = rectified_to_original(np.array([[col, row]], float), data["H_left"])[0]
-    expected = cv2.getRectSubPix(scene.left, (1, 1), (float(x), float(y)))[0, 0]
+    expected = cv2.getRectSubPix(stereo_scene.left, (1, 1), (float(x), float(y)))[0, 0]
     assert left_rect.data[row, col] == pytest.approx(expected, rel=2e-3)
     sidecar = json.loads((out / "rectify.npz.json").read_text())
     assert sidecar["stage"] == "rectify"
@@ -61,7 +53,7 @@ def test_cli_writes_rectified_pair(pair_files, tmp_path, scene):
     assert sidecar["parameters"]["min_matches"] == 50
 
 
-def test_cli_bad_inputs_leave_no_output(pair_files, tmp_path, scene):
+def test_cli_bad_inputs_leave_no_output(pair_files, tmp_path, stereo_scene):
     left, right = pair_files
     out = tmp_path / "out"
     runner = CliRunner()

@@ -10,6 +10,7 @@ import pytest
 
 from demtool.errors import InputError, ParameterError
 from demtool.runs import StageRun, check_same_frame
+from demtool.sgm.params import SgmParams
 from demtool.stages import STAGES
 
 PACKAGE = Path(__file__).resolve().parents[2] / "demtool"
@@ -18,8 +19,9 @@ CLI_LAYER = {"cli.py", "options.py", "commands"}
 
 def test_stage_run_declares_files_and_builds_provenance(tmp_path):
     (tmp_path / "a.tif").write_bytes(b"a")
-    run = StageRun("sgm", {"cost": "hmi"}, inputs={"LEFT": tmp_path / "a.tif", "--rectify": None,
-                                                  "--also": [tmp_path / "b", tmp_path / "c"]},
+    run = StageRun("sgm", SgmParams(), resolved={"cost": "hmi"},
+                   inputs={"LEFT": tmp_path / "a.tif", "--rectify": None,
+                           "--also": [tmp_path / "b", tmp_path / "c"]},
                    outputs={"--out": tmp_path / "d.tif", "--confidence": None})
     assert run.log.name == "demtool.sgm"
     assert run.input_paths() == [tmp_path / "a.tif", tmp_path / "b", tmp_path / "c"]
@@ -29,15 +31,17 @@ def test_stage_run_declares_files_and_builds_provenance(tmp_path):
 
 def test_stage_run_refuses_clashing_or_misplaced_outputs(tmp_path):
     with pytest.raises(ParameterError, match=r"--confidence .*d\.tif is the same file as --out"):
-        StageRun("sgm", {}, outputs={"--out": tmp_path / "d.tif",
+        StageRun("sgm", SgmParams(), outputs={"--out": tmp_path / "d.tif",
                                      "--confidence": tmp_path / "x" / ".." / "d.tif"})
     with pytest.raises(InputError, match="--out must be a file name, but it is a folder"):
-        StageRun("sgm", {}, outputs={"--out": tmp_path})
+        StageRun("sgm", SgmParams(), outputs={"--out": tmp_path})
     (tmp_path / "file").write_text("x")
     with pytest.raises(InputError, match="--out must be a folder, but a file of that name"):
-        StageRun("rectify", {}, folders={"--out": tmp_path / "file"})
+        StageRun("sgm", SgmParams(), folders={"--out": tmp_path / "file"})
+    with pytest.raises(ParameterError, match="--median must be odd"):
+        StageRun("sgm", SgmParams(median=4))
     with pytest.raises(KeyError):
-        StageRun("stereo", {})
+        StageRun("stereo", SgmParams())
 
 
 def test_check_same_frame():

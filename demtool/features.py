@@ -49,7 +49,8 @@ _BRUTE_FORCE_LIMIT = 1.0e8
 
 
 def to_uint8(image: np.ndarray, mask: np.ndarray | None = None,
-             percentiles: tuple[float, float] = (0.5, 99.5)) -> tuple[np.ndarray, np.ndarray]:
+             percentiles: tuple[float, float] = (0.5, 99.5), *,
+             exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Stretch a float image (any DN range, NaN = nodata) robustly to 8 bits.
 
     The values between the ``percentiles`` of the valid pixels map linearly to
@@ -65,6 +66,12 @@ def to_uint8(image: np.ndarray, mask: np.ndarray | None = None,
         True where the pixel may be used; combined with the finite-value mask.
     percentiles : (float, float)
         Lower and upper percentile (0-100) of the valid values mapped to 0 and 255.
+    exact : bool
+        False (SIFT on large images): float32 arithmetic on a subsample's percentiles,
+        nodata filled with the median.  True (the 8-bit scratch copies ``bundle`` hands
+        to COLMAP, which must stay bit for bit what they were): float64 arithmetic
+        rounded to the nearest integer, nodata 0, and a float image that already holds
+        8-bit values (integers in 0 … 255) kept as it is.
 
     Returns
     -------
@@ -93,6 +100,8 @@ def to_uint8(image: np.ndarray, mask: np.ndarray | None = None,
         valid &= mask
     if array.dtype == np.uint8:
         return array.copy(), valid
+    if exact:
+        return _to_uint8_exact(array, valid, (low_pct, high_pct)), valid
     values = array[valid]
     if values.size == 0:
         return np.zeros(array.shape, np.uint8), valid
@@ -104,6 +113,21 @@ def to_uint8(image: np.ndarray, mask: np.ndarray | None = None,
     work = np.where(valid, array, median).astype(np.float32)
     stretched = np.clip((work - np.float32(low)) * np.float32(scale) + np.float32(0.5), 0, 255)
     return stretched.astype(np.uint8), valid
+
+
+def _to_uint8_exact(array: np.ndarray, valid: np.ndarray,
+                   percentiles: tuple[float, float]) -> np.ndarray:
+    """The ``exact=True`` stretch of :func:`to_uint8` (float64, rounded, nodata 0)."""
+    values = array[valid]
+    if values.size == 0:
+        return np.zeros(array.shape, np.uint8)
+    if values.min() >= 0 and values.max() <= 255 and np.all(values == np.round(values)):
+        scaled = np.where(valid, array, 0.0)
+    else:
+        low, high = np.percentile(values, percentiles)
+        span = max(float(high - low), 1e-12)
+        scaled = np.where(valid, (array - low) / span * 255.0, 0.0)
+    return np.clip(np.round(scaled), 0, 255).astype(np.uint8)
 
 
 # --------------------------------------------------------------------------------------

@@ -123,3 +123,18 @@ def test_ransac_fundamental_errors():
         features.ransac_fundamental(points, points + 1, threshold_px=0)
     with pytest.raises(ParameterError):
         features.ransac_fundamental(points, points + 1, method="lmeds")
+
+
+def test_to_uint8_exact_keeps_8bit_data_rounds_and_zeroes_nodata():
+    eight_bit = np.arange(256, dtype=np.float32).reshape(16, 16)
+    kept, _ = features.to_uint8(eight_bit, exact=True)
+    np.testing.assert_array_equal(kept, eight_bit.astype(np.uint8))
+    twelve_bit = np.linspace(100, 4000, 400, dtype=np.float32).reshape(20, 20)
+    twelve_bit[0, 0] = np.nan
+    converted, valid = features.to_uint8(twelve_bit, percentiles=(0.1, 99.9), exact=True)
+    assert converted.dtype == np.uint8 and converted[0, 0] == 0 and not valid[0, 0]
+    assert converted.max() == 255 and converted.ravel()[1:].min() <= 1
+    values = twelve_bit.ravel()[1:]
+    low, high = np.percentile(values, (0.1, 99.9))
+    expected = np.clip(np.round((values - low) / (high - low) * 255.0), 0, 255)
+    np.testing.assert_array_equal(converted.ravel()[1:], expected.astype(np.uint8))

@@ -113,7 +113,7 @@ def run_bundle(selection: str | os.PathLike, out: str | os.PathLike,
         for name, path in images:
             raster = dio.read_image(path, what=f"image {name}")
             file_name = f"{name}.png"
-            image8, _ = to_uint8(raster.data, percentiles=COLMAP_PERCENTILES)
+            image8, _ = to_uint8(raster.data, percentiles=COLMAP_PERCENTILES, exact=True)
             if not cv2.imwrite(str(image_folder / file_name), image8):
                 raise ProcessingError(f"cannot write a scratch copy of {path} for COLMAP")
             files[file_name] = name

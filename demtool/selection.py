@@ -13,7 +13,7 @@ to trust and to choose among hundreds of images:
   ROI centre and the convergence angle with the target, and a ranking score
   (:func:`rank_score`).
 
-Everything here is pure (arrays in, arrays out); ``demtool.commands.select`` reads the
+Everything here is pure (arrays in, arrays out); ``demtool.runs.select`` reads the
 images, caches the features and writes ``selection.json``.
 """
 

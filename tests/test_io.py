@@ -227,7 +227,7 @@ def test_isis3_saturation_special_pixels_are_nodata(tmp_path):
     """LRS/LIS/HIS/HRS (-32767 … -32764 in SignedWord) are masked like NULL (-32768)."""
     path = tmp_path / "special.cub"
     with rasterio.open(path, "w", driver="ISIS3", width=3, height=2, count=1, dtype="int16",
-                       nodata=-32768, transform=Affine(1, 0, 0, 0, -1, 0)) as ds:
+                       nodata=-32768, transform=Affine(2, 0, 0, 0, -2, 0)) as ds:
         ds.scales = (0.5,)
         ds.offsets = (-2.0,)
         ds.write(np.array([[-32768, -32767, -32766], [-32765, -32764, 10]], np.int16), 1)

@@ -8,6 +8,7 @@ from typing import Any
 
 import click
 
+from demtool import option_types as ot
 from demtool import options as opt
 from demtool.cli import STAGES
 
@@ -32,7 +33,7 @@ Umeyama 1991) so that it is metric, in the world frame.
 @opt.out_file("Output bundle.npz.")
 @click.option("--colmap-dir", type=click.Path(file_okay=False),
               help="Also write the COLMAP model (binary) into this folder, for COLMAP's GUI.")
-@click.option("--focal-px", type=click.FloatRange(min=0.0, min_open=True),
+@click.option("--focal-px", type=ot.FloatRange(min=0.0, min_open=True),
               help="Known focal length, pixels (principal point at the image centre).")
 @click.option("--cameras", type=click.Path(dir_okay=False),
               help="cameras.npz with known intrinsics K of the images (matched by name).")
@@ -51,7 +52,7 @@ Umeyama 1991) so that it is metric, in the world frame.
               default="auto", show_default=True,
               help="Pair selection: all pairs, or neighbours in selection order "
                    "(auto: exhaustive up to 100 images).")
-@click.option("--max-features", type=click.IntRange(min=64), default=8192, show_default=True,
+@click.option("--max-features", type=ot.IntRange(min=64), default=8192, show_default=True,
               help="SIFT features per image.")
 @click.option("--align-cameras", type=click.Path(dir_okay=False),
               help="cameras.npz with known camera centres: align the model to them "

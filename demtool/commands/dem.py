@@ -8,6 +8,7 @@ from typing import Any
 
 import click
 
+from demtool import option_types as ot
 from demtool import options as opt
 from demtool.cli import STAGES
 
@@ -45,18 +46,18 @@ as distance / focal length), heights in metres positive toward the camera.
               help="cameras.npz with the pair's cameras: calibrated triangulation.")
 @click.option("--target", help="Target view name (default: the bundle's target, or the "
                                "left image of the pair).")
-@click.option("--distance", type=click.FloatRange(min=0.0, min_open=True),
+@click.option("--distance", type=ot.FloatRange(min=0.0, min_open=True),
               help="Spacecraft-surface distance D, metres (eq. 2; unaligned bundles).")
 @click.option("--scene", type=click.Path(dir_okay=False),
               help="scene.json with distance_m and gsd_m (metadata from synth).")
-@click.option("--gsd", type=click.FloatRange(min=0.0, min_open=True),
+@click.option("--gsd", type=ot.FloatRange(min=0.0, min_open=True),
               help="Pixel spacing of the output, metres (default: from metadata or "
                    "estimated).")
-@click.option("--median", type=click.IntRange(min=0), default=0,
+@click.option("--median", type=ot.IntRange(min=0), default=0,
               show_default=True, help="Median filter after filling, odd size in px (0 = off).")
-@click.option("--outlier-neighbours", type=click.IntRange(min=3), default=16,
+@click.option("--outlier-neighbours", type=ot.IntRange(min=3), default=16,
               show_default=True, help="Neighbours of the local median outlier test.")
-@click.option("--outlier-threshold", type=float, default=3.0, show_default=True,
+@click.option("--outlier-threshold", type=ot.POSITIVE, default=3.0, show_default=True,
               help="Outlier threshold in local NMADs (0 = no outlier removal).")
 @click.option("--interpolated-mask", type=click.Path(dir_okay=False),
               help="Also write a raster: 1 where interpolated, 0 where measured.")

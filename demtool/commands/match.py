@@ -8,6 +8,7 @@ from typing import Any
 
 import click
 
+from demtool import option_types as ot
 from demtool import options
 from demtool.cli import STAGES
 
@@ -193,25 +194,25 @@ when its final LSM correlation coefficient reaches --threshold.""")
 @click.option("--rectify", "rectify", type=click.Path(dir_okay=False), default=None,
               help="rectify.npz: seed matches, disparity range, and homographies to warp an "
                    "original (unrectified) pair.")
-@click.option("--template", type=click.IntRange(9, 25), default=17, show_default=True,
+@click.option("--template", type=ot.IntRange(9, 25), default=17, show_default=True,
               callback=_odd_template, help="Template size, px (odd).")
-@click.option("--threshold", type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True),
+@click.option("--threshold", type=ot.FloatRange(0.0, 1.0, min_open=True, max_open=True),
               default=0.9, show_default=True,
               help="Acceptance threshold on the LSM correlation coefficient (0.8 relaxed).")
-@click.option("--grid-spacing", type=click.IntRange(min=1), default=1, show_default=True,
+@click.option("--grid-spacing", type=ot.IntRange(min=1), default=1, show_default=True,
               help="Pixels between template centres; pixels between four accepted nodes are "
                    "interpolated bilinearly, others stay NaN.")
-@click.option("--levels", type=click.IntRange(1, 8), default=3, show_default=True,
+@click.option("--levels", type=ot.IntRange(1, 8), default=3, show_default=True,
               help="Image pyramid levels (NCC coarse to fine).")
-@click.option("--search-margin", type=click.FloatRange(min=0.0), default=2.0,
+@click.option("--search-margin", type=ot.FloatRange(min=0.0), default=2.0,
               show_default=True,
               help="Pixels added to each side of a triangle's vertex-disparity range.")
-@click.option("--rounds", type=click.IntRange(min=0), default=2, show_default=True,
+@click.option("--rounds", type=ot.IntRange(min=0), default=2, show_default=True,
               help="Densification rounds: accepted matches join the triangulation and the "
                    "rejected nodes are matched again.")
-@click.option("--max-vertical", type=click.FloatRange(min=0.0, min_open=True), default=1.5,
+@click.option("--max-vertical", type=ot.FloatRange(min=0.0, min_open=True), default=1.5,
               show_default=True, help="Largest row offset of an accepted match, px.")
-@click.option("--weighting", type=click.FloatRange(min=0.0), default=3.0, show_default=True,
+@click.option("--weighting", type=ot.FloatRange(min=0.0), default=3.0, show_default=True,
               help="Gaussian LSM observation weights of this sigma, px (0 = uniform, the "
                    "HiRISE study's LSM). Centre weighting resolves fine relief that a "
                    "uniform template averages away.")

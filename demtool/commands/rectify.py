@@ -8,6 +8,7 @@ from typing import Any
 
 import click
 
+from demtool import option_types as ot
 from demtool import options
 from demtool.cli import STAGES
 
@@ -122,23 +123,23 @@ centred on zero over the control points.""")
 @options.input_file("left")
 @options.input_file("right")
 @options.out_dir("Output folder for left_rect.tif, right_rect.tif and rectify.npz.")
-@click.option("--min-matches", type=click.IntRange(min=8), default=30, show_default=True,
+@click.option("--min-matches", type=ot.IntRange(min=8), default=30, show_default=True,
               help="Fewest SIFT matches (and final control points) accepted.")
-@click.option("--ratio", type=click.FloatRange(0.0, 1.0, min_open=True), default=0.8,
+@click.option("--ratio", type=ot.FloatRange(0.0, 1.0, min_open=True), default=0.8,
               show_default=True, help="Lowe's ratio-test threshold.")
-@click.option("--ransac-threshold", type=click.FloatRange(0.0, min_open=True), default=1.0,
+@click.option("--ransac-threshold", type=ot.FloatRange(0.0, min_open=True), default=1.0,
               show_default=True, help="Inlier threshold of the robust F (Sampson distance), px.")
-@click.option("--max-vertical-residual", type=click.FloatRange(0.0, min_open=True),
+@click.option("--max-vertical-residual", type=ot.FloatRange(0.0, min_open=True),
               default=1.0, show_default=True,
               help="Drop control points whose rectified rows differ by more (px), re-estimate.")
 @click.option("--shear/--no-shear", default=True, show_default=True,
               help="Loop-Zhang shear keeping rectified pixels square.")
-@click.option("--disparity-margin", type=click.FloatRange(0.0), default=8.0, show_default=True,
+@click.option("--disparity-margin", type=ot.FloatRange(0.0), default=8.0, show_default=True,
               help="Pixels added to each side of the inliers' disparity range "
                    "(plus 10 % of its span).")
-@click.option("--max-features", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--max-features", type=ot.IntRange(min=0), default=0, show_default=True,
               help="SIFT keypoints kept per image, strongest first (0 = all).")
-@click.option("--contrast-threshold", type=click.FloatRange(0.0, min_open=True), default=0.04,
+@click.option("--contrast-threshold", type=ot.FloatRange(0.0, min_open=True), default=0.04,
               show_default=True, help="SIFT contrast threshold (lower: more keypoints).")
 @options.seed()
 @click.pass_context

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from demtool import option_types as ot
 from demtool.cli import STAGES
 from demtool.options import input_file, out_file
 
@@ -331,8 +332,8 @@ def _median(ctx: click.Context, param: click.Parameter, value: int) -> int:
     return value
 
 
-_POSITIVE = click.FloatRange(min=0.0, min_open=True)
-_NON_NEGATIVE = click.FloatRange(min=0.0)
+_POSITIVE = ot.FloatRange(min=0.0, min_open=True)
+_NON_NEGATIVE = ot.FloatRange(min=0.0)
 
 
 @click.command(name="refine", help=STAGES["refine"] + """
@@ -347,9 +348,9 @@ LRO NAC studies.""")
 @input_file("image")
 @input_file("dem")
 @out_file("Refined DEM (GeoTIFF, same grid as DEM); a sidecar OUT.json is written beside it.")
-@click.option("--sun-azimuth", type=float, default=None,
+@click.option("--sun-azimuth", type=ot.FLOAT, default=None,
               help="Sun azimuth, degrees clockwise from image up toward image right.")
-@click.option("--sun-elevation", type=click.FloatRange(min=-90.0, max=90.0), default=None,
+@click.option("--sun-elevation", type=ot.FloatRange(min=-90.0, max=90.0), default=None,
               help="Sun elevation above the horizontal, degrees.")
 @click.option("--sun-vector", callback=_vector, default=None, metavar="X,Y,Z",
               help="Direction toward the sun in the grid frame (instead of the angles).")
@@ -368,7 +369,7 @@ LRO NAC studies.""")
               help="Weight γ of Eint (integrability of slopes and heights).")
 @click.option("--tau", type=_POSITIVE, default=DEFAULTS["tau"], show_default=True,
               help="Weight τ of Edepth (low-passed heights tied to the input DEM's).")
-@click.option("--median", type=click.IntRange(min=0), default=DEFAULTS["median"],
+@click.option("--median", type=ot.IntRange(min=0), default=DEFAULTS["median"],
               show_default=True, callback=_median,
               help="Median prefilter of the input DEM, odd window in pixels (0 = off).")
 @click.option("--spike-threshold", type=_NON_NEGATIVE, default=DEFAULTS["spike_threshold"],
@@ -380,15 +381,15 @@ LRO NAC studies.""")
               show_default=True,
               help="The iterations start from the anchor DEM smoothed by a Gaussian of "
                    "this σ, pixels (0: from the anchor itself).")
-@click.option("--max-nan-fraction", type=click.FloatRange(min=0.0, max=1.0),
+@click.option("--max-nan-fraction", type=ot.FloatRange(min=0.0, max=1.0),
               default=DEFAULTS["max_nan_fraction"], show_default=True,
               help="Refuse a DEM with more NaN than this fraction (gaps below it are filled).")
-@click.option("--iterations", type=click.IntRange(min=1), default=DEFAULTS["iterations"],
+@click.option("--iterations", type=ot.IntRange(min=1), default=DEFAULTS["iterations"],
               show_default=True, help="Maximum number of iterations.")
 @click.option("--tolerance", type=_NON_NEGATIVE, default=DEFAULTS["tolerance"],
               show_default=True,
               help="Stop when an iteration lowers the energy by less than this fraction.")
-@click.option("--shadow-threshold", type=click.FloatRange(min=0.0, max=1.0, max_open=True),
+@click.option("--shadow-threshold", type=ot.FloatRange(min=0.0, max=1.0, max_open=True),
               default=DEFAULTS["shadow_threshold"], show_default=True,
               help="Pixels darker than this fraction of the median image are shadow (0 = off).")
 @click.option("--cast-shadows/--no-cast-shadows", default=True, show_default=True,

@@ -8,6 +8,7 @@ from typing import Any
 
 import click
 
+from demtool import option_types as ot
 from demtool import options
 from demtool.cli import STAGES
 
@@ -247,22 +248,22 @@ overlap, a 25° convergence and sun-azimuth diversity.""")
 @click.option("--target", required=True, type=click.Path(dir_okay=False),
               help="The target image (may also be among IMAGES; never matched with itself).")
 @options.out_file("Output selection.json.")
-@click.option("--roi", nargs=4, type=float, default=None,
+@click.option("--roi", nargs=4, type=ot.FLOAT, default=None,
               metavar="X0 Y0 X1 Y1", help="Region of interest in target pixels "
               "(columns X0..X1-1, rows Y0..Y1-1); default: the whole target.")
-@click.option("--min-matches", type=click.IntRange(min=8), default=50, show_default=True,
+@click.option("--min-matches", type=ot.IntRange(min=8), default=50, show_default=True,
               help="Fewest ratio-test matches to keep an image (the study's 50).")
-@click.option("--min-inliers", type=click.IntRange(min=8), default=25, show_default=True,
+@click.option("--min-inliers", type=ot.IntRange(min=8), default=25, show_default=True,
               help="Fewest matches agreeing with one fundamental matrix.")
-@click.option("--min-overlap", type=click.FloatRange(0.0, 1.0), default=0.0, show_default=True,
+@click.option("--min-overlap", type=ot.FloatRange(0.0, 1.0), default=0.0, show_default=True,
               help="Smallest fraction of the ROI an image must cover (0 = no test).")
-@click.option("--ratio", type=click.FloatRange(0.0, 1.0, min_open=True), default=0.8,
+@click.option("--ratio", type=ot.FloatRange(0.0, 1.0, min_open=True), default=0.8,
               show_default=True, help="Lowe's ratio-test threshold.")
-@click.option("--ransac-threshold", type=click.FloatRange(0.0, min_open=True), default=1.0,
+@click.option("--ransac-threshold", type=ot.FloatRange(0.0, min_open=True), default=1.0,
               show_default=True, help="Inlier threshold of the fundamental-matrix RANSAC, px.")
-@click.option("--max-features", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--max-features", type=ot.IntRange(min=0), default=0, show_default=True,
               help="SIFT keypoints kept per image, strongest first (0 = all).")
-@click.option("--contrast-threshold", type=click.FloatRange(0.0, min_open=True), default=0.04,
+@click.option("--contrast-threshold", type=ot.FloatRange(0.0, min_open=True), default=0.04,
               show_default=True, help="SIFT contrast threshold (lower: more keypoints).")
 @click.option("--cameras", type=click.Path(dir_okay=False), default=None,
               help="cameras.npz (from synth) for viewing geometry.")

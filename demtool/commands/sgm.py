@@ -9,6 +9,7 @@ from typing import Any
 
 import click
 
+from demtool import option_types as ot
 from demtool import options
 from demtool.cli import STAGES
 
@@ -145,47 +146,47 @@ default cost is hierarchical mutual information (HMI, 1/16 → 1).""")
 @options.out_file("Output disparity GeoTIFF.")
 @click.option("--rectify", "rectify", type=click.Path(dir_okay=False), default=None,
               help="rectify.npz whose disparity_range sets the search range.")
-@click.option("--min-disparity", type=int, default=None,
+@click.option("--min-disparity", type=ot.INT, default=None,
               help="Smallest disparity searched, px (overrides --rectify).")
-@click.option("--num-disparities", type=click.IntRange(min=1), default=None,
+@click.option("--num-disparities", type=ot.IntRange(min=1), default=None,
               help="Number of disparities searched (overrides --rectify).")
 @click.option("--cost", type=click.Choice(COST_CHOICES), default="hmi", show_default=True,
               help="hmi: hierarchical mutual information; mi: MI iterated at full "
                    "resolution from zero disparity; census; ad: absolute difference.")
 @click.option("--census-window", type=click.Choice(["5x5", "9x7"]), default="5x5",
               show_default=True, help="Census window (width x height).")
-@click.option("--cost-window", type=int, default=None, callback=_odd_or_none,
+@click.option("--cost-window", type=ot.INT, default=None, callback=_odd_or_none,
               help="Odd side of the window the pixel cost is summed over "
                    "[default per cost: 3 for MI, 5 for census and ad].")
 @click.option("--paths", type=click.Choice(["8", "16"]), default="8", show_default=True,
               help="Aggregation paths.")
-@click.option("--p1", type=click.IntRange(min=1), default=None,
+@click.option("--p1", type=ot.IntRange(min=1), default=None,
               help="Penalty of a 1-px disparity step, cost units [default per cost].")
-@click.option("--p2", type=click.IntRange(min=1), default=None,
+@click.option("--p2", type=ot.IntRange(min=1), default=None,
               help="Penalty of a larger disparity step, cost units [default per cost].")
 @click.option("--adaptive-p2/--no-adaptive-p2", default=True, show_default=True,
               help="Lower P2 across intensity edges (Hirschmüller 2008).")
-@click.option("--mi-iterations", type=click.IntRange(min=1), default=3, show_default=True,
+@click.option("--mi-iterations", type=ot.IntRange(min=1), default=3, show_default=True,
               help="MI iterations (mi: at full resolution; hmi: at the coarsest level).")
 @click.option("--subpixel", type=click.Choice(["equiangular", "parabola", "none"]),
               default="equiangular", show_default=True, help="Sub-pixel fit of the cost.")
 @click.option("--lr-check/--no-lr-check", default=True, show_default=True,
               help="Left-right consistency check (right disparity from the same cost).")
-@click.option("--lr-threshold", type=click.FloatRange(min=0.0), default=1.0,
+@click.option("--lr-threshold", type=ot.FloatRange(min=0.0), default=1.0,
               show_default=True, help="Largest left-right difference kept, px.")
-@click.option("--speckle-size", type=click.IntRange(min=0), default=100, show_default=True,
+@click.option("--speckle-size", type=ot.IntRange(min=0), default=100, show_default=True,
               help="Remove disparity regions smaller than this, px (0 = off).")
-@click.option("--speckle-range", type=click.FloatRange(min=0.0), default=2.0,
+@click.option("--speckle-range", type=ot.FloatRange(min=0.0), default=2.0,
               show_default=True, help="Largest disparity step within a region, px.")
-@click.option("--median", type=int, default=3, show_default=True, callback=_odd_or_none,
+@click.option("--median", type=ot.INT, default=3, show_default=True, callback=_odd_or_none,
               help="Side of the median filter of the disparity (1 = off).")
-@click.option("--uniqueness", type=click.FloatRange(0.0, 1.0, max_open=True), default=0.0,
+@click.option("--uniqueness", type=ot.FloatRange(0.0, 1.0, max_open=True), default=0.0,
               show_default=True,
               help="Drop pixels whose confidence (S2-S1)/S2 is below this (0.1 = OpenCV's "
                    "uniquenessRatio 10).")
 @click.option("--confidence", "confidence", type=click.Path(dir_okay=False), default=None,
               help="Also write a confidence raster (0..1) here.")
-@click.option("--max-memory-mb", type=click.FloatRange(min=64), default=1400.0,
+@click.option("--max-memory-mb", type=ot.FloatRange(min=64), default=1400.0,
               show_default=True,
               help="Budget of the aggregated-cost volumes (and row buffers) of the strips "
                    "matched at once, MiB; the image is cut into strips beyond it.")

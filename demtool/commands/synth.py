@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from demtool import option_types as ot
 from demtool.cli import STAGES
 from demtool.options import out_dir, seed
 
@@ -297,8 +298,8 @@ def params_from_options(options: dict[str, Any]) -> SceneParams:
 # Command
 # --------------------------------------------------------------------------------------
 
-_POSITIVE = click.FloatRange(min=0.0, min_open=True)
-_NON_NEGATIVE = click.FloatRange(min=0.0)
+_POSITIVE = ot.FloatRange(min=0.0, min_open=True)
+_NON_NEGATIVE = ot.FloatRange(min=0.0)
 
 
 def _default(name: str) -> Any:
@@ -322,37 +323,37 @@ albedo.tif, cameras.npz, scene.json and the provenance record scene.json.json.
 Defaults give the demo scene (512 × 512 DEM at 1 m, 8 views of 512 × 512 px).""")
 @out_dir("Output folder for the scene (created if needed).")
 @seed()
-@_option("--size", click.IntRange(min=16), "DEM size in cells (square).")
+@_option("--size", ot.IntRange(min=16), "DEM size in cells (square).")
 @_option("--spacing", _POSITIVE, "DEM cell size, metres.")
 @_option("--relief", _NON_NEGATIVE, "RMS height of the fractal relief, metres.")
-@_option("--spectral-exponent", click.FloatRange(min=1.0, max=5.0),
+@_option("--spectral-exponent", ot.FloatRange(min=1.0, max=5.0),
          "Exponent β of the relief's power spectrum P(k) ∝ k^-β (β = 2H + 2).")
-@_option("--craters", click.IntRange(min=0), "Number of craters (0 = none).")
+@_option("--craters", ot.IntRange(min=0), "Number of craters (0 = none).")
 @click.option("--no-craters", is_flag=True, default=False, help="Same as --craters 0.")
 @_option("--crater-exponent", _POSITIVE,
          "Slope b of the cumulative size-frequency law N(>D) ∝ D^-b.")
 @_option("--crater-min", _POSITIVE, "Smallest crater diameter, metres.")
 @_option("--crater-max", _POSITIVE, "Largest crater diameter, metres.")
-@_option("--crater-depth", click.FloatRange(min=0.0, max=1.0),
+@_option("--crater-depth", ot.FloatRange(min=0.0, max=1.0),
          "Crater depth (rim crest to floor) / diameter (Pike 1977).")
-@_option("--rim-height", click.FloatRange(min=0.0, max=1.0),
+@_option("--rim-height", ot.FloatRange(min=0.0, max=1.0),
          "Crater rim height above the surroundings / diameter (Pike 1977).")
-@_option("--boulders", click.IntRange(min=0), "Number of boulders (0 = none).")
+@_option("--boulders", ot.IntRange(min=0), "Number of boulders (0 = none).")
 @_option("--boulder-height", _NON_NEGATIVE, "Mean boulder height, metres.")
-@_option("--albedo", click.FloatRange(min=0.0, max=1.0, min_open=True), "Mean normal albedo.")
-@_option("--albedo-variation", click.FloatRange(min=0.0, max=1.0, max_open=True),
+@_option("--albedo", ot.FloatRange(min=0.0, max=1.0, min_open=True), "Mean normal albedo.")
+@_option("--albedo-variation", ot.FloatRange(min=0.0, max=1.0, max_open=True),
          "Relative albedo variation (±, low frequency).")
-@_option("--views", click.IntRange(min=2, max=99), "Number of views (target, partner, others).")
-@_option("--image-size", click.IntRange(min=16), "Image width and height, pixels.")
+@_option("--views", ot.IntRange(min=2, max=99), "Number of views (target, partner, others).")
+@_option("--image-size", ot.IntRange(min=16), "Image width and height, pixels.")
 @_option("--altitude", _POSITIVE, "Camera height above the mean surface, metres.")
 @_option("--gsd", _POSITIVE, "Target ground sampling distance, metres/pixel.")
-@_option("--partner-bh", click.FloatRange(min=0.0, max=2.0, min_open=True),
+@_option("--partner-bh", ot.FloatRange(min=0.0, max=2.0, min_open=True),
          "Base-to-height ratio of the stereo partner (baseline along image x).")
 @_option("--bh-min", _NON_NEGATIVE, "Smallest B/H (to the target) of the other views.")
 @_option("--bh-max", _NON_NEGATIVE, "Largest B/H (to the target) of the other views.")
-@_option("--sun-incidence", click.FloatRange(min=0.0, max=90.0, max_open=True),
+@_option("--sun-incidence", ot.FloatRange(min=0.0, max=90.0, max_open=True),
          "Sun incidence angle from the zenith, degrees.")
-@_option("--sun-azimuth", float, "Sun azimuth, degrees clockwise from north.")
+@_option("--sun-azimuth", ot.FLOAT, "Sun azimuth, degrees clockwise from north.")
 @_option("--exposure", _POSITIVE, "Expected DN of a flat mean-albedo surface seen at nadir.")
 @_option("--gain", _POSITIVE, "Photon gain, electrons per DN.")
 @_option("--read-noise", _NON_NEGATIVE, "Read noise, DN (standard deviation).")

@@ -6,7 +6,7 @@ any range, since every comparison with it is false), and its ``int`` turns a pre
 click's words (exit status 2)::
 
     Error: Invalid value for '--gsd': inf is not a finite number.
-    Error: Invalid value for '--outlier-threshold': -1.0 is not in the range x>0.
+    Error: Invalid value for '--outlier-threshold': -1.0 is not in the range x>=0.
 
 When the value came from a ``--config`` preset, the message names the preset file,
 its section and key, so the user knows which line to fix::

@@ -57,7 +57,7 @@ as distance / focal length), heights in metres positive toward the camera.
               show_default=True, help="Median filter after filling, odd size in px (0 = off).")
 @click.option("--outlier-neighbours", type=ot.IntRange(min=3), default=16,
               show_default=True, help="Neighbours of the local median outlier test.")
-@click.option("--outlier-threshold", type=ot.POSITIVE, default=3.0, show_default=True,
+@click.option("--outlier-threshold", type=ot.NON_NEGATIVE, default=3.0, show_default=True,
               help="Outlier threshold in local NMADs (0 = no outlier removal).")
 @click.option("--interpolated-mask", type=click.Path(dir_okay=False),
               help="Also write a raster: 1 where interpolated, 0 where measured.")

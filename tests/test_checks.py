@@ -144,8 +144,10 @@ def test_rectification_must_match_the_images():
                                            sources={"l.tif": "view_00", "r.tif": "view_07"})
 
 
-def _raster(shape=(10, 12), transform=Affine(2, 0, 100, 0, -2, 50), crs=None,
-            frame="image:view_00", path="dem.tif"):
+GRID = Affine(2, 0, 100, 0, -2, 50)
+
+
+def _raster(shape=(10, 12), transform=GRID, crs=None, frame="image:view_00", path="dem.tif"):
     return Raster(np.zeros(shape, np.float32), transform, crs,
                   {"frame": frame} if frame else {}, path)
 

@@ -35,12 +35,12 @@ def load_command(name: str) -> click.Command:
     return module.command
 
 
-def stage_param_names(name: str) -> list[str] | None:
-    """Option names of a stage (for config validation); None for an unknown stage."""
+def stage_options(name: str) -> list[click.Option] | None:
+    """Options of a stage (presets are checked against their types); None for an unknown stage."""
     if name not in STAGES:
         return None
     command = load_command(name)
-    return [p.name for p in command.params if isinstance(p, click.Option) and p.name]
+    return [p for p in command.params if isinstance(p, click.Option) and p.name]
 
 
 class DemtoolGroup(click.Group):
@@ -113,7 +113,7 @@ def cli(ctx: click.Context, verbose: int, quiet: int, debug: bool, config_path: 
     ctx.obj = AppState(verbosity=verbose - quiet, debug=debug, config_path=config_path)
     if config_path:
         content = load_config(config_path)
-        ctx.default_map = to_default_map(content, config_path, stage_param_names)
+        ctx.default_map = to_default_map(content, config_path, stage_options)
 
 
 def _raise_on_sigterm(signum, frame):  # pragma: no cover - exercised through subprocess tests

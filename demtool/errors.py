@@ -20,3 +20,11 @@ class ParameterError(DemtoolError):
 
 class ProcessingError(DemtoolError):
     """The data cannot support the computation (too few matches, degenerate geometry, ...)."""
+
+
+class OutputError(InputError, OSError):
+    """An output cannot be written: folder not writable, disk full, a file in the way.
+
+    Also an :class:`OSError`, so code that tolerates failed writes (a cache) keeps
+    tolerating them, while the CLI prints it on one line like every DemtoolError.
+    """

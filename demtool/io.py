@@ -10,19 +10,22 @@ Contracts (see DESIGN.md):
 * Every write is atomic: the data go to a hidden temporary file beside the target,
   which is renamed into place.  Inside :func:`output_transaction` the renames are
   deferred until the whole stage has succeeded, so a failing or interrupted stage
-  leaves no output at all.
+  leaves no output at all; :func:`check_output_paths` refuses outputs over inputs and
+  unwritable folders, and every filesystem error is one InputError line naming the
+  path (see :mod:`demtool.outputs`).
+* Every raster read applies the band's scale and offset (GDAL's, which include
+  ISIS ``Base``/``Multiplier`` and PDS ``SCALING_FACTOR``/``OFFSET``) and its nodata
+  (and an ISIS cube's special pixels), and returns float32 with NaN for nodata and
+  for ±inf.
 """
 
 from __future__ import annotations
 
-import contextlib
-import contextvars
 import json
 import os
-import tempfile
 import warnings
 import zipfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,90 +34,17 @@ import numpy as np
 
 from demtool.errors import InputError
 
-NPZ_FORMAT_VERSION = 1
-
-# --------------------------------------------------------------------------------------
-# Atomic writes and output transactions
-# --------------------------------------------------------------------------------------
-
-
-class _Transaction:
-    def __init__(self) -> None:
-        self.pending: list[tuple[Path, Path]] = []
-
-    def commit(self) -> None:
-        for temporary, final in self.pending:
-            os.replace(temporary, final)
-        self.pending.clear()
-
-    def rollback(self) -> None:
-        for temporary, _ in self.pending:
-            with contextlib.suppress(OSError):
-                temporary.unlink()
-        self.pending.clear()
-
-
-_current_transaction: contextvars.ContextVar[_Transaction | None] = contextvars.ContextVar(
-    "demtool_output_transaction", default=None
+# Atomic writes, output transactions and output path checks live in demtool.outputs;
+# they are part of this module's interface (io.output_transaction, io.atomic_path ...).
+from demtool.outputs import (  # noqa: F401
+    atomic_path,
+    check_output_paths,
+    output_transaction,
+    resolve,
+    write_error,
 )
 
-
-@contextlib.contextmanager
-def output_transaction() -> Iterator[None]:
-    """Defer the renames of every write inside the block until it succeeds.
-
-    All files written with this module inside the block appear together at the end;
-    if the block raises (or the process is interrupted by SIGINT/SIGTERM, which the
-    CLI turns into an exception) none of them appears and the temporaries are removed.
-    """
-    transaction = _Transaction()
-    token = _current_transaction.set(transaction)
-    try:
-        yield
-    except BaseException:
-        transaction.rollback()
-        raise
-    else:
-        transaction.commit()
-    finally:
-        _current_transaction.reset(token)
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; move it into place when the block succeeds.
-
-    Parameters
-    ----------
-    path : path-like
-        The final file name.  Its parent folder is created if needed.
-    suffix : str, optional
-        Suffix of the temporary file (defaults to that of ``path``, so that format
-        drivers that look at the extension behave).
-    """
-    final = Path(path)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    suffix = final.suffix if suffix is None else suffix
-    handle, name = tempfile.mkstemp(prefix=f".{final.name}.", suffix=f".tmp{suffix}",
-                                    dir=final.parent)
-    os.close(handle)
-    temporary = Path(name)
-    # mkstemp creates 0600 files; outputs get the permissions any new file would get.
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(temporary, 0o666 & ~umask)
-    try:
-        yield temporary
-    except BaseException:
-        with contextlib.suppress(OSError):
-            temporary.unlink()
-        raise
-    transaction = _current_transaction.get()
-    if transaction is None:
-        os.replace(temporary, final)
-    else:
-        transaction.pending.append((temporary, final))
-
+NPZ_FORMAT_VERSION = 1
 
 # --------------------------------------------------------------------------------------
 # Input checks
@@ -204,6 +134,41 @@ def _first_line(exc: BaseException) -> str:
     return text[0] if text else type(exc).__name__
 
 
+def physical_values(data: np.ma.MaskedArray, scales, offsets) -> np.ndarray:
+    """Stored values → the product's units, float32, NaN for nodata and for ±inf.
+
+    ``value = stored * scale + offset`` per band (GDAL's band scale and offset: GeoTIFF
+    ``scale_factor``/``add_offset`` metadata, ISIS3 ``Base``/``Multiplier``, PDS3
+    ``SCALING_FACTOR``/``OFFSET``), computed in float64 and rounded once to float32.
+
+    Parameters
+    ----------
+    data : (B, H, W) masked array, any dtype
+        Stored values; masked where GDAL's mask band says nodata (the nodata value,
+        an alpha band, an ISIS special pixel).
+    scales, offsets : sequence of float, length B
+        Per band; None or NaN mean 1 and 0.
+
+    Returns
+    -------
+    (B, H, W) float32
+        NaN where masked or not finite.
+    """
+    out = np.empty(data.shape, dtype=np.float32)
+    mask = np.ma.getmaskarray(data)
+    with np.errstate(over="ignore", invalid="ignore"):  # beyond float32: inf, then NaN
+        for band, (scale, offset) in enumerate(zip(scales, offsets, strict=True)):
+            scale = 1.0 if scale is None or not np.isfinite(scale) else float(scale)
+            offset = 0.0 if offset is None or not np.isfinite(offset) else float(offset)
+            stored = np.ma.getdata(data[band])
+            if scale == 1.0 and offset == 0.0:
+                out[band] = stored
+            else:
+                out[band] = stored.astype(np.float64) * scale + offset
+    out[mask | ~np.isfinite(out)] = np.nan
+    return out
+
+
 def _read_bands(path: Path, what: str, bands: list[int] | None = None):
     from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
@@ -216,7 +181,8 @@ def _read_bands(path: Path, what: str, bands: list[int] | None = None):
                 data = dataset.read(indexes, masked=True)
         except (RasterioError, ValueError) as exc:
             raise InputError(f"{path}: cannot read {what}: {_first_line(exc)}") from None
-        values = np.ma.filled(data.astype(np.float32), np.nan)
+        values = physical_values(data, [dataset.scales[i - 1] for i in indexes],
+                                 [dataset.offsets[i - 1] for i in indexes])
         tags = dict(dataset.tags())
         transform = dataset.transform
         if dataset.crs is None and transform.is_identity:
@@ -228,6 +194,10 @@ def _read_bands(path: Path, what: str, bands: list[int] | None = None):
 def read_raster(path: str | os.PathLike, *, band: int = 1, what: str = "raster",
                 allow_all_nan: bool = False) -> Raster:
     """Read one band of a GeoTIFF (or any GDAL raster) as float32 with NaN nodata.
+
+    The band's scale and offset are applied (heights in the units the product
+    states, e.g. an int16 DEM in half-metres with scale 0.5 reads in metres); its
+    nodata, mask band and ±inf become NaN (see :func:`physical_values`).
 
     Parameters
     ----------
@@ -262,7 +232,8 @@ def read_image(path: str | os.PathLike, *, what: str = "image") -> Raster:
     """Read any GDAL-readable image (GeoTIFF, PNG, JPEG, PDS3/PDS4, ISIS3) as grey float32.
 
     Colour images (3 or 4 bands) are converted to luminance with the ITU-R BT.601
-    weights; an alpha band marks nodata.  Values keep their original scale (DN).
+    weights; an alpha band marks nodata.  Values are the stored DN times the band's
+    scale plus its offset (both usually absent, so DN); nodata and ±inf are NaN.
 
     Returns
     -------
@@ -339,18 +310,22 @@ def write_raster(path: str | os.PathLike, data: np.ndarray, *, transform=None, c
         profile.update(blockxsize=256, blockysize=256)
     if width * height * count * 4 > 3.5e9:
         profile["BIGTIFF"] = "YES"
-    from rasterio.errors import NotGeoreferencedWarning
+    from rasterio._err import CPLE_BaseError
+    from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
     with atomic_path(path, suffix=".tif") as temporary, warnings.catch_warnings():
         # A unit image-frame transform is "not georeferenced" to GDAL; that is intended.
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(temporary, "w", **profile) as dst:
-            dst.write(array)
-            if tags:
-                dst.update_tags(**{k: _tag_value(v) for k, v in tags.items()})
-            if band_names:
-                for index, name in enumerate(band_names, start=1):
-                    dst.set_band_description(index, name)
+        try:
+            with rasterio.open(temporary, "w", **profile) as dst:
+                dst.write(array)
+                if tags:
+                    dst.update_tags(**{k: _tag_value(v) for k, v in tags.items()})
+                if band_names:
+                    for index, name in enumerate(band_names, start=1):
+                        dst.set_band_description(index, name)
+        except (RasterioError, CPLE_BaseError) as exc:  # GDAL's write errors (disk full)
+            raise write_error(path, exc) from None
     return Path(path)
 
 

@@ -14,6 +14,7 @@ from typing import Any
 
 import click
 
+from demtool import option_types
 from demtool.parameters import option_name, value_kind
 
 
@@ -119,13 +120,13 @@ def option_type_for(field: dataclasses.Field, kind: type) -> Any:
     bounds = {"min": meta.get("minimum"), "max": meta.get("maximum"),
               "min_open": meta.get("min_open", False), "max_open": meta.get("max_open", False)}
     if bounds["min"] is None and bounds["max"] is None:
-        return kind
+        return option_types.INT if kind is int else option_types.FLOAT
     if kind is int:
-        # click's IntRange supports open bounds too; keep integral bounds integral
+        # open bounds are supported too; keep integral bounds integral
         bounds["min"] = None if bounds["min"] is None else int(bounds["min"])
         bounds["max"] = None if bounds["max"] is None else int(bounds["max"])
-        return click.IntRange(**bounds)
-    return click.FloatRange(**bounds)
+        return option_types.IntRange(**bounds)
+    return option_types.FloatRange(**bounds)
 
 
 def _odd_callback(ctx: click.Context, param: click.Parameter, value: Any) -> Any:

@@ -7,7 +7,7 @@ import pytest
 from click.testing import CliRunner
 
 from demtool import __version__
-from demtool.cli import STAGES, cli, stage_param_names
+from demtool.cli import STAGES, cli, stage_options
 from demtool.config import load_config, to_default_map
 from demtool.errors import InputError, ParameterError
 
@@ -43,7 +43,7 @@ def test_unknown_stage_is_a_usage_error():
 @pytest.mark.parametrize("preset", CONFIGS, ids=[p.name for p in CONFIGS])
 def test_every_preset_names_real_options(preset):
     content = load_config(preset)
-    default_map = to_default_map(content, preset, stage_param_names)
+    default_map = to_default_map(content, preset, stage_options)
     assert set(default_map) <= set(STAGES)
 
 

@@ -166,3 +166,71 @@ def test_outputs_get_the_usual_file_permissions(tmp_path):
     finally:
         os.umask(umask)
     assert (path.stat().st_mode & 0o777) == 0o644
+
+
+def _scaled_int16_dem(path, driver="GTiff"):
+    """A LOLA-style DEM: int16 half-metres (scale 0.5) about an offset, with nodata."""
+    stored = np.array([[-17269, 0, 21255], [-32768, 100, -1]], dtype=np.int16)
+    with rasterio.open(path, "w", driver=driver, width=3, height=2, count=1, dtype="int16",
+                       nodata=-32768, transform=Affine(118.0, 0, 0, 0, -118.0, 0),
+                       crs="EPSG:4326" if driver == "GTiff" else None) as ds:
+        ds.scales = (0.5,)  # before the data: the ISIS3 driver writes its label early
+        ds.offsets = (-2.0,)
+        ds.write(stored, 1)
+    return stored
+
+
+def test_scaled_int16_dem_reads_in_the_units_it_states(tmp_path):
+    path = tmp_path / "lola.tif"
+    stored = _scaled_int16_dem(path)
+    dem = dio.read_raster(path, what="DEM")
+    assert dem.data.dtype == np.float32
+    expected = stored.astype(np.float64) * 0.5 - 2.0
+    assert np.isnan(dem.data[1, 0])  # nodata is compared before scaling
+    valid = stored != -32768
+    np.testing.assert_array_equal(dem.data[valid], expected[valid].astype(np.float32))
+    assert dem.data[0, 0] == -8636.5 and dem.data[0, 2] == 10625.5
+    # The same through read_image (the DN of a scaled image are its physical values).
+    np.testing.assert_array_equal(dio.read_image(path).data[valid], expected[valid])
+
+
+def test_isis3_cube_base_and_multiplier_and_special_pixels(tmp_path):
+    """ISIS3's Base/Multiplier are GDAL's offset/scale; its NULL pixel is the mask."""
+    path = tmp_path / "dem.cub"
+    stored = _scaled_int16_dem(path, driver="ISIS3")
+    text = path.read_bytes()[:4096].decode("ascii", "replace")
+    assert "Base" in text and "Multiplier" in text  # really stored as ISIS does
+    dem = dio.read_raster(path, what="DEM")
+    valid = stored != -32768
+    np.testing.assert_array_equal(dem.data[valid], (stored[valid] * 0.5 - 2.0).astype(np.float32))
+    assert np.isnan(dem.data[~valid]).all()
+
+
+def test_infinities_and_float32_overflow_read_as_nan(tmp_path):
+    data = np.array([[1.0, np.inf, -np.inf], [1e300, 2.5, np.nan]], dtype=np.float64)
+    path = tmp_path / "inf.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=3, height=2, count=1,
+                       dtype="float64", transform=Affine(2, 0, 0, 0, -2, 0)) as ds:
+        ds.write(data, 1)
+    raster = dio.read_raster(path)
+    np.testing.assert_array_equal(np.isfinite(raster.data),
+                                  [[True, False, False], [False, True, False]])
+    assert raster.data[0, 0] == 1.0 and raster.data[1, 1] == 2.5
+    # A raster whose only "values" are infinite has no valid pixel.
+    path2 = tmp_path / "all_inf.tif"
+    dio.write_raster(path2, np.full((2, 2), np.inf))
+    with pytest.raises(InputError, match=r"all_inf\.tif: raster contains no valid"):
+        dio.read_raster(path2)
+
+
+def test_isis3_saturation_special_pixels_are_nodata(tmp_path):
+    """LRS/LIS/HIS/HRS (-32767 … -32764 in SignedWord) are masked like NULL (-32768)."""
+    path = tmp_path / "special.cub"
+    with rasterio.open(path, "w", driver="ISIS3", width=3, height=2, count=1, dtype="int16",
+                       nodata=-32768, transform=Affine(2, 0, 0, 0, -2, 0)) as ds:
+        ds.scales = (0.5,)
+        ds.offsets = (-2.0,)
+        ds.write(np.array([[-32768, -32767, -32766], [-32765, -32764, 10]], np.int16), 1)
+    data = dio.read_raster(path).data
+    assert np.isnan(data.ravel()[:5]).all()
+    assert data[1, 2] == 3.0

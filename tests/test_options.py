@@ -6,7 +6,7 @@ import click
 import pytest
 from click.testing import CliRunner
 
-from demtool import options
+from demtool import option_types, options
 from demtool.cli import load_command
 from demtool.parameters import Parameters, option_name, parameter
 from demtool.stages import STAGES
@@ -61,7 +61,10 @@ def test_option_type_for_ranges_and_choices():
     fraction = options.option_type_for(fields["fraction"], float)
     assert isinstance(fraction, click.FloatRange) and fraction.max_open
     assert isinstance(options.option_type_for(fields["mode"], str), click.Choice)
-    assert options.option_type_for(fields["limit"], float) is float
+    limit = options.option_type_for(fields["limit"], float)
+    assert limit is option_types.FLOAT
+    with pytest.raises(click.BadParameter, match="not a finite number"):
+        limit.convert("nan", None, None)
 
 
 def test_help_shows_defaults_and_help_text():

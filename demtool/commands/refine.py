@@ -6,7 +6,7 @@ from typing import Any
 
 import click
 
-from demtool import options
+from demtool import option_types, options
 from demtool.refine.params import RefineParams
 from demtool.stages import STAGES
 
@@ -24,9 +24,9 @@ LRO NAC studies.""")
 @options.input_file("dem")
 @options.out_file("Refined DEM (GeoTIFF, same grid as DEM); a sidecar OUT.json is written "
                   "beside it.")
-@click.option("--sun-azimuth", type=float, default=None,
+@click.option("--sun-azimuth", type=option_types.FLOAT, default=None,
               help="Sun azimuth, degrees clockwise from image up toward image right.")
-@click.option("--sun-elevation", type=click.FloatRange(min=-90.0, max=90.0), default=None,
+@click.option("--sun-elevation", type=option_types.FloatRange(min=-90.0, max=90.0), default=None,
               help="Sun elevation above the horizontal, degrees.")
 @options.vector_option("--sun-vector", help_text="Direction toward the sun in the grid frame "
                        "(instead of the angles).")

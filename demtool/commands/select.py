@@ -6,7 +6,7 @@ from typing import Any
 
 import click
 
-from demtool import options
+from demtool import option_types, options
 from demtool.select_params import SelectParams
 from demtool.stages import STAGES
 
@@ -23,7 +23,7 @@ overlap, a 25° convergence and sun-azimuth diversity.""")
 @click.option("--target", required=True, type=click.Path(dir_okay=False),
               help="The target image (may also be among IMAGES; never matched with itself).")
 @options.out_file("Output selection.json.")
-@click.option("--roi", nargs=4, type=float, default=None,
+@click.option("--roi", nargs=4, type=option_types.FLOAT, default=None,
               metavar="X0 Y0 X1 Y1", help="Region of interest in target pixels "
               "(columns X0..X1-1, rows Y0..Y1-1); default: the whole target.")
 @options.path_option("--cameras", "cameras.npz (from synth) for viewing geometry.")

@@ -29,7 +29,7 @@ class DemParams(Parameters):
                                         minimum=3)
     outlier_threshold: float = parameter(core_default(OutlierOptions, "threshold"),
                                          "Outlier threshold in local NMADs (0 = no outlier "
-                                         "removal).")
+                                         "removal).", minimum=0.0)
     mask_band: bool = parameter(False, "Write the interpolation mask as a second band of OUT.",
                                 flag="--mask-band")
     seed: int = seed_field()

@@ -14,7 +14,7 @@ from demtool.sgm.params import SgmParams
 from demtool.stages import STAGES
 
 PACKAGE = Path(__file__).resolve().parents[2] / "demtool"
-CLI_LAYER = {"cli.py", "options.py", "commands"}
+CLI_LAYER = {"cli.py", "options.py", "option_types.py", "config.py", "commands"}
 
 
 def test_stage_run_declares_files_and_builds_provenance(tmp_path):

@@ -128,10 +128,16 @@ class Body:
         datum = CustomDatum(name=f"{self.name} reference sphere", ellipsoid=ellipsoid)
         return GeographicCRS(name=f"{self.name} reference sphere / Ocentric", datum=datum)
 
-    def proj_string(self) -> str:
-        """PROJ string of the reference sphere (``+proj=longlat +R=… +no_defs``): the
-        fallback for tools that take no WKT; it carries no body name."""
-        return f"+proj=longlat +R={self.radius:.10g} +no_defs +type=crs"
+    def proj_string(self, surface: str = "sphere") -> str:
+        """PROJ string of the reference sphere (``+proj=longlat +R=… +no_defs``) or, with
+        ``surface="ellipsoid"``, of the biaxial ellipsoid (``+a=a +b=c``; PROJ strings have
+        no triaxial ellipsoid): the fallback for tools that take no WKT.  It carries no
+        body name (prefer :meth:`geographic_crs`)."""
+        if surface == "sphere":
+            return f"+proj=longlat +R={self.radius:.10g} +no_defs +type=crs"
+        if surface == "ellipsoid":
+            return f"+proj=longlat +a={self.a:.10g} +b={self.c:.10g} +no_defs +type=crs"
+        raise ValueError(f"unknown surface {surface!r}: should be sphere or ellipsoid")
 
     def tags(self) -> dict[str, Any]:
         """Raster tags naming the body, its radii and the height reference.

@@ -83,6 +83,12 @@ def test_unknown_body_crs_round_trips_its_name():
     assert maps.same_body(found, toy)
     assert not maps.same_body(found, maps.body_from_radii(2600.0, name="Toy"))
     assert "+R=2500" in toy.proj_string()
+    oblate = maps.body_from_radii(3000.0, 3000.0, 2000.0, name="Oblate")
+    ellipsoid = maps.to_pyproj_crs(oblate.proj_string("ellipsoid")).ellipsoid
+    assert (ellipsoid.semi_major_metre, ellipsoid.semi_minor_metre) == (3000.0, 2000.0)
+    assert maps.body_from_crs(oblate.proj_string()).radius == 3000.0
+    with pytest.raises(ValueError, match="unknown surface"):
+        oblate.proj_string("geoid")
 
 
 def test_same_body():

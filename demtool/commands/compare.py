@@ -31,7 +31,9 @@ def _slope_bins(ctx: click.Context, param: click.Parameter, value: Any):
 @click.command(name="compare", help=STAGES["compare"] + """
 
 Puts DEM on REFERENCE's grid (NaN-aware bilinear; reprojected when both carry
-different CRS), co-registers it (--align), and writes into --out: report.json
+different CRS; a grid in degrees is measured on a metric grid with the body's radius;
+DEMs of different bodies are refused), co-registers it (--align), and writes into
+--out: report.json
 (RMSE, NMAD, mean, median, std, LE90, min/max, completeness %, count, the applied
 shift {dx_px, dy_px, dz} added to the DEM — x right, y down in grid pixels, dz in
 metres — with its uncertainty, per-slope-class statistics, effective resolution from

@@ -138,6 +138,9 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     for raster in (dem, *extra):
         check_same_frame(raster, reference, "compare rasters of one frame (e.g. a "
                          "target-frame DEM with truth_dem_target.tif)")
+    from demtool.compare.planetary import check_bodies, metric_grid
+
+    body_warnings = check_bodies([(r.path, r.crs) for r in (reference, dem, *extra)])
     if grid == "reference":
         target = _grid_of(reference)
         reference_values = reference.data.astype(np.float64)
@@ -148,6 +151,10 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
         dem_values = dem.data.astype(np.float64)
         reference_values = _onto(reference, target, "reference DEM")
         frame = dem.tags.get("frame")
+    target, degrees = metric_grid(target)  # a degree grid is measured in metres
+    if degrees is not None:
+        reference_values = _onto(reference, target, "reference DEM")
+        dem_values = _onto(dem, target, "DEM")
     extra_values = [_onto(raster, target, "DEM (--also)") for raster in extra]
     mask = _read_mask(mask_path, target) if mask_path else None
     sx, sy = target.spacing
@@ -174,7 +181,9 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     }
     report["grid"] = {**main.report["grid"], "on": grid,
                       "crs": target.crs.to_string() if target.crs else None,
-                      "transform": list(target.transform)[:6], "frame": frame}
+                      "transform": list(target.transform)[:6], "frame": frame,
+                      "from_geographic": degrees}
+    report["warnings"] = [*body_warnings, *report["warnings"]]
     report["profiles_px"] = [list(line) for line in lines]
     report["also"] = [{"label": name, "dem": str(path), **_headline(c.report),
                        "alignment": c.report["alignment"], "warnings": c.report["warnings"]}

@@ -1,0 +1,395 @@
+"""Planetary bodies: radii, NAIF ids, PROJ's IAU 2015 CRS codes, and the body behind a CRS.
+
+PROJ (≥ 8.2) carries the IAU 2015 planetary CRSs of the "Planetary CRS registry"
+(Marmo et al., 2018, Earth and Space Science 5, doi:10.1029/2018EA000388; the
+``IAU_2015`` authority of ``proj.db``).  A code is ``NAIF id × 100 + offset``:
+
+* ``+0``  sphere, planetocentric latitude, east-positive longitude (geographic,
+  degrees) — e.g. ``IAU_2015:30100`` for the Moon (NAIF 301), ``IAU_2015:49900`` for
+  Mars (NAIF 499).  Every body has this one.
+* ``+1``  ellipsoid, planetographic latitude (west-positive longitude for prograde
+  rotators such as Mars) and ``+2`` ellipsoid, planetocentric — only for bodies whose
+  IAU ellipsoid is not a sphere.
+* projected CRSs on the sphere: ``+10`` / ``+15`` equirectangular (clon 0 / 180),
+  ``+20`` / ``+25`` sinusoidal, ``+30`` north polar and ``+35`` south polar
+  stereographic, ``+40``…``+90`` Mollweide, Robinson, transverse Mercator,
+  orthographic, LCC, LAEA, Albers, Mercator (offsets ``+11``, ``+12``, … are the same
+  projections on the ``+1`` / ``+2`` ellipsoids).
+
+The registry of bodies is read from PROJ's own database (no table is copied here), so
+every body PROJ knows (planets, moons, comets such as 67P, asteroids) is available.
+
+demtool's map contract: heights are metres above the body's **reference sphere**, the
+sphere of PROJ's ``+0`` CRS (radius :attr:`Body.radius`).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import re
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = [
+    "EARTH_NAIF_ID",
+    "Body",
+    "body_by_naif_id",
+    "body_by_name",
+    "body_from_crs",
+    "body_from_radii",
+    "iau_code",
+    "known_bodies",
+    "same_body",
+    "to_pyproj_crs",
+]
+
+EARTH_NAIF_ID = 399
+
+# PROJ offsets of the IAU 2015 codes (see the module docstring).
+IAU_OFFSETS = {
+    "geographic": 0,
+    "ographic": 1,
+    "ocentric": 2,
+    "equirectangular": 10,
+    "equirectangular_180": 15,
+    "north_polar": 30,
+    "south_polar": 35,
+}
+
+# Relative tolerance when matching radii to a known body (1 m on the Moon is 6e-7).
+RADIUS_RTOL = 1e-6
+
+
+@dataclass(frozen=True)
+class Body:
+    """A planetary body: its name, NAIF id, radii and reference sphere.
+
+    Attributes
+    ----------
+    name : str
+        Body name as PROJ spells it ("Moon", "Mars", "Churyumov-Gerasimenko").
+    naif_id : int or None
+        NAIF SPICE integer id (301 Moon, 499 Mars, 1000012 comet 67P); None for a body
+        PROJ does not know.
+    a, b, c : float
+        Radii of the body's ellipsoid, metres: two equatorial (a ≥ b) and the polar
+        one (c).  a = b = c for a sphere.
+    radius : float
+        Radius of the reference sphere, metres: the sphere of the body's IAU 2015
+        ``+0`` CRS (PROJ's choice: the Moon 1 737 400 m, Mars 3 396 190 m); heights on
+        demtool's maps are above this sphere.
+    """
+
+    name: str
+    naif_id: int | None
+    a: float
+    b: float
+    c: float
+    radius: float
+
+    @property
+    def radii(self) -> tuple[float, float, float]:
+        """(a, b, c), metres."""
+        return (self.a, self.b, self.c)
+
+    @property
+    def is_sphere(self) -> bool:
+        """True when a = b = c."""
+        return self.a == self.b == self.c
+
+    def iau_code(self, kind: str = "geographic") -> str | None:
+        """This body's ``IAU_2015`` code of one kind, or None (see :func:`iau_code`)."""
+        return iau_code(self, kind)
+
+    def geographic_crs(self):
+        """The reference sphere's geographic CRS (planetocentric, east-positive, degrees).
+
+        ``IAU_2015:<naif>00`` when PROJ knows the body and its sphere has this body's
+        ``radius``; otherwise a CRS on a sphere of ``radius`` with a datum named after
+        the body (``"<name> reference sphere"``), so :func:`body_from_crs` recognises it.
+
+        Returns
+        -------
+        pyproj.CRS
+        """
+        from pyproj import CRS
+
+        code = self.iau_code("geographic")
+        if code is not None:
+            crs = CRS.from_user_input(code)
+            if math.isclose(crs.ellipsoid.semi_major_metre, self.radius, rel_tol=RADIUS_RTOL):
+                return crs
+        from pyproj.crs import GeographicCRS
+        from pyproj.crs.datum import CustomDatum, CustomEllipsoid
+
+        ellipsoid = CustomEllipsoid(name=f"{self.name} reference sphere",
+                                    semi_major_axis=self.radius, inverse_flattening=0.0)
+        datum = CustomDatum(name=f"{self.name} reference sphere", ellipsoid=ellipsoid)
+        return GeographicCRS(name=f"{self.name} reference sphere / Ocentric", datum=datum)
+
+    def proj_string(self, surface: str = "sphere") -> str:
+        """PROJ string of the reference sphere (``+proj=longlat +R=… +no_defs``) or, with
+        ``surface="ellipsoid"``, of the biaxial ellipsoid (``+a=a +b=c``; PROJ strings have
+        no triaxial ellipsoid): the fallback for tools that take no WKT.  It carries no
+        body name (prefer :meth:`geographic_crs`)."""
+        if surface == "sphere":
+            return f"+proj=longlat +R={self.radius:.10g} +no_defs +type=crs"
+        if surface == "ellipsoid":
+            return f"+proj=longlat +a={self.a:.10g} +b={self.c:.10g} +no_defs +type=crs"
+        raise ValueError(f"unknown surface {surface!r}: should be sphere or ellipsoid")
+
+    def tags(self) -> dict[str, Any]:
+        """Raster tags naming the body, its radii and the height reference.
+
+        Returns
+        -------
+        dict
+            ``body``, ``body_naif_id`` (None if unknown), ``body_radii_m`` [a, b, c],
+            ``reference_sphere_radius_m``, ``height_reference`` ("sphere").
+        """
+        return {"body": self.name, "body_naif_id": self.naif_id,
+                "body_radii_m": [self.a, self.b, self.c],
+                "reference_sphere_radius_m": self.radius, "height_reference": "sphere"}
+
+
+def to_pyproj_crs(crs: Any):
+    """Any CRS (pyproj CRS, rasterio CRS, WKT, ``"IAU_2015:30100"``, PROJ string) as a
+    ``pyproj.CRS``."""
+    from pyproj import CRS
+
+    if isinstance(crs, CRS):
+        return crs
+    if hasattr(crs, "to_wkt") and not isinstance(crs, str):
+        return CRS.from_wkt(crs.to_wkt())
+    return CRS.from_user_input(crs)
+
+
+_NAME_YEAR = re.compile(r"^(?P<name>.+?) \((?P<year>\d{4})\)")
+
+
+@functools.lru_cache(maxsize=1)
+def _registry() -> tuple[dict[int, Body], dict[str, int]]:
+    """Bodies of PROJ's IAU_2015 authority, keyed by NAIF id, and a name index."""
+    from pyproj import CRS
+    from pyproj.database import query_crs_info
+
+    spheres: dict[int, tuple[str, float]] = {}
+    ellipsoids: dict[int, tuple[float, float]] = {}
+    for info in query_crs_info(auth_name="IAU_2015"):
+        code = int(info.code)
+        naif, offset = divmod(code, 100)
+        if offset not in (0, 2):
+            continue
+        crs = CRS.from_user_input(f"IAU_2015:{code}")
+        match = _NAME_YEAR.match(info.name)
+        if match is None:
+            continue
+        if offset == 0:
+            spheres[naif] = (match.group("name"), crs.ellipsoid.semi_major_metre)
+        else:
+            ellipsoids[naif] = (crs.ellipsoid.semi_major_metre, crs.ellipsoid.semi_minor_metre)
+    bodies: dict[int, Body] = {}
+    names: dict[str, int] = {}
+    for naif, (name, radius) in spheres.items():
+        a, c = ellipsoids.get(naif, (radius, radius))
+        bodies[naif] = Body(name=name, naif_id=naif, a=a, b=a, c=c, radius=radius)
+        names[name.lower()] = naif
+    return bodies, names
+
+
+def known_bodies() -> list[Body]:
+    """Every body PROJ's IAU 2015 authority knows, by NAIF id."""
+    bodies, _ = _registry()
+    return [bodies[k] for k in sorted(bodies)]
+
+
+def body_by_naif_id(naif_id: int) -> Body:
+    """The body of a NAIF id (301 Moon, 499 Mars, 1000012 comet 67P).
+
+    Raises
+    ------
+    KeyError
+        When PROJ has no IAU 2015 CRS for that id.
+    """
+    bodies, _ = _registry()
+    try:
+        return bodies[int(naif_id)]
+    except KeyError:
+        raise KeyError(f"PROJ has no IAU 2015 body with NAIF id {naif_id}") from None
+
+
+def body_by_name(name: str) -> Body:
+    """The body of a name, case-insensitive ("moon", "MARS", "Churyumov-Gerasimenko").
+
+    ISIS / SPICE spellings such as ``"MOON"`` or ``"67P/CHURYUMOV-GERASIMENKO (1969 R1)"``
+    are accepted: the first registered name found as a word in the text is used.
+
+    Raises
+    ------
+    KeyError
+        When no body PROJ knows has that name.
+    """
+    found = _find_name(name)
+    if found is None:
+        raise KeyError(f"PROJ has no IAU 2015 body named {name!r}")
+    return body_by_naif_id(found)
+
+
+def _find_name(text: str) -> int | None:
+    _, names = _registry()
+    key = text.strip().lower()
+    if key in names:
+        return names[key]
+    # words of the text (ESRI/ISIS spellings: "D_Moon", "GCS_Mars_2000_Sphere", ...)
+    words = re.split(r"[^a-z0-9\-]+", key.replace("_", " "))
+    for word in words:
+        if word in names:
+            return names[word]
+    for name, naif in names.items():  # multi-word names ("hartley 2", "52 europa")
+        if " " in name and re.search(rf"\b{re.escape(name)}\b", key):
+            return naif
+    return None
+
+
+def iau_code(body: Body, kind: str = "geographic") -> str | None:
+    """The ``IAU_2015`` code of ``body`` for one kind of CRS, if PROJ has it.
+
+    Parameters
+    ----------
+    body : Body
+    kind : str
+        One of ``geographic`` (+0), ``ographic`` (+1), ``ocentric`` (+2),
+        ``equirectangular`` (+10), ``equirectangular_180`` (+15), ``north_polar`` (+30),
+        ``south_polar`` (+35).
+
+    Returns
+    -------
+    str or None
+        e.g. ``"IAU_2015:30100"``; None for a body without NAIF id or a code PROJ lacks.
+    """
+    if kind not in IAU_OFFSETS:
+        raise ValueError(f"unknown IAU CRS kind {kind!r}: should be one of "
+                         + ", ".join(IAU_OFFSETS))
+    if body.naif_id is None:
+        return None
+    code = body.naif_id * 100 + IAU_OFFSETS[kind]
+    return f"IAU_2015:{code}" if _has_iau_code(code) else None
+
+
+@functools.lru_cache(maxsize=1)
+def _iau_codes() -> frozenset[int]:
+    from pyproj.database import get_codes
+
+    return frozenset(int(c) for c in get_codes("IAU_2015", "CRS"))
+
+
+def _has_iau_code(code: int) -> bool:
+    return code in _iau_codes()
+
+
+def body_from_radii(a: float, b: float | None = None, c: float | None = None, *,
+                    name: str | None = None, naif_id: int | None = None) -> Body:
+    """The body a sensor model's radii describe.
+
+    Parameters
+    ----------
+    a, b, c : float
+        Radii in metres (equatorial a, b; polar c).  ``b`` defaults to ``a``, ``c`` to
+        ``b`` (ISDs give semi-major and semi-minor: pass ``a, a, semi_minor``).
+    name, naif_id : optional
+        What the model says the body is (an ISIS ``TargetName``, a NAIF id).
+
+    Returns
+    -------
+    Body
+        The known body (by ``naif_id``, else ``name``, else a unique radius match against
+        PROJ's spheres and ellipsoids) carrying the given radii ``a, b, c`` and PROJ's
+        reference sphere; or, when PROJ knows no such body, a body named ``name`` (or
+        ``"unknown body"``) with ``naif_id`` and reference sphere radius ``a``.
+    """
+    b = a if b is None else b
+    c = b if c is None else c
+    radii = [float(a), float(b), float(c)]
+    if not all(math.isfinite(r) and r > 0 for r in radii):
+        raise ValueError(f"body radii must be positive finite metres, got {radii}")
+    known: Body | None = None
+    if naif_id is not None:
+        known = _registry()[0].get(int(naif_id))
+    if known is None and name:
+        found = _find_name(name)
+        known = body_by_naif_id(found) if found is not None else None
+    if known is None:
+        matches = [body for body in known_bodies()
+                   if math.isclose(body.radius, radii[0], rel_tol=RADIUS_RTOL)
+                   or (not body.is_sphere and math.isclose(body.a, radii[0], rel_tol=RADIUS_RTOL)
+                       and math.isclose(body.c, radii[2], rel_tol=RADIUS_RTOL))]
+        if len(matches) == 1:
+            known = matches[0]
+    if known is not None:
+        return Body(name=known.name, naif_id=known.naif_id, a=radii[0], b=radii[1],
+                    c=radii[2], radius=known.radius)
+    return Body(name=name or "unknown body", naif_id=naif_id, a=radii[0], b=radii[1],
+                c=radii[2], radius=radii[0])
+
+
+def body_from_crs(crs: Any) -> Body:
+    """The body a CRS is on, from its datum, ellipsoid and authority.
+
+    The body is recognised, in order, from an ``IAU_2015`` authority code, from a known
+    body name in the datum / ellipsoid / CRS names (PROJ's "Moon (2015) - Sphere",
+    ESRI's "D_Moon", ISIS's "Mars2000"...), or from a unique match of the ellipsoid's
+    radii; an Earth ellipsoid (semi-major axis within 0.1 % of 6 378 137 m, e.g. WGS 84,
+    GRS 80) is Earth.  The returned body's ``radius``, ``a`` and ``c`` are the CRS's own
+    ellipsoid (its reference surface), so two CRSs of one body with different reference
+    surfaces can be told apart.
+
+    Parameters
+    ----------
+    crs : pyproj.CRS, rasterio CRS, str
+        Any CRS; a projected or compound CRS is read through its geodetic CRS.
+
+    Returns
+    -------
+    Body
+        ``naif_id`` None when the body is not recognised (then ``name`` describes the
+        ellipsoid).
+    """
+    crs = to_pyproj_crs(crs)
+    geodetic = crs.geodetic_crs or crs
+    ellipsoid = geodetic.ellipsoid
+    a = float(ellipsoid.semi_major_metre)
+    c = float(ellipsoid.semi_minor_metre)
+    naif: int | None = None
+    for candidate in (crs, geodetic):
+        authority = candidate.to_authority(min_confidence=100)
+        if authority and authority[0] == "IAU_2015":
+            naif = int(authority[1]) // 100
+            break
+    if naif is None:
+        datum = geodetic.datum
+        for text in (datum.name if datum else "", ellipsoid.name, geodetic.name, crs.name):
+            if text:
+                naif = _find_name(text)
+                if naif is not None:
+                    break
+    if naif is None and math.isclose(a, 6378137.0, rel_tol=1e-3):
+        naif = EARTH_NAIF_ID
+    if naif is not None and naif in _registry()[0]:
+        known = body_by_naif_id(naif)
+        return Body(name=known.name, naif_id=known.naif_id, a=a, b=a, c=c, radius=a)
+    matched = body_from_radii(a, a, c)
+    if matched.naif_id is not None:
+        return Body(name=matched.name, naif_id=matched.naif_id, a=a, b=a, c=c, radius=a)
+    label = ellipsoid.name if ellipsoid.name and ellipsoid.name != "unknown" else \
+        f"unknown body (a={a:.10g} m, c={c:.10g} m)"
+    return Body(name=label, naif_id=None, a=a, b=a, c=c, radius=a)
+
+
+def same_body(first: Body, second: Body) -> bool:
+    """True when two bodies are the same: equal NAIF ids when both are known, else equal
+    reference radii (relative tolerance 1e-6)."""
+    if first.naif_id is not None and second.naif_id is not None:
+        return first.naif_id == second.naif_id
+    return math.isclose(first.radius, second.radius, rel_tol=RADIUS_RTOL) and \
+        math.isclose(first.c, second.c, rel_tol=RADIUS_RTOL)

@@ -1,0 +1,165 @@
+"""Planetocentric coordinates ↔ body-fixed XYZ, and local east-north-up frames.
+
+Body-fixed frame: the body's IAU rotating frame (``IAU_MOON``, ``IAU_MARS``, or the
+frame a sensor model's ephemeris is in), origin at the centre of mass, +Z the north
+pole, +X the prime meridian, metres.  Latitudes are **planetocentric** (the angle
+between the equator and the radius vector) and longitudes **east-positive**, in degrees,
+as in the IAU 2015 ``+0`` CRSs and ISIS's ``Ocentric``/``PositiveEast`` mapping.
+
+Heights are measured **radially** (along the radius vector), as ISIS does with its
+local radius: a point at latitude φ, longitude λ and height h above a reference
+surface of radius r_ref(φ, λ) in that direction is at distance r_ref + h from the
+centre.  For the reference sphere r_ref = R; for a triaxial ellipsoid
+r_ref = (u_x²/a² + u_y²/b² + u_z²/c²)^(-1/2) with u the unit radius vector
+(ISIS ``TriaxialEllipsoid``'s local radius; Archinal et al. 2018, Celest. Mech. Dyn.
+Astron. 130:22, sec. 3).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "enu_frame",
+    "local_radius",
+    "lonlat_height_to_xyz",
+    "unit_vector",
+    "wrap_longitude",
+    "xyz_to_lonlat_height",
+]
+
+
+def wrap_longitude(lon_deg: np.ndarray | float, center: float = 0.0) -> np.ndarray:
+    """Longitudes wrapped into [center − 180, center + 180), degrees."""
+    lon = np.asarray(lon_deg, dtype=np.float64)
+    return (lon - center + 180.0) % 360.0 - 180.0 + center
+
+
+def unit_vector(lon_deg: np.ndarray | float, lat_deg: np.ndarray | float) -> np.ndarray:
+    """Unit radius vector of planetocentric (lon, lat).
+
+    Parameters
+    ----------
+    lon_deg, lat_deg : float arrays (broadcastable), degrees
+        East-positive longitude, planetocentric latitude.
+
+    Returns
+    -------
+    (..., 3) float64
+        (cos φ cos λ, cos φ sin λ, sin φ) in the body-fixed frame.
+    """
+    lon = np.radians(np.asarray(lon_deg, dtype=np.float64))
+    lat = np.radians(np.asarray(lat_deg, dtype=np.float64))
+    lon, lat = np.broadcast_arrays(lon, lat)
+    cos_lat = np.cos(lat)
+    return np.stack([cos_lat * np.cos(lon), cos_lat * np.sin(lon), np.sin(lat)], axis=-1)
+
+
+def local_radius(unit: np.ndarray, radii: float | tuple[float, float, float]) -> np.ndarray:
+    """Radius of the reference surface along unit vectors.
+
+    Parameters
+    ----------
+    unit : (..., 3) float
+        Unit vectors from the body's centre.
+    radii : float or (a, b, c)
+        Sphere radius, or the triaxial ellipsoid's radii, metres.
+
+    Returns
+    -------
+    (...) float64, metres
+    """
+    u = np.asarray(unit, dtype=np.float64)
+    if np.ndim(radii) == 0:
+        return np.full(u.shape[:-1], float(radii))
+    a, b, c = (float(r) for r in radii)  # type: ignore[union-attr]
+    return 1.0 / np.sqrt((u[..., 0] / a) ** 2 + (u[..., 1] / b) ** 2 + (u[..., 2] / c) ** 2)
+
+
+def lonlat_height_to_xyz(lon_deg: np.ndarray | float, lat_deg: np.ndarray | float,
+                         height: np.ndarray | float = 0.0, *,
+                         radii: float | tuple[float, float, float]) -> np.ndarray:
+    """Body-fixed XYZ of planetocentric longitude, latitude and radial height.
+
+    Parameters
+    ----------
+    lon_deg, lat_deg : float arrays, degrees
+        East-positive longitude, planetocentric latitude (broadcastable).
+    height : float array, metres
+        Radial height above the reference surface (broadcastable).
+    radii : float or (a, b, c)
+        Reference sphere radius (demtool's maps: ``body.radius``) or ellipsoid radii,
+        metres.
+
+    Returns
+    -------
+    (..., 3) float64
+        Body-fixed X, Y, Z, metres.
+    """
+    unit = unit_vector(lon_deg, lat_deg)
+    h = np.asarray(height, dtype=np.float64)
+    distance = local_radius(unit, radii) + h
+    return unit * np.asarray(distance)[..., np.newaxis]
+
+
+def xyz_to_lonlat_height(xyz: np.ndarray, *, radii: float | tuple[float, float, float]
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Planetocentric longitude, latitude and radial height of body-fixed points.
+
+    Parameters
+    ----------
+    xyz : (..., 3) float
+        Body-fixed points, metres.
+    radii : float or (a, b, c)
+        Reference sphere radius or ellipsoid radii, metres.
+
+    Returns
+    -------
+    lon_deg : (...) float64
+        East-positive longitude in (−180, 180], degrees.
+    lat_deg : (...) float64
+        Planetocentric latitude, degrees.
+    height : (...) float64
+        Radial height above the reference surface, metres.
+    """
+    p = np.asarray(xyz, dtype=np.float64)
+    if p.shape[-1] != 3:
+        raise ValueError(f"xyz must have a last axis of 3, got shape {p.shape}")
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    horizontal = np.hypot(x, y)
+    distance = np.hypot(horizontal, z)
+    lon = np.degrees(np.arctan2(y, x))
+    lat = np.degrees(np.arctan2(z, horizontal))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        unit = p / distance[..., np.newaxis]
+    height = distance - local_radius(unit, radii)
+    return lon, lat, height
+
+
+def enu_frame(lon_deg: np.ndarray | float, lat_deg: np.ndarray | float) -> np.ndarray:
+    """Local east-north-up frames at planetocentric (lon, lat).
+
+    "Up" is the radius vector (the reference sphere's normal), east is along the
+    parallel, north along the meridian toward +Z.
+
+    Parameters
+    ----------
+    lon_deg, lat_deg : float arrays, degrees (broadcastable)
+
+    Returns
+    -------
+    (..., 3, 3) float64
+        Rows are the east, north and up unit vectors in the body-fixed frame, so
+        ``frame @ v`` gives a body-fixed vector's (e, n, u) components and
+        ``frame.swapaxes(-1, -2) @ enu`` turns local components back to body-fixed.
+    """
+    lon = np.radians(np.asarray(lon_deg, dtype=np.float64))
+    lat = np.radians(np.asarray(lat_deg, dtype=np.float64))
+    lon, lat = np.broadcast_arrays(lon, lat)
+    sl, cl = np.sin(lon), np.cos(lon)
+    sp, cp = np.sin(lat), np.cos(lat)
+    zero = np.zeros_like(lon)
+    east = np.stack([-sl, cl, zero], axis=-1)
+    north = np.stack([-sp * cl, -sp * sl, cp], axis=-1)
+    up = np.stack([cp * cl, cp * sl, sp], axis=-1)
+    return np.stack([east, north, up], axis=-2)

@@ -1,0 +1,133 @@
+"""Bodies, PROJ's IAU 2015 codes, and the body behind a CRS (also after a GeoTIFF trip)."""
+
+import numpy as np
+import pytest
+
+from demtool import io as dio
+from demtool import maps
+
+MOON_R = 1737400.0  # IAU 2015 / PROJ's Moon sphere
+MARS_A, MARS_C = 3396190.0, 3376200.0
+
+
+def test_lookup_by_naif_id_and_codes():
+    moon = maps.body_by_naif_id(301)
+    assert moon.name == "Moon" and moon.radii == (MOON_R, MOON_R, MOON_R)
+    assert moon.radius == MOON_R and moon.is_sphere
+    assert moon.iau_code() == "IAU_2015:30100"
+    assert moon.iau_code("equirectangular") == "IAU_2015:30110"
+    assert moon.iau_code("north_polar") == "IAU_2015:30130"
+    assert moon.iau_code("south_polar") == "IAU_2015:30135"
+    assert moon.iau_code("ographic") is None  # the Moon's IAU shape is a sphere
+    mars = maps.body_by_naif_id(499)
+    assert (mars.a, mars.b, mars.c, mars.radius) == (MARS_A, MARS_A, MARS_C, MARS_A)
+    assert mars.iau_code("ographic") == "IAU_2015:49901"
+    comet = maps.body_by_naif_id(1000012)  # 67P, as in the NavCam study
+    assert comet.name == "Churyumov-Gerasimenko"
+    assert comet.iau_code() == "IAU_2015:100001200"
+    with pytest.raises(KeyError, match="12345"):
+        maps.body_by_naif_id(12345)
+    with pytest.raises(ValueError, match="unknown IAU CRS kind"):
+        moon.iau_code("mercator-ish")
+
+
+@pytest.mark.parametrize("name, naif", [("Moon", 301), ("MOON", 301), ("mars", 499),
+                                        ("D_Moon", 301), ("GCS_Mars_2000_Sphere", 499),
+                                        ("67P/CHURYUMOV-GERASIMENKO (1969 R1)", 1000012),
+                                        ("Hartley 2", 1000041)])
+def test_lookup_by_name(name, naif):
+    assert maps.body_by_name(name).naif_id == naif
+
+
+def test_unknown_name_is_a_key_error():
+    with pytest.raises(KeyError, match="Vulcan"):
+        maps.body_by_name("Vulcan")
+
+
+def test_body_from_radii():
+    # an ISD gives semi-major and semi-minor radii
+    assert maps.body_from_radii(MOON_R, MOON_R, MOON_R).naif_id == 301
+    mars = maps.body_from_radii(MARS_A, MARS_A, MARS_C)
+    assert mars.naif_id == 499 and mars.radius == MARS_A
+    # the model's own radii are kept, the reference sphere is PROJ's
+    moon = maps.body_from_radii(1737150.0, name="MOON")
+    assert moon.naif_id == 301 and moon.a == 1737150.0 and moon.radius == MOON_R
+    unknown = maps.body_from_radii(2000.0, 1500.0, 1000.0, name="Toy")
+    assert unknown.naif_id is None and unknown.name == "Toy"
+    assert unknown.radius == 2000.0 and unknown.radii == (2000.0, 1500.0, 1000.0)
+    with pytest.raises(ValueError, match="positive"):
+        maps.body_from_radii(-1.0)
+
+
+@pytest.mark.parametrize("crs, naif", [
+    ("EPSG:4326", 399), ("EPSG:32633", 399), ("IAU_2015:30110", 301),
+    ("IAU_2015:49935", 499), ("+proj=longlat +R=1737400 +no_defs", 301),
+    ('GEOGCS["GCS_Moon_2000",DATUM["D_Moon_2000",SPHEROID["Moon_2000_IAU_IAG",1737400.0,0.0]],'
+     'PRIMEM["Reference_Meridian",0.0],UNIT["Degree",0.0174532925199433]]', 301),
+])
+def test_body_from_crs(crs, naif):
+    assert maps.body_from_crs(crs).naif_id == naif
+
+
+def test_body_from_crs_keeps_the_crs_reference_surface():
+    sphere = maps.body_from_crs("IAU_2015:49900")
+    ellipsoid = maps.body_from_crs("IAU_2015:49902")
+    assert sphere.naif_id == ellipsoid.naif_id == 499
+    assert sphere.c == MARS_A and ellipsoid.c == MARS_C
+
+
+def test_unknown_body_crs_round_trips_its_name():
+    toy = maps.body_from_radii(2500.0, name="Toy")
+    found = maps.body_from_crs(toy.geographic_crs())
+    assert found.naif_id is None and "Toy" in found.name and found.radius == 2500.0
+    assert maps.same_body(found, toy)
+    assert not maps.same_body(found, maps.body_from_radii(2600.0, name="Toy"))
+    assert "+R=2500" in toy.proj_string()
+    oblate = maps.body_from_radii(3000.0, 3000.0, 2000.0, name="Oblate")
+    ellipsoid = maps.to_pyproj_crs(oblate.proj_string("ellipsoid")).ellipsoid
+    assert (ellipsoid.semi_major_metre, ellipsoid.semi_minor_metre) == (3000.0, 2000.0)
+    assert maps.body_from_crs(oblate.proj_string()).radius == 3000.0
+    with pytest.raises(ValueError, match="unknown surface"):
+        oblate.proj_string("geoid")
+
+
+def test_same_body():
+    moon = maps.body_by_naif_id(301)
+    assert maps.same_body(moon, maps.body_from_crs("IAU_2015:30135"))
+    assert not maps.same_body(moon, maps.body_by_naif_id(499))
+    assert not maps.same_body(moon, maps.body_from_crs("EPSG:4326"))
+
+
+def test_tags_name_the_body():
+    tags = maps.body_by_naif_id(301).tags()
+    assert tags == {"body": "Moon", "body_naif_id": 301,
+                    "body_radii_m": [MOON_R, MOON_R, MOON_R],
+                    "reference_sphere_radius_m": MOON_R, "height_reference": "sphere"}
+
+
+@pytest.mark.parametrize("make", [
+    lambda moon: moon.geographic_crs(),
+    lambda moon: "IAU_2015:30135",
+    lambda moon: maps.make_projection(moon, "equirectangular", 33.0, 12.0),
+    lambda moon: maps.make_projection(moon, "polar-stereographic", 10.0, -84.0),
+])
+def test_geotiff_round_trip_keeps_body_and_projection(tmp_path, make):
+    from affine import Affine
+
+    moon = maps.body_by_naif_id(301)
+    crs = maps.to_pyproj_crs(make(moon))
+    data = np.arange(12, dtype=np.float32).reshape(3, 4)
+    data[0, 0] = np.nan
+    path = dio.write_raster(tmp_path / "dem.tif", data, transform=Affine(5, 0, 0, 0, -5, 0),
+                            crs=crs, tags=moon.tags())
+    raster = dio.read_raster(path)
+    back = maps.to_pyproj_crs(raster.crs)
+    assert maps.body_from_crs(back).naif_id == 301
+    assert raster.tag_json("body_naif_id") == 301
+    assert raster.tag_json("reference_sphere_radius_m") == MOON_R
+    assert np.isnan(raster.data[0, 0]) and raster.data.dtype == np.float32
+    # the same map coordinates from the written and the read CRS
+    lon = np.array([30.0, 35.0, 10.0])
+    lat = np.array([10.0, 14.0, -85.0]) if not crs.is_geographic else np.array([1.0, 2, 3])
+    np.testing.assert_allclose(np.column_stack(maps.lonlat_to_map(back, lon, lat)),
+                               np.column_stack(maps.lonlat_to_map(crs, lon, lat)), atol=1e-6)

@@ -63,14 +63,51 @@ def test_sixteen_paths_and_options(smooth_pair):
 
 def test_left_right_check_marks_the_occlusion_invalid():
     left, right, truth, occluded = occlusion_pair()
-    checked = sgm(left, right, min_disparity=0, num_disparities=20, cost="census")
+    checked = sgm(left, right, min_disparity=0, num_disparities=20, cost="census", fill=False)
     unchecked = sgm(left, right, min_disparity=0, num_disparities=20, cost="census",
-                    lr_check=False)
+                    lr_check=False, fill=False)
     assert np.isnan(checked.disparity[occluded]).mean() > 0.7
     assert np.isnan(unchecked.disparity[occluded]).mean() < 0.1
     visible = nonoccluded(truth) & ~occluded
     rates = error_rates(checked.disparity, truth, visible)
     assert rates["bad2"] < 0.02 and rates["density"] > 0.95, rates
+
+
+@pytest.mark.parametrize("cost", ["census", "hmi"])
+def test_fill_gives_occlusions_the_background_with_zero_confidence(cost):
+    left, right, truth, occluded = occlusion_pair()  # background 4, box 14
+    rejected = np.isnan(sgm(left, right, min_disparity=0, num_disparities=20, cost=cost,
+                            fill=False).disparity)
+    filled = sgm(left, right, min_disparity=0, num_disparities=20, cost=cost)
+    assert filled.parameters["fill"] is True
+    hole = occluded & rejected
+    assert hole.sum() > 0.5 * occluded.sum()
+    # the occluded strip takes the background's 4 px, not the box's 14 px
+    assert np.mean(np.abs(filled.disparity[hole] - 4.0) < 1.0) > 0.8
+    assert np.all(filled.confidence[hole & np.isfinite(filled.disparity)] == 0.0)
+    # everything the right view could match is filled; pixels kept are unchanged
+    assert np.isfinite(filled.disparity[:, 20:]).all()
+    kept = ~rejected
+    assert np.mean(np.abs(filled.disparity[kept] - truth[kept]) < 1.0) > 0.97
+
+
+def test_fill_invalid_background_and_median():
+    from demtool.sgm.disparity import fill_invalid
+
+    disparity = np.full((5, 9), 10.0, dtype=np.float32)
+    disparity[:, 5:] = 3.0  # a far surface right of a near one
+    disparity[2, 4] = np.nan  # occluded: takes the background (second lowest)
+    disparity[0:2, 1] = np.nan  # mismatches inside the near surface: the median
+    occluded = np.zeros(disparity.shape, bool)
+    occluded[2, 4] = True
+    usable = np.ones(disparity.shape, bool)
+    usable[4, 0] = False  # outside the left image: never filled
+    disparity[4, 0] = np.nan
+    out = fill_invalid(disparity, occluded, usable)
+    assert out[2, 4] == 3.0
+    assert np.all(out[0:2, 1] == 10.0)
+    assert np.isnan(out[4, 0])
+    assert np.isnan(disparity[2, 4])  # input not modified
 
 
 @pytest.mark.parametrize("shift", [2.25, 2.5])

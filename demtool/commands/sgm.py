@@ -183,6 +183,9 @@ default cost is hierarchical mutual information (HMI, 1/16 → 1).""")
               show_default=True,
               help="Drop pixels whose confidence (S2-S1)/S2 is below this (0.1 = OpenCV's "
                    "uniquenessRatio 10).")
+@click.option("--fill/--no-fill", default=True, show_default=True,
+              help="Fill pixels left invalid from their neighbours (occlusions from the "
+                   "background); they get confidence 0.")
 @click.option("--confidence", "confidence", type=click.Path(dir_okay=False), default=None,
               help="Also write a confidence raster (0..1) here.")
 @click.option("--max-memory-mb", type=click.FloatRange(min=64), default=1400.0,

@@ -99,10 +99,12 @@ class SGMResult:
 
 def _postprocess(disparity: np.ndarray, confidence: np.ndarray, *, speckle_size: int,
                  speckle_range: float, median: int, timer: PhaseTimer, uniqueness: float = 0.0,
-                 fill_mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 fill_mask: np.ndarray | None = None, right_valid: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """Uniqueness, speckles, median, then (with ``fill_mask``) the invalid-pixel fill.
 
-    Filled pixels get confidence 0.
+    Filled pixels get confidence 0; those whose match falls outside the right image or
+    on one of its invalid pixels stay NaN.
     """
     with timer.measure("postprocess"):
         occluded = confidence == OCCLUDED
@@ -117,9 +119,24 @@ def _postprocess(disparity: np.ndarray, confidence: np.ndarray, *, speckle_size:
         if fill_mask is not None:
             before = np.isfinite(disparity)
             disparity = fill_invalid(disparity, occluded & ~before, fill_mask)
-            confidence = np.where(np.isfinite(disparity) & ~before, np.float32(0.0),
-                                  confidence)
+            disparity = _matchable(disparity, right_valid)
+            confidence = np.where(np.isfinite(disparity),
+                                  np.where(before, confidence, np.float32(0.0)),
+                                  np.float32(np.nan))
     return disparity, confidence.astype(np.float32)
+
+
+def _matchable(disparity: np.ndarray, right_valid: np.ndarray) -> np.ndarray:
+    """NaN where the match x − d (rounded) is outside the right image or invalid there."""
+    height, width = disparity.shape
+    rows, cols = np.nonzero(np.isfinite(disparity))
+    matched = np.rint(cols - disparity[rows, cols]).astype(np.int64)
+    inside = (matched >= 0) & (matched < width)
+    bad = ~inside
+    bad[inside] = ~right_valid[rows[inside], matched[inside]]
+    out = disparity.copy()
+    out[rows[bad], cols[bad]] = np.nan
+    return out
 
 
 def noise_sigma(image: np.ndarray, valid: np.ndarray) -> float:
@@ -358,7 +375,8 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
     disparity, confidence = _postprocess(disparity, confidence, speckle_size=speckle_size,
                                          speckle_range=speckle_range, median=median,
                                          timer=timer, uniqueness=uniqueness,
-                                         fill_mask=left_valid if fill else None)
+                                         fill_mask=left_valid if fill else None,
+                                         right_valid=right_valid)
     timings = {k: round(v, 3) for k, v in timer.seconds.items()}
     timings["total"] = round(time.perf_counter() - start, 3)
     parameters = dict(cost=cost, census_window=census_window, cost_window=window,

@@ -19,8 +19,9 @@ RECTIFY_NPZ = "rectify.npz"
 def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
                 out_dir: str | os.PathLike, *, min_matches: int = 30, ratio: float = 0.8,
                 ransac_threshold: float = 1.0, max_vertical_residual: float = 1.0,
-                shear: bool = True, disparity_margin: float = 8.0, max_features: int = 0,
+                shear: bool = True, disparity_margin: float = 4.0, max_features: int = 0,
                 contrast_threshold: float = 0.04, seed: int = 0,
+                disparity_range: tuple[float, float] | None = None,
                 params: dict[str, Any] | None = None):
     """Rectify LEFT and RIGHT into ``out_dir``: left_rect.tif, right_rect.tif, rectify.npz.
 
@@ -57,7 +58,8 @@ def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
                           ratio=ratio, ransac_threshold=ransac_threshold,
                           max_vertical_residual=max_vertical_residual, shear=shear,
                           disparity_margin=disparity_margin, max_features=max_features,
-                          contrast_threshold=contrast_threshold, seed=seed, what=pair)
+                          contrast_threshold=contrast_threshold, seed=seed,
+                          disparity_range=disparity_range or None, what=pair)
     left_rect = warp_to_rectified(left_image.data, result.H_left, result.size_rect)
     right_rect = warp_to_rectified(right_image.data, result.H_right, result.size_rect)
     residuals = result.vertical_residuals
@@ -133,9 +135,12 @@ centred on zero over the control points.""")
               help="Drop control points whose rectified rows differ by more (px), re-estimate.")
 @click.option("--shear/--no-shear", default=True, show_default=True,
               help="Loop-Zhang shear keeping rectified pixels square.")
-@click.option("--disparity-margin", type=click.FloatRange(0.0), default=8.0, show_default=True,
-              help="Pixels added to each side of the inliers' disparity range "
-                   "(plus 10 % of its span).")
+@click.option("--disparity-margin", type=click.FloatRange(0.0), default=4.0, show_default=True,
+              help="Least pixels added to each side of the inliers' robust disparity range "
+                   "(1st-99th percentile; 10 % of its span when more).")
+@click.option("--disparity-range", type=(float, float), default=None,
+              metavar="MIN MAX", help="Disparity search range to record, px (default: from "
+                                      "the control points).")
 @click.option("--max-features", type=click.IntRange(min=0), default=0, show_default=True,
               help="SIFT keypoints kept per image, strongest first (0 = all).")
 @click.option("--contrast-threshold", type=click.FloatRange(0.0, min_open=True), default=0.04,

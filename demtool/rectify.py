@@ -66,7 +66,7 @@ DISPARITY_PERCENTILES = (1.0, 99.0)
 PARALLAX_NOISE_RATIO = 5.0
 
 
-def robust_disparity_range(disparities: np.ndarray, *, margin: float = 4.0,
+def robust_disparity_range(disparities: np.ndarray, *, margin: float = 2.0,
                            percentiles: tuple[float, float] = DISPARITY_PERCENTILES,
                            margin_fraction: float = DISPARITY_MARGIN_FRACTION) -> np.ndarray:
     """Search range of the dense matcher from the control points' disparities.
@@ -437,7 +437,7 @@ def _finish(F: np.ndarray, pl: np.ndarray, pr: np.ndarray, size_left: np.ndarray
 
 def rectify_matches(points_left: np.ndarray, points_right: np.ndarray, size_left, size_right, *,
                     ransac_threshold: float = 1.0, max_vertical_residual: float = 1.0,
-                    shear: bool = True, disparity_margin: float = 4.0, min_inliers: int = 8,
+                    shear: bool = True, disparity_margin: float = 2.0, min_inliers: int = 8,
                     max_iterations: int = 20, seed: int = 0, n_matches: int | None = None,
                     disparity_range: tuple[float, float] | None = None,
                     what: str = "the image pair") -> Rectification:
@@ -541,7 +541,7 @@ def rectify_matches(points_left: np.ndarray, points_right: np.ndarray, size_left
 def rectify_pair(left: np.ndarray, right: np.ndarray, *, min_matches: int = 30,
                  ratio: float = 0.8, ransac_threshold: float = 1.0,
                  max_vertical_residual: float = 1.0, shear: bool = True,
-                 disparity_margin: float = 4.0, max_features: int = 0,
+                 disparity_margin: float = 2.0, max_features: int = 0,
                  contrast_threshold: float = 0.04, seed: int = 0,
                  disparity_range: tuple[float, float] | None = None,
                  what: str = "the image pair") -> Rectification:

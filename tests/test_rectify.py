@@ -274,7 +274,7 @@ def test_gross_mismatches_on_epipolar_lines_keep_the_range(scene, result):
             - apply_homography(corrupted.H_right, ur[good])[:, 0])
     span = true.max() - true.min()
     low, high = corrupted.disparity_range
-    slack = max(4.0, 0.1 * span)  # the least margin, or 10 % of the span
+    slack = max(2.0, 0.1 * span)  # the least margin, or 10 % of the span
     assert true.min() - slack - 0.5 <= low <= np.percentile(true, 1)
     assert np.percentile(true, 99) <= high <= true.max() + slack + 0.5
 

@@ -19,7 +19,7 @@ RECTIFY_NPZ = "rectify.npz"
 def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
                 out_dir: str | os.PathLike, *, min_matches: int = 30, ratio: float = 0.8,
                 ransac_threshold: float = 1.0, max_vertical_residual: float = 1.0,
-                shear: bool = True, disparity_margin: float = 4.0, max_features: int = 0,
+                shear: bool = True, disparity_margin: float = 2.0, max_features: int = 0,
                 contrast_threshold: float = 0.04, seed: int = 0,
                 disparity_range: tuple[float, float] | None = None,
                 params: dict[str, Any] | None = None):
@@ -135,7 +135,7 @@ centred on zero over the control points.""")
               help="Drop control points whose rectified rows differ by more (px), re-estimate.")
 @click.option("--shear/--no-shear", default=True, show_default=True,
               help="Loop-Zhang shear keeping rectified pixels square.")
-@click.option("--disparity-margin", type=click.FloatRange(0.0), default=4.0, show_default=True,
+@click.option("--disparity-margin", type=click.FloatRange(0.0), default=2.0, show_default=True,
               help="Least pixels added to each side of the inliers' robust disparity range "
                    "(1st-99th percentile; 10 % of its span when more).")
 @click.option("--disparity-range", type=(float, float), default=None,

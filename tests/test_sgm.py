@@ -406,3 +406,35 @@ def test_sweep_kernel_cache_key_covers_the_kernels_it_inlines():
     assert callee_sources_digest() == expected
     cells = [c.cell_contents for c in aggregate.sweep_rows.py_func.__closure__]
     assert expected in cells
+
+
+def test_fill_invalid_matches_a_brute_force_search():
+    from demtool.sgm.disparity import fill_invalid
+
+    rng = np.random.default_rng(7)
+    disparity = rng.uniform(0, 20, (23, 31)).astype(np.float32)
+    disparity[rng.random(disparity.shape) < 0.6] = np.nan
+    occluded = rng.random(disparity.shape) < 0.5
+    usable = rng.random(disparity.shape) < 0.9
+    out = fill_invalid(disparity, occluded, usable)
+    height, width = disparity.shape
+    for y in range(height):
+        for x in range(width):
+            if np.isfinite(disparity[y, x]) or not usable[y, x]:
+                assert out[y, x] == disparity[y, x] or np.isnan(out[y, x])
+                continue
+            found = []
+            for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1)):
+                yy, xx = y + dy, x + dx
+                while 0 <= yy < height and 0 <= xx < width and usable[yy, xx]:
+                    if np.isfinite(disparity[yy, xx]):
+                        found.append(disparity[yy, xx])
+                        break
+                    yy, xx = yy + dy, xx + dx
+            found.sort()
+            if not found:
+                assert np.isnan(out[y, x])
+            elif occluded[y, x]:
+                assert out[y, x] == (found[1] if len(found) > 2 else found[0])
+            else:
+                assert out[y, x] == pytest.approx(float(np.median(found)))

@@ -184,38 +184,83 @@ _DIRECTIONS = np.array([[0, 1], [0, -1], [1, 0], [-1, 0], [1, 1], [1, -1], [-1, 
 
 
 @njit(nogil=True, cache=True)
+def _nearest_along(disparity, usable, index, dy, dx, found, k):
+    """found[k, index[y, x]] = the first valid disparity at (y, x) + t (dy, dx), t ≥ 1.
+
+    One pass from the far end, carrying per column the nearest valid value at or
+    beyond each pixel (NaN past a pixel outside ``usable``): O(H W) per direction.
+    """
+    height, width = disparity.shape
+    carry = np.full(width, np.nan, dtype=np.float32)
+    new = np.full(width, np.nan, dtype=np.float32)
+    first, last, step = (height - 1, -1, -1) if dy > 0 else (0, height, 1)
+    for y in range(first, last, step):
+        if dy == 0:  # along the row, from its far end
+            ahead = np.float32(np.nan)
+            x0, x1, sx = (width - 1, -1, -1) if dx > 0 else (0, width, 1)
+            for x in range(x0, x1, sx):
+                if index[y, x] >= 0:
+                    found[k, index[y, x]] = ahead
+                value = disparity[y, x]
+                if not usable[y, x]:
+                    ahead = np.float32(np.nan)
+                elif np.isfinite(value):
+                    ahead = value
+            continue
+        for x in range(width):
+            xx = x + dx
+            ahead = carry[xx] if 0 <= xx < width else np.float32(np.nan)
+            if index[y, x] >= 0:
+                found[k, index[y, x]] = ahead
+            value = disparity[y, x]
+            if not usable[y, x]:
+                new[x] = np.nan
+            elif np.isfinite(value):
+                new[x] = value
+            else:
+                new[x] = ahead
+        for x in range(width):
+            carry[x] = new[x]
+
+
+@njit(nogil=True, cache=True)
 def _fill(disparity, occluded, usable, directions, out):
     height, width = disparity.shape
-    found = np.empty(directions.shape[0], dtype=np.float32)
+    index = np.full((height, width), -1, dtype=np.int64)
+    count = 0
     for y in range(height):
         for x in range(width):
-            if np.isfinite(disparity[y, x]) or not usable[y, x]:
+            if usable[y, x] and not np.isfinite(disparity[y, x]):
+                index[y, x] = count
+                count += 1
+    n_dir = directions.shape[0]
+    found = np.empty((n_dir, count), dtype=np.float32)
+    for k in range(n_dir):
+        _nearest_along(disparity, usable, index, directions[k, 0], directions[k, 1], found, k)
+    values = np.empty(n_dir, dtype=np.float32)
+    for y in range(height):
+        for x in range(width):
+            i = index[y, x]
+            if i < 0:
                 continue
-            count = 0
-            for k in range(directions.shape[0]):
-                dy, dx = directions[k, 0], directions[k, 1]
-                yy, xx = y + dy, x + dx
-                while 0 <= yy < height and 0 <= xx < width and usable[yy, xx]:
-                    value = disparity[yy, xx]
-                    if np.isfinite(value):
-                        # insertion sort of the values found so far
-                        j = count
-                        while j > 0 and found[j - 1] > value:
-                            found[j] = found[j - 1]
-                            j -= 1
-                        found[j] = value
-                        count += 1
-                        break
-                    yy += dy
-                    xx += dx
-            if count == 0:
+            n = 0
+            for k in range(n_dir):
+                value = found[k, i]
+                if np.isfinite(value):  # insertion sort
+                    j = n
+                    while j > 0 and values[j - 1] > value:
+                        values[j] = values[j - 1]
+                        j -= 1
+                    values[j] = value
+                    n += 1
+            if n == 0:
                 continue
             if occluded[y, x]:  # the background: the second lowest (one outlier allowed)
-                out[y, x] = found[1] if count > 2 else found[0]
-            elif count % 2 == 1:
-                out[y, x] = found[count // 2]
+                out[y, x] = values[1] if n > 2 else values[0]
+            elif n % 2 == 1:
+                out[y, x] = values[n // 2]
             else:
-                out[y, x] = 0.5 * (found[count // 2 - 1] + found[count // 2])
+                out[y, x] = 0.5 * (values[n // 2 - 1] + values[n // 2])
 
 
 def fill_invalid(disparity: np.ndarray, occluded: np.ndarray, usable: np.ndarray

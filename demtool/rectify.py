@@ -58,6 +58,42 @@ log = get_logger(__name__)
 MAX_CANVAS_GROWTH = 4.0
 #: Fraction of the inlier disparity span added to each side of the disparity range.
 DISPARITY_MARGIN_FRACTION = 0.1
+#: Percentiles of the inlier disparities that bound the range (robust to a few gross
+#: mismatches that lie on their epipolar line and so pass every geometric test).
+DISPARITY_PERCENTILES = (1.0, 99.0)
+#: The GRIC test refuses a pair only if its RMS residual parallax (after the best
+#: homography) is also below this many times the matching noise σ.
+PARALLAX_NOISE_RATIO = 5.0
+
+
+def robust_disparity_range(disparities: np.ndarray, *, margin: float = 2.0,
+                           percentiles: tuple[float, float] = DISPARITY_PERCENTILES,
+                           margin_fraction: float = DISPARITY_MARGIN_FRACTION) -> np.ndarray:
+    """Search range of the dense matcher from the control points' disparities.
+
+    The ``percentiles`` of the disparities, widened on each side by the larger of
+    ``margin`` pixels and ``margin_fraction`` of the span between them.  A gross
+    mismatch that happens to lie on its epipolar line passes RANSAC and the
+    vertical-residual loop; with the minimum and maximum it would widen the range
+    arbitrarily (one match at 376 px where the rest lie in −10 … 30).
+
+    Parameters
+    ----------
+    disparities : (N,) float
+        ``x_left_rect − x_right_rect`` of the control points, pixels.
+
+    Returns
+    -------
+    (2,) float64
+        (min, max) disparity, pixels.
+    """
+    d = np.asarray(disparities, np.float64)
+    d = d[np.isfinite(d)]
+    if d.size == 0:
+        raise ProcessingError("no control point disparity to set the disparity range from")
+    low, high = np.percentile(d, percentiles) if d.size >= 20 else (d.min(), d.max())
+    pad = max(float(margin), margin_fraction * float(high - low))
+    return np.array([low - pad, high + pad])
 
 
 @dataclass(frozen=True)
@@ -77,8 +113,9 @@ class Rectification:
     points_left_rect, points_right_rect : (N, 2) float64
         The same points in rectified coordinates.
     disparity_range : (2,) float64
-        (min, max) of ``x_left_rect - x_right_rect`` over the inliers, widened by the
-        margin; pixels.
+        (min, max) search range, pixels: the 1st and 99th percentiles of
+        ``x_left_rect - x_right_rect`` over the inliers widened by the margin
+        (:func:`robust_disparity_range`), or the range the caller gave.
     rms_vertical_residual : float
         RMS of ``y_left_rect - y_right_rect`` over the inliers, pixels.
     n_matches : int
@@ -337,14 +374,24 @@ def _check_parallax(F: np.ndarray, points_left: np.ndarray, points_right: np.nda
     difference, sigma = gric_difference(F, H, points_left, points_right)
     transfer = np.linalg.norm(apply_homography(H, points_left) - points_right, axis=1)
     parallax = float(np.sqrt(np.nanmean(transfer**2)))
+    beyond = int(np.sum(transfer > 3.0 * sigma))
     log.debug("%s: GRIC(H) - GRIC(F) = %.1f; RMS residual parallax %.3f px, noise σ %.3f px",
               what, difference, parallax, sigma)
+    if difference <= 0 and parallax > PARALLAX_NOISE_RATIO * sigma:
+        # GRIC caps each point's cost, so a dominant plane plus strong parallax elsewhere
+        # can favour H; that parallax is what determines F
+        log.info("%s: GRIC prefers a homography (GRIC(H) − GRIC(F) = %.1f), but the RMS "
+                 "residual parallax %.2f px is %.0f× the matching noise %.2f px (%d of %d "
+                 "matches beyond 3σ): kept", what, difference, parallax,
+                 parallax / sigma, sigma, beyond, len(points_left))
+        return
     if difference <= 0:
         raise ProcessingError(
             f"{what}: one homography explains the {len(points_left)} matches as well as a "
-            f"fundamental matrix (RMS residual parallax {parallax:.2f} px for a matching "
-            f"noise of {sigma:.2f} px): no parallax (identical images, a pure rotation or a "
-            "flat scene), so the epipolar geometry is undefined")
+            f"fundamental matrix (GRIC(H) − GRIC(F) = {difference:.1f}; RMS residual "
+            f"parallax {parallax:.2f} px for a matching noise σ of {sigma:.2f} px, "
+            f"{beyond} matches beyond 3σ): no parallax (identical images, a pure rotation "
+            "or a flat scene), so the epipolar geometry is undefined")
 
 
 def _canvas(H_left: np.ndarray, H_right: np.ndarray, size_left: np.ndarray,
@@ -390,8 +437,9 @@ def _finish(F: np.ndarray, pl: np.ndarray, pr: np.ndarray, size_left: np.ndarray
 
 def rectify_matches(points_left: np.ndarray, points_right: np.ndarray, size_left, size_right, *,
                     ransac_threshold: float = 1.0, max_vertical_residual: float = 1.0,
-                    shear: bool = True, disparity_margin: float = 8.0, min_inliers: int = 8,
+                    shear: bool = True, disparity_margin: float = 2.0, min_inliers: int = 8,
                     max_iterations: int = 20, seed: int = 0, n_matches: int | None = None,
+                    disparity_range: tuple[float, float] | None = None,
                     what: str = "the image pair") -> Rectification:
     """Rectify a pair from its (putative) matches: robust F, Hartley, the outlier loop.
 
@@ -409,7 +457,9 @@ def rectify_matches(points_left: np.ndarray, points_right: np.ndarray, size_left
     shear : bool
         Apply the Loop–Zhang shear (square pixels, aspect ratio kept).
     disparity_margin : float
-        Pixels added on each side of the inliers' disparity range (plus 10 % of the span).
+        Least number of pixels added on each side of the inliers' robust disparity
+        range (their 1st and 99th percentiles); 10 % of its span when that is more
+        (:func:`robust_disparity_range`).
     min_inliers : int
         Fewer final inliers is an error.
     max_iterations : int
@@ -418,6 +468,8 @@ def rectify_matches(points_left: np.ndarray, points_right: np.ndarray, size_left
         RANSAC seed.
     n_matches : int, optional
         Number of matches before this step (for the report); default N.
+    disparity_range : (float, float), optional
+        The (min, max) disparity to report instead of the one from the control points.
     what : str
         Name of the pair for messages, e.g. ``"left.tif / right.tif"``.
 
@@ -435,6 +487,10 @@ def rectify_matches(points_left: np.ndarray, points_right: np.ndarray, size_left
         raise ParameterError(f"max_vertical_residual must be > 0, got {max_vertical_residual}")
     if disparity_margin < 0:
         raise ParameterError(f"disparity_margin must be >= 0, got {disparity_margin}")
+    if disparity_range is not None and not (
+            np.all(np.isfinite(disparity_range)) and disparity_range[0] < disparity_range[1]):
+        raise ParameterError(f"--disparity-range MIN MAX needs finite MIN < MAX, got "
+                             f"{disparity_range[0]:g} {disparity_range[1]:g}")
     pl_all = np.asarray(points_left, np.float64).reshape(-1, 2)
     pr_all = np.asarray(points_right, np.float64).reshape(-1, 2)
     size_left = np.asarray(size_left, np.int64).reshape(2)
@@ -468,10 +524,10 @@ def rectify_matches(points_left: np.ndarray, points_right: np.ndarray, size_left
         F = features.fit_fundamental(pl, pr)
     left_rect = apply_homography(H_left, pl)
     right_rect = apply_homography(H_right, pr)
-    disparity = left_rect[:, 0] - right_rect[:, 0]
-    span = float(disparity.max() - disparity.min())
-    margin = disparity_margin + DISPARITY_MARGIN_FRACTION * span
-    disparity_range = np.array([disparity.min() - margin, disparity.max() + margin])
+    if disparity_range is None:
+        disparity_range = robust_disparity_range(left_rect[:, 0] - right_rect[:, 0],
+                                                 margin=disparity_margin)
+    disparity_range = np.asarray(disparity_range, np.float64).reshape(2)
     rms = float(np.sqrt(np.mean((left_rect[:, 1] - right_rect[:, 1]) ** 2)))
     return Rectification(
         H_left=H_left, H_right=H_right, F=F, size_left=size_left, size_right=size_right,
@@ -485,8 +541,9 @@ def rectify_matches(points_left: np.ndarray, points_right: np.ndarray, size_left
 def rectify_pair(left: np.ndarray, right: np.ndarray, *, min_matches: int = 30,
                  ratio: float = 0.8, ransac_threshold: float = 1.0,
                  max_vertical_residual: float = 1.0, shear: bool = True,
-                 disparity_margin: float = 8.0, max_features: int = 0,
+                 disparity_margin: float = 2.0, max_features: int = 0,
                  contrast_threshold: float = 0.04, seed: int = 0,
+                 disparity_range: tuple[float, float] | None = None,
                  what: str = "the image pair") -> Rectification:
     """Uncalibrated rectification of two images (the SIAM route of the NavCam study).
 
@@ -502,7 +559,8 @@ def rectify_pair(left: np.ndarray, right: np.ndarray, *, min_matches: int = 30,
         SIFT keypoints kept per image, the strongest first (0 = all).
     contrast_threshold : float
         SIFT contrast threshold.
-    ransac_threshold, max_vertical_residual, shear, disparity_margin, seed, what
+    ransac_threshold, max_vertical_residual, shear, disparity_margin, seed,
+    disparity_range, what
         See :func:`rectify_matches`.
 
     Returns
@@ -529,4 +587,5 @@ def rectify_pair(left: np.ndarray, right: np.ndarray, *, min_matches: int = 30,
                            size_left, size_right, ransac_threshold=ransac_threshold,
                            max_vertical_residual=max_vertical_residual, shear=shear,
                            disparity_margin=disparity_margin, min_inliers=min_matches,
-                           seed=seed, n_matches=len(pairs), what=what)
+                           seed=seed, n_matches=len(pairs), disparity_range=disparity_range,
+                           what=what)

@@ -32,11 +32,21 @@ class RectifyParams(Parameters):
     shear: bool = parameter(CORE["shear"], "Loop-Zhang shear keeping rectified pixels "
                             "square.")
     disparity_margin: float = parameter(
-        CORE["disparity_margin"], "Pixels added to each side of the inliers' disparity "
-        "range (plus 10 % of its span).", minimum=0.0)
+        CORE["disparity_margin"], "Least pixels added to each side of the inliers' robust "
+        "disparity range (1st-99th percentile; 10 % of its span when more).", minimum=0.0)
+    disparity_range: tuple[float, float] | None = parameter(
+        None, "Disparity search range to record, px (default: from the control points).",
+        metavar="MIN MAX", cli=False)
     max_features: int = parameter(CORE["max_features"], "SIFT keypoints kept per image, "
                                   "strongest first (0 = all).", minimum=0)
     contrast_threshold: float = parameter(
         CORE["contrast_threshold"], "SIFT contrast threshold (lower: more keypoints).",
         minimum=0.0, min_open=True)
     seed: int = seed_field()
+
+    def check(self) -> None:
+        super().check()
+        given = self.disparity_range
+        if given is not None and not (len(given) == 2 and given[0] < given[1]):
+            self.fail("disparity_range", f"must be MIN MAX with MIN < MAX, got "
+                      f"{' '.join(f'{v:g}' for v in given)}")

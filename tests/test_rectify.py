@@ -158,3 +158,82 @@ def test_warp_and_inverse_mapping():
     np.testing.assert_allclose(back_left[:, 0] - back_right[:, 0], 4.25, atol=1e-9)
     np.testing.assert_allclose(back_left[:, 1], back_right[:, 1], atol=1e-9)
     np.testing.assert_allclose(rectified_to_original(back_left, H_left), left, atol=1e-9)
+
+
+# ------------------------------------------------------------ disparity range, GRIC (issue 13)
+
+
+def test_robust_disparity_range_ignores_gross_mismatches():
+    rng = np.random.default_rng(3)
+    true = rng.uniform(-10.0, 30.0, 2000)
+    gross = rng.uniform(-400.0, 400.0, 20)  # 1 % anywhere in ±400 px
+    low, high = rectify.robust_disparity_range(np.concatenate([true, gross]))
+    span = true.max() - true.min()
+    # covers the true range and stays within it + 10 % of its span on each side
+    assert low <= true.min() and high >= true.max() - 0.5
+    assert low >= true.min() - 0.1 * span and high <= true.max() + 0.1 * span
+    # the minimum and maximum would have searched over ten times as many disparities
+    assert (gross.max() - gross.min()) > 10 * (high - low)
+    with pytest.raises(ProcessingError, match="no control point"):
+        rectify.robust_disparity_range(np.array([np.nan]))
+
+
+def test_gross_mismatches_on_epipolar_lines_keep_the_range(stereo_scene, result):
+    _, ul, ur = _truth_points(stereo_scene, count=1500, seed=9)
+    rng = np.random.default_rng(4)
+    bad = rng.choice(len(ul), size=max(3, len(ul) // 100), replace=False)
+    # move the right point along its epipolar line by 100 … 400 px: F still holds
+    lines = (np.column_stack([ul, np.ones(len(ul))]) @ result.F.T)[bad]
+    direction = np.column_stack([lines[:, 1], -lines[:, 0]])
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    shifted = ur.copy()
+    shifted[bad] += direction * (rng.uniform(100, 400, len(bad)) * rng.choice([-1, 1],
+                                                                              len(bad)))[:, None]
+    size = np.array([SIZE, SIZE])
+    corrupted = rectify.rectify_matches(ul, shifted, size, size, what="corrupted")
+    good = np.setdiff1d(np.arange(len(ul)), bad)
+    true = (apply_homography(corrupted.H_left, ul[good])[:, 0]
+            - apply_homography(corrupted.H_right, ur[good])[:, 0])
+    span = true.max() - true.min()
+    low, high = corrupted.disparity_range
+    slack = max(2.0, 0.1 * span)  # the least margin, or 10 % of the span
+    assert true.min() - slack - 0.5 <= low <= np.percentile(true, 1)
+    assert np.percentile(true, 99) <= high <= true.max() + slack + 0.5
+
+
+def _plane_and_parallax(parallax_fraction, parallax_px, noise_px=0.25, n=400, seed=0):
+    """Matches induced by a plane (homography H) plus horizontal parallax on a fraction.
+
+    With the epipole at infinity along x, x_right = H x_left + (ρ, 0) is consistent
+    with F = [e']× H for any ρ (plane + parallax).
+    """
+    rng = np.random.default_rng(seed)
+    left = rng.uniform(20, 480, (n, 2))
+    H = np.array([[1.02, 0.01, 12.0], [0.004, 0.99, -3.0], [1e-5, -2e-5, 1.0]])
+    right = apply_homography(H, left)
+    off_plane = rng.random(n) < parallax_fraction
+    right[off_plane, 0] += rng.uniform(-parallax_px, parallax_px, off_plane.sum())
+    right += rng.normal(0, noise_px, right.shape)
+    left += rng.normal(0, noise_px, left.shape)
+    return left, right
+
+
+def test_a_dominant_plane_with_strong_parallax_is_not_refused():
+    left, right = _plane_and_parallax(0.1, 25.0)  # RMS parallax ~4 px, σ ~0.26 px
+    import cv2 as _cv2
+
+    H, _ = _cv2.findHomography(left, right, _cv2.RANSAC, 1.0)
+    F, inliers = rectify.features.ransac_fundamental(left, right, threshold_px=1.0, seed=0,
+                                                     what="rover")
+    difference, sigma = rectify.gric_difference(F, H, left[inliers], right[inliers])
+    assert difference <= 0  # GRIC alone prefers the homography here ...
+    out = rectify.rectify_matches(left, right, (500, 500), (500, 500), what="rover")
+    assert out.rms_vertical_residual < 0.5  # ... but the pair is rectified
+    assert np.ptp(out.disparities) > 20  # the parallax is there to match
+
+
+def test_a_flat_pair_is_refused_with_what_was_seen():
+    left, right = _plane_and_parallax(0.0, 0.0)
+    with pytest.raises(ProcessingError, match=r"flat: .*GRIC\(H\) − GRIC\(F\) = -?\d.*RMS "
+                                              r"residual parallax \d+\.\d+ px.*σ of \d"):
+        rectify.rectify_matches(left, right, (500, 500), (500, 500), what="flat")

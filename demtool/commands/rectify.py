@@ -7,7 +7,7 @@ from typing import Any
 
 import click
 
-from demtool import options
+from demtool import option_types, options
 from demtool.rectify_params import RectifyParams
 from demtool.stages import STAGES
 
@@ -22,6 +22,9 @@ centred on zero over the control points.""")
 @options.input_file("right")
 @options.out_dir("Output folder for left_rect.tif, right_rect.tif and rectify.npz.")
 @options.parameter_options(RectifyParams)
+@click.option("--disparity-range", type=(option_types.FLOAT, option_types.FLOAT), default=None,
+              metavar="MIN MAX", help="Disparity search range to record, px (default: from "
+                                      "the control points).")
 @click.pass_context
 def command(ctx: click.Context, left: str, right: str, out: str, **values: Any) -> None:
     """Options → RectifyParams → :func:`demtool.runs.rectify.run_rectify`."""

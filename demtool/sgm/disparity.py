@@ -14,6 +14,9 @@ import numpy as np
 from numba import njit
 
 SUBPIXEL_MODES = {"none": 0, "parabola": 1, "equiangular": 2}
+#: Confidence :func:`select_row` gives a pixel the left–right check rejects as occluded
+#: (the right view sees a nearer surface at its match); other invalid pixels get NaN.
+OCCLUDED = -1.0
 
 
 @njit(nogil=True, cache=True)
@@ -90,17 +93,28 @@ def select_row(srow, y, min_disparity, mode, lr_threshold, left_valid, right_val
         d_int = min_disparity + best
         xr = x - d_int
         valid = left_valid[y, x] and xr >= 0 and xr < width and right_valid[y, xr]
+        offset = 0.0
+        if valid and best > 0 and best < n_disp - 1:
+            offset = _subpixel_offset(mode, np.float64(srow[x, best - 1]), np.float64(low),
+                                      np.float64(srow[x, best + 1]))
         if valid and lr_threshold >= 0:
+            # the right pixels on either side of the sub-pixel match x − d: the pixel
+            # fails only when both disagree (OpenCV StereoSGBM's disp12MaxDiff test)
             other = np.int64(right_best[xr])
             valid = other >= 0 and abs(other - best) <= lr_threshold
+            occluded = other > best  # the right view sees something nearer there
+            xr2 = xr - 1 if offset > 0 else xr + 1
+            if not valid and offset != 0.0 and xr2 >= 0 and xr2 < width:
+                other = np.int64(right_best[xr2])
+                valid = other >= 0 and abs(other - best) <= lr_threshold
+            if not valid:
+                disparity[x] = np.nan
+                confidence[x] = OCCLUDED if occluded else np.nan
+                continue
         if not valid:
             disparity[x] = np.nan
             confidence[x] = np.nan
             continue
-        offset = 0.0
-        if best > 0 and best < n_disp - 1:
-            offset = _subpixel_offset(mode, np.float64(srow[x, best - 1]), np.float64(low),
-                                      np.float64(srow[x, best + 1]))
         disparity[x] = d_int + offset
         if second == 65535 or second == 0:
             confidence[x] = 1.0 if second == 65535 else 0.0
@@ -150,7 +164,8 @@ def select_disparities(total: np.ndarray, *, min_disparity: int, left_valid: np.
     disparity : (h, W) float32, pixels, NaN = invalid (NaN input, match outside the
         right image or on a NaN pixel, failed LR check)
     confidence : (h, W) float32 in [0, 1], (S₂ − S₁)/S₂ with S₁ the best aggregated
-        cost and S₂ the best one at least two disparities away; NaN where invalid.
+        cost and S₂ the best one at least two disparities away; :data:`OCCLUDED` where
+        the LR check found an occlusion, NaN where otherwise invalid.
     """
     if subpixel not in SUBPIXEL_MODES:
         raise ValueError(f"unknown subpixel mode {subpixel!r}: should be one of "
@@ -162,6 +177,118 @@ def select_disparities(total: np.ndarray, *, min_disparity: int, left_valid: np.
     _select_rows(total, int(min_disparity), SUBPIXEL_MODES[subpixel], threshold, left_valid,
                  right_valid, int(row_start), disparity, confidence)
     return disparity, confidence
+
+
+_DIRECTIONS = np.array([[0, 1], [0, -1], [1, 0], [-1, 0], [1, 1], [1, -1], [-1, 1], [-1, -1]],
+                       dtype=np.int64)
+
+
+@njit(nogil=True, cache=True)
+def _nearest_along(disparity, usable, index, dy, dx, found, k):
+    """found[k, index[y, x]] = the first valid disparity at (y, x) + t (dy, dx), t ≥ 1.
+
+    One pass from the far end, carrying per column the nearest valid value at or
+    beyond each pixel (NaN past a pixel outside ``usable``): O(H W) per direction.
+    """
+    height, width = disparity.shape
+    carry = np.full(width, np.nan, dtype=np.float32)
+    new = np.full(width, np.nan, dtype=np.float32)
+    first, last, step = (height - 1, -1, -1) if dy > 0 else (0, height, 1)
+    for y in range(first, last, step):
+        if dy == 0:  # along the row, from its far end
+            ahead = np.float32(np.nan)
+            x0, x1, sx = (width - 1, -1, -1) if dx > 0 else (0, width, 1)
+            for x in range(x0, x1, sx):
+                if index[y, x] >= 0:
+                    found[k, index[y, x]] = ahead
+                value = disparity[y, x]
+                if not usable[y, x]:
+                    ahead = np.float32(np.nan)
+                elif np.isfinite(value):
+                    ahead = value
+            continue
+        for x in range(width):
+            xx = x + dx
+            ahead = carry[xx] if 0 <= xx < width else np.float32(np.nan)
+            if index[y, x] >= 0:
+                found[k, index[y, x]] = ahead
+            value = disparity[y, x]
+            if not usable[y, x]:
+                new[x] = np.nan
+            elif np.isfinite(value):
+                new[x] = value
+            else:
+                new[x] = ahead
+        for x in range(width):
+            carry[x] = new[x]
+
+
+@njit(nogil=True, cache=True)
+def _fill(disparity, occluded, usable, directions, out):
+    height, width = disparity.shape
+    index = np.full((height, width), -1, dtype=np.int64)
+    count = 0
+    for y in range(height):
+        for x in range(width):
+            if usable[y, x] and not np.isfinite(disparity[y, x]):
+                index[y, x] = count
+                count += 1
+    n_dir = directions.shape[0]
+    found = np.empty((n_dir, count), dtype=np.float32)
+    for k in range(n_dir):
+        _nearest_along(disparity, usable, index, directions[k, 0], directions[k, 1], found, k)
+    values = np.empty(n_dir, dtype=np.float32)
+    for y in range(height):
+        for x in range(width):
+            i = index[y, x]
+            if i < 0:
+                continue
+            n = 0
+            for k in range(n_dir):
+                value = found[k, i]
+                if np.isfinite(value):  # insertion sort
+                    j = n
+                    while j > 0 and values[j - 1] > value:
+                        values[j] = values[j - 1]
+                        j -= 1
+                    values[j] = value
+                    n += 1
+            if n == 0:
+                continue
+            if occluded[y, x]:  # the background: the second lowest (one outlier allowed)
+                out[y, x] = values[1] if n > 2 else values[0]
+            elif n % 2 == 1:
+                out[y, x] = values[n // 2]
+            else:
+                out[y, x] = 0.5 * (values[n // 2 - 1] + values[n // 2])
+
+
+def fill_invalid(disparity: np.ndarray, occluded: np.ndarray, usable: np.ndarray
+                 ) -> np.ndarray:
+    """Fill invalid pixels from the nearest valid disparities in 8 directions.
+
+    Hirschmüller (2008), §3.1.5 (Fig. 8): an occluded pixel takes the background — the
+    second lowest of the eight disparities, so one outlier does not decide — and any
+    other invalid pixel (a mismatch) their median.  Searches stop at pixels outside
+    ``usable``, which are never filled.
+
+    Parameters
+    ----------
+    disparity : (H, W) float32, pixels, NaN = invalid
+    occluded : (H, W) bool
+        Invalid pixels that the left–right check found occluded.
+    usable : (H, W) bool
+        Pixels that may be filled and that searches may cross (the valid left image).
+
+    Returns
+    -------
+    (H, W) float32, a filled copy (pixels no search reached stay NaN).
+    """
+    out = np.array(disparity, dtype=np.float32, copy=True)
+    _fill(np.ascontiguousarray(disparity, dtype=np.float32),
+          np.ascontiguousarray(occluded, dtype=np.bool_),
+          np.ascontiguousarray(usable, dtype=np.bool_), _DIRECTIONS, out)
+    return out
 
 
 @njit(nogil=True, cache=True)

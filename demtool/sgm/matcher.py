@@ -24,7 +24,7 @@ import numpy as np
 from demtool.errors import InputError, ParameterError
 from demtool.logs import get_logger
 from demtool.sgm import cost as costs
-from demtool.sgm.disparity import median_filter, remove_speckles
+from demtool.sgm.disparity import OCCLUDED, fill_invalid, median_filter, remove_speckles
 from demtool.sgm.strips import (  # noqa: F401  (plan_strips: part of this module's API)
     PhaseTimer,
     available_cores,
@@ -64,7 +64,8 @@ MI_LEVELS = 128  # most grey levels of the MI histogram (fewer on small images)
 MI_PAIRS_PER_CELL = 8  # the MI histogram has at least this many pixels per cell
 MI_SIGMA = 1.0  # Parzen window, grey levels
 AD_TRUNCATION = 24  # grey levels (of 256)
-P2_KAPPA = 8  # grey levels (of 256) above which the adaptive P2 shrinks
+P2_KAPPA = 8  # grey levels (of 256) above which the adaptive P2 shrinks, at least
+P2_KAPPA_NOISE = 3.0  # ... and at least this many times the guide image's noise σ
 UNMATCHED_FRACTION = 0.35  # cost of a match outside/NaN in the right image, of the maximum
 MIN_LEVEL_SIZE = 24  # smallest image side of an HMI level, pixels
 
@@ -79,7 +80,7 @@ class SGMResult:
         Pixels in the left image's frame, ``x_right = x_left − d``; NaN = invalid.
     confidence : (H, W) float32
         0..1, (S₂ − S₁)/S₂ of the best and the best non-adjacent aggregated cost;
-        NaN where ``disparity`` is NaN.
+        0 where the disparity was filled in (``fill``), NaN where it is NaN.
     parameters : dict
         The resolved parameters (defaults filled in).
     timings : dict of str to float
@@ -97,9 +98,16 @@ class SGMResult:
 
 
 def _postprocess(disparity: np.ndarray, confidence: np.ndarray, *, speckle_size: int,
-                 speckle_range: float, median: int, timer: PhaseTimer, uniqueness: float = 0.0
+                 speckle_range: float, median: int, timer: PhaseTimer, uniqueness: float = 0.0,
+                 fill_mask: np.ndarray | None = None, right_valid: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Uniqueness, speckles, median, then (with ``fill_mask``) the invalid-pixel fill.
+
+    Filled pixels get confidence 0; those whose match falls outside the right image or
+    on one of its invalid pixels stay NaN.
+    """
     with timer.measure("postprocess"):
+        occluded = confidence == OCCLUDED
         if uniqueness > 0:
             disparity = np.where(confidence >= uniqueness, disparity, np.float32(np.nan))
         if speckle_size > 0:
@@ -108,7 +116,70 @@ def _postprocess(disparity: np.ndarray, confidence: np.ndarray, *, speckle_size:
         if median > 1:
             disparity = median_filter(disparity, median)
         confidence = np.where(np.isfinite(disparity), confidence, np.float32(np.nan))
+        if fill_mask is not None:
+            before = np.isfinite(disparity)
+            disparity = fill_invalid(disparity, occluded & ~before, fill_mask)
+            disparity = _matchable(disparity, right_valid)
+            confidence = np.where(np.isfinite(disparity),
+                                  np.where(before, confidence, np.float32(0.0)),
+                                  np.float32(np.nan))
     return disparity, confidence.astype(np.float32)
+
+
+def _matchable(disparity: np.ndarray, right_valid: np.ndarray) -> np.ndarray:
+    """NaN where the match x − d (rounded) is outside the right image or invalid there."""
+    height, width = disparity.shape
+    rows, cols = np.nonzero(np.isfinite(disparity))
+    matched = np.rint(cols - disparity[rows, cols]).astype(np.int64)
+    inside = (matched >= 0) & (matched < width)
+    bad = ~inside
+    bad[inside] = ~right_valid[rows[inside], matched[inside]]
+    out = disparity.copy()
+    out[rows[bad], cols[bad]] = np.nan
+    return out
+
+
+def noise_sigma(image: np.ndarray, valid: np.ndarray) -> float:
+    """Robust standard deviation of an image's pixel noise, in its own units.
+
+    Immerkær's (1996) operator N = [[1, −2, 1], [−2, 4, −2], [1, −2, 1]] cancels
+    locally planar signal; its response to white noise of σ has standard deviation
+    6σ.  The median absolute response (× 1.4826, over windows of valid pixels) is
+    used instead of the paper's mean so that edges and texture weigh little.
+
+    Parameters
+    ----------
+    image : (H, W) float
+    valid : (H, W) bool
+
+    Returns
+    -------
+    float
+        σ (0 for images under 3 × 3 pixels).
+
+    References
+    ----------
+    Immerkær, J. (1996), Fast noise variance estimation, CVIU 64(2), 300–302.
+    """
+    if min(image.shape) < 3:
+        return 0.0
+    a = np.where(valid, image, 0.0).astype(np.float64)
+    response = (a[:-2, :-2] - 2 * a[:-2, 1:-1] + a[:-2, 2:]
+                - 2 * a[1:-1, :-2] + 4 * a[1:-1, 1:-1] - 2 * a[1:-1, 2:]
+                + a[2:, :-2] - 2 * a[2:, 1:-1] + a[2:, 2:])
+    ok = valid[:-2, :-2] & valid[:-2, 2:] & valid[2:, :-2] & valid[2:, 2:] & valid[1:-1, 1:-1]
+    if not ok.any():
+        return 0.0
+    return float(1.4826 * np.median(np.abs(response[ok])) / 6.0)
+
+
+def p2_kappa(guide: np.ndarray, valid: np.ndarray) -> int:
+    """κ of the adaptive P2: ``max(P2_KAPPA, P2_KAPPA_NOISE · σ)`` grey levels of the guide.
+
+    Intensity steps within a few noise σ are not edges: on a noisy weak-texture image
+    a fixed κ would lower P2 almost everywhere and leave SGM without smoothness.
+    """
+    return int(max(P2_KAPPA, round(P2_KAPPA_NOISE * noise_sigma(guide, valid))))
 
 
 def mi_levels(valid_pixels: int, most: int = MI_LEVELS) -> int:
@@ -165,7 +236,8 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         paths: int = 8, p1: int | None = None, p2: int | None = None,
         adaptive_p2: bool = True, mi_iterations: int = 3, subpixel: str = "equiangular",
         lr_check: bool = True, lr_threshold: float = 1.0, speckle_size: int = 100,
-        speckle_range: float = 2.0, median: int = 3, uniqueness: float = 0.0, workers: int = 0,
+        speckle_range: float = 2.0, median: int = 3, uniqueness: float = 0.0,
+        fill: bool = True, workers: int = 0,
         max_memory_mb: float = 1400.0, seed: int = 0) -> SGMResult:
     """Dense disparity of a rectified pair by semi-global matching (Hirschmüller 2008).
 
@@ -210,6 +282,12 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
     uniqueness : float
         Invalidate pixels whose confidence (S₂ − S₁)/S₂ is below this (0 = off;
         0.1 is OpenCV's ``uniquenessRatio=10``).
+    fill : bool
+        Fill the pixels left invalid (LR check, speckles, uniqueness) from the nearest
+        valid disparities in 8 directions: occluded ones from the background, the
+        others by the median (Hirschmüller 2008 §3.1.5,
+        :func:`demtool.sgm.disparity.fill_invalid`); they get confidence 0.  Pixels
+        invalid in the left image stay NaN.
     workers : int
         Threads (0 = all cores): two run the down and up sweeps of a strip; more match
         ``workers // 2`` strips at once.
@@ -261,7 +339,8 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         left_valid = np.isfinite(left)
         right_valid = np.isfinite(right)
         guide = costs.quantize(left, left_valid, 256)
-    common = dict(paths=paths, p1=p1, p2=p2, p2_kappa=P2_KAPPA if adaptive_p2 else 0,
+        kappa = p2_kappa(guide, left_valid) if adaptive_p2 else 0
+    common = dict(paths=paths, p1=p1, p2=p2, p2_kappa=kappa,
                   workers=workers, max_memory_mb=max_memory_mb,
                   unmatched_fraction=UNMATCHED_FRACTION, timer=timer)
     final = dict(subpixel=subpixel, lr_threshold=lr_threshold if lr_check else None)
@@ -295,16 +374,18 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
 
     disparity, confidence = _postprocess(disparity, confidence, speckle_size=speckle_size,
                                          speckle_range=speckle_range, median=median,
-                                         timer=timer, uniqueness=uniqueness)
+                                         timer=timer, uniqueness=uniqueness,
+                                         fill_mask=left_valid if fill else None,
+                                         right_valid=right_valid)
     timings = {k: round(v, 3) for k, v in timer.seconds.items()}
     timings["total"] = round(time.perf_counter() - start, 3)
     parameters = dict(cost=cost, census_window=census_window, cost_window=window,
                       paths=paths, p1=p1, p2=p2, adaptive_p2=adaptive_p2,
-                      p2_kappa=P2_KAPPA if adaptive_p2 else 0, mi_iterations=mi_iterations,
+                      p2_kappa=kappa, mi_iterations=mi_iterations,
                       mi_levels=MI_LEVELS, mi_sigma=MI_SIGMA, subpixel=subpixel,
                       lr_check=lr_check, lr_threshold=lr_threshold,
                       speckle_size=speckle_size, speckle_range=speckle_range, median=median,
-                      uniqueness=uniqueness,
+                      uniqueness=uniqueness, fill=fill,
                       min_disparity=min_disparity, num_disparities=num_disparities,
                       workers=workers, max_memory_mb=max_memory_mb, seed=seed)
     return SGMResult(disparity, confidence, parameters, timings, levels)

@@ -61,6 +61,8 @@ class SgmParams(Parameters):
     uniqueness: float = parameter(CORE["uniqueness"], "Drop pixels whose confidence "
                                   "(S2-S1)/S2 is below this (0.1 = OpenCV's uniquenessRatio "
                                   "10).", minimum=0.0, maximum=1.0, max_open=True)
+    fill: bool = parameter(CORE["fill"], "Fill pixels left invalid from their neighbours "
+                           "(occlusions from the background); they get confidence 0.")
     max_memory_mb: float = parameter(
         CORE["max_memory_mb"], "Budget of the aggregated-cost volumes (and row buffers) "
         "of the strips matched at once, MiB; the image is cut into strips beyond it.",

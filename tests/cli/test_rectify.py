@@ -77,3 +77,20 @@ def test_cli_bad_inputs_leave_no_output(pair_files, tmp_path, stereo_scene):
                                      "--ratio", "1.5"])
     assert bad_option.exit_code == 2
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_cli_disparity_range_option(pair_files, tmp_path):
+    left, right = pair_files
+    out = tmp_path / "given"
+    run = CliRunner().invoke(cli, ["rectify", str(left), str(right), "--out", str(out),
+                                   "--disparity-range", "-5", "25"])
+    assert run.exit_code == 0, run.output
+    data = dio.read_npz(out / "rectify.npz", "rectification")
+    np.testing.assert_array_equal(data["disparity_range"], [-5.0, 25.0])
+    bad_out = tmp_path / "bad"
+    bad = CliRunner().invoke(cli, ["rectify", str(left), str(right), "--out", str(bad_out),
+                                   "--disparity-range", "25", "-5"])
+    assert bad.exit_code == 1
+    errors = [line for line in bad.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and "--disparity-range" in errors[0]
+    assert not bad_out.exists() or not any(bad_out.iterdir())

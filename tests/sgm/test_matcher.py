@@ -18,6 +18,7 @@ from demtool.sgm.cost import (
     windowed_cost_volume,
 )
 from demtool.sgm.disparity import median_filter, remove_speckles, select_disparities
+from demtool.sgm.matcher import P2_KAPPA, P2_KAPPA_NOISE, noise_sigma, p2_kappa
 from tests.helpers.sgm import (
     error_rates,
     fractional_shift_pair,
@@ -68,14 +69,51 @@ def test_sixteen_paths_and_options(smooth_pair):
 
 def test_left_right_check_marks_the_occlusion_invalid():
     left, right, truth, occluded = occlusion_pair()
-    checked = sgm(left, right, min_disparity=0, num_disparities=20, cost="census")
+    checked = sgm(left, right, min_disparity=0, num_disparities=20, cost="census", fill=False)
     unchecked = sgm(left, right, min_disparity=0, num_disparities=20, cost="census",
-                    lr_check=False)
+                    lr_check=False, fill=False)
     assert np.isnan(checked.disparity[occluded]).mean() > 0.7
     assert np.isnan(unchecked.disparity[occluded]).mean() < 0.1
     visible = nonoccluded(truth) & ~occluded
     rates = error_rates(checked.disparity, truth, visible)
     assert rates["bad2"] < 0.02 and rates["density"] > 0.95, rates
+
+
+@pytest.mark.parametrize("cost", ["census", "hmi"])
+def test_fill_gives_occlusions_the_background_with_zero_confidence(cost):
+    left, right, truth, occluded = occlusion_pair()  # background 4, box 14
+    rejected = np.isnan(sgm(left, right, min_disparity=0, num_disparities=20, cost=cost,
+                            fill=False).disparity)
+    filled = sgm(left, right, min_disparity=0, num_disparities=20, cost=cost)
+    assert filled.parameters["fill"] is True
+    hole = occluded & rejected
+    assert hole.sum() > 0.5 * occluded.sum()
+    # the occluded strip takes the background's 4 px, not the box's 14 px
+    assert np.mean(np.abs(filled.disparity[hole] - 4.0) < 1.0) > 0.8
+    assert np.all(filled.confidence[hole & np.isfinite(filled.disparity)] == 0.0)
+    # everything the right view could match is filled; pixels kept are unchanged
+    assert np.isfinite(filled.disparity[:, 20:]).all()
+    kept = ~rejected
+    assert np.mean(np.abs(filled.disparity[kept] - truth[kept]) < 1.0) > 0.97
+
+
+def test_fill_invalid_background_and_median():
+    from demtool.sgm.disparity import fill_invalid
+
+    disparity = np.full((5, 9), 10.0, dtype=np.float32)
+    disparity[:, 5:] = 3.0  # a far surface right of a near one
+    disparity[2, 4] = np.nan  # occluded: takes the background (second lowest)
+    disparity[0:2, 1] = np.nan  # mismatches inside the near surface: the median
+    occluded = np.zeros(disparity.shape, bool)
+    occluded[2, 4] = True
+    usable = np.ones(disparity.shape, bool)
+    usable[4, 0] = False  # outside the left image: never filled
+    disparity[4, 0] = np.nan
+    out = fill_invalid(disparity, occluded, usable)
+    assert out[2, 4] == 3.0
+    assert np.all(out[0:2, 1] == 10.0)
+    assert np.isnan(out[4, 0])
+    assert np.isnan(disparity[2, 4])  # input not modified
 
 
 @pytest.mark.parametrize("shift", [2.25, 2.5])
@@ -374,3 +412,66 @@ def test_sweep_kernel_cache_key_covers_the_kernels_it_inlines():
     assert callee_sources_digest() == expected
     cells = [c.cell_contents for c in aggregate.sweep_rows.py_func.__closure__]
     assert expected in cells
+
+
+def test_fill_invalid_matches_a_brute_force_search():
+    from demtool.sgm.disparity import fill_invalid
+
+    rng = np.random.default_rng(7)
+    disparity = rng.uniform(0, 20, (23, 31)).astype(np.float32)
+    disparity[rng.random(disparity.shape) < 0.6] = np.nan
+    occluded = rng.random(disparity.shape) < 0.5
+    usable = rng.random(disparity.shape) < 0.9
+    out = fill_invalid(disparity, occluded, usable)
+    height, width = disparity.shape
+    for y in range(height):
+        for x in range(width):
+            if np.isfinite(disparity[y, x]) or not usable[y, x]:
+                assert out[y, x] == disparity[y, x] or np.isnan(out[y, x])
+                continue
+            found = []
+            for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1)):
+                yy, xx = y + dy, x + dx
+                while 0 <= yy < height and 0 <= xx < width and usable[yy, xx]:
+                    if np.isfinite(disparity[yy, xx]):
+                        found.append(disparity[yy, xx])
+                        break
+                    yy, xx = yy + dy, xx + dx
+            found.sort()
+            if not found:
+                assert np.isnan(out[y, x])
+            elif occluded[y, x]:
+                assert out[y, x] == (found[1] if len(found) > 2 else found[0])
+            else:
+                assert out[y, x] == pytest.approx(float(np.median(found)))
+
+
+
+@pytest.mark.parametrize("sigma", [0.5, 3.0, 10.0])
+def test_noise_sigma_of_white_noise_on_a_smooth_image(sigma):
+    rng = np.random.default_rng(1)
+    rows, cols = np.mgrid[0:200, 0:240]
+    smooth = 100 + 0.3 * cols + 20 * np.sin(rows / 30.0)  # planar-ish signal: cancelled
+    image = smooth + rng.normal(0, sigma, smooth.shape)
+    valid = np.ones(image.shape, bool)
+    assert noise_sigma(image, valid) == pytest.approx(sigma, rel=0.08)
+
+
+def test_noise_sigma_ignores_edges_and_invalid_pixels():
+    rng = np.random.default_rng(2)
+    image = np.where(np.arange(200)[None, :] % 40 < 20, 50.0, 200.0) * np.ones((150, 1))
+    image = image + rng.normal(0, 2.0, image.shape)
+    valid = np.ones(image.shape, bool)
+    valid[:, :30] = False
+    image[:, :30] = 1e6  # garbage where invalid
+    assert noise_sigma(image, valid) == pytest.approx(2.0, rel=0.1)
+    assert noise_sigma(image[:2], valid[:2]) == 0.0
+
+
+def test_p2_kappa_grows_with_the_noise_only_above_the_floor():
+    rng = np.random.default_rng(3)
+    valid = np.ones((100, 100), bool)
+    quiet = np.full((100, 100), 128.0) + rng.normal(0, 0.5, (100, 100))
+    noisy = np.full((100, 100), 128.0) + rng.normal(0, 8.0, (100, 100))
+    assert p2_kappa(quiet, valid) == P2_KAPPA
+    assert p2_kappa(noisy, valid) == pytest.approx(P2_KAPPA_NOISE * 8.0, abs=2.5)

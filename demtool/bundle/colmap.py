@@ -202,7 +202,7 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
         pycolmap.extract_features(database_path, image_folder, image_names=list(files),
                                   camera_mode=mode, reader_options=reader,
                                   extraction_options=extraction, device=pycolmap.Device.cpu)
-    if intrinsics and mode == pycolmap.CameraMode.PER_IMAGE:
+    if intrinsics:
         _set_known_intrinsics(database_path, options.camera_model, intrinsics, files)
 
     matching = pycolmap.FeatureMatchingOptions()
@@ -241,7 +241,8 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
             "SIMPLE_RADIAL", "RADIAL")
         pipeline.mapper.abs_pose_refine_focal_length = refine
     for key, value in options.extra.items():
-        setattr(pipeline, key, value)
+        owner, _, name = key.rpartition(".")
+        setattr(getattr(pipeline, owner) if owner else pipeline, name, value)
     log.info("incremental mapping and bundle adjustment")
     with _colmap_output():
         models = pycolmap.incremental_mapping(database_path, image_folder, work / "sparse",

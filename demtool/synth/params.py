@@ -8,6 +8,10 @@ from typing import Any
 from demtool.errors import ParameterError
 
 
+#: Camera layouts of :class:`SceneParams` (``layout``).
+LAYOUTS = ("stereo", "ring", "strip")
+
+
 @dataclass(frozen=True)
 class SceneParams:
     """Every parameter of a synthetic scene (defaults: the demo scene).
@@ -59,6 +63,9 @@ class SceneParams:
     partner_bh: float = 0.3
     bh_min: float = 0.1
     bh_max: float = 0.5
+    layout: str = "stereo"
+    cx_offset_px: float = 0.0
+    cy_offset_px: float = 0.0
     sun_incidence_deg: float = 60.0
     sun_azimuth_deg: float = 225.0
     exposure_dn: float = 1500.0
@@ -103,5 +110,12 @@ def check_parameters(params: SceneParams) -> None:
     if not 0.0 <= params.albedo_variation < 1.0:
         raise ParameterError(f"albedo_variation must be in [0, 1), got "
                              f"{params.albedo_variation}")
+    if params.layout not in LAYOUTS:
+        raise ParameterError(f"layout must be one of {', '.join(LAYOUTS)}, got "
+                             f"{params.layout!r}")
+    for name in ("cx_offset_px", "cy_offset_px"):
+        if not abs(getattr(params, name)) < 0.5 * params.image_size:
+            raise ParameterError(f"{name} must lie inside the image (|value| < "
+                                 f"image_size/2), got {getattr(params, name)}")
     if params.bit_depth > 16:
         raise ParameterError(f"bit_depth must be at most 16, got {params.bit_depth}")

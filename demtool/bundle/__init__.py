@@ -27,7 +27,6 @@ from demtool.bundle.colmap import (
     impose_intrinsics,
     refine_second_radial_term,
     run_sfm,
-    set_colmap_verbosity,
 )
 from demtool.bundle.model import (
     BundleResult,
@@ -37,6 +36,7 @@ from demtool.bundle.model import (
     reconstruction_to_result,
     reprojection_summary,
 )
+from demtool.bundle.runtime import call_interruptibly, load_pycolmap, set_colmap_verbosity
 
 __all__ = [
     "CAMERA_MODELS",
@@ -47,6 +47,8 @@ __all__ = [
     "SfmOptions",
     "align_to_centres",
     "apply_similarity",
+    "call_interruptibly",
+    "load_pycolmap",
     "colmap_camera_params",
     "distort_normalized",
     "impose_intrinsics",

@@ -7,7 +7,6 @@ from typing import Any
 
 from demtool.errors import ParameterError
 
-
 #: Camera layouts of :class:`SceneParams` (``layout``).
 LAYOUTS = ("stereo", "ring", "strip")
 

@@ -17,6 +17,8 @@ COLMAP's radial distortion models.
 """
 
 from demtool.bundle.align import align_to_centres, apply_similarity, umeyama
+from demtool.bundle.block import BlockAdjustment, adjust_block, known_intrinsics, to_uint8
+from demtool.bundle.calibration import self_calibrate
 from demtool.bundle.colmap import (
     CAMERA_MODELS,
     EXHAUSTIVE_MAX_IMAGES,
@@ -25,12 +27,13 @@ from demtool.bundle.colmap import (
     SfmOptions,
     colmap_camera_params,
     impose_intrinsics,
-    refine_second_radial_term,
     run_sfm,
 )
+from demtool.bundle.inputs import Block, block_from_paths, read_image_list, read_selection
 from demtool.bundle.model import (
     BundleResult,
     distort_normalized,
+    image_report,
     project_points,
     radial_terms,
     reconstruction_to_result,
@@ -42,7 +45,17 @@ __all__ = [
     "CAMERA_MODELS",
     "EXHAUSTIVE_MAX_IMAGES",
     "MATCHERS",
+    "Block",
+    "BlockAdjustment",
     "BundleResult",
+    "adjust_block",
+    "block_from_paths",
+    "image_report",
+    "known_intrinsics",
+    "read_image_list",
+    "read_selection",
+    "self_calibrate",
+    "to_uint8",
     "KnownIntrinsics",
     "SfmOptions",
     "align_to_centres",
@@ -55,7 +68,6 @@ __all__ = [
     "project_points",
     "radial_terms",
     "reconstruction_to_result",
-    "refine_second_radial_term",
     "reprojection_summary",
     "run_sfm",
     "set_colmap_verbosity",

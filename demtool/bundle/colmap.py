@@ -345,38 +345,3 @@ def impose_intrinsics(reconstruction, intrinsics: Mapping[str, KnownIntrinsics],
     options.ceres.solver_options.num_threads = workers if workers > 0 else -1
     call_interruptibly(pycolmap.bundle_adjustment, reconstruction, options)
     reconstruction.update_point_3d_errors()
-
-
-def refine_second_radial_term(reconstruction, *, workers: int = 0) -> bool:
-    """Free a second radial distortion term and re-run global bundle adjustment.
-
-    Incremental mapping with COLMAP's SIMPLE_RADIAL model (one term k) is robust on
-    narrow fields of view, where a two-term model can make the first registrations
-    fail; the second term k2 (RADIAL model) is then estimated in one final global
-    bundle adjustment of the complete model, starting from k2 = 0.  Changes
-    ``reconstruction`` in place.
-
-    Returns
-    -------
-    bool
-        True if any camera was converted and the model re-adjusted.
-    """
-    pycolmap = load_pycolmap()
-    converted = False
-    for camera in reconstruction.cameras.values():
-        if camera.model_name != "SIMPLE_RADIAL":
-            continue
-        params = [float(v) for v in camera.params]
-        camera.model = pycolmap.CameraModelId.RADIAL
-        camera.params = params + [0.0]
-        converted = True
-    if not converted:
-        return False
-    options = pycolmap.BundleAdjustmentOptions()
-    options.print_summary = False
-    options.ceres.solver_options.num_threads = workers if workers > 0 else -1
-    call_interruptibly(pycolmap.bundle_adjustment, reconstruction, options)
-    reconstruction.update_point_3d_errors()
-    return True
-
-

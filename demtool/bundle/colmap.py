@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from demtool.bundle.runtime import call_interruptibly, load_pycolmap
+from demtool.bundle.runtime import call_interruptibly, load_pycolmap, run_in_child
 from demtool.errors import ParameterError
 from demtool.logs import get_logger
 
@@ -134,13 +134,13 @@ def _match(database_path: Path, files: Mapping[str, str], options: SfmOptions,
         matcher = "exhaustive" if len(files) <= EXHAUSTIVE_MAX_IMAGES else "sequential"
     log.info("matching features (%s)", matcher)
     if matcher == "exhaustive":
-        call_interruptibly(pycolmap.match_exhaustive, database_path, matching_options=matching,
+        run_in_child(pycolmap.match_exhaustive, database_path, matching_options=matching,
                            verification_options=verification, device=pycolmap.Device.cpu)
     elif matcher == "sequential":
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = 10
         pairing.quadratic_overlap = True
-        call_interruptibly(pycolmap.match_sequential, database_path, matching_options=matching,
+        run_in_child(pycolmap.match_sequential, database_path, matching_options=matching,
                            pairing_options=pairing, verification_options=verification,
                            device=pycolmap.Device.cpu)
     else:
@@ -153,7 +153,7 @@ def _match(database_path: Path, files: Mapping[str, str], options: SfmOptions,
                                      for a, b in options.pairs or ()))
         pairing = pycolmap.ImportedPairingOptions()
         pairing.match_list_path = str(pair_file)
-        call_interruptibly(pycolmap.match_image_pairs, database_path, matching_options=matching,
+        run_in_child(pycolmap.match_image_pairs, database_path, matching_options=matching,
                            pairing_options=pairing, verification_options=verification,
                            device=pycolmap.Device.cpu)
 
@@ -180,6 +180,22 @@ def _pipeline_options(options: SfmOptions, threads: int):
 def _sorted_models(models) -> list:
     return sorted(models.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()),
                   reverse=True)
+
+
+def _map(database_path: Path, image_folder, output: Path, pipeline,
+         input_path: Path | None = None) -> list:
+    """Incremental mapping in a child process (interruptible); the models COLMAP wrote
+    into ``output``, largest first."""
+    pycolmap = load_pycolmap()
+    output.mkdir(parents=True, exist_ok=True)
+    kwargs = {"input_path": input_path} if input_path is not None else {}
+    run_in_child(pycolmap.incremental_mapping, database_path, image_folder, output,
+                 options=pipeline, **kwargs)
+    models = {}
+    for folder in sorted(output.iterdir()):
+        if folder.is_dir() and (folder / "images.bin").is_file():
+            models[folder.name] = pycolmap.Reconstruction(folder)
+    return _sorted_models(models)
 
 
 def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
@@ -242,7 +258,7 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
     extraction.sift.max_num_features = int(options.max_features)
     extraction.use_gpu = False
     log.info("extracting SIFT features from %d images", len(files))
-    call_interruptibly(pycolmap.extract_features, database_path, image_folder,
+    run_in_child(pycolmap.extract_features, database_path, image_folder,
                        image_names=list(files), camera_mode=mode, reader_options=reader,
                        extraction_options=extraction, device=pycolmap.Device.cpu)
     if intrinsics:
@@ -253,9 +269,7 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
     report: dict = {"mapping_passes": 1, "retried": [], "free_fallback": False}
     log.info("incremental mapping and bundle adjustment%s",
              " (known intrinsics, fixed)" if intrinsics else "")
-    models = _sorted_models(call_interruptibly(
-        pycolmap.incremental_mapping, database_path, image_folder, work / "sparse",
-        options=pipeline))
+    models = _map(database_path, image_folder, work / "sparse", pipeline)
     if intrinsics and models and models[0].num_reg_images() < len(files):
         models[0] = _retry_left_out(models[0], database_path, image_folder, work, pipeline,
                                     files, report)
@@ -267,9 +281,8 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
                                   camera_model="SIMPLE_RADIAL", seed=options.seed,
                                   workers=options.workers, extra=dict(options.extra))
         _reset_cameras(database_path)
-        models = _sorted_models(call_interruptibly(
-            pycolmap.incremental_mapping, database_path, image_folder, work / "free",
-            options=_pipeline_options(free_options, threads)))
+        models = _map(database_path, image_folder, work / "free",
+                      _pipeline_options(free_options, threads))
         report.update(mapping_passes=2, free_fallback=True)
     return models, report
 
@@ -313,9 +326,7 @@ def _retry_left_out(model, database_path: Path, image_folder, work: Path, pipeli
     retry.mapper.abs_pose_min_inlier_ratio = 0.5 * pipeline.mapper.abs_pose_min_inlier_ratio
     retry.mapper.abs_pose_max_error = 2.0 * pipeline.mapper.abs_pose_max_error
     retry.mapper.max_reg_trials = pipeline.mapper.max_reg_trials + 3
-    continued = _sorted_models(call_interruptibly(
-        pycolmap.incremental_mapping, database_path, image_folder, work / "retry",
-        options=retry, input_path=start))
+    continued = _map(database_path, image_folder, work / "retry", retry, input_path=start)
     if continued and continued[0].num_reg_images() > model.num_reg_images():
         return continued[0]
     return model
@@ -343,5 +354,5 @@ def impose_intrinsics(reconstruction, intrinsics: Mapping[str, KnownIntrinsics],
     options.refine_principal_point = False
     options.refine_extra_params = False
     options.ceres.solver_options.num_threads = workers if workers > 0 else -1
-    call_interruptibly(pycolmap.bundle_adjustment, reconstruction, options)
+    call_interruptibly(pycolmap.bundle_adjustment, reconstruction, options, cancellable=False)
     reconstruction.update_point_3d_errors()

@@ -12,9 +12,13 @@ about them (issue 16, class 6):
   to stderr; :func:`load_pycolmap` always sets ``logtostderr`` (no files) and keeps
   the level at FATAL unless :func:`set_colmap_verbosity` asks for COLMAP's log.
 * **Long C++ calls.**  Python runs signal handlers only between bytecodes, so an
-  interrupt would wait for a mapping to finish.  :func:`call_interruptibly` runs the
-  call in a worker thread (pycolmap releases the GIL), waits in short slices, and on
-  an interrupt cancels COLMAP through its ``CancellationToken`` before re-raising.
+  interrupt would wait for a mapping to finish.  The file-based steps (feature
+  extraction, matching, incremental mapping: their results are in COLMAP's database
+  and model folders) run in a child process (:func:`run_in_child`) that is killed on
+  an interrupt; cancelling them in-process through COLMAP's ``CancellationToken``
+  leaves matcher threads that abort the interpreter at exit with a C stack dump.
+  In-memory bundle adjustments run in a worker thread (:func:`call_interruptibly`)
+  so the interrupt is raised as soon as the adjustment returns.
 """
 
 from __future__ import annotations
@@ -88,6 +92,65 @@ def colmap_output() -> Iterator[None]:
     finally:
         os.dup2(saved, 2)
         os.close(saved)
+
+
+def _child(function: Callable[..., Any], args: tuple, kwargs: dict, connection) -> None:
+    """Body of :func:`run_in_child`'s process: die quietly on signals, report errors."""
+    for signum in _HANDLED_SIGNALS:
+        signal.signal(signum, signal.SIG_DFL)
+    try:
+        function(*args, **kwargs)
+    except BaseException as exc:  # reported to the parent as one line
+        connection.send(f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+        connection.close()
+        os._exit(1)
+    connection.send(None)
+    connection.close()
+    os._exit(0)
+
+
+def run_in_child(function: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
+    """Run a file-based pycolmap step (results on disk) in a forked child process.
+
+    The parent waits in 0.1 s slices, so SIGINT/SIGTERM reach demtool's handlers; on
+    an interrupt the child is killed (SIGKILL: nothing of COLMAP's runs on) and the
+    interrupt re-raised.  COLMAP's stderr chatter is silenced unless verbose.
+
+    Raises
+    ------
+    ProcessingError
+        The step failed or the child died (the first line of its error, or the signal).
+    """
+    import multiprocessing
+
+    from demtool.errors import ProcessingError
+
+    load_pycolmap()
+    context = multiprocessing.get_context("fork")
+    receiver, sender = context.Pipe(duplex=False)
+    with colmap_output():
+        process = context.Process(target=_child, args=(function, args, kwargs, sender),
+                                  name="demtool-colmap", daemon=True)
+        process.start()
+        sender.close()
+        try:
+            while process.is_alive():
+                process.join(0.1)
+        except BaseException:
+            process.kill()
+            process.join()
+            raise
+        finally:
+            try:
+                message = receiver.recv() if receiver.poll() else None
+            except (EOFError, OSError):  # the child died without a word
+                message = None
+            receiver.close()
+    if process.exitcode != 0:
+        what = getattr(function, "__name__", "COLMAP step")
+        detail = message or (f"killed by signal {-process.exitcode}"
+                             if process.exitcode < 0 else f"exit status {process.exitcode}")
+        raise ProcessingError(f"COLMAP's {what} failed: {detail}")
 
 
 def call_interruptibly(function: Callable[..., Any], *args: Any, cancellable: bool = True,

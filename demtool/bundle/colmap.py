@@ -277,30 +277,18 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
         log.warning("no image pair starts a model with the known intrinsics fixed (a "
                     "narrow field of view?); mapping with free intrinsics, imposing the "
                     "known ones after")
+        # The database's two-view geometries were verified with the known (calibrated)
+        # cameras, which is what failed: start afresh with free cameras.
         free_options = SfmOptions(shared_camera=options.shared_camera,
-                                  camera_model="SIMPLE_RADIAL", seed=options.seed,
-                                  workers=options.workers, extra=dict(options.extra))
-        _reset_cameras(database_path)
-        models = _map(database_path, image_folder, work / "free",
-                      _pipeline_options(free_options, threads))
+                                  camera_model="SIMPLE_RADIAL", matcher=options.matcher,
+                                  pairs=options.pairs, max_features=options.max_features,
+                                  seed=options.seed, workers=options.workers,
+                                  extra=dict(options.extra))
+        free_work = work / "free"
+        free_work.mkdir()
+        models, _ = run_sfm(image_folder, files, free_work, free_options)
         report.update(mapping_passes=2, free_fallback=True)
     return models, report
-
-
-def _reset_cameras(database_path: Path) -> None:
-    """Free the cameras of a database: SIMPLE_RADIAL, no focal-length prior."""
-    pycolmap = load_pycolmap()
-    database = pycolmap.Database.open(database_path)
-    try:
-        for camera in database.read_all_cameras():
-            focal = float(np.mean(camera.params[camera.focal_length_idxs()]))
-            cx, cy = camera.principal_point_x, camera.principal_point_y
-            camera.model = pycolmap.CameraModelId.SIMPLE_RADIAL
-            camera.params = [focal, cx, cy, 0.0]
-            camera.has_prior_focal_length = False
-            database.update_camera(camera)
-    finally:
-        database.close()
 
 
 def _retry_left_out(model, database_path: Path, image_folder, work: Path, pipeline,

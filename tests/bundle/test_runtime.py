@@ -53,6 +53,7 @@ def test_sigterm_during_bundle(ring_dir, tmp_path):
             break
     rest = process.stderr.read()
     status = process.wait(timeout=60)
+    process.stderr.close()
     assert status == 130, "".join(lines) + rest
     assert rest.count("\n") == 1 and rest.startswith("Error: demtool bundle: interrupted")
     assert "stack trace" not in rest

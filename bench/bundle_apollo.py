@@ -50,7 +50,7 @@ def demtool_bundle(work: Path, frames: list[Path]) -> dict:
         "selected": [{"name": p.stem, "path": str(p)} for p in frames], "rejected": [],
         "parameters": {}}))
     start = time.perf_counter()
-    summary = run_bundle(selection, work / "bundle.npz")
+    summary = run_bundle([str(selection)], work / "bundle.npz")
     return {"registered": summary["registered_count"], "points": summary["points"],
             "mean": summary["mean_reprojection_error_px"],
             "p95": summary["p95_reprojection_error_px"], "time": time.perf_counter() - start}

@@ -19,6 +19,7 @@ images, caches the features and writes ``selection.json``.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -365,3 +366,14 @@ def rank_score(match: CandidateMatch, geometry: ViewGeometry | None, *, min_matc
     total_weight = sum(SCORE_WEIGHTS[k] for k in terms)
     score = sum(SCORE_WEIGHTS[k] * v for k, v in terms.items()) / total_weight
     return float(score), {k: round(v, 4) for k, v in terms.items()}
+
+
+def path_relative_to(path: str | os.PathLike, folder: str | os.PathLike) -> str:
+    """``path`` written relative to ``folder`` (the folder of the file that records it),
+    so that the recording file can be read from any working folder; symbolic links are
+    kept (no resolution), and a path on another drive stays absolute."""
+    absolute = os.path.abspath(path)
+    try:
+        return os.path.relpath(absolute, os.path.abspath(folder))
+    except ValueError:  # another drive (Windows)
+        return absolute

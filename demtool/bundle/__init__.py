@@ -17,6 +17,8 @@ COLMAP's radial distortion models.
 """
 
 from demtool.bundle.align import align_to_centres, apply_similarity, umeyama
+from demtool.bundle.block import BlockAdjustment, adjust_block, known_intrinsics
+from demtool.bundle.calibration import self_calibrate
 from demtool.bundle.colmap import (
     CAMERA_MODELS,
     EXHAUSTIVE_MAX_IMAGES,
@@ -25,35 +27,46 @@ from demtool.bundle.colmap import (
     SfmOptions,
     colmap_camera_params,
     impose_intrinsics,
-    refine_second_radial_term,
     run_sfm,
-    set_colmap_verbosity,
 )
+from demtool.bundle.inputs import Block, block_from_paths, read_image_list, read_selection
 from demtool.bundle.model import (
     BundleResult,
     distort_normalized,
+    image_report,
     project_points,
     radial_terms,
     reconstruction_to_result,
     reprojection_summary,
 )
+from demtool.bundle.runtime import call_interruptibly, load_pycolmap, set_colmap_verbosity
 
 __all__ = [
     "CAMERA_MODELS",
     "EXHAUSTIVE_MAX_IMAGES",
     "MATCHERS",
+    "Block",
+    "BlockAdjustment",
     "BundleResult",
+    "adjust_block",
+    "block_from_paths",
+    "image_report",
+    "known_intrinsics",
+    "read_image_list",
+    "read_selection",
+    "self_calibrate",
     "KnownIntrinsics",
     "SfmOptions",
     "align_to_centres",
     "apply_similarity",
+    "call_interruptibly",
+    "load_pycolmap",
     "colmap_camera_params",
     "distort_normalized",
     "impose_intrinsics",
     "project_points",
     "radial_terms",
     "reconstruction_to_result",
-    "refine_second_radial_term",
     "reprojection_summary",
     "run_sfm",
     "set_colmap_verbosity",

@@ -7,16 +7,15 @@ COLMAP (Schönberger & Frahm 2016) works on an image folder and an SQLite databa
 
 from __future__ import annotations
 
-import contextlib
 import os
-import sys
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from demtool.bundle.runtime import call_interruptibly, load_pycolmap, run_in_child
 from demtool.errors import ParameterError
 from demtool.logs import get_logger
 
@@ -24,7 +23,7 @@ log = get_logger(__name__)
 
 #: COLMAP camera models demtool can represent: pinhole plus radial terms k1 (k2).
 CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL")
-MATCHERS = ("auto", "exhaustive", "sequential")
+MATCHERS = ("auto", "exhaustive", "sequential", "pairs")
 #: ``matcher="auto"`` matches exhaustively up to this many images, sequentially above.
 EXHAUSTIVE_MAX_IMAGES = 100
 
@@ -60,7 +59,11 @@ class SfmOptions:
         Known intrinsics (all images, or none).
     matcher : str
         "exhaustive", "sequential" (images in the given order, with quadratic overlap),
-        or "auto" (exhaustive up to :data:`EXHAUSTIVE_MAX_IMAGES` images).
+        "auto" (exhaustive up to :data:`EXHAUSTIVE_MAX_IMAGES` images), or "pairs"
+        (only the image pairs in ``pairs``: the hook of footprint-based "spatial"
+        matching, see :func:`demtool.bundle.pairs.overlapping_pairs`).
+    pairs : sequence of (str, str), optional
+        Image (view) name pairs to match when ``matcher`` is "pairs".
     max_features : int
         Maximum SIFT features per image.
     seed : int
@@ -75,42 +78,11 @@ class SfmOptions:
     camera_model: str = "SIMPLE_RADIAL"
     intrinsics: Mapping[str, KnownIntrinsics] | None = None
     matcher: str = "auto"
+    pairs: Sequence[tuple[str, str]] | None = None
     max_features: int = 8192
     seed: int = 0
     workers: int = 0
     extra: dict[str, Any] = field(default_factory=dict)
-
-
-_colmap_verbose = False
-
-
-def set_colmap_verbosity(verbose: bool) -> None:
-    """Show COLMAP's own (glog) log on stderr only when ``verbose``."""
-    import pycolmap
-
-    global _colmap_verbose
-    _colmap_verbose = bool(verbose)
-    pycolmap.logging.minloglevel = 0 if verbose else 3
-    pycolmap.logging.stderrthreshold = 0 if verbose else 3
-    pycolmap.logging.logtostderr = bool(verbose)
-
-
-@contextlib.contextmanager
-def _colmap_output() -> Iterator[None]:
-    """Silence what COLMAP's C++ code writes to the stderr file descriptor, unless
-    verbose (some of its messages ignore glog's level flags)."""
-    if _colmap_verbose:
-        yield
-        return
-    sys.stderr.flush()
-    saved = os.dup(2)
-    try:
-        with open(os.devnull, "wb") as devnull:
-            os.dup2(devnull.fileno(), 2)
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
 
 
 def colmap_camera_params(model: str, K: np.ndarray) -> str:
@@ -134,8 +106,7 @@ def _set_known_intrinsics(database_path: Path, model: str,
                           intrinsics: Mapping[str, KnownIntrinsics],
                           file_to_name: Mapping[str, str]) -> None:
     """Write known intrinsics into the cameras of a COLMAP database."""
-    import pycolmap
-
+    pycolmap = load_pycolmap()
     database = pycolmap.Database.open(database_path)
     try:
         cameras = {c.camera_id: c for c in database.read_all_cameras()}
@@ -149,9 +120,96 @@ def _set_known_intrinsics(database_path: Path, model: str,
         database.close()
 
 
+def _match(database_path: Path, files: Mapping[str, str], options: SfmOptions,
+           work: Path, threads: int) -> None:
+    """Pairwise matching with geometric verification (the matcher of ``options``)."""
+    pycolmap = load_pycolmap()
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = threads
+    matching.use_gpu = False
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = int(options.seed)
+    matcher = options.matcher
+    if matcher == "auto":
+        matcher = "exhaustive" if len(files) <= EXHAUSTIVE_MAX_IMAGES else "sequential"
+    log.info("matching features (%s)", matcher)
+    if matcher == "exhaustive":
+        run_in_child(pycolmap.match_exhaustive, database_path, matching_options=matching,
+                           verification_options=verification, device=pycolmap.Device.cpu)
+    elif matcher == "sequential":
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = 10
+        pairing.quadratic_overlap = True
+        run_in_child(pycolmap.match_sequential, database_path, matching_options=matching,
+                           pairing_options=pairing, verification_options=verification,
+                           device=pycolmap.Device.cpu)
+    else:
+        name_to_file = {name: file for file, name in files.items()}
+        unknown = sorted({n for pair in options.pairs or () for n in pair} - set(name_to_file))
+        if unknown:
+            raise ParameterError(f"pairs name unknown images: {', '.join(unknown)}")
+        pair_file = work / "pairs.txt"
+        pair_file.write_text("".join(f"{name_to_file[a]} {name_to_file[b]}\n"
+                                     for a, b in options.pairs or ()))
+        pairing = pycolmap.ImportedPairingOptions()
+        pairing.match_list_path = str(pair_file)
+        run_in_child(pycolmap.match_image_pairs, database_path, matching_options=matching,
+                           pairing_options=pairing, verification_options=verification,
+                           device=pycolmap.Device.cpu)
+
+
+def _pipeline_options(options: SfmOptions, threads: int):
+    pycolmap = load_pycolmap()
+    pipeline = pycolmap.IncrementalPipelineOptions()
+    pipeline.random_seed = int(options.seed)
+    pipeline.num_threads = threads
+    pipeline.min_model_size = 2
+    if options.intrinsics:
+        refine = any(k.refine for k in options.intrinsics.values())
+        pipeline.ba_refine_focal_length = refine
+        pipeline.ba_refine_principal_point = False
+        pipeline.ba_refine_extra_params = refine or options.camera_model in (
+            "SIMPLE_RADIAL", "RADIAL")
+        pipeline.mapper.abs_pose_refine_focal_length = refine
+    for key, value in options.extra.items():
+        owner, _, name = key.rpartition(".")
+        setattr(getattr(pipeline, owner) if owner else pipeline, name, value)
+    return pipeline
+
+
+def _sorted_models(models) -> list:
+    return sorted(models.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()),
+                  reverse=True)
+
+
+def _map(database_path: Path, image_folder, output: Path, pipeline,
+         input_path: Path | None = None) -> list:
+    """Incremental mapping in a child process (interruptible); the models COLMAP wrote
+    into ``output``, largest first."""
+    pycolmap = load_pycolmap()
+    output.mkdir(parents=True, exist_ok=True)
+    kwargs = {"input_path": input_path} if input_path is not None else {}
+    run_in_child(pycolmap.incremental_mapping, database_path, image_folder, output,
+                 options=pipeline, **kwargs)
+    models = {}
+    for folder in sorted(output.iterdir()):
+        if folder.is_dir() and (folder / "images.bin").is_file():
+            models[folder.name] = pycolmap.Reconstruction(folder)
+    return _sorted_models(models)
+
+
 def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
-            work_folder: str | os.PathLike, options: SfmOptions):
+            work_folder: str | os.PathLike, options: SfmOptions) -> tuple[list, dict]:
     """Features, matching and incremental mapping with bundle adjustment (pycolmap).
+
+    With known intrinsics (``options.intrinsics``) the images are registered with the
+    intrinsics fixed, in one mapping pass.  Images COLMAP leaves out are retried one
+    by one (COLMAP continues from the model with relaxed absolute-pose thresholds;
+    registered images keep their poses while they are added), never by re-mapping the
+    whole block.  Only when no two images can start a model with the intrinsics fixed
+    (very narrow fields of view, where the calibrated two-view geometry of a nearly
+    planar scene is degenerate) is the block mapped with free intrinsics; the caller
+    then imposes the known ones (:func:`impose_intrinsics`).
 
     Parameters
     ----------
@@ -168,9 +226,11 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
     reconstructions : list of pycolmap.Reconstruction
         Every model COLMAP built, largest (most registered images, then most points)
         first.  Empty if mapping failed.
+    report : dict
+        ``mapping_passes`` (1, or 2 when the free-intrinsics fallback ran),
+        ``retried`` (images retried one by one), ``free_fallback`` (bool).
     """
-    import pycolmap
-
+    pycolmap = load_pycolmap()
     if options.camera_model not in CAMERA_MODELS:
         raise ParameterError(f"unknown camera model {options.camera_model!r}; "
                              f"should be one of {', '.join(CAMERA_MODELS)}")
@@ -198,58 +258,66 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
     extraction.sift.max_num_features = int(options.max_features)
     extraction.use_gpu = False
     log.info("extracting SIFT features from %d images", len(files))
-    with _colmap_output():
-        pycolmap.extract_features(database_path, image_folder, image_names=list(files),
-                                  camera_mode=mode, reader_options=reader,
-                                  extraction_options=extraction, device=pycolmap.Device.cpu)
-    if intrinsics and mode == pycolmap.CameraMode.PER_IMAGE:
-        _set_known_intrinsics(database_path, options.camera_model, intrinsics, files)
-
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = threads
-    matching.use_gpu = False
-    verification = pycolmap.TwoViewGeometryOptions()
-    verification.ransac.random_seed = int(options.seed)
-    matcher = options.matcher
-    if matcher == "auto":
-        matcher = "exhaustive" if len(files) <= EXHAUSTIVE_MAX_IMAGES else "sequential"
-    log.info("matching features (%s)", matcher)
-    if matcher == "exhaustive":
-        with _colmap_output():
-            pycolmap.match_exhaustive(database_path, matching_options=matching,
-                                      verification_options=verification,
-                                      device=pycolmap.Device.cpu)
-    else:
-        pairing = pycolmap.SequentialPairingOptions()
-        pairing.overlap = 10
-        pairing.quadratic_overlap = True
-        with _colmap_output():
-            pycolmap.match_sequential(database_path, matching_options=matching,
-                                      pairing_options=pairing,
-                                      verification_options=verification,
-                                      device=pycolmap.Device.cpu)
-
-    pipeline = pycolmap.IncrementalPipelineOptions()
-    pipeline.random_seed = int(options.seed)
-    pipeline.num_threads = threads
-    pipeline.min_model_size = 2
+    run_in_child(pycolmap.extract_features, database_path, image_folder,
+                       image_names=list(files), camera_mode=mode, reader_options=reader,
+                       extraction_options=extraction, device=pycolmap.Device.cpu)
     if intrinsics:
-        refine = any(k.refine for k in intrinsics.values())
-        pipeline.ba_refine_focal_length = refine
-        pipeline.ba_refine_principal_point = False
-        pipeline.ba_refine_extra_params = refine or options.camera_model in (
-            "SIMPLE_RADIAL", "RADIAL")
-        pipeline.mapper.abs_pose_refine_focal_length = refine
-    for key, value in options.extra.items():
-        setattr(pipeline, key, value)
-    log.info("incremental mapping and bundle adjustment")
-    with _colmap_output():
-        models = pycolmap.incremental_mapping(database_path, image_folder, work / "sparse",
-                                              options=pipeline)
-    return sorted(models.values(),
-                  key=lambda r: (r.num_reg_images(), r.num_points3D()), reverse=True)
+        _set_known_intrinsics(database_path, options.camera_model, intrinsics, files)
+    _match(database_path, files, options, work, threads)
+
+    pipeline = _pipeline_options(options, threads)
+    report: dict = {"mapping_passes": 1, "retried": [], "free_fallback": False}
+    log.info("incremental mapping and bundle adjustment%s",
+             " (known intrinsics, fixed)" if intrinsics else "")
+    models = _map(database_path, image_folder, work / "sparse", pipeline)
+    if intrinsics and models and models[0].num_reg_images() < len(files):
+        models[0] = _retry_left_out(models[0], database_path, image_folder, work, pipeline,
+                                    files, report)
+    elif intrinsics and not models:
+        log.warning("no image pair starts a model with the known intrinsics fixed (a "
+                    "narrow field of view?); mapping with free intrinsics, imposing the "
+                    "known ones after")
+        # The database's two-view geometries were verified with the known (calibrated)
+        # cameras, which is what failed: start afresh with free cameras.
+        free_options = SfmOptions(shared_camera=options.shared_camera,
+                                  camera_model="SIMPLE_RADIAL", matcher=options.matcher,
+                                  pairs=options.pairs, max_features=options.max_features,
+                                  seed=options.seed, workers=options.workers,
+                                  extra=dict(options.extra))
+        free_work = work / "free"
+        free_work.mkdir()
+        models, _ = run_sfm(image_folder, files, free_work, free_options)
+        report.update(mapping_passes=2, free_fallback=True)
+    return models, report
 
 
+def _retry_left_out(model, database_path: Path, image_folder, work: Path, pipeline,
+                    files: Mapping[str, str], report: dict):
+    """Continue mapping from ``model`` to register the images it left out.
+
+    The registered images keep their poses while COLMAP tries the others with relaxed
+    absolute-pose thresholds (fewer inliers, a larger error); a final global bundle
+    adjustment of the continued model follows in COLMAP.  The known intrinsics stay
+    fixed.  Returns the larger of the two models.
+    """
+    pycolmap = load_pycolmap()
+    registered = {model.image(i).name for i in model.reg_image_ids()}
+    left_out = [files[f] for f in files if f not in registered]
+    log.info("retrying %d image(s) COLMAP left out: %s", len(left_out), ", ".join(left_out))
+    report["retried"] = left_out
+    start = work / "start"
+    start.mkdir(exist_ok=True)
+    model.write(start)
+    retry = pycolmap.IncrementalPipelineOptions(pipeline.todict())
+    retry.fix_existing_frames = True
+    retry.mapper.abs_pose_min_num_inliers = max(10, pipeline.mapper.abs_pose_min_num_inliers // 3)
+    retry.mapper.abs_pose_min_inlier_ratio = 0.5 * pipeline.mapper.abs_pose_min_inlier_ratio
+    retry.mapper.abs_pose_max_error = 2.0 * pipeline.mapper.abs_pose_max_error
+    retry.mapper.max_reg_trials = pipeline.mapper.max_reg_trials + 3
+    continued = _map(database_path, image_folder, work / "retry", retry, input_path=start)
+    if continued and continued[0].num_reg_images() > model.num_reg_images():
+        return continued[0]
+    return model
 def impose_intrinsics(reconstruction, intrinsics: Mapping[str, KnownIntrinsics],
                       file_to_name: Mapping[str, str], *, workers: int = 0) -> None:
     """Replace the cameras' intrinsics by known ones (PINHOLE) and re-run global BA.
@@ -260,8 +328,7 @@ def impose_intrinsics(reconstruction, intrinsics: Mapping[str, KnownIntrinsics],
     re-adjust poses and points (focal lengths refined only if asked).  Changes
     ``reconstruction`` in place.
     """
-    import pycolmap
-
+    pycolmap = load_pycolmap()
     refine = any(k.refine for k in intrinsics.values())
     for image_id in reconstruction.reg_image_ids():
         image = reconstruction.image(image_id)
@@ -275,43 +342,5 @@ def impose_intrinsics(reconstruction, intrinsics: Mapping[str, KnownIntrinsics],
     options.refine_principal_point = False
     options.refine_extra_params = False
     options.ceres.solver_options.num_threads = workers if workers > 0 else -1
-    with _colmap_output():
-        pycolmap.bundle_adjustment(reconstruction, options)
+    call_interruptibly(pycolmap.bundle_adjustment, reconstruction, options, cancellable=False)
     reconstruction.update_point_3d_errors()
-
-
-def refine_second_radial_term(reconstruction, *, workers: int = 0) -> bool:
-    """Free a second radial distortion term and re-run global bundle adjustment.
-
-    Incremental mapping with COLMAP's SIMPLE_RADIAL model (one term k) is robust on
-    narrow fields of view, where a two-term model can make the first registrations
-    fail; the second term k2 (RADIAL model) is then estimated in one final global
-    bundle adjustment of the complete model, starting from k2 = 0.  Changes
-    ``reconstruction`` in place.
-
-    Returns
-    -------
-    bool
-        True if any camera was converted and the model re-adjusted.
-    """
-    import pycolmap
-
-    converted = False
-    for camera in reconstruction.cameras.values():
-        if camera.model_name != "SIMPLE_RADIAL":
-            continue
-        params = [float(v) for v in camera.params]
-        camera.model = pycolmap.CameraModelId.RADIAL
-        camera.params = params + [0.0]
-        converted = True
-    if not converted:
-        return False
-    options = pycolmap.BundleAdjustmentOptions()
-    options.print_summary = False
-    options.ceres.solver_options.num_threads = workers if workers > 0 else -1
-    with _colmap_output():
-        pycolmap.bundle_adjustment(reconstruction, options)
-    reconstruction.update_point_3d_errors()
-    return True
-
-

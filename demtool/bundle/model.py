@@ -88,7 +88,7 @@ def radial_terms(camera) -> tuple[float, float]:
 
 
 def reconstruction_to_result(reconstruction, file_to_name: Mapping[str, str],
-                             order: Sequence[str], target_name: str) -> BundleResult:
+                             order: Sequence[str], target_name: str | None) -> BundleResult:
     """Convert a pycolmap Reconstruction into a :class:`BundleResult`.
 
     Parameters
@@ -97,8 +97,9 @@ def reconstruction_to_result(reconstruction, file_to_name: Mapping[str, str],
     file_to_name : mapping of COLMAP image name (file name) to view name
     order : sequence of str
         View names in the order wanted in the output (the selection order).
-    target_name : str
-        The target view; must be registered.
+    target_name : str or None
+        The target view; must be registered.  None (a block without a target): the
+        first registered view in ``order``.
 
     Raises
     ------
@@ -110,6 +111,8 @@ def reconstruction_to_result(reconstruction, file_to_name: Mapping[str, str],
         image = reconstruction.image(image_id)
         by_name[file_to_name[image.name]] = image
     names = [n for n in order if n in by_name]
+    if target_name is None and names:
+        target_name = names[0]
     if target_name not in by_name:
         raise ProcessingError(f"the target image {target_name} was not registered "
                               f"(registered: {', '.join(names) or 'none'})")
@@ -192,3 +195,27 @@ def project_points(camera: PinholeCamera, points: np.ndarray,
     return pixels, depth
 
 
+
+
+def image_report(reconstruction, file_to_name: Mapping[str, str]) -> dict[str, dict]:
+    """Per registered image: observations and reprojection residuals.
+
+    Returns
+    -------
+    dict of view name to dict
+        ``observations`` (image points with a 3-D point), ``mean_residual_px`` and
+        ``rms_residual_px`` (length of observed − projected, pixels).
+    """
+    from demtool.bundle.calibration import observation_residuals
+
+    report = {}
+    for image_id, residuals in observation_residuals(reconstruction).items():
+        name = file_to_name[reconstruction.image(image_id).name]
+        lengths = np.hypot(residuals[:, 0], residuals[:, 1])
+        report[name] = {
+            "observations": int(len(residuals)),
+            "mean_residual_px": float(lengths.mean()) if len(lengths) else float("nan"),
+            "rms_residual_px": float(np.sqrt(np.mean(lengths**2))) if len(lengths)
+            else float("nan"),
+        }
+    return report

@@ -30,11 +30,13 @@ class BundleParams(Parameters):
         None, "COLMAP camera model (pinhole, optionally with radial distortion); default "
         "SIMPLE_RADIAL (f, k), or PINHOLE with known intrinsics.", choices=CAMERA_MODELS,
         what="camera model")
-    radial_k2: bool = parameter(True, "After mapping with SIMPLE_RADIAL, free a second radial "
-                                "term k2 in a final global bundle adjustment (RADIAL model).")
+    self_calibrate: bool = parameter(True, "With free intrinsics, refine the principal point "
+                                     "and radial terms k1, k2 where the block determines "
+                                     "them.")
     matcher: str = parameter(CORE["matcher"], "Pair selection: all pairs, or neighbours in "
-                             "selection order (auto: exhaustive up to 100 images).",
-                             choices=MATCHERS, what="matcher")
+                             "input order (strips; auto: exhaustive up to 100 images).",
+                             choices=tuple(m for m in MATCHERS if m != "pairs"),
+                             what="matcher")
     max_features: int = parameter(CORE["max_features"], "SIFT features per image.",
                                   minimum=64)
     seed: int = seed_field()

@@ -12,22 +12,27 @@ from demtool.stages import STAGES
 
 HELP = STAGES["bundle"] + """
 
-Reads SELECTION (selection.json from `demtool select`; the target first) and runs
-COLMAP through pycolmap: SIFT features, exhaustive or sequential matching with
-geometric verification, incremental mapping with bundle adjustment.  By default all
-images share one camera whose focal length and radial distortion COLMAP estimates
-(SIMPLE_RADIAL while mapping, a second radial term in a final adjustment);
---focal-px or --cameras give known intrinsics (kept fixed unless
---refine-intrinsics).  The largest model is written to OUT (bundle.npz: points,
-intensities, track lengths, reprojection errors, cameras, target index) with the
-sidecar OUT.json (registered images, points, mean and 95th-percentile reprojection
-error).  --align-cameras maps the model onto known camera centres (similarity,
+Takes any block of images: INPUTS is one selection.json (from `demtool select`; the
+target first) or two or more image files, or --images LIST (one path a line,
+relative to the list file).  Runs COLMAP through pycolmap: SIFT features,
+exhaustive or sequential (strips: neighbours in input order) matching with geometric
+verification, incremental mapping with bundle adjustment.  By default all images
+share one camera: COLMAP estimates its focal length and a radial term while
+mapping, then a self-calibration frees the principal point and a second radial term
+and keeps each only where the block determines it (README, "bundle").  --focal-px or
+--cameras give known intrinsics (fixed unless --refine-intrinsics; one mapping pass).
+The largest model is written to OUT (bundle.npz: points, intensities, track lengths,
+reprojection errors, cameras, target index) with the sidecar OUT.json (registered
+images, per-image observations and residuals, refined intrinsics and their standard
+deviations).  --align-cameras maps the model onto known camera centres (similarity,
 Umeyama 1991) so that it is metric, in the world frame.
 """
 
 
 @click.command(name="bundle", help=HELP)
-@options.input_file("selection")
+@click.argument("inputs", nargs=-1, type=click.Path(dir_okay=False))
+@options.path_option("--images", "List file of the images (one path a line, relative to "
+                     "the list file).")
 @options.out_file("Output bundle.npz.")
 @click.option("--colmap-dir", type=click.Path(file_okay=False),
               help="Also write the COLMAP model (binary) into this folder, for COLMAP's GUI.")
@@ -37,16 +42,22 @@ Umeyama 1991) so that it is metric, in the world frame.
                      "model to them (metric world frame).")
 @options.parameter_options(BundleParams)
 @click.pass_context
-def command(ctx: click.Context, selection: str, out: str, colmap_dir: str | None,
-            cameras: str | None, align_cameras: str | None, **values: Any) -> None:
+def command(ctx: click.Context, inputs: tuple[str, ...], images: str | None, out: str,
+            colmap_dir: str | None, cameras: str | None, align_cameras: str | None,
+            **values: Any) -> None:
     """Options → BundleParams → :func:`demtool.runs.bundle.run_bundle`."""
     from demtool.cli import AppState
     from demtool.runs.bundle import run_bundle
 
     options.exclusive({"--focal-px": values["focal_px"] is not None,
                        "--cameras": cameras is not None})
+    options.exclusive({"INPUTS": bool(inputs), "--images": images is not None},
+                      exactly_one=True)
+    if len(inputs) > 1 and any(name.lower().endswith(".json") for name in inputs):
+        raise click.BadParameter("a selection.json comes alone, not with image files",
+                                 param_hint="INPUTS")
     state = ctx.find_object(AppState)
-    run_bundle(selection, out, BundleParams.from_options(values), colmap_dir=colmap_dir,
-               cameras_path=cameras, align_path=align_cameras,
+    run_bundle(list(inputs), out, BundleParams.from_options(values), image_list=images,
+               colmap_dir=colmap_dir, cameras_path=cameras, align_path=align_cameras,
                verbose=state is not None and state.verbosity > 0,
                resolved=options.resolved_params(ctx))

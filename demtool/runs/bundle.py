@@ -1,213 +1,150 @@
-"""Runner of ``demtool bundle``: structure from motion and bundle adjustment of the
-images of a ``selection.json`` (pycolmap), written as ``bundle.npz``."""
+"""Runner of ``demtool bundle``: structure from motion and bundle adjustment of any block
+of images (a ``selection.json``, image paths, or a list file) with pycolmap, written as
+``bundle.npz``."""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from demtool.runs import StageRun
 
 if TYPE_CHECKING:
+    from demtool.bundle.inputs import Block
     from demtool.bundle.params import BundleParams
 
-#: percentiles of the linear stretch of the scratch 8-bit copies COLMAP reads
-COLMAP_PERCENTILES = (0.1, 99.9)
 
+def read_block(inputs: Sequence[str | os.PathLike],
+               image_list: str | os.PathLike | None = None) -> Block:
+    """The block of one selection.json, of image paths, or of a list file.
 
-def _resolve_image_path(path: str, selection_path: Path) -> Path:
-    """A selection's image path: as given (relative to the working folder), else
-    relative to the selection file's folder."""
-    candidate = Path(path)
-    if candidate.is_file() or candidate.is_absolute():
-        return candidate
-    beside = selection_path.parent / candidate
-    return beside if beside.is_file() else candidate
-
-
-def read_selection(path: str | os.PathLike) -> tuple[str, list[tuple[str, Path]]]:
-    """Target name and the selected images (name, path) of a selection.json, target first."""
+    See :mod:`demtool.bundle.inputs`: selection and list paths are resolved against the
+    file's own folder.
+    """
+    from demtool import bundle as core
     from demtool import io as dio
-    from demtool.errors import InputError
+    from demtool.errors import ParameterError
 
-    selection_path = Path(path)
-    content = dio.read_json(selection_path, "selection file")
-    try:
-        target = str(content["target"]["name"])
-        entries = [(str(e["name"]), str(e["path"])) for e in content["selected"]]
-    except (KeyError, TypeError) as exc:
-        raise InputError(f"{selection_path}: not a selection file from `demtool select` "
-                         f"(missing {exc})") from None
-    names = [name for name, _ in entries]
-    if len(set(names)) != len(names):
-        raise InputError(f"{selection_path}: selected image names are not unique")
-    if target not in names:
-        target_path = str(content["target"].get("path", ""))
-        entries.insert(0, (target, target_path))
-    images = [(name, _resolve_image_path(p, selection_path)) for name, p in entries]
-    return target, images
+    if image_list is not None:
+        if inputs:
+            raise ParameterError("give a selection.json or image files, or --images LIST, "
+                                 "not both")
+        return core.read_image_list(image_list)
+    if not inputs:
+        raise ParameterError("give a selection.json or image files, or --images LIST")
+    if len(inputs) == 1 and Path(inputs[0]).suffix.lower() == ".json":
+        return core.read_selection(dio.require_file(inputs[0], "selection file"))
+    if any(Path(p).suffix.lower() == ".json" for p in inputs):
+        raise ParameterError("a selection.json comes alone, not with image files")
+    if len(inputs) == 1:
+        dio.require_file(inputs[0], "image")
+    return core.block_from_paths([str(p) for p in inputs])
 
 
-def run_bundle(selection: str | os.PathLike, out: str | os.PathLike,
-               params: BundleParams | None = None, *,
+def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
+               out: str | os.PathLike, params: BundleParams | None = None, *,
+               image_list: str | os.PathLike | None = None,
                colmap_dir: str | os.PathLike | None = None,
                cameras_path: str | os.PathLike | None = None,
                align_path: str | os.PathLike | None = None, verbose: bool = False,
                resolved: dict | None = None) -> dict:
-    """Run the bundle stage: read the selection, run SfM, write bundle.npz and sidecar.
+    """Run the bundle stage: read the block, adjust it, write bundle.npz and its sidecar.
 
+    ``inputs`` is one selection.json or image paths (or empty with ``image_list``);
     ``cameras_path`` gives known intrinsics (not with ``params.focal_px``),
     ``align_path`` known camera centres to align the model to; ``colmap_dir`` also
-    receives the COLMAP model.  ``verbose`` shows COLMAP's own log.  Returns the sidecar summary.
+    receives the COLMAP model.  ``verbose`` shows COLMAP's own log.  Returns the sidecar
+    summary.
     """
-    import shutil
-    import tempfile
     import time
-    from dataclasses import replace
-
-    import cv2
-    import numpy as np
 
     from demtool import bundle as core
     from demtool import io as dio
     from demtool.bundle.params import BundleParams
     from demtool.camera import cameras_from_arrays
-    from demtool.errors import InputError, ProcessingError
-    from demtool.features import to_uint8
+    from demtool.errors import InputError
 
     params = params or BundleParams()
-    focal_px, refine_intrinsics = params.focal_px, params.refine_intrinsics
-    workers, radial_k2 = params.workers, params.radial_k2
     started = time.perf_counter()
-    selection_path = dio.require_file(selection, "selection file")
-    target, images = read_selection(selection_path)
-    if len(images) < 2:
-        raise InputError(f"{selection_path}: bundle adjustment needs at least 2 images, "
-                         f"the selection has {len(images)} ({', '.join(n for n, _ in images)})")
-    for name, path in images:
-        dio.require_file(path, f"image {name}")
+    if isinstance(inputs, (str, os.PathLike)):
+        inputs = [inputs]
+    block = read_block(list(inputs), image_list)
     known_cameras = None
     if cameras_path is not None:
         known_cameras = cameras_from_arrays(dio.read_npz(cameras_path, "cameras"))
-        missing = [n for n, _ in images if n not in known_cameras]
+        missing = [n for n in block.names if n not in known_cameras]
         if missing:
             raise InputError(f"{cameras_path}: no camera for {', '.join(missing)}")
     known_centres = None
     if align_path is not None:
         known_centres = {n: c.center for n, c in
                          cameras_from_arrays(dio.read_npz(align_path, "cameras")).items()}
+    sources = {"--images": image_list} if image_list is not None else \
+        {"SELECTION": inputs[0]} if block.target is not None else {}
     run = StageRun("bundle", params, resolved=resolved,
-                   inputs={"SELECTION": selection_path, "images": [p for _, p in images],
+                   inputs={**sources, "images": list(block.paths),
                            "--cameras": cameras_path, "--align-cameras": align_path},
                    outputs={"--out": out}, folders={"--colmap-dir": colmap_dir})
     log, prov = run.log, run.provenance
 
-    core.set_colmap_verbosity(verbose)
-    with tempfile.TemporaryDirectory(prefix="demtool-bundle-") as scratch:
-        scratch_path = Path(scratch)
-        image_folder = scratch_path / "images"
-        image_folder.mkdir()
-        files: dict[str, str] = {}
-        intrinsics: dict[str, core.KnownIntrinsics] = {}
-        for name, path in images:
-            raster = dio.read_image(path, what=f"image {name}")
-            file_name = f"{name}.png"
-            image8, _ = to_uint8(raster.data, percentiles=COLMAP_PERCENTILES, exact=True)
-            if not cv2.imwrite(str(image_folder / file_name), image8):
-                raise ProcessingError(f"cannot write a scratch copy of {path} for COLMAP")
-            files[file_name] = name
-            height, width = raster.data.shape
-            if focal_px is not None:
-                K = np.array([[focal_px, 0, (width - 1) / 2], [0, focal_px, (height - 1) / 2],
-                              [0, 0, 1.0]])
-                intrinsics[name] = core.KnownIntrinsics(K, refine_intrinsics)
-            elif known_cameras is not None:
+    def images():
+        for name, path in zip(block.names, block.paths, strict=True):
+            data = dio.read_image(path, what=f"image {name}").data
+            if known_cameras is not None:
                 camera = known_cameras[name]
-                if (camera.width, camera.height) != (width, height):
+                if (camera.height, camera.width) != data.shape:
                     raise InputError(f"{cameras_path}: camera {name} is {camera.width}×"
-                                     f"{camera.height} px but {path} is {width}×{height}")
-                intrinsics[name] = core.KnownIntrinsics(camera.K, refine_intrinsics)
-        options = core.SfmOptions(
-            shared_camera=params.shared_camera,
-            camera_model=params.camera_model or ("PINHOLE" if intrinsics else "SIMPLE_RADIAL"),
-            intrinsics=intrinsics or None, matcher=params.matcher,
-            max_features=params.max_features, seed=params.seed, workers=workers)
-        models = core.run_sfm(image_folder, files, scratch_path, options)
-        imposed = False
-        if intrinsics and (not models or models[0].num_reg_images() < len(images)):
-            log.warning("COLMAP registered %d of %d images with the known intrinsics; "
-                        "mapping with free intrinsics and imposing the known ones after",
-                        models[0].num_reg_images() if models else 0, len(images))
-            free_folder = scratch_path / "free"
-            free_folder.mkdir()
-            free = core.run_sfm(image_folder, files, free_folder,
-                                replace(options, intrinsics=None, camera_model="SIMPLE_RADIAL",
-                                        shared_camera=options.shared_camera))
-            if free and (not models or free[0].num_reg_images() > models[0].num_reg_images()):
-                core.set_colmap_verbosity(verbose)
-                core.impose_intrinsics(free[0], intrinsics, files, workers=workers)
-                models, imposed = free, True
-        selected_names = [n for n, _ in images]
-        if not models or models[0].num_reg_images() < 2:
-            registered = ([files[models[0].image(i).name] for i in models[0].reg_image_ids()]
-                          if models else [])
-            raise ProcessingError(
-                f"reconstruction failed: {len(registered)} of {len(images)} images registered "
-                f"({', '.join(registered) or 'none'}); the images may not overlap enough or "
-                f"lack texture (try more --max-features)")
-        model = models[0]
-        if radial_k2 and not intrinsics:
-            core.set_colmap_verbosity(verbose)
-            if core.refine_second_radial_term(model, workers=workers):
-                log.info("final bundle adjustment with a second radial term (RADIAL)")
-        result = core.reconstruction_to_result(model, files, selected_names, target)
-        alignment = None
-        if known_centres is not None:
-            result, alignment = core.align_to_centres(result, known_centres)
-            log.info("aligned to %d known camera centres: scale %.6g, centre RMS %.3g m",
-                     alignment["centres_used"], alignment["scale"], alignment["centre_rms_m"])
-        registered = [str(n) for n in result.image_names]
-        summary: dict[str, Any] = {
-            "selected": selected_names,
-            "registered": registered,
-            "not_registered": [n for n in selected_names if n not in registered],
-            "registered_count": len(registered),
-            "selected_count": len(selected_names),
-            "models": len(models),
-            "points": int(len(result.points)),
-            "mean_track_length": float(np.mean(result.track_length)) if len(result.points)
-            else 0.0,
-            **core.reprojection_summary(result),
-            "focal_px": [float(c.focal_px) for c in result.cameras],
-            "camera_model": model.camera(model.image(model.reg_image_ids()[0]).camera_id)
-            .model_name,
-            "target": target,
-            "aligned": result.aligned,
-            "intrinsics": ("estimated" if not intrinsics else
-                           "known, imposed after free mapping" if imposed else "known"),
-            "alignment": alignment,
-        }
-        log.info("registered %d/%d images (%s), %d points, reprojection error mean "
-                 "%.3f px, 95th percentile %.3f px", len(registered), len(images),
-                 ", ".join(registered), summary["points"],
-                 summary["mean_reprojection_error_px"], summary["p95_reprojection_error_px"])
-        if summary["not_registered"]:
-            log.warning("not registered: %s", ", ".join(summary["not_registered"]))
-        model_folder = None
-        if colmap_dir is not None:
-            model_folder = scratch_path / "model_out"
-            model_folder.mkdir()
-            model.write(model_folder)
-        with dio.output_transaction():
-            dio.write_npz(out, "bundle", result.to_arrays())
-            outputs = [Path(out)]
-            if model_folder is not None:
-                for item in sorted(model_folder.iterdir()):
-                    final = Path(colmap_dir) / item.name
-                    with dio.atomic_path(final) as temporary:
-                        shutil.copyfile(item, temporary)
-                    outputs.append(final)
-            summary["time_s"] = round(time.perf_counter() - started, 2)
-            prov.write_sidecar(out, summary, outputs=outputs)
+                                     f"{camera.height} px but {path} is {data.shape[1]}×"
+                                     f"{data.shape[0]}")
+            yield name, data
+
+    def intrinsics(shapes):
+        if params.focal_px is None and known_cameras is None:
+            return None
+        return core.known_intrinsics(
+            shapes, focal_px=params.focal_px, refine=params.refine_intrinsics,
+            matrices=None if known_cameras is None else
+            {n: known_cameras[n].K for n in block.names})
+
+    core.set_colmap_verbosity(verbose)
+    known = params.focal_px is not None or known_cameras is not None
+    options = core.SfmOptions(
+        shared_camera=params.shared_camera,
+        camera_model=params.camera_model or ("PINHOLE" if known else "SIMPLE_RADIAL"),
+        matcher=params.matcher, max_features=params.max_features, seed=params.seed,
+        workers=params.workers)
+    adjusted = core.adjust_block(images(), options, target=block.target, intrinsics=intrinsics,
+                                 self_calibration=params.self_calibrate,
+                                 keep_model=colmap_dir is not None)
+    result, summary = adjusted.result, adjusted.summary
+    summary["source"] = block.source
+    if known_centres is not None:
+        result, alignment = core.align_to_centres(result, known_centres)
+        log.info("aligned to %d known camera centres: scale %.6g, centre RMS %.3g m",
+                 alignment["centres_used"], alignment["scale"], alignment["centre_rms_m"])
+        summary["alignment"] = alignment
+    summary["aligned"] = result.aligned
+    log.info("registered %d/%d images, %d points, reprojection error mean %.3f px, "
+             "95th percentile %.3f px; intrinsics %s, refined %s",
+             summary["registered_count"], summary["image_count"], summary["points"],
+             summary["mean_reprojection_error_px"], summary["p95_reprojection_error_px"],
+             summary["intrinsics"]["mode"], ", ".join(summary["intrinsics"]["refined"])
+             or "none")
+    for name, row in summary["images"].items():
+        log.info("  %-20s %6d observations, residual mean %.3f px", name,
+                 row["observations"], row["mean_residual_px"])
+    if summary["not_registered"]:
+        log.warning("not registered: %s", ", ".join(summary["not_registered"]))
+    with dio.output_transaction():
+        dio.write_npz(out, "bundle", result.to_arrays())
+        outputs = [Path(out)]
+        for file_name, content in adjusted.model_files.items():
+            final = Path(colmap_dir) / file_name
+            with dio.atomic_path(final) as temporary:
+                temporary.write_bytes(content)
+            outputs.append(final)
+        summary["time_s"] = round(time.perf_counter() - started, 2)
+        prov.write_sidecar(out, summary, outputs=outputs)
     return summary

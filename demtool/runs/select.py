@@ -224,8 +224,11 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
         record.pop("reason", None)
     for record in rejected:
         record.pop("selected", None)
+    # Paths relative to the selection file's folder, so `bundle` finds them from anywhere.
+    for record in [target_entry, *chosen, *rejected]:
+        record["path"] = selection.path_relative_to(record["path"], Path(out).parent)
     result = {
-        "target": {"name": target_name, "path": target},
+        "target": {"name": target_name, "path": target_entry["path"]},
         "roi": None if roi is None else region.as_list(),
         "selected": [target_entry, *chosen],
         "rejected": rejected,

@@ -10,6 +10,9 @@ from dataclasses import dataclass
 
 from demtool.parameters import Parameters, parameter, seed_field
 
+#: Camera layouts of :class:`SceneParams` (``layout``).
+LAYOUTS = ("stereo", "ring", "strip")
+
 
 @dataclass(frozen=True)
 class SceneParams(Parameters):
@@ -87,6 +90,14 @@ class SceneParams(Parameters):
                               minimum=0)
     bh_max: float = parameter(0.5, "Largest B/H (to the target) of the other views.",
                               minimum=0)
+    layout: str = parameter("stereo", "Camera layout: the target and its stereo partner plus "
+                            "views around them (stereo), a ring of views around the scene "
+                            "(ring), or a strip of overlapping nadir frames (strip).",
+                            choices=LAYOUTS, what="layout", cli=False)
+    cx_offset_px: float = parameter(0.0, "Principal point offset from the image centre, x, px.",
+                                    cli=False)
+    cy_offset_px: float = parameter(0.0, "Principal point offset from the image centre, y, px.",
+                                    cli=False)
     sun_incidence_deg: float = parameter(60.0, "Sun incidence angle from the zenith, degrees.",
                                          option="sun-incidence", minimum=0.0, maximum=90.0,
                                          max_open=True)
@@ -111,3 +122,7 @@ class SceneParams(Parameters):
                       f"must not be smaller than {self.label('crater_min_diameter_m')}")
         if self.bh_max < self.bh_min:
             self.fail("bh_max", f"must not be smaller than {self.label('bh_min')}")
+        for name in ("cx_offset_px", "cy_offset_px"):
+            if not abs(getattr(self, name)) < 0.5 * self.image_size:
+                self.fail(name, f"must lie inside the image (|value| < image size / 2), got "
+                          f"{getattr(self, name)}")

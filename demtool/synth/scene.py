@@ -105,8 +105,17 @@ def dem_transform(params: SceneParams):
 
 
 def camera_positions(params: SceneParams) -> np.ndarray:
-    """Camera centres (n_views, 3), world metres: target, partner, then the others."""
+    """Camera centres (n_views, 3), world metres: target, partner, then the others
+    (``layout`` "stereo"), or the ring or strip of :class:`SceneParams`."""
     h = params.altitude_m
+    if params.layout == "ring":
+        azimuth = np.radians(360.0 * np.arange(params.n_views) / params.n_views)
+        radius = params.bh_max * h
+        return np.column_stack([radius * np.sin(azimuth), radius * np.cos(azimuth),
+                                np.full(params.n_views, h)])
+    if params.layout == "strip":
+        x = (np.arange(params.n_views) - 0.5 * (params.n_views - 1)) * params.partner_bh * h
+        return np.column_stack([x, np.zeros_like(x), np.full(params.n_views, h)])
     positions = [(0.0, 0.0, h), (params.partner_bh * h, 0.0, h)]
     others = params.n_views - 2
     ratios = np.linspace(params.bh_min, params.bh_max, others) if others > 1 else \
@@ -120,9 +129,19 @@ def camera_positions(params: SceneParams) -> np.ndarray:
 def make_cameras(params: SceneParams) -> dict[str, PinholeCamera]:
     """The scene's cameras by name, all looking at the scene centre (module docstring)."""
     focal = params.altitude_m / params.gsd_m
-    return {view_name(i): look_at(centre, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), focal_px=focal,
-                                  width=params.image_size, height=params.image_size)
-            for i, centre in enumerate(camera_positions(params))}
+    cameras = {}
+    for i, centre in enumerate(camera_positions(params)):
+        aim = (centre[0], centre[1], 0.0) if params.layout == "strip" else (0.0, 0.0, 0.0)
+        camera = look_at(centre, aim, (0.0, 1.0, 0.0), focal_px=focal,
+                         width=params.image_size, height=params.image_size)
+        if params.cx_offset_px or params.cy_offset_px:
+            K = camera.K.copy()
+            K[0, 2] += params.cx_offset_px
+            K[1, 2] += params.cy_offset_px
+            camera = PinholeCamera(K=K, R=camera.R, t=camera.t, width=camera.width,
+                                   height=camera.height)
+        cameras[view_name(i)] = camera
+    return cameras
 
 
 def footprint_bounds(camera: PinholeCamera, z_min: float, z_max: float) -> np.ndarray:

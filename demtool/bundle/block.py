@@ -1,0 +1,178 @@
+"""Adjust a block of images: scratch copies for COLMAP, mapping, self-calibration.
+
+:func:`adjust_block` is the core of ``demtool bundle`` (arrays in, a
+:class:`BlockAdjustment` out).  COLMAP reads images from a folder and keeps an SQLite
+database, so the function works in a temporary folder it removes afterwards.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from demtool.bundle import calibration
+from demtool.bundle.colmap import KnownIntrinsics, SfmOptions, impose_intrinsics, run_sfm
+from demtool.bundle.model import (
+    BundleResult,
+    image_report,
+    reconstruction_to_result,
+    reprojection_summary,
+)
+from demtool.errors import ProcessingError
+from demtool.logs import get_logger
+
+log = get_logger(__name__)
+
+
+@dataclass(frozen=True)
+class BlockAdjustment:
+    """The outcome of :func:`adjust_block`.
+
+    Attributes
+    ----------
+    result : BundleResult
+        The largest model in demtool's conventions.
+    summary : dict
+        Registered / not registered images, points, reprojection statistics, the
+        intrinsics report (``intrinsics``: which parameters were refined, their values
+        and standard deviations, or the known ones) and the per-image report
+        (``images``: observations and residuals).
+    model_files : dict of str to bytes
+        The COLMAP model (binary files by name) when asked for, else empty.
+    """
+
+    result: BundleResult
+    summary: dict[str, Any]
+    model_files: dict[str, bytes]
+
+
+#: percentiles of the linear stretch of the scratch 8-bit copies COLMAP reads
+COLMAP_PERCENTILES = (0.1, 99.9)
+
+
+def adjust_block(images: Iterable[tuple[str, np.ndarray]], options: SfmOptions, *,
+                 target: str | None = None, self_calibration: bool = True,
+                 keep_model: bool = False,
+                 intrinsics: Callable[[dict[str, tuple[int, int]]],
+                                      Mapping[str, KnownIntrinsics] | None] | None = None,
+                 ) -> BlockAdjustment:
+    """Structure from motion and bundle adjustment of a block of images.
+
+    Parameters
+    ----------
+    images : iterable of (str, (H, W) array)
+        View name and image (any dtype; NaN = no data), consumed one at a time.
+    options : SfmOptions
+        With ``intrinsics`` (known, fixed unless their ``refine``) or without (free:
+        mapped with SIMPLE_RADIAL, then :func:`calibration.self_calibrate`).
+    target : str, optional
+        The target view (must register); default the first registered view.
+    self_calibration : bool
+        Refine the principal point and radial terms where the block determines them
+        (free intrinsics only).
+    keep_model : bool
+        Return COLMAP's binary model files too.
+    intrinsics : callable, optional
+        Known intrinsics from the image shapes ((height, width) by view name), once
+        the images are read; replaces ``options.intrinsics`` unless it returns None.
+
+    Raises
+    ------
+    ProcessingError
+        Fewer than two images registered (no overlap, no texture).
+    """
+    import cv2
+
+    from demtool.features import to_uint8
+
+    with tempfile.TemporaryDirectory(prefix="demtool-bundle-") as scratch:
+        work = Path(scratch)
+        folder = work / "images"
+        folder.mkdir()
+        files: dict[str, str] = {}
+        shapes: dict[str, tuple[int, int]] = {}
+        for name, data in images:
+            shapes[name] = np.shape(data)
+            file_name = f"{name}.png"
+            image8, _ = to_uint8(np.asarray(data), percentiles=COLMAP_PERCENTILES, exact=True)
+            if not cv2.imwrite(str(folder / file_name), image8):
+                raise ProcessingError(f"cannot write a scratch copy of image {name} for "
+                                      f"COLMAP in {folder}")
+            files[file_name] = name
+        names = list(files.values())
+        known = intrinsics(shapes) if intrinsics is not None else None
+        if known is not None:
+            options = replace(options, intrinsics=known)
+        models, mapping = run_sfm(folder, files, work, options)
+        if not models or models[0].num_reg_images() < 2:
+            registered = ([files[models[0].image(i).name] for i in models[0].reg_image_ids()]
+                          if models else [])
+            raise ProcessingError(
+                f"reconstruction failed: {len(registered)} of {len(names)} images "
+                f"registered ({', '.join(registered) or 'none'}); the images may not "
+                f"overlap or lack texture (try more --max-features)")
+        model = models[0]
+        known = options.intrinsics
+        if known and mapping["free_fallback"]:
+            impose_intrinsics(model, known, files, workers=options.workers)
+        if known:
+            intrinsics = {"mode": "known, imposed after free mapping" if mapping["free_fallback"]
+                          else "known", "refined": ["f"] if any(k.refine for k in
+                                                                known.values()) else []}
+        elif self_calibration:
+            intrinsics = {"mode": "estimated",
+                          **calibration.self_calibrate(model, workers=options.workers)}
+        else:
+            intrinsics = {"mode": "estimated", "refined": ["f", "k1"]}
+        result = reconstruction_to_result(model, files, names, target)
+        per_image = image_report(model, files)
+        registered = [str(n) for n in result.image_names]
+        camera = model.camera(model.image(model.reg_image_ids()[0]).camera_id)
+        summary: dict[str, Any] = {
+            "images_given": names,
+            "registered": registered,
+            "not_registered": [n for n in names if n not in registered],
+            "registered_count": len(registered),
+            "image_count": len(names),
+            "models": len(models),
+            "mapping": mapping,
+            "points": int(len(result.points)),
+            "mean_track_length": float(np.mean(result.track_length))
+            if len(result.points) else 0.0,
+            **reprojection_summary(result),
+            "focal_px": [float(c.focal_px) for c in result.cameras],
+            "camera_model": camera.model_name,
+            "target": str(result.image_names[result.target_index]),
+            "intrinsics": intrinsics,
+            "images": {n: row for n in names
+                       if (row := per_image.get(n)) is not None},
+        }
+        model_files: dict[str, bytes] = {}
+        if keep_model:
+            out = work / "model_out"
+            out.mkdir()
+            model.write(out)
+            model_files = {p.name: p.read_bytes() for p in sorted(out.iterdir())}
+    return BlockAdjustment(result=result, summary=summary, model_files=model_files)
+
+
+def known_intrinsics(shapes: Mapping[str, tuple[int, int]], *, focal_px: float | None = None,
+                     matrices: Mapping[str, np.ndarray] | None = None,
+                     refine: bool = False) -> dict[str, KnownIntrinsics]:
+    """Known intrinsics per view from one focal length (principal point at the image
+    centre) or from intrinsic matrices; ``shapes`` are (height, width) per view."""
+    intrinsics = {}
+    for name, (height, width) in shapes.items():
+        if focal_px is not None:
+            K = np.array([[focal_px, 0, (width - 1) / 2], [0, focal_px, (height - 1) / 2],
+                          [0, 0, 1.0]])
+        else:
+            K = np.asarray(matrices[name], dtype=np.float64)
+        intrinsics[name] = KnownIntrinsics(K, refine)
+    return intrinsics
+

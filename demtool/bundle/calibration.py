@@ -1,0 +1,294 @@
+"""Self-calibration of a block: which intrinsics the block determines, and how well.
+
+Free intrinsics are mapped with COLMAP's SIMPLE_RADIAL model (focal length f and one
+radial term k1, principal point fixed at the image centre), which is robust on any
+field of view.  :func:`self_calibrate` then frees the principal point (cx, cy) and a
+second radial term k2 (COLMAP's RADIAL model) in a global bundle adjustment and keeps
+each only when the block determines it, by backward elimination of the additional
+parameters as in photogrammetric self-calibration (Gruen & Beyer 2001; Fraser 1997):
+
+* **determinability**: the parameter's standard deviation, from the covariance of
+  the bundle adjustment (COLMAP's ``estimate_ba_covariance``, Schur complement over
+  the points, so correlations with the poses are included), scaled by the
+  a-posteriori variance factor σ0² = Σ r² / (2·n_obs − n_unknowns), moves the image
+  corner by at most :data:`MAX_CORNER_SIGMA_PX` pixels (3 px: a principal point
+  known to that beats the image centre, which real cameras miss by 10-20 px, e.g.
+  the 17 px of issue 14's ring; COLMAP's σ of the principal point is conservative:
+  2.3 px on the synthetic 12-view ring of the tests, whose actual error is about 0.1
+  px). The corner displacement per unit of the parameter is 1 for cx and cy, f·ρ³
+  for k1 and f·ρ⁵ for k2, with ρ the normalised radius of the farthest image corner
+  (the tangent of the half diagonal field of view). A principal point shift differs
+  from a rotation of the camera only by perspective terms of order ρ² (Fraser 1997,
+  on the projective coupling of the principal point with the exterior orientation),
+  so on a narrow field of view its σ is large and it stays at the image centre; for
+  the same reason a k2 on a 1° field of view (ρ⁵ ≈ 5e-11) is never estimated;
+* **significance** (distortion terms only): |k| ≥ :data:`SIGNIFICANCE` σ_k, else the
+  term is fixed at zero (a t-test of the additional parameter, Gruen & Beyer 2001);
+* **enough images**: the camera is seen by at least :data:`MIN_IMAGES` registered
+  images (two views cannot separate intrinsics from relative pose).
+
+The parameter that fails its test worst is fixed (principal point back to the image
+centre, distortion term to zero) and the adjustment repeated, until every free
+parameter passes.
+
+References
+----------
+A. Gruen, H. A. Beyer, "System calibration through self-calibration", in A. Gruen,
+T. S. Huang (eds.), Calibration and Orientation of Cameras in Computer Vision,
+Springer, 2001, pp. 163-193.
+C. S. Fraser, "Digital camera self-calibration", ISPRS Journal of Photogrammetry and
+Remote Sensing 52(4), 149-159, 1997.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from demtool.bundle.runtime import call_interruptibly, load_pycolmap
+from demtool.logs import get_logger
+
+log = get_logger(__name__)
+
+#: Largest corner-displacement standard deviation (pixels) of a refined parameter.
+MAX_CORNER_SIGMA_PX = 3.0
+#: A distortion term is kept when |value| ≥ SIGNIFICANCE · σ.
+SIGNIFICANCE = 3.0
+#: Fewest registered images seeing a camera before its intrinsics are self-calibrated.
+MIN_IMAGES = 3
+#: Most bundle-adjustment solves per self-calibration step.
+MAX_SOLVES = 10
+#: RADIAL parameter order in COLMAP: f, cx, cy, k1, k2.
+RADIAL_NAMES = ("f", "cx", "cy", "k1", "k2")
+
+
+def corner_radius(width: int, height: int, focal_px: float) -> float:
+    """Normalised radius ρ of the image corner farthest from the centre (tan of the
+    half diagonal field of view)."""
+    return float(np.hypot(0.5 * width, 0.5 * height) / focal_px)
+
+
+def corner_sensitivity(focal_px: float, rho: float) -> dict[str, float]:
+    """Corner displacement (pixels) per unit of each RADIAL parameter besides f.
+
+    COLMAP's RADIAL model maps normalised radius r to f·r·(1 + k1 r² + k2 r⁴) from the
+    principal point, so at the corner (r = ρ) ∂u/∂k1 = f ρ³, ∂u/∂k2 = f ρ⁵, and the
+    principal point moves every pixel one for one.
+    """
+    return {"cx": 1.0, "cy": 1.0, "k1": focal_px * rho**3, "k2": focal_px * rho**5}
+
+
+def observation_residuals(reconstruction) -> dict[int, np.ndarray]:
+    """Reprojection residuals of every observation, by image id.
+
+    Returns
+    -------
+    dict of int to (n, 2) float64
+        Observed minus projected pixel position of each observation with a 3-D point.
+    """
+    residuals = {}
+    points = reconstruction.points3D
+    for image_id in reconstruction.reg_image_ids():
+        image = reconstruction.image(image_id)
+        camera = reconstruction.camera(image.camera_id)
+        observed, xyz = [], []
+        for point2D in image.points2D:
+            if point2D.has_point3D():
+                observed.append(point2D.xy)
+                xyz.append(points[point2D.point3D_id].xyz)
+        if not observed:
+            residuals[image_id] = np.zeros((0, 2))
+            continue
+        pose = image.cam_from_world()
+        cam = np.asarray(xyz) @ pose.rotation.matrix().T + pose.translation
+        projected = np.asarray(camera.img_from_cam(cam), dtype=np.float64)
+        residuals[image_id] = np.asarray(observed, dtype=np.float64) - projected
+    return residuals
+
+
+def variance_factor(reconstruction, n_intrinsics: int) -> float:
+    """A-posteriori variance factor σ0² (pixels²) of a reconstruction's residuals."""
+    residuals = np.vstack(list(observation_residuals(reconstruction).values()) or
+                          [np.zeros((0, 2))])
+    unknowns = 3 * reconstruction.num_points3D() + 6 * reconstruction.num_reg_images() \
+        + n_intrinsics - 7
+    redundancy = max(2 * len(residuals) - unknowns, 1)
+    return float(np.sum(residuals**2) / redundancy)
+
+
+#: COLMAP model for each set of free distortion terms.
+_DISTORTION_MODELS = {("k1", "k2"): "RADIAL", ("k1",): "SIMPLE_RADIAL", (): "SIMPLE_PINHOLE"}
+
+
+def _set_model(camera, distortion: tuple[str, ...], centre_pp: bool) -> None:
+    """Switch a camera to the COLMAP model with the given distortion terms, keeping f,
+    the principal point (or resetting it to the image centre) and the kept terms."""
+    pycolmap = load_pycolmap()
+    f = float(np.mean(camera.params[camera.focal_length_idxs()]))
+    cx, cy = ((0.5 * camera.width, 0.5 * camera.height) if centre_pp
+              else (camera.principal_point_x, camera.principal_point_y))
+    terms = dict(zip(("k1", "k2"), _radial(camera), strict=True))
+    camera.model = getattr(pycolmap.CameraModelId, _DISTORTION_MODELS[distortion])
+    camera.params = [f, cx, cy, *(terms[k] for k in distortion)]
+
+
+def _radial(camera) -> tuple[float, float]:
+    params = np.asarray(camera.params, dtype=np.float64)
+    if camera.model_name == "RADIAL":
+        return float(params[3]), float(params[4])
+    if camera.model_name == "SIMPLE_RADIAL":
+        return float(params[3]), 0.0
+    return 0.0, 0.0
+
+
+def _adjust(reconstruction, cameras: list[int], free_pp: bool, workers: int):
+    """Global BA with the intrinsics of ``cameras`` free (f, the distortion terms of
+    their model, the principal point when ``free_pp``), the other cameras' constant.
+
+    Returns
+    -------
+    dict of int to (n, n) float64, or None
+        Unit-weight covariance of each free camera's refined parameters (COLMAP order,
+        fixed ones omitted); None when COLMAP could not estimate it.
+    """
+    pycolmap = load_pycolmap()
+    options = pycolmap.BundleAdjustmentOptions()
+    options.print_summary = False
+    options.refine_focal_length = True
+    options.refine_principal_point = free_pp
+    options.refine_extra_params = True
+    options.ceres.solver_options.num_threads = workers if workers > 0 else -1
+    # The principal point is a weak direction: COLMAP's default gradient tolerance
+    # (1e-4) stops the solver pixels short of the minimum along it.
+    options.ceres.solver_options.gradient_tolerance = 1e-10
+    options.ceres.solver_options.max_num_iterations = 500
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in reconstruction.reg_image_ids():
+        config.add_image(image_id)
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    for camera_id in reconstruction.cameras:
+        if camera_id not in cameras:
+            config.set_constant_cam_intrinsics(camera_id)
+    # A solve stops short along the weak principal-point direction: solve again until
+    # the intrinsics settle (change below 0.01 px, at most MAX_SOLVES times).
+    for _ in range(MAX_SOLVES):
+        before = np.concatenate([reconstruction.camera(c).params for c in cameras])
+        adjuster = pycolmap.create_default_ceres_bundle_adjuster(options, config,
+                                                                 reconstruction)
+        call_interruptibly(adjuster.solve, cancellable=False)
+        after = np.concatenate([reconstruction.camera(c).params for c in cameras])
+        if np.max(np.abs(after - before)[:3] if len(cameras) == 1 else
+                  np.abs(after - before)) < 0.01:
+            break
+    reconstruction.update_point_3d_errors()
+    covariance = pycolmap.estimate_ba_covariance(pycolmap.BACovarianceOptions(),
+                                                 reconstruction, adjuster)
+    if covariance is None:
+        return None
+    result = {}
+    for camera_id in cameras:
+        block = covariance.get_other_params_cov(reconstruction.camera(camera_id).params)
+        if block is None:
+            return None
+        result[camera_id] = np.asarray(block, dtype=np.float64)
+    return result
+
+
+def _free_names(distortion: tuple[str, ...], free_pp: bool) -> list[str]:
+    return ["f", *(("cx", "cy") if free_pp else ()), *distortion]
+
+
+def _worst_failure(reconstruction, covariances, distortion, free_pp, sigma0_sq):
+    """The free additional parameter (group) failing its test worst, with its reason."""
+    worst, worst_ratio, worst_reason = None, 1.0, ""
+    for camera_id, cov in covariances.items():
+        camera = reconstruction.camera(camera_id)
+        f = float(np.mean(camera.params[camera.focal_length_idxs()]))
+        rho = corner_radius(camera.width, camera.height, f)
+        sensitivity = corner_sensitivity(f, rho)
+        names = _free_names(distortion, free_pp)
+        sigma = np.sqrt(np.maximum(np.diag(cov), 0.0) * sigma0_sq)
+        values = dict(zip(("k1", "k2"), _radial(camera), strict=True))
+        for name, s in zip(names, sigma, strict=True):
+            if name == "f":
+                continue
+            corner_sigma = s * sensitivity[name]
+            ratio = corner_sigma / MAX_CORNER_SIGMA_PX
+            reason = (f"σ moves the image corner by {corner_sigma:.3g} px "
+                      f"(> {MAX_CORNER_SIGMA_PX} px)")
+            if name in values and ratio <= 1.0:
+                t = abs(values[name]) / max(s, 1e-300)
+                if t < SIGNIFICANCE:
+                    ratio = 1.0 + (SIGNIFICANCE - t)  # fails; rank after undetermined ones
+                    reason = f"not significant (|{name}|/σ = {t:.2f} < {SIGNIFICANCE:g})"
+            group = "pp" if name in ("cx", "cy") else name
+            if group == "k1" and "k2" in names:
+                group = "k2"  # hierarchy: k2 goes before k1, which is then re-tested
+                reason = f"k2 goes first as k1 fails: {reason}"
+            if ratio > worst_ratio:
+                worst, worst_ratio, worst_reason = group, ratio, reason
+    return worst, worst_reason
+
+
+def self_calibrate(reconstruction, *, workers: int = 0) -> dict[str, Any]:
+    """Refine the principal point and radial terms where the block determines them.
+
+    Changes ``reconstruction`` in place (cameras end as SIMPLE_PINHOLE,
+    SIMPLE_RADIAL or RADIAL with the kept terms); see the module docstring for the
+    criterion.
+
+    Returns
+    -------
+    dict
+        ``refined`` (names among f, cx, cy, k1, k2), ``fixed`` (name → reason),
+        ``values`` and ``sigma`` (f, cx, cy in pixels, demtool's convention with pixel
+        centres at integers; k1, k2 dimensionless) of the first self-calibrated
+        camera, ``corner_radius`` ρ, ``cameras`` (how many were self-calibrated),
+        ``sigma0_px`` (a-posteriori σ of an image coordinate).  With no camera seen
+        by :data:`MIN_IMAGES` images, only ``refined: []`` and a reason.
+    """
+    counts: dict[int, int] = {}
+    for image_id in reconstruction.reg_image_ids():
+        camera_id = reconstruction.image(image_id).camera_id
+        counts[camera_id] = counts.get(camera_id, 0) + 1
+    cameras = [c for c, n in counts.items() if n >= MIN_IMAGES]
+    if not cameras:
+        return {"refined": [], "reason": f"no camera is seen by {MIN_IMAGES} or more "
+                                         f"registered images"}
+    distortion: tuple[str, ...] = ("k1", "k2")
+    free_pp = True
+    fixed: dict[str, str] = {}
+    while True:
+        for camera_id in cameras:
+            _set_model(reconstruction.camera(camera_id), distortion, centre_pp=not free_pp)
+        covariances = _adjust(reconstruction, cameras, free_pp, workers)
+        n_intrinsics = len(cameras) * len(_free_names(distortion, free_pp))
+        sigma0_sq = variance_factor(reconstruction, n_intrinsics)
+        if covariances is None:
+            worst, reason = ("pp" if free_pp else distortion[-1] if distortion else None,
+                             "covariance not estimable (singular)")
+        else:
+            worst, reason = _worst_failure(reconstruction, covariances, distortion, free_pp,
+                                           sigma0_sq)
+        if worst is None or (covariances is None and not free_pp and not distortion):
+            break
+        log.info("self-calibration: %s fixed (%s)", worst, reason)
+        if worst == "pp":
+            free_pp = False
+            fixed["cx"] = fixed["cy"] = reason
+        else:
+            fixed[worst] = reason
+            distortion = distortion[: distortion.index(worst)]
+    camera = reconstruction.camera(cameras[0])
+    names = _free_names(distortion, free_pp)
+    sigma = (np.full(len(names), np.nan) if covariances is None else
+             np.sqrt(np.maximum(np.diag(covariances[cameras[0]]), 0.0) * sigma0_sq))
+    k1, k2 = _radial(camera)
+    f = float(np.mean(camera.params[camera.focal_length_idxs()]))
+    values = {"f": f, "cx": camera.principal_point_x - 0.5,
+              "cy": camera.principal_point_y - 0.5, "k1": k1, "k2": k2}
+    return {"refined": names, "fixed": fixed, "values": values,
+            "sigma": {n: float(s) for n, s in zip(names, sigma, strict=True)},
+            "corner_radius": corner_radius(camera.width, camera.height, f),
+            "cameras": len(cameras), "sigma0_px": float(np.sqrt(sigma0_sq))}

@@ -1,0 +1,16 @@
+"""Planetary sensor models: frame and line-scan cameras of the USGS Community Sensor
+Model, pinholes, lens distortion, and the readers that build them.
+
+Every model implements :class:`SensorModel` (image ↔ body-fixed ground, rays, sun);
+:func:`read_sensor` reads any supported file into one.
+"""
+
+from demtool.sensors.base import (Detector, Ray, SensorModel, lagrange_interp,
+                                  ray_ellipsoid_intersection)
+from demtool.sensors.distortion import Distortion
+from demtool.sensors.frame import FrameSensor
+from demtool.sensors.isd import read_isd, sensor_from_isd
+from demtool.sensors.linescan import LineScanSensor
+
+__all__ = ["Detector", "Distortion", "FrameSensor", "LineScanSensor", "Ray", "SensorModel",
+           "lagrange_interp", "ray_ellipsoid_intersection", "read_isd", "sensor_from_isd"]

@@ -5,8 +5,13 @@ Every model implements :class:`SensorModel` (image ↔ body-fixed ground, rays, 
 :func:`read_sensor` reads any supported file into one.
 """
 
-from demtool.sensors.base import (Detector, Ray, SensorModel, lagrange_interp,
-                                  ray_ellipsoid_intersection)
+from demtool.sensors.base import (
+                                  Detector,
+                                  Ray,
+                                  SensorModel,
+                                  lagrange_interp,
+                                  ray_ellipsoid_intersection,
+)
 from demtool.sensors.distortion import Distortion
 from demtool.sensors.frame import FrameSensor
 from demtool.sensors.isd import read_isd, sensor_from_isd

@@ -125,15 +125,37 @@ def _radial_apply(x, y, c, f, tol, cx=0.0, cy=0.0):
     dr_over_r = _radial_factor(rp * rp, c)
     r = rp + dr_over_r * rp
     active = np.ones(rp.shape, dtype=bool)
-    for _ in range(20):
-        r_prev = r
-        dr_over_r = np.where(active, _radial_factor(r_prev * r_prev, c), dr_over_r)
-        r = np.where(active, rp + dr_over_r * r_prev, r)
-        active &= np.abs(r - r_prev) > tol
-        if not active.any():
-            break
-    dr_over_r = np.where(active | (r > 1e9), 0.0, dr_over_r)  # no convergence: leave as is
-    return sx / (1.0 - dr_over_r) + cx, sy / (1.0 - dr_over_r) + cy
+    with np.errstate(all="ignore"):  # diverging points are caught below
+        for _ in range(20):
+            r_prev = r
+            dr_over_r = np.where(active, _radial_factor(r_prev * r_prev, c), dr_over_r)
+            r = np.where(active, rp + dr_over_r * r_prev, r)
+            active &= ~(np.abs(r - r_prev) <= tol)
+            if not active.any():
+                break
+    failed = active | ~np.isfinite(r) | (np.abs(r) > 1e9)
+    if np.any(failed):
+        # Coefficients so large that the distorted radius lies beyond the turning point
+        # of r (1 − D(r²)) (seen in ALE's MGS MOC test ISD): usgscsm gives up and
+        # returns the undistorted point; here Newton's method on the far branch,
+        # r (D(r²) − 1) = rp, started on its asymptote, finds the point remove() maps
+        # back to ``(x, y)`` (d antiparallel to u).
+        top = 2 if c[2] != 0 else 1
+        with np.errstate(all="ignore"):
+            rf = (rp[failed] / abs(c[top])) ** (1.0 / (2 * top + 1)) + 1e-3
+            for _ in range(60):
+                d = _radial_factor(rf * rf, c)
+                dd = 2 * rf * (c[1] + 2 * c[2] * rf * rf)
+                g = rf * (d - 1.0) - rp[failed]
+                step = g / (d - 1.0 + rf * dd)
+                rf = rf - step
+                if not np.any(np.abs(step) > tol * 1e-3):
+                    break
+            dr_far = _radial_factor(rf * rf, c)
+        dr_over_r = dr_over_r.copy() if dr_over_r.ndim else np.asarray(dr_over_r)
+        dr_over_r[failed] = np.where(np.isfinite(dr_far) & (dr_far > 1.0), dr_far, 0.0)
+    with np.errstate(all="ignore"):
+        return sx / (1.0 - dr_over_r) + cx, sy / (1.0 - dr_over_r) + cy
 
 
 # ---------------------------------------------------------------------------------------
@@ -148,7 +170,7 @@ def _transverse_terms(x, y):
 def _transverse_apply(x, y, c, f, tol):
     terms = _transverse_terms(x, y)
     cx, cy = c[:10], c[10:]
-    return sum(t * k for t, k in zip(terms, cx)), sum(t * k for t, k in zip(terms, cy))
+    return _dot(terms, cx), _dot(terms, cy)
 
 
 def _transverse_jacobian(x, y, c):
@@ -156,8 +178,11 @@ def _transverse_jacobian(x, y, c):
     d_dx = [zero, one, zero, 2 * x, y, zero, 3 * x * x, 2 * x * y, y * y, zero]
     d_dy = [zero, zero, one, zero, x, 2 * y, zero, x * x, 2 * x * y, 3 * y * y]
     cx, cy = c[:10], c[10:]
-    return (sum(d * k for d, k in zip(d_dx, cx)), sum(d * k for d, k in zip(d_dy, cx)),
-            sum(d * k for d, k in zip(d_dx, cy)), sum(d * k for d, k in zip(d_dy, cy)))
+    return _dot(d_dx, cx), _dot(d_dy, cx), _dot(d_dx, cy), _dot(d_dy, cy)
+
+
+def _dot(terms, coefficients):
+    return sum(t * k for t, k in zip(terms, coefficients, strict=True))
 
 
 def _newton(dx, dy, forward, jacobian, tol, max_iterations=20):

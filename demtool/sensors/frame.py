@@ -61,6 +61,10 @@ class FrameSensor(SensorModel):
         self.sun = np.asarray(sun, dtype=np.float64).reshape(3)
         self.name = str(name)
         self.time = float(time)
+        # usgscsm's frame look vector is R (u, v, f); some ISDs' attitude puts the body on
+        # the −z side.  Its intersection takes the root nearest the sensor whatever its
+        # sign, so both are the same model; rays here point towards the body.
+        self._sign = -1.0 if np.dot(self.rotation[:, 2], self.position) > 0 else 1.0
 
     def __repr__(self) -> str:
         return (f"FrameSensor(name={self.name!r}, size={self.lines}x{self.samples}, "
@@ -78,7 +82,7 @@ class FrameSensor(SensorModel):
         r = self.rotation
         f = self.focal_length
         look = (u[..., None] * r[:, 0] + v[..., None] * r[:, 1] + f * r[:, 2])
-        look /= np.linalg.norm(look, axis=-1, keepdims=True)
+        look *= self._sign / np.linalg.norm(look, axis=-1, keepdims=True)
         origin = np.broadcast_to(self.position, look.shape).copy()
         return Ray(origin, look)
 
@@ -94,7 +98,7 @@ class FrameSensor(SensorModel):
             v = self.focal_length * cam[..., 1] / cam[..., 2]
         x, y = self.distortion.apply(u, v)
         line, sample = self.detector.to_pixel(x, y)
-        behind = ~(cam[..., 2] > 0)
+        behind = ~(self._sign * cam[..., 2] > 0)
         line = np.where(behind, np.nan, line)
         sample = np.where(behind, np.nan, sample)
         return line, sample
@@ -111,4 +115,4 @@ class FrameSensor(SensorModel):
     @property
     def boresight(self) -> np.ndarray:
         """Unit look direction of the optical axis in the body frame, (3,)."""
-        return self.rotation[:, 2].copy()
+        return self._sign * self.rotation[:, 2]

@@ -24,8 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from demtool.sensors.base import (Detector, Ray, SensorModel, lagrange_interp,
-                                  quaternion_to_matrix)
+from demtool.sensors.base import Detector, Ray, SensorModel, lagrange_interp, quaternion_to_matrix
 from demtool.sensors.distortion import Distortion
 
 
@@ -154,20 +153,28 @@ class LineScanSensor(SensorModel):
         u, v = self.distortion.remove(x, y)
         look_cam = np.stack([-u, -v, np.full(u.shape, -self.focal_length)], axis=-1)
         look = np.einsum("...ij,...j->...i", self.rotation_at(time), look_cam)
-        look /= np.linalg.norm(look, axis=-1, keepdims=True)
+        # usgscsm looks along (−u, −v, −f) and intersects at the root nearest the sensor
+        # whatever its sign; real ISDs put the body on the +z side.  Orient each ray
+        # towards the body so that s > 0 is in front of the sensor.
+        sign = np.where(np.sum(look * origin, axis=-1) > 0, -1.0, 1.0)
+        look *= (sign / np.linalg.norm(look, axis=-1))[..., None]
         return Ray(origin, look)
 
     def _detector_view(self, line, xyz):
         """Detector (line, sample) of points seen from the exposure of image ``line``."""
         time = self.line_time(line)
-        rel = xyz - self.position_at(time)
-        cam = np.einsum("...ji,...j->...i", self.rotation_at(time), rel)  # Rᵀ rel
+        position = self.position_at(time)
+        rel = xyz - position
+        rotation = self.rotation_at(time)
+        cam = np.einsum("...ji,...j->...i", rotation, rel)  # Rᵀ rel
+        # Depth along the camera axis on the body's side (see image_to_ray).
+        toward = np.where(np.sum(rotation[..., :, 2] * position, axis=-1) > 0, -1.0, 1.0)
         with np.errstate(divide="ignore", invalid="ignore"):
             scale = self.focal_length / cam[..., 2]
             fx, fy = cam[..., 0] * scale, cam[..., 1] * scale
         dx, dy = self.distortion.apply(fx, fy)
         det_line, det_sample = self.detector.to_pixel(dx, dy)
-        return det_line, det_sample, cam[..., 2]
+        return det_line, det_sample, toward * cam[..., 2]
 
     def _affine_guess(self):
         """Affine map XYZ → (line, sample) fitted to a grid of image_to_ground points."""
@@ -221,7 +228,7 @@ class LineScanSensor(SensorModel):
             active[idx] = ok & (np.abs(step) > precision) & np.isfinite(l1[idx])
         det_line, sample, depth = self._detector_view(l1, pts)
         line = l1
-        bad = ~np.isfinite(line) | (depth >= 0) | (np.abs(det_line) > 1e-3)
+        bad = ~np.isfinite(line) | ~(depth > 0) | (np.abs(det_line) > 1e-3)
         line = np.where(bad, np.nan, line)
         sample = np.where(bad, np.nan, sample)
         return line.reshape(shape), sample.reshape(shape)

@@ -16,6 +16,9 @@ from demtool.sensors.distortion import Distortion
 from demtool.sensors.frame import FrameSensor
 from demtool.sensors.isd import read_isd, sensor_from_isd
 from demtool.sensors.linescan import LineScanSensor
+from demtool.sensors.pinhole import PinholeCamera
+from demtool.sensors.readers import read_sensor, read_sensors
 
-__all__ = ["Detector", "Distortion", "FrameSensor", "LineScanSensor", "Ray", "SensorModel",
-           "lagrange_interp", "ray_ellipsoid_intersection", "read_isd", "sensor_from_isd"]
+__all__ = ["Detector", "Distortion", "FrameSensor", "LineScanSensor", "PinholeCamera", "Ray",
+           "SensorModel", "lagrange_interp", "ray_ellipsoid_intersection", "read_isd",
+           "read_sensor", "read_sensors", "sensor_from_isd"]

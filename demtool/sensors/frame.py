@@ -42,6 +42,9 @@ class FrameSensor(SensorModel):
         Sun position, body-fixed metres.
     name : str
         Image identifier.
+    z_direction : float
+        +1: the camera looks along its +z axis, rays ``R (u, v, f)`` (usgscsm);
+        −1: along −z, rays ``R (u, v, −f)`` (ISIS's ``zDirection``, e.g. Apollo Metric).
     """
 
     kind = "frame"
@@ -49,7 +52,7 @@ class FrameSensor(SensorModel):
     def __init__(self, *, position, rotation, focal_length: float, detector: Detector,
                  distortion: Distortion | None = None, lines: int, samples: int,
                  radii: tuple[float, float], sun=(0.0, 0.0, 0.0), name: str = "",
-                 time: float = 0.0):
+                 time: float = 0.0, z_direction: float = 1.0):
         self.position = np.asarray(position, dtype=np.float64).reshape(3)
         self.rotation = np.asarray(rotation, dtype=np.float64).reshape(3, 3)
         self.focal_length = float(focal_length)
@@ -61,10 +64,12 @@ class FrameSensor(SensorModel):
         self.sun = np.asarray(sun, dtype=np.float64).reshape(3)
         self.name = str(name)
         self.time = float(time)
+        self.z_direction = 1.0 if z_direction >= 0 else -1.0
         # usgscsm's frame look vector is R (u, v, f); some ISDs' attitude puts the body on
         # the −z side.  Its intersection takes the root nearest the sensor whatever its
         # sign, so both are the same model; rays here point towards the body.
-        self._sign = -1.0 if np.dot(self.rotation[:, 2], self.position) > 0 else 1.0
+        self._sign = (-1.0 if np.dot(self.z_direction * self.rotation[:, 2], self.position) > 0
+                      else 1.0)
 
     def __repr__(self) -> str:
         return (f"FrameSensor(name={self.name!r}, size={self.lines}x{self.samples}, "
@@ -80,7 +85,7 @@ class FrameSensor(SensorModel):
         x, y = self.detector.to_focal_plane(line, sample)
         u, v = self.distortion.remove(x, y)
         r = self.rotation
-        f = self.focal_length
+        f = self.focal_length * self.z_direction
         look = (u[..., None] * r[:, 0] + v[..., None] * r[:, 1] + f * r[:, 2])
         look *= self._sign / np.linalg.norm(look, axis=-1, keepdims=True)
         origin = np.broadcast_to(self.position, look.shape).copy()
@@ -94,11 +99,11 @@ class FrameSensor(SensorModel):
         xyz = np.asarray(xyz, dtype=np.float64)
         cam = (xyz - self.position) @ self.rotation  # Rᵀ (X − C) for each point
         with np.errstate(divide="ignore", invalid="ignore"):
-            u = self.focal_length * cam[..., 0] / cam[..., 2]
-            v = self.focal_length * cam[..., 1] / cam[..., 2]
+            u = self.z_direction * self.focal_length * cam[..., 0] / cam[..., 2]
+            v = self.z_direction * self.focal_length * cam[..., 1] / cam[..., 2]
         x, y = self.distortion.apply(u, v)
         line, sample = self.detector.to_pixel(x, y)
-        behind = ~(self._sign * cam[..., 2] > 0)
+        behind = ~(self._sign * self.z_direction * cam[..., 2] > 0)
         line = np.where(behind, np.nan, line)
         sample = np.where(behind, np.nan, sample)
         return line, sample
@@ -115,4 +120,4 @@ class FrameSensor(SensorModel):
     @property
     def boresight(self) -> np.ndarray:
         """Unit look direction of the optical axis in the body frame, (3,)."""
-        return self._sign * self.rotation[:, 2]
+        return self._sign * self.z_direction * self.rotation[:, 2]

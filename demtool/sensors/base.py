@@ -268,14 +268,20 @@ def slerp(q0, q1, t) -> np.ndarray:
 
 
 def _lagrange_weights(tau: np.ndarray, order: int) -> np.ndarray:
-    """Weights (N, order) of nodes at offsets ``-(order/2 - 1) … order/2``."""
+    """Weights (N, order) of nodes at offsets ``-(order/2 - 1) … order/2``.
+
+    ``w_j = Π_{m≠j} (τ − x_m) / Π_{m≠j} (x_j − x_m)``, the numerators from prefix and
+    suffix products (3·order array operations instead of order²).
+    """
     nodes = np.arange(order) - (order // 2 - 1)
-    weights = np.ones((len(tau), order))
-    for j in range(order):
-        for m in range(order):
-            if m != j:
-                weights[:, j] *= (tau - nodes[m]) / (nodes[j] - nodes[m])
-    return weights
+    factors = tau[:, None] - nodes[None, :]
+    left = np.ones_like(factors)
+    right = np.ones_like(factors)
+    left[:, 1:] = np.cumprod(factors[:, :-1], axis=1)
+    right[:, :-1] = np.cumprod(factors[:, :0:-1], axis=1)[:, ::-1]
+    denominators = np.array([np.prod([nodes[j] - nodes[m] for m in range(order) if m != j])
+                             for j in range(order)], dtype=np.float64)
+    return left * right / denominators
 
 
 def lagrange_interp(values, t0: float, dt: float, times, max_order: int = 8) -> np.ndarray:

@@ -12,7 +12,7 @@ plane with detector line 0, and the camera looks along ``(−u, −v, −f)``
 
 Ground to image is iterative, as in usgscsm: find the line whose exposure sees the
 ground point on the detector line (detector-line coordinate 0), here by a
-vectorised secant iteration started from an affine approximation of the model,
+vectorised chord (fixed-slope Newton) steps from an affine approximation of the model,
 then read the sample from the same projection.  Light time and aberration are
 ignored, as usgscsm does by default.
 
@@ -152,7 +152,7 @@ class LineScanSensor(SensorModel):
         x, y = self.detector.to_focal_plane(np.zeros_like(sample), sample)
         u, v = self.distortion.remove(x, y)
         look_cam = np.stack([-u, -v, np.full(u.shape, -self.focal_length)], axis=-1)
-        look = np.einsum("...ij,...j->...i", self.rotation_at(time), look_cam)
+        look = np.sum(self.rotation_at(time) * look_cam[..., None, :], axis=-1)
         # usgscsm looks along (−u, −v, −f) and intersects at the root nearest the sensor
         # whatever its sign; real ISDs put the body on the +z side.  Orient each ray
         # towards the body so that s > 0 is in front of the sensor.
@@ -166,7 +166,7 @@ class LineScanSensor(SensorModel):
         position = self.position_at(time)
         rel = xyz - position
         rotation = self.rotation_at(time)
-        cam = np.einsum("...ji,...j->...i", rotation, rel)  # Rᵀ rel
+        cam = np.sum(rotation * rel[..., :, None], axis=-2)  # Rᵀ rel
         # Depth along the camera axis on the body's side (see image_to_ray).
         toward = np.where(np.sum(rotation[..., :, 2] * position, axis=-1) > 0, -1.0, 1.0)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -177,7 +177,8 @@ class LineScanSensor(SensorModel):
         return det_line, det_sample, toward * cam[..., 2]
 
     def _affine_guess(self):
-        """Affine map XYZ → (line, sample) fitted to a grid of image_to_ground points."""
+        """Affine map XYZ → (line, sample) from a grid of image_to_ground points, and the
+        slope of the detector line with the image line at the image centre."""
         if self._affine is None:
             ll, ss = np.meshgrid(np.linspace(0.5, self.lines - 0.5, 5),
                                  np.linspace(0.5, self.samples - 0.5, 5), indexing="ij")
@@ -186,7 +187,14 @@ class LineScanSensor(SensorModel):
             design = np.column_stack([xyz - xyz.mean(axis=0), np.ones(len(xyz))])
             target = np.column_stack([np.tile(ll.ravel(), 2), np.tile(ss.ravel(), 2)])
             coef, *_ = np.linalg.lstsq(design, target, rcond=None)
-            self._affine = (xyz.mean(axis=0), coef)
+            centre = self.image_to_ground(0.5 * self.lines, 0.5 * self.samples)[None]
+            ahead, _, _ = self._detector_view(np.array([0.5 * self.lines + 0.5]), centre)
+            behind, _, _ = self._detector_view(np.array([0.5 * self.lines - 0.5]), centre)
+            slope = float(ahead[0] - behind[0])
+            if not np.isfinite(slope) or slope == 0:
+                raise ValueError(f"{self.name}: the detector line does not move with the "
+                                 "image line (degenerate line-scan geometry)")
+            self._affine = (xyz.mean(axis=0), coef, slope)
         return self._affine
 
     def ground_to_image(self, xyz, *, precision: float = 1e-6,
@@ -208,27 +216,35 @@ class LineScanSensor(SensorModel):
         xyz = np.asarray(xyz, dtype=np.float64)
         shape = xyz.shape[:-1]
         pts = xyz.reshape(-1, 3)
-        mean, coef = self._affine_guess()
-        guess = np.column_stack([pts - mean, np.ones(len(pts))]) @ coef
-        l0 = guess[:, 0]
-        f0, _, _ = self._detector_view(l0, pts)
-        l1 = l0 + 1.0
-        f1, _, _ = self._detector_view(l1, pts)
-        active = np.ones(len(pts), dtype=bool)
+        mean, coef, slope = self._affine_guess()
+        line = np.column_stack([pts - mean, np.ones(len(pts))]) @ coef[:, 0]
+        det_line = np.full(len(pts), np.nan)
+        sample = np.full(len(pts), np.nan)
+        depth = np.full(len(pts), np.nan)
+        active = np.arange(len(pts))
+        # The first step uses the slope d(det_line)/d(line) of the image centre (chord);
+        # later steps the secant through each point's last two evaluations, since the
+        # slope can vary by 2× across an image (strong distortion, varying line rates).
+        prev_line = np.full(len(pts), np.nan)
+        prev_f = np.full(len(pts), np.nan)
         for _ in range(max_iterations):
-            idx = np.flatnonzero(active)
-            if not len(idx):
+            if not len(active):
                 break
-            denom = f1[idx] - f0[idx]
-            ok = np.abs(denom) > 1e-15
-            step = np.where(ok, -f1[idx] * (l1[idx] - l0[idx]) / np.where(ok, denom, 1.0), 0.0)
-            l0[idx], f0[idx] = l1[idx], f1[idx]
-            l1[idx] = l1[idx] + step
-            f1[idx], _, _ = self._detector_view(l1[idx], pts[idx])
-            active[idx] = ok & (np.abs(step) > precision) & np.isfinite(l1[idx])
-        det_line, sample, depth = self._detector_view(l1, pts)
-        line = l1
-        bad = ~np.isfinite(line) | ~(depth > 0) | (np.abs(det_line) > 1e-3)
+            f, smp, dep = self._detector_view(line[active], pts[active])
+            det_line[active], sample[active], depth[active] = f, smp, dep
+            with np.errstate(divide="ignore", invalid="ignore"):
+                secant = (f - prev_f[active]) / (line[active] - prev_line[active])
+            usable = np.isfinite(secant) & (np.abs(secant) > 1e-12)
+            step = -f / np.where(usable, secant, slope)
+            prev_line[active], prev_f[active] = line[active], f
+            line[active] += step
+            keep = np.abs(step) > precision
+            done = active[~keep]
+            if len(done):  # the last step moved the line by < precision: refresh the sample
+                f, smp, dep = self._detector_view(line[done], pts[done])
+                det_line[done], sample[done], depth[done] = f, smp, dep
+            active = active[keep & np.isfinite(step)]
+        bad = ~np.isfinite(line) | ~(depth > 0) | ~(np.abs(det_line) < 1e-3)
         line = np.where(bad, np.nan, line)
         sample = np.where(bad, np.nan, sample)
         return line.reshape(shape), sample.reshape(shape)

@@ -54,8 +54,8 @@ def main() -> None:
         lines = rng.uniform(0.5, model.lines - 0.5, n)
         samples = rng.uniform(0.5, model.samples - 0.5, n)
         ground = model.image_to_ground(lines, samples)
-        t_i2g = best_of(lambda m=model: m.image_to_ground(lines, samples))
-        t_g2i = best_of(lambda m=model: m.ground_to_image(ground))
+        t_i2g = best_of(lambda m=model, ln=lines, sp=samples: m.image_to_ground(ln, sp))
+        t_g2i = best_of(lambda m=model, g=ground: m.ground_to_image(g))
         line, sample = model.ground_to_image(ground)
         ray = model.image_to_ray(lines, samples)
         seen = np.sum(ray.direction * (ground - ray.origin), axis=-1) > 0

@@ -7,12 +7,22 @@ interior orientation (``focal2pixel_lines/samples``, ``detector_center``,
 (``instrument_pointing``: J2000 → sensor, ``body_rotation``: J2000 → body, each as
 scalar-first quaternions times a ``constant_rotation``) and the line timing
 (``line_scan_rate``).  usgscsm's ``constructStateFromIsd`` turns them into the state
-reproduced here: positions rotated into the body frame at their own times (SLERP of
-the body rotation), sensor-to-body quaternions ``body · sensorᵀ`` resampled at equal
-steps over the union of both attitude time lists, everything in metres.
+reproduced here (usgscsm @ ba32d13bc560b0a22395b07419c494190715288f):
 
-Velocities are rotated with the body rotation only (the ω × r term is left out);
-no geometry here uses them.
+- frame: position and sun linearly interpolated at the centre time, rotated into the
+  body frame;
+- line scan: the J2000 ephemeris resampled on ``max(n, 25)`` equally spaced nodes over
+  its time span with ALE's ``States::getState(t, SPLINE)`` (cubic Hermite through the
+  positions and velocities, or a natural cubic spline without velocities), each node
+  rotated into the body frame at its time (SLERP of the body rotation); the sun
+  sampled the same way on the same nodes; sensor-to-body quaternions ``body ·
+  sensorᵀ`` resampled at equal steps over the union of both attitude time lists;
+  everything in metres.
+
+The resampling matters when the ISD's velocities disagree with its positions: for
+usgscsm's ``orbitalLineScan`` fixture it moves the centre pixel's ground point by
+0.445 m, from usgscsm 1.x's published value to today's.  The resampled line-scan
+model keeps no velocities (no geometry here uses them).
 """
 
 from __future__ import annotations
@@ -107,22 +117,63 @@ def _orientations(keys: _Keys, isd: Mapping, name: str) -> Orientations:
     return Orientations(times, quats[:, [1, 2, 3, 0]], constant)  # ALE is scalar-first
 
 
-def _states(keys: _Keys, isd: Mapping, name: str, body: Orientations):
-    """Positions (and velocities) of an ALE ``States`` block, rotated into the body frame."""
+def _states(keys: _Keys, isd: Mapping, name: str):
+    """Times, J2000 positions and velocities (metres, m/s; velocities None when
+    absent) of an ALE ``States`` block."""
     block = keys.get(isd, name)
     times = keys.array(block, "ephemeris_times", f"{name}.", (-1,))
     positions = keys.array(block, "positions", f"{name}.", (-1, 3))
     if len(positions) != len(times):
         raise InputError(f"{keys.source}: ISD key '{name}.positions' has {len(positions)} rows "
                          f"but '{name}.ephemeris_times' has {len(times)}")
+    if len(times) > 1 and np.any(np.diff(times) <= 0):
+        raise InputError(f"{keys.source}: ISD key '{name}.ephemeris_times' is not increasing")
     scale = keys.unit(block, f"{name}.")
-    rot = body.matrices_at(times)
-    positions = np.einsum("nij,nj->ni", rot, positions) * scale
     velocities = None
     if "velocities" in block:
-        velocities = keys.array(block, "velocities", f"{name}.", (len(times), 3))
-        velocities = np.einsum("nij,nj->ni", rot, velocities) * scale
-    return times, positions, velocities
+        velocities = keys.array(block, "velocities", f"{name}.", (len(times), 3)) * scale
+    return times, positions * scale, velocities
+
+
+def _to_body(body: Orientations, times, vectors):
+    """Rotate J2000 vectors (N, 3) into the body frame at their times."""
+    if vectors is None:
+        return None
+    return np.einsum("nij,nj->ni", body.matrices_at(times), vectors)
+
+
+def resample_states(times, positions, velocities, grid) -> np.ndarray:
+    """Positions (N, 3) at the times ``grid`` as ALE's ``States::getState(t, SPLINE)``.
+
+    With velocities (not all zero) each coordinate is a cubic Hermite spline through
+    the neighbouring samples and their velocities; without, a natural cubic spline
+    through all samples (GSL's ``cspline``, as ALE calls it).  Beyond the ends the
+    end interval's cubic is extrapolated.
+
+    Reference: DOI-USGS/ale ``src/States.cpp`` (``getState``, ``evaluateCubicHermite``).
+    """
+    times = np.asarray(times, dtype=np.float64)
+    grid = np.asarray(grid, dtype=np.float64)
+    if velocities is not None and np.any(velocities != 0):
+        i = np.clip(np.searchsorted(times, grid, side="right") - 1, 0, len(times) - 2)
+        h = times[i + 1] - times[i]
+        t = ((grid - times[i]) / h)[:, None]
+        t2, t3 = t * t, t * t * t
+        return ((2 * t3 - 3 * t2 + 1) * positions[i] + (t3 - 2 * t2 + t) * h[:, None]
+                * velocities[i] + (-2 * t3 + 3 * t2) * positions[i + 1]
+                + (t3 - t2) * h[:, None] * velocities[i + 1])
+    from scipy.interpolate import CubicSpline
+
+    if len(times) == 2:  # a natural spline through two points is the line
+        frac = ((grid - times[0]) / (times[1] - times[0]))[:, None]
+        return positions[0] + frac * (positions[1] - positions[0])
+    return CubicSpline(times, positions, bc_type="natural", axis=0)(grid)
+
+
+#: usgscsm resamples the sensor ephemeris on at least this many equally spaced nodes
+#: (``constructStateFromIsd``: "Force at least 25 nodes to help with lagrange
+#: interpolation").
+MIN_EPHEMERIS_NODES = 25
 
 
 def _distortion(keys: _Keys, isd: Mapping, focal_length: float) -> Distortion:
@@ -198,13 +249,15 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
     center_time = float(keys.get(isd, "center_ephemeris_time"))
     body = _orientations(keys, isd, "body_rotation")
     pointing = _orientations(keys, isd, "instrument_pointing")
-    pos_times, positions, velocities = _states(keys, isd, "instrument_position", body)
-    sun_times, sun, sun_velocities = _states(keys, isd, "sun_position", body)
+    pos_times, pos_j2000, vel_j2000 = _states(keys, isd, "instrument_position")
+    sun_times, sun_j2000, sun_vel_j2000 = _states(keys, isd, "sun_position")
     name = str(isd.get("image_identifier", Path(source).stem))
 
     if model == FRAME_MODEL:
         t = np.array([center_time])
         rotation = body.matrices_at(t)[0] @ pointing.matrices_at(t)[0].T
+        positions = _to_body(body, pos_times, pos_j2000)
+        sun = _to_body(body, sun_times, sun_j2000)
         return FrameSensor(position=_linear(pos_times, positions, center_time),
                            rotation=rotation, focal_length=focal, detector=detector,
                            distortion=distortion, lines=lines, samples=samples, radii=radii,
@@ -214,10 +267,26 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
     rate = keys.array(isd, "line_scan_rate", shape=(-1, 3))
     if np.any(rate[:, 2] == 0):
         raise InputError(f"{source}: ISD key 'line_scan_rate' has a zero line time")
+    # usgscsm (constructStateFromIsd): the ephemeris is resampled on at least 25 equally
+    # spaced nodes over the ISD's time span (ALE's Hermite / natural spline), rotated
+    # into the body frame at each node; the sun is sampled on the same nodes.
     if len(pos_times) > 1:
-        dt_ephem = (pos_times[-1] - pos_times[0]) / (len(pos_times) - 1)
+        n_nodes = max(len(pos_times), MIN_EPHEMERIS_NODES)
+        dt_ephem = (pos_times[-1] - pos_times[0]) / (n_nodes - 1)
+        grid = pos_times[0] + dt_ephem * np.arange(n_nodes)
+        positions = _to_body(body, grid, resample_states(pos_times, pos_j2000, vel_j2000, grid))
+        velocities = None
     else:
         dt_ephem = 1.0
+        grid = pos_times
+        positions = _to_body(body, pos_times, pos_j2000)
+        velocities = _to_body(body, pos_times, vel_j2000)
+    if len(sun_times) > 1 and len(grid) > 1:
+        sun = _to_body(body, grid, resample_states(sun_times, sun_j2000, sun_vel_j2000, grid))
+        sun_velocities = None
+    else:  # one sun position: kept, with its velocity for linear extrapolation
+        sun = _to_body(body, sun_times, sun_j2000)
+        sun_velocities = _to_body(body, sun_times, sun_vel_j2000)
     quat_times = np.union1d(body.times, pointing.times)
     if len(quat_times) > 1:
         dt_quat = (quat_times[-1] - quat_times[0]) / (len(quat_times) - 1)

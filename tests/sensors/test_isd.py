@@ -19,6 +19,7 @@ from demtool.sensors import (
     read_isd,
     sensor_from_isd,
 )
+from demtool.sensors.isd import resample_states
 
 DATA = Path(__file__).parent / "data"
 SHARED = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "sensors"
@@ -78,11 +79,33 @@ def test_orbital_framer_center():
 
 
 def test_orbital_linescan_center_matches_usgscsm():
-    # LineScanCameraTests.cpp (OrbitalLineScanSensorModel, Center), usgscsm 1.x.
+    # LineScanCameraTests.cpp (OrbitalLineScanSensorModel, Center) at usgscsm
+    # ba32d13bc560b0a22395b07419c494190715288f.  usgscsm 1.x gave (999999.67040488799, 0,
+    # -811.90523782723039) before it resampled the ephemeris on >= 25 nodes with ALE's
+    # Hermite spline; this fixture's velocities (1.05 km/s) disagree with its positions
+    # (1 km/s), so the resampled nodes, and the point, move by 0.445 m.
     model = read_isd(DATA / "orbitalLineScan.json")
     assert isinstance(model, LineScanSensor)
+    assert len(model.positions) == 25 and model.dt_ephem == pytest.approx(1.5 / 24)
     np.testing.assert_allclose(model.image_to_ground(8.5, 8.0),
-                               (999999.67040488799, 0.0, -811.90523782723039), atol=1e-6)
+                               (999999.67004351015, 0.0, -812.35021438796923), atol=1e-6)
+
+
+def test_resample_states_hermite_and_natural_spline():
+    times = np.array([0.0, 1.0, 2.0, 4.0])
+    cubic = np.column_stack([times ** 3, 2 * times, np.ones(4)])
+    slope = np.column_stack([3 * times ** 2, np.full(4, 2.0), np.zeros(4)])
+    grid = np.array([0.25, 1.5, 3.0, 4.0])
+    # Hermite with exact derivatives reproduces any cubic.
+    np.testing.assert_allclose(resample_states(times, cubic, slope, grid),
+                               np.column_stack([grid ** 3, 2 * grid, np.ones(4)]), atol=1e-12)
+    # Without velocities: a natural spline, exact for a straight line, and for a cubic
+    # it has zero second derivative at the ends (so differs from the cubic inside).
+    line = np.column_stack([times, -times, 3 * times])
+    np.testing.assert_allclose(resample_states(times, line, None, grid),
+                               np.column_stack([grid, -grid, 3 * grid]), atol=1e-12)
+    np.testing.assert_allclose(resample_states(times, cubic, np.zeros((4, 3)), times), cubic,
+                               atol=1e-12)
 
 
 def test_orbital_linescan_height_and_inversion():

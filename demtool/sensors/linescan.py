@@ -13,8 +13,10 @@ plane with detector line 0, and the camera looks along ``(−u, −v, −f)``
 Ground to image is iterative, as in usgscsm: find the line whose exposure sees the
 ground point on the detector line (detector-line coordinate 0), here by a
 vectorised chord (fixed-slope Newton) steps from an affine approximation of the model,
-then read the sample from the same projection.  Light time and aberration are
-ignored, as usgscsm does by default.
+then read the sample from the same projection.  Each step's pose and projection run
+compiled, one point per thread (:mod:`demtool.sensors.kernels`); the lens
+distortion is applied with numpy.  Light time and aberration are ignored, as usgscsm
+does by default.
 
 Reference: DOI-USGS/usgscsm ``src/UsgsAstroLsSensorModel.cpp`` (``getImageTime``,
 ``losToEcf``, ``computeDetectorView``, ``groundToImage``, ``getSunPosition``).
@@ -176,6 +178,22 @@ class LineScanSensor(SensorModel):
         det_line, det_sample = self.detector.to_pixel(dx, dy)
         return det_line, det_sample, toward * cam[..., 2]
 
+    def _detector_view_fast(self, line, xyz):
+        """:meth:`_detector_view` with the pose and projection compiled
+        (:func:`demtool.sensors.kernels.detector_view`); line (N,), xyz (N, 3)."""
+        from demtool.sensors.kernels import detector_view
+
+        quat_order = 4 if len(self.quaternions) * 4 < 6 else 8
+        fx, fy, depth = detector_view(
+            np.ascontiguousarray(line, dtype=np.float64),
+            np.ascontiguousarray(xyz, dtype=np.float64), self.int_lines,
+            self.int_start_times, self.int_times, self.positions, self.t0_ephem,
+            self.dt_ephem, self.quaternions, self.t0_quat, self.dt_quat, quat_order,
+            self.focal_length)
+        dx, dy = self.distortion.apply(fx, fy)
+        det_line, det_sample = self.detector.to_pixel(dx, dy)
+        return det_line, det_sample, depth
+
     def _affine_guess(self):
         """Affine map XYZ → (line, sample) from a grid of image_to_ground points, and the
         slope of the detector line with the image line at the image centre."""
@@ -230,7 +248,7 @@ class LineScanSensor(SensorModel):
         for _ in range(max_iterations):
             if not len(active):
                 break
-            f, smp, dep = self._detector_view(line[active], pts[active])
+            f, smp, dep = self._detector_view_fast(line[active], pts[active])
             det_line[active], sample[active], depth[active] = f, smp, dep
             with np.errstate(divide="ignore", invalid="ignore"):
                 secant = (f - prev_f[active]) / (line[active] - prev_line[active])
@@ -241,7 +259,7 @@ class LineScanSensor(SensorModel):
             keep = np.abs(step) > precision
             done = active[~keep]
             if len(done):  # the last step moved the line by < precision: refresh the sample
-                f, smp, dep = self._detector_view(line[done], pts[done])
+                f, smp, dep = self._detector_view_fast(line[done], pts[done])
                 det_line[done], sample[done], depth[done] = f, smp, dep
             active = active[keep & np.isfinite(step)]
         bad = ~np.isfinite(line) | ~(depth > 0) | ~(np.abs(det_line) < 1e-3)

@@ -26,7 +26,14 @@ model           coefficients
 ``cahvor``      ``[k0, k1, k2, x0, y0]``: radial about the centre ``(x0, y0)``
 ``lunarorbiter``  ``[perspective_x, perspective_y, center_x, center_y, k0, k1]``
 ``brown``       ``[k1, k2, p1, p2, k3]`` (OpenCV), on normalised coordinates
+``brownconrady``  ``[xp, yp, k1, k2, k3, p1, p2, phi]`` (ASP / VisionWorkbench),
+                ``remove`` in closed form, on normalised coordinates
+``photometrix``  ``[xp, yp, k1, k2, k3, p1, p2]`` (ASP / VisionWorkbench), likewise
 ==============  ===============================================================
+
+The two ASP models are defined from distorted to undistorted coordinates in the
+pinhole's physical focal-plane units; :func:`demtool.sensors.tsai.read_tsai` rescales
+their coefficients to normalised coordinates (exact when ``fu = fv``).
 """
 
 from __future__ import annotations
@@ -36,12 +43,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 MODELS = ("none", "radial", "transverse", "radtan", "lrolrocnac", "dawnfc", "kaguyalism",
-          "cahvor", "lunarorbiter", "brown")
+          "cahvor", "lunarorbiter", "brown", "brownconrady", "photometrix")
 NONE = "none"
 BROWN = "brown"
 _COUNTS = {"radial": (3,), "transverse": (20,), "radtan": (5,), "lrolrocnac": (1,),
            "dawnfc": (1,), "kaguyalism": (10,), "cahvor": (5,), "lunarorbiter": (6,),
-           "brown": (4, 5, 8), "none": (0,)}
+           "brown": (4, 5, 8), "brownconrady": (8,), "photometrix": (7,), "none": (0,)}
 
 
 @dataclass(frozen=True)
@@ -371,10 +378,51 @@ def _lo_apply(x, y, c, f, tol):
     return _newton(x, y, lambda u, v: _lo_remove(u, v, c, f, tol), jac, min(tol, 1e-10), 30)
 
 
+# ---------------------------------------------------------------------------------------
+# ASP / VisionWorkbench BrownConrady and Photometrix (LensDistortion.cc
+# ``undistorted_coordinates``), here on coordinates relative to the principal point
+# ---------------------------------------------------------------------------------------
+
+def _brownconrady_remove(x, y, c, f, tol):
+    xp, yp, k1, k2, k3, p1, p2, phi = c
+    ix, iy = x - xp, y - yp
+    r2 = ix * ix + iy * iy
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    tangential = r2 * (p1 + r2 * p2)
+    return ix * radial - tangential * np.sin(phi), iy * radial + tangential * np.cos(phi)
+
+
+def _photometrix_remove(x, y, c, f, tol):
+    xp, yp, k1, k2, k3, p1, p2 = c
+    ix, iy = x - xp, y - yp
+    r2 = ix * ix + iy * iy
+    drr = r2 * (k1 + r2 * (k2 + r2 * k3))  # dr / r
+    return (x + ix * drr + p1 * (r2 + 2.0 * ix * ix) + 2.0 * p2 * ix * iy,
+            y + iy * drr + p2 * (r2 + 2.0 * iy * iy) + 2.0 * p1 * ix * iy)
+
+
+def _numeric_inverse(remove):
+    """apply() of a model given by remove(): Newton–Raphson with a numerical Jacobian
+    (as VisionWorkbench's ``LensDistortion::distorted_coordinates`` solver)."""
+    def apply(x, y, c, f, tol):
+        def jac(u, v, h=1e-7):
+            fx0, fy0 = remove(u, v, c, f, tol)
+            fx1, fy1 = remove(u + h, v, c, f, tol)
+            fx2, fy2 = remove(u, v + h, c, f, tol)
+            return (fx1 - fx0) / h, (fx2 - fx0) / h, (fy1 - fy0) / h, (fy2 - fy0) / h
+
+        return _newton(x, y, lambda u, v: remove(u, v, c, f, tol), jac, min(tol, 1e-13), 30)
+
+    return apply
+
+
 _APPLY = {"radial": _radial_apply, "transverse": _transverse_apply, "radtan": _radtan_apply,
           "lrolrocnac": _lroc_apply, "dawnfc": _dawn_apply, "kaguyalism": _kaguya_apply,
-          "cahvor": _cahvor_apply, "lunarorbiter": _lo_apply, "brown": _brown_apply}
+          "cahvor": _cahvor_apply, "lunarorbiter": _lo_apply, "brown": _brown_apply,
+          "brownconrady": _numeric_inverse(_brownconrady_remove),
+          "photometrix": _numeric_inverse(_photometrix_remove)}
 _REMOVE = {"radial": _radial_remove, "transverse": _transverse_remove,
            "radtan": _radtan_remove, "lrolrocnac": _lroc_remove, "dawnfc": _dawn_remove,
            "kaguyalism": _kaguya_remove, "cahvor": _cahvor_remove, "lunarorbiter": _lo_remove,
-           "brown": _brown_remove}
+           "brown": _brown_remove, "brownconrady": _brownconrady_remove,
+           "photometrix": _photometrix_remove}

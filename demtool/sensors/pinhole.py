@@ -117,8 +117,13 @@ class PinholeCamera(SensorModel):
         """World points (N, 3) → camera coordinates (N, 3)."""
         return np.asarray(points, dtype=np.float64) @ self.R.T + self.t
 
+    @property
+    def _has_lens(self) -> bool:
+        """True when the camera has lens distortion (subclasses may keep it elsewhere)."""
+        return self.distortion is not None
+
     def _normalised_to_pixels(self, xn, yn):
-        if self.distortion is not None:
+        if self._has_lens:
             xn, yn = self.lens.apply(xn, yn)
         K = self.K
         return K[0, 0] * xn + K[0, 1] * yn + K[0, 2], K[1, 1] * yn + K[1, 2]
@@ -127,7 +132,7 @@ class PinholeCamera(SensorModel):
         K = self.K
         yn = (np.asarray(v, dtype=np.float64) - K[1, 2]) / K[1, 1]
         xn = (np.asarray(u, dtype=np.float64) - K[0, 2] - K[0, 1] * yn) / K[0, 0]
-        if self.distortion is not None:
+        if self._has_lens:
             xn, yn = self.lens.remove(xn, yn)
         return xn, yn
 
@@ -148,7 +153,7 @@ class PinholeCamera(SensorModel):
         single = pts.ndim == 1
         cam = self.to_camera(np.atleast_2d(pts))
         with np.errstate(divide="ignore", invalid="ignore"):
-            if self.distortion is None:
+            if not self._has_lens:
                 uvw = cam @ self.K.T
                 uv = uvw[:, :2] / uvw[:, 2:3]
             else:
@@ -163,7 +168,7 @@ class PinholeCamera(SensorModel):
 
     def _camera_directions(self, pixels: np.ndarray) -> np.ndarray:
         uv = np.atleast_2d(np.asarray(pixels, dtype=np.float64))
-        if self.distortion is None:
+        if not self._has_lens:
             homogeneous = np.column_stack([uv, np.ones(len(uv))])
             return homogeneous @ np.linalg.inv(self.K).T
         xn, yn = self._pixels_to_normalised(uv[:, 0], uv[:, 1])
@@ -286,6 +291,10 @@ def cameras_to_arrays(names: Sequence[str], cameras: Sequence[PinholeCamera]) ->
         "width": np.asarray([c.width for c in cameras], dtype=np.int64),
         "height": np.asarray([c.height for c in cameras], dtype=np.int64),
     }
+    for name, c in zip(names, cameras, strict=True):
+        if c._has_lens and c.distortion is None:
+            raise ValueError(f"camera {name!r}: a {c.lens.model} lens cannot be stored in a "
+                             "cameras file (OpenCV Brown coefficients only)")
     if any(c.distortion is not None for c in cameras):
         arrays["distortion"] = np.stack([np.zeros(5) if c.distortion is None else c.distortion
                                          for c in cameras])

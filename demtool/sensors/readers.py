@@ -5,6 +5,7 @@ content                                model
 =====================================  ==========================================
 JSON with ``name_model`` (ALE ISD)     :class:`FrameSensor` / :class:`LineScanSensor`
 ISIS3 cube (``Object = IsisCube``)     :class:`FrameSensor` (SPICE must be attached)
+ASP ``.tsai`` (``VERSION_n``/``PINHOLE``)  :class:`TsaiCamera` (body-fixed pinhole)
 NPZ of kind ``cameras`` or ``bundle``  :class:`PinholeCamera` (one per image)
 =====================================  ==========================================
 """
@@ -33,14 +34,25 @@ def _sniff(path: Path) -> str:
         return "isd"
     if b"IsisCube" in head[:200]:
         return "cube"
+    first = text.split(None, 1)[0].upper() if text.strip() else b""
+    if first.startswith(b"VERSION_") or first == b"PINHOLE" or text.startswith(b"fu"):
+        return "tsai"
     raise InputError(f"{path}: not a sensor model demtool reads (ALE ISD JSON, ISIS3 cube "
-                     "with SPICE, cameras.npz or bundle.npz)")
+                     "with SPICE, ASP .tsai, cameras.npz or bundle.npz)")
 
 
-def read_sensors(path: str | Path) -> dict[str, SensorModel]:
-    """All sensor models of a file, by image name (one entry for an ISD or a cube)."""
+def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
+                 ) -> dict[str, SensorModel]:
+    """All sensor models of a file, by image name (one entry for an ISD, a cube or a
+    ``.tsai``); ``radii`` (metres) is the body of a ``.tsai`` pinhole, which the file
+    does not carry."""
     p = Path(path)
     kind = _sniff(p)
+    if kind == "tsai":
+        from demtool.sensors.tsai import read_tsai
+
+        model = read_tsai(p, radii=radii)
+        return {model.name: model}
     if kind == "isd":
         from demtool.sensors.isd import read_isd
 
@@ -54,15 +66,19 @@ def read_sensors(path: str | Path) -> dict[str, SensorModel]:
     return _read_npz(p)
 
 
-def read_sensor(path: str | Path, *, name: str | None = None) -> SensorModel:
+def read_sensor(path: str | Path, *, name: str | None = None,
+                radii: tuple[float, float] | None = None) -> SensorModel:
     """Read one sensor model from any supported file (see the module docstring).
 
     Parameters
     ----------
     path : path-like
-        ISD JSON, ISIS3 cube, ``cameras.npz`` or ``bundle.npz``.
+        ISD JSON, ISIS3 cube, ASP ``.tsai``, ``cameras.npz`` or ``bundle.npz``.
     name : str, optional
         Image name, required for an NPZ holding several cameras.
+    radii : (float, float), optional
+        Semi-axes of the body (metres) for a ``.tsai`` pinhole (used by its
+        ``image_to_ground``); ignored for other files, which carry their own.
 
     Raises
     ------
@@ -70,7 +86,7 @@ def read_sensor(path: str | Path, *, name: str | None = None) -> SensorModel:
         Unreadable or unrecognised file, bad content (one line naming the file and
         the key), or an NPZ with several cameras and no (or an unknown) ``name``.
     """
-    models = read_sensors(path)
+    models = read_sensors(path, radii=radii)
     if name is None:
         if len(models) == 1:
             return next(iter(models.values()))

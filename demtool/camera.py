@@ -6,157 +6,21 @@ coordinates ``u = fx * x / z + cx``, ``v = fy * y / z + cy``.  The centre of pix
 (row r, column c) is at (u, v) = (c, r).  COLMAP puts the centre of the top-left
 pixel at (0.5, 0.5); :func:`from_pycolmap` and :func:`to_pycolmap` shift by half a
 pixel.
+
+:class:`PinholeCamera`, :func:`look_at` and the ``cameras`` NPZ helpers live in
+:mod:`demtool.sensors.pinhole` (the pinhole is one implementation of the common
+sensor-model interface) and are re-exported here unchanged.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
-
 import numpy as np
 
+from demtool.sensors.pinhole import PinholeCamera, cameras_from_arrays, cameras_to_arrays, look_at
 
-@dataclass(frozen=True)
-class PinholeCamera:
-    """A pinhole camera.
-
-    Attributes
-    ----------
-    K : (3, 3) float64
-        Intrinsic matrix (focal lengths and principal point in pixels).
-    R : (3, 3) float64
-        World-to-camera rotation.
-    t : (3,) float64
-        World-to-camera translation (metres): ``x_cam = R @ X + t``.
-    width, height : int
-        Image size in pixels.
-    """
-
-    K: np.ndarray
-    R: np.ndarray
-    t: np.ndarray
-    width: int
-    height: int
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "K", np.asarray(self.K, dtype=np.float64).reshape(3, 3))
-        object.__setattr__(self, "R", np.asarray(self.R, dtype=np.float64).reshape(3, 3))
-        object.__setattr__(self, "t", np.asarray(self.t, dtype=np.float64).reshape(3))
-        object.__setattr__(self, "width", int(self.width))
-        object.__setattr__(self, "height", int(self.height))
-
-    # -- geometry ------------------------------------------------------------------
-    @property
-    def center(self) -> np.ndarray:
-        """Camera centre in world coordinates, (3,) metres: ``C = -R.T @ t``."""
-        return -self.R.T @ self.t
-
-    @property
-    def axis(self) -> np.ndarray:
-        """Unit viewing direction (camera +z) in world coordinates, (3,)."""
-        return self.R[2].copy()
-
-    @property
-    def P(self) -> np.ndarray:
-        """3×4 projection matrix ``K [R | t]``."""
-        return self.K @ np.hstack([self.R, self.t[:, None]])
-
-    @property
-    def focal_px(self) -> float:
-        """Mean focal length in pixels."""
-        return 0.5 * (self.K[0, 0] + self.K[1, 1])
-
-    def to_camera(self, points: np.ndarray) -> np.ndarray:
-        """World points (N, 3) → camera coordinates (N, 3)."""
-        return np.asarray(points, dtype=np.float64) @ self.R.T + self.t
-
-    def project(self, points: np.ndarray) -> np.ndarray:
-        """Project world points.
-
-        Parameters
-        ----------
-        points : (N, 3) or (3,) float
-            World coordinates in metres.
-
-        Returns
-        -------
-        (N, 2) or (2,) float64
-            Pixel coordinates (u, v); NaN for points at or behind the camera.
-        """
-        pts = np.asarray(points, dtype=np.float64)
-        single = pts.ndim == 1
-        cam = self.to_camera(np.atleast_2d(pts))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uvw = cam @ self.K.T
-            uv = uvw[:, :2] / uvw[:, 2:3]
-        uv[cam[:, 2] <= 0] = np.nan
-        return uv[0] if single else uv
-
-    def depth(self, points: np.ndarray) -> np.ndarray:
-        """Depth (camera z, metres) of world points (N, 3) → (N,)."""
-        return self.to_camera(np.atleast_2d(points))[:, 2]
-
-    def rays(self, pixels: np.ndarray) -> np.ndarray:
-        """Back-project pixels to unit ray directions in world coordinates.
-
-        Parameters
-        ----------
-        pixels : (N, 2) float
-            Pixel coordinates (u, v).
-
-        Returns
-        -------
-        (N, 3) float64
-            Unit directions; the ray of pixel i is ``center + s * rays[i]``, s > 0.
-        """
-        uv = np.atleast_2d(np.asarray(pixels, dtype=np.float64))
-        homogeneous = np.column_stack([uv, np.ones(len(uv))])
-        directions_cam = homogeneous @ np.linalg.inv(self.K).T
-        directions = directions_cam @ self.R  # R.T @ d for each row
-        return directions / np.linalg.norm(directions, axis=1, keepdims=True)
-
-    def backproject(self, pixels: np.ndarray, depth: np.ndarray) -> np.ndarray:
-        """World points at the given camera depths (z, metres) along the pixel rays, (N, 3)."""
-        uv = np.atleast_2d(np.asarray(pixels, dtype=np.float64))
-        homogeneous = np.column_stack([uv, np.ones(len(uv))])
-        cam = (homogeneous @ np.linalg.inv(self.K).T) * np.asarray(depth, dtype=np.float64)[:, None]
-        return (cam - self.t) @ self.R
-
-    def as_dict(self) -> dict:
-        """Plain-array form (for tags and JSON)."""
-        return {"K": self.K.tolist(), "R": self.R.tolist(), "t": self.t.tolist(),
-                "width": self.width, "height": self.height}
-
-
-def look_at(center: Sequence[float], target: Sequence[float], up: Sequence[float] = (0, 1, 0),
-            *, focal_px: float, width: int, height: int) -> PinholeCamera:
-    """Camera at ``center`` looking at ``target``, image "up" as close to ``up`` as possible.
-
-    Parameters
-    ----------
-    center, target : (3,) float
-        World coordinates, metres.
-    up : (3,) float
-        World direction that should appear as image up (−v).  For a nadir camera with
-        up = +Y (north), image right is east and image down is south.
-    focal_px : float
-        Focal length in pixels; the principal point is the image centre.
-    """
-    c = np.asarray(center, dtype=np.float64)
-    z_axis = np.asarray(target, dtype=np.float64) - c
-    z_axis /= np.linalg.norm(z_axis)
-    up_vec = np.asarray(up, dtype=np.float64)
-    y_axis = -(up_vec - np.dot(up_vec, z_axis) * z_axis)  # image down
-    norm = np.linalg.norm(y_axis)
-    if norm < 1e-9:
-        raise ValueError("look_at: the up vector is parallel to the viewing direction")
-    y_axis /= norm
-    x_axis = np.cross(y_axis, z_axis)
-    R = np.vstack([x_axis, y_axis, z_axis])
-    K = np.array([[focal_px, 0.0, (width - 1) / 2.0],
-                  [0.0, focal_px, (height - 1) / 2.0],
-                  [0.0, 0.0, 1.0]])
-    return PinholeCamera(K=K, R=R, t=-R @ c, width=width, height=height)
+__all__ = ["PinholeCamera", "cameras_from_arrays", "cameras_to_arrays", "from_opencv",
+           "from_pycolmap", "look_at", "to_opencv", "to_pycolmap", "triangulate_linear",
+           "triangulate_midpoint"]
 
 
 # ----------------------------------------------------------------------------------------
@@ -281,23 +145,3 @@ def to_pycolmap(camera: PinholeCamera, camera_id: int = 1):
     return colmap_camera, pose
 
 
-def cameras_to_arrays(names: Sequence[str], cameras: Sequence[PinholeCamera]) -> dict:
-    """Arrays for a ``cameras`` NPZ (see ``io.NPZ_SCHEMAS['cameras']``)."""
-    return {
-        "names": np.asarray(list(names), dtype=str),
-        "K": np.stack([c.K for c in cameras]),
-        "R": np.stack([c.R for c in cameras]),
-        "t": np.stack([c.t for c in cameras]),
-        "width": np.asarray([c.width for c in cameras], dtype=np.int64),
-        "height": np.asarray([c.height for c in cameras], dtype=np.int64),
-    }
-
-
-def cameras_from_arrays(arrays: dict) -> dict[str, PinholeCamera]:
-    """Cameras by name from a ``cameras`` NPZ's arrays (or a bundle's, keyed by image name)."""
-    names = arrays["names"] if "names" in arrays else arrays["image_names"]
-    return {
-        str(name): PinholeCamera(K=arrays["K"][i], R=arrays["R"][i], t=arrays["t"][i],
-                                 width=int(arrays["width"][i]), height=int(arrays["height"][i]))
-        for i, name in enumerate(names)
-    }

@@ -44,7 +44,8 @@ from demtool.outputs import (  # noqa: F401
     write_error,
 )
 
-NPZ_FORMAT_VERSION = 1
+# 2: cameras/bundle files may carry an optional 'distortion' array (see NPZ_SCHEMAS).
+NPZ_FORMAT_VERSION = 2
 
 # --------------------------------------------------------------------------------------
 # Input checks
@@ -344,6 +345,8 @@ NPZ_SCHEMAS: dict[str, dict[str, tuple[tuple, str]]] = {
         "t": (("N", 3), "f"),
         "width": (("N",), "i"),
         "height": (("N",), "i"),
+        # optional (format 2): "distortion" (N, 5) OpenCV k1, k2, p1, p2, k3 per camera;
+        # checked by demtool.sensors.pinhole.cameras_from_arrays
     },
     "rectification": {
         "H_left": ((3, 3), "f"),
@@ -373,6 +376,7 @@ NPZ_SCHEMAS: dict[str, dict[str, tuple[tuple, str]]] = {
         "height": (("M",), "i"),
         "target_index": ((), "i"),
         "aligned": ((), "b"),  # True when a similarity put the model in metric coordinates
+        # optional: "distortion" (M, 2) COLMAP radial k1, k2, or (M, 5) OpenCV coefficients
     },
     "matches": {
         "points_left": (("N", 2), "f"),

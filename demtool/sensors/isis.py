@@ -1,0 +1,200 @@
+"""Reader of ISIS3 cubes with SPICE attached (``spiceinit attach=true``) into frame models.
+
+The label (PVL, read with ``pvl``) describes binary tables stored in the cube
+(``Object = Table``: ``Name``, ``StartByte`` (1-based), ``Records``, ``ByteOrder``
+and one ``Group = Field`` per column).  ``InstrumentPosition`` and ``SunPosition``
+hold J2000 positions (km) and ET; ``InstrumentPointing`` and ``BodyRotation`` hold
+J2000 → frame quaternions ``J2000Q0..3`` (scalar first), with an optional
+``ConstantRotation`` (3×3, row-major) to the final frame.  The interior orientation
+comes from the ``NaifKeywords`` object: ``INS<code>_FOCAL_LENGTH`` (mm),
+``_ITRANSS``/``_ITRANSL`` (focal plane → detector), ``_BORESIGHT_SAMPLE/LINE`` or
+``_CCD_CENTER`` (ISIS 1-based detector origin; the image centre when neither is
+given, as for Apollo Metric), and ``BODY<code>_RADII`` (km).  An
+``AlphaCube`` group (a crop or rescale of the original image) maps the cube's
+pixels to the original detector: ``alpha = start + (end − start) / beta_size ·
+(beta − 0.5)`` in ISIS's 1-based coordinates (ISIS ``AlphaCube``).
+
+Lens distortion is not read from cubes yet (ISIS's per-mission distortion maps,
+e.g. Apollo's r²/r⁴/r⁶ radial plus decentering, are not the CSM models); the model
+is built without it and says so in its ``notes``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from demtool.errors import InputError
+from demtool.sensors.base import Detector
+from demtool.sensors.frame import FrameSensor
+from demtool.sensors.isd import Orientations
+
+_TYPES = {"Double": "f8", "Integer": "i4", "Real": "f4"}
+
+
+def _read_label(path: Path) -> tuple[dict, bytes]:
+    import warnings
+
+    with warnings.catch_warnings():  # pvl notes the optional multidict package is absent
+        warnings.simplefilter("ignore", ImportWarning)
+        warnings.simplefilter("ignore", PendingDeprecationWarning)
+        import pvl
+
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read cube ({exc.strerror or exc})") from None
+    if not data.lstrip().startswith(b"Object = IsisCube") and b"IsisCube" not in data[:200]:
+        raise InputError(f"{path}: not an ISIS3 cube (no 'Object = IsisCube' label)")
+    end = data.find(b"\nEnd\n")
+    if end < 0:
+        end = data.find(b"\nEnd\r\n")
+    text = data[: end + 5 if end >= 0 else 65536].decode("latin-1")
+    try:
+        with warnings.catch_warnings():  # pvl's Units class (for '<meters>') is deprecated
+            warnings.simplefilter("ignore", PendingDeprecationWarning)
+            label = pvl.loads(text)
+    except Exception as exc:  # pvl raises several parser errors
+        raise InputError(f"{path}: cannot parse the ISIS label ({str(exc).splitlines()[0]})") \
+            from None
+    return label, data
+
+
+def _tables(label) -> dict:
+    return {str(obj["Name"]): obj for key, obj in label.items() if key == "Table"}
+
+
+def _read_table(path: Path, data: bytes, table) -> dict[str, np.ndarray]:
+    name = table["Name"]
+    fields = [group for key, group in table.items() if key == "Field"]
+    order = "<" if str(table.get("ByteOrder", "Lsb")) == "Lsb" else ">"
+    try:
+        dtype = np.dtype([(str(f["Name"]), order + _TYPES[str(f["Type"])], (int(f["Size"]),))
+                          for f in fields])
+        start, records = int(table["StartByte"]) - 1, int(table["Records"])
+    except KeyError as exc:
+        raise InputError(f"{path}: table {name} lacks the key {exc}") from None
+    if records <= 0:
+        raise InputError(f"{path}: table {name} is empty (Records = {records})")
+    if start < 0 or start + records * dtype.itemsize > len(data):
+        raise InputError(f"{path}: table {name} runs past the end of the file")
+    array = np.frombuffer(data, dtype=dtype, count=records, offset=start)
+    return {key: array[key].reshape(records, -1).astype(np.float64) for key in dtype.names}
+
+
+def _columns(path: Path, table: dict, name: str, keys: list[str]) -> np.ndarray:
+    missing = [k for k in keys if k not in table]
+    if missing:
+        raise InputError(f"{path}: table {name} lacks the field '{missing[0]}'")
+    return np.column_stack([table[k][:, 0] for k in keys])
+
+
+def _orientations(path, label_table, table, name) -> Orientations:
+    quats = _columns(path, table, name, ["J2000Q0", "J2000Q1", "J2000Q2", "J2000Q3"])
+    times = _columns(path, table, name, ["ET"])[:, 0]
+    constant = None
+    if "ConstantRotation" in label_table:
+        values = np.asarray(label_table["ConstantRotation"], dtype=np.float64)
+        if values.size != 9:
+            raise InputError(f"{path}: table {name} has a ConstantRotation of {values.size} "
+                             "values, expected 9")
+        constant = values.reshape(3, 3)
+    return Orientations(times, quats[:, [1, 2, 3, 0]], constant)
+
+
+def _naif(path: Path, naif, key: str, size: int | None = None):
+    if key not in naif:
+        raise InputError(f"{path}: NaifKeywords lacks the key '{key}'")
+    value = np.atleast_1d(np.asarray(naif[key], dtype=np.float64))
+    if size is not None and value.size != size:
+        raise InputError(f"{path}: NaifKeywords '{key}' has {value.size} values, expected {size}")
+    return value
+
+
+def read_cube(path: str | Path) -> FrameSensor:
+    """Read an ISIS3 cube with attached SPICE into a :class:`FrameSensor`.
+
+    Raises
+    ------
+    InputError
+        Not a cube; no attached SPICE (the message says to run ``spiceinit
+        attach=true`` or to pass an ISD); a missing table, field or NAIF keyword; an
+        empty table.
+    """
+    p = Path(path)
+    label, data = _read_label(p)
+    tables = _tables(label)
+    needed = ("InstrumentPointing", "InstrumentPosition", "BodyRotation", "SunPosition")
+    absent = [t for t in needed if t not in tables]
+    if absent or "NaifKeywords" not in label:
+        what = absent[0] if absent else "NaifKeywords"
+        raise InputError(f"{p}: the cube has no attached SPICE ({what} missing); run "
+                         "'spiceinit from=CUBE attach=true' in ISIS, or pass an ALE ISD "
+                         "(isd_generate) instead")
+    raw = {name: _read_table(p, data, tables[name]) for name in needed}
+    core = label["IsisCube"]["Core"]
+    try:
+        samples = int(core["Dimensions"]["Samples"])
+        lines = int(core["Dimensions"]["Lines"])
+        code = int(label["IsisCube"]["Kernels"]["NaifFrameCode"])
+    except KeyError as exc:
+        raise InputError(f"{p}: the cube label lacks the key {exc}") from None
+    naif = label["NaifKeywords"]
+    ins = f"INS{code}"
+    focal = float(_naif(p, naif, f"{ins}_FOCAL_LENGTH", 1)[0])
+    itrans_s = _naif(p, naif, f"{ins}_ITRANSS", 3)
+    itrans_l = _naif(p, naif, f"{ins}_ITRANSL", 3)
+    if f"{ins}_BORESIGHT_SAMPLE" in naif:
+        center_s = float(_naif(p, naif, f"{ins}_BORESIGHT_SAMPLE", 1)[0])
+        center_l = float(_naif(p, naif, f"{ins}_BORESIGHT_LINE", 1)[0])
+    elif f"{ins}_CCD_CENTER" in naif:
+        center_s, center_l = _naif(p, naif, f"{ins}_CCD_CENTER", 2)
+    else:  # e.g. Apollo Metric: the origin is the centre of the (original) image
+        alpha = label["IsisCube"].get("AlphaCube")
+        full_s = float(alpha["AlphaSamples"]) if alpha is not None else samples
+        full_l = float(alpha["AlphaLines"]) if alpha is not None else lines
+        center_s, center_l = full_s / 2.0 + 0.5, full_l / 2.0 + 0.5
+    body_keys = [k for k in naif.keys() if k.startswith("BODY") and k.endswith("_RADII")]
+    if not body_keys:
+        raise InputError(f"{p}: NaifKeywords lacks the key 'BODY<code>_RADII'")
+    radii = _naif(p, naif, body_keys[0], 3) * 1000.0
+
+    # Cube pixel → original detector pixel (CSM convention: ISIS − 0.5).
+    start_s = start_l = 0.0
+    sum_s = sum_l = 1.0
+    alpha = label["IsisCube"].get("AlphaCube")
+    if alpha is not None:
+        sum_s = (float(alpha["AlphaEndingSample"]) - float(alpha["AlphaStartingSample"])) \
+            / float(alpha["BetaSamples"])
+        sum_l = (float(alpha["AlphaEndingLine"]) - float(alpha["AlphaStartingLine"])) \
+            / float(alpha["BetaLines"])
+        start_s = float(alpha["AlphaStartingSample"]) - 0.5
+        start_l = float(alpha["AlphaStartingLine"]) - 0.5
+    detector = Detector(itrans_sample=itrans_s, itrans_line=itrans_l,
+                        center_sample=center_s - 0.5, center_line=center_l - 0.5,
+                        start_sample=start_s, start_line=start_l,
+                        sample_summing=sum_s, line_summing=sum_l)
+
+    body = _orientations(p, tables["BodyRotation"], raw["BodyRotation"], "BodyRotation")
+    pointing = _orientations(p, tables["InstrumentPointing"], raw["InstrumentPointing"],
+                             "InstrumentPointing")
+    position = raw["InstrumentPosition"]
+    pos = _columns(p, position, "InstrumentPosition", ["J2000X", "J2000Y", "J2000Z"])
+    pos_times = _columns(p, position, "InstrumentPosition", ["ET"])[:, 0]
+    sun = _columns(p, raw["SunPosition"], "SunPosition", ["J2000X", "J2000Y", "J2000Z"])
+    sun_times = _columns(p, raw["SunPosition"], "SunPosition", ["ET"])[:, 0]
+    time = float(pos_times[len(pos_times) // 2])
+    t = np.array([time])
+    r_body = body.matrices_at(t)[0]
+    rotation = r_body @ pointing.matrices_at(t)[0].T
+    position_body = r_body @ pos[len(pos) // 2] * 1000.0
+    sun_body = body.matrices_at(sun_times[:1])[0] @ sun[0] * 1000.0
+    # ISIS's zDirection: the side of the focal plane the body is on (Apollo Metric: −z).
+    z_direction = -1.0 if rotation[:, 2] @ position_body > 0 else 1.0
+    model = FrameSensor(position=position_body, rotation=rotation, focal_length=focal,
+                        detector=detector, lines=lines, samples=samples,
+                        radii=(float(radii[0]), float(radii[2])), sun=sun_body, name=p.stem,
+                        time=time, z_direction=z_direction)
+    model.notes = ["lens distortion of the ISIS camera model not applied"]
+    return model

@@ -1,0 +1,116 @@
+"""One entry point for every camera file: :func:`read_sensor` dispatches on content.
+
+=====================================  ==========================================
+content                                model
+=====================================  ==========================================
+JSON with ``name_model`` (ALE ISD)     :class:`FrameSensor` / :class:`LineScanSensor`
+ISIS3 cube (``Object = IsisCube``)     :class:`FrameSensor` (SPICE must be attached)
+ASP ``.tsai`` (``VERSION_n``/``PINHOLE``)  :class:`TsaiCamera` (body-fixed pinhole)
+NPZ of kind ``cameras`` or ``bundle``  :class:`PinholeCamera` (one per image)
+=====================================  ==========================================
+"""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from demtool.errors import InputError
+from demtool.sensors.base import SensorModel
+
+
+def _sniff(path: Path) -> str:
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(4096)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read sensor model ({exc.strerror or exc})") from None
+    if head.startswith(b"PK"):
+        return "npz"
+    text = head.lstrip()
+    if text.startswith(b"{"):
+        return "isd"
+    if b"IsisCube" in head[:200]:
+        return "cube"
+    first = text.split(None, 1)[0].upper() if text.strip() else b""
+    if first.startswith(b"VERSION_") or first == b"PINHOLE" or text.startswith(b"fu"):
+        return "tsai"
+    raise InputError(f"{path}: not a sensor model demtool reads (ALE ISD JSON, ISIS3 cube "
+                     "with SPICE, ASP .tsai, cameras.npz or bundle.npz)")
+
+
+def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
+                 ) -> dict[str, SensorModel]:
+    """All sensor models of a file, by image name (one entry for an ISD, a cube or a
+    ``.tsai``); ``radii`` (metres) is the body of a ``.tsai`` pinhole, which the file
+    does not carry."""
+    p = Path(path)
+    kind = _sniff(p)
+    if kind == "tsai":
+        from demtool.sensors.tsai import read_tsai
+
+        model = read_tsai(p, radii=radii)
+        return {model.name: model}
+    if kind == "isd":
+        from demtool.sensors.isd import read_isd
+
+        model = read_isd(p)
+        return {model.name or p.stem: model}
+    if kind == "cube":
+        from demtool.sensors.isis import read_cube
+
+        model = read_cube(p)
+        return {model.name: model}
+    return _read_npz(p)
+
+
+def read_sensor(path: str | Path, *, name: str | None = None,
+                radii: tuple[float, float] | None = None) -> SensorModel:
+    """Read one sensor model from any supported file (see the module docstring).
+
+    Parameters
+    ----------
+    path : path-like
+        ISD JSON, ISIS3 cube, ASP ``.tsai``, ``cameras.npz`` or ``bundle.npz``.
+    name : str, optional
+        Image name, required for an NPZ holding several cameras.
+    radii : (float, float), optional
+        Semi-axes of the body (metres) for a ``.tsai`` pinhole (used by its
+        ``image_to_ground``); ignored for other files, which carry their own.
+
+    Raises
+    ------
+    InputError
+        Unreadable or unrecognised file, bad content (one line naming the file and
+        the key), or an NPZ with several cameras and no (or an unknown) ``name``.
+    """
+    models = read_sensors(path, radii=radii)
+    if name is None:
+        if len(models) == 1:
+            return next(iter(models.values()))
+        raise InputError(f"{path}: holds {len(models)} cameras ({', '.join(models)}); "
+                         "say which image")
+    if name not in models:
+        raise InputError(f"{path}: has no camera named {name!r} (has {', '.join(models)})")
+    return models[name]
+
+
+def _read_npz(path: Path) -> dict[str, SensorModel]:
+    from demtool import io
+    from demtool.sensors.pinhole import cameras_from_arrays
+
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            kind = str(npz["kind"]) if "kind" in npz.files else ""
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise InputError(f"{path}: not a readable NPZ file ({exc})") from None
+    if kind not in ("cameras", "bundle"):
+        raise InputError(f"{path}: is a {kind or 'non-demtool'} NPZ file, expected a cameras "
+                         "or bundle file")
+    arrays = io.read_npz(path, kind)
+    try:
+        return cameras_from_arrays(arrays)
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None

@@ -63,6 +63,23 @@ def _body_of(model, path: Path, named: Body | None) -> Body | None:
     return body_from_radii(a, a, b, naif_id=naif)
 
 
+def _sized(model):
+    """A pinhole without an image size (a ``.tsai`` carries none) gets the size centred on
+    its principal point, with a note."""
+    import dataclasses
+
+    from demtool.sensors import PinholeCamera
+
+    if not isinstance(model, PinholeCamera) or (model.width > 0 and model.height > 0):
+        return model
+    width = max(1, round(2 * (model.K[0, 2] + 0.5)))
+    height = max(1, round(2 * (model.K[1, 2] + 0.5)))
+    sized = dataclasses.replace(model, width=width, height=height)
+    object.__setattr__(sized, "notes", [f"the model gives no image size: {height} x {width} "
+                                        "px assumed, centred on the principal point"])
+    return sized
+
+
 def read_models(paths: Sequence[str | os.PathLike], body: Body | None = None):
     """Read every model of every file, by unique name, with its body and file.
 
@@ -82,7 +99,7 @@ def read_models(paths: Sequence[str | os.PathLike], body: Body | None = None):
             key = name or path.stem
             if key in models:
                 key = f"{path.name}:{key}"
-            models[key] = model
+            models[key] = _sized(model)
             bodies[key] = _body_of(model, path, body)
             files[key] = str(path)
     return models, bodies, files

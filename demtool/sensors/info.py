@@ -319,6 +319,12 @@ def pair_geometry(first: SensorModel, second: SensorModel, body: Body | None, *,
         center_lonlat = _lonlat(np.mean([x / np.linalg.norm(x) for x in seen], axis=0))
     prints = [footprint(m, body, points_per_edge=points_per_edge, center_lonlat=center_lonlat)
               for m in (first, second)]
+    if body is not None and center_lonlat is None and all(p is not None for p in prints):
+        # neither image centre sees the body: one plane centred on both outlines
+        outline = np.concatenate([p.xyz for p in prints])
+        center_lonlat = _lonlat((outline / np.linalg.norm(outline, axis=1)[:, None]).mean(0))
+        prints = [footprint(m, body, points_per_edge=points_per_edge,
+                            center_lonlat=center_lonlat) for m in (first, second)]
     keys = ("overlap_area_km2", "overlap_fraction_first", "overlap_fraction_second",
             "convergence_deg", "base_m", "height_m", "base_to_height")
     out.update(dict.fromkeys(keys))

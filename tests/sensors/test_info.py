@@ -1,7 +1,6 @@
 """sensors.info and sensors.polygons: footprints, GSD, angles and pair geometry against
 closed forms on synthetic ISDs; polygon intersection against exact shapes."""
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +27,7 @@ from tests.helpers.camera_isd import (
 )
 
 MOON = body_by_name("Moon")
-DATA = Path(os.environ.get("DEMTOOL_SHARED_DATA", "/work/shared/data")) / "sensors"
+DATA = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "sensors"
 
 
 def square(x0, y0, size):
@@ -366,7 +365,7 @@ def _sane(entry):
 
 
 @pytest.mark.data
-@pytest.mark.skipif(not (DATA / "ale").is_dir(), reason="needs /work/shared/data")
+@pytest.mark.skipif(not (DATA / "ale").is_dir(), reason="../shared/data/sensors is absent")
 def test_every_ale_isd_reports_sane_values():
     from demtool.runs.camera import read_models
 
@@ -390,7 +389,8 @@ def test_every_ale_isd_reports_sane_values():
 
 
 @pytest.mark.data
-@pytest.mark.skipif(not (DATA / "apollo15_cubes").is_dir(), reason="needs /work/shared/data")
+@pytest.mark.skipif(not (DATA / "apollo15_cubes").is_dir(),
+                    reason="../shared/data/sensors is absent")
 def test_apollo15_cubes_overlap_with_base_to_height_near_034():
     from demtool.runs.camera import read_models
 
@@ -409,3 +409,24 @@ def test_apollo15_cubes_overlap_with_base_to_height_near_034():
     # emission 14° and 20°)
     assert info["convergence_deg"] == pytest.approx(
         2 * np.degrees(np.arctan(info["base_to_height"] / 2)), abs=1.5)
+
+
+def test_pair_whose_image_centres_miss_the_body():
+    # two cameras looking past the limb: their centres see space, their lower edges the
+    # body; the footprints are still put on one plane and intersected
+    east, north, up = enu_frame(0.0, 0.0)
+    models = {}
+    for name, shift in (("a", 0.0), ("b", 2e3)):
+        position = lonlat_height_to_xyz(0.0, 0.0, 500e3, radii=MOON_RADIUS) + shift * north
+        horizon = np.arcsin(MOON_RADIUS / np.linalg.norm(position))
+        tilt = horizon + np.radians(5)  # 5° above the limb
+        look = -np.cos(tilt) * up + np.sin(tilt) * east
+        models[name] = sensor_from_isd(frame_isd(
+            position, look_at_rotation(position, position + look, north), focal_mm=10.0,
+            pitch_mm=0.01, lines=1000, samples=1000, name=name))
+    assert center_geometry(models["a"], MOON)["center_xyz_m"] is None
+    info = pair_geometry(models["a"], models["b"], MOON, points_per_edge=16)
+    assert 0.5 < info["overlap_fraction_first"] <= 1.0
+    assert info["overlap_fraction_first"] == pytest.approx(info["overlap_fraction_second"],
+                                                           rel=0.05)
+    assert info["base_m"] == pytest.approx(2e3, rel=1e-9)

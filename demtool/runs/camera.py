@@ -182,6 +182,10 @@ def run_camera(models: Sequence[str | os.PathLike], params: CameraParams | None 
     run = StageRun("camera", params, resolved=resolved, inputs={"MODEL": list(models)},
                    outputs={"--out": out})
     log, provenance = run.log, run.provenance
+    if out is not None:
+        from demtool.outputs import check_output_paths
+
+        check_output_paths(list(models), {"--out": out, "the --out sidecar": f"{out}.json"})
     body = _named_body(params.body) if params.body is not None else None
     sensors, bodies, files = read_models(models, body)
     log.info("%d camera model(s) from %d file(s)", len(sensors), len(models))

@@ -140,6 +140,10 @@ def test_bad_inputs(pair_files, tmp_path):
     one_error_line(invoke(pair_files[0], "--body", "Vulcan", "--out", out), "--body",
                    "Vulcan")
     assert not out.exists() and not (tmp_path / "report.json.json").exists()
+    before = pair_files[1].read_bytes()
+    one_error_line(invoke(*pair_files, "--out", pair_files[1]), str(pair_files[1]),
+                   "overwrite")
+    assert pair_files[1].read_bytes() == before
     usage = invoke(pair_files[0], "--points-per-edge", "1")
     assert usage.exit_code == 2 and "--points-per-edge" in usage.output
     assert invoke().exit_code == 2

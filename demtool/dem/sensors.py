@@ -190,9 +190,10 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
     grid = grid_from_xyz(body, xyz, gsd_m, projection=projection, crs=crs)
     lon, lat, height = xyz_to_lonlat_height(xyz, radii=body.radius)
     x, y = lonlat_to_map(grid.crs, lon, lat)
-    inverse = ~grid.transform
-    cols, rows = inverse * (x, y)
-    pixels = np.stack([np.asarray(cols) - 0.5, np.asarray(rows) - 0.5], axis=-1)
+    t = grid.transform  # north-up: col = (x − c) / a, row = (y − f) / e
+    cols = (np.asarray(x) - t.c) / t.a
+    rows = (np.asarray(y) - t.f) / t.e
+    pixels = np.stack([cols - 0.5, rows - 0.5], axis=-1)
     dem, counts = splat_median(pixels, height, grid.shape)
     error, _ = splat_median(pixels, gap, grid.shape)
     measured = np.isfinite(dem)

@@ -125,7 +125,7 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
     summary: dict[str, Any] = {
         "route": "disparity-sensors",
         "body": body.name,
-        "crs": grid.crs.to_string(),
+        "crs": grid.crs.name,
         "projection": params.projection,
         "shape": list(result.dem.shape),
         "gsd_m": gsd,

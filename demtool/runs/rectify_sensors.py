@@ -157,6 +157,14 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
     H_right = _homography_fit(*maps["right"])
     # rectified F = [e]x with e = (1, 0, 0): rows agree; F = H_rightᵀ F_rect H_left
     F = H_right.T @ np.array([[0.0, 0, 0], [0, 0, -1], [0, 1, 0]]) @ H_left
+    from demtool.dem.sensors import triangulate_sensors
+
+    pl, pr = result.points_left, result.points_right
+    gaps = {}
+    for label, model in (("spice", right_model), ("corrected", result.right_model)):
+        tri = triangulate_sensors(left_model, model, pl[:, 1] + 0.5, pl[:, 0] + 0.5,
+                                  pr[:, 1] + 0.5, pr[:, 0] + 0.5)
+        gaps[label] = float(np.median(tri.gap))
     before = fit.residuals_before[fit.inliers]
     residuals = result.points_left_rect[:, 1] - result.points_right_rect[:, 1]
     rms_before = float(np.sqrt(np.mean(before ** 2)))
@@ -173,6 +181,8 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
         "pointing_corrected": bool(result.corrected),
         "pointing_correction_mrad": [round(float(v), 4) for v in omega_mrad],
         "pointing_correction_angle_mrad": round(float(np.linalg.norm(omega_mrad)), 4),
+        "median_ray_gap_spice_m": round(gaps["spice"], 3),
+        "median_ray_gap_m": round(gaps["corrected"], 3),
         "focal_rect_px": round(float(geometry.f_px), 3),
         "disparity_range_px": [round(float(v), 3) for v in result.disparity_range],
         "size_left": [left_image.data.shape[1], left_image.data.shape[0]],
@@ -183,6 +193,8 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
              "under the models (median %.3f px), %.3f px after rectification", pair,
              len(pairs), len(result.points_left), rms_before,
              summary["median_vertical_residual_before_px"], rms)
+    log.info("median ray gap of the matches: %.3g m under the models as given, %.3g m with "
+             "the pointing correction", gaps["spice"], gaps["corrected"])
     log.info("pointing correction of the right camera: %s (rectified x, y, z: %.3f, %.3f, "
              "%.3f mrad); disparity range %.1f … %.1f px; rectified canvas %d x %d",
              "applied" if result.corrected else "none needed", *omega_mrad,

@@ -103,7 +103,10 @@ def placement(body: str | Body = "Moon", center_lon: float = 0.0,
     """
     if not -90.0 <= float(center_lat) <= 90.0:
         raise ValueError(f"centre latitude must lie in [-90, 90], got {center_lat}")
-    the_body = body if isinstance(body, Body) else body_by_name(str(body))
+    try:
+        the_body = body if isinstance(body, Body) else body_by_name(str(body))
+    except KeyError as exc:
+        raise ValueError(str(exc.args[0]) if exc.args else f"unknown body {body!r}") from None
     return Placement(the_body, float(center_lon), float(center_lat))
 
 

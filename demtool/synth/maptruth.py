@@ -93,7 +93,7 @@ def truth_map(field, placement, models, gsd_m: float, *, projection: str = "auto
     rows = np.flatnonzero(common.any(axis=1))
     cols = np.flatnonzero(common.any(axis=0))
     r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
-    cropped = MapGrid(crs=grid.crs, transform=grid.transform * Affine.translation(c0, r0),
+    cropped = MapGrid(crs=grid.crs, transform=grid.transform @ Affine.translation(c0, r0),
                       width=int(c1 - c0), height=int(r1 - r0))
     values = np.where(common, heights, np.nan)[r0:r1, c0:c1].astype(np.float32)
     return TruthMap(cropped, values)

@@ -8,7 +8,7 @@ map-projected line-scan stereo): correspondences given as CSM image coordinates 
 body (:func:`dem_on_map`): heights in metres above the body's reference sphere
 (:attr:`demtool.maps.Body.radius`), measured radially.
 
-Gridding: each map cell gets the median height (and median ray gap) of the points
+Gridding (a robust binning): each map cell gets the median height (and median ray gap) of the points
 whose map position falls in it (nearest cell, :func:`demtool.dem.grid.splat_median`);
 empty cells inside the stereo overlap — cells whose centre, at the DEM's median
 height, is seen by both cameras — are filled by D'Errico's spring metaphor
@@ -155,7 +155,7 @@ class MapDem(NamedTuple):
 def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
                projection: str = "auto", crs: Any = None,
                left: SensorModel | None = None, right: SensorModel | None = None,
-               fill: bool = True) -> MapDem:
+               fill: bool = True, median_px: int = 0) -> MapDem:
     """Grid triangulated points as heights above the body's sphere on a map.
 
     Parameters
@@ -171,12 +171,14 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
         (``fill``), otherwise the cells inside the points' extent.
     fill : bool
         Fill gaps (spring metaphor) inside the overlap.
+    median_px : int
+        Median filter after filling (0 = off; odd), :func:`demtool.dem.grid.fill_and_smooth`.
 
     Returns
     -------
     MapDem
     """
-    from demtool.interpolate import inpaint_springs
+    from demtool.dem.grid import fill_and_smooth
     from demtool.maps.frames import xyz_to_lonlat_height
     from demtool.maps.grids import grid_from_xyz
     from demtool.maps.projections import lonlat_to_map
@@ -206,9 +208,9 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
     filled = np.zeros(grid.shape, dtype=bool)
     out = dem.copy()
     if fill and measured.any():
-        full = inpaint_springs(dem)
+        full = fill_and_smooth(dem, median_px=median_px).dem
         filled = overlap & ~measured
-        out = np.where(filled, full, dem)
+        out = np.where(filled | (median_px > 1), full, dem)
     out[~overlap] = np.nan
     report = {
         "map_shape": list(grid.shape),

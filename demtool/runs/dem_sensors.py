@@ -120,7 +120,8 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
     a, b = left.radii
     body = body_from_radii(a, a, b)
     result = dem_on_map(tri.xyz[keep], tri.gap[keep], body, gsd_m=gsd,
-                        projection=params.projection, left=left, right=right)
+                        projection=params.projection, left=left, right=right,
+                        median_px=params.median)
     grid = result.grid
     summary: dict[str, Any] = {
         "route": "disparity-sensors",

@@ -30,6 +30,7 @@ REFINE_ITERATIONS = 100
 REFINE_TOLERANCE_M = 1e-9  # clearance (vertical metres) or bracket length at the hit
 SHADOW_BLOCK_CELLS = 8  # sun rays skip blocks of this many cells whose top they clear
 SHADOW_EPSILON_M = 1e-4  # terrain must rise this far above a sun ray to cast a shadow
+RAY_BLOCK_ROWS = 64  # image rows (× 512 pixels of a list) per image_to_ray call
 
 
 class HeightField(NamedTuple):
@@ -368,8 +369,13 @@ def pixel_rays(camera: SensorModel, *, placement=None, pixels: np.ndarray | None
     else:
         uv = np.atleast_2d(np.asarray(pixels, dtype=np.float64))
         cols, rows = uv[:, 0], uv[:, 1]
-    ray = camera.image_to_ray(rows + 0.5, cols + 0.5)  # CSM: first pixel centre at 0.5
-    origins, directions = ray.origin, ray.direction
+    origins = np.empty(np.shape(rows) + (3,))
+    directions = np.empty(np.shape(rows) + (3,))
+    step = RAY_BLOCK_ROWS if pixels is None else RAY_BLOCK_ROWS * 512
+    for start in range(0, len(rows), step):  # blocks keep the temporaries in cache
+        block = slice(start, start + step)
+        ray = camera.image_to_ray(rows[block] + 0.5, cols[block] + 0.5)  # CSM: centre 0.5
+        origins[block], directions[block] = ray.origin, ray.direction
     if placement is not None:
         origins = placement.to_local(origins)
         directions = placement.directions_to_local(directions)

@@ -395,9 +395,9 @@ class ViewGeometry(NamedTuple):
     Attributes
     ----------
     depth : float64
-        Camera z of the hit (metres along the optical axis) for a pinhole, as used by
-        :meth:`PinholeCamera.backproject`; the range (metres along the ray) for other
-        sensor models.
+        Camera z of the hit (metres along the optical axis) for a pinhole or a frame
+        camera, as used by :meth:`PinholeCamera.backproject`; the range (metres along
+        the ray) for a line scanner.
     hit : (h, w, 3) float64
         Local-frame coordinates of the hit, metres.
     mu0, mu : float64
@@ -444,7 +444,10 @@ def view_geometry(field: HeightField, albedo: np.ndarray, camera: SensorModel,
     origins, directions = pixel_rays(camera, placement=placement)
     sun = np.asarray(sun_vector, dtype=np.float64)
     sun = sun / np.linalg.norm(sun)
-    axis = getattr(camera, "axis", None) if placement is None else None
+    axis = getattr(camera, "axis", None) if placement is None else None  # a pinhole's z
+    if axis is None and getattr(camera, "boresight", None) is not None:  # a frame camera's
+        axis = camera.boresight if placement is None else \
+            placement.directions_to_local(camera.boresight)
     result = _run_kernel(
         _render_geometry, origins, directions,
         np.zeros(3) if axis is None else np.ascontiguousarray(axis, dtype=np.float64),

@@ -236,6 +236,8 @@ class PriorAdjustment:
         Reprojection residuals (line, sample) of the kept observations, pixels.
     initial_rms_px : float
         RMS reprojection residual with the prior models and triangulated points.
+    pixel_sigma : float
+        Sigma of the image observations in the final adjustment, pixels.
     """
 
     offsets: list[PoseOffset]
@@ -243,6 +245,7 @@ class PriorAdjustment:
     observations: Observations
     residuals: np.ndarray
     initial_rms_px: float
+    pixel_sigma: float = 1.0
 
     def image_report(self, names: Sequence[str]) -> dict[str, dict]:
         """Per image: observations, mean and RMS residual (px), position change (m) and
@@ -299,25 +302,27 @@ def _jacobians(models, pivots, obs, cams, points, base):
     return jc, jp
 
 
-def _cost(residuals, cams, prior_weights, huber):
+def _cost(residuals, cams, prior_weights, huber, sigma):
     norms = np.linalg.norm(residuals, axis=1)
     rho = np.where(norms <= huber, norms ** 2, 2 * huber * norms - huber ** 2)
-    return float(rho.sum() + np.sum(cams ** 2 * prior_weights))
+    return float(rho.sum() / sigma ** 2 + np.sum(cams ** 2 * prior_weights))
 
 
-def _solve(models, pivots, obs, cams, points, prior_weights, *, huber: float,
+def _solve(models, pivots, obs, cams, points, prior_weights, *, huber: float, sigma: float,
            iterations: int):
     """Levenberg–Marquardt on the reduced camera system (Schur complement of the points;
-    Triggs et al. 2000, sect. 6.1), Huber weights re-computed each iteration (IRLS)."""
+    Triggs et al. 2000, sect. 6.1), Huber weights re-computed each iteration (IRLS);
+    image residuals weighted by ``1 / sigma²`` (pixels), the Huber threshold ``huber``
+    in pixels."""
     n = len(models)
     n_points = len(points)
     base = _project(models, pivots, obs, cams, points)
-    cost = _cost(base, cams, prior_weights, huber)
+    cost = _cost(base, cams, prior_weights, huber, sigma)
     lam = 1e-3
     for _ in range(iterations):
         jc, jp = _jacobians(models, pivots, obs, cams, points, base)
         norms = np.linalg.norm(base, axis=1)
-        w = np.where(norms <= huber, 1.0, huber / np.maximum(norms, 1e-12))
+        w = np.where(norms <= huber, 1.0, huber / np.maximum(norms, 1e-12)) / sigma ** 2
         wjc = jc * w[:, None, None]
         u_obs = np.einsum("mki,mkj->mij", wjc, jc)
         u = np.zeros((n, 6, 6))
@@ -358,7 +363,7 @@ def _solve(models, pivots, obs, cams, points, prior_weights, *, huber: float,
             new_cams = cams + dc.reshape(n, 6)
             new_points = points + dp
             new_base = _project(models, pivots, obs, new_cams, new_points)
-            new_cost = _cost(new_base, new_cams, prior_weights, huber)
+            new_cost = _cost(new_base, new_cams, prior_weights, huber, sigma)
             if new_cost <= cost:
                 lam = max(lam / 10, 1e-9)
                 break
@@ -375,7 +380,8 @@ def _solve(models, pivots, obs, cams, points, prior_weights, *, huber: float,
 def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
                        position_sigma: float, pointing_sigma: float,
                        outlier_px: float = 3.0, max_iterations: int = 30,
-                       huber_px: float = 2.0) -> PriorAdjustment:
+                       huber_px: float = 2.0, min_pixel_sigma: float = 0.05
+                       ) -> PriorAdjustment:
     """Adjust constant pose offsets of sensor models and tie points, priors on the poses.
 
     Parameters
@@ -394,7 +400,11 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
     max_iterations : int
         Levenberg–Marquardt iterations per adjustment.
     huber_px : float
-        Huber threshold of the reprojection residuals, pixels.
+        Huber threshold of the reprojection residuals, in image sigmas.
+    min_pixel_sigma : float
+        The image observations are weighted with a sigma of 1 px in the first round,
+        then with their robust RMS residual (never below this, pixels): tie points
+        good to 0.05 px outweigh the pose priors accordingly.
 
     Returns
     -------
@@ -410,6 +420,7 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
     prior_weights = np.array([1 / position_sigma ** 2] * 3 + [1 / pointing_sigma ** 2] * 3)
     cams = np.zeros((n_images, 6))
     initial_rms = float("nan")
+    pixel_sigma = 1.0
     for round_ in range(2):
         counts = np.bincount(obs.image, minlength=n_images)
         if not len(obs.image) or np.any(counts == 0):
@@ -424,15 +435,22 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
             start = _project(models, pivots, obs, cams, points0)
             initial_rms = float(np.sqrt(np.mean(np.sum(start ** 2, axis=1))))
         cams, points, residuals = _solve(models, pivots, obs, cams, points0, prior_weights,
-                                         huber=huber_px, iterations=max_iterations)
+                                         huber=huber_px * pixel_sigma, sigma=pixel_sigma,
+                                         iterations=max_iterations)
         norms = np.linalg.norm(residuals, axis=1)
-        log.info("adjustment round %d: %d observations, %d tie points, RMS %.3f px",
-                 round_ + 1, len(obs.image), obs.point_count, np.sqrt(np.mean(norms ** 2)))
-        keep = norms <= max(outlier_px, 4.0 * float(np.median(norms)))
-        if round_ == 1 or np.all(keep):
+        log.info("adjustment round %d: %d observations, %d tie points, RMS %.3f px "
+                 "(image sigma %.3f px)", round_ + 1, len(obs.image), obs.point_count,
+                 np.sqrt(np.mean(norms ** 2)), pixel_sigma)
+        if round_ == 1:
             break
+        keep = norms <= max(outlier_px, 4.0 * float(np.median(norms)))
         obs = obs.subset(keep)
+        # a posteriori image sigma (variance component of the image observations, Förstner
+        # 1979), robust: the normalised median absolute residual per coordinate
+        robust = 1.4826 * float(np.median(np.abs(residuals[keep])))
+        pixel_sigma = float(np.clip(robust, min_pixel_sigma, 1.0))
     offsets = [PoseOffset(cams[i, :3].copy(), cams[i, 3:] * 1e-3, pivots[i])
                for i in range(n_images)]
     return PriorAdjustment(offsets=offsets, points=points, observations=obs,
-                           residuals=residuals, initial_rms_px=initial_rms)
+                           residuals=residuals, initial_rms_px=initial_rms,
+                           pixel_sigma=pixel_sigma)

@@ -137,10 +137,21 @@ def texture(xyz: np.ndarray, seed: int = 3) -> np.ndarray:
     return value
 
 
+def relief(xyz: np.ndarray) -> np.ndarray:
+    """Heights (m) above the sphere of body-fixed points (..., 3): hills of ±400 m,
+    7–11 km wavelengths (slopes below 0.3)."""
+    local = xyz - _unit(*CENTRE_LONLAT) * RADIUS
+    return (250.0 * np.sin(local @ np.array([2 * np.pi / 9000, 0.0, 2 * np.pi / 11000]))
+            + 150.0 * np.cos(local @ np.array([0.0, 2 * np.pi / 7000, 2 * np.pi / 13000])))
+
+
 def render(model) -> np.ndarray:
-    """Float32 image (lines, samples) of :func:`texture` seen by ``model``."""
+    """Float32 image (lines, samples) of :func:`texture` on the terrain of :func:`relief`
+    seen by ``model`` (rays intersected with the terrain by fixed-point iteration)."""
     rows, cols = np.mgrid[0:model.lines, 0:model.samples]
     xyz = model.image_to_ground(rows + 0.5, cols + 0.5)
+    for _ in range(8):
+        xyz = model.image_to_ground(rows + 0.5, cols + 0.5, relief(xyz))
     image = texture(xyz)
     return (100.0 + 20.0 * image).astype(np.float32)
 
@@ -156,4 +167,25 @@ def write_isd(model: FrameSensor, path) -> None:
     path.write_text(json.dumps(frame_isd(model)))
 
 
-__all__ = ["matrix_to_quaternion", "perturbed", "render", "tie_observations", "true_models"]
+__all__ = ["matrix_to_quaternion", "perturbed", "render", "tie_observations", "true_models",
+           "write_block"]
+
+
+def write_block(folder, *, size: int = 320, count: int = 6, prior: bool = True):
+    """Rendered images (GeoTIFF, image frame) and prior ISDs of the block in ``folder``.
+
+    Returns (truth models, image paths, ISD paths)."""
+    from demtool import io as dio
+
+    truth = true_models(count, size=size)
+    models = perturbed(truth) if prior else truth
+    images, isds = [], []
+    for true, model in zip(truth, models, strict=True):
+        image = folder / f"{true.name}.tif"
+        dio.write_raster(image, render(true), transform=dio.image_frame_transform(1.0),
+                         tags={"frame": f"image:{true.name}"})
+        isd = folder / f"{true.name}.json"
+        write_isd(model, isd)
+        images.append(image)
+        isds.append(isd)
+    return truth, images, isds

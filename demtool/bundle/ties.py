@@ -215,10 +215,17 @@ def tie_points(images: Sequence[np.ndarray], pairs: Sequence[tuple[int, int]], *
         if len(matches) < max(8, min_matches):
             report[f"{i}-{j}"] = 0
             continue
-        try:
-            _, inliers = ransac_fundamental(fi.points[matches[:, 0]], fj.points[matches[:, 1]],
-                                            threshold_px=threshold_px, seed=seed)
-        except ProcessingError:
+        inliers = None
+        for method in ("magsac", "ransac"):  # OpenCV's MAGSAC++ fails on some inputs
+            try:
+                _, inliers = ransac_fundamental(fi.points[matches[:, 0]],
+                                                fj.points[matches[:, 1]],
+                                                threshold_px=threshold_px, seed=seed,
+                                                method=method)
+                break
+            except ProcessingError:
+                continue
+        if inliers is None:
             report[f"{i}-{j}"] = 0
             continue
         matches = matches[inliers]

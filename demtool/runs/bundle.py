@@ -249,6 +249,11 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
     for name, path, model, sensor in zip(block.names, block.paths, models, sensor_paths,
                                          strict=True):
         data = dio.read_image(path, what=f"image {name}").data
+        if not model.lines and hasattr(model, "width"):  # a .tsai carries no image size
+            import dataclasses
+
+            model = dataclasses.replace(model, width=data.shape[1], height=data.shape[0])
+            models[len(images)] = model
         if model.lines and model.samples and (model.lines, model.samples) != data.shape:
             raise InputError(f"{sensor}: sensor model is {model.samples}x{model.lines} px but "
                              f"image {path} is {data.shape[1]}x{data.shape[0]}; give the "

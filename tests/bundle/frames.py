@@ -189,3 +189,16 @@ def write_block(folder, *, size: int = 320, count: int = 6, prior: bool = True):
         images.append(image)
         isds.append(isd)
     return truth, images, isds
+
+
+def write_tsai(model: FrameSensor, path) -> None:
+    """The frame camera as an ASP ``.tsai`` pinhole (millimetres, pitch = pixel size)."""
+    pitch = float(1.0 / model.detector.itrans_sample[1])
+    centre = float((model.samples / 2 - 0.5) * pitch)
+    lines = ["VERSION_4", "PINHOLE", f"fu = {model.focal_length!r}",
+             f"fv = {model.focal_length!r}", f"cu = {centre!r}", f"cv = {centre!r}",
+             "u_direction = 1 0 0", "v_direction = 0 1 0", "w_direction = 0 0 1",
+             "C = " + " ".join(repr(float(v)) for v in model.position),
+             "R = " + " ".join(repr(float(v)) for v in model.rotation.ravel()),
+             f"pitch = {pitch!r}", "NULL", ""]
+    path.write_text("\n".join(lines))

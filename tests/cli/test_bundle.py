@@ -283,3 +283,39 @@ def test_bundle_spatial_needs_sensors_and_overlap(frame_block, tmp_path):
     assert len(result.output.strip().splitlines()) == 1
     assert "no two images overlap" in result.output
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_bundle_with_tsai_priors_writes_adjusted_tsai(frame_block, tmp_path):
+    """.tsai priors (no image size, no body in the file) on three of the frames: the
+    adjusted .tsai files are closer to the truth and keep their other lines."""
+    from demtool.bundle.priors import rotation_vector
+    from demtool.sensors import read_tsai
+    from tests.bundle import frames
+
+    truth, images, _ = frame_block
+    prior = frames.perturbed(truth)
+    tsais = []
+    for model in prior[:3]:
+        path = tmp_path / f"{model.name}.tsai"
+        frames.write_tsai(model, path)
+        tsais.append(path)
+    true_tsai = tmp_path / "true.tsai"
+    frames.write_tsai(truth[0], true_tsai)
+    line, sample = read_tsai(true_tsai, radii=(frames.RADIUS,) * 2).ground_to_image(
+        truth[0].image_to_ground(100.5, 50.5))
+    assert abs(line - 100.5) < 1e-6 and abs(sample - 50.5) < 1e-6  # the same camera
+    out, adjusted = tmp_path / "bundle.npz", tmp_path / "adjusted"
+    result = CliRunner().invoke(cli, ["-q", "bundle", *_sensor_args(images[:3], tsais),
+                                      "--out", str(out), "--adjusted-dir", str(adjusted),
+                                      "--position-sigma", "50", "--pointing-sigma", "0.5",
+                                      "--max-features", "3000"])
+    assert result.exit_code == 0, result.output
+    for true, before in zip(truth[:3], prior[:3], strict=True):
+        path = adjusted / f"{true.name}.tsai"
+        assert "pitch = " in path.read_text()
+        model = read_tsai(path)
+        position = np.linalg.norm(model.center - true.position)
+        pointing = np.linalg.norm(rotation_vector(model.R.T @ true.rotation.T)) * 1e3
+        assert position < 0.5 * np.linalg.norm(before.position - true.position), position
+        assert pointing < 0.25, pointing

@@ -96,7 +96,7 @@ def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.P
             disparity.data, H_left, H_right, cameras[left_name], cameras[right_name],
             target=side, outliers=outliers, median_px=median_px)
         target_camera = cameras[target_name]
-        estimated_gsd = result.report["median_depth_m"] / target_camera.focal_px
+        estimated_gsd = result.report["median_depth_m"] * core.points.pixel_angle(target_camera)
         return result, target_name, "disparity-calibrated", estimated_gsd, {}
     reference = dio.read_raster(reference_path, what="reference DEM")
     if reference.data.shape != (height, width):

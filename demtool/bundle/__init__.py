@@ -54,7 +54,7 @@ from demtool.bundle.priors import (
 from demtool.bundle.runtime import call_interruptibly, load_pycolmap, set_colmap_verbosity
 from demtool.bundle.sensorblock import SensorBlockAdjustment, adjust_sensor_block, local_pinhole
 from demtool.bundle.ties import footprint, image_pairs, overlapping_pairs, tie_points
-from demtool.bundle.writeback import adjust_isd, adjust_tsai, isd_from_frame
+from demtool.bundle.writeback import adjust_isd, adjust_tsai, model_isd
 
 __all__ = [
     "AdjustedSensor",
@@ -68,8 +68,8 @@ __all__ = [
     "adjust_with_priors",
     "footprint",
     "image_pairs",
-    "isd_from_frame",
     "local_pinhole",
+    "model_isd",
     "overlapping_pairs",
     "tie_points",
     "triangulate",

@@ -3,9 +3,9 @@
 * ISD JSON (ALE): the ``instrument_position`` states and ``instrument_pointing``
   quaternions are rewritten so the ISD's model is the adjusted one (ISIS's jigsaw
   updates a cube's SPICE tables the same way); every other key is kept.
-* ISIS cube with SPICE: an ISD JSON of the cube's frame model (:func:`isd_from_frame`,
-  body frame = J2000, a minimal ALE layout usgscsm and :func:`demtool.sensors.read_isd`
-  read), then adjusted as above.
+* ISIS cube with SPICE: the ISD JSON of the cube's frame model
+  (:func:`demtool.sensors.isd.isd_from_sensor`, body frame = J2000, read by usgscsm and
+  :func:`demtool.sensors.read_isd`), then adjusted as above.
 * ASP ``.tsai``: the ``C`` and ``R`` lines replaced (``C' = C + dC``, ``R' = dR R``).
 
 With a :class:`demtool.bundle.priors.PoseOffset` (``X' = P + dRᵀ (X − P − dC)``, body
@@ -29,64 +29,9 @@ import numpy as np
 from demtool.bundle.priors import PoseOffset
 from demtool.errors import ProcessingError
 from demtool.sensors.base import matrix_to_quaternion, quaternion_to_matrix
-from demtool.sensors.frame import FrameSensor
-from demtool.sensors.isd import FRAME_MODEL, Orientations
+from demtool.sensors.isd import Orientations, isd_from_sensor
 
 _UNITS = {"m": 1.0, "km": 1000.0}
-
-
-def _distortion_block(sensor: FrameSensor) -> dict:
-    model = sensor.distortion.model
-    coefficients = [float(c) for c in sensor.distortion.coefficients]
-    if model == "none":
-        return {"radial": {"coefficients": [0.0, 0.0, 0.0]}}
-    if model == "transverse":
-        return {"transverse": {"x": coefficients[:10], "y": coefficients[10:]}}
-    if model in ("kaguyalism", "lunarorbiter", "cahvor"):
-        raise ProcessingError(f"writing the {model} distortion of {sensor.name} into an ISD is "
-                              "not supported")
-    return {model: {"coefficients": coefficients}}
-
-
-def isd_from_frame(sensor: FrameSensor) -> dict[str, Any]:
-    """A minimal ALE frame ISD of a :class:`FrameSensor` (the body frame as J2000).
-
-    A camera looking along −z (ISIS's ``zDirection``, Apollo Metric) is written as the
-    same camera turned 180° about z, looking along +z (usgscsm's convention): its rays
-    and projections are the same.
-    """
-    rotation = sensor.rotation
-    if sensor.z_direction < 0:
-        rotation = rotation @ np.diag([-1.0, -1.0, 1.0])
-    pointing = matrix_to_quaternion(rotation.T)  # J2000 (= body) → sensor, scalar last
-    d = sensor.detector
-    t = float(sensor.time)
-    return {
-        "name_model": FRAME_MODEL,
-        "image_identifier": sensor.name,
-        "image_lines": int(sensor.lines),
-        "image_samples": int(sensor.samples),
-        "center_ephemeris_time": t,
-        "radii": {"semimajor": sensor.radii[0], "semiminor": sensor.radii[1], "unit": "m"},
-        "focal_length_model": {"focal_length": sensor.focal_length},
-        "detector_center": {"line": d.center_line, "sample": d.center_sample},
-        "focal2pixel_lines": [float(v) for v in d.itrans_line],
-        "focal2pixel_samples": [float(v) for v in d.itrans_sample],
-        "starting_detector_line": d.start_line,
-        "starting_detector_sample": d.start_sample,
-        "detector_line_summing": d.line_summing,
-        "detector_sample_summing": d.sample_summing,
-        "optical_distortion": _distortion_block(sensor),
-        "body_rotation": {"ephemeris_times": [t], "quaternions": [[1.0, 0.0, 0.0, 0.0]]},
-        "instrument_pointing": {"ephemeris_times": [t],
-                                "quaternions": [[float(pointing[3]), *map(float,
-                                                                          pointing[:3])]]},
-        "instrument_position": {"ephemeris_times": [t],
-                                "positions": [[float(v) for v in sensor.position]],
-                                "unit": "m"},
-        "sun_position": {"ephemeris_times": [t], "positions": [[float(v) for v in sensor.sun]],
-                         "unit": "m"},
-    }
 
 
 def _body(isd: Mapping) -> Orientations:
@@ -150,6 +95,14 @@ def adjust_tsai(text: str, offset: PoseOffset, *, source: str = "<tsai>") -> str
             values["C"] = (re.search(rf"^\s*C\s*=\s*((?:{_FLOAT}\s+){{2}}{_FLOAT})\s*$", out,
                                      flags=re.MULTILINE), values["C"][1])
     return out
+
+
+def model_isd(model) -> dict[str, Any]:
+    """The ISD of a frame or line-scan model read from a cube (or built in memory)."""
+    try:
+        return isd_from_sensor(model)
+    except ValueError as exc:
+        raise ProcessingError(f"{model.name}: {exc}") from None
 
 
 def dumps_isd(isd: Mapping[str, Any]) -> str:

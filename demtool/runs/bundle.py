@@ -296,7 +296,7 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
                                              source=str(path))
             else:
                 isd = (json.loads(path.read_text(encoding="utf-8")) if kind == "isd"
-                       else writeback.isd_from_frame(read_sensor(path)))
+                       else writeback.model_isd(read_sensor(path)))
                 text = writeback.dumps_isd(writeback.adjust_isd(isd, offset))
             with dio.atomic_path(final) as temporary:
                 temporary.write_text(text, encoding="utf-8")

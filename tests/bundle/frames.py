@@ -158,9 +158,9 @@ def render(model) -> np.ndarray:
 
 def frame_isd(model: FrameSensor) -> dict:
     """An ALE-layout frame ISD of ``model`` (body frame = J2000, positions in metres)."""
-    from demtool.bundle.writeback import isd_from_frame
+    from demtool.sensors.isd import isd_from_sensor
 
-    return isd_from_frame(model)
+    return isd_from_sensor(model)
 
 
 def write_isd(model: FrameSensor, path) -> None:

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from demtool.bundle.priors import AdjustedSensor, PoseOffset, pivot_of
-from demtool.bundle.writeback import adjust_isd, adjust_tsai, isd_from_frame
+from demtool.bundle.writeback import adjust_isd, adjust_tsai, model_isd
 from demtool.sensors import FrameSensor, read_tsai, sensor_from_isd
 from tests.bundle import frames
 
@@ -27,19 +27,19 @@ def _same_geometry(a, b, *, ground_tol=1e-3, pixel_tol=1e-6):
                                                                     atol=pixel_tol)
 
 
-def test_isd_from_frame_reads_back_as_the_same_model():
+def test_model_isd_reads_back_as_the_same_model():
     model = frames.true_models(size=500)[2]
-    _same_geometry(model, sensor_from_isd(json.loads(json.dumps(isd_from_frame(model)))))
+    _same_geometry(model, sensor_from_isd(json.loads(json.dumps(model_isd(model)))))
 
 
-def test_isd_from_frame_looking_along_minus_z():
+def test_model_isd_looking_along_minus_z():
     """ISIS's zDirection = −1 (Apollo Metric) is written as the +z camera turned 180°."""
     m = frames.true_models(size=500)[1]
     flipped = FrameSensor(position=m.position, rotation=m.rotation @ np.diag([-1.0, -1, 1]),
                           focal_length=m.focal_length, detector=m.detector, lines=m.lines,
                           samples=m.samples, radii=m.radii, z_direction=-1.0)
     _same_geometry(flipped, m)
-    _same_geometry(flipped, sensor_from_isd(isd_from_frame(flipped)))
+    _same_geometry(flipped, sensor_from_isd(model_isd(flipped)))
 
 
 def test_adjust_isd_with_body_rotation_is_the_adjusted_model():

@@ -207,7 +207,7 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
     from demtool.sensors import read_sensor
     from demtool.sensors.readers import _sniff
 
-    for option, value in (other_options or {}).items():
+    for option, value in {**(other_options or {}), "--focal-px": params.focal_px}.items():
         if value is not None:
             raise ParameterError(f"{option} does not apply with sensor models (--sensors or "
                                  "cubes)")

@@ -319,3 +319,19 @@ def test_bundle_with_tsai_priors_writes_adjusted_tsai(frame_block, tmp_path):
         pointing = np.linalg.norm(rotation_vector(model.R.T @ true.rotation.T)) * 1e3
         assert position < 0.5 * np.linalg.norm(before.position - true.position), position
         assert pointing < 0.25, pointing
+
+
+def test_bundle_sensor_options_that_do_not_apply(frame_block, tmp_path):
+    _, images, isds = frame_block
+    out = tmp_path / "bundle.npz"
+    for extra, option in ((["--focal-px", "500"], "--focal-px"),
+                          (["--colmap-dir", str(tmp_path / "colmap")], "--colmap-dir")):
+        result = CliRunner().invoke(cli, ["bundle", *_sensor_args(images[:2], isds[:2]),
+                                          "--out", str(out), *extra])
+        assert result.exit_code == 1
+        assert len(result.output.strip().splitlines()) == 1
+        assert f"{option} does not apply with sensor models" in result.output
+    result = CliRunner().invoke(cli, ["bundle", *map(str, images[:2]), "--out", str(out),
+                                      "--adjusted-dir", str(tmp_path / "adj")])
+    assert result.exit_code == 1 and "--adjusted-dir needs sensor models" in result.output
+    assert not out.exists() and not (tmp_path / "adj").exists()

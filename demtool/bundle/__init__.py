@@ -9,6 +9,10 @@ adjustment, i.e. the minimisation of eq. 1 of the study,
 the squared reprojection error over all 3-D points X_i and the cameras j that see them,
 carried out by COLMAP (Schönberger & Frahm 2016) through pycolmap.
 
+With sensor models (``bundle --sensors``), :mod:`demtool.bundle.priors` adjusts a
+constant body-fixed pose offset per image with position/pointing priors instead
+(tie points from :mod:`demtool.bundle.ties`, write-back in :mod:`demtool.bundle.writeback`).
+
 This module holds the pycolmap driver (which needs a scratch folder: COLMAP works
 on an image folder and an SQLite database) and pure functions on the result:
 conversion to demtool's camera convention and arrays, summary statistics, the
@@ -39,9 +43,36 @@ from demtool.bundle.model import (
     reconstruction_to_result,
     reprojection_summary,
 )
+from demtool.bundle.priors import (
+    AdjustedSensor,
+    Observations,
+    PoseOffset,
+    PriorAdjustment,
+    adjust_with_priors,
+    triangulate,
+)
 from demtool.bundle.runtime import call_interruptibly, load_pycolmap, set_colmap_verbosity
+from demtool.bundle.sensorblock import SensorBlockAdjustment, adjust_sensor_block, local_pinhole
+from demtool.bundle.ties import footprint, image_pairs, overlapping_pairs, tie_points
+from demtool.bundle.writeback import adjust_isd, adjust_tsai, model_isd
 
 __all__ = [
+    "AdjustedSensor",
+    "Observations",
+    "PoseOffset",
+    "PriorAdjustment",
+    "SensorBlockAdjustment",
+    "adjust_isd",
+    "adjust_sensor_block",
+    "adjust_tsai",
+    "adjust_with_priors",
+    "footprint",
+    "image_pairs",
+    "local_pinhole",
+    "model_isd",
+    "overlapping_pairs",
+    "tie_points",
+    "triangulate",
     "CAMERA_MODELS",
     "EXHAUSTIVE_MAX_IMAGES",
     "MATCHERS",

@@ -30,14 +30,20 @@ def test_stage_run_declares_files_and_builds_provenance(tmp_path):
 
 
 def test_stage_run_refuses_clashing_or_misplaced_outputs(tmp_path):
-    with pytest.raises(ParameterError, match=r"--confidence .*d\.tif is the same file as --out"):
+    (tmp_path / "x").mkdir()
+    with pytest.raises(InputError, match=r"d\.tif: --out and --confidence name the same file"):
         StageRun("sgm", SgmParams(), outputs={"--out": tmp_path / "d.tif",
                                      "--confidence": tmp_path / "x" / ".." / "d.tif"})
-    with pytest.raises(InputError, match="--out must be a file name, but it is a folder"):
+    with pytest.raises(InputError, match="--out is a folder, expected a file name"):
         StageRun("sgm", SgmParams(), outputs={"--out": tmp_path})
     (tmp_path / "file").write_text("x")
-    with pytest.raises(InputError, match="--out must be a folder, but a file of that name"):
+    with pytest.raises(InputError, match="--out is a file, expected a folder"):
         StageRun("sgm", SgmParams(), folders={"--out": tmp_path / "file"})
+    with pytest.raises(InputError, match=r"a\.tif: --out would overwrite the input LEFT .*a\.tif"):
+        StageRun("sgm", SgmParams(), inputs={"LEFT": tmp_path / "file" / ".." / "a.tif"},
+                 outputs={"--out": [tmp_path / "b.tif", tmp_path / "a.tif"]})
+    with pytest.raises(InputError, match=r"d\.tif: cannot write the output: .*file is a file, not a folder"):
+        StageRun("sgm", SgmParams(), outputs={"--out": tmp_path / "file" / "d.tif"})
     with pytest.raises(ParameterError, match="--median must be odd"):
         StageRun("sgm", SgmParams(median=4))
     with pytest.raises(KeyError):

@@ -139,6 +139,11 @@ def _probe_writable(folder: Path) -> OSError | None:
     return None
 
 
+def _shown(path: Path, resolved: Path) -> Path:
+    """``path`` as the user typed it when that names ``resolved`` too, else ``resolved``."""
+    return path if resolve(path) == resolved else resolved
+
+
 def _check_folder(output: Path, folder: Path) -> None:
     """Raise InputError unless ``folder`` exists and is writable, or can be created."""
     existing = _nearest_existing(folder)
@@ -181,7 +186,7 @@ def check_output_paths(inputs: Paths, outputs: Paths, *, output_dirs: Paths = No
     folders = _entries(output_dirs)
     targets = [(label, path, False) for label, path in files] + \
               [(label, path, True) for label, path in folders]
-    for index, (label, path, is_folder) in enumerate(targets):
+    for index, (label, path, _) in enumerate(targets):
         for in_label, source in sources:
             if _same_file(path, source):
                 raise InputError(
@@ -193,16 +198,16 @@ def check_output_paths(inputs: Paths, outputs: Paths, *, output_dirs: Paths = No
                 second = label or "another output"
                 raise InputError(f"{path}: {first} and {second} name the same file; give "
                                  "each output its own path")
-        if is_folder:
-            if path.exists() and not path.is_dir():
-                raise InputError(f"{path}: {label or 'the output folder'} is a file, "
-                                 "expected a folder")
-            _check_folder(path, path)
-        else:
-            if path.is_dir():
-                raise InputError(f"{path}: {label or 'the output'} is a folder, expected a "
-                                 "file name")
-            _check_folder(path, resolve(path).parent)
+    for label, path in folders:  # folders first: their problem is the one to name
+        if path.exists() and not path.is_dir():
+            raise InputError(f"{path}: {label or 'the output folder'} is a file, "
+                             "expected a folder")
+        _check_folder(path, path)
+    for label, path in files:
+        if path.is_dir():
+            raise InputError(f"{path}: {label or 'the output'} is a folder, expected a "
+                             "file name")
+        _check_folder(path, _shown(path.parent, resolve(path).parent))
 
 
 # --------------------------------------------------------------------------------------

@@ -8,10 +8,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from demtool.parameters import Parameters, core_defaults, parameter, seed_field
-from demtool.rectify import rectify_pair
+from demtool.core_source import core_defaults
+from demtool.parameters import Parameters, parameter, seed_field
 
-CORE = core_defaults(rectify_pair)
+CORE = core_defaults("demtool.rectify:rectify_pair")  # from the source: --help loads no numba
 
 
 @dataclass(frozen=True)

@@ -42,7 +42,8 @@ def test_stage_run_refuses_clashing_or_misplaced_outputs(tmp_path):
     with pytest.raises(InputError, match=r"a\.tif: --out would overwrite the input LEFT .*a\.tif"):
         StageRun("sgm", SgmParams(), inputs={"LEFT": tmp_path / "file" / ".." / "a.tif"},
                  outputs={"--out": [tmp_path / "b.tif", tmp_path / "a.tif"]})
-    with pytest.raises(InputError, match=r"d\.tif: cannot write the output: .*file is a file, not a folder"):
+    with pytest.raises(InputError,
+                       match=r"d\.tif: cannot write the output: .*file is a file, not a folder"):
         StageRun("sgm", SgmParams(), outputs={"--out": tmp_path / "file" / "d.tif"})
     with pytest.raises(ParameterError, match="--median must be odd"):
         StageRun("sgm", SgmParams(median=4))

@@ -262,7 +262,6 @@ class _Transaction:
 
     def claim(self, final: Path) -> None:
         """Refuse a second write to one file, or a write over a declared input."""
-        self.check_declared(final)
         key = resolve(final)
         if key in self.claimed:
             raise InputError(f"{final}: two outputs of this run name the same file "
@@ -272,6 +271,7 @@ class _Transaction:
             if _same_file(final, source):
                 raise InputError(f"{final}: the output would overwrite the input "
                                  f"{_name(label, source, 'file')}; choose another output path")
+        self.check_declared(final)
         self.claimed[key] = final
 
     def commit(self) -> None:

@@ -51,6 +51,30 @@ def test_stage_run_refuses_clashing_or_misplaced_outputs(tmp_path):
         StageRun("stereo", SgmParams())
 
 
+def test_stage_run_transaction_uses_the_declaration(tmp_path, monkeypatch):
+    from demtool import io as dio
+    from demtool.outputs import CHECK_DECLARED_ENV
+    from demtool.runs import sidecar_path
+
+    monkeypatch.setenv(CHECK_DECLARED_ENV, "1")
+    (tmp_path / "a.tif").write_bytes(b"a")
+    out = tmp_path / "d.tif"
+    run = StageRun("sgm", SgmParams(), inputs={"LEFT": tmp_path / "a.tif"},
+                   outputs={"--out": out, "sidecar": sidecar_path(out)})
+    assert sidecar_path(out) == tmp_path / "d.tif.json"
+    assert run.output_paths() == [out, tmp_path / "d.tif.json"]
+    with run.transaction():
+        dio.write_json(out, {})
+        run.provenance.write_sidecar(out, {})
+    assert out.exists() and sidecar_path(out).exists()
+    with pytest.raises(InputError, match=r"other\.tif: written but not declared"), \
+            run.transaction():
+        dio.write_json(tmp_path / "other.tif", {})
+    with pytest.raises(InputError, match="would overwrite the input LEFT"), run.transaction():
+        dio.write_json(tmp_path / "a.tif", {})
+    assert (tmp_path / "a.tif").read_bytes() == b"a"
+
+
 def test_check_same_frame():
     def raster(frame, crs=None):
         return SimpleNamespace(path=f"{frame}.tif", crs=crs, tags={"frame": frame} if frame

@@ -84,6 +84,11 @@ def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.P
     disparity = dataclasses.replace(disparity, data=checked.disparity)
     left_name = str(rectification["left_name"])
     right_name = str(rectification["right_name"])
+    frame = disparity.tags.get("frame", "")
+    if frame.startswith("image:") and frame != f"image:{left_name}_rect":
+        raise InputError(f"{disparity_path}: disparity in frame {frame}, but {rectify_path} "
+                         f"rectifies {left_name} (image:{left_name}_rect); is it the "
+                         "rectification of this pair?")
     target_name = target or left_name
     if target_name not in (left_name, right_name):
         raise InputError(f"{rectify_path}: target {target_name} is neither the left "

@@ -70,6 +70,8 @@ def work(tmp_path, monkeypatch):
     dio.write_raster("d.tif", np.full((48, 64), 3.0, np.float32),
                      tags={"frame": "image:left_rect"})
     dio.write_raster("d_1e27.tif", np.full((48, 64), 1e27, np.float32))
+    dio.write_raster("d_other_pair.tif", np.full((48, 64), 3.0, np.float32),
+                     tags={"frame": "image:view_07_rect"})
     for name, count, dtype, values in (("d_uint16.tif", 1, "uint16", rng.integers(0, 65535,
                                                                                    (1, 48, 64))),
                                        ("rgb.tif", 3, "uint8", rng.integers(0, 255,
@@ -315,6 +317,9 @@ CASES = [
     case("dem-reference-1e27", ["dem", "--rectify", "rect.npz", "--reference", "ref_1e27.tif",
                                 "--disparity", "d.tif", "--out", "o.tif"], 1,
          "ref_1e27.tif: reference DEM has 3072 value(s) beyond"),
+    case("dem-disparity-of-another-pair", [*DEM, "--disparity", "d_other_pair.tif", "--out",
+                                           "o.tif"], 1,
+         "d_other_pair.tif: disparity in frame image:view_07_rect, but rect.npz rectifies left"),
     case("dem-rectify-of-another-pair", ["dem", "--rectify", "other_rect.npz", "--reference",
                                          "ref.tif", "--disparity", "d.tif", "--out", "o.tif"],
          1, "other_rect.npz"),

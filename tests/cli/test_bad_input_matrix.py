@@ -98,6 +98,9 @@ def work(tmp_path, monkeypatch):
     Path("cmp_in").mkdir()
     shutil.copy("dem.tif", "cmp_in/difference.tif")
     Path("a_file").write_text("not a folder\n")
+    os.symlink("left.tif", "link_to_left.tif")
+    os.link("right.tif", "hard_link_to_right.tif")
+    os.symlink("o.tif", "dangling_link_to_o.tif")
     selection = {"target": {"name": "left", "path": "left.tif"},
                  "selected": [{"name": "left", "path": "left.tif"},
                               {"name": "right", "path": "right.tif"}]}
@@ -231,6 +234,14 @@ CASES = [
          "would overwrite the input --rectify rect.npz"),
     case("sgm-out-over-left-other-spelling", [*SGM, "--out", "scene/../left.tif", *SGM_RANGE],
          1, "would overwrite the input"),
+    case("sgm-out-on-a-symlink-to-left", [*SGM, "--out", "link_to_left.tif", *SGM_RANGE], 1,
+         "link_to_left.tif: --out would overwrite the input LEFT_RECT left.tif"),
+    case("sgm-confidence-on-a-hard-link-to-right", [*SGM, "--out", "d2.tif", "--confidence",
+                                                    "hard_link_to_right.tif", *SGM_RANGE], 1,
+         "--confidence would overwrite the input RIGHT_RECT right.tif"),
+    case("dem-mask-on-a-symlink-to-out", [*DEM, "--disparity", "d.tif", "--out", "o.tif",
+                                          "--interpolated-mask", "dangling_link_to_o.tif"], 1,
+         "--out and --interpolated-mask name the same file"),
     case("sgm-confidence-on-out", [*SGM, "--out", "d2.tif", "--confidence", "scene/../d2.tif",
                                    *SGM_RANGE], 1, "name the same file"),
     case("sgm-confidence-over-right", [*SGM, "--out", "d2.tif", "--confidence", "right.tif",

@@ -11,7 +11,9 @@ from dataclasses import dataclass
 from demtool.core_source import core_defaults
 from demtool.parameters import Parameters, parameter, seed_field
 
-CORE = core_defaults("demtool.rectify:rectify_pair")  # from the source: --help loads no numba
+# Read from the cores' source: `demtool rectify --help` does not load numba.
+CORE = core_defaults("demtool.rectify:rectify_pair")
+CALIBRATED = core_defaults("demtool.rectify_calibrated:rectify_sensors")
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,12 @@ class RectifyParams(Parameters):
     contrast_threshold: float = parameter(
         CORE["contrast_threshold"], "SIFT contrast threshold (lower: more keypoints).",
         minimum=0.0, min_open=True)
+    systematic_residual: float = parameter(
+        CALIBRATED["systematic_px"], "With sensor models: RMS vertical residual of the SIFT "
+        "matches (px) above which the right camera's pointing is corrected.", minimum=0.0)
+    max_pointing_correction: float = parameter(
+        CALIBRATED["max_pointing_mrad"], "With sensor models: largest pointing correction "
+        "accepted, mrad (more: the SPICE is off, run bundle).", minimum=0.0, min_open=True)
     seed: int = seed_field()
 
     def check(self) -> None:

@@ -19,5 +19,6 @@ STAGES: dict[str, str] = {
     "dem": "Dense DEM in the target frame from bundle points or a disparity map.",
     "refine": "Shape-from-shading refinement of a coarse DEM (lunar-Lambert).",
     "compare": "Measure a DEM against a reference: co-registration, statistics, plots.",
+    "camera": "What sensor models see: footprint, GSD, sun and view angles, pair B/H, overlap.",
 }
 

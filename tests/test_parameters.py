@@ -19,6 +19,7 @@ STAGE_PARAMETERS = {
     "dem": ("demtool.dem.params", "DemParams"),
     "refine": ("demtool.refine.params", "RefineParams"),
     "compare": ("demtool.compare.params", "CompareParams"),
+    "camera": ("demtool.camera_params", "CameraParams"),
 }
 
 

@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from demtool.runs import StageRun
+from demtool.runs import StageRun, sidecar_path
 
 if TYPE_CHECKING:
     from demtool.bundle.inputs import Block
@@ -106,7 +106,8 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
     run = StageRun("bundle", params, resolved=resolved,
                    inputs={**sources, "images": list(block.paths),
                            "--cameras": cameras_path, "--align-cameras": align_path},
-                   outputs={"--out": out}, folders={"--colmap-dir": colmap_dir})
+                   outputs={"--out": out, "sidecar": sidecar_path(out)},
+                   folders={"--colmap-dir": colmap_dir})
     log, prov = run.log, run.provenance
 
     def images():
@@ -157,7 +158,7 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
                  row["observations"], row["mean_residual_px"])
     if summary["not_registered"]:
         log.warning("not registered: %s", ", ".join(summary["not_registered"]))
-    with dio.output_transaction():
+    with run.transaction():
         dio.write_npz(out, "bundle", result.to_arrays())
         outputs = [Path(out)]
         for file_name, content in adjusted.model_files.items():

@@ -6,7 +6,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from demtool.runs import StageRun
+from demtool.runs import StageRun, sidecar_path
 from demtool.runs.scene import read_scene_description, scene_sun_vector
 
 if TYPE_CHECKING:
@@ -136,7 +136,8 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
     region = selection.check_roi(roi, target_image.data.shape, what=f"target {target}")
     run = StageRun("select", params, resolved=resolved,
                    inputs={"--target": target, "IMAGES": candidates, "--cameras": cameras,
-                           "--scene": scene}, outputs={"--out": out})
+                           "--scene": scene},
+                   outputs={"--out": out, "sidecar": sidecar_path(out)})
     log, provenance = run.log, run.provenance
     camera_by_name, scene_sun = _load_geometry_sources(cameras, scene)
     target_name = Path(target).stem
@@ -252,7 +253,7 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
     summary = {"candidates": len(records), "selected": len(chosen), "rejected": len(rejected),
                "target_keypoints": len(target_features), "cache_hits": cache.hits,
                "cache_misses": cache.misses, "geometry": point is not None}
-    with dio.output_transaction():
+    with run.transaction():
         dio.write_json(out, result)
         provenance.write_sidecar(out, summary)
     log.info("selected %d of %d image(s) for target %s", len(chosen), len(records), target_name)

@@ -12,7 +12,8 @@ inverse-compositional way of Baker & Matthews (2004): the increment is estimated
 the *template* side, so the Jacobian (template gradients × warp Jacobian) and the
 6 × 6 Gauss–Newton Hessian are computed and factorised **once per template**, and
 each iteration only resamples the right window (cubic convolution, values only) and
-accumulates a 6-vector; the template gradients are Barron's four-point differences (Pan, Li & Tong 2013, the IC-GN of digital image correlation)::
+accumulates a 6-vector; the template gradients are Barron's four-point differences
+(Pan, Li & Tong 2013, the IC-GN of digital image correlation)::
 
     e(u)  = (f(u) − f̄) − (Δf / Δg) (g(W(u; p)) − ḡ)
     Δp    = −H⁻¹ Σ w Jᵀ e,     H = Σ w Jᵀ J,   J = ∇f(u) ∂W/∂p

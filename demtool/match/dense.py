@@ -15,13 +15,16 @@
    correlated) join the seeds, the triangulation is rebuilt and the rejected grid
    nodes are matched again inside the tighter triangles, for a few rounds.
 
-With a grid spacing ``s > 1`` only every ``s``-th row and column is matched; the
-other pixels get the bilinear interpolation of the four surrounding nodes when all
-four were accepted, and stay NaN otherwise.
+With a grid spacing ``s > 1`` (default 2) only every ``s``-th row and column is
+matched; a pixel between four accepted nodes that agree within
+``INTERPOLATION_TOLERANCE`` gets their bilinear interpolation, a pixel with some but not
+such corners (a disparity edge, the border of the accepted area) is matched itself, and
+a pixel with no accepted corner stays NaN.
 
 References
 ----------
 Grün, A. (1985). Adaptive least squares correlation. S. Afr. J. Photogramm. 14(3).
+Baker, S., Matthews, I. (2004). Lucas-Kanade 20 years on. IJCV 56(3), 221-255.
 Wu, B., Zhang, Y., Zhu, Q. (2012). Integrated point and edge matching on poor
     textural images constrained by self-adaptive triangulations. ISPRS J. 68, 40-55.
 Kirk, R. L., et al. (2008). Ultrahigh resolution topographic mapping of Mars with
@@ -284,7 +287,9 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
         study; 0.8 relaxed).
     grid_spacing : int
         Pixels between template centres at full resolution (1 = every pixel); other
-        pixels are interpolated between four accepted nodes.
+        pixels are interpolated between four accepted nodes that agree within
+        ``INTERPOLATION_TOLERANCE`` px, or matched themselves where some corner was
+        accepted but the interpolation does not hold.
     levels : int
         Pyramid levels (reduced when the coarsest would be narrower than 3 templates).
     search_margin : float

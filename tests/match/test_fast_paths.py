@@ -90,3 +90,28 @@ def test_grid_spacing_does_not_interpolate_across_a_disparity_step():
     assert between["interpolated"] > 0.5 * left.size
     assert every.summary["between_nodes"] is None
     assert abs(coarse.completeness - every.completeness) < 2.0
+
+
+def test_row_matching_equals_brute_force_matching_then_the_row_filter():
+    from demtool import features
+    from demtool.match.seeds import match_on_rows
+
+    rng = np.random.default_rng(6)
+    n, true = 600, 420
+    points_left = np.column_stack([rng.uniform(0, 400, n), rng.uniform(0, 300, n)])
+    descriptors_left = rng.uniform(0, 100, (n, 128)).astype(np.float32)
+    points_right = points_left + [-15.0, 0.4]
+    descriptors_right = descriptors_left + rng.normal(0, 6, (n, 128)).astype(np.float32)
+    points_right[true:] = np.column_stack([rng.uniform(0, 400, n - true),
+                                           rng.uniform(0, 300, n - true)])
+    descriptors_right[true:] = rng.uniform(0, 100, (n - true, 128))
+    pairs = match_on_rows(points_left, descriptors_left, points_right, descriptors_right,
+                          max_vertical=1.5)
+    reference = features.match_descriptors(descriptors_left, descriptors_right, ratio=0.8)
+    same_row = np.abs(points_left[reference[:, 0], 1] - points_right[reference[:, 1], 1])
+    reference = reference[same_row <= 1.5]
+    # distinctive descriptors: the row band changes nothing but the work
+    np.testing.assert_array_equal(pairs, reference)
+    assert len(pairs) >= 0.95 * true and np.all(pairs[:, 0] == pairs[:, 1])
+    assert match_on_rows(points_left[:0], descriptors_left[:0], points_right,
+                         descriptors_right, max_vertical=1.5).shape == (0, 2)

@@ -22,6 +22,9 @@ synthetic
     The synthetic scene's target/partner pair (``demtool.synth``), rectified by
     ``demtool.rectify``; truth from ``demtool.synth.truth.truth_disparity``, scored on
     its visible pixels.  Needs no outside data.
+synthetic1024
+    The same scene rendered at 1024 × 1024 px (over a 1024-cell DEM): the pair of
+    issue 13's speed target (``--pairs synthetic1024``; not run by default).
 tsukuba, venus, cones, teddy
     Middlebury pairs from ``../shared/data/middlebury`` when that folder exists
     (skipped otherwise).  © Middlebury College; Scharstein, D., Szeliski, R. (2002),
@@ -50,6 +53,7 @@ import numpy as np
 from _stereo_pairs import (
     MIDDLEBURY,
     MIDDLEBURY_PAIRS,
+    StereoPair,
     middlebury_pair,
     opencv_sgbm,
     synthetic_pair,
@@ -57,6 +61,31 @@ from _stereo_pairs import (
 
 ALL_TEMPLATES = (9, 13, 17, 21, 25)
 ALL_THRESHOLDS = (0.9, 0.8)
+
+
+def synthetic_pair_1024() -> StereoPair:
+    """The synthetic scene rendered at 1024 × 1024 px over a 1024-cell DEM (speed target).
+
+    As :func:`_stereo_pairs.synthetic_pair`, larger: issue 13 reports `match`'s
+    seconds per megapixel on this pair.
+    """
+    from demtool.homography import warp_to_rectified
+    from demtool.rectify import rectify_pair
+    from demtool.synth import SceneParams, make_scene, truth_disparity
+
+    scene = make_scene(SceneParams(n_views=2, image_size=1024, dem_size=1024))
+    left, right = scene.images[scene.target], scene.images[scene.partner]
+    rect = rectify_pair(left, right)
+    size = rect.size_rect
+    left_rect = warp_to_rectified(left, rect.H_left, size)
+    right_rect = warp_to_rectified(right, rect.H_right, size)
+    truth = truth_disparity(scene, rect.H_left, rect.H_right, (int(size[1]), int(size[0])))
+    low, high = rect.disparity_range
+    min_disparity = int(math.floor(low))
+    count = int(math.ceil(high)) - min_disparity + 1
+    visible = truth.visible & np.isfinite(left_rect) & np.isfinite(right_rect)
+    return StereoPair(left_rect, right_rect, truth.disparity, {"visible": visible},
+                      min_disparity, count, (rect.points_left_rect, rect.points_right_rect))
 
 
 def scores(disparity: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict[str, float]:
@@ -151,7 +180,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smaller, faster run")
     parser.add_argument("--pairs", default=None,
-                        help="comma-separated: synthetic, tsukuba, venus, cones, teddy")
+                        help="comma-separated: synthetic, synthetic1024, tsukuba, venus, "
+                             "cones, teddy, cloth3")
     parser.add_argument("--templates", default=None, help="comma-separated template sizes")
     parser.add_argument("--thresholds", default=None, help="comma-separated thresholds")
     parser.add_argument("--no-references", action="store_true",
@@ -172,6 +202,9 @@ def main() -> None:
         if name == "synthetic":
             rows += run_pair(name, synthetic_pair(args.quick), templates, thresholds,
                              args.weighting, references=not args.no_references)
+        elif name == "synthetic1024":
+            rows += run_pair(name, synthetic_pair_1024(), templates, thresholds,
+                             args.weighting, references=not args.no_references)
         elif name in MIDDLEBURY_PAIRS:
             if not (MIDDLEBURY / name).is_dir():
                 print(f"\n{name}: {MIDDLEBURY / name} not found; skipped")
@@ -179,7 +212,7 @@ def main() -> None:
             rows += run_pair(name, middlebury_pair(name), templates, thresholds,
                              references=not args.no_references)
         else:
-            raise SystemExit(f"unknown pair {name!r}; choose from synthetic, "
+            raise SystemExit(f"unknown pair {name!r}; choose from synthetic, synthetic1024, "
                              + ", ".join(MIDDLEBURY_PAIRS))
     verdict(rows)
 

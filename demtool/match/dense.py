@@ -24,7 +24,6 @@ a pixel with no accepted corner stays NaN.
 References
 ----------
 Grün, A. (1985). Adaptive least squares correlation. S. Afr. J. Photogramm. 14(3).
-Baker, S., Matthews, I. (2004). Lucas-Kanade 20 years on. IJCV 56(3), 221-255.
 Wu, B., Zhang, Y., Zhu, Q. (2012). Integrated point and edge matching on poor
     textural images constrained by self-adaptive triangulations. ISPRS J. 68, 40-55.
 Kirk, R. L., et al. (2008). Ultrahigh resolution topographic mapping of Mars with

@@ -53,7 +53,7 @@ DIVERGED = 5  # the shift or the affine terms ran away
 _FASTMATH = {"contract", "reassoc", "arcp", "nsz"}
 
 #: Gauss–Newton forms of :func:`lsm_match` (the first is the default).
-LSM_METHODS = ("inverse", "forward")
+LSM_METHODS = ("forward", "inverse")
 
 STATUS_NAMES = ("converged", "not converged", "template invalid", "window invalid",
                 "singular", "diverged")
@@ -395,7 +395,7 @@ def lsm_match(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.nd
               left_valid: np.ndarray | None = None, right_valid: np.ndarray | None = None,
               max_iterations: int = 10, tolerance: float = 5e-3,
               max_shift: float | None = None, give_up_below: float = -1.0,
-              weighting: float = 0.0, method: str = "inverse") -> LSMResult:
+              weighting: float = 0.0, method: str = "forward") -> LSMResult:
     """Least-squares matching (Grün 1985) of templates of ``left`` in ``right``.
 
     Parameters
@@ -427,12 +427,14 @@ def lsm_match(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.nd
         template (0: uniform weights, Grün's ordinary LSM).  Centre weighting makes
         the estimate describe the centre pixel more than the template's mean, which
         reduces the smoothing of relief finer than the template.
-    method : {"inverse", "forward"}
-        ``"inverse"``: inverse-compositional Gauss–Newton on the zero-normalised
-        SSD (:mod:`demtool.match.icgn`; the Hessian is computed once per template,
-        about 3× faster); ``"forward"``: Grün's forward-additive form with the
-        radiometric parameters in the model (this module).  Both maximise the
-        correlation coefficient under the affine model.
+    method : {"forward", "inverse"}
+        ``"forward"`` (default): Grün's forward-additive form with the radiometric
+        parameters in the model (this module).  ``"inverse"``: inverse-compositional
+        Gauss–Newton on the zero-normalised SSD (:mod:`demtool.match.icgn`; the
+        Hessian is computed once per template, about 1.5× faster per template); it
+        converges on the same maximum of the correlation where both converge, but
+        gives up on more templates near occlusions (Middlebury teddy: 4 points less
+        completeness, lower MAE), so `match` keeps Grün's form.
 
     Returns
     -------

@@ -41,7 +41,7 @@ def test_inverse_compositional_lsm_agrees_with_gruens_form(weighting):
 
 def test_lsm_rejects_an_unknown_method():
     image = np.random.default_rng(0).normal(size=(40, 40))
-    with pytest.raises(ValueError, match="method must be one of inverse, forward"):
+    with pytest.raises(ValueError, match="method must be one of forward, inverse"):
         lsm_match(image, image, np.array([20]), np.array([20]), np.array([20.0]),
                   np.array([20.0]), method="newton")
 

@@ -22,6 +22,9 @@ synthetic
     The synthetic scene's target/partner pair (``demtool.synth``), rectified by
     ``demtool.rectify``; truth from ``demtool.synth.truth.truth_disparity``, scored on
     its visible pixels.  Needs no outside data.
+synthetic1024
+    The same scene rendered at 1024 × 1024 px (over a 1024-cell DEM): the pair of
+    issue 13's speed target (``--pairs synthetic1024``; not run by default).
 tsukuba, venus, cones, teddy
     Middlebury pairs from ``../shared/data/middlebury`` when that folder exists
     (skipped otherwise).  © Middlebury College; Scharstein, D., Szeliski, R. (2002),
@@ -33,7 +36,9 @@ tsukuba, venus, cones, teddy
     cones and teddy 1/4 px), which puts a floor under every method's MAE.
 
 Usage: ``.venv/bin/python bench/match_accuracy.py [--quick] [--pairs synthetic,cones]
-[--templates 9,17] [--thresholds 0.9,0.8]``.  ``--quick`` uses a 256-px synthetic
+[--templates 9,17] [--thresholds 0.9,0.8] [--no-references]`` (``--no-references``:
+the `match` rows only).  Each `match` run prints its wall and CPU time per megapixel
+(issue 13's target: ≤ 15 s/MP wall on 2 cores at the defaults).  ``--quick`` uses a 256-px synthetic
 scene, templates 9, 17, 25 and the pairs synthetic, tsukuba, venus.  Timings depend
 on the machine's load; they are printed for orientation only.
 """
@@ -48,6 +53,7 @@ import numpy as np
 from _stereo_pairs import (
     MIDDLEBURY,
     MIDDLEBURY_PAIRS,
+    StereoPair,
     middlebury_pair,
     opencv_sgbm,
     synthetic_pair,
@@ -55,6 +61,31 @@ from _stereo_pairs import (
 
 ALL_TEMPLATES = (9, 13, 17, 21, 25)
 ALL_THRESHOLDS = (0.9, 0.8)
+
+
+def synthetic_pair_1024() -> StereoPair:
+    """The synthetic scene rendered at 1024 × 1024 px over a 1024-cell DEM (speed target).
+
+    As :func:`_stereo_pairs.synthetic_pair`, larger: issue 13 reports `match`'s
+    seconds per megapixel on this pair.
+    """
+    from demtool.homography import warp_to_rectified
+    from demtool.rectify import rectify_pair
+    from demtool.synth import SceneParams, make_scene, truth_disparity
+
+    scene = make_scene(SceneParams(n_views=2, image_size=1024, dem_size=1024))
+    left, right = scene.images[scene.target], scene.images[scene.partner]
+    rect = rectify_pair(left, right)
+    size = rect.size_rect
+    left_rect = warp_to_rectified(left, rect.H_left, size)
+    right_rect = warp_to_rectified(right, rect.H_right, size)
+    truth = truth_disparity(scene, rect.H_left, rect.H_right, (int(size[1]), int(size[0])))
+    low, high = rect.disparity_range
+    min_disparity = int(math.floor(low))
+    count = int(math.ceil(high)) - min_disparity + 1
+    visible = truth.visible & np.isfinite(left_rect) & np.isfinite(right_rect)
+    return StereoPair(left_rect, right_rect, truth.disparity, {"visible": visible},
+                      min_disparity, count, (rect.points_left_rect, rect.points_right_rect))
 
 
 def scores(disparity: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict[str, float]:
@@ -68,7 +99,8 @@ def scores(disparity: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict[s
             "bad1": math.nan if empty else 100.0 * float((error > 1.0).mean())}
 
 
-def run_pair(name: str, data, templates, thresholds, weighting: float = 0.0) -> list[dict]:
+def run_pair(name: str, data, templates, thresholds, weighting: float = 0.0,
+             references: bool = True) -> list[dict]:
     """Every method on one pair; prints its table and returns the rows."""
     from demtool.errors import DemtoolError
     from demtool.match import match
@@ -83,21 +115,23 @@ def run_pair(name: str, data, templates, thresholds, weighting: float = 0.0) -> 
     except ImportError:
         print("  demtool.sgm is not available: SGM rows skipped")
         sgm = None
-    if sgm is not None:
+    if sgm is not None and references:
         for subpixel in ("parabola", "equiangular"):
             start = time.perf_counter()
             result = sgm(left, right, min_disparity=min_disparity, num_disparities=count,
                          subpixel=subpixel)
             runs.append((f"sgm hmi {subpixel}", result.disparity, time.perf_counter() - start))
-    start = time.perf_counter()
-    runs.append(("OpenCV SGBM HH", opencv_sgbm(left, right, min_disparity, count)[0],
-                 time.perf_counter() - start))
+    if references:
+        start = time.perf_counter()
+        runs.append(("OpenCV SGBM HH", opencv_sgbm(left, right, min_disparity, count)[0],
+                     time.perf_counter() - start))
     configs = [(t, r, 0.0) for t in templates for r in thresholds]
     if weighting > 0:  # centre-weighted LSM at the study's threshold
         configs += [(t, thresholds[0], weighting) for t in templates]
     for template, threshold, sigma_w in configs:
         label = f"match t={template} r>={threshold}" + (f" w={sigma_w:g}" if sigma_w else "")
         start = time.perf_counter()
+        cpu = time.process_time()
         try:
             result = match(left, right, template=template, threshold=threshold,
                            seed_points=seeds, weighting=sigma_w)
@@ -106,7 +140,10 @@ def run_pair(name: str, data, templates, thresholds, weighting: float = 0.0) -> 
             print(f"  {label}: failed: {exc}")
             disparity = np.full(left.shape, np.nan, np.float32)
         runs.append((label, disparity, time.perf_counter() - start))
-        print(f"  … {label}: {runs[-1][2]:.1f} s", flush=True)
+        megapixels = left.size / 1e6
+        print(f"  … {label}: {runs[-1][2]:.1f} s wall = {runs[-1][2] / megapixels:.1f} s/MP, "
+              f"CPU {(time.process_time() - cpu) / megapixels:.1f} s/MP (all threads)",
+              flush=True)
     rows = []
     for mask_name, mask in masks.items():
         print(f"  [{mask_name}]\n  {'method':<24} {'compl%':>7} {'MAE':>7} {'bad.5%':>7} "
@@ -143,9 +180,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smaller, faster run")
     parser.add_argument("--pairs", default=None,
-                        help="comma-separated: synthetic, tsukuba, venus, cones, teddy")
+                        help="comma-separated: synthetic, synthetic1024, tsukuba, venus, "
+                             "cones, teddy, cloth3")
     parser.add_argument("--templates", default=None, help="comma-separated template sizes")
     parser.add_argument("--thresholds", default=None, help="comma-separated thresholds")
+    parser.add_argument("--no-references", action="store_true",
+                        help="match only: no SGM and OpenCV rows")
     parser.add_argument("--weighting", type=float, default=3.0,
                         help="also run centre-weighted LSM (Gaussian sigma, px) on the "
                              "synthetic pair; 0 = no")
@@ -161,14 +201,18 @@ def main() -> None:
     for name in pairs:
         if name == "synthetic":
             rows += run_pair(name, synthetic_pair(args.quick), templates, thresholds,
-                             args.weighting)
+                             args.weighting, references=not args.no_references)
+        elif name == "synthetic1024":
+            rows += run_pair(name, synthetic_pair_1024(), templates, thresholds,
+                             args.weighting, references=not args.no_references)
         elif name in MIDDLEBURY_PAIRS:
             if not (MIDDLEBURY / name).is_dir():
                 print(f"\n{name}: {MIDDLEBURY / name} not found; skipped")
                 continue
-            rows += run_pair(name, middlebury_pair(name), templates, thresholds)
+            rows += run_pair(name, middlebury_pair(name), templates, thresholds,
+                             references=not args.no_references)
         else:
-            raise SystemExit(f"unknown pair {name!r}; choose from synthetic, "
+            raise SystemExit(f"unknown pair {name!r}; choose from synthetic, synthetic1024, "
                              + ", ".join(MIDDLEBURY_PAIRS))
     verdict(rows)
 

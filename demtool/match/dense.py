@@ -15,9 +15,11 @@
    correlated) join the seeds, the triangulation is rebuilt and the rejected grid
    nodes are matched again inside the tighter triangles, for a few rounds.
 
-With a grid spacing ``s > 1`` only every ``s``-th row and column is matched; the
-other pixels get the bilinear interpolation of the four surrounding nodes when all
-four were accepted, and stay NaN otherwise.
+With a grid spacing ``s > 1`` (default 2) only every ``s``-th row and column is
+matched; a pixel between four accepted nodes that agree within
+``INTERPOLATION_TOLERANCE`` gets their bilinear interpolation, a pixel with some but not
+such corners (a disparity edge, the border of the accepted area) is matched itself, and
+a pixel with no accepted corner stays NaN.
 
 References
 ----------
@@ -33,6 +35,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -52,6 +55,9 @@ PYRAMID_RADIUS = 2
 #: LSM is tried only where the NCC peak reaches the acceptance threshold minus this,
 #: and gives up after two iterations still this far below the threshold.
 LSM_NCC_SLACK = 0.3
+#: Largest spread (pixels) of four accepted node disparities interpolated in between
+#: with a grid spacing > 1; pixels at wider spreads (disparity edges) are matched.
+INTERPOLATION_TOLERANCE = 1.0
 
 
 @dataclass(frozen=True)
@@ -152,35 +158,105 @@ def _densify_points(rows: np.ndarray, cols: np.ndarray, disparity: np.ndarray,
     return np.column_stack([cols[chosen], rows[chosen]]).astype(np.float64), disparity[chosen]
 
 
-def _grid_to_image(node_values: np.ndarray, shape: tuple[int, int], spacing: int) -> np.ndarray:
-    """Spread node values (on rows/cols multiple of ``spacing``) to every pixel.
+class _Matched(NamedTuple):
+    """NCC + LSM outcome for N template centres (see :func:`_match_points`)."""
 
-    Bilinear between four finite nodes; NaN where a corner is NaN or beyond the last
-    node (except on the nodes themselves).
+    tried: np.ndarray  # (N,) bool: NCC found a peak good enough for LSM
+    accepted: np.ndarray  # (N,) bool
+    disparity: np.ndarray  # (N,) float64, NaN unless accepted
+    correlation: np.ndarray  # (N,) float64, LSM correlation where tried
+    sigma: np.ndarray  # (N,) float64, NaN unless accepted
+    time_ncc: float
+    time_lsm: float
+
+
+def _match_points(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                  low: np.ndarray, high: np.ndarray, *, template: int, threshold: float,
+                  max_vertical: float, weighting: float, left_valid: np.ndarray,
+                  right_valid: np.ndarray) -> _Matched:
+    """NCC inside [low, high], LSM from the NCC peak, then the acceptance tests."""
+    started = time.perf_counter()
+    ncc = ncc_search(left, right, rows, cols, low, high, template=template,
+                     left_valid=left_valid, right_valid=right_valid)
+    t_ncc = time.perf_counter() - started
+    has = np.isfinite(ncc.disparity) & (ncc.correlation >= threshold - LSM_NCC_SLACK)
+    lsm = lsm_match(left, right, rows[has], cols[has], cols[has] - ncc.disparity[has],
+                    rows[has].astype(np.float64), template=template,
+                    left_valid=left_valid, right_valid=right_valid,
+                    give_up_below=threshold - LSM_NCC_SLACK, weighting=weighting)
+    d = cols[has] - lsm.x_right
+    ok = ((lsm.status == CONVERGED) & (lsm.correlation >= threshold)
+          & (np.abs(lsm.y_right - rows[has]) <= max_vertical)
+          & (d >= low[has] - 1.0) & (d <= high[has] + 1.0))
+    accepted = np.zeros(rows.size, dtype=bool)
+    accepted[has] = ok
+    disparity = np.full(rows.size, np.nan)
+    disparity[np.nonzero(has)[0][ok]] = d[ok]
+    correlation = np.full(rows.size, np.nan)
+    correlation[has] = lsm.correlation
+    sigma = np.full(rows.size, np.nan)
+    sigma[np.nonzero(has)[0][ok]] = lsm.sigma_x[ok]
+    return _Matched(has, accepted, disparity, correlation, sigma, t_ncc,
+                    time.perf_counter() - started - t_ncc)
+
+
+def _between_nodes(nodes: np.ndarray, shape: tuple[int, int], spacing: int,
+                   tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where node disparities may be interpolated, and the pixels to match instead.
+
+    Parameters
+    ----------
+    nodes : (n_rows, n_cols) float
+        Disparities of the grid nodes (rows/cols multiples of ``spacing``), NaN =
+        not accepted.
+    shape : (H, W)
+        Image shape.
+    spacing : int
+        Node spacing, pixels (> 1).
+    tolerance : float
+        Largest spread (max − min, pixels) of the four corner disparities that is
+        interpolated; a larger spread marks a disparity edge.
+
+    Returns
+    -------
+    weights : (4, H, W) float64
+        Bilinear weights of the corners (i0 j0, i0 j1, i1 j0, i1 j1).
+    corners : (4, H, W) int64
+        Flat node index of each corner.
+    smooth : (H, W) bool
+        All four corners accepted and within ``tolerance`` of each other (or the
+        pixel is an accepted node): bilinear interpolation holds.
+    edge : (H, W) bool
+        Not a node, not ``smooth``, but at least one corner accepted: the pixel is
+        matched itself.
     """
     height, width = shape
-    if spacing == 1:
-        return node_values
-    n_rows, n_cols = node_values.shape
+    n_rows, n_cols = nodes.shape
     rows = np.arange(height)
     cols = np.arange(width)
     i0 = np.minimum(rows // spacing, n_rows - 1)
     j0 = np.minimum(cols // spacing, n_cols - 1)
-    fy = (rows - i0 * spacing) / spacing
-    fx = (cols - j0 * spacing) / spacing
     i1 = np.minimum(i0 + 1, n_rows - 1)
     j1 = np.minimum(j0 + 1, n_cols - 1)
-    fy = fy[:, None]
-    fx = fx[None, :]
-    v00 = node_values[i0][:, j0]
-    v01 = node_values[i0][:, j1]
-    v10 = node_values[i1][:, j0]
-    v11 = node_values[i1][:, j1]
-    out = (v00 * (1 - fy) * (1 - fx) + v01 * (1 - fy) * fx + v10 * fy * (1 - fx)
-           + v11 * fy * fx)
-    # pixels past the last node row/column would extrapolate: keep only exact nodes
+    fy = ((rows - i0 * spacing) / spacing)[:, None]
+    fx = ((cols - j0 * spacing) / spacing)[None, :]
+    weights = np.stack(np.broadcast_arrays((1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx),
+                                           fy * fx))
+    corners = np.stack(np.broadcast_arrays(i0[:, None] * n_cols + j0[None, :],
+                                           i0[:, None] * n_cols + j1[None, :],
+                                           i1[:, None] * n_cols + j0[None, :],
+                                           i1[:, None] * n_cols + j1[None, :]))
+    values = nodes.ravel()[corners]
+    finite = np.isfinite(values)
+    # pixels past the last node row/column have no second corner to interpolate with
     beyond = (rows > (n_rows - 1) * spacing)[:, None] | (cols > (n_cols - 1) * spacing)[None, :]
-    return np.where(beyond, np.nan, out)
+    on_node = ((rows % spacing == 0)[:, None] & (cols % spacing == 0)[None, :]) & ~beyond
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN corners
+        spread = np.nanmax(values, axis=0) - np.nanmin(values, axis=0)
+    smooth = (finite.all(axis=0) & (spread <= tolerance) & ~beyond) | (on_node & finite[0])
+    edge = ~smooth & finite.any(axis=0) & ~on_node  # a rejected node was tried already
+    return weights, corners, smooth, edge
 
 
 def _usable_levels(shape: tuple[int, int], levels: int, template: int) -> int:
@@ -192,7 +268,7 @@ def _usable_levels(shape: tuple[int, int], levels: int, template: int) -> int:
 
 
 def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold: float = 0.9,
-          grid_spacing: int = 1, levels: int = 3, search_margin: float = 2.0, rounds: int = 2,
+          grid_spacing: int = 2, levels: int = 3, search_margin: float = 2.0, rounds: int = 2,
           seed_points: tuple[np.ndarray, np.ndarray] | None = None,
           disparity_range: tuple[float, float] | None = None, use_sift: bool = True,
           max_vertical: float = 1.5, weighting: float = 3.0) -> MatchResult:
@@ -210,7 +286,9 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
         study; 0.8 relaxed).
     grid_spacing : int
         Pixels between template centres at full resolution (1 = every pixel); other
-        pixels are interpolated between four accepted nodes.
+        pixels are interpolated between four accepted nodes that agree within
+        ``INTERPOLATION_TOLERANCE`` px, or matched themselves where some corner was
+        accepted but the interpolation does not hold.
     levels : int
         Pyramid levels (reduced when the coarsest would be narrower than 3 templates).
     search_margin : float
@@ -342,29 +420,21 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
             break
         tried_low[idx] = low
         tried_high[idx] = high
-        t_round = time.perf_counter()
-        ncc = ncc_search(left, right, rows, cols, low, high, template=template,
-                         left_valid=left_valid, right_valid=right_valid)
-        t_ncc = time.perf_counter() - t_round
-        has = np.isfinite(ncc.disparity) & (ncc.correlation >= threshold - LSM_NCC_SLACK)
-        lsm = lsm_match(left, right, rows[has], cols[has], cols[has] - ncc.disparity[has],
-                        rows[has].astype(np.float64), template=template,
-                        left_valid=left_valid, right_valid=right_valid,
-                        give_up_below=threshold - LSM_NCC_SLACK, weighting=weighting)
-        d = cols[has] - lsm.x_right
-        accepted = ((lsm.status == CONVERGED) & (lsm.correlation >= threshold)
-                    & (np.abs(lsm.y_right - rows[has]) <= max_vertical)
-                    & (d >= low[has] - 1.0) & (d <= high[has] + 1.0))
-        where = idx[has]
-        node_corr[where] = lsm.correlation
-        node_disp[where[accepted]] = d[accepted]
-        node_sigma[where[accepted]] = lsm.sigma_x[accepted]
-        todo[where[accepted]] = False
+        found = _match_points(left, right, rows, cols, low, high, template=template,
+                              threshold=threshold, max_vertical=max_vertical,
+                              weighting=weighting, left_valid=left_valid,
+                              right_valid=right_valid)
+        accepted = found.accepted
+        node_corr[idx[found.tried]] = found.correlation[found.tried]
+        node_disp[idx[accepted]] = found.disparity[accepted]
+        node_sigma[idx[accepted]] = found.sigma[accepted]
+        todo[idx[accepted]] = False
         round_stats.append({"round": round_index, "evaluated": int(idx.size),
-                            "lsm_tried": int(has.sum()), "accepted": int(accepted.sum()),
+                            "lsm_tried": int(found.tried.sum()),
+                            "accepted": int(accepted.sum()),
                             "mean_search_range_px": round(float(np.mean(high - low + 1)), 2),
-                            "time_ncc_s": round(t_ncc, 3),
-                            "time_lsm_s": round(time.perf_counter() - t_round - t_ncc, 3)})
+                            "time_ncc_s": round(found.time_ncc, 3),
+                            "time_lsm_s": round(found.time_lsm, 3)})
         log.info("round %d: %d of %d nodes accepted", round_index, int(accepted.sum()), idx.size)
         if round_index == rounds or not accepted.any():
             break
@@ -375,9 +445,18 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
                                 np.concatenate([seeds.disparity, new_disp]))
 
     shape_nodes = (node_rows.size, node_cols.size)
-    disparity = _grid_to_image(node_disp.reshape(shape_nodes), left.shape, grid_spacing)
-    correlation = _grid_to_image(node_corr.reshape(shape_nodes), left.shape, grid_spacing)
-    sigma = _grid_to_image(node_sigma.reshape(shape_nodes), left.shape, grid_spacing)
+    if grid_spacing == 1:
+        disparity = node_disp.reshape(shape_nodes)
+        correlation = node_corr.reshape(shape_nodes)
+        sigma = node_sigma.reshape(shape_nodes)
+        edge_stats = None
+    else:
+        disparity, correlation, sigma, edge_stats = _fill_between_nodes(
+            left, right, node_disp.reshape(shape_nodes), node_corr.reshape(shape_nodes),
+            node_sigma.reshape(shape_nodes), tri, grid_spacing=grid_spacing,
+            template=template, threshold=threshold, max_vertical=max_vertical,
+            weighting=weighting, search_margin=search_margin, left_valid=left_valid,
+            right_valid=right_valid)
     disparity = np.where(left_valid, disparity, np.nan)
     accepted_pixels = int(np.isfinite(disparity).sum())
     completeness = 100.0 * accepted_pixels / int(left_valid.sum())
@@ -395,6 +474,7 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
         "pyramid_levels": n_levels,
         "levels": level_stats,
         "rounds": round_stats,
+        "between_nodes": edge_stats,
         "disparity_min": float(finite_d.min()) if finite_d.size else None,
         "disparity_max": float(finite_d.max()) if finite_d.size else None,
         "median_sigma_px": float(np.nanmedian(node_sigma)) if accepted_nodes else None,
@@ -409,6 +489,61 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
     return MatchResult(disparity=disparity.astype(np.float32),
                        correlation=correlation.astype(np.float32),
                        sigma=sigma.astype(np.float32), seeds=seeds, summary=summary)
+
+
+def _fill_between_nodes(left: np.ndarray, right: np.ndarray, node_disp: np.ndarray,
+                        node_corr: np.ndarray, node_sigma: np.ndarray,
+                        tri: SeedTriangulation, *,
+                        grid_spacing: int, template: int, threshold: float,
+                        max_vertical: float, weighting: float, search_margin: float,
+                        left_valid: np.ndarray, right_valid: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """Every pixel from the node grid: interpolated where smooth, matched at edges.
+
+    Between four accepted nodes that agree within ``INTERPOLATION_TOLERANCE`` the
+    disparity (and correlation, sigma) is bilinear; a pixel with at least one accepted
+    corner but no smooth interpolation (a disparity edge, the border of the accepted
+    area) is matched itself, searching its corners' disparities ± ``PYRAMID_RADIUS``
+    inside its triangle range.  Pixels with no accepted corner stay NaN.
+    """
+    shape = left.shape
+    weights, corners, smooth, edge = _between_nodes(node_disp, shape, grid_spacing,
+                                                    INTERPOLATION_TOLERANCE)
+
+    def spread(nodes: np.ndarray) -> np.ndarray:
+        values = nodes.ravel()[corners]
+        return np.where(smooth, np.sum(weights * np.where(np.isfinite(values), values, 0.0),
+                                       axis=0), np.nan)
+
+    disparity = spread(node_disp)
+    with np.errstate(invalid="ignore"):
+        correlation = np.where(smooth, spread(node_corr), np.nan)
+    sigma = spread(node_sigma)
+    rows, cols = np.nonzero(edge & left_valid)
+    stats = {"interpolated": int((smooth & left_valid).sum()), "matched": int(rows.size),
+             "accepted": 0}
+    if rows.size == 0:
+        return disparity, correlation, sigma, stats
+    values = node_disp.ravel()[corners[:, rows, cols]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        corner_low = np.floor(np.nanmin(values, axis=0) - PYRAMID_RADIUS).astype(np.int64)
+        corner_high = np.ceil(np.nanmax(values, axis=0) + PYRAMID_RADIUS).astype(np.int64)
+    _, low, high = _ranges(tri, rows, cols, 1, search_margin)
+    new_low, new_high = np.maximum(low, corner_low), np.minimum(high, corner_high)
+    inside = new_low <= new_high
+    low, high = np.where(inside, new_low, corner_low), np.where(inside, new_high, corner_high)
+    found = _match_points(left, right, rows, cols, low, high, template=template,
+                          threshold=threshold, max_vertical=max_vertical, weighting=weighting,
+                          left_valid=left_valid, right_valid=right_valid)
+    disparity[rows, cols] = found.disparity
+    correlation[rows, cols] = found.correlation
+    sigma[rows, cols] = found.sigma
+    stats.update(accepted=int(found.accepted.sum()), time_ncc_s=round(found.time_ncc, 3),
+                 time_lsm_s=round(found.time_lsm, 3))
+    log.info("between nodes: %d pixels interpolated, %d of %d edge pixels matched",
+             stats["interpolated"], stats["accepted"], rows.size)
+    return disparity, correlation, sigma, stats
 
 
 def _narrow(low: np.ndarray, high: np.ndarray, guide: np.ndarray | None, rows: np.ndarray,

@@ -52,6 +52,9 @@ DIVERGED = 5  # the shift or the affine terms ran away
 # IEEE-safe fast-math flags (no 'nnan'/'ninf': NaN marks failures here)
 _FASTMATH = {"contract", "reassoc", "arcp", "nsz"}
 
+#: Gauss–Newton forms of :func:`lsm_match` (the first is the default).
+LSM_METHODS = ("forward", "inverse")
+
 STATUS_NAMES = ("converged", "not converged", "template invalid", "window invalid",
                 "singular", "diverged")
 
@@ -392,7 +395,7 @@ def lsm_match(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.nd
               left_valid: np.ndarray | None = None, right_valid: np.ndarray | None = None,
               max_iterations: int = 10, tolerance: float = 5e-3,
               max_shift: float | None = None, give_up_below: float = -1.0,
-              weighting: float = 0.0) -> LSMResult:
+              weighting: float = 0.0, method: str = "forward") -> LSMResult:
     """Least-squares matching (Grün 1985) of templates of ``left`` in ``right``.
 
     Parameters
@@ -424,6 +427,14 @@ def lsm_match(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.nd
         template (0: uniform weights, Grün's ordinary LSM).  Centre weighting makes
         the estimate describe the centre pixel more than the template's mean, which
         reduces the smoothing of relief finer than the template.
+    method : {"forward", "inverse"}
+        ``"forward"`` (default): Grün's forward-additive form with the radiometric
+        parameters in the model (this module).  ``"inverse"``: inverse-compositional
+        Gauss–Newton on the zero-normalised SSD (:mod:`demtool.match.icgn`; the
+        Hessian is computed once per template, about 1.5× faster per template); it
+        converges on the same maximum of the correlation where both converge, but
+        gives up on more templates near occlusions (Middlebury teddy: 4 points less
+        completeness, lower MAE), so `match` keeps Grün's form.
 
     Returns
     -------
@@ -432,6 +443,8 @@ def lsm_match(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.nd
     """
     if template < 5 or template % 2 == 0:
         raise ValueError(f"template must be odd and >= 5, got {template}")
+    if method not in LSM_METHODS:
+        raise ValueError(f"method must be one of {', '.join(LSM_METHODS)}, got {method!r}")
     left = np.asarray(left, dtype=np.float64)
     right = np.asarray(right, dtype=np.float64)
     left_ok = np.isfinite(left) if left_valid is None else (left_valid & np.isfinite(left))
@@ -445,10 +458,14 @@ def lsm_match(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.nd
     y_start = np.ascontiguousarray(y_start, dtype=np.float64)
     out = np.empty((rows.shape[0], 6), dtype=np.float64)
     if rows.shape[0]:
-        _lsm_batch(left_filled, left_ok, right_filled, cubic_support_mask(right_ok), rows, cols,
-                   x_start, y_start, half, int(max_iterations), float(tolerance),
-                   float(half if max_shift is None else max_shift), float(give_up_below),
-                   template_weights(template, weighting), out)
+        if method == "inverse":
+            from demtool.match.icgn import icgn_batch as batch
+        else:
+            batch = _lsm_batch
+        batch(left_filled, left_ok, right_filled, cubic_support_mask(right_ok), rows, cols,
+              x_start, y_start, half, int(max_iterations), float(tolerance),
+              float(half if max_shift is None else max_shift), float(give_up_below),
+              template_weights(template, weighting), out)
     return LSMResult(x_right=out[:, 0], y_right=out[:, 1], correlation=out[:, 2],
                      sigma_x=out[:, 3], iterations=out[:, 4].astype(np.int32),
                      status=out[:, 5].astype(np.int8))

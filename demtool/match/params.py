@@ -25,7 +25,9 @@ class MatchParams(Parameters):
         "(0.8 relaxed).", minimum=0.0, maximum=1.0, min_open=True, max_open=True)
     grid_spacing: int = parameter(
         CORE["grid_spacing"], "Pixels between template centres; pixels between four "
-        "accepted nodes are interpolated bilinearly, others stay NaN.", minimum=1)
+        "accepted nodes within 1 px of each other are interpolated bilinearly, pixels "
+        "next to an accepted node but not interpolated are matched themselves.",
+        minimum=1)
     levels: int = parameter(CORE["levels"], "Image pyramid levels (NCC coarse to fine).",
                             minimum=1, maximum=8)
     search_margin: float = parameter(

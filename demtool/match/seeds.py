@@ -4,10 +4,10 @@ Seeds anchor the dense matcher: their disparities, triangulated, give every pixe
 initial disparity and a search range (:mod:`demtool.match.triangles`).  They come
 from three sources, all verified the same way:
 
-1. SIFT matches (Lowe 2004; :mod:`demtool.features`: ratio test, mutual nearest
-   neighbours), kept when they satisfy the epipolar constraint of a rectified pair —
-   the same row within ``max_vertical`` pixels (for a rectified pair F is known, so
-   the constraint is applied directly instead of estimating F by RANSAC);
+1. SIFT matches (Lowe 2004: ratio test, mutual nearest neighbours) searched only
+   among the keypoints on the same row within ``max_vertical`` pixels — the
+   epipolar constraint of a rectified pair, applied directly instead of estimating
+   F by RANSAC (:func:`match_on_rows`);
 2. Förstner interest points of the left image (Förstner & Gülch 1987), matched by
    NCC along the same row of the right image inside the disparity range of the
    other seeds, kept when the match is mutual (the right point matches back to
@@ -33,6 +33,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit, prange
 
 from demtool.errors import ParameterError, ProcessingError
 from demtool.logs import get_logger
@@ -175,12 +176,95 @@ def sift_candidates(left: np.ndarray, right: np.ndarray, *, max_vertical: float,
     feats_right = features.detect_sift(right, max_features=max_features)
     if len(feats_left) == 0 or len(feats_right) == 0:
         return np.zeros((0, 2)), np.zeros((0, 2))
-    pairs = features.match_descriptors(feats_left.descriptors, feats_right.descriptors,
-                                       ratio=0.8, mutual=True)
-    pts_left = feats_left.points[pairs[:, 0]].astype(np.float64)
-    pts_right = feats_right.points[pairs[:, 1]].astype(np.float64)
-    on_row = np.abs(pts_left[:, 1] - pts_right[:, 1]) <= max_vertical
-    return pts_left[on_row], pts_right[on_row]
+    pairs = match_on_rows(feats_left.points, feats_left.descriptors, feats_right.points,
+                          feats_right.descriptors, max_vertical=max_vertical, ratio=0.8)
+    return (feats_left.points[pairs[:, 0]].astype(np.float64),
+            feats_right.points[pairs[:, 1]].astype(np.float64))
+
+
+@njit(cache=True, parallel=True)
+def _band_nearest(y_query, query, y_sorted, reference, band, index, best, second):
+    """Two nearest ``reference`` descriptors (squared L2) within ``band`` rows of each query.
+
+    ``y_sorted`` (the reference rows) is ascending; ``index`` −1 where none is in band.
+    """
+    for i in prange(query.shape[0]):
+        lo = np.searchsorted(y_sorted, y_query[i] - band, side="left")
+        hi = np.searchsorted(y_sorted, y_query[i] + band, side="right")
+        d1 = np.inf
+        d2 = np.inf
+        j1 = -1
+        for j in range(lo, hi):
+            d = 0.0
+            for k in range(query.shape[1]):
+                t = query[i, k] - reference[j, k]
+                d += t * t
+            if d < d1:
+                d2 = d1
+                d1 = d
+                j1 = j
+            elif d < d2:
+                d2 = d
+        index[i] = j1
+        best[i] = d1
+        second[i] = d2
+
+
+def _nearest_on_rows(y_query: np.ndarray, query: np.ndarray, y_reference: np.ndarray,
+                     reference: np.ndarray, band: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    order = np.argsort(y_reference, kind="stable")
+    index = np.empty(len(query), np.int64)
+    best = np.empty(len(query))
+    second = np.empty(len(query))
+    _band_nearest(np.ascontiguousarray(y_query, np.float64), np.ascontiguousarray(query),
+                  np.ascontiguousarray(y_reference[order], np.float64),
+                  np.ascontiguousarray(reference[order]), float(band), index, best, second)
+    found = index >= 0
+    index[found] = order[index[found]]
+    return index, best, second
+
+
+def match_on_rows(points_left: np.ndarray, descriptors_left: np.ndarray,
+                  points_right: np.ndarray, descriptors_right: np.ndarray, *,
+                  max_vertical: float, ratio: float = 0.8) -> np.ndarray:
+    """Descriptor matches of a rectified pair, searched only along the same row.
+
+    Lowe's (2004) ratio test and the mutual nearest-neighbour check of
+    :func:`demtool.features.match_descriptors`, with the candidates of a keypoint
+    restricted to the other image's keypoints within ``max_vertical`` rows (the
+    epipolar constraint of a rectified pair): a few dozen candidates per keypoint
+    instead of every keypoint, and no false match from another row.
+
+    Parameters
+    ----------
+    points_left, points_right : (N, 2), (M, 2) float
+        Keypoints (x, y), pixels.
+    descriptors_left, descriptors_right : (N, D), (M, D) float32
+    max_vertical : float
+        Largest row difference, pixels.
+    ratio : float
+        Ratio-test threshold on the distances (nearest < ratio × second nearest in
+        the band; a lone candidate passes).
+
+    Returns
+    -------
+    (K, 2) int64
+        Index pairs (left, right), sorted by the left index.
+    """
+    a = np.ascontiguousarray(descriptors_left, dtype=np.float32)
+    b = np.ascontiguousarray(descriptors_right, dtype=np.float32)
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((0, 2), np.int64)
+    y_left = np.asarray(points_left, np.float64)[:, 1]
+    y_right = np.asarray(points_right, np.float64)[:, 1]
+    forward, best, second = _nearest_on_rows(y_left, a, y_right, b, max_vertical)
+    backward, _, _ = _nearest_on_rows(y_right, b, y_left, a, max_vertical)
+    keep = (forward >= 0) & ~(best >= ratio**2 * second)  # inf second: a lone candidate
+    left_index = np.nonzero(keep)[0]
+    right_index = forward[keep]
+    mutual = backward[right_index] == left_index
+    return np.column_stack([left_index[mutual], right_index[mutual]]).astype(np.int64)
 
 
 def corner_candidates(left: np.ndarray, right: np.ndarray, d_min: int, d_max: int, *,

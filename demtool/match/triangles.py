@@ -22,8 +22,96 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from demtool.errors import ProcessingError
+
+#: Largest raster (pixels, int32) of triangle indices built for integer query points.
+RASTER_MAX_PIXELS = 64_000_000
+
+
+@njit(cache=True)
+def _barycentric_transforms(points: np.ndarray, simplices: np.ndarray) -> np.ndarray:
+    """Barycentric transform of each triangle, (M, 3, 2), as Qhull's ``transform``.
+
+    ``out[t, :2]`` is the inverse of ``[[x0 − x2, x1 − x2], [y0 − y2, y1 − y2]]`` and
+    ``out[t, 2]`` vertex 2, so that ``b = out[t, :2] @ (p − out[t, 2])`` gives the
+    barycentric coordinates of vertices 0 and 1.  NaN for a degenerate triangle.
+    (Computed here: scipy's ``Delaunay.transform`` takes seconds on large meshes.)
+    """
+    out = np.empty((simplices.shape[0], 3, 2))
+    for t in range(simplices.shape[0]):
+        x2 = points[simplices[t, 2], 0]
+        y2 = points[simplices[t, 2], 1]
+        a = points[simplices[t, 0], 0] - x2
+        b = points[simplices[t, 1], 0] - x2
+        c = points[simplices[t, 0], 1] - y2
+        d = points[simplices[t, 1], 1] - y2
+        det = a * d - b * c
+        if abs(det) <= 1e-12 * max(1.0, abs(a * d) + abs(b * c)):
+            out[t, :, :] = np.nan
+            continue
+        out[t, 0, 0] = d / det
+        out[t, 0, 1] = -b / det
+        out[t, 1, 0] = -c / det
+        out[t, 1, 1] = a / det
+        out[t, 2, 0] = x2
+        out[t, 2, 1] = y2
+    return out
+
+
+@njit(cache=True)
+def _rasterise(transform: np.ndarray, vertices: np.ndarray, x0: int, y0: int,
+               out: np.ndarray) -> None:
+    """Simplex index of every integer point of a grid (−1 outside every triangle).
+
+    ``out[i, j]`` receives the triangle holding (x0 + j, y0 + i); ``transform`` is
+    Qhull's barycentric transform (``Delaunay.transform``), ``vertices`` (M, 3, 2).
+    A point on an edge shared by two triangles gets the first one (the interpolated
+    disparity is continuous across it).
+    """
+    height, width = out.shape
+    eps = 1e-9
+    for t in range(transform.shape[0]):
+        xmin = min(vertices[t, 0, 0], vertices[t, 1, 0], vertices[t, 2, 0])
+        xmax = max(vertices[t, 0, 0], vertices[t, 1, 0], vertices[t, 2, 0])
+        ymin = min(vertices[t, 0, 1], vertices[t, 1, 1], vertices[t, 2, 1])
+        ymax = max(vertices[t, 0, 1], vertices[t, 1, 1], vertices[t, 2, 1])
+        j0 = max(0, int(np.ceil(xmin - eps)) - x0)
+        j1 = min(width - 1, int(np.floor(xmax + eps)) - x0)
+        i0 = max(0, int(np.ceil(ymin - eps)) - y0)
+        i1 = min(height - 1, int(np.floor(ymax + eps)) - y0)
+        for i in range(i0, i1 + 1):
+            dy = y0 + i - transform[t, 2, 1]
+            for j in range(j0, j1 + 1):
+                if out[i, j] >= 0:
+                    continue
+                dx = x0 + j - transform[t, 2, 0]
+                b0 = transform[t, 0, 0] * dx + transform[t, 0, 1] * dy
+                b1 = transform[t, 1, 0] * dx + transform[t, 1, 1] * dy
+                if b0 >= -eps and b1 >= -eps and 1.0 - b0 - b1 >= -eps:
+                    out[i, j] = t
+
+
+@njit(cache=True)
+def _barycentric(query: np.ndarray, simplex: np.ndarray, transform: np.ndarray,
+                 simplices: np.ndarray, vertex_disparity: np.ndarray, disparity: np.ndarray,
+                 low: np.ndarray, high: np.ndarray) -> None:
+    """Barycentric disparity and vertex bounds of the points inside a triangle."""
+    for k in range(query.shape[0]):
+        t = simplex[k]
+        if t < 0:
+            continue
+        dx = query[k, 0] - transform[t, 2, 0]
+        dy = query[k, 1] - transform[t, 2, 1]
+        b0 = transform[t, 0, 0] * dx + transform[t, 0, 1] * dy
+        b1 = transform[t, 1, 0] * dx + transform[t, 1, 1] * dy
+        d0 = vertex_disparity[simplices[t, 0]]
+        d1 = vertex_disparity[simplices[t, 1]]
+        d2 = vertex_disparity[simplices[t, 2]]
+        disparity[k] = b0 * d0 + b1 * d1 + (1.0 - b0 - b1) * d2
+        low[k] = min(d0, d1, d2)
+        high[k] = max(d0, d1, d2)
 
 
 class TriangleBounds(NamedTuple):
@@ -84,6 +172,34 @@ class SeedTriangulation:
                                   "cannot triangulate the initial disparity") from None
         self.tree = cKDTree(self.points)
         self.outside_neighbours = min(int(outside_neighbours), len(self.points))
+        self._raster: tuple[int, int, np.ndarray] | None = None  # (x0, y0, simplex grid)
+        self.transform = _barycentric_transforms(self.points,
+                                                 self.delaunay.simplices.astype(np.int64))
+
+    def _find_simplex(self, query: np.ndarray) -> np.ndarray:
+        """Triangle of each query point (−1 outside the hull).
+
+        Integer points are looked up in a raster of the triangulation over their
+        bounding box (numba, built once and reused while it covers the queries);
+        other points (or a box over ``RASTER_MAX_PIXELS``) go through Qhull's
+        ``find_simplex``.
+        """
+        if query.size == 0 or not np.all(query == np.round(query)):
+            return self.delaunay.find_simplex(query)
+        lo = query.min(axis=0).astype(np.int64)
+        hi = query.max(axis=0).astype(np.int64)
+        cached = self._raster
+        if (cached is None or lo[0] < cached[0] or lo[1] < cached[1]
+                or hi[0] >= cached[0] + cached[2].shape[1]
+                or hi[1] >= cached[1] + cached[2].shape[0]):
+            if (hi[0] - lo[0] + 1) * (hi[1] - lo[1] + 1) > RASTER_MAX_PIXELS:
+                return self.delaunay.find_simplex(query)
+            grid = np.full((int(hi[1] - lo[1]) + 1, int(hi[0] - lo[0]) + 1), -1, np.int32)
+            _rasterise(self.transform, self.points[self.delaunay.simplices],
+                       int(lo[0]), int(lo[1]), grid)
+            cached = self._raster = (int(lo[0]), int(lo[1]), grid)
+        x0, y0, grid = cached
+        return grid[query[:, 1].astype(np.int64) - y0, query[:, 0].astype(np.int64) - x0]
 
     def __len__(self) -> int:
         return int(len(self.points))
@@ -125,18 +241,11 @@ class SeedTriangulation:
 
     def _evaluate_block(self, query: np.ndarray, disparity: np.ndarray, low: np.ndarray,
                         high: np.ndarray, inside: np.ndarray) -> None:
-        simplex = self.delaunay.find_simplex(query)
+        simplex = self._find_simplex(query)
         inside[:] = simplex >= 0
         if inside.any():
-            s = simplex[inside]
-            transform = self.delaunay.transform[s]  # (M, 3, 2): inverse T and offset r
-            delta = query[inside] - transform[:, 2]
-            bary2 = np.einsum("mij,mj->mi", transform[:, :2], delta)
-            bary = np.column_stack([bary2, 1.0 - bary2.sum(axis=1)])
-            vertex_d = self.disparity[self.delaunay.simplices[s]]
-            disparity[inside] = np.sum(bary * vertex_d, axis=1)
-            low[inside] = vertex_d.min(axis=1)
-            high[inside] = vertex_d.max(axis=1)
+            _barycentric(query, simplex, self.transform, self.delaunay.simplices,
+                         self.disparity, disparity, low, high)
         outside = ~inside
         if outside.any():
             k = self.outside_neighbours

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from demtool.errors import InputError, ParameterError
 from demtool.logs import get_logger
@@ -126,6 +127,60 @@ def _postprocess(disparity: np.ndarray, confidence: np.ndarray, *, speckle_size:
     return disparity, confidence.astype(np.float32)
 
 
+@njit(cache=True, nogil=True)
+def _unmatchable(disparity: np.ndarray, right_valid: np.ndarray, out: np.ndarray) -> None:
+    """Copy ``disparity`` to ``out`` with NaN where x − d (rounded) misses valid right data."""
+    height, width = disparity.shape
+    for y in range(height):
+        for x in range(width):
+            d = disparity[y, x]
+            out[y, x] = d
+            if np.isfinite(d):
+                matched = np.rint(x - d)
+                if matched < 0 or matched >= width or not right_valid[y, int(matched)]:
+                    out[y, x] = np.nan
+
+
+def _matchable(disparity: np.ndarray, right_valid: np.ndarray) -> np.ndarray:
+    """NaN where the match x − d (rounded) is outside the right image or invalid there."""
+    out = np.empty_like(disparity)
+    _unmatchable(disparity, np.ascontiguousarray(right_valid), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _laplacian_histogram(image: np.ndarray, valid: np.ndarray, counts: np.ndarray) -> int:
+    """Histogram of |Immerkær response| of a uint8 image where the 3 × 3 window is valid.
+
+    ``counts`` has 4 · 255 · 4 + 1 bins (the largest response); returns the count.
+    """
+    height, width = image.shape
+    total = 0
+    for y in range(1, height - 1):
+        for x in range(1, width - 1):
+            if not (valid[y - 1, x - 1] and valid[y - 1, x + 1] and valid[y + 1, x - 1]
+                    and valid[y + 1, x + 1] and valid[y, x]):
+                continue
+            r = np.int32(0)  # invalid pixels count as 0, as in the float path
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    if valid[y + dy, x + dx]:
+                        weight = (2 - abs(dy)) * (2 - abs(dx)) * (1 if (dx + dy) % 2 == 0
+                                                                  else -1)
+                        r += weight * np.int32(image[y + dy, x + dx])
+            counts[abs(r)] += 1
+            total += 1
+    return total
+
+
+def _histogram_median(counts: np.ndarray, total: int) -> float:
+    """Median of ``total`` integer samples given by their histogram (numpy's rule)."""
+    cumulative = np.cumsum(counts)
+    low = int(np.searchsorted(cumulative, (total - 1) // 2 + 1))
+    high = int(np.searchsorted(cumulative, total // 2 + 1))
+    return 0.5 * (low + high)
+
+
 def _matchable(disparity: np.ndarray, right_valid: np.ndarray) -> np.ndarray:
     """NaN where the match x − d (rounded) is outside the right image or invalid there."""
     height, width = disparity.shape
@@ -163,6 +218,11 @@ def noise_sigma(image: np.ndarray, valid: np.ndarray) -> float:
     """
     if min(image.shape) < 3:
         return 0.0
+    if image.dtype == np.uint8:  # the guide: integer responses, an O(n) histogram median
+        counts = np.zeros(4 * 255 * 4 + 1, dtype=np.int64)
+        total = _laplacian_histogram(image, np.ascontiguousarray(valid, dtype=np.bool_),
+                                     counts)
+        return 0.0 if total == 0 else float(1.4826 * _histogram_median(counts, total) / 6.0)
     a = np.where(valid, image, 0.0).astype(np.float64)
     response = (a[:-2, :-2] - 2 * a[:-2, 1:-1] + a[:-2, 2:]
                 - 2 * a[1:-1, :-2] + 4 * a[1:-1, 1:-1] - 2 * a[1:-1, 2:]
@@ -338,7 +398,8 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
     with timer.measure("prepare"):
         left_valid = np.isfinite(left)
         right_valid = np.isfinite(right)
-        guide = costs.quantize(left, left_valid, 256)
+        left_range = costs.robust_range([left], [left_valid])  # shared with the MI levels
+        guide = costs.quantize(left, left_valid, 256, left_range)
         kappa = p2_kappa(guide, left_valid) if adaptive_p2 else 0
     common = dict(paths=paths, p1=p1, p2=p2, p2_kappa=kappa,
                   workers=workers, max_memory_mb=max_memory_mb,
@@ -370,7 +431,7 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
             left, right, left_valid, right_valid, guide, cost=cost,
             min_disparity=min_disparity, num_disparities=num_disparities, window=window,
             mi_iterations=mi_iterations, seed=seed, common=common, final=final,
-            speckle=(speckle_size, speckle_range), levels=levels)
+            speckle=(speckle_size, speckle_range), levels=levels, left_range=left_range)
 
     disparity, confidence = _postprocess(disparity, confidence, speckle_size=speckle_size,
                                          speckle_range=speckle_range, median=median,
@@ -393,8 +454,11 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
 
 def _mutual_information_sgm(left, right, left_valid, right_valid, guide, *, cost, min_disparity,
                             num_disparities, window, mi_iterations, seed, common, final,
-                            speckle, levels):
-    """Iterated MI ("mi") or the hierarchical HMI schedule ("hmi")."""
+                            speckle, levels, left_range=None):
+    """Iterated MI ("mi") or the hierarchical HMI schedule ("hmi").
+
+    ``left_range``: the left image's robust range when already computed (full level).
+    """
     timer: PhaseTimer = common["timer"]
     max_disparity = min_disparity + num_disparities - 1
     # the pyramid: (scale, left, right, valid masks, guide); scale 1 last
@@ -416,7 +480,8 @@ def _mutual_information_sgm(left, right, left_valid, right_valid, guide, *, cost
     for index, (scale, image_l, image_r, valid_l, valid_r, level_guide) in enumerate(pyramid):
         with timer.measure("prepare"):
             n_levels = mi_levels(int(min(valid_l.sum(), valid_r.sum())))
-            levels_l = costs.quantize(image_l, valid_l, n_levels)
+            levels_l = costs.quantize(image_l, valid_l, n_levels,
+                                      left_range if scale == 1 else None)
             levels_r = costs.quantize(image_r, valid_r, n_levels)
             lo = math.floor(min_disparity / scale) - (1 if scale > 1 else 0)
             hi = math.ceil(max_disparity / scale) + (1 if scale > 1 else 0)

@@ -25,9 +25,10 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from demtool.errors import DemtoolError, ProcessingError
+from demtool.errors import ProcessingError
 from demtool.tiling import Tile, TileCache, TileJob
 
+CONNECT_TIMEOUT = "20s"  # waiting for a --scheduler that does not answer
 LOCAL_CLUSTER_OPTIONS = {"dashboard_address": None, "processes": True,
                          "threads_per_worker": 1}
 
@@ -136,7 +137,7 @@ def _run_here(job: TileJob, todo: Sequence[Tile], cache: TileCache, progress: Pr
     for tile in todo:
         try:
             compute_tile(job, tile, cache, 0)
-        except (DemtoolError, Exception) as exc:
+        except Exception as exc:
             raise tile_failure(job, tile, exc, cache, finished) from exc
         finished += 1
         progress.advance()
@@ -151,7 +152,7 @@ def _run_on_client(job: TileJob, todo: Sequence[Tile], cache: TileCache, progres
     with contextlib.ExitStack() as stack:
         if scheduler:
             try:
-                client = stack.enter_context(Client(scheduler, timeout="30s"))
+                client = stack.enter_context(Client(scheduler, timeout=CONNECT_TIMEOUT))
             except (OSError, TimeoutError) as exc:
                 raise ProcessingError(f"--scheduler {scheduler}: cannot connect to the Dask "
                                       f"scheduler ({exc})") from None

@@ -295,3 +295,62 @@ class _FailingJob:
 
     def memory_bytes(self, tile):
         return 0
+
+
+# -------------------------------------------------------------------------- tiled match
+@pytest.fixture(scope="module")
+def match_pair(tmp_path_factory):
+    """A 150 × 220 rectified pair (disparities 3 … 10 px), its truth and a rectify.npz."""
+    from tests.helpers.match import textured_pair
+
+    folder = tmp_path_factory.mktemp("tiled_match")
+    left, right, truth = textured_pair(150, 220, seed=6)
+    for name, image in (("left", left), ("right", right)):
+        dio.write_raster(folder / f"{name}.tif", image, tags={"frame": f"image:{name}_rect"})
+    yy, xx = np.mgrid[12:138:20, 20:210:20]
+    seeds_left = np.column_stack([xx.ravel(), yy.ravel()]).astype(float)
+    seeds_right = seeds_left - np.column_stack([truth[yy, xx].ravel(), np.zeros(yy.size)])
+    eye = np.eye(3)
+    dio.write_npz(folder / "rectify.npz", "rectification", {
+        "H_left": eye, "H_right": eye, "F": np.array([[0.0, 0, 0], [0, 0, -1], [0, 1, 0]]),
+        "size_left": np.array([220, 150]), "size_right": np.array([220, 150]),
+        "size_rect": np.array([220, 150]), "points_left": seeds_left,
+        "points_right": seeds_right, "points_left_rect": seeds_left,
+        "points_right_rect": seeds_right, "disparity_range": np.array([2.0, 11.0]),
+        "left_name": np.asarray("left"), "right_name": np.asarray("right")})
+    return folder, truth
+
+
+def match(folder: Path, out: Path, *options: str):
+    return CliRunner().invoke(cli, ["-q", "match", str(folder / "left.tif"),
+                                    str(folder / "right.tif"), "--out", str(out),
+                                    "--template", "13", "--levels", "2", "--workers", "1",
+                                    "--no-sift", "--rounds", "1",
+                                    *map(str, options)])
+
+
+@pytest.mark.slow
+def test_tiled_match_agrees_with_untiled(match_pair, tmp_path):
+    folder, truth = match_pair
+    rectify = ("--rectify", folder / "rectify.npz")
+    assert match(folder, tmp_path / "u.tif", *rectify).exit_code == 0
+    result = match(folder, tmp_path / "t.tif", *rectify, "--tile-size", "80",
+                   "--sigma-out", tmp_path / "s.tif")
+    assert result.exit_code == 0, result.output
+    untiled = dio.read_raster(tmp_path / "u.tif").data
+    tiled = dio.read_raster(tmp_path / "t.tif").data
+    both = np.isfinite(untiled) & np.isfinite(tiled)
+    assert both.sum() > 0.8 * np.isfinite(untiled).sum()
+    assert np.abs(tiled[both] - truth[both]).mean() < 0.05
+    assert (np.abs(tiled[both] - untiled[both]) <= 0.1).mean() >= 0.995
+    sigma = dio.read_raster(tmp_path / "s.tif").data
+    assert np.isfinite(sigma[np.isfinite(tiled)]).all()
+    sidecar = dio.read_json(tmp_path / "t.tif.json")
+    assert sidecar["summary"]["tiling"]["tiles"] == 2 * 3
+
+
+def test_tiled_match_needs_rectify(match_pair, tmp_path):
+    result = match(match_pair[0], tmp_path / "t.tif", "--tile-size", "80")
+    assert result.exit_code == 1
+    assert "--tile-size: tiled match needs --rectify RECTIFY_NPZ" in result.output
+    assert list(tmp_path.iterdir()) == []

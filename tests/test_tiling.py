@@ -354,3 +354,43 @@ def test_tiled_match_needs_rectify(match_pair, tmp_path):
     assert result.exit_code == 1
     assert "--tile-size: tiled match needs --rectify RECTIFY_NPZ" in result.output
     assert list(tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------- sgm: per-tile disparity range
+def test_tile_ranges_follow_the_matches_inside_each_tile():
+    from demtool.tiled.sgm import tile_ranges
+
+    plan = tiling.plan_tiles(100, 200, 100, overlap=0)  # two tiles side by side
+    xs, ys = np.meshgrid(np.arange(5.0, 100, 10), np.arange(5.0, 100, 10))
+    left = np.column_stack([xs.ravel(), ys.ravel()])
+    right = left - np.column_stack([10 + 0.1 * xs.ravel(), 0 * ys.ravel()])  # d 10.5 … 19.5
+    ranges = tile_ranges(plan.tiles, left, right, -40, 100)
+    # margin 8 + 25 % of 9 = 10.25 px: floor(10.5 − 10.25) = 0 … ceil(19.5 + 10.25) = 30
+    assert ranges == ((0, 31), (-40, 100))  # the right tile has no match: global range
+    assert tile_ranges(plan.tiles, left[:5], right[:5], -40, 100) == ((-40, 100),) * 2
+
+
+def test_tiled_sgm_with_rectify_searches_each_tiles_range(pair, tmp_path):
+    folder, truth = pair
+    yy, xx = np.mgrid[6:160:12, 6:200:12]
+    points_left = np.column_stack([xx.ravel(), yy.ravel()]).astype(float)
+    points_right = points_left - np.column_stack([truth[yy, xx].ravel(), 0 * yy.ravel()])
+    eye = np.eye(3)
+    dio.write_npz(tmp_path / "rectify.npz", "rectification", {
+        "H_left": eye, "H_right": eye, "F": np.zeros((3, 3)),
+        "size_left": np.array([200, 160]), "size_right": np.array([200, 160]),
+        "size_rect": np.array([200, 160]), "points_left": points_left,
+        "points_right": points_right, "points_left_rect": points_left,
+        "points_right_rect": points_right, "disparity_range": np.array([-30.0, 30.0]),
+        "left_name": np.asarray("left"), "right_name": np.asarray("right")})
+    out = tmp_path / "d.tif"
+    result = CliRunner().invoke(cli, ["-q", "sgm", str(folder / "left.tif"),
+                                      str(folder / "right.tif"), "--out", str(out),
+                                      "--cost", "census", "--rectify",
+                                      str(tmp_path / "rectify.npz"), "--tile-size", "64"])
+    assert result.exit_code == 0, result.output
+    ranges = dio.read_json(f"{out}.json")["summary"]["tile_ranges"]
+    assert len(ranges) == 12 and all(count < 40 for _, count in ranges)  # global: 61
+    columns = np.arange(truth.shape[1])[None, :]
+    rates = error_rates(dio.read_raster(out).data, truth, columns - truth >= 1)
+    assert rates["bad2"] < 0.05 and rates["density"] > 0.9, rates

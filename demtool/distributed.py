@@ -132,12 +132,26 @@ def run_tiles(job: TileJob, tiles: Sequence[Tile], cache: TileCache, *, workers:
     return [{"index": t.index, **cache.info(t)} for t in tiles]
 
 
+def _interrupted(exc: BaseException) -> bool:
+    """True when ``exc`` is, or was caused by, a KeyboardInterrupt (numba wraps it)."""
+    current: BaseException | None = exc
+    for _ in range(100):
+        if current is None:
+            return False
+        if isinstance(current, KeyboardInterrupt):
+            return True
+        current = current.__cause__ or current.__context__
+    return False
+
+
 def _run_here(job: TileJob, todo: Sequence[Tile], cache: TileCache, progress: Progress) -> None:
     finished = progress.done
     for tile in todo:
         try:
             compute_tile(job, tile, cache, 0)
         except Exception as exc:
+            if _interrupted(exc):  # Ctrl-C / SIGTERM wrapped by numba: stop, not "failed"
+                raise
             raise tile_failure(job, tile, exc, cache, finished) from exc
         finished += 1
         progress.advance()

@@ -394,3 +394,33 @@ def test_tiled_sgm_with_rectify_searches_each_tiles_range(pair, tmp_path):
     columns = np.arange(truth.shape[1])[None, :]
     rates = error_rates(dio.read_raster(out).data, truth, columns - truth >= 1)
     assert rates["bad2"] < 0.05 and rates["density"] > 0.9, rates
+
+
+def test_progress_logs_every_tenth_of_the_tiles_in_batch_logs(tmp_path, caplog):
+    import logging
+
+    from demtool.distributed import run_tiles
+
+    plan = tiling.plan_tiles(40, 400, 20, overlap=0)  # 40 tiles
+    logger = logging.getLogger("demtool.test_progress")
+    with caplog.at_level(logging.INFO, logger="demtool.test_progress"):
+        run_tiles(_FailingJob(bad=-1), plan.tiles, tiling.TileCache(tmp_path / "c"),
+                  log=logger)
+    lines = [r.getMessage() for r in caplog.records]
+    assert [line.split(",")[0] for line in lines] == [f"test: {n}/40 tiles"
+                                                      for n in range(4, 41, 4)]
+
+
+def test_an_interrupt_inside_a_tile_is_not_reported_as_a_failed_tile(tmp_path):
+    from demtool.distributed import run_tiles
+
+    class Interrupted(_FailingJob):
+        def compute(self, tile, threads):
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as exc:  # as numba's dispatcher wraps it
+                raise SystemError("wrapped") from exc
+
+    plan = tiling.plan_tiles(20, 20, 20, overlap=0)
+    with pytest.raises(SystemError):
+        run_tiles(Interrupted(), plan.tiles, tiling.TileCache(tmp_path / "c"))

@@ -424,3 +424,17 @@ def test_an_interrupt_inside_a_tile_is_not_reported_as_a_failed_tile(tmp_path):
     plan = tiling.plan_tiles(20, 20, 20, overlap=0)
     with pytest.raises(SystemError):
         run_tiles(Interrupted(), plan.tiles, tiling.TileCache(tmp_path / "c"))
+
+
+def test_an_output_over_an_input_is_refused_before_any_tile(pair, tmp_path):
+    import shutil
+
+    folder, _ = pair
+    for name in ("left.tif", "right.tif"):
+        shutil.copy(folder / name, tmp_path / name)
+    before = (tmp_path / "left.tif").read_bytes()
+    result = sgm(tmp_path, tmp_path / "left.tif", "--tile-size", "64")
+    assert result.exit_code == 1
+    assert "would overwrite the input" in result.output, result.output
+    assert (tmp_path / "left.tif").read_bytes() == before
+    assert not tiling.work_folder(tmp_path / "left.tif").exists()

@@ -96,7 +96,15 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
     from demtool import io as dio
     from demtool.distributed import available_cores, run_tiles
 
+    from demtool.outputs import check_output_paths
+
     main = Path(outputs[0].path)
+    declared_inputs = {label: path for label, paths in run.inputs.items()
+                       for path in paths}
+    declared_outputs = {f"output {i + 1}": o.path for i, o in enumerate(outputs)}
+    declared_outputs["sidecar"] = f"{main}.json"
+    # Before hours of tiles: an output over an input, or one that cannot be written.
+    check_output_paths(declared_inputs, declared_outputs)
     key = cache_key(inputs, parameters, tiling, {"outputs": [o.band for o in outputs]})
     cache = TileCache(work_folder(main) / key)
     run.log.info("%s", tiling.describe())
@@ -123,7 +131,7 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
                              "tile_seconds_sum": round(sum(seconds), 3),
                              "tile_seconds_max": round(max(seconds), 3),
                              "tiles_wall_s": round(wall, 3)}
-        with dio.output_transaction():
+        with dio.output_transaction(declared_inputs, declared_outputs):
             for output in outputs:
                 write_tiled_raster(output.path, tiling, cache, band=output.band,
                                    transform=transform, crs=crs, tags=output.tags,

@@ -29,8 +29,11 @@ from demtool.errors import ProcessingError
 from demtool.tiling import Tile, TileCache, TileJob
 
 CONNECT_TIMEOUT = "20s"  # waiting for a --scheduler that does not answer
+# No dashboard; the scheduler's HTTP routes on a free port (not 8787, which another
+# cluster on the machine may hold).
 LOCAL_CLUSTER_OPTIONS = {"dashboard_address": None, "processes": True,
-                         "threads_per_worker": 1}
+                         "threads_per_worker": 1,
+                         "scheduler_kwargs": {"dashboard_address": ":0"}}
 
 
 def available_cores() -> int:
@@ -45,13 +48,14 @@ def available_cores() -> int:
 
 def compute_tile(job: TileJob, tile: Tile, cache: TileCache, threads: int) -> dict[str, Any]:
     """Compute one tile and store its core in the cache (the task a worker runs)."""
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     values, info = job.compute(tile, threads)
     expected = (len(job.bands), *tile.core_shape)
     if values.shape != expected:  # pragma: no cover - a stage's bug, not the user's
         raise ProcessingError(f"{job.stage}: {tile.describe()} gave shape {values.shape}, "
                               f"expected {expected}")
-    info = {**info, "seconds": round(time.perf_counter() - start, 3)}
+    info = {**info, "seconds": round(time.perf_counter() - start, 3),
+            "cpu_seconds": round(time.process_time() - cpu, 3)}  # of the whole process
     cache.store(tile, values, info)
     return {"index": tile.index, **info}
 
@@ -157,6 +161,28 @@ def _run_here(job: TileJob, todo: Sequence[Tile], cache: TileCache, progress: Pr
         progress.advance()
 
 
+def _start_workers_from_a_forkserver(stack: Any, job: TileJob) -> None:
+    """Local workers forked from one server process that imported the job's modules once.
+
+    Dask spawns each worker process by default, and each imports numpy, rasterio and
+    the stage's kernels again; a ``forkserver`` (a clean process, no threads inherited)
+    imports them once and forks the workers from it.  Not on platforms without it.
+    """
+    import multiprocessing
+
+    import dask
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return
+    stack.enter_context(dask.config.set({"distributed.worker.multiprocessing-method":
+                                         "forkserver"}))
+    from distributed.utils import get_mp_context
+
+    modules = ["distributed", "numpy", "scipy", "rasterio", "numba",
+               type(job).__module__, *getattr(job, "preload", ())]
+    get_mp_context().set_forkserver_preload(modules)
+
+
 def _run_on_client(job: TileJob, todo: Sequence[Tile], cache: TileCache, progress: Progress,
                    *, scheduler: str | None, workers: int) -> None:
     import contextlib
@@ -173,6 +199,7 @@ def _run_on_client(job: TileJob, todo: Sequence[Tile], cache: TileCache, progres
             threads = 0  # the worker's own cores (start workers with --nthreads 1)
         else:
             threads = max(1, available_cores() // workers)
+            _start_workers_from_a_forkserver(stack, job)
             cluster = stack.enter_context(LocalCluster(
                 n_workers=workers, memory_limit=0, **LOCAL_CLUSTER_OPTIONS))
             client = stack.enter_context(Client(cluster))

@@ -257,7 +257,8 @@ def test_scheduler_address_of_a_local_cluster(pair, untiled, tmp_path):
     folder, _ = pair
     out = tmp_path / "d.tif"
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster:
+                      dashboard_address=None,
+                      scheduler_kwargs={"dashboard_address": ":0"}) as cluster:
         result = sgm(folder, out, "--tile-size", "64", "--scheduler", cluster.scheduler_address)
     assert result.exit_code == 0, result.output
     reference = tmp_path / "ref.tif"

@@ -95,7 +95,6 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
     """
     from demtool import io as dio
     from demtool.distributed import available_cores, run_tiles
-
     from demtool.outputs import check_output_paths
 
     main = Path(outputs[0].path)
@@ -130,6 +129,8 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
                              "workers": workers, "scheduler": scheduler,
                              "tile_seconds_sum": round(sum(seconds), 3),
                              "tile_seconds_max": round(max(seconds), 3),
+                             "tile_cpu_seconds_sum": round(sum(float(i.get("cpu_seconds", 0))
+                                                               for i in infos), 3),
                              "tiles_wall_s": round(wall, 3)}
         with dio.output_transaction(declared_inputs, declared_outputs):
             for output in outputs:

@@ -44,6 +44,7 @@ class MatchTileJob:
     options: tuple[tuple[str, Any], ...]  # keywords of demtool.match.match
     stage: str = "match"
     bands: tuple[str, ...] = ("disparity", "correlation", "sigma")
+    preload: tuple[str, ...] = ("demtool.match",)  # imported once by the workers' forkserver
 
     def compute(self, tile: Tile, threads: int) -> tuple[np.ndarray, dict[str, Any]]:
         from demtool.errors import ParameterError, ProcessingError

@@ -31,7 +31,7 @@ from demtool.tiling import Tile, plan_tiles, read_window, wants_tiles
 BASE_MARGIN = 64  # px: SGM path influence (see the module docstring)
 MIN_TILE_MATCHES = 8  # matches a tile needs for its own disparity range
 RANGE_MARGIN = 8  # px added to both ends of a tile's match range (and 25 % of its width)
-PROCESS_BYTES = 300 * 2**20  # a worker process with numpy, numba, rasterio and the kernels
+PROCESS_BYTES = 250 * 2**20  # a worker process with numpy, numba, rasterio and the kernels
 
 
 def default_overlap(params: Any) -> int:
@@ -95,6 +95,7 @@ class SgmTileJob:
     ranges: tuple[tuple[int, int], ...] = ()  # per tile (min, num); empty: the global one
     stage: str = "sgm"
     bands: tuple[str, ...] = ("disparity", "confidence")
+    preload: tuple[str, ...] = ("demtool.sgm",)  # imported once by the workers' forkserver
 
     def compute(self, tile: Tile, threads: int) -> tuple[np.ndarray, dict[str, Any]]:
         from demtool.sgm import sgm
@@ -120,10 +121,10 @@ class SgmTileJob:
                      "range": [low, count]}
 
     def memory_bytes(self, tile: Tile) -> int:
-        """S (uint16) and the cost volume, plus ~24 float32 images, plus the process."""
+        """S (uint16, 2 bytes a cell), ~16 float32 images, and the process (measured)."""
         height, width = tile.outer_shape
         count = self.ranges[tile.index][1] if self.ranges else self.num_disparities
-        return PROCESS_BYTES + height * width * (count * 4 + 96)
+        return PROCESS_BYTES + height * width * (count * 2 + 64)
 
 
 def _summary(infos: list[dict[str, Any]], pixels: int) -> dict[str, Any]:

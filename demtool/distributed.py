@@ -203,11 +203,15 @@ def _run_on_client(job: TileJob, todo: Sequence[Tile], cache: TileCache, progres
             cluster = stack.enter_context(LocalCluster(
                 n_workers=workers, memory_limit=0, **LOCAL_CLUSTER_OPTIONS))
             client = stack.enter_context(Client(cluster))
+        import hashlib
+
+        # Task keys unique to this work folder (so two runs on one scheduler never share).
+        run_id = hashlib.sha256(str(cache.folder.resolve()).encode()).hexdigest()[:12]
         by_key = {}
         futures = []
         for tile in todo:
             future = client.submit(compute_tile, job, tile, cache, threads, pure=False,
-                                   key=f"{job.stage}-tile-{tile.index}-{id(cache)}")
+                                   key=f"{job.stage}-{run_id}-tile-{tile.index}")
             by_key[future.key] = tile
             futures.append(future)
         finished = progress.done

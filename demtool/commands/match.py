@@ -35,6 +35,8 @@ def command(ctx: click.Context, left: str, right: str, out: str, rectify: str | 
     """Options → MatchParams → :func:`demtool.runs.match.run_match`."""
     from demtool.runs.match import run_match
 
-    run_match(left, right, out, MatchParams.from_options(values), rectify=rectify,
-              correlation_out=correlation_out, sigma_out=sigma_out,
-              resolved=options.resolved_params(ctx))
+    result = run_match(left, right, out, MatchParams.from_options(values), rectify=rectify,
+                       correlation_out=correlation_out, sigma_out=sigma_out,
+                       resolved=options.resolved_params(ctx))
+    if getattr(result, "dry_run", None):  # --dry-run: the plan on stdout
+        click.echo(result.dry_run)

@@ -29,5 +29,8 @@ def command(ctx: click.Context, left_rect: str, right_rect: str, out: str, recti
     """Options → SgmParams → :func:`demtool.runs.sgm.run_sgm`."""
     from demtool.runs.sgm import run_sgm
 
-    run_sgm(left_rect, right_rect, out, SgmParams.from_options(values), rectify=rectify,
-            confidence=confidence, resolved=options.resolved_params(ctx))
+    result = run_sgm(left_rect, right_rect, out, SgmParams.from_options(values),
+                     rectify=rectify, confidence=confidence,
+                     resolved=options.resolved_params(ctx))
+    if getattr(result, "dry_run", None):  # --dry-run: the plan on stdout
+        click.echo(result.dry_run)

@@ -10,6 +10,13 @@ from dataclasses import dataclass
 
 from demtool.core_source import core_defaults
 from demtool.parameters import Parameters, parameter, workers_field
+from demtool.tiling import (
+    TILE_FIELDS,
+    dry_run_field,
+    scheduler_field,
+    tile_overlap_field,
+    tile_size_field,
+)
 
 CORE = core_defaults("demtool.match.dense:match")  # from the source: --help loads no numba
 
@@ -45,10 +52,19 @@ class MatchParams(Parameters):
     sift: bool = parameter(CORE["use_sift"], "Detect SIFT seed matches (besides Förstner "
                            "corners and --rectify's).")
     workers: int = workers_field()
+    # Tiles (demtool.tiling; README "Scale"): tiled, --workers is the Dask worker count.
+    tile_size: int = tile_size_field()
+    tile_overlap: int | None = tile_overlap_field(
+        "template x 2^(levels-1) + template; the disparity range of --rectify is added on "
+        "the sides")
+    scheduler: str | None = scheduler_field()
+    dry_run: bool = dry_run_field()
 
     def matcher_options(self) -> dict:
         """Keywords of :func:`demtool.match.match` (besides images, seeds and range)."""
         values = self.as_dict()
         values["use_sift"] = values.pop("sift")
         del values["workers"]
+        for name in TILE_FIELDS:
+            del values[name]
         return values

@@ -87,9 +87,12 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
     outside).  ``rectify.npz`` also supplies seed matches (its rectified inliers) and
     the disparity range.  All outputs are written in one output transaction.
 
+    Large pairs run in tiles (``--tile-size``, ``--workers``, ``--scheduler``,
+    ``--dry-run``; :mod:`demtool.tiled.match`), written window by window.
+
     Returns
     -------
-    demtool.match.MatchResult
+    demtool.match.MatchResult, or demtool.tiled.TiledResult for a tiled run
     """
     import numpy as np
 
@@ -110,6 +113,14 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
 
         numba.set_num_threads(min(int(params.workers), numba.config.NUMBA_NUM_THREADS))
 
+    from demtool import tiling
+
+    shape = tiling.raster_shape(left_path, "left image")
+    if tiling.wants_tiles(*shape, params):  # large pairs: tiles, Dask (README "Scale")
+        from demtool.tiled.match import match_tiled
+
+        return match_tiled(run, left_path, right_path, out, params, shape, rectify=rectify,
+                           correlation_out=correlation_out, sigma_out=sigma_out)
     left, right, left_rect, right_rect, rect, warped = _load_pair(left_path, right_path, rectify)
     check_stereo_pair(left, right, rectify, rectification=rect, rectified=not warped)
     seed_points = None

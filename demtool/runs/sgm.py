@@ -38,13 +38,17 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     rectified image's frame, ``x_right = x_left − d``, NaN = invalid), optionally the
     confidence raster, and the sidecar ``<out>.json``, all in one output transaction.
 
+    Large pairs run in tiles (``--tile-size``, ``--workers``, ``--scheduler``,
+    ``--dry-run``; :mod:`demtool.tiled.sgm`), written window by window.
+
     Returns
     -------
-    demtool.sgm.SGMResult
+    demtool.sgm.SGMResult, or demtool.tiled.TiledResult for a tiled run
     """
     import numpy as np
 
     from demtool import io as dio
+    from demtool import tiling
     from demtool.errors import InputError, ParameterError
     from demtool.sgm import sgm
     from demtool.sgm.params import SgmParams
@@ -59,14 +63,6 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     out_path = Path(out)
     sgm_options = params.matcher_options()
     min_disparity, num_disparities = params.min_disparity, params.num_disparities
-    left = dio.read_raster(left_path, what="left rectified image")
-    right = dio.read_raster(right_path, what="right rectified image")
-    if left.data.shape != right.data.shape:
-        raise InputError(
-            f"{left_path} and {right_path}: the rectified images differ in size "
-            f"({left.data.shape[1]}×{left.data.shape[0]} and {right.data.shape[1]}×"
-            f"{right.data.shape[0]}, width×height); use the pair written by demtool rectify")
-    check_stereo_pair(left, right, rectify)
     source = "--min-disparity/--num-disparities"
     if min_disparity is None or num_disparities is None:
         if rectify is None:
@@ -76,11 +72,32 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
         min_disparity = from_file[0] if min_disparity is None else min_disparity
         num_disparities = from_file[1] if num_disparities is None else num_disparities
         source = f"{rectify} (disparity_range)"
-    width = left.data.shape[1]
+    shape = tiling.raster_shape(left_path, "left rectified image")
+    right_shape = tiling.raster_shape(right_path, "right rectified image")
+    if shape != right_shape:
+        raise InputError(
+            f"{left_path} and {right_path}: the rectified images differ in size "
+            f"({shape[1]}×{shape[0]} and {right_shape[1]}×{right_shape[0]}, width×height); "
+            "use the pair written by demtool rectify")
+    width = shape[1]
     max_disparity = min_disparity + num_disparities - 1
     if num_disparities >= width or max(abs(min_disparity), abs(max_disparity)) >= width:
         raise ParameterError(f"disparity range {min_disparity} … {max_disparity} from {source} "
                              f"is wider than the images ({width} px)")
+    if tiling.wants_tiles(*shape, params):  # large images: tiles, Dask (README "Scale")
+        from demtool.checks import check_rectification_matches
+        from demtool.tiled.sgm import sgm_tiled
+
+        if rectify is not None:  # the images are never read whole here: sizes only
+            check_rectification_matches(dio.read_npz(rectify, "rectification"), rectify,
+                                        {left_path: shape, right_path: shape}, rectified=True)
+
+        return sgm_tiled(run, left_path, right_path, out, params, shape, source=source,
+                         min_disparity=min_disparity, num_disparities=num_disparities,
+                         confidence=confidence, rectify=rectify)
+    left = dio.read_raster(left_path, what="left rectified image")
+    right = dio.read_raster(right_path, what="right rectified image")
+    check_stereo_pair(left, right, rectify)
     log.info("matching %s / %s: %d×%d px, disparities %d … %d, cost %s, %d paths",
              left_path, right_path, width, left.data.shape[0], min_disparity, max_disparity,
              params.cost, params.paths)

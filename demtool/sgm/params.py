@@ -10,6 +10,13 @@ from dataclasses import dataclass
 
 from demtool.core_source import core_constant, core_defaults
 from demtool.parameters import Parameters, parameter, seed_field, workers_field
+from demtool.tiling import (
+    TILE_FIELDS,
+    dry_run_field,
+    scheduler_field,
+    tile_overlap_field,
+    tile_size_field,
+)
 
 # Read from the core's source: `demtool sgm --help` does not load numba.
 SUBPIXEL_MODES = core_constant("demtool.sgm.disparity:SUBPIXEL_MODES")
@@ -72,9 +79,18 @@ class SgmParams(Parameters):
         minimum=64)
     workers: int = workers_field()
     seed: int = seed_field()
+    # Tiles (demtool.tiling; README "Scale"): tiled, --workers is the Dask worker count.
+    tile_size: int = tile_size_field()
+    tile_overlap: int | None = tile_overlap_field(
+        "64 + the cost, census and median windows + the speckle reach; the disparity "
+        "range is added on the sides")
+    scheduler: str | None = scheduler_field()
+    dry_run: bool = dry_run_field()
 
     def matcher_options(self) -> dict:
         """Keywords of :func:`demtool.sgm.sgm` besides the images and the range."""
         values = self.as_dict()
         del values["min_disparity"], values["num_disparities"]
+        for name in TILE_FIELDS:
+            del values[name]
         return values

@@ -1,0 +1,226 @@
+"""Running tile jobs: in this process, on a local Dask cluster, or on a running scheduler.
+
+- One worker (``--workers 0`` or ``1``, no ``--scheduler``): the tiles run one after the
+  other in this process, the compiled kernels using every core; Dask is not imported.
+- ``--workers N`` (N ≥ 2): a ``dask.distributed.LocalCluster`` of N worker *processes*
+  (one task each at a time, so one tile's memory per process), the compiled kernels of a
+  tile using ``cores // N`` threads.
+- ``--scheduler ADDRESS``: the tiles are submitted to a running scheduler (one started in
+  a batch job, or by ``dask-jobqueue``'s ``SLURMCluster``; README, "Scale"); the workers
+  must see the input files and the work folder at the same paths (a shared file system).
+
+Every task computes one tile and saves its core in the :class:`demtool.tiling.TileCache`
+itself, so the results never travel through the scheduler and the calling process holds
+no more than one tile.  Tiles already cached are not submitted.  A tile that raises (or
+whose worker dies) stops the run with the tile's bounds in the message; the tiles that
+finished stay cached.  Progress: tiles done / total on a terminal, a log line every
+``max(1, total // 10)`` tiles otherwise.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from demtool.errors import ProcessingError
+from demtool.tiling import Tile, TileCache, TileJob
+
+CONNECT_TIMEOUT = "20s"  # waiting for a --scheduler that does not answer
+# No dashboard; the scheduler's HTTP routes on a free port (not 8787, which another
+# cluster on the machine may hold).
+LOCAL_CLUSTER_OPTIONS = {"dashboard_address": None, "processes": True,
+                         "threads_per_worker": 1,
+                         "scheduler_kwargs": {"dashboard_address": ":0"}}
+
+
+def available_cores() -> int:
+    """CPU cores this process may use."""
+    import os
+
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def compute_tile(job: TileJob, tile: Tile, cache: TileCache, threads: int) -> dict[str, Any]:
+    """Compute one tile and store its core in the cache (the task a worker runs)."""
+    start, cpu = time.perf_counter(), time.process_time()
+    values, info = job.compute(tile, threads)
+    expected = (len(job.bands), *tile.core_shape)
+    if values.shape != expected:  # pragma: no cover - a stage's bug, not the user's
+        raise ProcessingError(f"{job.stage}: {tile.describe()} gave shape {values.shape}, "
+                              f"expected {expected}")
+    info = {**info, "seconds": round(time.perf_counter() - start, 3),
+            "cpu_seconds": round(time.process_time() - cpu, 3)}  # of the whole process
+    cache.store(tile, values, info)
+    return {"index": tile.index, **info}
+
+
+class Progress:
+    """Tiles done / total: a redrawn line on a terminal, a log line per step in batch."""
+
+    def __init__(self, total: int, done: int, log: logging.Logger, what: str) -> None:
+        self.total, self.done, self.log, self.what = total, done, log, what
+        self.step = max(1, total // 10)
+        self.start = time.perf_counter()
+        self.terminal = sys.stderr.isatty() and log.isEnabledFor(logging.INFO)
+
+    def advance(self) -> None:
+        self.done += 1
+        elapsed = time.perf_counter() - self.start
+        if self.terminal:
+            sys.stderr.write(f"\r{self.what}: {self.done}/{self.total} tiles  {elapsed:6.1f} s")
+            if self.done == self.total:
+                sys.stderr.write("\n")
+            sys.stderr.flush()
+        elif self.done % self.step == 0 or self.done == self.total:
+            self.log.info("%s: %d/%d tiles, %.1f s", self.what, self.done, self.total, elapsed)
+
+
+def tile_failure(job: TileJob, tile: Tile, exc: BaseException, cache: TileCache,
+                 finished: int) -> ProcessingError:
+    """The one-line error of a failed tile (its bounds, the reason, what was kept)."""
+    reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return ProcessingError(
+        f"{job.stage}: {tile.describe()} failed: {reason}; {finished} finished tiles are "
+        f"cached in {cache.folder}, run the same command again to compute only the rest")
+
+
+def run_tiles(job: TileJob, tiles: Sequence[Tile], cache: TileCache, *, workers: int = 0,
+              scheduler: str | None = None, log: logging.Logger | None = None
+              ) -> list[dict[str, Any]]:
+    """Compute every tile not yet in ``cache``; return the info of all of them.
+
+    Parameters
+    ----------
+    job : TileJob
+        The stage's tile computation (picklable, for worker processes).
+    tiles : sequence of Tile
+        The plan (:func:`demtool.tiling.plan_tiles`).
+    cache : TileCache
+        Where each finished tile's core is saved (and found again on a resumed run).
+    workers : int
+        0 or 1: in this process; N ≥ 2: a local cluster of N processes.
+    scheduler : str, optional
+        Address of a running ``dask.distributed`` scheduler (overrides ``workers``).
+    log : logging.Logger, optional
+
+    Returns
+    -------
+    list of dict
+        Per tile, in index order: ``index``, ``seconds`` (compute time; cached tiles
+        keep the time of the run that computed them) and the job's own info.
+
+    Raises
+    ------
+    ProcessingError
+        A tile failed (its bounds and reason; the finished tiles stay cached).
+    """
+    log = log or logging.getLogger("demtool.tiling")
+    todo = [t for t in tiles if not cache.done(t)]
+    if len(todo) < len(tiles):
+        log.info("%d of %d tiles found in %s; computing %d", len(tiles) - len(todo),
+                 len(tiles), cache.folder, len(todo))
+    progress = Progress(len(tiles), len(tiles) - len(todo), log, job.stage)
+    if todo:
+        if scheduler:
+            _run_on_client(job, todo, cache, progress, scheduler=scheduler, workers=0)
+        elif workers >= 2:
+            _run_on_client(job, todo, cache, progress, scheduler=None, workers=workers)
+        else:
+            _run_here(job, todo, cache, progress)
+    return [{"index": t.index, **cache.info(t)} for t in tiles]
+
+
+def _interrupted(exc: BaseException) -> bool:
+    """True when ``exc`` is, or was caused by, a KeyboardInterrupt (numba wraps it)."""
+    current: BaseException | None = exc
+    for _ in range(100):
+        if current is None:
+            return False
+        if isinstance(current, KeyboardInterrupt):
+            return True
+        current = current.__cause__ or current.__context__
+    return False
+
+
+def _run_here(job: TileJob, todo: Sequence[Tile], cache: TileCache, progress: Progress) -> None:
+    finished = progress.done
+    for tile in todo:
+        try:
+            compute_tile(job, tile, cache, 0)
+        except Exception as exc:
+            if _interrupted(exc):  # Ctrl-C / SIGTERM wrapped by numba: stop, not "failed"
+                raise
+            raise tile_failure(job, tile, exc, cache, finished) from exc
+        finished += 1
+        progress.advance()
+
+
+def _start_workers_from_a_forkserver(stack: Any, job: TileJob) -> None:
+    """Local workers forked from one server process that imported the job's modules once.
+
+    Dask spawns each worker process by default, and each imports numpy, rasterio and
+    the stage's kernels again; a ``forkserver`` (a clean process, no threads inherited)
+    imports them once and forks the workers from it.  Not on platforms without it.
+    """
+    import multiprocessing
+
+    import dask
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return
+    stack.enter_context(dask.config.set({"distributed.worker.multiprocessing-method":
+                                         "forkserver"}))
+    from distributed.utils import get_mp_context
+
+    modules = ["distributed", "numpy", "scipy", "rasterio", "numba",
+               type(job).__module__, *getattr(job, "preload", ())]
+    get_mp_context().set_forkserver_preload(modules)
+
+
+def _run_on_client(job: TileJob, todo: Sequence[Tile], cache: TileCache, progress: Progress,
+                   *, scheduler: str | None, workers: int) -> None:
+    import contextlib
+
+    from distributed import Client, LocalCluster, as_completed
+
+    with contextlib.ExitStack() as stack:
+        if scheduler:
+            try:
+                client = stack.enter_context(Client(scheduler, timeout=CONNECT_TIMEOUT))
+            except (OSError, TimeoutError) as exc:
+                raise ProcessingError(f"--scheduler {scheduler}: cannot connect to the Dask "
+                                      f"scheduler ({exc})") from None
+            threads = 0  # the worker's own cores (start workers with --nthreads 1)
+        else:
+            threads = max(1, available_cores() // workers)
+            _start_workers_from_a_forkserver(stack, job)
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=workers, memory_limit=0, **LOCAL_CLUSTER_OPTIONS))
+            client = stack.enter_context(Client(cluster))
+        import hashlib
+
+        # Task keys unique to this work folder (so two runs on one scheduler never share).
+        run_id = hashlib.sha256(str(cache.folder.resolve()).encode()).hexdigest()[:12]
+        by_key = {}
+        futures = []
+        for tile in todo:
+            future = client.submit(compute_tile, job, tile, cache, threads, pure=False,
+                                   key=f"{job.stage}-{run_id}-tile-{tile.index}")
+            by_key[future.key] = tile
+            futures.append(future)
+        finished = progress.done
+        for future in as_completed(futures):
+            tile = by_key[future.key]
+            if future.status != "finished":
+                exc = future.exception()
+                for other in futures:
+                    other.cancel()
+                raise tile_failure(job, tile, exc, cache, finished) from None
+            finished += 1
+            progress.advance()

@@ -57,14 +57,20 @@ class StereoPair(NamedTuple):
         raise KeyError("no mask")
 
 
-def synthetic_pair(quick: bool) -> StereoPair:
-    """The synthetic target/partner pair, rectified, with its truth and disparity range."""
+def synthetic_pair(quick: bool, params=None) -> StereoPair:
+    """The synthetic target/partner pair, rectified, with its truth and disparity range.
+
+    ``params`` (a :class:`demtool.synth.SceneParams`) renders another scene; else the
+    default scene, or a 256² one when ``quick``.
+    """
     from demtool.homography import warp_to_rectified
     from demtool.rectify import rectify_pair
     from demtool.synth import SceneParams, make_scene, truth_disparity
 
-    params = (SceneParams(seed=0, dem_size=256, image_size=256, n_views=2, crater_count=20,
-                          crater_max_diameter_m=50.0) if quick else SceneParams(n_views=2))
+    if params is None:
+        params = (SceneParams(seed=0, dem_size=256, image_size=256, n_views=2,
+                              crater_count=20, crater_max_diameter_m=50.0) if quick
+                  else SceneParams(n_views=2))
     scene = make_scene(params)
     left, right = scene.images[scene.target], scene.images[scene.partner]
     rect = rectify_pair(left, right)

@@ -69,23 +69,9 @@ def synthetic_pair_1024() -> StereoPair:
     As :func:`_stereo_pairs.synthetic_pair`, larger: issue 13 reports `match`'s
     seconds per megapixel on this pair.
     """
-    from demtool.homography import warp_to_rectified
-    from demtool.rectify import rectify_pair
-    from demtool.synth import SceneParams, make_scene, truth_disparity
+    from demtool.synth import SceneParams
 
-    scene = make_scene(SceneParams(n_views=2, image_size=1024, dem_size=1024))
-    left, right = scene.images[scene.target], scene.images[scene.partner]
-    rect = rectify_pair(left, right)
-    size = rect.size_rect
-    left_rect = warp_to_rectified(left, rect.H_left, size)
-    right_rect = warp_to_rectified(right, rect.H_right, size)
-    truth = truth_disparity(scene, rect.H_left, rect.H_right, (int(size[1]), int(size[0])))
-    low, high = rect.disparity_range
-    min_disparity = int(math.floor(low))
-    count = int(math.ceil(high)) - min_disparity + 1
-    visible = truth.visible & np.isfinite(left_rect) & np.isfinite(right_rect)
-    return StereoPair(left_rect, right_rect, truth.disparity, {"visible": visible},
-                      min_disparity, count, (rect.points_left_rect, rect.points_right_rect))
+    return synthetic_pair(False, SceneParams(n_views=2, image_size=1024, dem_size=1024))
 
 
 def scores(disparity: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict[str, float]:

@@ -54,24 +54,24 @@ def _points_route(points_path: str | os.PathLike, *, target: str | None,
     return result, target_name, route, estimated_gsd, {"distance_m": distance_m}
 
 
-def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.PathLike, *,
-                     reference_path: str | os.PathLike | None,
-                     cameras_path: str | os.PathLike | None, target: str | None,
-                     outliers: OutlierOptions, median_px: int,
-                     seed: int) -> tuple[Any, str, str, float, dict[str, Any]]:
-    """SIAM routes: (DemResult, target name, route tag, estimated GSD, extra summary)."""
+def read_disparity(disparity_path: str | os.PathLike, rectify_path: str | os.PathLike,
+                   rectification: dict, size_rect, log) -> Any:
+    """The disparity raster of a rectified pair, checked against its rectification.
+
+    Refuses a disparity that is not on the rectified canvas ``size_rect`` (width,
+    height); masks values far outside the rectification's ``disparity_range`` (logged
+    with their count) and refuses a file where most are (see
+    :func:`demtool.checks.check_disparity_range`).  Returns the ``io.Raster`` with the
+    masked values.
+    """
     import dataclasses
 
-    from demtool import dem as core
     from demtool import io as dio
-    from demtool.camera import cameras_from_arrays
-    from demtool.checks import check_disparity_range, check_magnitude
+    from demtool.checks import check_disparity_range
     from demtool.errors import InputError
-    from demtool.logs import get_logger
 
-    rectification = dio.read_npz(rectify_path, "rectification")
     disparity = dio.read_raster(disparity_path, what="disparity")
-    width_rect, height_rect = (int(v) for v in rectification["size_rect"])
+    width_rect, height_rect = (int(v) for v in size_rect)
     if disparity.data.shape != (height_rect, width_rect):
         raise InputError(f"{disparity_path}: disparity is {disparity.data.shape[1]}×"
                          f"{disparity.data.shape[0]} px but {rectify_path} has a "
@@ -79,9 +79,28 @@ def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.P
     checked = check_disparity_range(disparity.data, rectification["disparity_range"],
                                     disparity_path, source=f"{rectify_path}")
     if checked.outside:
-        get_logger("dem").warning("%s: %d disparities outside %.4g … %.4g px masked",
-                                  disparity_path, checked.outside, checked.low, checked.high)
-    disparity = dataclasses.replace(disparity, data=checked.disparity)
+        log.warning("%s: %d disparities outside %.4g … %.4g px masked", disparity_path,
+                    checked.outside, checked.low, checked.high)
+    return dataclasses.replace(disparity, data=checked.disparity)
+
+
+def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.PathLike, *,
+                     reference_path: str | os.PathLike | None,
+                     cameras_path: str | os.PathLike | None, target: str | None,
+                     outliers: OutlierOptions, median_px: int,
+                     seed: int) -> tuple[Any, str, str, float, dict[str, Any]]:
+    """SIAM routes: (DemResult, target name, route tag, estimated GSD, extra summary)."""
+
+    from demtool import dem as core
+    from demtool import io as dio
+    from demtool.camera import cameras_from_arrays
+    from demtool.checks import check_magnitude
+    from demtool.errors import InputError
+    from demtool.logs import get_logger
+
+    rectification = dio.read_npz(rectify_path, "rectification")
+    disparity = read_disparity(disparity_path, rectify_path, rectification,
+                               rectification["size_rect"], get_logger("dem"))
     left_name = str(rectification["left_name"])
     right_name = str(rectification["right_name"])
     frame = disparity.tags.get("frame", "")

@@ -73,11 +73,11 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
     import numpy as np
 
     from demtool import io as dio
-    from demtool.checks import check_disparity_range
     from demtool.dem.sensors import default_max_ray_gap, dem_on_map, triangulate_sensors
     from demtool.errors import InputError, ProcessingError
     from demtool.maps import body_from_radii
     from demtool.rectify_calibrated import rect_to_pixels, scene_distance
+    from demtool.runs.dem import read_disparity
 
     log, prov = run.log, run.provenance
     left, right = models_from_rectification(rectification, rectify_path)
@@ -85,18 +85,9 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
         raise InputError(f"{rectify_path}: the sensor models have no body (local-frame "
                          "pinholes): a DEM on the body's map needs body-fixed models")
     geometry = geometry_from_rectification(rectification, left, right)
-    disparity = dio.read_raster(disparity_path, what="disparity")
-    width_rect, height_rect = (int(v) for v in geometry.size_rect)
-    if disparity.data.shape != (height_rect, width_rect):
-        raise InputError(f"{disparity_path}: disparity is {disparity.data.shape[1]}×"
-                         f"{disparity.data.shape[0]} px but {rectify_path} has a "
-                         f"{width_rect}×{height_rect} rectified canvas")
-    checked = check_disparity_range(disparity.data, rectification["disparity_range"],
-                                    disparity_path, source=f"{rectify_path}")
-    if checked.outside:
-        log.warning("%s: %d disparities outside %.4g … %.4g px masked", disparity_path,
-                    checked.outside, checked.low, checked.high)
-    d = checked.disparity
+    disparity = read_disparity(disparity_path, rectify_path, rectification,
+                               geometry.size_rect, log)
+    d = disparity.data
     rows, cols = np.nonzero(np.isfinite(d))
     if rows.size < 3:
         raise ProcessingError(f"{disparity_path}: fewer than 3 valid disparities")

@@ -19,7 +19,7 @@ Stages run through the CLI (``python -m demtool``) in subprocesses, as the Makef
 chains them.
 
 Usage: ``.venv/bin/python bench/bundle_priors_dem.py [--size 256] [--image-size 256]
-[--views 8] [--seed 0] [--keep DIR]``
+[--views 8] [--seed 0] [--zero-mean] [--keep DIR]``
 """
 
 from __future__ import annotations
@@ -40,13 +40,18 @@ POSITION_ERROR_M = 50.0
 POINTING_ERROR_MRAD = 0.5
 
 
+class StageFailed(RuntimeError):
+    """A demtool stage exited non-zero; the message is its error line."""
+
+
 def demtool(*args: str) -> float:
     """Run one demtool stage (``python -m demtool -q ...``); its wall time, seconds."""
     start = time.perf_counter()
     done = subprocess.run([sys.executable, "-m", "demtool", "-q", *map(str, args)],
                           capture_output=True, text=True)
     if done.returncode != 0:
-        raise SystemExit(f"demtool {args[0]} failed ({done.returncode}):\n{done.stderr}")
+        lines = [line for line in done.stderr.splitlines() if line.startswith("Error")]
+        raise StageFailed(lines[-1] if lines else done.stderr.strip()[-500:])
     return time.perf_counter() - start
 
 
@@ -55,25 +60,33 @@ def random_unit(rng: np.random.Generator) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def perturb(scene: Path, out: Path, names: list[str], rng: np.random.Generator) -> None:
-    """Write each view's ISD moved by 50 m and turned by 0.5 mrad (random directions)."""
+def perturb(scene: Path, out: Path, names: list[str], rng: np.random.Generator, *,
+            zero_mean: bool = False) -> None:
+    """Write each view's ISD moved by 50 m and turned by 0.5 mrad (random directions;
+    with ``zero_mean`` every second view takes the opposite of the previous one's
+    offsets, so the block's mean error is zero where the number of views is even)."""
     from demtool.bundle.priors import PoseOffset, pivot_of
     from demtool.bundle.writeback import adjust_isd, dumps_isd
     from demtool.sensors import read_sensor
 
     out.mkdir(parents=True, exist_ok=True)
-    for name in names:
+    d_c = d_w = np.zeros(3)
+    for i, name in enumerate(names):
         path = scene / f"{name}.json"
-        offset = PoseOffset(POSITION_ERROR_M * random_unit(rng),
-                            POINTING_ERROR_MRAD * 1e-3 * random_unit(rng),
-                            pivot_of(read_sensor(path)))
+        if zero_mean and i % 2:
+            d_c, d_w = -d_c, -d_w
+        else:
+            d_c = POSITION_ERROR_M * random_unit(rng)
+            d_w = POINTING_ERROR_MRAD * 1e-3 * random_unit(rng)
+        offset = PoseOffset(d_c, d_w, pivot_of(read_sensor(path)))
         isd = json.loads(path.read_text())
         (out / f"{name}.json").write_text(dumps_isd(adjust_isd(isd, offset)))
 
 
 def pose_errors(folder: Path, scene: Path, names: list[str]) -> np.ndarray:
-    """(N, 2): position error (m) and pointing error (mrad) of each model vs the truth;
-    also (2, 3) mean position offset (m) and mean rotation vector (mrad)."""
+    """(N, 2) position error (m) and pointing error (mrad) of each model vs the truth;
+    (2, 3) the block's common error: mean position offset (m, body-fixed) and mean
+    rotation vector (mrad); (N, 2) the errors with that common error removed."""
     from demtool.bundle.priors import rotation_vector
     from demtool.sensors import read_sensor
 
@@ -84,7 +97,10 @@ def pose_errors(folder: Path, scene: Path, names: list[str]) -> np.ndarray:
         d_pos.append(model.position - true.position)
         d_rot.append(rotation_vector(model.rotation @ true.rotation.T) * 1e3)
         errors.append((np.linalg.norm(d_pos[-1]), np.linalg.norm(d_rot[-1])))
-    return np.array(errors), np.array([np.mean(d_pos, axis=0), np.mean(d_rot, axis=0)])
+    common = np.array([np.mean(d_pos, axis=0), np.mean(d_rot, axis=0)])
+    relative = np.stack([np.linalg.norm(np.array(d_pos) - common[0], axis=1),
+                         np.linalg.norm(np.array(d_rot) - common[1], axis=1)], axis=1)
+    return np.array(errors), common, relative
 
 
 def dem_route(scene: Path, isds: Path, work: Path, target: str, partner: str) -> dict:
@@ -105,13 +121,14 @@ def dem_route(scene: Path, isds: Path, work: Path, target: str, partner: str) ->
 
 
 def headline(report: dict) -> dict:
-    """RMSE after alignment, mean shift before alignment, completeness, from report.json."""
-    before = report.get("before_alignment") or report.get("raw") or {}
-    after = report.get("after_alignment") or report.get("aligned") or {}
-    return {"rmse": after.get("rmse", np.nan), "rmse_before": before.get("rmse", np.nan),
-            "mean_before": before.get("mean", np.nan),
-            "completeness": report.get("completeness", np.nan),
-            "shift": report.get("alignment", {}).get("shift", None)}
+    """RMSE after and before alignment, mean difference before alignment, the
+    alignment's shift (metres) and completeness, from compare's report.json."""
+    before = report["before_alignment"]
+    shift = report["shift"]
+    sx, sy = report["grid"]["spacing_m"]
+    return {"rmse": report["rmse"], "rmse_before": before["rmse"],
+            "mean_before": before["mean"], "completeness": report["completeness"],
+            "shift_m": (shift["dx_px"] * sx, shift["dy_px"] * sy, shift["dz"])}
 
 
 def main() -> None:
@@ -120,6 +137,8 @@ def main() -> None:
     parser.add_argument("--image-size", type=int, default=256, help="synth --image-size")
     parser.add_argument("--views", type=int, default=8, help="synth --views")
     parser.add_argument("--seed", type=int, default=0, help="seed of synth and the errors")
+    parser.add_argument("--zero-mean", action="store_true",
+                        help="pairwise opposite errors: the block's mean error is zero")
     parser.add_argument("--keep", type=Path, default=None, help="work folder to keep")
     args = parser.parse_args()
 
@@ -135,7 +154,8 @@ def main() -> None:
         print(f"synth --sensor frame --size {args.size} --image-size {args.image_size} "
               f"--views {len(names)}: {wall:.1f} s")
 
-        perturb(scene, work / "perturbed", names, np.random.default_rng(args.seed + 1))
+        perturb(scene, work / "perturbed", names, np.random.default_rng(args.seed + 1),
+                zero_mean=args.zero_mean)
         wall = demtool("bundle", *[scene / f"{n}.tif" for n in names],
                        *[a for n in names for a in ("--sensors", work / "perturbed" /
                                                     f"{n}.json")],
@@ -147,28 +167,41 @@ def main() -> None:
 
         print("\nPose errors against the true ISDs (target: adjusted within 5 m / 0.05 mrad)")
         print("| models | max position m | mean position m | max pointing mrad "
-              "| mean pointing mrad | common offset m | common rotation mrad |")
-        print("|---|---|---|---|---|---|---|")
+              "| mean pointing mrad | common offset m | common rotation mrad "
+              "| max position m, common removed | max pointing mrad, common removed |")
+        print("|---|---|---|---|---|---|---|---|---|")
         for label in ("perturbed", "adjusted"):
-            errors, common = pose_errors(work / label, scene, names)
+            errors, common, relative = pose_errors(work / label, scene, names)
             print(f"| {label} | {errors[:, 0].max():.2f} | {errors[:, 0].mean():.2f} | "
                   f"{errors[:, 1].max():.4f} | {errors[:, 1].mean():.4f} | "
-                  f"{np.linalg.norm(common[0]):.2f} | {np.linalg.norm(common[1]):.4f} |")
+                  f"{np.linalg.norm(common[0]):.2f} | {np.linalg.norm(common[1]):.4f} | "
+                  f"{relative[:, 0].max():.2f} | {relative[:, 1].max():.4f} |")
         per_image = summary.get("summary", summary).get("images", None)
         if per_image:
-            print("\nbundle report per image:", json.dumps(per_image)[:2000])
+            print("\n| view | observations | mean residual px | position change m "
+                  "| pointing change mrad |")
+            print("|---|---|---|---|---|")
+            for name, row in per_image.items():
+                print(f"| {name} | {row['observations']} | {row['mean_residual_px']:.3f} | "
+                      f"{row['position_change_m']:.2f} | {row['pointing_change_mrad']:.3f} |")
 
         print(f"\nDEM ({target}/{partner}, rectify --sensor-* → sgm → dem → compare vs "
               "truth_dem_map.tif; target: adjusted as accurate as true)")
         print("| ISDs | RMSE m (aligned) | RMSE m (before) | mean diff m (before) "
-              "| completeness % | time s |")
-        print("|---|---|---|---|---|---|")
+              "| alignment shift dx, dy, dz m | completeness % | time s |")
+        print("|---|---|---|---|---|---|---|")
         for label, folder in (("true", scene), ("perturbed", work / "perturbed"),
                               ("adjusted", work / "adjusted")):
-            report = dem_route(scene, folder, work / f"dem_{label}", target, partner)
+            try:
+                report = dem_route(scene, folder, work / f"dem_{label}", target, partner)
+            except StageFailed as exc:
+                print(f"| {label} | — | — | — | — | — | — | {exc}", flush=True)
+                continue
             h = headline(report)
+            dx, dy, dz = h["shift_m"]
             print(f"| {label} | {h['rmse']:.3f} | {h['rmse_before']:.3f} | "
-                  f"{h['mean_before']:.3f} | {h['completeness']} | {report['_wall_s']:.0f} |",
+                  f"{h['mean_before']:.3f} | {dx:.2f}, {dy:.2f}, {dz:.2f} | "
+                  f"{h['completeness']:.1f} | {report['_wall_s']:.0f} |",
                   flush=True)
 
 

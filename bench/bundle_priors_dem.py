@@ -103,6 +103,40 @@ def pose_errors(folder: Path, scene: Path, names: list[str]) -> np.ndarray:
     return np.array(errors), common, relative
 
 
+def datum_shift(folder: Path, scene: Path, names: list[str], target: str
+                ) -> tuple[float, np.ndarray, float, float]:
+    """The block's datum error, which tie points cannot see: the similarity (Umeyama
+    1991) from the true sensor positions to the models' positions.
+
+    Returns the scale − 1 (ppm), the shift (east, north, up; metres) that the
+    similarity gives the ground point below the target camera (what a DEM made with
+    these models is moved by) and the largest position residual after the similarity
+    (metres) and the largest pointing residual after its rotation (mrad)."""
+    from demtool.bundle.align import umeyama
+    from demtool.bundle.priors import rotation_vector
+    from demtool.sensors import read_sensor
+
+    true_models = [read_sensor(scene / f"{n}.json") for n in names]
+    models = [read_sensor(folder / f"{n}.json") for n in names]
+    true = np.array([m.position for m in true_models])
+    model = np.array([m.position for m in models])
+    scale, rotation, translation = umeyama(true, model)
+    isd = json.loads((scene / f"{target}.json").read_text())
+    radius = float(isd["radii"]["semimajor"]) * (1000.0 if isd["radii"].get(
+        "unit", "km").lower() == "km" else 1.0)
+    up = true[names.index(target)] / np.linalg.norm(true[names.index(target)])
+    ground = radius * up
+    east = np.cross([0.0, 0.0, 1.0], up)
+    east /= np.linalg.norm(east)
+    north = np.cross(up, east)
+    moved = scale * rotation @ ground + translation - ground
+    residual = np.linalg.norm(model - (scale * true @ rotation.T + translation), axis=1)
+    turn = max(np.linalg.norm(rotation_vector(m.rotation @ t.rotation.T @ rotation.T))
+               for m, t in zip(models, true_models, strict=True)) * 1e3
+    return (scale - 1.0) * 1e6, np.array([moved @ east, moved @ north, moved @ up]), \
+        float(residual.max()), float(turn)
+
+
 def dem_route(scene: Path, isds: Path, work: Path, target: str, partner: str) -> dict:
     """rectify (calibrated) → sgm → dem → compare; the compare report's headline."""
     work.mkdir(parents=True, exist_ok=True)
@@ -176,6 +210,14 @@ def main() -> None:
                   f"{errors[:, 1].max():.4f} | {errors[:, 1].mean():.4f} | "
                   f"{np.linalg.norm(common[0]):.2f} | {np.linalg.norm(common[1]):.4f} | "
                   f"{relative[:, 0].max():.2f} | {relative[:, 1].max():.4f} |")
+        print("\nDatum (similarity true → model positions; tie points cannot see it)")
+        print("| models | scale − 1 ppm | ground below the target moved E, N, U m "
+              "| max position residual m | max pointing residual mrad |")
+        print("|---|---|---|---|---|")
+        for label in ("perturbed", "adjusted"):
+            ppm, moved, residual, turn = datum_shift(work / label, scene, names, target)
+            print(f"| {label} | {ppm:.0f} | {moved[0]:.2f}, {moved[1]:.2f}, {moved[2]:.2f} | "
+                  f"{residual:.2f} | {turn:.3f} |")
         per_image = summary.get("summary", summary).get("images", None)
         if per_image:
             print("\n| view | observations | mean residual px | position change m "

@@ -183,6 +183,87 @@ def headline(report: dict) -> dict:
             "shift_m": (shift["dx_px"] * sx, shift["dy_px"] * sy, shift["dz"])}
 
 
+def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int = 8,
+               seed: int = 0, zero_mean: bool = False, say=print) -> dict:
+    """Run the whole check in ``work``; print the tables through ``say`` and return
+    ``{"pose": {label: (errors, common, relative)}, "datum": {label: datum_shift(...)},
+    "dem": {label: report.json dict or the error line}}``."""
+    results: dict = {"pose": {}, "datum": {}, "dem": {}}
+    scene = work / "scene"
+    wall = demtool("synth", "--sensor", "frame", "--size", size, "--image-size", image_size,
+                   "--views", views, "--seed", seed, "--out", scene)
+    description = json.loads((scene / "scene.json").read_text())
+    target, partner = description["target"], description["partner"]
+    names = sorted(p.stem for p in scene.glob("view_*.tif"))
+    say(f"synth --sensor frame --size {size} --image-size {image_size} "
+        f"--views {len(names)} --seed {seed}: {wall:.1f} s; errors "
+        + ("pairwise opposite (zero mean)" if zero_mean else "independent"))
+
+    perturb(scene, work / "perturbed", names, np.random.default_rng(seed + 1),
+            zero_mean=zero_mean)
+    wall = demtool("bundle", *[scene / f"{n}.tif" for n in names],
+                   *[a for n in names for a in ("--sensors", work / "perturbed" /
+                                                f"{n}.json")],
+                   "--matcher", "spatial", "--position-sigma", POSITION_ERROR_M,
+                   "--pointing-sigma", POINTING_ERROR_MRAD,
+                   "--adjusted-dir", work / "adjusted", "--out", work / "bundle.npz")
+    summary = json.loads((work / "bundle.npz.json").read_text())
+    say(f"bundle: {wall:.1f} s")
+
+    say("\nPose errors against the true ISDs (target: adjusted within 5 m / 0.05 mrad)")
+    say("| models | max position m | mean position m | max pointing mrad "
+        "| mean pointing mrad | common offset m | common rotation mrad "
+        "| max position m, common removed | max pointing mrad, common removed |")
+    say("|---|---|---|---|---|---|---|---|---|")
+    for label in ("perturbed", "adjusted"):
+        errors, common, relative = results["pose"][label] = pose_errors(work / label, scene,
+                                                                        names)
+        say(f"| {label} | {errors[:, 0].max():.2f} | {errors[:, 0].mean():.2f} | "
+            f"{errors[:, 1].max():.4f} | {errors[:, 1].mean():.4f} | "
+            f"{np.linalg.norm(common[0]):.2f} | {np.linalg.norm(common[1]):.4f} | "
+            f"{relative[:, 0].max():.2f} | {relative[:, 1].max():.4f} |")
+    say("\nDatum (similarity true → model positions; tie points cannot see it)")
+    say("| models | scale − 1 ppm | ground below the target moved E, N, U m "
+        "| max position residual m | max image residual px |")
+    say("|---|---|---|---|---|")
+    for label in ("perturbed", "adjusted"):
+        ppm, moved, residual, pixels = results["datum"][label] = datum_shift(
+            work / label, scene, names, target)
+        say(f"| {label} | {ppm:.0f} | {moved[0]:.2f}, {moved[1]:.2f}, {moved[2]:.2f} | "
+            f"{residual:.2f} | {pixels:.2f} |")
+    per_image = summary.get("summary", summary).get("images", None)
+    if per_image:
+        say("\n| view | observations | mean residual px | position change m "
+            "| pointing change mrad |")
+        say("|---|---|---|---|---|")
+        for name, row in per_image.items():
+            say(f"| {name} | {row['observations']} | {row['mean_residual_px']:.3f} | "
+                f"{row['position_change_m']:.2f} | {row['pointing_change_mrad']:.3f} |")
+
+    say(f"\nDEM ({target}/{partner}, rectify --sensor-* → sgm → dem → compare vs "
+        "truth_dem_map.tif; target: adjusted as accurate as true)")
+    say("| ISDs | RMSE m (Nuth-Kääb) | RMSE m (+ ICP with scale) | RMSE m (before) "
+        "| mean diff m (before) | alignment shift dx, dy, dz m | completeness % "
+        "| time s |")
+    say("|---|---|---|---|---|---|---|---|")
+    for label, folder in (("true", scene), ("perturbed", work / "perturbed"),
+                          ("adjusted", work / "adjusted")):
+        try:
+            report = dem_route(scene, folder, work / f"dem_{label}", target, partner)
+        except StageFailed as exc:
+            results["dem"][label] = str(exc)
+            say(f"| {label} | — | — | — | — | — | — | — | {exc}")
+            continue
+        results["dem"][label] = report
+        h = headline(report)
+        dx, dy, dz = h["shift_m"]
+        say(f"| {label} | {h['rmse']:.3f} | {report['_rmse_similarity']:.3f} | "
+            f"{h['rmse_before']:.3f} | {h['mean_before']:.3f} | "
+            f"{dx:.2f}, {dy:.2f}, {dz:.2f} | {h['completeness']:.1f} | "
+            f"{report['_wall_s']:.0f} |")
+    return results
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=256, help="synth --size (DEM cells)")
@@ -193,78 +274,10 @@ def main() -> None:
                         help="pairwise opposite errors: the block's mean error is zero")
     parser.add_argument("--keep", type=Path, default=None, help="work folder to keep")
     args = parser.parse_args()
-
     with tempfile.TemporaryDirectory() as scratch:
-        work = args.keep or Path(scratch)
-        scene = work / "scene"
-        wall = demtool("synth", "--sensor", "frame", "--size", args.size, "--image-size",
-                       args.image_size, "--views", args.views, "--seed", args.seed,
-                       "--out", scene)
-        description = json.loads((scene / "scene.json").read_text())
-        target, partner = description["target"], description["partner"]
-        names = sorted(p.stem for p in scene.glob("view_*.tif"))
-        print(f"synth --sensor frame --size {args.size} --image-size {args.image_size} "
-              f"--views {len(names)}: {wall:.1f} s")
-
-        perturb(scene, work / "perturbed", names, np.random.default_rng(args.seed + 1),
-                zero_mean=args.zero_mean)
-        wall = demtool("bundle", *[scene / f"{n}.tif" for n in names],
-                       *[a for n in names for a in ("--sensors", work / "perturbed" /
-                                                    f"{n}.json")],
-                       "--matcher", "spatial", "--position-sigma", POSITION_ERROR_M,
-                       "--pointing-sigma", POINTING_ERROR_MRAD,
-                       "--adjusted-dir", work / "adjusted", "--out", work / "bundle.npz")
-        summary = json.loads((work / "bundle.npz.json").read_text())
-        print(f"bundle: {wall:.1f} s")
-
-        print("\nPose errors against the true ISDs (target: adjusted within 5 m / 0.05 mrad)")
-        print("| models | max position m | mean position m | max pointing mrad "
-              "| mean pointing mrad | common offset m | common rotation mrad "
-              "| max position m, common removed | max pointing mrad, common removed |")
-        print("|---|---|---|---|---|---|---|---|---|")
-        for label in ("perturbed", "adjusted"):
-            errors, common, relative = pose_errors(work / label, scene, names)
-            print(f"| {label} | {errors[:, 0].max():.2f} | {errors[:, 0].mean():.2f} | "
-                  f"{errors[:, 1].max():.4f} | {errors[:, 1].mean():.4f} | "
-                  f"{np.linalg.norm(common[0]):.2f} | {np.linalg.norm(common[1]):.4f} | "
-                  f"{relative[:, 0].max():.2f} | {relative[:, 1].max():.4f} |")
-        print("\nDatum (similarity true → model positions; tie points cannot see it)")
-        print("| models | scale − 1 ppm | ground below the target moved E, N, U m "
-              "| max position residual m | max image residual px |")
-        print("|---|---|---|---|---|")
-        for label in ("perturbed", "adjusted"):
-            ppm, moved, residual, turn = datum_shift(work / label, scene, names, target)
-            print(f"| {label} | {ppm:.0f} | {moved[0]:.2f}, {moved[1]:.2f}, {moved[2]:.2f} | "
-                  f"{residual:.2f} | {turn:.2f} |")
-        per_image = summary.get("summary", summary).get("images", None)
-        if per_image:
-            print("\n| view | observations | mean residual px | position change m "
-                  "| pointing change mrad |")
-            print("|---|---|---|---|---|")
-            for name, row in per_image.items():
-                print(f"| {name} | {row['observations']} | {row['mean_residual_px']:.3f} | "
-                      f"{row['position_change_m']:.2f} | {row['pointing_change_mrad']:.3f} |")
-
-        print(f"\nDEM ({target}/{partner}, rectify --sensor-* → sgm → dem → compare vs "
-              "truth_dem_map.tif; target: adjusted as accurate as true)")
-        print("| ISDs | RMSE m (Nuth-Kääb) | RMSE m (+ ICP with scale) | RMSE m (before) "
-              "| mean diff m (before) | alignment shift dx, dy, dz m | completeness % "
-              "| time s |")
-        print("|---|---|---|---|---|---|---|---|")
-        for label, folder in (("true", scene), ("perturbed", work / "perturbed"),
-                              ("adjusted", work / "adjusted")):
-            try:
-                report = dem_route(scene, folder, work / f"dem_{label}", target, partner)
-            except StageFailed as exc:
-                print(f"| {label} | — | — | — | — | — | — | — | {exc}", flush=True)
-                continue
-            h = headline(report)
-            dx, dy, dz = h["shift_m"]
-            print(f"| {label} | {h['rmse']:.3f} | {report['_rmse_similarity']:.3f} | "
-                  f"{h['rmse_before']:.3f} | "
-                  f"{h['mean_before']:.3f} | {dx:.2f}, {dy:.2f}, {dz:.2f} | "
-                  f"{h['completeness']:.1f} | {report['_wall_s']:.0f} |",
-                  flush=True)
+        experiment(args.keep or Path(scratch), size=args.size, image_size=args.image_size,
+                   views=args.views, seed=args.seed, zero_mean=args.zero_mean,
+                   say=lambda text: print(text, flush=True))
 
 
 if __name__ == "__main__":

@@ -48,6 +48,7 @@ __all__ = [
     "ortho_grid",
     "resample_tile",
     "sensor_body",
+    "tile_misses_image",
     "tile_windows",
 ]
 
@@ -261,6 +262,37 @@ def _interpolate_lattice(node_line, node_sample, levels, heights, step, out_line
                                    + ti * ((1 - tj) * c + tj * d))
             out_line[i, j] = acc_l
             out_sample[i, j] = acc_s
+
+
+def tile_misses_image(sensor: Any, crs: Any, transform: Any,
+                      window: tuple[int, int, int, int], low: float, high: float, *,
+                      per_edge: int = 8, margin: float = 4.0) -> bool:
+    """True when a map tile certainly shows nothing of the image.
+
+    The tile's outline (``per_edge`` cells per edge, at the lowest and highest surface
+    heights) is projected into the image; when every outline point converges and lies
+    beyond one and the same image edge (by more than ``margin`` pixels), the tile misses
+    the image (the map → image function of a tile does not fold).  Saves the costly
+    non-converging searches of the cells far off a narrow image.
+    """
+    r0, r1, c0, c1 = window
+    t = np.linspace(0.0, 1.0, per_edge)
+    rows = np.concatenate([r0 + t * (r1 - r0), np.full_like(t, r1), r0 + t * (r1 - r0),
+                           np.full_like(t, r0)])
+    cols = np.concatenate([np.full_like(t, c0), c0 + t * (c1 - c0), np.full_like(t, c1),
+                           c0 + t * (c1 - c0)])
+    x = transform.a * cols + transform.b * rows + transform.c
+    y = transform.d * cols + transform.e * rows + transform.f
+    lines, samples = [], []
+    for level in {float(low), float(high)}:
+        line, sample = _exact(sensor, crs, x, y, np.full(x.shape, level))
+        lines.append(line)
+        samples.append(sample)
+    line, sample = np.concatenate(lines), np.concatenate(samples)
+    if not (np.isfinite(line).all() and np.isfinite(sample).all()):
+        return False
+    return bool((line < -margin).all() or (line > sensor.lines + margin).all()
+                or (sample < -margin).all() or (sample > sensor.samples + margin).all())
 
 
 def _exact(sensor, crs, x, y, heights):

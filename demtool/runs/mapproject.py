@@ -52,9 +52,10 @@ class DemSurface(NamedTuple):
         from demtool import io as dio
         from demtool.mapproject import bilinear_heights
 
-        inverse = ~self.info.transform
-        col, row = inverse * (np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
-        col, row = np.asarray(col) - 0.5, np.asarray(row) - 0.5
+        inv = ~self.info.transform
+        x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        col = inv.a * x + inv.b * y + inv.c - 0.5
+        row = inv.d * x + inv.e * y + inv.f - 0.5
         good = np.isfinite(col) & np.isfinite(row)
         out = np.full(np.shape(col), np.nan)
         if not good.any():
@@ -129,7 +130,7 @@ def _grid(sensor, body, surface: DemSurface | None, params, log):
             box = grid_from_lonlat(body, lon, lat, abs(info.transform.a),
                                    crs=to_pyproj_crs(info.crs))
             inverse = ~info.transform
-            (ca, ra), (cb, rb) = inverse * (box.transform.c, box.transform.f), inverse * (
+            (ca, ra), (cb, rb) = inverse @ (box.transform.c, box.transform.f), inverse @ (
                 box.transform.c + box.width * box.transform.a,
                 box.transform.f + box.height * box.transform.e)
             c0, c1 = max(math.floor(min(ca, cb)) - 1, 0), min(math.ceil(max(ca, cb)) + 1,
@@ -140,7 +141,7 @@ def _grid(sensor, body, surface: DemSurface | None, params, log):
                 raise InputError(f"{info.path}: DEM does not cover the image's footprint")
             from affine import Affine
 
-            transform = info.transform * Affine.translation(c0, r0)
+            transform = info.transform @ Affine.translation(c0, r0)
             log.info("grid: the DEM's lattice over the image's footprint")
             return MapGrid(crs=to_pyproj_crs(info.crs), transform=transform, width=c1 - c0,
                            height=r1 - r0)
@@ -180,6 +181,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
         image_window,
         resample_tile,
         sensor_body,
+        tile_misses_image,
         tile_windows,
     )
     from demtool.mapproject_params import MapprojectParams
@@ -221,7 +223,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     windows = tile_windows(grid.shape, params.tile_size)
     steps: dict[int, int] = {}
     worst = 0.0
-    valid = 0
+    valid = skipped = 0
     started = time.perf_counter()
     outputs = [out_path] + ([angles_out] if angles_out is not None else [])
     with dio.output_transaction(), contextlib.ExitStack() as stack:
@@ -243,6 +245,15 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
                 heights = surface.heights_xy(x, y)
             else:
                 heights = surface.heights_lonlat(*map_to_lonlat(grid.crs, x, y))
+            finite = heights[np.isfinite(heights)]
+            if not finite.size or tile_misses_image(sensor, grid.crs, grid.transform, window,
+                                                    finite.min(), finite.max()):
+                skipped += 1
+                nan = np.full(x.shape, np.nan, dtype=np.float32)
+                ortho.write(nan, r0, c0)
+                if angle_writer is not None:
+                    angle_writer.write(np.stack([nan] * 3), r0, c0)
+                continue
             coords = image_coordinates(sensor, grid.crs, grid.transform, window, heights,
                                        step=params.step, tolerance=params.tolerance,
                                        seed=params.seed)
@@ -269,7 +280,8 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
             "transform": list(grid.transform)[:6],
             "surface": surface_tags[SURFACE_TAG],
             "valid_fraction": round(valid / cells, 6) if cells else 0.0,
-            "tiles": len(windows), "lattice_steps": {str(k): v for k, v in sorted(steps.items())},
+            "tiles": len(windows), "tiles_off_image": skipped,
+            "lattice_steps": {str(k): v for k, v in sorted(steps.items())},
             "max_interpolation_error_px": round(worst, 6),
             "cells_per_second": round(cells / elapsed) if elapsed > 0 else None,
         }

@@ -429,9 +429,12 @@ class RasterBlockWriter:
 def raster_writer(path: str | os.PathLike, *, height: int, width: int, count: int = 1,
                   transform=None, crs=None, tags: Mapping[str, Any] | None = None,
                   band_names: list[str] | None = None):
-    """Write a float32 GeoTIFF (NaN nodata, tiled, deflate) block by block, atomically.
+    """Write a float32 GeoTIFF (NaN nodata, tiled, ZSTD) block by block, atomically.
 
     The file is created filled with NaN; the block yields a :class:`RasterBlockWriter`.
+    Compression is ZSTD level 1 with the floating-point predictor (4x faster than
+    :func:`write_raster`'s deflate at the same size on image data; GDAL >= 2.3 reads it),
+    since the rasters written this way are the large ones.
     As :func:`write_raster`, the file appears (inside :func:`output_transaction`: at the
     end of the transaction) only when the block succeeds.
     """
@@ -443,7 +446,7 @@ def raster_writer(path: str | os.PathLike, *, height: int, width: int, count: in
         "driver": "GTiff", "dtype": "float32", "nodata": float("nan"), "count": count,
         "height": height, "width": width,
         "transform": transform if transform is not None else image_frame_transform(1.0),
-        "crs": crs, "compress": "deflate", "predictor": 3, "tiled": True,
+        "crs": crs, "compress": "zstd", "zstd_level": 1, "predictor": 3, "tiled": True,
         "blockxsize": 256, "blockysize": 256,
     }
     if width * height * count * 4 > 3.5e9:

@@ -342,31 +342,41 @@ def image_coordinates(sensor: Any, crs: Any, transform: Any,
         return ImageCoordinates(nan, nan.copy(), max(step, 1), 0.0)
     lo, hi = float(heights[finite].min()), float(heights[finite].max())
     rng = np.random.default_rng(seed)
-    check_r, check_c = np.nonzero(finite)
-    if len(check_r) > check_cells:
-        pick = rng.choice(len(check_r), check_cells, replace=False)
-        check_r, check_c = check_r[pick], check_c[pick]
+    draw = rng.integers(0, h * w, 4 * check_cells)
+    draw = np.unique(draw[finite.ravel()[draw]])[:check_cells]
+    check_r, check_c = np.divmod(draw, w)
     tx = transform
     check_x = tx.a * (c0 + check_c + 0.5) + tx.b * (r0 + check_r + 0.5) + tx.c
     check_y = tx.d * (c0 + check_c + 0.5) + tx.e * (r0 + check_r + 0.5) + tx.f
-    exact_line, exact_sample = _exact(sensor, crs, check_x, check_y, heights[check_r, check_c])
+    check_h = heights[check_r, check_c]
+    if hi - lo < 1e-3:
+        levels = np.array([lo])
+    elif hi - lo < 50.0:
+        levels = np.array([lo, hi])
+    else:
+        levels = np.array([lo, 0.5 * (lo + hi), hi])
     step = max(int(step), 1)
+    exact_line = exact_sample = None
     while step >= 2 and min(h, w) > 1:
-        if hi - lo < 1e-3:
-            levels = np.array([lo])
-        elif hi - lo < 50.0:
-            levels = np.array([lo, hi])
-        else:
-            levels = np.array([lo, 0.5 * (lo + hi), hi])
-        n_r = int(math.ceil((h - 1) / step)) + 1
-        n_c = int(math.ceil((w - 1) / step)) + 1
-        node_x, node_y = _cell_xy(transform, r0 + step * np.arange(max(n_r, 2)),
-                                  c0 + step * np.arange(max(n_c, 2)))
-        node_line = np.empty((len(levels),) + node_x.shape)
-        node_sample = np.empty_like(node_line)
-        for k, level in enumerate(levels):
-            node_line[k], node_sample[k] = _exact(sensor, crs, node_x, node_y,
-                                                  np.full(node_x.shape, level))
+        n_r = max(int(math.ceil((h - 1) / step)) + 1, 2)
+        n_c = max(int(math.ceil((w - 1) / step)) + 1, 2)
+        node_x, node_y = _cell_xy(transform, r0 + step * np.arange(n_r),
+                                  c0 + step * np.arange(n_c))
+        # one projection call for every level's nodes (and, first, the check cells)
+        xs = [np.tile(node_x.ravel(), len(levels))]
+        ys = [np.tile(node_y.ravel(), len(levels))]
+        hs = [np.repeat(levels, node_x.size)]
+        if exact_line is None:
+            xs.append(check_x)
+            ys.append(check_y)
+            hs.append(check_h)
+        line_all, sample_all = _exact(sensor, crs, np.concatenate(xs), np.concatenate(ys),
+                                      np.concatenate(hs))
+        n_nodes = len(levels) * node_x.size
+        if exact_line is None:
+            exact_line, exact_sample = line_all[n_nodes:], sample_all[n_nodes:]
+        node_line = line_all[:n_nodes].reshape((len(levels),) + node_x.shape)
+        node_sample = sample_all[:n_nodes].reshape((len(levels),) + node_x.shape)
         line = np.empty((h, w))
         sample = np.empty((h, w))
         _interpolate_lattice(node_line, node_sample, levels, heights, float(step), line,
@@ -442,22 +452,66 @@ def bicubic_sample(image: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.nd
     return out.reshape(row.shape).astype(np.float32)
 
 
+@njit(cache=True)
+def _on_image_bounds(line, sample, lines, samples):
+    lo_r = np.inf
+    hi_r = -np.inf
+    lo_c = np.inf
+    hi_c = -np.inf
+    for p in range(line.size):
+        ln = line.flat[p]
+        sm = sample.flat[p]
+        if ln >= 0 and ln <= lines and sm >= 0 and sm <= samples:
+            lo_r = min(lo_r, ln)
+            hi_r = max(hi_r, ln)
+            lo_c = min(lo_c, sm)
+            hi_c = max(hi_c, sm)
+    return lo_r, hi_r, lo_c, hi_c
+
+
 def image_window(line: np.ndarray, sample: np.ndarray, lines: int, samples: int,
                  margin: int = 2) -> tuple[int, int, int, int] | None:
     """Image rows/columns ``(row0, row1, col0, col1)`` a tile's bicubic samples touch.
 
     ``None`` when no coordinate falls on the image.
     """
-    on = (np.isfinite(line) & (line >= 0) & (line <= lines) & (sample >= 0)
-          & (sample <= samples))
-    if not on.any():
+    lo_r, hi_r, lo_c, hi_c = _on_image_bounds(np.ascontiguousarray(line, dtype=np.float64),
+                                              np.ascontiguousarray(sample, dtype=np.float64),
+                                              float(lines), float(samples))
+    if not np.isfinite(lo_r):
         return None
-    rows = line[on] - 0.5
-    cols = sample[on] - 0.5
-    return (max(int(math.floor(rows.min())) - margin, 0),
-            min(int(math.floor(rows.max())) + margin + 1, lines),
-            max(int(math.floor(cols.min())) - margin, 0),
-            min(int(math.floor(cols.max())) + margin + 1, samples))
+    return (max(int(math.floor(lo_r - 0.5)) - margin, 0),
+            min(int(math.floor(hi_r - 0.5)) + margin + 1, lines),
+            max(int(math.floor(lo_c - 0.5)) - margin, 0),
+            min(int(math.floor(hi_c - 0.5)) + margin + 1, samples))
+
+
+@njit(cache=True, parallel=True)
+def _bicubic_csm(image, row0, col0, line, sample, lines, samples, out):
+    """:func:`_bicubic` at CSM coordinates of a window starting at (row0, col0); NaN off
+    the full image [0, lines] × [0, samples]."""
+    h, w = image.shape
+    for p in prange(line.shape[0]):
+        ln = line[p]
+        sm = sample[p]
+        if not (ln >= 0 and ln <= lines and sm >= 0 and sm <= samples):
+            out[p] = np.nan
+            continue
+        r = ln - 0.5 - row0
+        c = sm - 0.5 - col0
+        ri = int(math.floor(r))
+        ci = int(math.floor(c))
+        fr = r - ri
+        fc = c - ci
+        acc = 0.0
+        for a in range(-1, 3):
+            wr = _keys(fr - a)
+            rr = min(max(ri + a, 0), h - 1)
+            for b in range(-1, 3):
+                wc = _keys(fc - b)
+                cc = min(max(ci + b, 0), w - 1)
+                acc += wr * wc * image[rr, cc]
+        out[p] = acc
 
 
 def resample_tile(image: np.ndarray, offset: tuple[int, int], line: np.ndarray,
@@ -479,11 +533,13 @@ def resample_tile(image: np.ndarray, offset: tuple[int, int], line: np.ndarray,
     -------
     S float32, NaN where not seen.
     """
-    on = (np.isfinite(line) & (line >= 0) & (line <= lines) & (sample >= 0)
-          & (sample <= samples))
-    row = np.where(on, line - 0.5 - offset[0], np.nan)
-    col = np.where(on, sample - 0.5 - offset[1], np.nan)
-    return bicubic_sample(image, row, col)
+    line = np.asarray(line, dtype=np.float64)
+    out = np.empty(line.size, dtype=np.float64)
+    _bicubic_csm(np.ascontiguousarray(image, dtype=np.float32), float(offset[0]),
+                 float(offset[1]), np.ascontiguousarray(line).ravel(),
+                 np.ascontiguousarray(sample, dtype=np.float64).ravel(), float(lines),
+                 float(samples), out)
+    return out.reshape(line.shape).astype(np.float32)
 
 
 def illumination_angles(sensor: Any, xyz: np.ndarray, line: np.ndarray

@@ -293,3 +293,44 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
              "%.2g px, %.1f s", grid.width, grid.height, 100 * summary["valid_fraction"],
              summary["lattice_steps"], worst, elapsed)
     return summary
+
+
+def orthoimage_on_grid(image_path: str | os.PathLike, sensor, dem) -> np.ndarray:
+    """An image map-projected (in memory) onto a DEM's grid at the DEM's heights.
+
+    Parameters
+    ----------
+    image_path : path-like
+        The raw image (read in windows).
+    sensor : SensorModel
+        Its model; the image must have the model's size.
+    dem : demtool.io.Raster
+        Heights above the body's reference sphere on a projected map grid.
+
+    Returns
+    -------
+    (H, W) float32 on the DEM's grid, NaN where not seen.
+    """
+    from demtool import io as dio
+    from demtool.errors import InputError
+    from demtool.mapproject import image_coordinates, image_window, resample_tile, tile_windows
+    from demtool.mapproject_params import MapprojectParams
+
+    info = dio.raster_info(image_path, what="image")
+    if (info.height, info.width) != sensor.image_size:
+        raise InputError(f"{image_path}: image is {info.width} x {info.height} pixels but its "
+                         f"sensor model describes {sensor.samples} x {sensor.lines}")
+    defaults = MapprojectParams()
+    out = np.full(dem.data.shape, np.nan, dtype=np.float32)
+    for window in tile_windows(dem.data.shape, defaults.tile_size):
+        r0, r1, c0, c1 = window
+        coords = image_coordinates(sensor, dem.crs, dem.transform, window,
+                                   dem.data[r0:r1, c0:c1], step=defaults.step,
+                                   tolerance=defaults.tolerance)
+        span = image_window(coords.line, coords.sample, sensor.lines, sensor.samples)
+        if span is None:
+            continue
+        pixels = dio.read_window(image_path, span, what="image")
+        out[r0:r1, c0:c1] = resample_tile(pixels, (span[0], span[2]), coords.line,
+                                          coords.sample, sensor.lines, sensor.samples)
+    return out

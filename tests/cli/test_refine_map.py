@@ -157,3 +157,32 @@ def test_refuses_sensor_with_image_frame_dem(map_scene, tmp_path):
     out = tmp_path / "r.tif"
     assert_refused(invoke(map_scene["ortho"], dem, "--out", out, "--sensor",
                           map_scene["isd"]), out, str(dem), "body's map")
+
+
+@pytest.mark.slow
+def test_refine_raw_image_with_sensor(map_scene, tmp_path):
+    """The raw line-scan image (the shaded map sampled where each pixel's ray meets the
+    relief) with --sensor is map-projected onto the DEM inside refine."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    from demtool.maps import lonlat_to_map
+    from tests.helpers.linescan import render
+
+    grid, sensor = map_scene["grid"], map_scene["sensor"]
+    x, y = grid.cell_centers()
+    shade = RegularGridInterpolator((y[::-1, 0], x[0]), map_scene["image"][::-1],
+                                    bounds_error=False, fill_value=np.nan)
+
+    def pattern(lon, lat):
+        mx, my = lonlat_to_map(grid.crs, lon, lat)
+        return shade(np.stack([my, mx], axis=-1))
+
+    raw = tmp_path / "raw.tif"
+    dio.write_raster(raw, render(sensor, relief, pattern))
+    out = tmp_path / "refined_raw.tif"
+    result = invoke(raw, map_scene["dem"], "--out", out, "--median", 0, "--sensor",
+                    map_scene["isd"])
+    assert result.exit_code == 0, result.output
+    refined = dio.read_raster(out).data
+    before = rmse(map_scene["coarse"], map_scene["truth"])
+    assert rmse(refined, map_scene["truth"]) < 0.6 * before

@@ -582,6 +582,32 @@ def illumination_angles(sensor: Any, xyz: np.ndarray, line: np.ndarray
     return out[0], out[1], out[2]
 
 
+@njit(cache=True, parallel=True)
+def _bilinear(dem, row, col, out):
+    h, w = dem.shape
+    for p in prange(row.shape[0]):
+        r = row[p]
+        c = col[p]
+        if not (r >= -0.5 and r <= h - 0.5 and c >= -0.5 and c <= w - 0.5):
+            out[p] = np.nan
+            continue
+        r = min(max(r, 0.0), h - 1.0)
+        c = min(max(c, 0.0), w - 1.0)
+        r0 = min(int(r), max(h - 2, 0))
+        c0 = min(int(c), max(w - 2, 0))
+        r1 = min(r0 + 1, h - 1)
+        c1 = min(c0 + 1, w - 1)
+        tr = r - r0
+        tc = c - c0
+        # a NaN neighbour of weight 0 does not count
+        top = dem[r0, c0] if tc == 0.0 else dem[r0, c0] * (1 - tc) + dem[r0, c1] * tc
+        if tr == 0.0:
+            out[p] = top
+            continue
+        bottom = dem[r1, c0] if tc == 0.0 else dem[r1, c0] * (1 - tc) + dem[r1, c1] * tc
+        out[p] = top * (1 - tr) + bottom * tr
+
+
 def bilinear_heights(dem: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
     """NaN-propagating bilinear interpolation of a DEM at fractional array positions.
 
@@ -595,20 +621,9 @@ def bilinear_heights(dem: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.nd
     -------
     S float64
     """
-    dem = np.asarray(dem, dtype=np.float64)
-    h, w = dem.shape
     row = np.asarray(row, dtype=np.float64)
-    col = np.asarray(col, dtype=np.float64)
-    inside = (row >= -0.5) & (row <= h - 0.5) & (col >= -0.5) & (col <= w - 0.5)
-    r = np.clip(np.where(inside, row, 0.0), 0.0, h - 1.0)
-    c = np.clip(np.where(inside, col, 0.0), 0.0, w - 1.0)
-    r0 = np.minimum(np.floor(r).astype(np.int64), max(h - 2, 0))
-    c0 = np.minimum(np.floor(c).astype(np.int64), max(w - 2, 0))
-    r1 = np.minimum(r0 + 1, h - 1)
-    c1 = np.minimum(c0 + 1, w - 1)
-    tr, tc = r - r0, c - c0
-    with np.errstate(invalid="ignore"):  # a NaN neighbour of weight 0 does not count
-        top = np.where(tc > 0, dem[r0, c0] * (1 - tc) + dem[r0, c1] * tc, dem[r0, c0])
-        bottom = np.where(tc > 0, dem[r1, c0] * (1 - tc) + dem[r1, c1] * tc, dem[r1, c0])
-        out = np.where(tr > 0, top * (1 - tr) + bottom * tr, top)
-    return np.where(inside, out, np.nan)
+    col = np.broadcast_to(np.asarray(col, dtype=np.float64), row.shape)
+    out = np.empty(row.size)
+    _bilinear(np.ascontiguousarray(dem, dtype=np.float64), np.ascontiguousarray(row).ravel(),
+              np.ascontiguousarray(col).ravel(), out)
+    return out.reshape(row.shape)

@@ -105,6 +105,32 @@ $(WORK)/dem_match.tif: $(STEREO)/disparity_match.tif $(STEREO)/rectify.npz
 $(WORK)/dem_refined.tif: $(WORK)/dem_siam.tif
 	$(DT) refine $(SCENE)/$(TARGET).tif $< --out $@
 
+# Calibrated frame stereo on the body's map (issue 11): synth --sensor frame (CSM frame
+# cameras on the Moon, ISD JSON beside each view) → rectify with the sensor models → sgm →
+# dem triangulated through the models → compare with truth_dem_map.tif
+FRAME_SCENE := $(WORK)/scene_frame
+FRAME_STEREO := $(WORK)/stereo_frame
+PRODUCTS += dem_frame
+
+$(FRAME_SCENE)/scene.json: | $(VENV)/.installed
+	$(DT) synth --sensor frame --out $(FRAME_SCENE) $(SYNTH_ARGS)
+
+$(FRAME_STEREO)/rectify.npz: $(FRAME_SCENE)/scene.json
+	$(DT) rectify $(FRAME_SCENE)/$(TARGET).tif $(FRAME_SCENE)/$(PARTNER).tif \
+	  --sensor-left $(FRAME_SCENE)/$(TARGET).json \
+	  --sensor-right $(FRAME_SCENE)/$(PARTNER).json --out $(FRAME_STEREO)
+
+$(FRAME_STEREO)/disparity_sgm.tif: $(FRAME_STEREO)/rectify.npz
+	$(DT) sgm $(FRAME_STEREO)/left_rect.tif $(FRAME_STEREO)/right_rect.tif --rectify $< --out $@
+
+$(WORK)/dem_frame.tif: $(FRAME_STEREO)/disparity_sgm.tif $(FRAME_STEREO)/rectify.npz
+	$(DT) dem --disparity $< --rectify $(FRAME_STEREO)/rectify.npz \
+	  --error-out $(WORK)/dem_frame_error.tif --out $@
+
+$(WORK)/reports/dem_frame/report.json: $(WORK)/dem_frame.tif
+	$(DT) compare $< $(FRAME_SCENE)/truth_dem_map.tif --out $(WORK)/reports/dem_frame \
+	  --label dem_frame
+
 # Comparison of every product with the synthetic truth
 $(WORK)/reports/%/report.json: $(WORK)/%.tif
 	$(DT) compare $< $(TRUTH) --out $(WORK)/reports/$* --label $*

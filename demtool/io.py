@@ -46,7 +46,8 @@ from demtool.outputs import (  # noqa: F401
 )
 
 # 2: cameras/bundle files may carry an optional 'distortion' array (see NPZ_SCHEMAS).
-NPZ_FORMAT_VERSION = 2
+# 3: rectification files may be calibrated (NPZ_OPTIONAL_SCHEMAS: the two sensor models).
+NPZ_FORMAT_VERSION = 3
 
 # --------------------------------------------------------------------------------------
 # Input checks
@@ -521,6 +522,23 @@ NPZ_SCHEMAS: dict[str, dict[str, tuple[tuple, str]]] = {
     },
 }
 
+# Keys a kind may carry (format 3), checked when present; a calibrated rectification
+# (``calibrated`` true, from ``rectify --sensor-left/--sensor-right``) must have them all,
+# and its two sensor models under ``sensor_left_*`` / ``sensor_right_*``
+# (demtool.sensor_arrays, read back by demtool.runs.dem).
+NPZ_OPTIONAL_SCHEMAS: dict[str, dict[str, tuple[tuple, str]]] = {
+    "rectification": {
+        "calibrated": ((), "b"),
+        "R_rect": ((3, 3), "f"),  # body-fixed -> rectified camera frame (rows x, y, z)
+        "K_left_rect": ((3, 3), "f"),  # rectified intrinsics, pixels
+        "K_right_rect": ((3, 3), "f"),
+        "pointing_correction": ((3, 3), "f"),  # applied to the right model, body frame
+        "pointing_correction_mrad": ((3,), "f"),  # rotation vector, rectified frame
+        "sensor_left_type": ((), "U"),
+        "sensor_right_type": ((), "U"),
+    },
+}
+
 
 def _check_array(path: Path, kind: str, key: str, value: np.ndarray, pattern: tuple,
                  dtype_kind: str, sizes: dict[str, int]) -> None:
@@ -553,6 +571,14 @@ def validate_npz(path: Path, kind: str, arrays: Mapping[str, np.ndarray]) -> Non
         if key not in arrays:
             raise InputError(f"{path}: {kind} file lacks the key '{key}'")
         _check_array(path, kind, key, np.asarray(arrays[key]), pattern, dtype_kind, sizes)
+    optional = NPZ_OPTIONAL_SCHEMAS.get(kind, {})
+    if kind == "rectification" and "calibrated" in arrays and bool(arrays["calibrated"]):
+        for key in optional:
+            if key not in arrays:
+                raise InputError(f"{path}: calibrated {kind} file lacks the key '{key}'")
+    for key, (pattern, dtype_kind) in optional.items():
+        if key in arrays:
+            _check_array(path, kind, key, np.asarray(arrays[key]), pattern, dtype_kind, sizes)
 
 
 def write_npz(path: str | os.PathLike, kind: str, arrays: Mapping[str, Any]) -> Path:

@@ -10,8 +10,10 @@ from dataclasses import dataclass
 
 from demtool.parameters import Parameters, core_defaults, parameter, seed_field
 from demtool.rectify import rectify_pair
+from demtool.rectify_calibrated import rectify_sensors
 
 CORE = core_defaults(rectify_pair)
+CALIBRATED = core_defaults(rectify_sensors)
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,12 @@ class RectifyParams(Parameters):
     contrast_threshold: float = parameter(
         CORE["contrast_threshold"], "SIFT contrast threshold (lower: more keypoints).",
         minimum=0.0, min_open=True)
+    systematic_residual: float = parameter(
+        CALIBRATED["systematic_px"], "With sensor models: RMS vertical residual of the SIFT "
+        "matches (px) above which the right camera's pointing is corrected.", minimum=0.0)
+    max_pointing_correction: float = parameter(
+        CALIBRATED["max_pointing_mrad"], "With sensor models: largest pointing correction "
+        "accepted, mrad (more: the SPICE is off, run bundle).", minimum=0.0, min_open=True)
     seed: int = seed_field()
 
     def check(self) -> None:

@@ -20,5 +20,6 @@ STAGES: dict[str, str] = {
     "refine": "Shape-from-shading refinement of a coarse DEM (lunar-Lambert).",
     "mapproject": "Resample an image onto the body's map through its sensor model (cam2map).",
     "compare": "Measure a DEM against a reference: co-registration, statistics, plots.",
+    "camera": "What sensor models see: footprint, GSD, sun and view angles, pair B/H, overlap.",
 }
 

@@ -20,6 +20,7 @@ STAGE_PARAMETERS = {
     "refine": ("demtool.refine.params", "RefineParams"),
     "mapproject": ("demtool.mapproject_params", "MapprojectParams"),
     "compare": ("demtool.compare.params", "CompareParams"),
+    "camera": ("demtool.camera_params", "CameraParams"),
 }
 
 

@@ -21,6 +21,10 @@ From a disparity map (SIAM route):
 --cameras cameras.npz) --out dem.tif` maps disparities back through the inverse
 rectification and either fits a robust 3-D projective transformation to the
 reference DEM (on the target grid) or triangulates with the known cameras.
+With a calibrated rectify.npz (`rectify --sensor-left/--sensor-right`), neither is
+given: every valid disparity is triangulated through the two sensor models in the
+body-fixed frame and OUT is a DEM on the body's map (heights above the reference
+sphere, the body's IAU CRS, --projection, --gsd, --max-ray-gap, --error-out).
 
 Both routes remove outliers with a local median test, resample onto the target
 image's pixel grid, fill the gaps with D'Errico's spring-metaphor interpolation and
@@ -43,11 +47,14 @@ as distance / focal length), heights in metres positive toward the camera.
 @options.parameter_options(DemParams)
 @options.path_option("--interpolated-mask", "Also write a raster: 1 where interpolated, 0 "
                      "where measured.")
+@options.path_option("--error-out", "Sensor-model route: also write the triangulation "
+                     "error (median ray gap per cell, metres).")
 @options.out_file("Output DEM GeoTIFF.")
 @click.pass_context
 def command(ctx: click.Context, points: str | None, disparity: str | None,
             rectify: str | None, reference: str | None, cameras: str | None,
-            scene: str | None, interpolated_mask: str | None, out: str,
+            scene: str | None, interpolated_mask: str | None, error_out: str | None,
+            out: str,
             **values: Any) -> None:
     """Check the form (points or disparity), call :func:`demtool.runs.dem.run_dem`."""
     from demtool.runs.dem import run_dem
@@ -58,11 +65,11 @@ def command(ctx: click.Context, points: str | None, disparity: str | None,
         if rectify is None:
             raise click.BadParameter("--disparity needs --rectify", param_hint="--rectify")
         options.exclusive({"--reference": reference is not None,
-                           "--cameras": cameras is not None}, exactly_one=True)
-    elif rectify or reference or cameras:
-        raise click.BadParameter("--rectify, --reference and --cameras belong to the "
+                           "--cameras": cameras is not None})
+    elif rectify or reference or cameras or error_out:
+        raise click.BadParameter("--rectify, --reference, --cameras and --error-out belong to the "
                                  "--disparity form", param_hint="--points")
     run_dem(out, DemParams.from_options(values), points_path=points, disparity_path=disparity,
             rectify_path=rectify, reference_path=reference, cameras_path=cameras,
-            scene_path=scene, mask_path=interpolated_mask,
+            scene_path=scene, mask_path=interpolated_mask, error_path=error_out,
             resolved=options.resolved_params(ctx))

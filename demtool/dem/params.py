@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from demtool.dem.routes import OutlierOptions
+from demtool.maps.projections import PROJECTIONS
 from demtool.parameters import Parameters, core_default, parameter, seed_field
 
 
@@ -32,6 +33,12 @@ class DemParams(Parameters):
                                          "removal).", minimum=0.0)
     mask_band: bool = parameter(False, "Write the interpolation mask as a second band of OUT.",
                                 flag="--mask-band")
+    projection: str = parameter("auto", "Map projection of a DEM triangulated through sensor "
+                                "models (auto: polar stereographic poleward of 70 degrees).",
+                                choices=PROJECTIONS, what="projection")
+    max_ray_gap: float | None = parameter(
+        None, "Sensor models: drop points whose rays miss each other by more, metres "
+        "(default: median gap + max(4 NMAD, 2 GSD)).", minimum=0.0, min_open=True)
     seed: int = seed_field()
 
     def outliers(self) -> OutlierOptions:

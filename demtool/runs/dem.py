@@ -120,12 +120,16 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
             points_path: PathLike = None, disparity_path: PathLike = None,
             rectify_path: PathLike = None, reference_path: PathLike = None,
             cameras_path: PathLike = None, scene_path: PathLike = None,
-            mask_path: PathLike = None, resolved: dict | None = None) -> dict:
+            mask_path: PathLike = None, error_path: PathLike = None,
+            resolved: dict | None = None) -> dict:
     """Run the dem stage: read the inputs, build the DEM, write it with its sidecar.
 
     Give ``points_path`` (BAM route) or ``disparity_path`` with ``rectify_path`` and
-    one of ``reference_path`` (projective fit) or ``cameras_path`` (triangulation).
-    ``mask_path`` also writes the interpolation mask.  Returns the sidecar summary.
+    one of ``reference_path`` (projective fit) or ``cameras_path`` (triangulation), or
+    neither with a calibrated ``rectify_path`` (sensor models: a DEM on the body's map,
+    :func:`demtool.runs.dem_sensors.run_dem_sensors`; ``error_path`` writes its
+    triangulation-error raster).  ``mask_path`` also writes the interpolation mask.
+    Returns the sidecar summary.
     """
     import numpy as np
 
@@ -137,10 +141,29 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
                    inputs={"--points": points_path, "--disparity": disparity_path,
                            "--rectify": rectify_path, "--reference": reference_path,
                            "--cameras": cameras_path, "--scene": scene_path},
-                   outputs={"--out": out, "--interpolated-mask": mask_path})
+                   outputs={"--out": out, "--interpolated-mask": mask_path,
+                            "--error-out": error_path})
     log, prov = run.log, run.provenance
     for path in run.input_paths():
         dio.require_file(path, "input file")
+    if disparity_path is not None:
+        from demtool.errors import ParameterError
+        from demtool.runs.dem_sensors import is_calibrated, run_dem_sensors
+
+        rectification = dio.read_npz(rectify_path, "rectification")
+        if is_calibrated(rectification):
+            if reference_path is not None or cameras_path is not None:
+                raise ParameterError(f"{rectify_path} is calibrated (it carries the sensor "
+                                     "models): drop --reference/--cameras")
+            return run_dem_sensors(run, params, out, disparity_path=disparity_path,
+                                   rectify_path=rectify_path, rectification=rectification,
+                                   mask_path=mask_path, error_path=error_path)
+        if reference_path is None and cameras_path is None:
+            raise ParameterError(f"{rectify_path} is not calibrated: give --reference or "
+                                 "--cameras (or rectify with --sensor-left/--sensor-right)")
+        if error_path is not None:
+            raise ParameterError("--error-out belongs to the sensor-model route (a calibrated "
+                                 "rectify.npz)")
     scene = read_scene_description(scene_path) if scene_path is not None else {}
     outliers = params.outliers()
     target, median_px, mask_band = params.target, params.median, params.mask_band

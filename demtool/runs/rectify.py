@@ -37,19 +37,31 @@ def _refuse_map_projected(left, right) -> None:
                      "triangulate with `dem --mapprojected`")
 
 
+CALIBRATED_ONLY = ("systematic_residual", "max_pointing_correction")
+
+
 def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
                 out_dir: str | os.PathLike, params: RectifyParams | None = None, *,
+                sensor_left: str | os.PathLike | None = None,
+                sensor_right: str | os.PathLike | None = None,
                 resolved: dict[str, Any] | None = None):
     """Rectify LEFT and RIGHT into ``out_dir``: left_rect.tif, right_rect.tif, rectify.npz.
 
-    Reads both images, calls :func:`demtool.rectify.rectify_pair`, warps the images onto
-    the common rectified canvas and writes everything (plus the sidecar
+    Reads both images, calls :func:`demtool.rectify.rectify_pair` (or, given both sensor
+    models, :func:`demtool.runs.rectify_sensors.rectify_with_sensors`), warps the images
+    onto the common rectified canvas and writes everything (plus the sidecar
     ``rectify.npz.json``) in one output transaction.
 
     Returns
     -------
-    demtool.rectify.Rectification
+    demtool.rectify.Rectification, or the calibrated result
     """
+    if sensor_left is not None or sensor_right is not None:
+        from demtool.runs.rectify_sensors import rectify_with_sensors
+
+        return rectify_with_sensors(left_path, right_path, out_dir, params,
+                                    sensor_left=sensor_left, sensor_right=sensor_right,
+                                    resolved=resolved)
     import numpy as np
 
     from demtool import io as dio
@@ -70,7 +82,8 @@ def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
         log.info("%s: the images differ in size (%d x %d and %d x %d); that is fine", pair,
                  left_image.data.shape[1], left_image.data.shape[0],
                  right_image.data.shape[1], right_image.data.shape[0])
-    result = rectify_pair(left_image.data, right_image.data, **params.as_dict(), what=pair)
+    core_params = {k: v for k, v in params.as_dict().items() if k not in CALIBRATED_ONLY}
+    result = rectify_pair(left_image.data, right_image.data, **core_params, what=pair)
     left_rect = warp_to_rectified(left_image.data, result.H_left, result.size_rect)
     right_rect = warp_to_rectified(right_image.data, result.H_right, result.size_rect)
     residuals = result.vertical_residuals

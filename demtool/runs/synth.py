@@ -27,7 +27,15 @@ def write_scene(scene: Scene, out: str | os.PathLike, prov: Provenance) -> list[
 
     from demtool import io
     from demtool.camera import cameras_to_arrays
-    from demtool.synth.views import to_grid_frame, view_angles, view_summaries
+    from demtool.sensors.isd import write_isd
+    from demtool.synth import render
+    from demtool.synth.maptruth import truth_map
+    from demtool.synth.views import (
+        sensor_view_summaries,
+        to_grid_frame,
+        view_angles,
+        view_summaries,
+    )
 
     folder = Path(out)
     params = scene.params.as_dict()
@@ -35,18 +43,25 @@ def write_scene(scene: Scene, out: str | os.PathLike, prov: Provenance) -> list[
     written: list[Path] = []
     with io.output_transaction():
         for name in scene.names:
-            camera = scene.cameras[name]
-            view_vector = camera.center / np.linalg.norm(camera.center)
-            tags = prov.tags(
-                frame=f"image:{name}", view_name=name, scene_target=scene.target,
-                scene_partner=scene.partner, sun_vector=sun.tolist(),
-                sun_vector_grid=to_grid_frame(camera, sun),
-                view_vector_grid=to_grid_frame(camera, view_vector),
-                up_vector_grid=to_grid_frame(camera, [0.0, 0.0, 1.0]),
-                camera=camera.as_dict(), units="DN", bit_depth=scene.params.bit_depth,
-                **view_angles(camera, sun))
+            tags = {"frame": f"image:{name}", "view_name": name, "scene_target": scene.target,
+                    "scene_partner": scene.partner, "sun_vector": sun.tolist()}
+            if name in scene.cameras:
+                camera = scene.cameras[name]
+                view_vector = camera.center / np.linalg.norm(camera.center)
+                tags.update(sun_vector_grid=to_grid_frame(camera, sun),
+                            view_vector_grid=to_grid_frame(camera, view_vector),
+                            up_vector_grid=to_grid_frame(camera, [0.0, 0.0, 1.0]),
+                            camera=camera.as_dict())
+            if name in scene.sensors:
+                tags.update(sensor_model=f"{name}.json", sensor_kind=scene.sensor)
+            tags.update(units="DN", bit_depth=scene.params.bit_depth)
+            if name in scene.cameras:
+                tags.update(view_angles(scene.cameras[name], sun))
             written.append(io.write_raster(folder / f"{name}.tif", scene.images[name],
-                                           transform=io.image_frame_transform(1.0), tags=tags))
+                                           transform=io.image_frame_transform(1.0),
+                                           tags=prov.tags(**tags)))
+            if name in scene.sensors:
+                written.append(write_isd(folder / f"{name}.json", scene.sensors[name]))
         written.append(io.write_raster(
             folder / "truth_dem.tif", scene.dem, transform=scene.dem_transform,
             tags=prov.tags(frame="map:local", units="m",
@@ -59,9 +74,10 @@ def write_scene(scene: Scene, out: str | os.PathLike, prov: Provenance) -> list[
             transform=io.image_frame_transform(scene.gsd_m),
             tags=prov.tags(frame=f"image:{scene.target}", units="m",
                            content="truth heights above the mean surface, target pixels")))
-        arrays = cameras_to_arrays(scene.names, [scene.cameras[n] for n in scene.names])
-        arrays.update(target=np.asarray(scene.target), partner=np.asarray(scene.partner))
-        written.append(io.write_npz(folder / "cameras.npz", "cameras", arrays))
+        if scene.cameras:
+            arrays = cameras_to_arrays(scene.names, [scene.cameras[n] for n in scene.names])
+            arrays.update(target=np.asarray(scene.target), partner=np.asarray(scene.partner))
+            written.append(io.write_npz(folder / "cameras.npz", "cameras", arrays))
         description = {
             "target": scene.target, "partner": scene.partner, "names": list(scene.names),
             "distance_m": scene.distance_m, "gsd_m": scene.gsd_m,
@@ -71,10 +87,31 @@ def write_scene(scene: Scene, out: str | os.PathLike, prov: Provenance) -> list[
             "dem_transform": list(scene.dem_transform)[:6],
             "dn_per_reflectance": scene.dn_per_reflectance,
             "reflectance_model": "lunar-lambert",
-            "parameters": params, "views": view_summaries(scene),
+            "parameters": params,
+            "views": view_summaries(scene) if scene.cameras else sensor_view_summaries(scene),
             "render_time_s": round(scene.render_time_s, 3),
             "timings_s": {k: round(v, 3) for k, v in scene.timings.items()},
         }
+        if scene.sensors:
+            truth = truth_map(render.height_field(scene.dem.astype(np.float64),
+                                                  scene.dem_transform),
+                              scene.placement, [scene.sensors[scene.target],
+                                                scene.sensors[scene.partner]], scene.gsd_m)
+            written.append(io.write_raster(
+                folder / "truth_dem_map.tif", truth.heights, transform=truth.grid.transform,
+                crs=truth.grid.crs,
+                tags=prov.tags(units="m", **scene.placement.body.tags(),
+                               content="truth heights above the reference sphere over the "
+                                       f"common footprint of {scene.target} and "
+                                       f"{scene.partner}")))
+            description.update(
+                sensor=scene.sensor, body=scene.placement.tags(),
+                sensor_models={n: f"{n}.json" for n in scene.names},
+                sun_position_body_m=scene.placement.sun_position(sun).tolist(),
+                truth_dem_map={"file": "truth_dem_map.tif", "crs": truth.grid.crs.to_wkt(),
+                               "shape": list(truth.grid.shape), "gsd_m": scene.gsd_m})
+        else:
+            description["sensor"] = "pinhole"
         written.append(io.write_json(folder / "scene.json", description))
         summary = {"views": len(scene.names), "image_size": scene.params.image_size,
                    "dem_size": scene.params.dem_size,

@@ -35,7 +35,13 @@ from typing import Any
 import numpy as np
 
 from demtool.errors import InputError
-from demtool.sensors.base import Detector, matrix_to_quaternion, quaternion_to_matrix, slerp
+from demtool.sensors.base import (
+    Detector,
+    lagrange_interp,
+    matrix_to_quaternion,
+    quaternion_to_matrix,
+    slerp,
+)
 from demtool.sensors.distortion import Distortion
 from demtool.sensors.frame import FrameSensor
 from demtool.sensors.linescan import LineScanSensor
@@ -326,3 +332,172 @@ def read_isd(path: str | Path):
     if not isinstance(isd, Mapping):
         raise InputError(f"{p}: ISD is not a JSON object")
     return sensor_from_isd(isd, str(p))
+
+
+# ---------------------------------------------------------------------------------------
+# Writer: a model → the ISD ALE would write for it (J2000 taken as the body frame)
+# ---------------------------------------------------------------------------------------
+
+#: Quaternion of the identity rotation, ALE's scalar-first order.
+_IDENTITY_QUATERNION = [1.0, 0.0, 0.0, 0.0]
+
+
+def _ale_quaternions(sensor_to_body: np.ndarray) -> list:
+    """ALE ``instrument_pointing`` quaternions (scalar-first, J2000 → sensor) of
+    sensor-to-body rotations (..., 3, 3), with the body frame taken as J2000."""
+    q = matrix_to_quaternion(np.swapaxes(np.asarray(sensor_to_body).reshape(-1, 3, 3), -1, -2))
+    return q[:, [3, 0, 1, 2]].tolist()
+
+
+def _distortion_block(distortion: Distortion) -> dict:
+    """ALE's ``optical_distortion`` block of a :class:`Distortion` (the inverse of the
+    reader's :func:`_distortion`; an ideal lens is ALE's zero ``radial``)."""
+    model, c = distortion.model, [float(v) for v in distortion.coefficients]
+    if model == "none":
+        return {"radial": {"coefficients": [0.0, 0.0, 0.0]}}
+    if model == "transverse":
+        return {model: {"x": c[:10], "y": c[10:]}}
+    if model == "kaguyalism":
+        return {model: {"boresight_x": c[0], "x": c[1:5], "boresight_y": c[5], "y": c[6:10]}}
+    if model == "lunarorbiter":
+        return {model: {"perspective_x": c[0], "perspective_y": c[1], "center_point_x": c[2],
+                        "center_point_y": c[3], "coefficients": c[4:6]}}
+    if model == "cahvor":
+        return {model: {"coefficients": c[:3], "x": c[3], "y": c[4]}}
+    return {model: {"coefficients": c}}
+
+
+def _common_keys(model, detector: Detector, distortion: Distortion, focal: float) -> dict:
+    a, b = model.radii
+    return {
+        "image_identifier": model.name or "synthetic",
+        "name_platform": "DEMTOOL_SYNTH", "name_sensor": model.kind.upper(),
+        "image_lines": int(model.lines), "image_samples": int(model.samples),
+        "radii": {"semimajor": a / 1000.0, "semiminor": b / 1000.0, "unit": "km"},
+        "focal_length_model": {"focal_length": focal},
+        "focal2pixel_samples": [float(v) for v in detector.itrans_sample],
+        "focal2pixel_lines": [float(v) for v in detector.itrans_line],
+        "detector_center": {"line": float(detector.center_line),
+                            "sample": float(detector.center_sample)},
+        "starting_detector_line": float(detector.start_line),
+        "starting_detector_sample": float(detector.start_sample),
+        "detector_line_summing": float(detector.line_summing),
+        "detector_sample_summing": float(detector.sample_summing),
+        "optical_distortion": _distortion_block(distortion),
+    }
+
+
+def _states_block(times, positions, velocities=None) -> dict:
+    """An ALE ``States`` block in km (positions (n, 3) metres, velocities m/s)."""
+    block = {"ephemeris_times": [float(t) for t in np.atleast_1d(times)],
+             "positions": (np.asarray(positions).reshape(-1, 3) / 1000.0).tolist(),
+             "reference_frame": 1, "unit": "km"}
+    if velocities is not None:
+        block["velocities"] = (np.asarray(velocities).reshape(-1, 3) / 1000.0).tolist()
+    return block
+
+
+def _rotations_block(times, quaternions) -> dict:
+    return {"ephemeris_times": [float(t) for t in np.atleast_1d(times)],
+            "quaternions": quaternions, "time_dependent_frames": [1],
+            "constant_frames": [1], "constant_rotation": np.eye(3).ravel().tolist(),
+            "reference_frame": 1}
+
+
+def isd_from_sensor(model) -> dict:
+    """The ALE image support data (ISD) of a frame or line-scan model, as a dict.
+
+    The model's body-fixed frame is written as J2000 (``body_rotation`` is the
+    identity at every time), the positions in km, quaternions scalar-first (ALE's
+    order), so :func:`sensor_from_isd` rebuilds the same geometry and usgscsm reads the
+    file as any ALE ISD.
+
+    - :class:`FrameSensor`: one position, one attitude and one sun position at
+      ``model.time`` (a ``z_direction`` of −1 is folded into the attitude: the frame
+      ``(−x, −y, z)`` of the focal plane gives the same rays with usgscsm's +z look).
+    - :class:`LineScanSensor`: positions on ``max(n, 25)`` equally spaced nodes over
+      the model's ephemeris span (usgscsm's minimum, so reading does not resample;
+      a model with fewer nodes is sampled by its own Lagrange interpolation), with
+      velocities when the model has them on those nodes; the sun on the same nodes
+      (or the one sun position and its velocity); attitude on the model's quaternion
+      nodes; ``line_scan_rate`` as given.
+
+    Parameters
+    ----------
+    model : FrameSensor or LineScanSensor
+        Its ``radii`` must be set (a body-fixed model).
+
+    Returns
+    -------
+    dict
+        JSON-serialisable ISD with ``name_model`` ``USGS_ASTRO_FRAME_SENSOR_MODEL`` or
+        ``USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL``.
+
+    Raises
+    ------
+    ValueError
+        Another kind of model, or a model without radii.
+    """
+    if getattr(model, "radii", None) is None:
+        raise ValueError("isd_from_sensor: the model has no body radii (a local-frame model)")
+    if isinstance(model, FrameSensor):
+        rotation = model.rotation
+        if model.z_direction < 0:
+            rotation = rotation @ np.diag([-1.0, -1.0, 1.0])
+        t = float(model.time)
+        isd = _common_keys(model, model.detector, model.distortion, model.focal_length)
+        isd.update({
+            "name_model": FRAME_MODEL, "center_ephemeris_time": t,
+            "starting_ephemeris_time": t,
+            "instrument_position": _states_block([t], model.position, np.zeros(3)),
+            "sun_position": _states_block([t], model.sun, np.zeros(3)),
+            "instrument_pointing": _rotations_block([t], _ale_quaternions(rotation)),
+            "body_rotation": _rotations_block([t], [_IDENTITY_QUATERNION]),
+        })
+        return isd
+    if not isinstance(model, LineScanSensor):
+        raise ValueError(f"isd_from_sensor: cannot write a {type(model).__name__} as an ISD "
+                         "(frame and line-scan models only)")
+    centre = model.center_time
+    n_pos = len(model.positions)
+    if n_pos >= MIN_EPHEMERIS_NODES or n_pos == 1:
+        rel = model.t0_ephem + model.dt_ephem * np.arange(n_pos)
+        positions, velocities = model.positions, model.velocities
+        if velocities is not None and len(velocities) != n_pos:
+            velocities = None
+    else:
+        span = model.dt_ephem * (n_pos - 1)
+        rel = model.t0_ephem + span * np.arange(MIN_EPHEMERIS_NODES) / (MIN_EPHEMERIS_NODES - 1)
+        positions, velocities = model.position_at(rel), None
+    n_sun = len(model.sun_positions)
+    if n_sun > 1:
+        dt_sun = model.dt_ephem * n_pos / n_sun
+        sun = _states_block(centre + rel, lagrange_interp(model.sun_positions, model.t0_ephem,
+                                                          dt_sun, rel, 8))
+    else:
+        sun_velocity = (np.zeros(3) if model.sun_velocities is None
+                        or not len(model.sun_velocities) else model.sun_velocities[0])
+        sun = _states_block([centre], model.sun_positions[0], sun_velocity)
+    quat_rel = model.t0_quat + model.dt_quat * np.arange(len(model.quaternions))
+    rotations = quaternion_to_matrix(model.quaternions)
+    quat_times = centre + quat_rel
+    isd = _common_keys(model, model.detector, model.distortion, model.focal_length)
+    isd.update({
+        "name_model": LINESCAN_MODEL, "center_ephemeris_time": centre,
+        "starting_ephemeris_time": centre + float(model.line_time(0.5)),
+        "line_scan_rate": np.column_stack([model.int_lines, model.int_start_times,
+                                           model.int_times]).tolist(),
+        "instrument_position": _states_block(centre + rel, positions, velocities),
+        "sun_position": sun,
+        "instrument_pointing": _rotations_block(quat_times, _ale_quaternions(rotations)),
+        "body_rotation": _rotations_block(quat_times,
+                                          [_IDENTITY_QUATERNION] * len(quat_times)),
+    })
+    return isd
+
+
+def write_isd(path: str | Path, model) -> Path:
+    """Write :func:`isd_from_sensor` of ``model`` as JSON, atomically; returns the path."""
+    from demtool import io
+
+    return io.write_json(path, isd_from_sensor(model))

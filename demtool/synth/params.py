@@ -12,6 +12,8 @@ from demtool.parameters import Parameters, parameter, seed_field
 
 #: Camera layouts of :class:`SceneParams` (``layout``).
 LAYOUTS = ("stereo", "ring", "strip")
+#: Sensor models of :class:`SceneParams` (``sensor``).
+SENSORS = ("pinhole", "frame", "linescan")
 
 
 @dataclass(frozen=True)
@@ -34,6 +36,12 @@ class SceneParams(Parameters):
         mean surface; target ground sampling distance ``gsd_m`` (focal length
         altitude/gsd in pixels); partner B/H ``partner_bh``; other views from
         ``bh_min`` to ``bh_max``.
+    Sensor models and body
+        ``sensor``: ``pinhole`` (local-frame pinholes, ``cameras.npz``), ``frame``
+        (the same views as CSM frame cameras on the body, an ISD each) or ``linescan``
+        (two pushbroom cameras, off-nadir roll pair of ``convergence_deg``, ground
+        speed ``ground_speed_m_s``); the scene sits on ``body``'s reference sphere at
+        (``center_lon_deg``, ``center_lat_deg``).
     Illumination and sensor
         Sun at incidence ``sun_incidence_deg`` (from the zenith) and azimuth
         ``sun_azimuth_deg`` (clockwise from north); ``exposure_dn`` is the expected
@@ -98,6 +106,25 @@ class SceneParams(Parameters):
                                     cli=False)
     cy_offset_px: float = parameter(0.0, "Principal point offset from the image centre, y, px.",
                                     cli=False)
+    sensor: str = parameter("pinhole", "Sensor model of the views: local pinholes (pinhole), "
+                            "CSM frame cameras on the body (frame) or two line-scan cameras "
+                            "on orbits (linescan); frame and linescan write an ISD JSON "
+                            "beside each image and truth_dem_map.tif.", choices=SENSORS,
+                            what="sensor")
+    body: str = parameter("Moon", "Body carrying the scene (frame, linescan): a name PROJ "
+                          "knows; the scene sits on its reference sphere.")
+    center_lon_deg: float = parameter(0.0, "Planetocentric east longitude of the scene "
+                                      "centre, degrees (frame, linescan).", option="center-lon",
+                                      minimum=-360.0, maximum=360.0)
+    center_lat_deg: float = parameter(0.0, "Planetocentric latitude of the scene centre, "
+                                      "degrees (frame, linescan).", option="center-lat",
+                                      minimum=-90.0, maximum=90.0)
+    convergence_deg: float = parameter(25.0, "Convergence of the line-scan pair (rolled "
+                                       "±half off nadir), degrees.", option="convergence",
+                                       minimum=0.0, maximum=60.0, min_open=True)
+    ground_speed_m_s: float = parameter(1600.0, "Line-scan ground speed of the orbit, m/s "
+                                        "(LRO: about 1600).", option="ground-speed",
+                                        minimum=0.0, min_open=True)
     sun_incidence_deg: float = parameter(60.0, "Sun incidence angle from the zenith, degrees.",
                                          option="sun-incidence", minimum=0.0, maximum=90.0,
                                          max_open=True)

@@ -1,4 +1,4 @@
-"""Ray casting of a height field and rendering of pinhole views (numba kernels).
+"""Ray casting of a height field and rendering of views through sensor models (numba).
 
 The height field is the DEM on the map grid (CONTRIBUTING.md): cell (row r, column c)
 holds the height at the cell centre ``x = x_first + c·s``, ``y = y_first − r·s``
@@ -22,8 +22,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from demtool.camera import PinholeCamera
 from demtool.reflectance import lunar_lambert
+from demtool.sensors.base import SensorModel
 
 MARCH_STEP_CELLS = 0.5  # horizontal ray-marching step, in cells
 REFINE_ITERATIONS = 100
@@ -227,8 +227,9 @@ def _in_shadow(px, py, pz, sx, sy, sz, dem, block_max, x_first, y_first, spacing
 
 
 @njit(cache=True, parallel=True)
-def _render_geometry(pixel_to_ray, center, depth_axis, height, width, dem, block_max, grad_x,
+def _render_geometry(origins, directions, depth_axis, along_axis, dem, block_max, grad_x,
                      grad_y, albedo, x_first, y_first, spacing, z_min, z_max, sun):
+    height, width = origins.shape[0], origins.shape[1]
     depth = np.full((height, width), np.nan)
     hit = np.full((height, width, 3), np.nan)
     mu0 = np.full((height, width), np.nan)
@@ -238,24 +239,25 @@ def _render_geometry(pixel_to_ray, center, depth_axis, height, width, dem, block
     shadow = np.zeros((height, width), dtype=np.bool_)
     for r in prange(height):
         for c in range(width):
-            dx = pixel_to_ray[0, 0] * c + pixel_to_ray[0, 1] * r + pixel_to_ray[0, 2]
-            dy = pixel_to_ray[1, 0] * c + pixel_to_ray[1, 1] * r + pixel_to_ray[1, 2]
-            dz = pixel_to_ray[2, 0] * c + pixel_to_ray[2, 1] * r + pixel_to_ray[2, 2]
+            ox, oy, oz = origins[r, c, 0], origins[r, c, 1], origins[r, c, 2]
+            dx, dy, dz = directions[r, c, 0], directions[r, c, 1], directions[r, c, 2]
             norm = math.sqrt(dx * dx + dy * dy + dz * dz)
             dx /= norm
             dy /= norm
             dz /= norm
-            t = _intersect(center[0], center[1], center[2], dx, dy, dz, dem, x_first, y_first,
-                           spacing, z_min, z_max)
+            t = _intersect(ox, oy, oz, dx, dy, dz, dem, x_first, y_first, spacing, z_min, z_max)
             if np.isnan(t):
                 continue
-            x = center[0] + t * dx
-            y = center[1] + t * dy
-            z = center[2] + t * dz
+            x = ox + t * dx
+            y = oy + t * dy
+            z = oz + t * dz
             hit[r, c, 0] = x
             hit[r, c, 1] = y
             hit[r, c, 2] = z
-            depth[r, c] = t * (depth_axis[0] * dx + depth_axis[1] * dy + depth_axis[2] * dz)
+            if along_axis:
+                depth[r, c] = t * (depth_axis[0] * dx + depth_axis[1] * dy + depth_axis[2] * dz)
+            else:
+                depth[r, c] = t
             fc = (x - x_first) / spacing
             fr = (y_first - y) / spacing
             gx = _bilinear(grad_x, fc, fr)
@@ -338,10 +340,47 @@ def intersect_rays(field: HeightField, origins: np.ndarray, directions: np.ndarr
     return o + t[:, None] * d
 
 
-def pixel_hits(field: HeightField, camera: PinholeCamera, pixels: np.ndarray) -> np.ndarray:
-    """World points (N, 3) where the rays of ``pixels`` (N, 2) (u, v) hit the terrain."""
-    rays = camera.rays(np.atleast_2d(pixels))
-    return intersect_rays(field, np.broadcast_to(camera.center, rays.shape), rays)
+def pixel_rays(camera: SensorModel, *, placement=None, pixels: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Rays of a sensor model's pixels in the scene's local frame, through the interface.
+
+    Parameters
+    ----------
+    camera : SensorModel
+        Any model (:meth:`~demtool.sensors.SensorModel.image_to_ray`): a pinhole in the
+        local frame, or a body-fixed frame or line-scan model (each pixel its own origin
+        for a line scanner).
+    placement : demtool.synth.body.Placement, optional
+        Where the local frame sits on the body, for body-fixed models; None for models
+        already in the local frame.
+    pixels : (N, 2) float, optional
+        Pixel positions (u, v) = (column, row) of the pixel centres; default every pixel
+        of the image, row by row.
+
+    Returns
+    -------
+    origins, directions : (h, w, 3) (every pixel) or (N, 3) float64
+        Local frame, metres; directions unit vectors.
+    """
+    if pixels is None:
+        rows, cols = np.meshgrid(np.arange(camera.lines, dtype=np.float64),
+                                 np.arange(camera.samples, dtype=np.float64), indexing="ij")
+    else:
+        uv = np.atleast_2d(np.asarray(pixels, dtype=np.float64))
+        cols, rows = uv[:, 0], uv[:, 1]
+    ray = camera.image_to_ray(rows + 0.5, cols + 0.5)  # CSM: first pixel centre at 0.5
+    origins, directions = ray.origin, ray.direction
+    if placement is not None:
+        origins = placement.to_local(origins)
+        directions = placement.directions_to_local(directions)
+    return np.ascontiguousarray(origins), np.ascontiguousarray(directions)
+
+
+def pixel_hits(field: HeightField, camera: SensorModel, pixels: np.ndarray, *,
+               placement=None) -> np.ndarray:
+    """Local points (N, 3) where the rays of ``pixels`` (N, 2) (u, v) hit the terrain."""
+    origins, directions = pixel_rays(camera, placement=placement, pixels=pixels)
+    return intersect_rays(field, origins, directions)
 
 
 class ViewGeometry(NamedTuple):
@@ -350,10 +389,11 @@ class ViewGeometry(NamedTuple):
     Attributes
     ----------
     depth : float64
-        Camera z of the hit (metres along the optical axis), as used by
-        :meth:`PinholeCamera.backproject`.
+        Camera z of the hit (metres along the optical axis) for a pinhole, as used by
+        :meth:`PinholeCamera.backproject`; the range (metres along the ray) for other
+        sensor models.
     hit : (h, w, 3) float64
-        World coordinates of the hit, metres.
+        Local-frame coordinates of the hit, metres.
     mu0, mu : float64
         Cosines of the incidence and emission angles at the hit (DEM normal).
     phase_deg : float64
@@ -374,9 +414,12 @@ class ViewGeometry(NamedTuple):
     shadow: np.ndarray
 
 
-def view_geometry(field: HeightField, albedo: np.ndarray, camera: PinholeCamera,
-                  sun_vector: np.ndarray) -> ViewGeometry:
+def view_geometry(field: HeightField, albedo: np.ndarray, camera: SensorModel,
+                  sun_vector: np.ndarray, *, placement=None) -> ViewGeometry:
     """Cast every pixel's ray of ``camera`` onto the height field and shade-prepare it.
+
+    The rays come from the sensor model's interface (:func:`pixel_rays`), so a pinhole,
+    a frame camera or a line scanner renders the same way.
 
     Parameters
     ----------
@@ -384,18 +427,22 @@ def view_geometry(field: HeightField, albedo: np.ndarray, camera: PinholeCamera,
         The terrain, from :func:`height_field`.
     albedo : (H, W) float
         Normal albedo on the same map grid as the DEM.
-    camera : PinholeCamera
-        The view; pixel (row r, column c) is at (u, v) = (c, r).
+    camera : SensorModel
+        The view; pixel (row r, column c) is centred at CSM (line, sample) =
+        (r + 0.5, c + 0.5).
     sun_vector : (3,) float
-        Unit vector toward the sun, world frame.
+        Unit vector toward the sun, local frame.
+    placement : demtool.synth.body.Placement, optional
+        The local frame on the body, for body-fixed models.
     """
-    pixel_to_ray = camera.R.T @ np.linalg.inv(camera.K)
+    origins, directions = pixel_rays(camera, placement=placement)
     sun = np.asarray(sun_vector, dtype=np.float64)
     sun = sun / np.linalg.norm(sun)
+    axis = getattr(camera, "axis", None) if placement is None else None
     result = _run_kernel(
-        _render_geometry, np.ascontiguousarray(pixel_to_ray), camera.center,
-        np.ascontiguousarray(camera.R[2]),
-        camera.height, camera.width, field.dem, field.block_max, field.grad_x, field.grad_y,
+        _render_geometry, origins, directions,
+        np.zeros(3) if axis is None else np.ascontiguousarray(axis, dtype=np.float64),
+        axis is not None, field.dem, field.block_max, field.grad_x, field.grad_y,
         np.ascontiguousarray(albedo, dtype=np.float64), field.x_first, field.y_first,
         field.spacing, field.z_min, field.z_max, sun)
     return ViewGeometry(*result)

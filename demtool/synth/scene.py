@@ -49,6 +49,8 @@ class Scene:
     names : tuple of str
         View names ``view_00`` … in order; ``target`` and ``partner`` are two of them.
     cameras : dict of str to PinholeCamera
+        The local-frame pinholes (``pinhole`` and ``frame`` scenes; empty for
+        ``linescan``).
     images : dict of str to (h, w) float32
         Digital numbers 0 … 2^bit_depth − 1 (integer-valued), NaN where a ray missed.
     depths : dict of str to (h, w) float64
@@ -69,6 +71,13 @@ class Scene:
         Wall time of :func:`make_scene`, seconds.
     timings : dict of str to float
         Seconds per step (terrain, each view).
+    sensor : str
+        ``pinhole``, ``frame`` or ``linescan`` (:data:`demtool.synth.params.SENSORS`).
+    placement : demtool.synth.body.Placement or None
+        The local frame on the body (``frame``, ``linescan``).
+    sensors : dict of str to SensorModel
+        The body-fixed models the views were rendered through (``frame``,
+        ``linescan``); empty for ``pinhole`` (rendered through ``cameras``).
     """
 
     params: SceneParams
@@ -89,6 +98,9 @@ class Scene:
     dn_per_reflectance: float
     render_time_s: float
     timings: dict[str, float] = field(default_factory=dict)
+    sensor: str = "pinhole"
+    placement: Any = None
+    sensors: dict[str, Any] = field(default_factory=dict)
 
 
 def view_name(index: int) -> str:
@@ -144,28 +156,23 @@ def make_cameras(params: SceneParams) -> dict[str, PinholeCamera]:
     return cameras
 
 
-def footprint_bounds(camera: PinholeCamera, z_min: float, z_max: float) -> np.ndarray:
+def footprint_bounds(camera, z_min: float, z_max: float, *, placement=None) -> np.ndarray:
     """(x_min, x_max, y_min, y_max) of the ground any pixel can see between z_min and z_max.
 
-    The pixels' rays fill a pyramid; its part between the two planes is a convex
+    A pinhole's rays fill a pyramid; its part between the two planes is a convex
     frustum whose corners are the corner rays' crossings of the planes, so these
-    bound every possible hit exactly.
+    bound every possible hit exactly.  Other sensor models (``placement`` given for
+    body-fixed ones) are bounded by rays along the whole image border
+    (:func:`demtool.synth.sensors.footprint_bounds`).
     """
-    w, h = camera.width - 1, camera.height - 1
-    corners = np.array([[-0.5, -0.5], [w + 0.5, -0.5], [-0.5, h + 0.5], [w + 0.5, h + 0.5]])
-    rays = camera.rays(corners)
-    if np.any(rays[:, 2] >= 0):
-        return np.array([-np.inf, np.inf, -np.inf, np.inf])
-    points = []
-    for z in (z_min, z_max):
-        s = (z - camera.center[2]) / rays[:, 2]
-        points.append(camera.center[:2] + s[:, None] * rays[:, :2])
-    xy = np.vstack(points)
-    return np.array([xy[:, 0].min(), xy[:, 0].max(), xy[:, 1].min(), xy[:, 1].max()])
+    from demtool.synth.sensors import footprint_bounds as bounds
+
+    step = max(camera.lines, camera.samples) if isinstance(camera, PinholeCamera) else 1
+    return bounds(camera, z_min, z_max, placement=placement, border_step=step)
 
 
-def check_footprints(params: SceneParams, cameras: dict[str, PinholeCamera], z_min: float,
-                     z_max: float) -> None:
+def check_footprints(params: SceneParams, cameras: dict[str, Any], z_min: float,
+                     z_max: float, *, placement=None) -> None:
     """Raise ParameterError when a view can see beyond the DEM (with a margin).
 
     Every hit of every view must lie at least ``FOOTPRINT_MARGIN`` of the DEM side
@@ -179,7 +186,7 @@ def check_footprints(params: SceneParams, cameras: dict[str, PinholeCamera], z_m
         params.fail("altitude_m", f"({params.altitude_m}) must be above the highest terrain "
                                   f"({z_max:.1f} m)")
     for name, camera in cameras.items():
-        x0, x1, y0, y1 = footprint_bounds(camera, z_min, z_max)
+        x0, x1, y0, y1 = footprint_bounds(camera, z_min, z_max, placement=placement)
         reach = max(abs(x0), abs(x1), abs(y0), abs(y1))
         if reach > limit:
             raise ParameterError(
@@ -189,6 +196,37 @@ def check_footprints(params: SceneParams, cameras: dict[str, PinholeCamera], z_m
                 f"{label('dem_size')} or {label('spacing_m')}, a smaller {label('gsd_m')} or "
                 f"{label('image_size')}, or smaller B/H ratios ({label('partner_bh')}, "
                 f"{label('bh_max')})")
+
+
+def make_sensors(params: SceneParams, cameras: dict[str, PinholeCamera], sun: np.ndarray
+                 ) -> tuple[Any, dict[str, Any]]:
+    """The body placement and the body-fixed sensor models of a ``frame`` or ``linescan``
+    scene (:mod:`demtool.synth.sensors`): the pinholes as frame cameras, or the line-scan
+    pair (``view_00`` rolled west-looking by half the convergence, ``view_01`` east).
+
+    Raises
+    ------
+    ParameterError
+        Unknown body (naming ``--body``).
+    """
+    from demtool.synth import sensors as synth_sensors
+    from demtool.synth.body import placement
+
+    try:
+        place = placement(params.body, params.center_lon_deg, params.center_lat_deg)
+    except ValueError as exc:
+        params.fail("body", str(exc))
+    sun_position = place.sun_position(sun)
+    if params.sensor == "frame":
+        return place, {name: synth_sensors.frame_sensor(camera, place, sun_position=sun_position,
+                                                        name=name)
+                       for name, camera in cameras.items()}
+    half = 0.5 * params.convergence_deg
+    return place, {view_name(i): synth_sensors.linescan_sensor(
+        place, off_nadir_deg=roll, altitude_m=params.altitude_m, gsd_m=params.gsd_m,
+        ground_speed_m_s=params.ground_speed_m_s, lines=params.image_size,
+        samples=params.image_size, sun_position=sun_position, name=view_name(i))
+        for i, roll in enumerate((-half, half))}
 
 
 def flat_dn_per_reflectance(params: SceneParams) -> float:
@@ -266,16 +304,21 @@ def make_scene(params: SceneParams | None = None, *, dem: np.ndarray | None = No
     timings["terrain"] = time.perf_counter() - started
     log.debug("terrain: %d × %d cells, heights %.1f … %.1f m", *shape, dem.min(), dem.max())
 
-    cameras = make_cameras(params)
-    check_footprints(params, cameras, field.z_min, field.z_max)
+    cameras = make_cameras(params) if params.sensor != "linescan" else {}
     sun = sun_vector(params.sun_incidence_deg, params.sun_azimuth_deg)
+    place, sensors = None, {}
+    if params.sensor != "pinhole":
+        place, sensors = make_sensors(params, cameras, sun)
+    views = sensors or cameras
+    check_footprints(params, views, field.z_min, field.z_max, placement=place)
     dn_scale = flat_dn_per_reflectance(params)
-    noise_seeds = np.random.SeedSequence([params.seed, 1]).spawn(params.n_views)
+    noise_seeds = np.random.SeedSequence([params.seed, 1]).spawn(len(views))
     images, depths, shadows = {}, {}, {}
     truth_target = None
-    for index, (name, camera) in enumerate(cameras.items()):
+    for index, (name, camera) in enumerate(views.items()):
         step_start = time.perf_counter()
-        geometry = render.view_geometry(field, albedo.astype(np.float64), camera, sun)
+        geometry = render.view_geometry(field, albedo.astype(np.float64), camera, sun,
+                                        placement=place)
         if np.isnan(geometry.depth).any():  # excluded by check_footprints; a safeguard
             raise ParameterError(f"{name}: {int(np.isnan(geometry.depth).sum())} rays miss "
                                  f"the DEM; enlarge dem_size")
@@ -291,11 +334,11 @@ def make_scene(params: SceneParams | None = None, *, dem: np.ndarray | None = No
         timings[name] = time.perf_counter() - step_start
         log.info("%s rendered in %.2f s (%.1f %% in shadow)", name, timings[name],
                   100.0 * geometry.shadow.mean())
-    names = tuple(cameras)
+    names = tuple(views)
     return Scene(params=params, dem=dem, dem_transform=transform,
                  albedo=albedo, names=names, target=names[0],
                  partner=names[1], cameras=cameras, images=images, depths=depths,
                  shadows=shadows, truth_target=truth_target, sun_vector=sun,
                  gsd_m=params.gsd_m, distance_m=params.altitude_m,
                  dn_per_reflectance=dn_scale, render_time_s=time.perf_counter() - started,
-                 timings=timings)
+                 timings=timings, sensor=params.sensor, placement=place, sensors=sensors)

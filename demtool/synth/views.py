@@ -50,3 +50,36 @@ def view_summaries(scene: Scene) -> list[dict[str, Any]]:
             "shadow_fraction": float(np.mean(scene.shadows[name])) if scene.shadows else None,
         })
     return views
+
+
+def sensor_view_summaries(scene: Scene) -> list[dict[str, Any]]:
+    """Per-view geometry of a scene rendered through body-fixed sensor models, at each
+    view's image centre: sensor kind, ISD file, spacecraft centre (local and body-fixed
+    metres), range, emission and convergence to the target (degrees)."""
+    place = scene.placement
+    ground = place.origin
+    target = scene.sensors[scene.target]
+    views = []
+    for name in scene.names:
+        model = scene.sensors[name]
+        centre_line = 0.5 * model.lines
+        position = model.camera_center(centre_line)
+        line, _ = model.ground_to_image(ground)
+        seen_from = model.camera_center(line) - ground
+        target_line, _ = target.ground_to_image(ground)
+        to_target = target.camera_center(target_line) - ground
+        cos_conv = seen_from @ to_target / (np.linalg.norm(seen_from) * np.linalg.norm(to_target))
+        up = place.frame[2]
+        views.append({
+            "name": name, "file": f"{name}.tif", "isd": f"{name}.json", "kind": model.kind,
+            "role": "target" if name == scene.target else
+                    "partner" if name == scene.partner else "other",
+            "center_body_m": position.tolist(),
+            "center_local_m": place.to_local(position).tolist(),
+            "range_to_scene_centre_m": float(np.linalg.norm(seen_from)),
+            "emission_deg": float(np.degrees(np.arccos(np.clip(
+                seen_from @ up / np.linalg.norm(seen_from), -1, 1)))),
+            "convergence_deg": float(np.degrees(np.arccos(np.clip(cos_conv, -1, 1)))),
+            "shadow_fraction": float(np.mean(scene.shadows[name])) if scene.shadows else None,
+        })
+    return views

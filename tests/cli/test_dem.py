@@ -131,7 +131,8 @@ def test_cli_usage_errors_exit_2(tmp_path):
     out = str(tmp_path / "dem.tif")
     for args in ([], ["--points", "a.npz", "--disparity", "d.tif"],
                  ["--disparity", "d.tif", "--reference", "r.tif"],
-                 ["--disparity", "d.tif", "--rectify", "r.npz"],
+                 ["--disparity", "d.tif", "--rectify", "r.npz", "--reference", "r.tif",
+                  "--cameras", "c.npz"],
                  ["--points", "a.npz", "--median", "4"],
                  ["--points", "a.npz", "--cameras", "c.npz"]):
         result = runner.invoke(cli, ["dem", *args, "--out", out])
@@ -156,6 +157,11 @@ def test_cli_bad_inputs_exit_1_without_output(tmp_path):
     dio.write_raster(nan_disparity, np.full((10, 10), np.nan))
     assert "no valid" in run("--disparity", str(nan_disparity), "--rectify",
                              str(paths["rectify"]), "--cameras", str(paths["cameras"]))
+    assert "is not calibrated: give --reference or --cameras" in run(
+        "--disparity", str(paths["disparity"]), "--rectify", str(paths["rectify"]))
+    assert "--error-out belongs to the sensor-model route" in run(
+        "--disparity", str(paths["disparity"]), "--rectify", str(paths["rectify"]),
+        "--cameras", str(paths["cameras"]), "--error-out", str(tmp_path / "e.tif"))
     small_reference = tmp_path / "small.tif"
     dio.write_raster(small_reference, np.zeros((10, 10)), tags={"frame": "image:view_00"})
     assert "on the target's pixel grid" in run("--disparity", str(paths["disparity"]),

@@ -220,3 +220,62 @@ def test_load_scene_names_a_missing_or_foreign_file(tmp_path):
     (tmp_path / "scene.json").write_text('{"target": "a"}')
     with pytest.raises(InputError, match=r"scene\.json.*not a demtool synth scene"):
         load_scene(tmp_path)
+
+
+# -- synth --sensor frame|linescan -----------------------------------------------------------
+
+SENSOR_ARGS = ["--size", "128", "--views", "3", "--image-size", "64", "--gsd", "1",
+               "--craters", "6", "--crater-max", "20", "--boulders", "10"]
+
+
+@pytest.mark.parametrize("sensor, views", [("frame", 3), ("linescan", 2)])
+def test_sensor_scenes_write_isds_and_the_map_truth(tmp_path, sensor, views):
+    from demtool.maps import body_from_crs
+    from demtool.sensors import read_sensor
+
+    out = tmp_path / "scene"
+    result = CliRunner().invoke(cli, ["synth", "--out", str(out), *SENSOR_ARGS, "--sensor",
+                                      sensor, "--center-lon", "-60", "--center-lat", "75"])
+    assert result.exit_code == 0, result.output
+    names = [f"view_{i:02d}" for i in range(views)]
+    expected = {f"{n}.{ext}" for n in names for ext in ("tif", "json")} | {
+        "truth_dem.tif", "truth_dem_target.tif", "truth_dem_map.tif", "albedo.tif",
+        "scene.json", "scene.json.json"} | ({"cameras.npz"} if sensor == "frame" else set())
+    assert {p.name for p in out.iterdir()} == expected
+    description = io.read_json(out / "scene.json")
+    assert description["sensor"] == sensor
+    assert description["body"]["body"] == "Moon"
+    assert description["body"]["center_lat_deg"] == 75.0
+    assert description["sensor_models"] == {n: f"{n}.json" for n in names}
+    for name in names:
+        model = read_sensor(out / f"{name}.json")
+        assert model.kind == sensor and model.image_size == (64, 64)
+        with rasterio.open(out / f"{name}.tif") as dataset:
+            assert dataset.tags()["sensor_model"] == f"{name}.json"
+    with rasterio.open(out / "truth_dem_map.tif") as dataset:
+        assert body_from_crs(dataset.crs).name == "Moon"
+        assert "Polar" in dataset.crs.to_wkt() or "Stereographic" in dataset.crs.to_wkt()
+        assert dataset.res == pytest.approx((1.0, 1.0))
+        assert dataset.tags()["height_reference"] == "sphere"
+        heights = dataset.read(1)
+    # the map is polar stereographic at 75° N, so the common footprint (a square in the
+    # local frame) sits turned in its grid: check its area, 64 m × 64 m and more
+    assert 0.8 * 64**2 < np.isfinite(heights).sum() < 1.3 * 64**2
+
+
+@pytest.mark.parametrize("args, message, code", [
+    (["--sensor", "frame", "--body", "Vulcan"], "--body", 1),
+    (["--sensor", "linescan", "--image-size", "120"], "sees ground up to", 1),
+    (["--sensor", "pushbroom"], "--sensor", 2),
+    (["--sensor", "frame", "--center-lat", "95"], "--center-lat", 2),
+    (["--sensor", "linescan", "--convergence", "0"], "--convergence", 2),
+])
+def test_bad_sensor_scenes_write_nothing(tmp_path, args, message, code):
+    out = tmp_path / "scene"
+    result = CliRunner().invoke(cli, ["synth", "--out", str(out), *SENSOR_ARGS, *args])
+    assert result.exit_code == code
+    assert message in result.output
+    if code == 1:
+        lines = [line for line in result.output.splitlines() if line.startswith("Error")]
+        assert len(lines) == 1 and lines[0].startswith("Error: demtool synth:")
+    assert not out.exists()

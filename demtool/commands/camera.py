@@ -1,0 +1,35 @@
+"""`demtool camera`: the options of :class:`demtool.camera_params.CameraParams` and one
+call."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import click
+
+from demtool import options
+from demtool.camera_params import CameraParams
+from demtool.stages import STAGES
+
+
+@click.command(name="camera", help=STAGES["camera"] + """
+
+MODEL: ALE ISD JSON (frame or line scan), ISIS3 cube with SPICE attached, ASP .tsai
+(give --body), cameras.npz or bundle.npz (every camera in it, in the scene's local
+frame).  Prints a table (one column per model, then one row per pair) on stdout, or
+the JSON report with --json; --out also writes the JSON report (and its provenance
+sidecar).  Keys: README, section "camera".""")
+@click.argument("models", nargs=-1, required=True, type=click.Path(dir_okay=False),
+                metavar="MODEL...")
+@options.parameter_options(CameraParams)
+@click.option("--json", "as_json", is_flag=True, help="Print the JSON report on stdout "
+                                                      "instead of the table.")
+@options.path_option("--out", "Also write the JSON report to this file.")
+@click.pass_context
+def command(ctx: click.Context, models: tuple[str, ...], as_json: bool, out: str | None,
+            **values: Any) -> None:
+    """Options → CameraParams → :func:`demtool.runs.camera.run_camera`."""
+    from demtool.runs.camera import run_camera
+
+    run_camera(models, CameraParams.from_options(values), out=out, as_json=as_json,
+               resolved=options.resolved_params(ctx))

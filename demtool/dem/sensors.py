@@ -1,0 +1,228 @@
+"""Triangulation through sensor models and DEMs on the body's map.
+
+Shared by every calibrated route (frame stereo from a calibrated ``rectify.npz``, and
+map-projected line-scan stereo): correspondences given as CSM image coordinates of two
+:class:`~demtool.sensors.base.SensorModel` s are intersected in the body-fixed frame
+(:func:`triangulate_sensors`), rays that miss each other by too much are dropped
+(:func:`default_max_ray_gap`), and the points are gridded on a map projection of the
+body (:func:`dem_on_map`): heights in metres above the body's reference sphere
+(:attr:`demtool.maps.Body.radius`), measured radially.
+
+Gridding (a robust binning): each map cell gets the median height (and median ray gap) of the points
+whose map position falls in it (nearest cell, :func:`demtool.dem.grid.splat_median`);
+empty cells inside the stereo overlap — cells whose centre, at the DEM's median
+height, is seen by both cameras — are filled by D'Errico's spring metaphor
+(:func:`demtool.interpolate.inpaint_springs`) and flagged in ``filled``; cells outside
+stay NaN.  At the default GSD (the images' own) about one point falls in each cell.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from demtool.dem.grid import splat_median
+from demtool.errors import ProcessingError
+from demtool.sensors.base import SensorModel
+
+# Default gap limit: median gap + max(GAP_NMADS * NMAD, GAP_GSDS * GSD).
+GAP_NMADS = 4.0
+GAP_GSDS = 2.0
+
+
+class Triangulation(NamedTuple):
+    """Midpoints of closest approach of two bundles of rays.
+
+    xyz : (N, 3) float64, metres, body-fixed; NaN where the rays are parallel
+    gap : (N,) float64, metres, distance between the rays at closest approach
+    in_front : (N,) bool, the closest points lie in front of both cameras
+    range_left, range_right : (N,) float64, metres along each ray to its closest point
+    """
+
+    xyz: np.ndarray
+    gap: np.ndarray
+    in_front: np.ndarray
+    range_left: np.ndarray
+    range_right: np.ndarray
+
+
+def intersect_rays(origin_a, direction_a, origin_b, direction_b) -> Triangulation:
+    """Midpoint of the shortest segment between two rays (per row).
+
+    Solves for s, t minimising ``|(a + s u) − (b + t v)|`` (unit u, v):
+    ``s = (β e − d) / (1 − β²)``, ``t = (e − β d) / (1 − β²)`` with ``β = u·v``,
+    ``d = u·(a − b)``, ``e = v·(a − b)`` (Hartley & Zisserman 2003, §12.2, midpoint
+    method).
+
+    origin_*, direction_* : (N, 3) float, metres and unit vectors
+    """
+    a = np.asarray(origin_a, dtype=np.float64).reshape(-1, 3)
+    b = np.asarray(origin_b, dtype=np.float64).reshape(-1, 3)
+    u = np.asarray(direction_a, dtype=np.float64).reshape(-1, 3)
+    v = np.asarray(direction_b, dtype=np.float64).reshape(-1, 3)
+    w = a - b
+    beta = np.einsum("ij,ij->i", u, v)
+    d = np.einsum("ij,ij->i", u, w)
+    e = np.einsum("ij,ij->i", v, w)
+    denom = 1.0 - beta * beta
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(denom > 1e-14, (beta * e - d) / denom, np.nan)
+        t = np.where(denom > 1e-14, (e - beta * d) / denom, np.nan)
+    pa = a + s[:, None] * u
+    pb = b + t[:, None] * v
+    gap = np.linalg.norm(pa - pb, axis=1)
+    return Triangulation(0.5 * (pa + pb), gap, (s > 0) & (t > 0), s, t)
+
+
+def triangulate_sensors(left: SensorModel, right: SensorModel, left_line, left_sample,
+                        right_line, right_sample) -> Triangulation:
+    """Triangulate correspondences through two sensor models.
+
+    Parameters
+    ----------
+    left, right : SensorModel
+        Any two models in one body-fixed frame (frame or line scan).
+    left_line, left_sample, right_line, right_sample : (N,) float
+        CSM image coordinates (first pixel centre at 0.5, 0.5) of the same ground points.
+
+    Returns
+    -------
+    Triangulation
+        Rays from each model's ``image_to_ray``; ``in_front`` False where the closest
+        points lie behind either camera (reject those).
+    """
+    ray_l = left.image_to_ray(np.asarray(left_line, float).ravel(),
+                              np.asarray(left_sample, float).ravel())
+    ray_r = right.image_to_ray(np.asarray(right_line, float).ravel(),
+                               np.asarray(right_sample, float).ravel())
+    return intersect_rays(ray_l.origin, ray_l.direction, ray_r.origin, ray_r.direction)
+
+
+def default_max_ray_gap(gap: np.ndarray, gsd_m: float) -> float:
+    """The default ``--max-ray-gap``: ``median + max(4 NMAD, 2 GSD)`` of the gaps, metres.
+
+    Relative to the pair's median gap, so that a systematic offset of the two cameras
+    (unadjusted SPICE: every ray pair misses by about the same distance) is reported,
+    not used to reject the whole pair; only rays that miss by much more than their
+    neighbours (mismatches) are rejected.
+    """
+    g = np.asarray(gap, dtype=np.float64)
+    g = g[np.isfinite(g)]
+    if g.size == 0:
+        return float("inf")
+    median = float(np.median(g))
+    nmad = 1.4826 * float(np.median(np.abs(g - median)))
+    return median + max(GAP_NMADS * nmad, GAP_GSDS * float(gsd_m))
+
+
+def overlap_mask(grid, left: SensorModel, right: SensorModel, height: float) -> np.ndarray:
+    """Cells of ``grid`` whose centre, ``height`` metres above the sphere, both cameras see.
+
+    Returns (rows, columns) bool.
+    """
+    from demtool.maps.grids import grid_xyz
+
+    xyz = grid_xyz(grid, float(height))
+    mask = np.ones(grid.shape, dtype=bool)
+    for model in (left, right):
+        line, sample = model.ground_to_image(xyz)
+        mask &= (np.isfinite(line) & np.isfinite(sample) & (line >= 0) & (sample >= 0)
+                 & (line <= model.lines) & (sample <= model.samples))
+    return mask
+
+
+class MapDem(NamedTuple):
+    """A DEM on the body's map.
+
+    dem : (rows, columns) float32, metres above the reference sphere, NaN = no data
+    error : (rows, columns) float32, median ray gap of the cell's points, metres
+        (NaN where filled or empty)
+    filled : (rows, columns) bool, cells filled by interpolation
+    overlap : (rows, columns) bool, the stereo overlap
+    grid : demtool.maps.MapGrid (CRS and transform)
+    report : dict of summary figures
+    """
+
+    dem: np.ndarray
+    error: np.ndarray
+    filled: np.ndarray
+    overlap: np.ndarray
+    grid: Any
+    report: dict
+
+
+def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
+               projection: str = "auto", crs: Any = None,
+               left: SensorModel | None = None, right: SensorModel | None = None,
+               fill: bool = True, median_px: int = 0) -> MapDem:
+    """Grid triangulated points as heights above the body's sphere on a map.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float, metres, body-fixed (the points kept after the gap test)
+    gap : (N,) float, metres, their ray gaps
+    body : demtool.maps.Body
+    gsd_m : float, pixel size of the map, metres
+    projection : {"auto", "equirectangular", "polar-stereographic"}
+    crs : CRS-like, optional, a given projected CRS instead
+    left, right : SensorModel, optional
+        The pair; with them the empty cells inside the stereo overlap are filled
+        (``fill``), otherwise the cells inside the points' extent.
+    fill : bool
+        Fill gaps (spring metaphor) inside the overlap.
+    median_px : int
+        Median filter after filling (0 = off; odd), :func:`demtool.dem.grid.fill_and_smooth`.
+
+    Returns
+    -------
+    MapDem
+    """
+    from demtool.dem.grid import fill_and_smooth
+    from demtool.maps.frames import xyz_to_lonlat_height
+    from demtool.maps.grids import grid_from_xyz
+    from demtool.maps.projections import lonlat_to_map
+
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    gap = np.asarray(gap, dtype=np.float64).ravel()
+    keep = np.isfinite(xyz).all(axis=1)
+    xyz, gap = xyz[keep], gap[keep]
+    if len(xyz) < 3:
+        raise ProcessingError(f"only {len(xyz)} triangulated points: nothing to grid")
+    grid = grid_from_xyz(body, xyz, gsd_m, projection=projection, crs=crs)
+    lon, lat, height = xyz_to_lonlat_height(xyz, radii=body.radius)
+    x, y = lonlat_to_map(grid.crs, lon, lat)
+    t = grid.transform  # north-up: col = (x − c) / a, row = (y − f) / e
+    cols = (np.asarray(x) - t.c) / t.a
+    rows = (np.asarray(y) - t.f) / t.e
+    pixels = np.stack([cols - 0.5, rows - 0.5], axis=-1)
+    dem, counts = splat_median(pixels, height, grid.shape)
+    error, _ = splat_median(pixels, gap, grid.shape)
+    measured = np.isfinite(dem)
+    median_height = float(np.median(height))
+    if left is not None and right is not None:
+        overlap = overlap_mask(grid, left, right, median_height)
+    else:
+        overlap = np.ones(grid.shape, dtype=bool)
+    overlap |= measured
+    filled = np.zeros(grid.shape, dtype=bool)
+    out = dem.copy()
+    if fill and measured.any():
+        full = fill_and_smooth(dem, median_px=median_px).dem
+        filled = overlap & ~measured
+        out = np.where(filled | (median_px > 1), full, dem)
+    out[~overlap] = np.nan
+    report = {
+        "map_shape": list(grid.shape),
+        "map_gsd_m": float(gsd_m),
+        "overlap_cells": int(overlap.sum()),
+        "measured_cells": int(measured.sum()),
+        "filled_cells": int(filled.sum()),
+        "measured_fraction_of_overlap": float(measured.sum() / max(1, overlap.sum())),
+        "points_per_measured_cell": float(counts[measured].mean()) if measured.any() else 0.0,
+        "height_min_m": float(np.nanmin(out)),
+        "height_max_m": float(np.nanmax(out)),
+        "height_median_m": median_height,
+    }
+    return MapDem(out.astype(np.float32), error.astype(np.float32), filled, overlap, grid,
+                  report)

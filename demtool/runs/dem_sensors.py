@@ -1,0 +1,170 @@
+"""Calibrated branch of ``demtool dem``: a disparity map triangulated through the two
+sensor models of a calibrated ``rectify.npz`` onto the body's map.
+
+Called by :func:`demtool.runs.dem.run_dem` when the rectification carries its models
+(``rectify --sensor-left/--sensor-right``).  The science lives in
+:mod:`demtool.dem.sensors` (triangulation, gap test, map gridding) and
+:mod:`demtool.rectify_calibrated` (rectified pixel → original pixel).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from demtool.dem.params import DemParams
+    from demtool.runs import StageRun
+    from demtool.sensors.base import SensorModel
+
+PathLike = str | os.PathLike | None
+
+
+def is_calibrated(rectification: dict) -> bool:
+    """True for a rectify.npz written with sensor models."""
+    return "calibrated" in rectification and bool(rectification["calibrated"])
+
+
+def models_from_rectification(rectification: dict, rectify_path
+                              ) -> tuple[SensorModel, SensorModel]:
+    """The left and right models stored in a calibrated rectify.npz (InputError naming the
+    missing key)."""
+    from demtool.errors import InputError
+    from demtool.sensor_arrays import model_from_arrays
+
+    models = []
+    for side in ("left", "right"):
+        try:
+            models.append(model_from_arrays(rectification, f"sensor_{side}_"))
+        except KeyError as exc:
+            raise InputError(f"{rectify_path}: calibrated rectification file lacks the key "
+                             f"{exc.args[0]!r}") from None
+        except (ValueError, TypeError) as exc:
+            raise InputError(f"{rectify_path}: bad {side} sensor model ({exc})") from None
+    return models[0], models[1]
+
+
+def geometry_from_rectification(rectification: dict, left, right):
+    """The :class:`~demtool.rectify_calibrated.RectifiedGeometry` stored in rectify.npz."""
+    import numpy as np
+
+    from demtool.rectify_calibrated import RectifiedGeometry
+
+    K_left, K_right = rectification["K_left_rect"], rectification["K_right_rect"]
+    centers = np.stack([left.camera_center(0.5 * left.lines),
+                        right.camera_center(0.5 * right.lines)])
+    return RectifiedGeometry(R_rect=np.asarray(rectification["R_rect"], dtype=np.float64),
+                             f_px=float(K_left[0, 0]), cx_left=float(K_left[0, 2]),
+                             cx_right=float(K_right[0, 2]), cy=float(K_left[1, 2]),
+                             size_rect=np.asarray(rectification["size_rect"]), centers=centers)
+
+
+def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
+                    rectify_path, rectification: dict, mask_path: PathLike = None,
+                    error_path: PathLike = None) -> dict[str, Any]:
+    """Triangulate every valid disparity through the models, grid on the map, write.
+
+    Writes OUT (heights above the body's sphere, the body's projected CRS; with
+    ``--mask-band`` a second band = filled cells), ``--interpolated-mask`` (1 = filled),
+    ``--error-out`` (median ray gap per cell, metres) and the sidecar.  Returns the
+    sidecar summary.
+    """
+    import numpy as np
+
+    from demtool import io as dio
+    from demtool.dem.sensors import default_max_ray_gap, dem_on_map, triangulate_sensors
+    from demtool.errors import InputError, ProcessingError
+    from demtool.maps import body_from_radii
+    from demtool.rectify_calibrated import rect_to_pixels, scene_distance
+
+    log, prov = run.log, run.provenance
+    left, right = models_from_rectification(rectification, rectify_path)
+    if left.radii is None:
+        raise InputError(f"{rectify_path}: the sensor models have no body (local-frame "
+                         "pinholes): a DEM on the body's map needs body-fixed models")
+    geometry = geometry_from_rectification(rectification, left, right)
+    disparity = dio.read_raster(disparity_path, what="disparity")
+    width_rect, height_rect = (int(v) for v in geometry.size_rect)
+    if disparity.data.shape != (height_rect, width_rect):
+        raise InputError(f"{disparity_path}: disparity is {disparity.data.shape[1]}×"
+                         f"{disparity.data.shape[0]} px but {rectify_path} has a "
+                         f"{width_rect}×{height_rect} rectified canvas")
+    d = disparity.data
+    rows, cols = np.nonzero(np.isfinite(d))
+    if rows.size < 3:
+        raise ProcessingError(f"{disparity_path}: fewer than 3 valid disparities")
+    x_left = cols.astype(np.float64)
+    y = rows.astype(np.float64)
+    x_right = x_left - d[rows, cols]
+    l_line, l_sample = rect_to_pixels(left, geometry, "left", x_left, y, scene_distance(left))
+    r_line, r_sample = rect_to_pixels(right, geometry, "right", x_right, y,
+                                      scene_distance(right))
+    tri = triangulate_sensors(left, right, l_line, l_sample, r_line, r_sample)
+    finite = np.isfinite(tri.xyz).all(axis=1)
+    in_front = finite & tri.in_front
+    if not in_front.any():
+        raise ProcessingError(f"{disparity_path}: no disparity triangulates in front of both "
+                              "cameras")
+    f_px = geometry.f_px
+    estimated_gsd = float(np.median(tri.range_left[in_front]) / f_px)
+    gsd = float(params.gsd) if params.gsd is not None else estimated_gsd
+    gaps = tri.gap[in_front]
+    max_gap = (float(params.max_ray_gap) if params.max_ray_gap is not None
+               else default_max_ray_gap(gaps, gsd))
+    keep = in_front & (tri.gap <= max_gap)
+    median_gap = float(np.median(gaps))
+    log.info("%d valid disparities: %d behind a camera, %d rays missing by more than %.3g m "
+             "(median gap %.3g m, GSD %.3g m)", rows.size, int((finite & ~tri.in_front).sum()),
+             int((in_front & ~keep).sum()), max_gap, median_gap, gsd)
+    a, b = left.radii
+    body = body_from_radii(a, a, b)
+    result = dem_on_map(tri.xyz[keep], tri.gap[keep], body, gsd_m=gsd,
+                        projection=params.projection, left=left, right=right,
+                        median_px=params.median)
+    grid = result.grid
+    summary: dict[str, Any] = {
+        "route": "disparity-sensors",
+        "body": body.name,
+        "crs": grid.crs.name,
+        "projection": params.projection,
+        "shape": list(result.dem.shape),
+        "gsd_m": gsd,
+        "gsd_source": "--gsd" if params.gsd is not None else "estimated",
+        "valid_disparities": int(rows.size),
+        "behind_camera": int((finite & ~tri.in_front).sum()),
+        "max_ray_gap_m": max_gap,
+        "max_ray_gap_source": "--max-ray-gap" if params.max_ray_gap is not None else "default",
+        "rejected_ray_gap": int((in_front & ~keep).sum()),
+        "median_ray_gap_m": median_gap,
+        "points": int(keep.sum()),
+        "interpolated_fraction": float(result.filled.sum() / max(1, result.overlap.sum())),
+        **result.report,
+    }
+    log.info("DEM %d×%d on %s, GSD %.4g m, %.1f %% of the overlap measured, heights %.4g … "
+             "%.4g m above the %.1f km sphere", grid.width, grid.height, grid.crs.name, gsd,
+             100 * result.report["measured_fraction_of_overlap"], summary["height_min_m"],
+             summary["height_max_m"], body.radius / 1e3)
+    tags = prov.tags(dem_route="disparity-sensors", gsd_m=gsd,
+                     units="metres above the reference sphere", **body.tags())
+    filled = result.filled.astype(np.float32)
+    filled[np.isnan(result.dem)] = np.nan
+    data = np.stack([result.dem, filled]) if params.mask_band else result.dem
+    band_names = ["height", "interpolated"] if params.mask_band else ["height"]
+    outputs = [Path(out)]
+    with dio.output_transaction():
+        dio.write_raster(out, data, transform=grid.transform, crs=grid.crs, tags=tags,
+                         band_names=band_names)
+        if mask_path is not None:
+            dio.write_raster(mask_path, filled, transform=grid.transform, crs=grid.crs,
+                             tags=prov.tags(meaning="1 = interpolated, 0 = measured",
+                                            **body.tags()), band_names=["interpolated"])
+            outputs.append(Path(mask_path))
+        if error_path is not None:
+            dio.write_raster(error_path, result.error, transform=grid.transform, crs=grid.crs,
+                             tags=prov.tags(meaning="median ray gap of the cell's points",
+                                            units="metres", **body.tags()),
+                             band_names=["ray_gap"])
+            outputs.append(Path(error_path))
+        prov.write_sidecar(out, summary, outputs=outputs)
+    return summary

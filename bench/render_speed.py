@@ -11,9 +11,12 @@ There is no reference renderer to run beside it (the peer tools take their
 synthetic images from external ray tracers), so the table compares with the target
 only.
 
-Usage: ``.venv/bin/python bench/render_speed.py [--quick] [--threads N] [--repeat N]``
-(``--quick``: a 256 × 256 DEM with 4 views of 256 × 256 px, target scaled by the
-number of rays, 1/8).
+Usage: ``.venv/bin/python bench/render_speed.py [--quick] [--threads N] [--repeat N]
+[--sensor pinhole|frame|linescan]`` (``--quick``: a 256 × 256 DEM with 4 views of
+256 × 256 px, target scaled by the number of rays, 1/8; ``--sensor``: render through
+CSM frame or line-scan models on the Moon, as ``synth --sensor``, the writing step then
+including the ISDs and ``truth_dem_map.tif``; a line-scan scene has 2 views and the
+target is scaled by its rays).
 """
 
 from __future__ import annotations
@@ -37,6 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=2,
                         help="numba threads (the target is for 2 cores; 0 = all)")
     parser.add_argument("--repeat", type=int, default=2, help="timed runs (best is kept)")
+    parser.add_argument("--sensor", default="pinhole", choices=("pinhole", "frame", "linescan"),
+                        help="sensor model of the views (synth --sensor)")
     args = parser.parse_args(argv)
 
     import numba
@@ -49,14 +54,15 @@ def main(argv: list[str] | None = None) -> int:
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     if args.quick:
         params = SceneParams(dem_size=256, n_views=4, image_size=256, gsd_m=0.4,
-                             crater_count=20, crater_max_diameter_m=50.0)
-        target = TARGET_S * (4 * 256**2) / (8 * 512**2)
+                             crater_count=20, crater_max_diameter_m=50.0, sensor=args.sensor)
     else:
-        params = SceneParams()
-        target = TARGET_S
+        params = SceneParams(sensor=args.sensor)
+    views = 2 if args.sensor == "linescan" else params.n_views
+    target = TARGET_S * (views * params.image_size**2) / (8 * 512**2)
 
     start = time.perf_counter()
-    make_scene(SceneParams(dem_size=64, n_views=2, image_size=32))  # load/compile kernels
+    make_scene(SceneParams(dem_size=64, n_views=2, image_size=32,  # load/compile kernels
+                           sensor=args.sensor))
     warm_up = time.perf_counter() - start
 
     best: dict[str, float] = {}
@@ -70,8 +76,8 @@ def main(argv: list[str] | None = None) -> int:
         for step, seconds in timings.items():
             best[step] = min(best.get(step, float("inf")), seconds)
 
-    rays = params.n_views * params.image_size**2
-    print(f"demtool synth render speed: DEM {params.dem_size}², {params.n_views} views of "
+    rays = views * params.image_size**2
+    print(f"demtool synth render speed ({args.sensor}): DEM {params.dem_size}², {views} views of "
           f"{params.image_size}² px ({rays / 1e6:.2f} M rays), {numba.get_num_threads()} "
           f"numba threads, {os.cpu_count()} CPUs on this machine; best of {args.repeat}")
     print(f"kernel load/compile (warm-up): {warm_up:.2f} s")

@@ -38,6 +38,9 @@ MIN_BLOCKS = 256
 TEXTURE_TRIM = 0.05
 #: Fraction of the pixels clipped at each end first (isolated hot or dead pixels).
 PIXEL_CLIP = 0.005
+#: Larger images are averaged in 2 × 2 blocks (NaN-aware) until they fit: memory and time
+#: stay bounded, and only the finest scales are skipped (real texture spans many).
+MAX_TEXTURE_PIXELS = 4_000_000
 
 
 class Texture(NamedTuple):
@@ -114,7 +117,8 @@ def quantisation_step(values: np.ndarray, sample: int = 200_000) -> float:
 def _halve(array: np.ndarray) -> np.ndarray:
     """Sum of each 2 × 2 tile (an odd last row or column is dropped)."""
     height, width = array.shape[0] // 2 * 2, array.shape[1] // 2 * 2
-    return array[:height, :width].reshape(height // 2, 2, width // 2, 2).sum(axis=(1, 3))
+    a = array[:height, :width]
+    return a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2]
 
 
 def _trimmed_variance(values: np.ndarray) -> float:
@@ -129,6 +133,24 @@ def _trimmed_variance(values: np.ndarray) -> float:
     return float(kept.var()) / factor
 
 
+def _binned(image: np.ndarray) -> tuple[np.ndarray, int]:
+    """The image as float64, averaged in 2 × 2 blocks until under MAX_TEXTURE_PIXELS."""
+    data = np.asarray(image)
+    factor = 1
+    while data.size > MAX_TEXTURE_PIXELS and min(data.shape) >= 4:
+        values = data.astype(np.float32, copy=False)
+        finite = np.isfinite(values)
+        if finite.all():
+            data = _halve(values) * np.float32(0.25)
+        else:
+            sums = _halve(np.where(finite, values, np.float32(0.0)))
+            counts = _halve(finite.view(np.uint8))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                data = np.where(counts > 0, sums / counts, np.float32(np.nan))
+        factor *= 2
+    return np.array(data, dtype=np.float64), factor
+
+
 def texture(image: np.ndarray) -> Texture:
     """Measure how much structure an image has above its noise and quantisation.
 
@@ -140,7 +162,9 @@ def texture(image: np.ndarray) -> Texture:
     lives at small scales, albedo and large landforms at large ones, so the best scale
     counts.  The pixels are first clipped to their ``PIXEL_CLIP`` quantiles (hot and
     dead pixels).  A dark sky over most of the frame does not hide a body covering
-    more than ``TEXTURE_TRIM`` of it.
+    more than ``TEXTURE_TRIM`` of it.  Images over ``MAX_TEXTURE_PIXELS`` are first
+    averaged in 2 × 2 blocks until they fit (``block`` and ``noise_sigma`` are then
+    given in the original pixels).
 
     Parameters
     ----------
@@ -151,10 +175,14 @@ def texture(image: np.ndarray) -> Texture:
     -------
     Texture
     """
-    data = np.array(image, dtype=np.float64)
+    data, factor = _binned(image)
     finite = np.isfinite(data)
     if not finite.any():
         return Texture(0.0, 0.0, 0.0, 1)
+    if factor > 1:
+        found = texture(data)
+        return Texture(found.noise_sigma * factor, found.signal_sigma, found.snr,
+                       found.block * factor)
     sample = data[finite]
     sample = sample[:: max(1, sample.size // 1_000_000)]
     low, high = np.quantile(sample, [PIXEL_CLIP, 1.0 - PIXEL_CLIP])

@@ -612,8 +612,12 @@ def read_npz(path: str | os.PathLike, kind: str) -> dict[str, np.ndarray]:
         Missing or corrupt file, another kind, a missing key or a wrong shape/dtype.
     """
     p = require_file(path, f"{kind} file")
+    if not zipfile.is_zipfile(p):  # else np.load tries it as a pickle and says so
+        raise InputError(f"{p}: not a readable NPZ file (not a zip archive); expected a {kind} "
+                         "file")
     try:
-        with np.load(p, allow_pickle=False) as npz:
+        # Our own handle: np.load leaks its own when a truncated archive fails to open.
+        with open(p, "rb") as handle, np.load(handle, allow_pickle=False) as npz:
             content = {key: npz[key] for key in npz.files}
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise InputError(f"{p}: not a readable NPZ file ({_first_line(exc)})") from None

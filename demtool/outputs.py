@@ -35,9 +35,14 @@ from pathlib import Path
 from demtool.errors import DemtoolError, InputError, OutputError
 
 PathLike = str | os.PathLike
-#: Paths as a sequence, or as a mapping of label (an option name such as ``--out``) to path;
-#: ``None`` entries are skipped.
-Paths = Iterable[PathLike | None] | Mapping[str, PathLike | None] | None
+#: Paths as a sequence, or as a mapping of label (an option name such as ``--out``) to a
+#: path or a sequence of paths (a repeatable option); ``None`` entries are skipped.
+Paths = (Iterable[PathLike | None] | Mapping[str, PathLike | Iterable[PathLike] | None]
+         | None)
+#: Environment variable that makes a transaction refuse a write its stage did not declare
+#: (``output_transaction(..., declared=True)``); the test suite sets it, so a runner that
+#: forgets to declare an output fails its tests instead of escaping the path checks.
+CHECK_DECLARED_ENV = "DEMTOOL_CHECK_DECLARED_OUTPUTS"
 
 
 # --------------------------------------------------------------------------------------
@@ -82,7 +87,13 @@ def _entries(paths: Paths) -> list[tuple[str | None, Path]]:
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     items = paths.items() if isinstance(paths, Mapping) else ((None, p) for p in paths)
-    return [(label, Path(p)) for label, p in items if p is not None]
+    entries: list[tuple[str | None, Path]] = []
+    for label, value in items:
+        if value is None:
+            continue
+        values = [value] if isinstance(value, (str, os.PathLike)) else value
+        entries.extend((label, Path(p)) for p in values if p is not None)
+    return entries
 
 
 def resolve(path: PathLike) -> Path:
@@ -128,6 +139,11 @@ def _probe_writable(folder: Path) -> OSError | None:
     return None
 
 
+def _shown(path: Path, resolved: Path) -> Path:
+    """``path`` as the user typed it when that names ``resolved`` too, else ``resolved``."""
+    return path if resolve(path) == resolved else resolved
+
+
 def _check_folder(output: Path, folder: Path) -> None:
     """Raise InputError unless ``folder`` exists and is writable, or can be created."""
     existing = _nearest_existing(folder)
@@ -170,7 +186,7 @@ def check_output_paths(inputs: Paths, outputs: Paths, *, output_dirs: Paths = No
     folders = _entries(output_dirs)
     targets = [(label, path, False) for label, path in files] + \
               [(label, path, True) for label, path in folders]
-    for index, (label, path, is_folder) in enumerate(targets):
+    for index, (label, path, _) in enumerate(targets):
         for in_label, source in sources:
             if _same_file(path, source):
                 raise InputError(
@@ -182,16 +198,16 @@ def check_output_paths(inputs: Paths, outputs: Paths, *, output_dirs: Paths = No
                 second = label or "another output"
                 raise InputError(f"{path}: {first} and {second} name the same file; give "
                                  "each output its own path")
-        if is_folder:
-            if path.exists() and not path.is_dir():
-                raise InputError(f"{path}: {label or 'the output folder'} is a file, "
-                                 "expected a folder")
-            _check_folder(path, path)
-        else:
-            if path.is_dir():
-                raise InputError(f"{path}: {label or 'the output'} is a folder, expected a "
-                                 "file name")
-            _check_folder(path, resolve(path).parent)
+    for label, path in folders:  # folders first: their problem is the one to name
+        if path.exists() and not path.is_dir():
+            raise InputError(f"{path}: {label or 'the output folder'} is a file, "
+                             "expected a folder")
+        _check_folder(path, path)
+    for label, path in files:
+        if path.is_dir():
+            raise InputError(f"{path}: {label or 'the output'} is a folder, expected a "
+                             "file name")
+        _check_folder(path, _shown(path.parent, resolve(path).parent))
 
 
 # --------------------------------------------------------------------------------------
@@ -218,11 +234,31 @@ def _remove_folders(folders: list[Path]) -> None:
 
 
 class _Transaction:
-    def __init__(self, inputs: list[tuple[str | None, Path]]) -> None:
+    def __init__(self, inputs: list[tuple[str | None, Path]],
+                 declared: tuple[list[Path], list[Path]] | None = None) -> None:
         self.inputs = inputs
+        self.declared = declared  # (output files, output folders), resolved; None: no check
         self.pending: list[tuple[Path, Path]] = []
         self.claimed: dict[Path, Path] = {}
         self.created_folders: list[Path] = []
+
+    def declare(self, outputs: list[tuple[str | None, Path]],
+                folders: list[tuple[str | None, Path]]) -> None:
+        """Add the outputs of a nested transaction to the ones already declared."""
+        if self.declared is not None:
+            self.declared[0].extend(resolve(p) for _, p in outputs)
+            self.declared[1].extend(resolve(p) for _, p in folders)
+
+    def check_declared(self, final: Path) -> None:
+        """With ``CHECK_DECLARED_ENV`` set: refuse a write that was not declared."""
+        if self.declared is None or not os.environ.get(CHECK_DECLARED_ENV):
+            return
+        key = resolve(final)
+        files, folders = self.declared
+        if key in files or any(folder in key.parents for folder in folders):
+            return
+        raise InputError(f"{final}: written but not declared as an output of this stage "
+                         "(declare it in the runner's StageRun outputs)")
 
     def claim(self, final: Path) -> None:
         """Refuse a second write to one file, or a write over a declared input."""
@@ -235,6 +271,7 @@ class _Transaction:
             if _same_file(final, source):
                 raise InputError(f"{final}: the output would overwrite the input "
                                  f"{_name(label, source, 'file')}; choose another output path")
+        self.check_declared(final)
         self.claimed[key] = final
 
     def commit(self) -> None:
@@ -291,7 +328,7 @@ _current_transaction: contextvars.ContextVar[_Transaction | None] = contextvars.
 
 @contextlib.contextmanager
 def output_transaction(inputs: Paths = None, outputs: Paths = None, *,
-                       output_dirs: Paths = None) -> Iterator[None]:
+                       output_dirs: Paths = None, declared: bool = False) -> Iterator[None]:
     """Defer the renames of every write inside the block until it succeeds.
 
     All files written with :mod:`demtool.io` inside the block appear together at the
@@ -306,6 +343,15 @@ def output_transaction(inputs: Paths = None, outputs: Paths = None, *,
         entry, before the block: enter the transaction before the work so a bad path
         is refused at once).  Writes inside the block are also checked against the
         declared inputs, and two writes to one file are refused, declared or not.
+    declared : bool
+        ``outputs`` and ``output_dirs`` are the complete list of what the block writes
+        (as :class:`demtool.runs.StageRun` declares them): with the environment
+        variable ``DEMTOOL_CHECK_DECLARED_OUTPUTS`` set (the tests set it), a write of
+        any other file is refused, so a forgotten declaration cannot slip past the
+        checks above.
+
+    A transaction entered inside another joins it: its paths are checked the same
+    way, and its writes are committed (or rolled back) with the outer block's.
 
     Raises
     ------
@@ -314,7 +360,17 @@ def output_transaction(inputs: Paths = None, outputs: Paths = None, *,
         fail (one line naming the path; nothing is left behind).
     """
     check_output_paths(inputs, outputs, output_dirs=output_dirs)
-    transaction = _Transaction(_entries(inputs))
+    outer = _current_transaction.get()
+    if outer is not None:  # join the enclosing transaction
+        outer.inputs.extend(_entries(inputs))
+        outer.declare(_entries(outputs), _entries(output_dirs))
+        yield
+        return
+    listed = None
+    if declared:
+        listed = ([resolve(p) for _, p in _entries(outputs)],
+                  [resolve(p) for _, p in _entries(output_dirs)])
+    transaction = _Transaction(_entries(inputs), listed)
     token = _current_transaction.set(transaction)
     try:
         yield

@@ -8,12 +8,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from demtool.parameters import Parameters, core_defaults, parameter, seed_field
-from demtool.rectify import rectify_pair
-from demtool.rectify_calibrated import rectify_sensors
+from demtool.core_source import core_defaults
+from demtool.parameters import Parameters, parameter, seed_field
 
-CORE = core_defaults(rectify_pair)
-CALIBRATED = core_defaults(rectify_sensors)
+# Read from the cores' source: `demtool rectify --help` does not load numba.
+CORE = core_defaults("demtool.rectify:rectify_pair")
+CALIBRATED = core_defaults("demtool.rectify_calibrated:rectify_sensors")
 
 
 @dataclass(frozen=True)

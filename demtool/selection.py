@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from demtool import features
-from demtool.camera import PinholeCamera
 from demtool.errors import ParameterError, ProcessingError
+from demtool.sensors.base import SensorModel
 
 #: Stereo sweet spot of the convergence angle and its tolerance (degrees), for ranking:
 #: B/H 0.3-0.6 (convergence ~17-33°) gives good height precision while keeping the
@@ -276,44 +276,75 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
 
 
-def surface_point(camera: PinholeCamera, pixel: np.ndarray, plane_z: float = 0.0) -> np.ndarray:
-    """World point where the ray of ``pixel`` (x, y) meets the plane Z = ``plane_z``.
+def surface_point(camera: SensorModel, pixel: np.ndarray, plane_z: float = 0.0) -> np.ndarray:
+    """Ground point of ``pixel`` (x, y) on the mean surface, through the sensor interface.
 
-    The world frame has Z up with Z = 0 the mean surface (CONTRIBUTING.md).  Raises
-    ProcessingError when the ray does not reach the plane in front of the camera.
+    A local-frame camera (``radii`` None: the world frame has Z up with Z = 0 the mean
+    surface, CONTRIBUTING.md) meets the plane Z = ``plane_z``; a body-fixed model its
+    ellipsoid raised by ``plane_z`` (:meth:`SensorModel.image_to_ground`).  Raises
+    ProcessingError when the ray does not reach the surface in front of the camera.
     """
-    ray = camera.rays(np.asarray(pixel, np.float64).reshape(1, 2))[0]
-    centre = camera.center
-    if abs(ray[2]) < 1e-12 or (plane_z - centre[2]) / ray[2] <= 0:
+    x, y = np.asarray(pixel, np.float64).reshape(2)
+    point = np.asarray(camera.image_to_ground(y + 0.5, x + 0.5, plane_z), np.float64)
+    if camera.radii is not None:
+        ray = camera.image_to_ray(y + 0.5, x + 0.5)
+        from demtool.sensors.base import ray_ellipsoid_intersection
+
+        _, hit = ray_ellipsoid_intersection(ray.origin, ray.direction, *camera.radii, plane_z,
+                                            return_hit=True)
+        if not hit:
+            point = np.full(3, np.nan)
+    if not np.all(np.isfinite(point)):
         raise ProcessingError("the target's view ray at the ROI centre does not reach the "
                               "mean surface (Z = 0); camera frame is not a demtool world frame")
-    return centre + (plane_z - centre[2]) / ray[2] * ray
+    return point
 
 
-def view_geometry(target_camera: PinholeCamera, camera: PinholeCamera, point: np.ndarray,
+def _center_seeing(camera: SensorModel, point: np.ndarray) -> np.ndarray:
+    """Camera centre at the exposure that sees ``point`` (a line scanner's moves)."""
+    line, _ = camera.ground_to_image(point)
+    line = float(line) if np.isfinite(line) else 0.5 * camera.lines
+    return np.asarray(camera.camera_center(np.asarray(line)), np.float64).reshape(3)
+
+
+def view_geometry(target_camera: SensorModel, camera: SensorModel, point: np.ndarray,
                   sun_vector: np.ndarray | None = None,
-                  normal: Sequence[float] = (0.0, 0.0, 1.0)) -> ViewGeometry:
-    """Viewing and illumination angles of ``camera`` at the world ``point``.
+                  normal: Sequence[float] | None = None) -> ViewGeometry:
+    """Viewing and illumination angles of ``camera`` at the ``point``.
 
     Parameters
     ----------
-    target_camera, camera : PinholeCamera
-        World frame X east, Y north, Z up (metres).
+    target_camera, camera : SensorModel
+        Both in the local world frame (X east, Y north, Z up, metres), or both
+        body-fixed; camera centres come from :meth:`SensorModel.camera_center`.
     point : (3,) float
         Surface point (e.g. :func:`surface_point` of the ROI centre).
     sun_vector : (3,) float, optional
-        Unit vector toward the sun (world frame) at this camera's acquisition.
-    normal : (3,) float
-        Surface normal (default: up, the mean surface).
+        Unit vector toward the sun (same frame) at this camera's acquisition.
+    normal : (3,) float, optional
+        Surface normal; default up: +Z in the local frame, the radius vector on a body.
+        On a body the vectors are taken into the local east-north-up frame of the point
+        first, so the sun azimuth is measured from north.
     """
-    normal = np.asarray(normal, np.float64)
-    to_camera = camera.center - point
-    to_target = target_camera.center - point
-    baseline = float(np.linalg.norm(camera.center - target_camera.center))
+    point = np.asarray(point, np.float64)
+    camera_center = _center_seeing(camera, point)
+    target_center = _center_seeing(target_camera, point)
+    to_camera = camera_center - point
+    to_target = target_center - point
+    sun = None if sun_vector is None else np.asarray(sun_vector, np.float64)
+    if camera.radii is not None:
+        from demtool.maps import enu_frame, xyz_to_lonlat_height
+
+        lon, lat, _ = xyz_to_lonlat_height(point, radii=float(camera.radii[0]))
+        frame = enu_frame(lon, lat)
+        to_camera, to_target = frame @ to_camera, frame @ to_target
+        sun = None if sun is None else frame @ sun
+        normal = normal if normal is None else frame @ np.asarray(normal, np.float64)
+    normal = np.asarray((0.0, 0.0, 1.0) if normal is None else normal, np.float64)
+    baseline = float(np.linalg.norm(camera_center - target_center))
     height = float(np.dot(to_target, normal) / np.linalg.norm(normal))
     incidence = phase = azimuth = None
-    if sun_vector is not None:
-        sun = np.asarray(sun_vector, np.float64)
+    if sun is not None:
         incidence = _angle_deg(sun, normal)
         phase = _angle_deg(sun, to_camera)
         azimuth = float(np.degrees(np.arctan2(sun[0], sun[1])) % 360.0)

@@ -9,9 +9,13 @@ them before modifying anything).
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+
+# Every write of a stage must be declared in its StageRun (demtool.outputs.CHECK_DECLARED_ENV).
+os.environ.setdefault("DEMTOOL_CHECK_DECLARED_OUTPUTS", "1")
 
 # The arguments of `demtool synth` for the small scene, and the same as SceneParams.
 SMALL_SCENE_ARGS = ["--seed", "0", "--size", "256", "--views", "4", "--image-size", "192",

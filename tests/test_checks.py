@@ -179,3 +179,19 @@ def test_nan_only_and_absurd_values():
     with pytest.raises(InputError, match=r"^ref\.tif: reference DEM has 2 value\(s\) beyond "
                                          r"±1e\+08 m \(up to 3\.4e\+38 m\)"):
         checks.check_magnitude(np.array([1.0, 1e27, -3.4e38]), "ref.tif", what="reference DEM")
+
+
+def test_large_images_are_binned_and_judged_the_same(monkeypatch):
+    """Above MAX_TEXTURE_PIXELS the image is 2 × 2 averaged first: same verdicts."""
+    monkeypatch.setattr(checks, "MAX_TEXTURE_PIXELS", 128 * 128)
+    weak = _shaded(size=512, contrast_dn=2.0)
+    found = checks.check_texture(weak, "big.tif")
+    assert found.block >= 4 and found.block % 4 == 0  # measured on a 4× binned image
+    assert found.snr > 2 * checks.MIN_TEXTURE_SNR
+    rng = np.random.default_rng(2)
+    noise = np.round(80 + rng.normal(0, 2.2, (512, 512)))
+    noise[:, :100] = np.nan  # NaN-aware averaging
+    with pytest.raises(InputError, match=r"^flat\.tif: image has no usable texture"):
+        checks.check_texture(noise, "flat.tif")
+    with pytest.raises(InputError, match="every valid pixel is 7"):
+        checks.check_texture(np.full((512, 512), 7.0), "flat.tif")

@@ -232,3 +232,54 @@ def test_successful_transaction_still_commits_everything(tmp_path):
     assert dio.read_json(tmp_path / "x" / "a.json") == 1
     assert dio.read_json(tmp_path / "x" / "b.json") == 2
     assert sorted(p.name for p in (tmp_path / "x").iterdir()) == ["a.json", "b.json"]
+
+
+def test_labels_with_several_paths_are_checked_each(files):
+    folder, a, b = files
+    with pytest.raises(InputError, match=r"a\.tif: --out would overwrite the input IMAGES "):
+        dio.check_output_paths({"IMAGES": [b, a]}, {"--out": [folder / "c.tif", a]})
+    with pytest.raises(InputError, match="--out and sidecar name the same file"):
+        dio.check_output_paths({}, {"--out": [folder / "c.tif", folder / "d.tif"],
+                                    "sidecar": folder / "c.tif"})
+
+
+def test_nested_transaction_joins_the_outer_one(files):
+    folder, a, _ = files
+    with pytest.raises(RuntimeError), dio.output_transaction(inputs=[a]):
+        dio.write_json(folder / "outer.json", {"x": 1})
+        with dio.output_transaction(outputs=[folder / "inner.json"]):
+            dio.write_json(folder / "inner.json", {"y": 2})
+        assert not (folder / "inner.json").exists()  # waits for the outer block
+        raise RuntimeError("fail after the inner block")
+    assert not (folder / "outer.json").exists() and not (folder / "inner.json").exists()
+    with dio.output_transaction():
+        with dio.output_transaction(inputs={"--in": folder / "in.json"}):
+            pass
+        with pytest.raises(InputError, match="would overwrite the input --in"):
+            dio.write_json(folder / "in.json", {})  # the inner declaration still holds
+    with dio.output_transaction():
+        with dio.output_transaction():
+            dio.write_json(folder / "inner.json", {"y": 2})
+    assert dio.read_json(folder / "inner.json") == {"y": 2}
+
+
+def test_undeclared_writes_are_refused_when_checked(files, monkeypatch):
+    from demtool.outputs import CHECK_DECLARED_ENV
+
+    folder, _, _ = files
+    declared = dict(outputs={"--out": folder / "o.json"}, output_dirs={"--dir": folder / "d"},
+                    declared=True)
+    monkeypatch.setenv(CHECK_DECLARED_ENV, "1")
+    with dio.output_transaction(**declared):
+        dio.write_json(folder / "o.json", {})
+        dio.write_json(folder / "d" / "any" / "name.json", {})  # inside a declared folder
+    before = _tree(folder)
+    with pytest.raises(InputError, match=r"extra\.json: written but not declared"), \
+            dio.output_transaction(**declared):
+        dio.write_json(folder / "o.json", {"new": 1})
+        dio.write_json(folder / "extra.json", {})
+    assert _tree(folder) == before
+    monkeypatch.delenv(CHECK_DECLARED_ENV)
+    with dio.output_transaction(**declared):  # users are not refused: the check is for tests
+        dio.write_json(folder / "extra.json", {})
+    assert (folder / "extra.json").exists()

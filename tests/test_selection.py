@@ -73,3 +73,44 @@ def test_rank_score_prefers_the_stereo_sweet_spot_and_sun_diversity():
     assert score(geometry(25, 45)) > score(geometry(25, 225))
     plain, terms = selection.rank_score(match, None, min_matches=50)
     assert set(terms) == {"inliers", "overlap"} and 0 < plain <= 1
+
+
+def test_view_geometry_through_body_fixed_sensor_models():
+    """On a line-scan scene on the Moon the angles come from the models alone: the pair's
+    convergence, the sun's incidence and azimuth of the scene, emission = the roll."""
+    from demtool.synth import SceneParams, make_scene
+
+    scene = make_scene(SceneParams(sensor="linescan", dem_size=128, n_views=2, image_size=64,
+                                   gsd_m=1.0, crater_count=0, boulder_count=0,
+                                   center_lon_deg=20.0, center_lat_deg=-40.0))
+    target, partner = (scene.sensors[n] for n in scene.names)
+    point = selection.surface_point(target, np.array([31.5, 31.5]))
+    assert np.linalg.norm(point) == pytest.approx(scene.placement.radius, abs=1e-6)
+    sun = scene.placement.sun_position(scene.sun_vector) - point
+    geometry = selection.view_geometry(target, partner, point, sun / np.linalg.norm(sun))
+    assert geometry.convergence_deg == pytest.approx(25.0, abs=0.1)
+    assert geometry.incidence_deg == pytest.approx(scene.params.sun_incidence_deg, abs=0.01)
+    assert geometry.sun_azimuth_deg == pytest.approx(scene.params.sun_azimuth_deg, abs=0.01)
+    assert geometry.emission_deg == pytest.approx(12.5, abs=0.1)
+
+
+def test_camera_from_tags_reads_the_sensor_model_beside_the_image(tmp_path):
+    from click.testing import CliRunner
+
+    from demtool import io
+    from demtool.cli import cli
+    from demtool.runs.select import _camera_from_tags, _sun_from_tags
+
+    out = tmp_path / "scene"
+    result = CliRunner().invoke(cli, ["synth", "--out", str(out), "--sensor", "linescan",
+                                      "--size", "128", "--image-size", "64", "--gsd", "1",
+                                      "--craters", "0", "--boulders", "0"])
+    assert result.exit_code == 0, result.output
+    raster = io.read_image(out / "view_01.tif", what="image")
+    model = _camera_from_tags(raster, out / "view_01.tif")
+    assert model.kind == "linescan" and model.image_size == (64, 64)
+    point = selection.surface_point(model, np.array([31.5, 31.5]))
+    sun = _sun_from_tags(raster, None, model, point)
+    # the sun is 60° from the local vertical (the default incidence)
+    assert np.degrees(np.arccos(sun @ point / np.linalg.norm(point))) == pytest.approx(
+        60.0, abs=0.01)

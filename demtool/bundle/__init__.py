@@ -14,61 +14,26 @@ on an image folder and an SQLite database) and pure functions on the result:
 conversion to demtool's camera convention and arrays, summary statistics, the
 Umeyama (1991) similarity alignment to known camera centres, and projection with
 COLMAP's radial distortion models.
+
+Names are imported lazily (PEP 562), so ``demtool bundle --help`` and the
+parameter module ``demtool.bundle.params`` do not pull in numba, OpenCV or pycolmap.
 """
 
-from demtool.bundle.align import align_to_centres, apply_similarity, umeyama
-from demtool.bundle.block import BlockAdjustment, adjust_block, known_intrinsics
-from demtool.bundle.calibration import self_calibrate
-from demtool.bundle.colmap import (
-    CAMERA_MODELS,
-    EXHAUSTIVE_MAX_IMAGES,
-    MATCHERS,
-    KnownIntrinsics,
-    SfmOptions,
-    colmap_camera_params,
-    impose_intrinsics,
-    run_sfm,
-)
-from demtool.bundle.inputs import Block, block_from_paths, read_image_list, read_selection
-from demtool.bundle.model import (
-    BundleResult,
-    distort_normalized,
-    image_report,
-    project_points,
-    radial_terms,
-    reconstruction_to_result,
-    reprojection_summary,
-)
-from demtool.bundle.runtime import call_interruptibly, load_pycolmap, set_colmap_verbosity
+from demtool.lazy import lazy_exports
 
-__all__ = [
-    "CAMERA_MODELS",
-    "EXHAUSTIVE_MAX_IMAGES",
-    "MATCHERS",
-    "Block",
-    "BlockAdjustment",
-    "BundleResult",
-    "adjust_block",
-    "block_from_paths",
-    "image_report",
-    "known_intrinsics",
-    "read_image_list",
-    "read_selection",
-    "self_calibrate",
-    "KnownIntrinsics",
-    "SfmOptions",
-    "align_to_centres",
-    "apply_similarity",
-    "call_interruptibly",
-    "load_pycolmap",
-    "colmap_camera_params",
-    "distort_normalized",
-    "impose_intrinsics",
-    "project_points",
-    "radial_terms",
-    "reconstruction_to_result",
-    "reprojection_summary",
-    "run_sfm",
-    "set_colmap_verbosity",
-    "umeyama",
-]
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "align": ("align_to_centres", "apply_similarity", "umeyama"),
+    "block": ("BlockAdjustment", "adjust_block", "known_intrinsics"),
+    "calibration": ("self_calibrate",),
+    "colmap": ("CAMERA_MODELS", "EXHAUSTIVE_MAX_IMAGES", "MATCHERS", "KnownIntrinsics",
+        "SfmOptions", "colmap_camera_params", "impose_intrinsics", "run_sfm"),
+    "inputs": ("Block", "block_from_paths", "read_image_list", "read_selection"),
+    "model": ("BundleResult", "distort_normalized", "image_report", "project_points",
+        "radial_terms", "reconstruction_to_result", "reprojection_summary"),
+    "runtime": ("call_interruptibly", "load_pycolmap", "set_colmap_verbosity"),
+    "priors": ("AdjustedSensor", "Observations", "PoseOffset", "PriorAdjustment",
+        "adjust_with_priors", "triangulate"),
+    "sensorblock": ("SensorBlockAdjustment", "adjust_sensor_block", "local_pinhole"),
+    "ties": ("footprint", "image_pairs", "overlapping_pairs", "tie_points"),
+    "writeback": ("adjust_isd", "adjust_tsai", "model_isd"),
+})

@@ -61,7 +61,7 @@ class SfmOptions:
         "exhaustive", "sequential" (images in the given order, with quadratic overlap),
         "auto" (exhaustive up to :data:`EXHAUSTIVE_MAX_IMAGES` images), or "pairs"
         (only the image pairs in ``pairs``: the hook of footprint-based "spatial"
-        matching, see :func:`demtool.bundle.pairs.overlapping_pairs`).
+        matching, see :func:`demtool.bundle.ties.overlapping_pairs`).
     pairs : sequence of (str, str), optional
         Image (view) name pairs to match when ``matcher`` is "pairs".
     max_features : int

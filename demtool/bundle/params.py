@@ -33,11 +33,19 @@ class BundleParams(Parameters):
     self_calibrate: bool = parameter(True, "With free intrinsics, refine the principal point "
                                      "and radial terms k1, k2 where the block determines "
                                      "them.")
-    matcher: str = parameter(CORE["matcher"], "Pair selection: all pairs, or neighbours in "
-                             "input order (strips; auto: exhaustive up to 100 images).",
-                             choices=tuple(m for m in MATCHERS if m != "pairs"),
+    matcher: str = parameter(CORE["matcher"], "Pair selection: all pairs, neighbours in "
+                             "input order (strips), or overlapping footprints of the sensor "
+                             "models (spatial; needs --sensors or cubes); auto: exhaustive "
+                             "up to 100 images.",
+                             choices=(*(m for m in MATCHERS if m != "pairs"), "spatial"),
                              what="matcher")
     max_features: int = parameter(CORE["max_features"], "SIFT features per image.",
                                   minimum=64)
+    position_sigma: float = parameter(100.0, "With sensor models: standard deviation of the "
+                                      "prior sensor positions, metres.", minimum=0.0,
+                                      min_open=True)
+    pointing_sigma: float = parameter(1.0, "With sensor models: standard deviation of the "
+                                      "prior pointing, milliradians.", minimum=0.0,
+                                      min_open=True)
     seed: int = seed_field()
     workers: int = workers_field()

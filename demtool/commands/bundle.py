@@ -26,6 +26,17 @@ reprojection errors, cameras, target index) with the sidecar OUT.json (registere
 images, per-image observations and residuals, refined intrinsics and their standard
 deviations).  --align-cameras maps the model onto known camera centres (similarity,
 Umeyama 1991) so that it is metric, in the world frame.
+
+With sensor models (--sensors MODEL, repeated, one per image in the same order: ALE
+ISD JSON, ISIS cube with SPICE, ASP .tsai; ISIS cubes given as the images are their own
+models) the block is adjusted in the body-fixed frame, in metres: SIFT tie points
+between the pairs of --matcher (spatial: overlapping footprints of the models) are
+triangulated with the prior poses, then each image's position and pointing (a constant
+offset, for line scanners too) and the tie points are adjusted with priors weighted by
+--position-sigma (m) and --pointing-sigma (mrad).  No two-view initialisation is needed.
+--adjusted-dir receives the adjusted models in their own format (ISD JSON for ISDs and
+cubes, .tsai for .tsai) for rectify, dem and mapproject; OUT.json reports each image's
+residual, observations, and change of position (m) and pointing (mrad).
 """
 
 
@@ -40,11 +51,17 @@ Umeyama 1991) so that it is metric, in the world frame.
                      "(matched by name).")
 @options.path_option("--align-cameras", "cameras.npz with known camera centres: align the "
                      "model to them (metric world frame).")
+@click.option("--sensors", "sensors", multiple=True, type=click.Path(dir_okay=False),
+              help="Sensor model of each image (ISD JSON, ISIS cube, .tsai), repeated, one "
+              "per image in the same order: pose priors.")
+@click.option("--adjusted-dir", type=click.Path(file_okay=False),
+              help="Write the adjusted sensor models into this folder (with --sensors or "
+              "cubes).")
 @options.parameter_options(BundleParams)
 @click.pass_context
 def command(ctx: click.Context, inputs: tuple[str, ...], images: str | None, out: str,
             colmap_dir: str | None, cameras: str | None, align_cameras: str | None,
-            **values: Any) -> None:
+            sensors: tuple[str, ...], adjusted_dir: str | None, **values: Any) -> None:
     """Options → BundleParams → :func:`demtool.runs.bundle.run_bundle`."""
     from demtool.cli import AppState
     from demtool.runs.bundle import run_bundle
@@ -59,5 +76,6 @@ def command(ctx: click.Context, inputs: tuple[str, ...], images: str | None, out
     state = ctx.find_object(AppState)
     run_bundle(list(inputs), out, BundleParams.from_options(values), image_list=images,
                colmap_dir=colmap_dir, cameras_path=cameras, align_path=align_cameras,
+               sensors=list(sensors) or None, adjusted_dir=adjusted_dir,
                verbose=state is not None and state.verbosity > 0,
                resolved=options.resolved_params(ctx))

@@ -16,7 +16,11 @@ from demtool.synth.params import SceneParams
 Writes into DIR: view_00.tif (the nadir target), view_01.tif (its stereo partner),
 view_02.tif …, truth_dem.tif (map grid), truth_dem_target.tif (target pixel grid),
 albedo.tif, cameras.npz, scene.json and the provenance record scene.json.json.
-Defaults give the demo scene (512 × 512 DEM at 1 m, 8 views of 512 × 512 px).""")
+Defaults give the demo scene (512 × 512 DEM at 1 m, 8 views of 512 × 512 px).
+With --sensor frame or linescan the scene sits on --body's sphere and each view also
+gets its ISD (view_XX.json, read by every stage that takes a sensor model), plus
+truth_dem_map.tif: truth heights above the sphere on the body's map over the stereo
+pair's common footprint; linescan renders two views and writes no cameras.npz.""")
 @options.out_dir("Output folder for the scene (created if needed).")
 @options.parameter_options(SceneParams)
 @click.option("--no-craters", is_flag=True, default=False, help="Same as --craters 0.")

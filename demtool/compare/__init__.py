@@ -9,17 +9,14 @@ Pure functions (arrays in, arrays out); the command ``demtool compare`` does the
   :mod:`~demtool.compare.align` — co-registration.
 * :mod:`~demtool.compare.stats` — error statistics; :mod:`~demtool.compare.plots` —
   figures.
+
+Names are imported lazily (PEP 562), so ``demtool compare --help`` and the
+parameter module ``demtool.compare.params`` do not pull in numba, OpenCV or pycolmap.
 """
 
-from demtool.compare.align import ALIGN_METHODS, Alignment, coregister
-from demtool.compare.core import DEFAULT_SLOPE_BINS, Comparison, compare_dems, summarize
+from demtool.lazy import lazy_exports
 
-__all__ = [
-    "ALIGN_METHODS",
-    "DEFAULT_SLOPE_BINS",
-    "Alignment",
-    "Comparison",
-    "compare_dems",
-    "coregister",
-    "summarize",
-]
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "align": ("ALIGN_METHODS", "Alignment", "coregister"),
+    "core": ("DEFAULT_SLOPE_BINS", "Comparison", "compare_dems", "summarize"),
+})

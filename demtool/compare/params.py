@@ -8,9 +8,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from demtool.compare.align import ALIGN_METHODS
-from demtool.compare.core import compare_dems
-from demtool.parameters import Parameters, core_default, parameter, seed_field
+from demtool.core_source import core_constant, core_defaults
+from demtool.parameters import Parameters, parameter, seed_field
+
+# Read from the core's source: `demtool compare --help` does not load numba.
+ALIGN_METHODS = core_constant("demtool.compare.align:ALIGN_METHODS")
+COMPARE = core_defaults("demtool.compare.core:compare_dems")
 
 #: the grid a comparison is made on
 GRIDS = ("reference", "dem")
@@ -26,13 +29,13 @@ class CompareParams(Parameters):
 
     grid: str = parameter("reference", "Which raster's grid the comparison is made on.",
                           choices=GRIDS, what="grid")
-    align: str = parameter(core_default(compare_dems, "align"), "Co-registration: median "
+    align: str = parameter(COMPARE["align"], "Co-registration: median "
                            "vertical offset, Nuth & Kääb shift, point-to-plane ICP, or the "
                            "shift followed by ICP.", choices=ALIGN_METHODS,
                            what="alignment method")
-    icp_scale: bool = parameter(core_default(compare_dems, "icp_scale"), "Let ICP fit an "
+    icp_scale: bool = parameter(COMPARE["icp_scale"], "Let ICP fit an "
                                 "isotropic scale too.")
-    slope_bins: tuple[float, ...] = parameter(core_default(compare_dems, "slope_bins"),
+    slope_bins: tuple[float, ...] = parameter(COMPARE["slope_bins"],
                                               "Slope class edges, degrees.", cli=False)
     profiles: tuple[tuple[float, float, float, float], ...] = parameter(
         (), "Profile lines in comparison-grid pixels; default: through the centre.",

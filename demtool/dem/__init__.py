@@ -10,48 +10,18 @@ Routes (see :mod:`demtool.dem.routes`):
 
 All end with outlier removal, resampling to the target pixel grid and D'Errico's
 spring-metaphor gap filling (:func:`demtool.interpolate.inpaint_springs`).
+
+Names are imported lazily (PEP 562), so ``demtool dem --help`` and the
+parameter module ``demtool.dem.params`` do not pull in numba, OpenCV or pycolmap.
 """
 
-from demtool.dem.disparity import (
-    apply_projective_3d,
-    disparity_correspondences,
-    fit_projective_3d,
-)
-from demtool.dem.grid import (
-    fill_and_smooth,
-    local_median_inliers,
-    splat_bilinear,
-    splat_median,
-)
-from demtool.dem.points import (
-    estimate_gsd,
-    heights_along_view,
-    heights_from_relative_depth,
-    target_samples,
-)
-from demtool.dem.routes import (
-    DemResult,
-    OutlierOptions,
-    dem_from_disparity_calibrated,
-    dem_from_disparity_projective,
-    dem_from_points,
-)
+from demtool.lazy import lazy_exports
 
-__all__ = [
-    "DemResult",
-    "OutlierOptions",
-    "apply_projective_3d",
-    "dem_from_disparity_calibrated",
-    "dem_from_disparity_projective",
-    "dem_from_points",
-    "disparity_correspondences",
-    "estimate_gsd",
-    "fill_and_smooth",
-    "fit_projective_3d",
-    "heights_along_view",
-    "heights_from_relative_depth",
-    "local_median_inliers",
-    "splat_bilinear",
-    "splat_median",
-    "target_samples",
-]
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "disparity": ("apply_projective_3d", "disparity_correspondences", "fit_projective_3d"),
+    "grid": ("fill_and_smooth", "local_median_inliers", "splat_bilinear", "splat_median"),
+    "points": ("estimate_gsd", "heights_along_view", "heights_from_relative_depth",
+        "target_samples"),
+    "routes": ("DemResult", "OutlierOptions", "dem_from_disparity_calibrated",
+        "dem_from_disparity_projective", "dem_from_points"),
+})

@@ -15,6 +15,7 @@ import numpy as np
 from demtool.bundle import project_points
 from demtool.camera import PinholeCamera
 from demtool.errors import ProcessingError
+from demtool.sensors.base import SensorModel
 
 
 @dataclass(frozen=True)
@@ -151,14 +152,36 @@ def target_samples(points: np.ndarray, camera: PinholeCamera, *, aligned: bool,
     return TargetSamples(pixels=pixels, heights=heights, depth=depth, index=index)
 
 
-def estimate_gsd(camera: PinholeCamera, *, aligned: bool, depth: np.ndarray,
+def pixel_angle(camera: SensorModel) -> float:
+    """Angular size of a pixel at the image centre, radians (through the interface).
+
+    The look directions of the centre's neighbours half a pixel either way, along the
+    sample and the line axes, are cut by the plane at unit distance along the centre's
+    look direction; the mean of the two spacings is the pixel's angle (a pinhole:
+    ``1 / focal_px`` when its principal point is the image centre).  A line scanner's
+    detector is one line (its lines come from the motion), so only the sample axis
+    counts there.
+    """
+    centre_line, centre_sample = 0.5 * camera.lines, 0.5 * camera.samples
+    lines = centre_line + np.array([0.0, 0.0, 0.0, -0.5, 0.5])
+    samples = centre_sample + np.array([0.0, -0.5, 0.5, 0.0, 0.0])
+    look = np.asarray(camera.look_direction(lines, samples), dtype=np.float64)
+    on_plane = look / (look @ look[0])[:, None]
+    across = float(np.linalg.norm(on_plane[2] - on_plane[1]))
+    if camera.kind == "linescan":
+        return across
+    return 0.5 * (across + float(np.linalg.norm(on_plane[4] - on_plane[3])))
+
+
+def estimate_gsd(camera: SensorModel, *, aligned: bool, depth: np.ndarray,
                  distance_m: float | None) -> float:
-    """Ground sampling distance of the target, metres per pixel: distance / focal length.
+    """Ground sampling distance of the target, metres per pixel: distance × pixel angle.
 
     The distance is the median depth of the points when the bundle is metric, else the
-    given spacecraft–surface distance.
+    given spacecraft–surface distance; the pixel angle comes from the sensor model's
+    look directions (:func:`pixel_angle`).
     """
     distance = float(np.median(depth)) if aligned else float(distance_m or np.nan)
     if not np.isfinite(distance) or distance <= 0:
         raise ProcessingError("cannot estimate the GSD: give --gsd or the distance")
-    return distance / camera.focal_px
+    return distance * pixel_angle(camera)

@@ -8,10 +8,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from demtool.match.dense import match
-from demtool.parameters import Parameters, core_defaults, parameter, workers_field
+from demtool.core_source import core_defaults
+from demtool.parameters import Parameters, parameter, workers_field
 
-CORE = core_defaults(match)
+CORE = core_defaults("demtool.match.dense:match")  # from the source: --help loads no numba
 
 
 @dataclass(frozen=True)

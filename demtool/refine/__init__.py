@@ -11,37 +11,13 @@ Names are imported lazily, so ``demtool.refine.params`` (used by the command lin
 does not pull in numba.
 """
 
-from __future__ import annotations
+from demtool.lazy import lazy_exports
 
-import importlib
-from typing import Any
-
-_EXPORTS = {
-    "estimate_albedo": "demtool.refine.albedo",
-    "Energies": "demtool.refine.sfs",
-    "RefineResult": "demtool.refine.sfs",
-    "refine_heights": "demtool.refine.sfs",
-    "SfsParameters": "demtool.refine.params",
-    "RefineParams": "demtool.refine.params",
-    "Illumination": "demtool.refine.shading",
-    "make_illumination": "demtool.refine.shading",
-    "reflectance_map": "demtool.refine.shading",
-    "render_dem": "demtool.refine.shading",
-    "slopes": "demtool.refine.shading",
-    "sun_from_angles": "demtool.refine.shading",
-    "cast_shadows": "demtool.refine.shadows",
-    "dark_pixels": "demtool.refine.shadows",
-    "shadow_mask": "demtool.refine.shadows",
-}
-
-__all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'demtool.refine' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return __all__
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "albedo": ("estimate_albedo",),
+    "sfs": ("Energies", "RefineResult", "refine_heights"),
+    "params": ("SfsParameters", "RefineParams"),
+    "shading": ("Illumination", "make_illumination", "reflectance_map", "render_dem", "slopes",
+        "sun_from_angles"),
+    "shadows": ("cast_shadows", "dark_pixels", "shadow_mask"),
+})

@@ -4,19 +4,23 @@
 ``demtool.commands.<stage>`` calls, and the one benchmarks, tests and notebooks call.
 Runners never import click.  Each starts by declaring its files in a
 :class:`StageRun`, the one place that knows a run's inputs and outputs: it checks
-them and the parameters, builds the :class:`~demtool.provenance.Provenance` and
-names the stage's logger (``demtool.<stage>``).
+them (:func:`demtool.outputs.check_output_paths`, before any work) and the
+parameters, builds the :class:`~demtool.provenance.Provenance`, names the stage's
+logger (``demtool.<stage>``) and opens the output transaction with the same
+declaration (:meth:`StageRun.transaction`).
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Mapping, Sequence
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any
 
-from demtool.errors import InputError, ParameterError
+from demtool.errors import InputError
 from demtool.logs import get_logger
+from demtool.outputs import check_output_paths, output_transaction
 from demtool.parameters import Parameters
 from demtool.provenance import Provenance
 from demtool.stages import STAGES
@@ -34,8 +38,19 @@ def _paths(spec: FileSpec) -> list[Path]:
     return [Path(p) for p in spec]
 
 
+def sidecar_path(output: PathLike) -> Path:
+    """The provenance sidecar of an output: ``<output>.json`` (declare it as an output)."""
+    return Path(f"{os.fspath(output)}.json")
+
+
 class StageRun:
     """The files of one stage run, declared in one place at the runner's start.
+
+    Declare **every** file the run writes, the sidecar (:func:`sidecar_path`) and the
+    files written into an output folder included, so that a bad path is refused before
+    any work; then write them inside ``with run.transaction():``.  With the environment
+    variable ``DEMTOOL_CHECK_DECLARED_OUTPUTS`` set (the test suite sets it) a write
+    that was not declared is refused.
 
     Parameters
     ----------
@@ -47,9 +62,12 @@ class StageRun:
         Option or argument label (``"DEM"``, ``"--rectify"``) → input path(s) or None,
         in the order the provenance lists them.
     outputs : mapping
-        Label → output file path or None (not asked for).
+        Label → output file path(s) or None (not asked for).
     folders : mapping
-        Label → output folder or None.
+        Label → output folder(s) or None; files of unknown names may be written in them.
+    resolved : mapping, optional
+        The command's resolved options, for the provenance record (default:
+        ``params.as_dict()``).
 
     Attributes
     ----------
@@ -58,16 +76,15 @@ class StageRun:
     log : logging.Logger
         The stage's logger, ``demtool.<stage>``.
 
-    resolved : mapping, optional
-        The command's resolved options, for the provenance record (default:
-        ``params.as_dict()``).
-
     Raises
     ------
     InputError
-        An output file that is an existing folder, or an output folder that is a file.
+        One line naming the path (:func:`demtool.outputs.check_output_paths`): an output
+        that is an input or another output (symlinks and hard links followed), an
+        output file that is a folder or an output folder that is a file, a folder that
+        cannot be created or written.
     ParameterError
-        An invalid parameter, or two outputs that are the same file.
+        An invalid parameter.
     """
 
     def __init__(self, stage: str, params: Parameters, *,
@@ -91,24 +108,18 @@ class StageRun:
         """Every input path, in declaration order."""
         return [p for paths in self.inputs.values() for p in paths]
 
+    def output_paths(self) -> list[Path]:
+        """Every declared output file, in declaration order."""
+        return [p for paths in self.outputs.values() for p in paths]
+
     def check_outputs(self) -> None:
-        """Outputs must be writable as what they are, and distinct from each other."""
-        for label, paths in self.folders.items():
-            for path in paths:
-                if path.exists() and not path.is_dir():
-                    raise InputError(f"{path}: {label} must be a folder, but a file of that "
-                                     "name exists")
-        seen: dict[Path, str] = {}
-        for label, paths in self.outputs.items():
-            for path in paths:
-                if path.is_dir():
-                    raise InputError(f"{path}: {label} must be a file name, but it is a "
-                                     "folder")
-                resolved = path.resolve()
-                if resolved in seen:
-                    raise ParameterError(f"{label} {path} is the same file as "
-                                         f"{seen[resolved]}")
-                seen[resolved] = label
+        """Refuse outputs over inputs or each other, misplaced or unwritable (no work done)."""
+        check_output_paths(self.inputs, self.outputs, output_dirs=self.folders)
+
+    def transaction(self) -> AbstractContextManager[None]:
+        """``io.output_transaction`` over this run's declared inputs, outputs and folders."""
+        return output_transaction(self.inputs, self.outputs, output_dirs=self.folders,
+                                  declared=True)
 
 
 def check_same_frame(raster: Any, reference: Any, hint: str, what: str = "the reference"
@@ -133,3 +144,41 @@ def check_same_frame(raster: Any, reference: Any, hint: str, what: str = "the re
     if raster.crs is None and reference.crs is None and frame and other and other != frame:
         raise InputError(f"{raster.path}: is in frame '{other}' but {what} {reference.path} "
                          f"is in frame '{frame}'; {hint}")
+
+
+def check_stereo_pair(left: Any, right: Any, rectify: PathLike | None = None, *,
+                      rectification: Mapping[str, Any] | None = None,
+                      rectified: bool = True) -> None:
+    """What ``sgm`` and ``match`` need of a pair: texture, and a rectify.npz of this pair.
+
+    Parameters
+    ----------
+    left, right : demtool.io.Raster
+        The images as read (``data``, ``path``, ``tags``).
+    rectify : path-like, optional
+        The pair's ``rectify.npz`` (read here unless ``rectification`` is given).
+    rectification : mapping, optional
+        Its content, when already read.
+    rectified : bool
+        Whether the images are the rectified pair (else the originals).
+
+    Raises
+    ------
+    InputError
+        A constant or near-constant image (:func:`demtool.checks.check_texture`), or a
+        rectification of another pair (:func:`demtool.checks.check_rectification_matches`).
+    """
+    from demtool import checks
+    from demtool import io as dio
+
+    checks.check_texture(left.data, left.path, what="left image")
+    checks.check_texture(right.data, right.path, what="right image")
+    if rectify is None or Path(left.path) == Path(right.path):
+        return
+    content = rectification if rectification is not None else \
+        dio.read_npz(rectify, "rectification")
+    sources = {left.path: left.tags.get("rectified_from"),
+               right.path: right.tags.get("rectified_from")} if rectified else None
+    checks.check_rectification_matches(
+        content, rectify, {left.path: left.data.shape, right.path: right.data.shape},
+        rectified=rectified, sources=sources)

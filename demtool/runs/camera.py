@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
-from demtool.runs import StageRun
+from demtool.runs import StageRun, sidecar_path
 
 if TYPE_CHECKING:
     from demtool.camera_params import CameraParams
@@ -180,12 +180,9 @@ def run_camera(models: Sequence[str | os.PathLike], params: CameraParams | None 
 
     params = params or CameraParams()
     run = StageRun("camera", params, resolved=resolved, inputs={"MODEL": list(models)},
-                   outputs={"--out": out})
+                   outputs={"--out": out,
+                            "sidecar": None if out is None else sidecar_path(out)})
     log, provenance = run.log, run.provenance
-    if out is not None:
-        from demtool.outputs import check_output_paths
-
-        check_output_paths(list(models), {"--out": out, "the --out sidecar": f"{out}.json"})
     body = _named_body(params.body) if params.body is not None else None
     sensors, bodies, files = read_models(models, body)
     log.info("%d camera model(s) from %d file(s)", len(sensors), len(models))
@@ -198,7 +195,7 @@ def run_camera(models: Sequence[str | os.PathLike], params: CameraParams | None 
     text = dio.dumps_json(report) if as_json else format_table(report)
     if out is not None:
         summary = {"cameras": len(report["cameras"]), "pairs": len(report["pairs"])}
-        with dio.output_transaction():
+        with run.transaction():
             dio.write_json(out, {**report, "provenance": provenance.record(summary, [out])})
             provenance.write_sidecar(out, summary)
     print(text, file=stream or sys.stdout)

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from demtool.runs import StageRun, check_same_frame
+from demtool.runs import StageRun, check_same_frame, sidecar_path
 
 if TYPE_CHECKING:
     from demtool.compare.params import CompareParams
@@ -40,19 +40,31 @@ def _onto(raster, grid, what: str):
         raise ProcessingError(f"{raster.path}: {what}: {exc}") from None
 
 
-def _read_mask(path: str | os.PathLike, grid):
-    """Mask raster (non-zero = use) resampled onto the comparison grid."""
-    import numpy as np
-
+def _read_mask_raster(path: str | os.PathLike, dem, reference):
+    """The --mask raster, which must lie on the DEM's or the reference's grid and frame."""
     from demtool import io as dio
+    from demtool.checks import check_same_grid
     from demtool.errors import InputError
 
     raster = dio.read_raster(path, what="mask", allow_all_nan=False)
+    try:
+        check_same_grid(reference, raster, reference_what="reference DEM")
+    except InputError:
+        check_same_grid(dem, raster)  # neither grid: say how it differs from the DEM's
+    return raster
+
+
+def _read_mask(raster, grid):
+    """Mask raster (non-zero = use) resampled onto the comparison grid."""
+    import numpy as np
+
+    from demtool.errors import InputError
+
     values = _onto(raster, grid, "mask")
     with np.errstate(invalid="ignore"):
         mask = np.isfinite(values) & (np.abs(values) > 0.5)
     if not mask.any():
-        raise InputError(f"{path}: mask selects no pixel of the comparison grid")
+        raise InputError(f"{raster.path}: mask selects no pixel of the comparison grid")
     return mask
 
 
@@ -121,6 +133,7 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     import numpy as np
 
     from demtool import io as dio
+    from demtool.checks import check_magnitude
     from demtool.compare import compare_dems
     from demtool.compare import plots as figure_maker
     from demtool.compare.params import CompareParams
@@ -128,13 +141,19 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     params = params or CompareParams()
     run = StageRun("compare", params, resolved=resolved,
                    inputs={"DEM": dem_path, "REFERENCE": reference_path, "--also": also,
-                           "--mask": mask_path}, folders={"--out": out_dir})
+                           "--mask": mask_path}, folders={"--out": out_dir},
+                   outputs={"--out": [Path(out_dir) / n for n in (REPORT, DIFFERENCE, *FIGURES)],
+                            "sidecar": sidecar_path(Path(out_dir) / REPORT)})
     log, provenance = run.log, run.provenance
     grid, align, label = params.grid, params.align, params.label
     out = Path(out_dir)
     dem = _read_dem(dem_path, "DEM")
     reference = _read_dem(reference_path, "reference DEM")
     extra = [_read_dem(path, "DEM (--also)") for path in also]
+    for raster, what in ((dem, "DEM"), (reference, "reference DEM"),
+                         *((r, "DEM (--also)") for r in extra)):
+        check_magnitude(raster.data, raster.path, what=what)
+    mask_raster = _read_mask_raster(mask_path, dem, reference) if mask_path else None
     for raster in (dem, *extra):
         check_same_frame(raster, reference, "compare rasters of one frame (e.g. a "
                          "target-frame DEM with truth_dem_target.tif)")
@@ -156,7 +175,7 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
         reference_values = _onto(reference, target, "reference DEM")
         dem_values = _onto(dem, target, "DEM")
     extra_values = [_onto(raster, target, "DEM (--also)") for raster in extra]
-    mask = _read_mask(mask_path, target) if mask_path else None
+    mask = _read_mask(mask_raster, target) if mask_raster is not None else None
     sx, sy = target.spacing
     lines = [tuple(float(v) for v in line) for line in params.profiles] or \
         figure_maker.default_profiles(target.shape)
@@ -219,7 +238,7 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     report_path = out / REPORT
     outputs = [report_path, out / DIFFERENCE, *[out / name for name in figures]]
     report["provenance"] = provenance.record(_headline(report), outputs)
-    with dio.output_transaction():
+    with run.transaction():
         dio.write_raster(out / DIFFERENCE, main.difference, transform=target.transform,
                          crs=target.crs,
                          tags=provenance.tags(frame=frame or "unknown", label=label,

@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from demtool.runs import StageRun
+from demtool.runs import StageRun, sidecar_path
 from demtool.runs.scene import read_scene_description, scene_number
 
 if TYPE_CHECKING:
@@ -60,10 +60,14 @@ def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.P
                      outliers: OutlierOptions, median_px: int,
                      seed: int) -> tuple[Any, str, str, float, dict[str, Any]]:
     """SIAM routes: (DemResult, target name, route tag, estimated GSD, extra summary)."""
+    import dataclasses
+
     from demtool import dem as core
     from demtool import io as dio
     from demtool.camera import cameras_from_arrays
+    from demtool.checks import check_disparity_range, check_magnitude
     from demtool.errors import InputError
+    from demtool.logs import get_logger
 
     rectification = dio.read_npz(rectify_path, "rectification")
     disparity = dio.read_raster(disparity_path, what="disparity")
@@ -72,8 +76,19 @@ def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.P
         raise InputError(f"{disparity_path}: disparity is {disparity.data.shape[1]}×"
                          f"{disparity.data.shape[0]} px but {rectify_path} has a "
                          f"{width_rect}×{height_rect} rectified canvas")
+    checked = check_disparity_range(disparity.data, rectification["disparity_range"],
+                                    disparity_path, source=f"{rectify_path}")
+    if checked.outside:
+        get_logger("dem").warning("%s: %d disparities outside %.4g … %.4g px masked",
+                                  disparity_path, checked.outside, checked.low, checked.high)
+    disparity = dataclasses.replace(disparity, data=checked.disparity)
     left_name = str(rectification["left_name"])
     right_name = str(rectification["right_name"])
+    frame = disparity.tags.get("frame", "")
+    if frame.startswith("image:") and frame != f"image:{left_name}_rect":
+        raise InputError(f"{disparity_path}: disparity in frame {frame}, but {rectify_path} "
+                         f"rectifies {left_name} (image:{left_name}_rect); is it the "
+                         "rectification of this pair?")
     target_name = target or left_name
     if target_name not in (left_name, right_name):
         raise InputError(f"{rectify_path}: target {target_name} is neither the left "
@@ -96,9 +111,10 @@ def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.P
             disparity.data, H_left, H_right, cameras[left_name], cameras[right_name],
             target=side, outliers=outliers, median_px=median_px)
         target_camera = cameras[target_name]
-        estimated_gsd = result.report["median_depth_m"] / target_camera.focal_px
+        estimated_gsd = result.report["median_depth_m"] * core.points.pixel_angle(target_camera)
         return result, target_name, "disparity-calibrated", estimated_gsd, {}
     reference = dio.read_raster(reference_path, what="reference DEM")
+    check_magnitude(reference.data, reference_path, what="reference DEM")
     if reference.data.shape != (height, width):
         raise InputError(f"{reference_path}: reference DEM is {reference.data.shape[1]}×"
                          f"{reference.data.shape[0]} px but the target image {target_name} is "
@@ -142,7 +158,7 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
                            "--rectify": rectify_path, "--reference": reference_path,
                            "--cameras": cameras_path, "--scene": scene_path},
                    outputs={"--out": out, "--interpolated-mask": mask_path,
-                            "--error-out": error_path})
+                            "--error-out": error_path, "sidecar": sidecar_path(out)})
     log, prov = run.log, run.provenance
     for path in run.input_paths():
         dio.require_file(path, "input file")
@@ -208,7 +224,7 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
     data = np.stack([result.dem, interpolated]) if mask_band else result.dem
     band_names = ["height", "interpolated"] if mask_band else ["height"]
     outputs = [Path(out)]
-    with dio.output_transaction():
+    with run.transaction():
         dio.write_raster(out, data, transform=transform, tags=tags, band_names=band_names)
         if mask_path is not None:
             dio.write_raster(mask_path, interpolated, transform=transform,

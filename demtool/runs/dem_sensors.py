@@ -73,6 +73,7 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
     import numpy as np
 
     from demtool import io as dio
+    from demtool.checks import check_disparity_range
     from demtool.dem.sensors import default_max_ray_gap, dem_on_map, triangulate_sensors
     from demtool.errors import InputError, ProcessingError
     from demtool.maps import body_from_radii
@@ -90,7 +91,12 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
         raise InputError(f"{disparity_path}: disparity is {disparity.data.shape[1]}×"
                          f"{disparity.data.shape[0]} px but {rectify_path} has a "
                          f"{width_rect}×{height_rect} rectified canvas")
-    d = disparity.data
+    checked = check_disparity_range(disparity.data, rectification["disparity_range"],
+                                    disparity_path, source=f"{rectify_path}")
+    if checked.outside:
+        log.warning("%s: %d disparities outside %.4g … %.4g px masked", disparity_path,
+                    checked.outside, checked.low, checked.high)
+    d = checked.disparity
     rows, cols = np.nonzero(np.isfinite(d))
     if rows.size < 3:
         raise ProcessingError(f"{disparity_path}: fewer than 3 valid disparities")
@@ -152,7 +158,7 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
     data = np.stack([result.dem, filled]) if params.mask_band else result.dem
     band_names = ["height", "interpolated"] if params.mask_band else ["height"]
     outputs = [Path(out)]
-    with dio.output_transaction():
+    with run.transaction():
         dio.write_raster(out, data, transform=grid.transform, crs=grid.crs, tags=tags,
                          band_names=band_names)
         if mask_path is not None:

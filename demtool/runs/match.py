@@ -6,7 +6,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from demtool.runs import StageRun
+from demtool.runs import StageRun, check_stereo_pair, sidecar_path
 
 if TYPE_CHECKING:
     from demtool.match.params import MatchParams
@@ -101,7 +101,7 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
     run = StageRun("match", params, resolved=resolved,
                    inputs={"LEFT": left_path, "RIGHT": right_path, "--rectify": rectify},
                    outputs={"--out": out, "--correlation-out": correlation_out,
-                            "--sigma-out": sigma_out})
+                            "--sigma-out": sigma_out, "sidecar": sidecar_path(out)})
     log, provenance = run.log, run.provenance
     out_path = Path(out)
     template, threshold, grid_spacing = params.template, params.threshold, params.grid_spacing
@@ -111,6 +111,7 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
         numba.set_num_threads(min(int(params.workers), numba.config.NUMBA_NUM_THREADS))
 
     left, right, left_rect, right_rect, rect, warped = _load_pair(left_path, right_path, rectify)
+    check_stereo_pair(left, right, rectify, rectification=rect, rectified=not warped)
     seed_points = None
     disparity_range = None
     if rect is not None:
@@ -138,7 +139,7 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
                            completeness_percent=result.summary["completeness_percent"])
     transform = left.transform if not warped else dio.image_frame_transform(1.0)
     outputs: list[str | os.PathLike] = [out_path]
-    with dio.output_transaction():
+    with run.transaction():
         dio.write_raster(out_path, result.disparity, transform=transform, tags=tags,
                          band_names=["disparity"])
         if correlation_out is not None:

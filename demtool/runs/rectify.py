@@ -6,7 +6,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from demtool.runs import StageRun
+from demtool.runs import StageRun, sidecar_path
 
 if TYPE_CHECKING:
     from demtool.rectify_params import RectifyParams
@@ -65,16 +65,22 @@ def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
     import numpy as np
 
     from demtool import io as dio
+    from demtool.checks import check_texture
     from demtool.rectify import rectify_pair, warp_to_rectified
     from demtool.rectify_params import RectifyParams
 
     params = params or RectifyParams()
     run = StageRun("rectify", params, resolved=resolved,
-                   inputs={"LEFT": left_path, "RIGHT": right_path}, folders={"--out": out_dir})
+                   inputs={"LEFT": left_path, "RIGHT": right_path}, folders={"--out": out_dir},
+                   outputs={"--out": [Path(out_dir) / n for n in (LEFT_RECT, RIGHT_RECT,
+                                                                  RECTIFY_NPZ)],
+                            "sidecar": sidecar_path(Path(out_dir) / RECTIFY_NPZ)})
     log, provenance = run.log, run.provenance
     out = Path(out_dir)
     left_image = dio.read_image(left_path, what="left image")
     right_image = dio.read_image(right_path, what="right image")
+    check_texture(left_image.data, left_path, what="left image")
+    check_texture(right_image.data, right_path, what="right image")
     left_name, right_name = Path(left_path).stem, Path(right_path).stem
     pair = f"{left_path} / {right_path}"
     _refuse_map_projected(left_image, right_image)
@@ -86,6 +92,8 @@ def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
     result = rectify_pair(left_image.data, right_image.data, **core_params, what=pair)
     left_rect = warp_to_rectified(left_image.data, result.H_left, result.size_rect)
     right_rect = warp_to_rectified(right_image.data, result.H_right, result.size_rect)
+    for warped in (left_rect, right_rect):  # nodata is NaN, never ±inf (file contract)
+        warped[np.isinf(warped)] = np.nan
     residuals = result.vertical_residuals
     summary = {
         "left": left_name,
@@ -126,7 +134,7 @@ def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
         "iterations": np.asarray(result.iterations),
     }
     npz_path = out / RECTIFY_NPZ
-    with dio.output_transaction():
+    with run.transaction():
         for path, image, name, H in ((out / LEFT_RECT, left_rect, left_name, result.H_left),
                                      (out / RIGHT_RECT, right_rect, right_name, result.H_right)):
             dio.write_raster(path, image, transform=dio.image_frame_transform(1.0),

@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from demtool.runs import StageRun
+from demtool.runs import StageRun, sidecar_path
 
 if TYPE_CHECKING:
     from demtool.rectify_params import RectifyParams
@@ -102,6 +102,7 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
 
     from demtool import features
     from demtool import io as dio
+    from demtool.checks import check_texture
     from demtool.errors import ParameterError, ProcessingError
     from demtool.rectify_calibrated import rectify_sensors, resampling_maps, warp
     from demtool.rectify_params import RectifyParams
@@ -111,7 +112,10 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
     run = StageRun("rectify", params, resolved=resolved,
                    inputs={"LEFT": left_path, "RIGHT": right_path,
                            "--sensor-left": sensor_left, "--sensor-right": sensor_right},
-                   folders={"--out": out_dir})
+                   folders={"--out": out_dir},
+                   outputs={"--out": [Path(out_dir) / n for n in (LEFT_RECT, RIGHT_RECT,
+                                                                  RECTIFY_NPZ)],
+                            "sidecar": sidecar_path(Path(out_dir) / RECTIFY_NPZ)})
     if sensor_left is None or sensor_right is None:
         missing = "--sensor-right" if sensor_left is not None else "--sensor-left"
         raise ParameterError(f"{missing} is needed too: give both sensor models or neither")
@@ -123,6 +127,8 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
     out = Path(out_dir)
     left_image = dio.read_image(left_path, what="left image")
     right_image = dio.read_image(right_path, what="right image")
+    check_texture(left_image.data, left_path, what="left image")
+    check_texture(right_image.data, right_path, what="right image")
     left_model = read_frame_model(sensor_left, left_path, left_image.data.shape,
                                   "--sensor-left")
     right_model = read_frame_model(sensor_right, right_path, right_image.data.shape,
@@ -153,6 +159,8 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
             for side, model in (("left", left_model), ("right", result.right_model))}
     left_rect = warp(left_image.data, *maps["left"])
     right_rect = warp(right_image.data, *maps["right"])
+    for warped in (left_rect, right_rect):  # nodata is NaN, never ±inf (file contract)
+        warped[np.isinf(warped)] = np.nan
     H_left = _homography_fit(*maps["left"])
     H_right = _homography_fit(*maps["right"])
     # rectified F = [e]x with e = (1, 0, 0): rows agree; F = H_rightᵀ F_rect H_left
@@ -221,7 +229,7 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
         **model_to_arrays(result.right_model, "sensor_right_"),
     }
     npz_path = out / RECTIFY_NPZ
-    with dio.output_transaction():
+    with run.transaction():
         for path, image, name in ((out / LEFT_RECT, left_rect, left_name),
                                   (out / RIGHT_RECT, right_rect, right_name)):
             dio.write_raster(path, image, transform=dio.image_frame_transform(1.0),

@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from demtool.runs import StageRun, check_same_frame
+from demtool.runs import StageRun, check_same_frame, sidecar_path
 
 if TYPE_CHECKING:
     import numpy as np
@@ -180,6 +180,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     import numpy as np
 
     from demtool import io
+    from demtool.checks import check_magnitude, check_texture
     from demtool.errors import InputError, ProcessingError
     from demtool.refine import refine_heights
     from demtool.refine.params import RefineParams
@@ -188,9 +189,11 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     params = params or RefineParams()
     run = StageRun("refine", params, resolved=resolved,
                    inputs={"IMAGE": image_path, "DEM": dem_path, "--sensor": sensor_path},
-                   outputs={"--out": out, "--albedo-out": albedo_out})
+                   outputs={"--out": out, "--albedo-out": albedo_out,
+                            "sidecar": sidecar_path(out)})
     log, prov = run.log, run.provenance
     dem = io.read_raster(dem_path, what="DEM")
+    check_magnitude(dem.data, dem_path, what="DEM")
     map_route = None
     map_report: dict[str, Any] = {}
     if dem.crs is not None:
@@ -214,11 +217,13 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     if map_route is not None:
         image_tags: dict[str, str] = {}
         values, note = map_route.values, None
+        check_texture(values, image_path, what="image")
         illumination = map_route.illuminations[0]
         sources = {"sun": f"sensor model {map_route.report['sensor']}",
                    "view": f"sensor model {map_route.report['sensor']}"}
     else:
         image = io.read_image(image_path, what="image")
+        check_texture(image.data, image_path, what="image")
         image_tags = image.tags
         illumination, sources = resolve_illumination(
             image, sun_azimuth=sun_azimuth, sun_elevation=sun_elevation,
@@ -296,7 +301,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
         refine_converged=result.converged, sun_vector_grid=illumination.sun.tolist(),
         view_vector_grid=illumination.view.tolist(), reflectance_model=params.model)}
     outputs = [Path(out)]
-    with io.output_transaction():
+    with run.transaction():
         io.write_raster(out, result.dem, transform=dem.transform, crs=dem.crs, tags=tags)
         if albedo_out is not None:
             io.write_raster(albedo_out, result.albedo, transform=dem.transform, crs=dem.crs,

@@ -6,7 +6,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from demtool.runs import StageRun
+from demtool.runs import StageRun, sidecar_path
 from demtool.runs.scene import read_scene_description, scene_sun_vector
 
 if TYPE_CHECKING:
@@ -29,23 +29,36 @@ def _load_geometry_sources(cameras_path, scene_path):
     return cameras, sun
 
 
-def _camera_from_tags(raster):
-    """A PinholeCamera from an image's ``camera`` tag (written by synth), or None."""
-    from demtool.camera import PinholeCamera
+def _camera_from_tags(raster, path=None):
+    """The sensor model an image's tags name, or None: its ``camera`` tag (a local-frame
+    pinhole written by synth), else its ``sensor_model`` tag (an ISD or other model file
+    beside the image, read by :func:`demtool.sensors.read_sensor`)."""
+    from demtool.sensors import PinholeCamera, read_sensor
 
     value = raster.tag_json("camera")
-    if not isinstance(value, dict):
-        return None
-    try:
-        return PinholeCamera(K=value["K"], R=value["R"], t=value["t"], width=value["width"],
-                             height=value["height"])
-    except (KeyError, TypeError, ValueError):
-        return None
+    if isinstance(value, dict):
+        try:
+            return PinholeCamera(K=value["K"], R=value["R"], t=value["t"],
+                                 width=value["width"], height=value["height"])
+        except (KeyError, TypeError, ValueError):
+            return None
+    model = raster.tag_json("sensor_model") if path is not None else None
+    if model:
+        return read_sensor(Path(path).parent / str(model))
+    return None
 
 
-def _sun_from_tags(raster, default):
+def _sun_from_tags(raster, default, camera=None, point=None):
+    """Unit vector toward the sun: from a planetary sensor model's sun position at the
+    exposure that sees ``point`` (body-fixed), else the image's ``sun_vector`` tag (local
+    frame), else ``default``."""
     import numpy as np
 
+    if camera is not None and camera.radii is not None and point is not None:
+        line, _ = camera.ground_to_image(point)
+        line = float(line) if np.isfinite(line) else 0.5 * camera.lines
+        sun = np.asarray(camera.sun_position(np.asarray(line)), np.float64).reshape(3) - point
+        return sun / np.linalg.norm(sun)
     value = raster.tag_json("sun_vector")
     try:
         return np.asarray(value, np.float64).reshape(3) if value is not None else default
@@ -123,18 +136,20 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
     region = selection.check_roi(roi, target_image.data.shape, what=f"target {target}")
     run = StageRun("select", params, resolved=resolved,
                    inputs={"--target": target, "IMAGES": candidates, "--cameras": cameras,
-                           "--scene": scene}, outputs={"--out": out})
+                           "--scene": scene},
+                   outputs={"--out": out, "sidecar": sidecar_path(out)})
     log, provenance = run.log, run.provenance
     camera_by_name, scene_sun = _load_geometry_sources(cameras, scene)
     target_name = Path(target).stem
-    target_camera = camera_by_name.get(target_name) or _camera_from_tags(target_image)
+    target_camera = (camera_by_name.get(target_name)
+                     or _camera_from_tags(target_image, target))
     if cameras is not None and target_name not in camera_by_name:
         raise InputError(f"{cameras}: has no camera for the target '{target_name}' "
                          f"(cameras: {', '.join(sorted(camera_by_name)) or 'none'})")
     point = None
     if target_camera is not None:
         point = selection.surface_point(target_camera, region.centre)
-    target_sun = _sun_from_tags(target_image, scene_sun)
+    target_sun = _sun_from_tags(target_image, scene_sun, target_camera, point)
 
     cache = FeatureCache(None if params.no_cache else
                          (cache_dir or out.parent / DEFAULT_CACHE_NAME))
@@ -174,11 +189,12 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
                       matches=match.matches, inliers=match.inliers,
                       overlap=round(match.overlap, 4),
                       inlier_coverage=round(match.inlier_coverage, 4))
-        camera = camera_by_name.get(name) or _camera_from_tags(raster)
+        camera = camera_by_name.get(name) or _camera_from_tags(raster, path)
         geometry = None
         if point is not None and camera is not None:
             geometry = selection.view_geometry(target_camera, camera, point,
-                                               _sun_from_tags(raster, scene_sun))
+                                               _sun_from_tags(raster, scene_sun, camera,
+                                                              point))
             record.update(geometry.as_dict())
         if params.rank and match.accepted:
             target_azimuth = (None if target_sun is None else
@@ -237,7 +253,7 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
     summary = {"candidates": len(records), "selected": len(chosen), "rejected": len(rejected),
                "target_keypoints": len(target_features), "cache_hits": cache.hits,
                "cache_misses": cache.misses, "geometry": point is not None}
-    with dio.output_transaction():
+    with run.transaction():
         dio.write_json(out, result)
         provenance.write_sidecar(out, summary)
     log.info("selected %d of %d image(s) for target %s", len(chosen), len(records), target_name)

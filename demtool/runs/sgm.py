@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from demtool.runs import StageRun
+from demtool.runs import StageRun, check_stereo_pair, sidecar_path
 
 if TYPE_CHECKING:
     from demtool.sgm.params import SgmParams
@@ -53,7 +53,8 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     run = StageRun("sgm", params, resolved=resolved,
                    inputs={"LEFT_RECT": left_path, "RIGHT_RECT": right_path,
                            "--rectify": rectify},
-                   outputs={"--out": out, "--confidence": confidence})
+                   outputs={"--out": out, "--confidence": confidence,
+                            "sidecar": sidecar_path(out)})
     log, provenance = run.log, run.provenance
     out_path = Path(out)
     sgm_options = params.matcher_options()
@@ -65,6 +66,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
             f"{left_path} and {right_path}: the rectified images differ in size "
             f"({left.data.shape[1]}×{left.data.shape[0]} and {right.data.shape[1]}×"
             f"{right.data.shape[0]}, width×height); use the pair written by demtool rectify")
+    check_stereo_pair(left, right, rectify)
     source = "--min-disparity/--num-disparities"
     if min_disparity is None or num_disparities is None:
         if rectify is None:
@@ -114,7 +116,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
                            min_disparity=min_disparity, num_disparities=num_disparities,
                            cost=result.parameters["cost"])
     outputs: list[str | os.PathLike] = [out_path]
-    with dio.output_transaction():
+    with run.transaction():
         dio.write_raster(out_path, disparity, transform=left.transform, tags=tags,
                          band_names=["disparity"])
         if confidence is not None:

@@ -149,7 +149,8 @@ def run_synth(out: str | os.PathLike, params: SceneParams | None = None, *,
                  "seed %d", params.n_views, params.image_size, params.image_size,
                  params.dem_size, params.dem_size, params.spacing_m, params.seed)
     scene = make_scene(params)
-    written = write_scene(scene, out, run.provenance)
+    with run.transaction():
+        written = write_scene(scene, out, run.provenance)
     run.log.info("scene rendered in %.1f s: heights %.1f … %.1f m, target %s, partner %s "
                  "(B/H %.2f)", scene.render_time_s, float(scene.dem.min()),
                  float(scene.dem.max()), scene.target, scene.partner, params.partner_bh)

@@ -8,9 +8,14 @@ window-summed cost rows), :mod:`~demtool.sgm.mutual_information` (the MI cost ta
 :mod:`~demtool.sgm.disparity` (WTA, sub-pixel, left–right check, speckles, median),
 :mod:`~demtool.sgm.strips` (one pass: strips, sweep threads, timing),
 :mod:`~demtool.sgm.matcher` (MI iterations, the HMI pyramid, the public :func:`sgm`).
+
+Names are imported lazily (PEP 562), so ``demtool sgm --help`` and the
+parameter module ``demtool.sgm.params`` do not pull in numba, OpenCV or pycolmap.
 """
 
-from demtool.sgm.matcher import COST_DEFAULTS, COSTS, SGMResult, sgm
-from demtool.sgm.strips import plan_strips
+from demtool.lazy import lazy_exports
 
-__all__ = ["COSTS", "COST_DEFAULTS", "SGMResult", "plan_strips", "sgm"]
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "matcher": ("COST_DEFAULTS", "COSTS", "SGMResult", "sgm"),
+    "strips": ("plan_strips",),
+})

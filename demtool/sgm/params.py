@@ -8,11 +8,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from demtool.parameters import Parameters, core_defaults, parameter, seed_field, workers_field
-from demtool.sgm.disparity import SUBPIXEL_MODES
-from demtool.sgm.matcher import CENSUS_WINDOWS, COSTS, sgm
+from demtool.core_source import core_constant, core_defaults
+from demtool.parameters import Parameters, parameter, seed_field, workers_field
 
-CORE = core_defaults(sgm)
+# Read from the core's source: `demtool sgm --help` does not load numba.
+SUBPIXEL_MODES = core_constant("demtool.sgm.disparity:SUBPIXEL_MODES")
+CENSUS_WINDOWS = core_constant("demtool.sgm.matcher:CENSUS_WINDOWS")
+COSTS = core_constant("demtool.sgm.matcher:COSTS")
+CORE = core_defaults("demtool.sgm.matcher:sgm")
 
 
 @dataclass(frozen=True)

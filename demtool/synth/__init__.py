@@ -8,32 +8,11 @@ Names are imported lazily, so ``demtool.synth.params`` (used by the command line
 does not pull in numba.
 """
 
-from __future__ import annotations
+from demtool.lazy import lazy_exports
 
-import importlib
-from typing import Any
-
-_EXPORTS = {
-    "SceneParams": "demtool.synth.params",
-    "Scene": "demtool.synth.scene",
-    "make_scene": "demtool.synth.scene",
-    "make_cameras": "demtool.synth.scene",
-    "make_terrain": "demtool.synth.scene",
-    "TruthDisparity": "demtool.synth.truth",
-    "Correspondence": "demtool.synth.truth",
-    "truth_disparity": "demtool.synth.truth",
-    "rectified_correspondence": "demtool.synth.truth",
-    "target_points": "demtool.synth.truth",
-}
-
-__all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'demtool.synth' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return __all__
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "params": ("SceneParams",),
+    "scene": ("Scene", "make_scene", "make_cameras", "make_terrain"),
+    "truth": ("TruthDisparity", "Correspondence", "truth_disparity", "rectified_correspondence",
+        "target_points"),
+})

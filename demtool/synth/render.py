@@ -30,6 +30,7 @@ REFINE_ITERATIONS = 100
 REFINE_TOLERANCE_M = 1e-9  # clearance (vertical metres) or bracket length at the hit
 SHADOW_BLOCK_CELLS = 8  # sun rays skip blocks of this many cells whose top they clear
 SHADOW_EPSILON_M = 1e-4  # terrain must rise this far above a sun ray to cast a shadow
+RAY_BLOCK_ROWS = 64  # image rows (× 512 pixels of a list) per image_to_ray call
 
 
 class HeightField(NamedTuple):
@@ -368,8 +369,13 @@ def pixel_rays(camera: SensorModel, *, placement=None, pixels: np.ndarray | None
     else:
         uv = np.atleast_2d(np.asarray(pixels, dtype=np.float64))
         cols, rows = uv[:, 0], uv[:, 1]
-    ray = camera.image_to_ray(rows + 0.5, cols + 0.5)  # CSM: first pixel centre at 0.5
-    origins, directions = ray.origin, ray.direction
+    origins = np.empty(np.shape(rows) + (3,))
+    directions = np.empty(np.shape(rows) + (3,))
+    step = RAY_BLOCK_ROWS if pixels is None else RAY_BLOCK_ROWS * 512
+    for start in range(0, len(rows), step):  # blocks keep the temporaries in cache
+        block = slice(start, start + step)
+        ray = camera.image_to_ray(rows[block] + 0.5, cols[block] + 0.5)  # CSM: centre 0.5
+        origins[block], directions[block] = ray.origin, ray.direction
     if placement is not None:
         origins = placement.to_local(origins)
         directions = placement.directions_to_local(directions)
@@ -389,9 +395,9 @@ class ViewGeometry(NamedTuple):
     Attributes
     ----------
     depth : float64
-        Camera z of the hit (metres along the optical axis) for a pinhole, as used by
-        :meth:`PinholeCamera.backproject`; the range (metres along the ray) for other
-        sensor models.
+        Camera z of the hit (metres along the optical axis) for a pinhole or a frame
+        camera, as used by :meth:`PinholeCamera.backproject`; the range (metres along
+        the ray) for a line scanner.
     hit : (h, w, 3) float64
         Local-frame coordinates of the hit, metres.
     mu0, mu : float64
@@ -438,7 +444,10 @@ def view_geometry(field: HeightField, albedo: np.ndarray, camera: SensorModel,
     origins, directions = pixel_rays(camera, placement=placement)
     sun = np.asarray(sun_vector, dtype=np.float64)
     sun = sun / np.linalg.norm(sun)
-    axis = getattr(camera, "axis", None) if placement is None else None
+    axis = getattr(camera, "axis", None) if placement is None else None  # a pinhole's z
+    if axis is None and getattr(camera, "boresight", None) is not None:  # a frame camera's
+        axis = camera.boresight if placement is None else \
+            placement.directions_to_local(camera.boresight)
     result = _run_kernel(
         _render_geometry, origins, directions,
         np.zeros(3) if axis is None else np.ascontiguousarray(axis, dtype=np.float64),

@@ -177,3 +177,161 @@ def test_apollo15_at_least_as_good_as_plain_pycolmap(tmp_path):
     assert summary["registered_count"] >= registered
     assert summary["points"] >= min(points, 6224)
     assert summary["mean_reprojection_error_px"] <= max(error, 0.18) + 1e-9
+
+
+# --- sensor models as priors (issue 14 part 2) -------------------------------------------
+
+
+def _sensor_args(images, isds):
+    args = [str(p) for p in images]
+    for isd in isds:
+        args += ["--sensors", str(isd)]
+    return args
+
+
+@pytest.fixture(scope="module")
+def frame_block(tmp_path_factory):
+    from tests.bundle import frames
+
+    folder = tmp_path_factory.mktemp("frame_block")
+    return frames.write_block(folder)
+
+
+@pytest.mark.slow
+def test_bundle_with_sensor_priors_writes_adjusted_isds(frame_block, tmp_path):
+    """Frame ISDs 50 m / 0.5 mrad off: the adjusted ISDs are closer to the truth, in the
+    body-fixed frame, and read back by read_sensor."""
+    from demtool.bundle.priors import rotation_vector
+    from demtool.sensors import read_sensor
+    from tests.bundle import frames
+
+    truth, images, isds = frame_block
+    out, adjusted = tmp_path / "bundle.npz", tmp_path / "adjusted"
+    errors = []
+    result = CliRunner().invoke(cli, ["-q", "bundle", *_sensor_args(images, isds), "--out",
+                                      str(out), "--adjusted-dir", str(adjusted),
+                                      "--matcher", "spatial", "--position-sigma", "50",
+                                      "--pointing-sigma", "0.5", "--max-features", "3000"])
+    assert result.exit_code == 0, result.output
+    summary = json.loads(out.with_suffix(".npz.json").read_text())["summary"]
+    assert summary["registered_count"] == 6
+    assert len(summary["pairs"]) == 15  # every footprint overlaps every other
+    assert summary["mean_reprojection_error_px"] < 0.3
+    for true in truth:
+        row = summary["images"][true.name]
+        assert row["observations"] > 300
+        assert 20.0 < row["position_change_m"] < 80.0
+        model = read_sensor(adjusted / f"{true.name}.json")
+        position = np.linalg.norm(model.position - true.position)
+        pointing = np.linalg.norm(rotation_vector(model.rotation @ true.rotation.T)) * 1e3
+        errors.append((position, pointing))
+    errors = np.array(errors)
+    # 320 px, 2.3 mrad per pixel (measured: <= 5.0 m, <= 0.13 mrad)
+    assert errors[:, 0].max() < 7.0, errors
+    assert errors[:, 1].max() < 0.2, errors
+    bundle = dio.read_npz(out, "bundle")
+    assert bool(bundle["aligned"])
+    points = bundle["points"]
+    height = np.linalg.norm(points, axis=1) - frames.RADIUS - frames.relief(points)
+    # tie points on the terrain (±400 m hills; 68 m pixels, base to height 0.2)
+    assert np.median(np.abs(height)) < 40.0
+
+
+def test_bundle_sensor_count_must_match_images(frame_block, tmp_path):
+    _, images, isds = frame_block
+    out = tmp_path / "bundle.npz"
+    result = CliRunner().invoke(cli, ["bundle", *_sensor_args(images[:3], isds[:2]),
+                                      "--out", str(out), "--adjusted-dir",
+                                      str(tmp_path / "adj")])
+    assert result.exit_code == 1
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and "--sensors: 2 sensor model(s) for 3 images" in lines[0]
+    assert not out.exists() and not (tmp_path / "adj").exists()
+
+
+def test_bundle_sensor_model_of_wrong_size(frame_block, tmp_path):
+    from tests.bundle import frames
+
+    _, images, isds = frame_block
+    wrong = tmp_path / "wrong.json"
+    frames.write_isd(frames.true_models(size=500)[1], wrong)
+    out = tmp_path / "bundle.npz"
+    result = CliRunner().invoke(cli, ["bundle", *_sensor_args(images[:2], [isds[0], wrong]),
+                                      "--out", str(out), "--adjusted-dir",
+                                      str(tmp_path / "adj")])
+    assert result.exit_code == 1
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and str(wrong) in lines[0] and "500x500" in lines[0]
+    assert not out.exists() and not (tmp_path / "adj").exists()
+
+
+def test_bundle_spatial_needs_sensors_and_overlap(frame_block, tmp_path):
+    from tests.bundle import frames
+
+    _, images, isds = frame_block
+    out = tmp_path / "bundle.npz"
+    result = CliRunner().invoke(cli, ["bundle", *map(str, images[:2]), "--out", str(out),
+                                      "--matcher", "spatial"])
+    assert result.exit_code == 1 and "--matcher spatial needs sensor models" in result.output
+    far = frames.true_models(size=320)[0]
+    far.position = far.position + np.array([0.0, 0.0, 200_000.0])
+    moved = tmp_path / "far.json"
+    frames.write_isd(far, moved)
+    result = CliRunner().invoke(cli, ["bundle", *_sensor_args(images[:2], [isds[0], moved]),
+                                      "--out", str(out), "--matcher", "spatial"])
+    assert result.exit_code == 1
+    assert len(result.output.strip().splitlines()) == 1
+    assert "no two images overlap" in result.output
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_bundle_with_tsai_priors_writes_adjusted_tsai(frame_block, tmp_path):
+    """.tsai priors (no image size, no body in the file) on three of the frames: the
+    adjusted .tsai files are closer to the truth and keep their other lines."""
+    from demtool.bundle.priors import rotation_vector
+    from demtool.sensors import read_tsai
+    from tests.bundle import frames
+
+    truth, images, _ = frame_block
+    prior = frames.perturbed(truth)
+    tsais = []
+    for model in prior[:3]:
+        path = tmp_path / f"{model.name}.tsai"
+        frames.write_tsai(model, path)
+        tsais.append(path)
+    true_tsai = tmp_path / "true.tsai"
+    frames.write_tsai(truth[0], true_tsai)
+    line, sample = read_tsai(true_tsai, radii=(frames.RADIUS,) * 2).ground_to_image(
+        truth[0].image_to_ground(100.5, 50.5))
+    assert abs(line - 100.5) < 1e-6 and abs(sample - 50.5) < 1e-6  # the same camera
+    out, adjusted = tmp_path / "bundle.npz", tmp_path / "adjusted"
+    result = CliRunner().invoke(cli, ["-q", "bundle", *_sensor_args(images[:3], tsais),
+                                      "--out", str(out), "--adjusted-dir", str(adjusted),
+                                      "--position-sigma", "50", "--pointing-sigma", "0.5",
+                                      "--max-features", "3000"])
+    assert result.exit_code == 0, result.output
+    for true, before in zip(truth[:3], prior[:3], strict=True):
+        path = adjusted / f"{true.name}.tsai"
+        assert "pitch = " in path.read_text()
+        model = read_tsai(path)
+        position = np.linalg.norm(model.center - true.position)
+        pointing = np.linalg.norm(rotation_vector(model.R.T @ true.rotation.T)) * 1e3
+        assert position < 0.5 * np.linalg.norm(before.position - true.position), position
+        assert pointing < 0.25, pointing
+
+
+def test_bundle_sensor_options_that_do_not_apply(frame_block, tmp_path):
+    _, images, isds = frame_block
+    out = tmp_path / "bundle.npz"
+    for extra, option in ((["--focal-px", "500"], "--focal-px"),
+                          (["--colmap-dir", str(tmp_path / "colmap")], "--colmap-dir")):
+        result = CliRunner().invoke(cli, ["bundle", *_sensor_args(images[:2], isds[:2]),
+                                          "--out", str(out), *extra])
+        assert result.exit_code == 1
+        assert len(result.output.strip().splitlines()) == 1
+        assert f"{option} does not apply with sensor models" in result.output
+    result = CliRunner().invoke(cli, ["bundle", *map(str, images[:2]), "--out", str(out),
+                                      "--adjusted-dir", str(tmp_path / "adj")])
+    assert result.exit_code == 1 and "--adjusted-dir needs sensor models" in result.output
+    assert not out.exists() and not (tmp_path / "adj").exists()

@@ -30,18 +30,49 @@ def test_stage_run_declares_files_and_builds_provenance(tmp_path):
 
 
 def test_stage_run_refuses_clashing_or_misplaced_outputs(tmp_path):
-    with pytest.raises(ParameterError, match=r"--confidence .*d\.tif is the same file as --out"):
+    (tmp_path / "x").mkdir()
+    with pytest.raises(InputError, match=r"d\.tif: --out and --confidence name the same file"):
         StageRun("sgm", SgmParams(), outputs={"--out": tmp_path / "d.tif",
                                      "--confidence": tmp_path / "x" / ".." / "d.tif"})
-    with pytest.raises(InputError, match="--out must be a file name, but it is a folder"):
+    with pytest.raises(InputError, match="--out is a folder, expected a file name"):
         StageRun("sgm", SgmParams(), outputs={"--out": tmp_path})
     (tmp_path / "file").write_text("x")
-    with pytest.raises(InputError, match="--out must be a folder, but a file of that name"):
+    with pytest.raises(InputError, match="--out is a file, expected a folder"):
         StageRun("sgm", SgmParams(), folders={"--out": tmp_path / "file"})
+    with pytest.raises(InputError, match=r"a\.tif: --out would overwrite the input LEFT .*a\.tif"):
+        StageRun("sgm", SgmParams(), inputs={"LEFT": tmp_path / "file" / ".." / "a.tif"},
+                 outputs={"--out": [tmp_path / "b.tif", tmp_path / "a.tif"]})
+    with pytest.raises(InputError,
+                       match=r"d\.tif: cannot write the output: .*file is a file, not a folder"):
+        StageRun("sgm", SgmParams(), outputs={"--out": tmp_path / "file" / "d.tif"})
     with pytest.raises(ParameterError, match="--median must be odd"):
         StageRun("sgm", SgmParams(median=4))
     with pytest.raises(KeyError):
         StageRun("stereo", SgmParams())
+
+
+def test_stage_run_transaction_uses_the_declaration(tmp_path, monkeypatch):
+    from demtool import io as dio
+    from demtool.outputs import CHECK_DECLARED_ENV
+    from demtool.runs import sidecar_path
+
+    monkeypatch.setenv(CHECK_DECLARED_ENV, "1")
+    (tmp_path / "a.tif").write_bytes(b"a")
+    out = tmp_path / "d.tif"
+    run = StageRun("sgm", SgmParams(), inputs={"LEFT": tmp_path / "a.tif"},
+                   outputs={"--out": out, "sidecar": sidecar_path(out)})
+    assert sidecar_path(out) == tmp_path / "d.tif.json"
+    assert run.output_paths() == [out, tmp_path / "d.tif.json"]
+    with run.transaction():
+        dio.write_json(out, {})
+        run.provenance.write_sidecar(out, {})
+    assert out.exists() and sidecar_path(out).exists()
+    with pytest.raises(InputError, match=r"other\.tif: written but not declared"), \
+            run.transaction():
+        dio.write_json(tmp_path / "other.tif", {})
+    with pytest.raises(InputError, match="would overwrite the input LEFT"), run.transaction():
+        dio.write_json(tmp_path / "a.tif", {})
+    assert (tmp_path / "a.tif").read_bytes() == b"a"
 
 
 def test_check_same_frame():

@@ -68,6 +68,9 @@ def test_frame_scene_renders_the_pinhole_views(pinhole_scene, frame_scene):
     local = render.pixel_hits(field, camera, pixels)
     placed = render.pixel_hits(field, sensor, pixels, placement=frame_scene.placement)
     np.testing.assert_allclose(placed, local, atol=1e-6)
+    # depths stay the camera z of the pinholes
+    np.testing.assert_allclose(frame_scene.depths[frame_scene.partner],
+                               pinhole_scene.depths[pinhole_scene.partner], atol=1e-5)
 
 
 @pytest.mark.parametrize("fixture", ["frame_scene", "linescan_scene"])

@@ -1,0 +1,456 @@
+"""Bundle adjustment of sensor models with pose priors (the mission's SPICE).
+
+Each image keeps its sensor model (frame or line scan, :mod:`demtool.sensors`) and gets
+a constant pose offset in the body-fixed frame, as ASP's ``bundle_adjust`` adjustment
+files do (VisionWorkbench ``AdjustedCameraModel``): a translation ``dC`` (metres) and a
+small rotation ``dR`` (rotation vector ``w``, radians) about a pivot ``P`` (the sensor
+position at the image's centre line).  A body-fixed point ``X`` is seen by the adjusted
+model where the original model sees
+
+    X' = P + dRᵀ (X − P − dC),
+
+so a frame camera's position becomes ``C + dC`` and its sensor-to-body rotation
+``dR · R``; a line scanner's whole trajectory is moved and turned alike.
+
+The adjustment minimises (Triggs et al. 2000, "Bundle adjustment — a modern synthesis",
+sect. 3 and 4.4, priors as extra residuals)
+
+    Σ_obs ρ(|x_obs − π_i(X_j)|² / 1 px²) + Σ_i |dC_i|² / σ_p² + Σ_i |w_i|² / σ_θ²
+
+over the offsets of every image and the tie points ``X_j`` (Huber loss ρ on the
+reprojection residuals, 1 px scale), starting from tie points triangulated with the
+prior models, so no two-view initialisation is needed: any pair whose rays meet
+registers.  ``σ_p`` is ``--position-sigma`` (m), ``σ_θ`` ``--pointing-sigma`` (mrad).
+The block's common offset (a shift or turn of all images together) is determined by
+the priors alone, so it is only as good as their mean.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from demtool.errors import ProcessingError
+from demtool.logs import get_logger
+from demtool.sensors.base import Ray, SensorModel
+
+log = get_logger(__name__)
+
+
+def rotation_matrices(rotvec) -> np.ndarray:
+    """Rodrigues' formula: rotation vectors (..., 3) in radians → matrices (..., 3, 3)."""
+    w = np.asarray(rotvec, dtype=np.float64)
+    theta = np.linalg.norm(w, axis=-1)[..., None, None]
+    k = np.zeros(w.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
+    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
+    small = theta < 1e-12
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0, np.sin(t) / t)
+    b = np.where(small, 0.5, (1.0 - np.cos(t)) / (t * t))
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+def rotation_vector(matrix) -> np.ndarray:
+    """Rotation vector (3,) in radians of a rotation matrix (3, 3) (angle < π)."""
+    m = np.asarray(matrix, dtype=np.float64)
+    cos = np.clip((np.trace(m) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(cos)
+    axis = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
+    if angle < 1e-12:
+        return 0.5 * axis
+    return angle * axis / (2.0 * np.sin(angle))
+
+
+@dataclass(frozen=True)
+class PoseOffset:
+    """A constant body-fixed pose offset of one sensor model.
+
+    Attributes
+    ----------
+    translation : (3,) float64
+        ``dC``, metres, body-fixed.
+    rotation : (3,) float64
+        Rotation vector ``w`` of ``dR``, radians, body-fixed.
+    pivot : (3,) float64
+        ``P``, the point ``dR`` turns about (the sensor position at the centre line).
+    """
+
+    translation: np.ndarray
+    rotation: np.ndarray
+    pivot: np.ndarray
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """``dR`` (3, 3)."""
+        return rotation_matrices(self.rotation)
+
+    @property
+    def position_change_m(self) -> float:
+        """Displacement of the sensor position at the pivot, metres."""
+        return float(np.linalg.norm(self.translation))
+
+    @property
+    def pointing_change_mrad(self) -> float:
+        """Rotation angle of ``dR``, milliradians."""
+        return float(np.linalg.norm(self.rotation) * 1e3)
+
+    def to_original(self, xyz) -> np.ndarray:
+        """``X' = P + dRᵀ (X − P − dC)`` of body-fixed points (..., 3)."""
+        xyz = np.asarray(xyz, dtype=np.float64)
+        return self.pivot + (xyz - self.pivot - self.translation) @ self.matrix
+
+    def from_original(self, xyz) -> np.ndarray:
+        """Inverse of :meth:`to_original`: ``P + dR (X' − P) + dC``."""
+        xyz = np.asarray(xyz, dtype=np.float64)
+        return self.pivot + (xyz - self.pivot) @ self.matrix.T + self.translation
+
+
+def pivot_of(model: SensorModel) -> np.ndarray:
+    """Sensor position (body-fixed metres, (3,)) at the image's centre line."""
+    return np.asarray(model.camera_center(0.5 * model.lines), dtype=np.float64).reshape(3)
+
+
+def zero_offset(model: SensorModel) -> PoseOffset:
+    """The offset that leaves ``model`` as it is."""
+    return PoseOffset(np.zeros(3), np.zeros(3), pivot_of(model))
+
+
+class AdjustedSensor(SensorModel):
+    """A sensor model moved by a :class:`PoseOffset` (ASP's adjusted camera).
+
+    Everything but the pose (image size, body, sun, timing) is the original model's.
+    """
+
+    def __init__(self, model: SensorModel, offset: PoseOffset):
+        self.model = model
+        self.offset = offset
+        self.name = model.name
+        self.kind = model.kind
+        self.lines = model.lines
+        self.samples = model.samples
+        self.radii = model.radii
+
+    def image_to_ray(self, line, sample) -> Ray:
+        ray = self.model.image_to_ray(line, sample)
+        return Ray(self.offset.from_original(ray.origin), ray.direction @ self.offset.matrix.T)
+
+    def ground_to_image(self, xyz) -> tuple[np.ndarray, np.ndarray]:
+        return self.model.ground_to_image(self.offset.to_original(xyz))
+
+    def sun_position(self, line) -> np.ndarray:
+        return self.model.sun_position(line)
+
+    def camera_center(self, line) -> np.ndarray:
+        return self.offset.from_original(self.model.camera_center(line))
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Tie-point observations of a block.
+
+    Attributes
+    ----------
+    image : (M,) int
+        Index of the observing image.
+    point : (M,) int
+        Index of the tie point (0 … P-1).
+    line, sample : (M,) float64
+        Measured image coordinates, CSM convention (first pixel centre at 0.5).
+    """
+
+    image: np.ndarray
+    point: np.ndarray
+    line: np.ndarray
+    sample: np.ndarray
+
+    @property
+    def point_count(self) -> int:
+        return int(self.point.max()) + 1 if len(self.point) else 0
+
+    def subset(self, keep: np.ndarray) -> Observations:
+        """The kept observations, tie points renumbered 0 … P'-1 (single views dropped)."""
+        keep = np.asarray(keep, dtype=bool).copy()
+        counts = np.bincount(self.point[keep], minlength=self.point_count)
+        keep &= counts[self.point] >= 2
+        _, point = np.unique(self.point[keep], return_inverse=True)
+        return Observations(self.image[keep], point.astype(np.int64), self.line[keep],
+                            self.sample[keep])
+
+
+def triangulate(models: Sequence[SensorModel], obs: Observations) -> tuple[np.ndarray,
+                                                                           np.ndarray]:
+    """Least-squares intersection of each tie point's rays (nearest point to all rays).
+
+    Returns
+    -------
+    points : (P, 3) float64
+        Body-fixed metres.
+    miss_m : (P,) float64
+        RMS distance of the point to its rays, metres.
+    """
+    origins = np.empty((len(obs.image), 3))
+    directions = np.empty((len(obs.image), 3))
+    for i, model in enumerate(models):
+        sel = obs.image == i
+        if np.any(sel):
+            ray = model.image_to_ray(obs.line[sel], obs.sample[sel])
+            origins[sel], directions[sel] = ray.origin, ray.direction
+    n_points = obs.point_count
+    # Σ (I − d dᵀ) X = Σ (I − d dᵀ) o, solved relative to the first ray's origin (precision).
+    reference = np.zeros((n_points, 3))
+    reference[obs.point[::-1]] = origins[::-1]
+    local = origins - reference[obs.point]
+    projector = np.eye(3) - directions[:, :, None] * directions[:, None, :]
+    a = np.zeros((n_points, 3, 3))
+    b = np.zeros((n_points, 3))
+    np.add.at(a, obs.point, projector)
+    np.add.at(b, obs.point, np.einsum("nij,nj->ni", projector, local))
+    singular = np.abs(np.linalg.det(a)) < 1e-12
+    a[singular] = np.eye(3)
+    points = np.linalg.solve(a, b[..., None])[..., 0]
+    offsets = points[obs.point] - local
+    distance = np.linalg.norm(offsets - np.sum(offsets * directions, axis=1)[:, None]
+                              * directions, axis=1)
+    miss = np.sqrt(np.bincount(obs.point, distance ** 2, n_points)
+                   / np.maximum(np.bincount(obs.point, minlength=n_points), 1))
+    miss[singular] = np.inf
+    return points + reference, miss
+
+
+@dataclass(frozen=True)
+class PriorAdjustment:
+    """The outcome of :func:`adjust_with_priors`.
+
+    Attributes
+    ----------
+    offsets : list of PoseOffset
+        One per image, input order.
+    points : (P, 3) float64
+        Adjusted tie points, body-fixed metres.
+    observations : Observations
+        The observations kept (outliers removed).
+    residuals : (M, 2) float64
+        Reprojection residuals (line, sample) of the kept observations, pixels.
+    initial_rms_px : float
+        RMS reprojection residual with the prior models and triangulated points.
+    pixel_sigma : float
+        Sigma of the image observations in the final adjustment, pixels.
+    """
+
+    offsets: list[PoseOffset]
+    points: np.ndarray
+    observations: Observations
+    residuals: np.ndarray
+    initial_rms_px: float
+    pixel_sigma: float = 1.0
+
+    def image_report(self, names: Sequence[str]) -> dict[str, dict]:
+        """Per image: observations, mean and RMS residual (px), position change (m) and
+        pointing change (mrad) from the prior."""
+        norms = np.linalg.norm(self.residuals, axis=1)
+        report = {}
+        for i, name in enumerate(names):
+            sel = self.observations.image == i
+            report[name] = {
+                "observations": int(np.count_nonzero(sel)),
+                "mean_residual_px": float(norms[sel].mean()) if np.any(sel) else None,
+                "rms_residual_px": float(np.sqrt(np.mean(norms[sel] ** 2)))
+                if np.any(sel) else None,
+                "position_change_m": self.offsets[i].position_change_m,
+                "position_change_xyz_m": [float(v) for v in self.offsets[i].translation],
+                "pointing_change_mrad": self.offsets[i].pointing_change_mrad,
+            }
+        return report
+
+
+def _project(models, pivots, obs, cams, points) -> np.ndarray:
+    """Reprojection residuals (M, 2), pixels, of ``points`` (P, 3) through the models moved
+    by ``cams`` (N, 6: dC in metres, w in milliradians)."""
+    out = np.empty((len(obs.image), 2))
+    for i, model in enumerate(models):
+        sel = obs.image == i
+        if not np.any(sel):
+            continue
+        offset = PoseOffset(cams[i, :3], cams[i, 3:] * 1e-3, pivots[i])
+        line, sample = model.ground_to_image(offset.to_original(points[obs.point[sel]]))
+        out[sel, 0] = line - obs.line[sel]
+        out[sel, 1] = sample - obs.sample[sel]
+    return np.nan_to_num(out, nan=1e3, posinf=1e3, neginf=-1e3)
+
+
+#: forward-difference steps: metres (positions, points) and milliradians (pointing)
+_STEP = 1e-3
+
+
+def _jacobians(models, pivots, obs, cams, points, base):
+    """Forward-difference Jacobian blocks: (M, 2, 6) per camera offset, (M, 2, 3) per
+    point (each observation depends on one image and one point, so one perturbation of
+    every image (point) at once gives a whole column block)."""
+    jc = np.empty((len(obs.image), 2, 6))
+    jp = np.empty((len(obs.image), 2, 3))
+    for k in range(6):
+        moved = cams.copy()
+        moved[:, k] += _STEP
+        jc[:, :, k] = (_project(models, pivots, obs, moved, points) - base) / _STEP
+    for k in range(3):
+        moved = points.copy()
+        moved[:, k] += _STEP
+        jp[:, :, k] = (_project(models, pivots, obs, cams, moved) - base) / _STEP
+    return jc, jp
+
+
+def _cost(residuals, cams, prior_weights, huber, sigma):
+    norms = np.linalg.norm(residuals, axis=1)
+    rho = np.where(norms <= huber, norms ** 2, 2 * huber * norms - huber ** 2)
+    return float(rho.sum() / sigma ** 2 + np.sum(cams ** 2 * prior_weights))
+
+
+def _solve(models, pivots, obs, cams, points, prior_weights, *, huber: float, sigma: float,
+           iterations: int):
+    """Levenberg–Marquardt on the reduced camera system (Schur complement of the points;
+    Triggs et al. 2000, sect. 6.1), Huber weights re-computed each iteration (IRLS);
+    image residuals weighted by ``1 / sigma²`` (pixels), the Huber threshold ``huber``
+    in pixels."""
+    n = len(models)
+    n_points = len(points)
+    base = _project(models, pivots, obs, cams, points)
+    cost = _cost(base, cams, prior_weights, huber, sigma)
+    lam = 1e-3
+    for _ in range(iterations):
+        jc, jp = _jacobians(models, pivots, obs, cams, points, base)
+        norms = np.linalg.norm(base, axis=1)
+        w = np.where(norms <= huber, 1.0, huber / np.maximum(norms, 1e-12)) / sigma ** 2
+        wjc = jc * w[:, None, None]
+        u_obs = np.einsum("mki,mkj->mij", wjc, jc)
+        u = np.zeros((n, 6, 6))
+        np.add.at(u, obs.image, u_obs)
+        u[:, np.arange(6), np.arange(6)] += prior_weights
+        v = np.zeros((n_points, 3, 3))
+        np.add.at(v, obs.point, np.einsum("mki,mkj->mij", jp * w[:, None, None], jp))
+        wm = np.einsum("mki,mkj->mij", wjc, jp)  # (M, 6, 3)
+        gc = np.zeros((n, 6))
+        np.add.at(gc, obs.image, -np.einsum("mki,mk->mi", wjc, base))
+        gc -= prior_weights * cams
+        gp = np.zeros((n_points, 3))
+        np.add.at(gp, obs.point, -np.einsum("mki,mk->mi", jp * w[:, None, None], base))
+        # G_j (3, 6n): the W blocks of point j's observations, by image
+        g = np.zeros((n_points, 3, n, 6))
+        np.add.at(g, (obs.point, slice(None), obs.image),
+                  np.swapaxes(wm, 1, 2))
+        g = g.reshape(n_points, 3, 6 * n)
+        while True:
+            ud = u.copy()
+            ud[:, np.arange(6), np.arange(6)] *= 1.0 + lam
+            vd = v.copy()
+            vd[:, np.arange(3), np.arange(3)] *= 1.0 + lam
+            vd[:, np.arange(3), np.arange(3)] += 1e-12
+            v_inv = np.linalg.inv(vd)
+            s = np.zeros((6 * n, 6 * n))
+            for i in range(n):
+                s[6 * i:6 * i + 6, 6 * i:6 * i + 6] = ud[i]
+            vg = v_inv @ g  # (P, 3, 6n)
+            s -= np.einsum("pki,pkj->ij", g, vg)
+            rhs = gc.ravel() - np.einsum("pki,pk->i", vg, gp)
+            try:
+                dc = np.linalg.solve(s, rhs)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            dp = np.einsum("pij,pj->pi", v_inv, gp - np.einsum("pki,i->pk", g, dc))
+            new_cams = cams + dc.reshape(n, 6)
+            new_points = points + dp
+            new_base = _project(models, pivots, obs, new_cams, new_points)
+            new_cost = _cost(new_base, new_cams, prior_weights, huber, sigma)
+            if new_cost <= cost:
+                lam = max(lam / 10, 1e-9)
+                break
+            lam *= 10
+            if lam > 1e8:
+                return cams, points, base
+        converged = cost - new_cost <= 1e-10 * cost
+        cams, points, base, cost = new_cams, new_points, new_base, new_cost
+        if converged or np.max(np.abs(dc)) < 1e-6:
+            break
+    return cams, points, base
+
+
+def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
+                       position_sigma: float, pointing_sigma: float,
+                       outlier_px: float = 3.0, max_iterations: int = 30,
+                       huber_px: float = 2.0, min_pixel_sigma: float = 0.05
+                       ) -> PriorAdjustment:
+    """Adjust constant pose offsets of sensor models and tie points, priors on the poses.
+
+    Parameters
+    ----------
+    models : sequence of SensorModel
+        The prior models (body-fixed metres), one per image.
+    obs : Observations
+        Tie-point observations (every point seen by ≥ 2 images).
+    position_sigma : float
+        Standard deviation of the prior positions, metres (per axis).
+    pointing_sigma : float
+        Standard deviation of the prior pointing, milliradians (per axis).
+    outlier_px : float
+        After a first adjustment, observations with a residual above
+        ``max(outlier_px, 4 × median)`` pixels are dropped and the block re-adjusted.
+    max_iterations : int
+        Levenberg–Marquardt iterations per adjustment.
+    huber_px : float
+        Huber threshold of the reprojection residuals, in image sigmas.
+    min_pixel_sigma : float
+        The image observations are weighted with a sigma of 1 px in the first round,
+        then with their robust RMS residual (never below this, pixels): tie points
+        good to 0.05 px outweigh the pose priors accordingly.
+
+    Returns
+    -------
+    PriorAdjustment
+
+    Raises
+    ------
+    ProcessingError
+        No tie points, or an image with none (it cannot be adjusted).
+    """
+    n_images = len(models)
+    pivots = [pivot_of(m) for m in models]
+    prior_weights = np.array([1 / position_sigma ** 2] * 3 + [1 / pointing_sigma ** 2] * 3)
+    cams = np.zeros((n_images, 6))
+    initial_rms = float("nan")
+    pixel_sigma = 1.0
+    for round_ in range(2):
+        counts = np.bincount(obs.image, minlength=n_images)
+        if not len(obs.image) or np.any(counts == 0):
+            empty = [str(getattr(models[i], "name", i)) for i in np.flatnonzero(counts == 0)]
+            raise ProcessingError(f"no tie points in image(s) {', '.join(empty) or 'all'}: "
+                                  "the images may not overlap")
+        # the second round starts from the first's poses and re-triangulated points
+        current = [AdjustedSensor(m, PoseOffset(cams[i, :3], cams[i, 3:] * 1e-3, pivots[i]))
+                   for i, m in enumerate(models)]
+        points0, _ = triangulate(current, obs)
+        if round_ == 0:
+            start = _project(models, pivots, obs, cams, points0)
+            initial_rms = float(np.sqrt(np.mean(np.sum(start ** 2, axis=1))))
+        cams, points, residuals = _solve(models, pivots, obs, cams, points0, prior_weights,
+                                         huber=huber_px * pixel_sigma, sigma=pixel_sigma,
+                                         iterations=max_iterations)
+        norms = np.linalg.norm(residuals, axis=1)
+        log.info("adjustment round %d: %d observations, %d tie points, RMS %.3f px "
+                 "(image sigma %.3f px)", round_ + 1, len(obs.image), obs.point_count,
+                 np.sqrt(np.mean(norms ** 2)), pixel_sigma)
+        if round_ == 1:
+            break
+        keep = norms <= max(outlier_px, 4.0 * float(np.median(norms)))
+        obs = obs.subset(keep)
+        # a posteriori image sigma (variance component of the image observations, Förstner
+        # 1979), robust: the normalised median absolute residual per coordinate
+        robust = 1.4826 * float(np.median(np.abs(residuals[keep])))
+        pixel_sigma = float(np.clip(robust, min_pixel_sigma, 1.0))
+    offsets = [PoseOffset(cams[i, :3].copy(), cams[i, 3:] * 1e-3, pivots[i])
+               for i in range(n_images)]
+    return PriorAdjustment(offsets=offsets, points=points, observations=obs,
+                           residuals=residuals, initial_rms_px=initial_rms,
+                           pixel_sigma=pixel_sigma)

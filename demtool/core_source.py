@@ -1,0 +1,130 @@
+"""Defaults and constants of core modules, read from their source without importing them.
+
+A stage's parameter module takes its defaults from the core function's signature
+(:func:`demtool.parameters.core_defaults`, so each default is written once).  Importing
+the core to read them loads numba and compiles nothing, but still costs half a second
+and makes ``demtool <stage> --help`` depend on numba.  The functions here read the same
+values from the core module's source with :mod:`ast` — literal defaults, and names of
+module-level literal constants — and fall back to importing the module for anything
+else, so the answer is always the one the import would give (a test compares both).
+
+References are ``"module:name"`` strings: ``core_defaults("demtool.sgm.matcher:sgm")``.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import importlib.util
+import sys
+from pathlib import Path
+from typing import Any
+
+from demtool.parameters import core_defaults as _imported_defaults
+
+
+class _NotStatic(Exception):
+    """A value that only the import can give."""
+
+
+def _split(ref: str) -> tuple[str, str]:
+    module, _, name = ref.partition(":")
+    if not module or not name:
+        raise ValueError(f"expected 'module:name', got {ref!r}")
+    return module, name
+
+
+def _tree(module: str) -> ast.Module:
+    spec = importlib.util.find_spec(module)
+    if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
+        raise _NotStatic(module)
+    return ast.parse(Path(spec.origin).read_text(encoding="utf-8"))
+
+
+def _constants(tree: ast.Module) -> dict[str, Any]:
+    """Module-level ``NAME = <literal>`` (annotated or not)."""
+    found: dict[str, Any] = {}
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and len(node.targets) == 1:
+            target, value = node.targets[0], node.value
+        elif isinstance(node, ast.AnnAssign) and node.value is not None:
+            target, value = node.target, node.value
+        else:
+            continue
+        if isinstance(target, ast.Name):
+            try:
+                found[target.id] = ast.literal_eval(value)
+            except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
+                found.pop(target.id, None)
+    return found
+
+
+def _value(node: ast.expr, constants: dict[str, Any]) -> Any:
+    if isinstance(node, ast.Name):
+        if node.id in constants:
+            return constants[node.id]
+        raise _NotStatic(node.id)
+    try:
+        return ast.literal_eval(node)
+    except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
+        raise _NotStatic(ast.dump(node)) from None
+
+
+def _static_defaults(module: str, name: str) -> dict[str, Any]:
+    tree = _tree(module)
+    constants = _constants(tree)
+    for node in tree.body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.name == name:
+            args = node.args
+            positional = [*args.posonlyargs, *args.args]
+            pairs = list(zip(positional[len(positional) - len(args.defaults):], args.defaults,
+                             strict=True))
+            pairs += [(a, d) for a, d in zip(args.kwonlyargs, args.kw_defaults, strict=True)
+                      if d is not None]
+            return {arg.arg: _value(default, constants) for arg, default in pairs}
+    raise _NotStatic(name)  # a class (dataclass fields), or defined elsewhere
+
+
+class _Defaults(dict):
+    """Like :func:`demtool.parameters.core_defaults`: a missing name is a TypeError."""
+
+    function = ""
+
+    def __missing__(self, name: str) -> Any:
+        raise TypeError(f"{self.function}() has no default for {name!r}")
+
+
+def core_defaults(ref: str) -> dict[str, Any]:
+    """The keyword defaults of the core function ``"module:name"``, by name.
+
+    Read from the source when every default is a literal or a module-level literal
+    constant; otherwise (and when the module is already imported) from the function's
+    signature after importing it.
+
+    Raises
+    ------
+    TypeError
+        Indexing a keyword without a default (as :func:`demtool.parameters.core_defaults`).
+    """
+    module, name = _split(ref)
+    if module not in sys.modules:
+        try:
+            found = _Defaults(_static_defaults(module, name))
+            found.function = name
+            return found
+        except (_NotStatic, OSError, SyntaxError):
+            pass
+    return _imported_defaults(getattr(importlib.import_module(module), name))
+
+
+def core_constant(ref: str) -> Any:
+    """The value of the module-level constant ``"module:NAME"`` (a literal), import-free."""
+    module, name = _split(ref)
+    if module not in sys.modules:
+        try:
+            constants = _constants(_tree(module))
+            if name in constants:
+                return constants[name]
+        except (_NotStatic, OSError, SyntaxError):
+            pass
+    return getattr(importlib.import_module(module), name)

@@ -26,6 +26,8 @@ later stages (dem --mapprojected, refine) can undo the projection.""")
                      "SPICE, ASP .tsai).", required=True)
 @options.path_option("--dem", "DEM on the body's map to project onto (heights above the "
                      "reference sphere).")
+@options.path_option("--grid-like", "Write OUT on this raster's map grid (CRS, transform, "
+                     "size), e.g. the other orthoimage of a stereo pair.")
 @options.out_file("Orthoimage (GeoTIFF).")
 @options.path_option("--angles-out", "Also write incidence, emission and phase angles "
                      "(degrees, 3 bands) on the same grid.")
@@ -34,12 +36,13 @@ later stages (dem --mapprojected, refine) can undo the projection.""")
               metavar="LON_MIN LAT_MIN LON_MAX LAT_MAX",
               help="Area to cover, degrees (default: the image's footprint).")
 @click.pass_context
-def command(ctx: click.Context, image: str, sensor: str, dem: str | None, out: str,
-            angles_out: str | None, **values: Any) -> None:
+def command(ctx: click.Context, image: str, sensor: str, dem: str | None, grid_like: str | None,
+            out: str, angles_out: str | None, **values: Any) -> None:
     """Options -> MapprojectParams -> :func:`demtool.runs.mapproject.run_mapproject`."""
     from demtool.runs.mapproject import run_mapproject
 
     options.exclusive({"--dem": dem is not None, "--height": values.get("height") is not None},
                       exactly_one=True)
     run_mapproject(image, sensor, out, MapprojectParams.from_options(values), dem_path=dem,
-                   angles_out=angles_out, resolved=options.resolved_params(ctx))
+                   angles_out=angles_out, grid_like=grid_like,
+                   resolved=options.resolved_params(ctx))

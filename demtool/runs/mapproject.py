@@ -155,17 +155,38 @@ def _grid(sensor, body, surface: DemSurface | None, params, log):
                               ) from None
 
 
+def _grid_like(path, sensor_path, body, params):
+    """The map grid of an existing raster (``--grid-like``)."""
+    from demtool import io as dio
+    from demtool.errors import InputError, ParameterError
+    from demtool.maps import MapGrid, body_from_crs, same_body, to_pyproj_crs
+
+    if params.gsd is not None or params.bounds is not None:
+        raise ParameterError("--grid-like sets the grid: drop --gsd and --bounds")
+    info = dio.raster_info(path, what="grid raster")
+    crs = None if info.crs is None else to_pyproj_crs(info.crs)
+    if crs is None or not crs.is_projected:
+        raise InputError(f"{path}: --grid-like needs a raster on a projected map of the body")
+    if not same_body(body_from_crs(crs), body):
+        raise InputError(f"{path}: is a map of {body_from_crs(crs).name} but the sensor model "
+                         f"{sensor_path} sees {body.name}")
+    return MapGrid(crs=crs, transform=info.transform, width=info.width, height=info.height)
+
+
 def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike,
                    out_path: str | os.PathLike, params: MapprojectParams | None = None, *,
                    dem_path: str | os.PathLike | None = None,
                    angles_out: str | os.PathLike | None = None,
+                   grid_like: str | os.PathLike | None = None,
                    resolved: dict[str, Any] | None = None) -> dict[str, Any]:
     """Map-project IMAGE through SENSOR onto a DEM (or the sphere raised by ``--height``).
 
     Writes ``out_path`` (float32 orthoimage, NaN where not seen, tagged with the sensor
     model, the surface and the body; see :data:`SENSOR_TAG` …), its sidecar
     ``<out>.json``, and with ``angles_out`` a 3-band raster of incidence, emission and
-    phase angles (degrees, relative to the sphere's normal) on the same grid.
+    phase angles (degrees, relative to the sphere's normal) on the same grid.  With
+    ``grid_like`` the grid is that raster's (its CRS, transform and size; a map of the
+    sensor's body), so two orthoimages of a stereo pair share one grid.
 
     Returns
     -------
@@ -190,7 +211,8 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
 
     params = params or MapprojectParams()
     run = StageRun("mapproject", params, resolved=resolved,
-                   inputs={"IMAGE": image_path, "--sensor": sensor_path, "--dem": dem_path},
+                   inputs={"IMAGE": image_path, "--sensor": sensor_path, "--dem": dem_path,
+                           "--grid-like": grid_like},
                    outputs={"--out": out_path, "--angles-out": angles_out})
     log = run.log
     if (dem_path is None) == (params.height is None):
@@ -206,7 +228,8 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
                          f"{sensor.lines}")
     body = sensor_body(sensor)
     surface = _read_dem(dem_path, sensor_path, body) if dem_path is not None else None
-    grid = _grid(sensor, body, surface, params, log)
+    grid = (_grid_like(grid_like, sensor_path, body, params) if grid_like is not None
+            else _grid(sensor, body, surface, params, log))
     same_crs = surface is not None and not surface.geographic and \
         to_pyproj_crs(surface.info.crs) == grid.crs
     gsd = grid.gsd[0]

@@ -68,12 +68,11 @@ def command(ctx: click.Context, points: str | None, disparity: str | None,
     """Check the form (points or disparity), call :func:`demtool.runs.dem.run_dem`."""
     from demtool.runs.dem import run_dem
 
+    if mapprojected is not None and disparity is None:
+        raise click.BadParameter("--mapprojected needs --disparity", param_hint="--mapprojected")
     options.exclusive({"--points": points is not None, "--disparity": disparity is not None},
                       exactly_one=True)
     if mapprojected is not None:
-        if disparity is None:
-            raise click.BadParameter("--mapprojected needs --disparity",
-                                     param_hint="--mapprojected")
         if rectify or reference or cameras:
             raise click.BadParameter("--mapprojected takes no --rectify, --reference or "
                                      "--cameras", param_hint="--mapprojected")

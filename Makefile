@@ -136,7 +136,11 @@ $(WORK)/reports/dem_frame/report.json: $(WORK)/dem_frame.tif
 # smooth prior (the sphere at the scene's mean height, --height 0; the right view on the
 # left's grid) → sgm along map x (range from the orthos' matches) → dem triangulated
 # back through the line-scan models → compare with truth_dem_map.tif; then refine on the
-# map with the raw left image (map-projected onto dem_linescan inside refine).
+# map with the raw left image (map-projected onto dem_linescan inside refine).  The
+# refine keeps its own spike test (--spike-threshold 4) instead of the NavCam preset's
+# median everywhere: the map-projected stereo DEM has no spikes to remove, and a 15-px
+# median of every cell costs it the detail SfS then has to recover (measured on the demo
+# scene: RMSE 0.64x -> 0.49x, slope error 0.54x -> 0.51x of dem_linescan's).
 LINESCAN_SCENE := $(WORK)/scene_linescan
 LINESCAN_STEREO := $(WORK)/stereo_linescan
 PRODUCTS += dem_linescan dem_linescan_refined
@@ -164,7 +168,7 @@ $(WORK)/dem_linescan.tif: $(LINESCAN_STEREO)/disparity_sgm.tif \
 
 $(WORK)/dem_linescan_refined.tif: $(WORK)/dem_linescan.tif
 	$(DT) refine $(LINESCAN_SCENE)/$(TARGET).tif $< \
-	  --sensor $(LINESCAN_SCENE)/$(TARGET).json --out $@
+	  --sensor $(LINESCAN_SCENE)/$(TARGET).json --spike-threshold 4 --out $@
 
 $(WORK)/reports/dem_linescan/report.json: $(WORK)/dem_linescan.tif
 	$(DT) compare $< $(LINESCAN_SCENE)/truth_dem_map.tif --out $(WORK)/reports/dem_linescan \

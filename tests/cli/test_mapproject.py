@@ -283,3 +283,28 @@ def test_orthos_of_a_synth_linescan_pair_coincide(tmp_path):
     inner = np.zeros_like(both)
     inner[4:-4, 4:-4] = True
     assert np.hypot(*shift_px(np.where(inner, b, np.nan), a, 1.0)) < 0.05
+
+
+def test_grid_like_puts_the_ortho_on_that_grid(scene, tmp_path):
+    """--grid-like: the output takes the given raster's grid (here the truth DEM's, so
+    the ortho on the sphere covers exactly its cells)."""
+    out = tmp_path / "ortho.tif"
+    result = invoke(scene["image"], "--sensor", scene["isd"], "--height", 0, "--grid-like",
+                    scene["dem"], "--out", out)
+    assert result.exit_code == 0, result.output
+    ortho, dem = dio.read_raster(out), dio.read_raster(scene["dem"])
+    assert ortho.transform == dem.transform and ortho.data.shape == dem.data.shape
+    assert ortho.crs == dem.crs
+    assert np.isfinite(ortho.data).mean() > 0.5
+
+
+def test_grid_like_refusals(scene, tmp_path):
+    out = tmp_path / "ortho.tif"
+    result = invoke(scene["image"], "--sensor", scene["isd"], "--height", 0, "--grid-like",
+                    scene["dem"], "--gsd", 2, "--out", out)
+    assert_refused(result, out, "--grid-like")
+    frame = tmp_path / "frame.tif"
+    dio.write_raster(frame, np.zeros((8, 8), np.float32), tags={"frame": "image:x"})
+    result = invoke(scene["image"], "--sensor", scene["isd"], "--height", 0, "--grid-like",
+                    frame, "--out", out)
+    assert_refused(result, out, str(frame), "projected map")

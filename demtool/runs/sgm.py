@@ -46,8 +46,7 @@ def ortho_pair_range(left, right) -> tuple[tuple[int, int], str, dict[str, Any]]
 
     if left.transform != right.transform or str(left.crs) != str(right.crs):
         raise InputError(f"{left.path} and {right.path}: the orthoimages are on different "
-                         "map grids; map-project both onto one grid (same --dem or --bounds "
-                         "and --gsd)")
+                         "map grids; map-project the right one with --grid-like LEFT")
     try:
         found = ortho_disparity_range(left.data, right.data)
     except ProcessingError as exc:
@@ -102,6 +101,10 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     min_disparity, num_disparities = params.min_disparity, params.num_disparities
     left = dio.read_raster(left_path, what="left rectified image")
     right = dio.read_raster(right_path, what="right rectified image")
+    if is_ortho_pair(left, right) and (left.data.shape != right.data.shape
+                                       or left.transform != right.transform):
+        raise InputError(f"{left_path} and {right_path}: the orthoimages are on different "
+                         "map grids; map-project the right one with --grid-like LEFT")
     if left.data.shape != right.data.shape:
         raise InputError(
             f"{left_path} and {right_path}: the rectified images differ in size "

@@ -185,3 +185,16 @@ def test_mapprojected_needs_disparity(tmp_path):
     assert result.exit_code == 2
     assert "--mapprojected" in result.output
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_sgm_refuses_orthos_of_different_grids(route, tmp_path):
+    scene, meta = route["scene"], route["meta"]
+    own = tmp_path / "own_grid.tif"
+    result = invoke("mapproject", scene / f"{meta['partner']}.tif", "--sensor",
+                    scene / f"{meta['partner']}.json", "--height", 0, "--gsd", 0.6,
+                    "--out", own)
+    assert result.exit_code == 0, result.output
+    out = tmp_path / "d.tif"
+    result = invoke("sgm", route["left"], own, "--out", out)
+    assert_refused(result, out, str(own), "different map grids", "--grid-like")

@@ -6,11 +6,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from demtool.mapproject import image_coordinates
+from demtool.core_source import core_defaults
 from demtool.maps import PROJECTIONS
-from demtool.parameters import Parameters, core_defaults, parameter, seed_field
+from demtool.parameters import Parameters, parameter, seed_field
 
-CORE = core_defaults(image_coordinates)
+# read from the source, so --help loads no numba (demtool.mapproject compiles kernels)
+CORE = core_defaults("demtool.mapproject:image_coordinates")
 
 
 @dataclass(frozen=True)

@@ -79,11 +79,11 @@ def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
     out = Path(out_dir)
     left_image = dio.read_image(left_path, what="left image")
     right_image = dio.read_image(right_path, what="right image")
+    _refuse_map_projected(left_image, right_image)  # whatever their texture
     check_texture(left_image.data, left_path, what="left image")
     check_texture(right_image.data, right_path, what="right image")
     left_name, right_name = Path(left_path).stem, Path(right_path).stem
     pair = f"{left_path} / {right_path}"
-    _refuse_map_projected(left_image, right_image)
     if left_image.data.shape != right_image.data.shape:
         log.info("%s: the images differ in size (%d x %d and %d x %d); that is fine", pair,
                  left_image.data.shape[1], left_image.data.shape[0],

@@ -131,6 +131,53 @@ $(WORK)/reports/dem_frame/report.json: $(WORK)/dem_frame.tif
 	$(DT) compare $< $(FRAME_SCENE)/truth_dem_map.tif --out $(WORK)/reports/dem_frame \
 	  --label dem_frame
 
+# Map-projected stereo of a line-scan pair (issue 12): synth --sensor linescan (two
+# LineScanSensor views rolled ±12.5°, ISDs beside the images) → mapproject both onto the
+# smooth prior (the sphere at the scene's mean height, --height 0; the right view on the
+# left's grid) → sgm along map x (range from the orthos' matches) → dem triangulated
+# back through the line-scan models → compare with truth_dem_map.tif; then refine on the
+# map with the raw left image (map-projected onto dem_linescan inside refine).  The
+# refine keeps its own spike test (--spike-threshold 4) instead of the NavCam preset's
+# median everywhere: the map-projected stereo DEM has no spikes to remove, and a 15-px
+# median of every cell costs it the detail SfS then has to recover (measured on the demo
+# scene: RMSE 0.64x -> 0.49x, slope error 0.54x -> 0.51x of dem_linescan's).
+LINESCAN_SCENE := $(WORK)/scene_linescan
+LINESCAN_STEREO := $(WORK)/stereo_linescan
+PRODUCTS += dem_linescan dem_linescan_refined
+
+$(LINESCAN_SCENE)/scene.json: | $(VENV)/.installed
+	$(DT) synth --sensor linescan --out $(LINESCAN_SCENE) $(SYNTH_ARGS)
+
+$(LINESCAN_STEREO)/left_ortho.tif: $(LINESCAN_SCENE)/scene.json
+	$(DT) mapproject $(LINESCAN_SCENE)/$(TARGET).tif --sensor $(LINESCAN_SCENE)/$(TARGET).json \
+	  --height 0 --out $@
+
+$(LINESCAN_STEREO)/right_ortho.tif: $(LINESCAN_STEREO)/left_ortho.tif
+	$(DT) mapproject $(LINESCAN_SCENE)/$(PARTNER).tif \
+	  --sensor $(LINESCAN_SCENE)/$(PARTNER).json --height 0 --grid-like $< --out $@
+
+$(LINESCAN_STEREO)/disparity_sgm.tif: $(LINESCAN_STEREO)/left_ortho.tif \
+	  $(LINESCAN_STEREO)/right_ortho.tif
+	$(DT) sgm $^ --out $@
+
+$(WORK)/dem_linescan.tif: $(LINESCAN_STEREO)/disparity_sgm.tif \
+	  $(LINESCAN_STEREO)/left_ortho.tif $(LINESCAN_STEREO)/right_ortho.tif
+	$(DT) dem --disparity $< \
+	  --mapprojected $(LINESCAN_STEREO)/left_ortho.tif $(LINESCAN_STEREO)/right_ortho.tif \
+	  --error-out $(WORK)/dem_linescan_error.tif --out $@
+
+$(WORK)/dem_linescan_refined.tif: $(WORK)/dem_linescan.tif
+	$(DT) refine $(LINESCAN_SCENE)/$(TARGET).tif $< \
+	  --sensor $(LINESCAN_SCENE)/$(TARGET).json --spike-threshold 4 --out $@
+
+$(WORK)/reports/dem_linescan/report.json: $(WORK)/dem_linescan.tif
+	$(DT) compare $< $(LINESCAN_SCENE)/truth_dem_map.tif --out $(WORK)/reports/dem_linescan \
+	  --label dem_linescan
+
+$(WORK)/reports/dem_linescan_refined/report.json: $(WORK)/dem_linescan_refined.tif
+	$(DT) compare $< $(LINESCAN_SCENE)/truth_dem_map.tif \
+	  --out $(WORK)/reports/dem_linescan_refined --label dem_linescan_refined
+
 # Comparison of every product with the synthetic truth
 $(WORK)/reports/%/report.json: $(WORK)/%.tif
 	$(DT) compare $< $(TRUTH) --out $(WORK)/reports/$* --label $*

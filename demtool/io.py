@@ -21,6 +21,7 @@ Contracts (see DESIGN.md):
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import warnings
@@ -329,6 +330,140 @@ def write_raster(path: str | os.PathLike, data: np.ndarray, *, transform=None, c
         except (RasterioError, CPLE_BaseError) as exc:  # GDAL's write errors (disk full)
             raise write_error(path, exc) from None
     return Path(path)
+
+
+# --------------------------------------------------------------------------------------
+# Windowed access (stages that stream images larger than memory: mapproject)
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RasterInfo:
+    """A raster's size, georeferencing and tags, without its pixels.
+
+    width, height, count : int; transform : affine.Affine; crs : CRS or None;
+    tags : dict of str to str; path : Path.
+    """
+
+    width: int
+    height: int
+    count: int
+    transform: Any
+    crs: Any
+    tags: dict[str, str]
+    path: Path
+
+    def tag_json(self, key: str, default: Any = None) -> Any:
+        """Decode a tag written as JSON; ``default`` if absent."""
+        if key not in self.tags:
+            return default
+        try:
+            return json.loads(self.tags[key])
+        except json.JSONDecodeError:
+            return self.tags[key]
+
+
+def raster_info(path: str | os.PathLike, *, what: str = "raster") -> RasterInfo:
+    """Open a raster and return its :class:`RasterInfo` (InputError when unreadable)."""
+    p = Path(path)
+    with _open_dataset(p, what) as dataset:
+        transform = dataset.transform
+        if dataset.crs is None and transform.is_identity:
+            transform = image_frame_transform(1.0)
+        return RasterInfo(width=dataset.width, height=dataset.height, count=dataset.count,
+                          transform=transform, crs=dataset.crs, tags=dict(dataset.tags()),
+                          path=p)
+
+
+def read_window(path: str | os.PathLike, window: tuple[int, int, int, int], *,
+                band: int = 1, what: str = "raster") -> np.ndarray:
+    """Read rows ``row0:row1`` and columns ``col0:col1`` of one band as float32, NaN nodata.
+
+    The band's scale and offset are applied as in :func:`read_raster`.
+
+    Parameters
+    ----------
+    path : path-like
+    window : (row0, row1, col0, col1), pixels, within the raster
+    band : int, 1-based
+    what : str, for messages
+
+    Returns
+    -------
+    (row1 − row0, col1 − col0) float32
+    """
+    from rasterio.errors import NotGeoreferencedWarning, RasterioError
+    from rasterio.windows import Window
+
+    p = Path(path)
+    r0, r1, c0, c1 = (int(v) for v in window)
+    with _open_dataset(p, what) as dataset:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                data = dataset.read([band], window=Window(c0, r0, c1 - c0, r1 - r0),
+                                    masked=True)
+        except (RasterioError, ValueError) as exc:
+            raise InputError(f"{p}: cannot read {what}: {_first_line(exc)}") from None
+        return physical_values(data, [dataset.scales[band - 1]],
+                               [dataset.offsets[band - 1]])[0]
+
+
+class RasterBlockWriter:
+    """A float32 GeoTIFF being written one window at a time (see :func:`raster_writer`)."""
+
+    def __init__(self, dataset) -> None:
+        self._dataset = dataset
+
+    def write(self, data: np.ndarray, row0: int, col0: int) -> None:
+        """Write a (h, w) or (B, h, w) block with its top-left cell at (row0, col0)."""
+        from rasterio.windows import Window
+
+        block = np.asarray(data, dtype=np.float32)
+        if block.ndim == 2:
+            block = block[np.newaxis]
+        self._dataset.write(block, window=Window(int(col0), int(row0), block.shape[2],
+                                                 block.shape[1]))
+
+
+@contextlib.contextmanager
+def raster_writer(path: str | os.PathLike, *, height: int, width: int, count: int = 1,
+                  transform=None, crs=None, tags: Mapping[str, Any] | None = None,
+                  band_names: list[str] | None = None):
+    """Write a float32 GeoTIFF (NaN nodata, tiled, ZSTD) block by block, atomically.
+
+    The file is created filled with NaN; the block yields a :class:`RasterBlockWriter`.
+    Compression is ZSTD level 1 with the floating-point predictor (4x faster than
+    :func:`write_raster`'s deflate at the same size on image data; GDAL >= 2.3 reads it),
+    since the rasters written this way are the large ones.
+    As :func:`write_raster`, the file appears (inside :func:`output_transaction`: at the
+    end of the transaction) only when the block succeeds.
+    """
+    import rasterio
+    from rasterio._err import CPLE_BaseError
+    from rasterio.errors import NotGeoreferencedWarning, RasterioError
+
+    profile = {
+        "driver": "GTiff", "dtype": "float32", "nodata": float("nan"), "count": count,
+        "height": height, "width": width,
+        "transform": transform if transform is not None else image_frame_transform(1.0),
+        "crs": crs, "compress": "zstd", "zstd_level": 1, "predictor": 3, "tiled": True,
+        "blockxsize": 256, "blockysize": 256,
+    }
+    if width * height * count * 4 > 3.5e9:
+        profile["BIGTIFF"] = "YES"
+    with atomic_path(path, suffix=".tif") as temporary, warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        try:
+            with rasterio.open(temporary, "w", **profile) as dst:
+                if tags:
+                    dst.update_tags(**{k: _tag_value(v) for k, v in tags.items()})
+                if band_names:
+                    for index, name in enumerate(band_names, start=1):
+                        dst.set_band_description(index, name)
+                yield RasterBlockWriter(dst)
+        except (RasterioError, CPLE_BaseError) as exc:
+            raise write_error(path, exc) from None
 
 
 # --------------------------------------------------------------------------------------

@@ -18,6 +18,7 @@ STAGES: dict[str, str] = {
     "match": "Area-based matching: seeds, Delaunay, pyramid NCC, least-squares matching.",
     "dem": "Dense DEM in the target frame from bundle points or a disparity map.",
     "refine": "Shape-from-shading refinement of a coarse DEM (lunar-Lambert).",
+    "mapproject": "Resample an image onto the body's map through its sensor model (cam2map).",
     "compare": "Measure a DEM against a reference: co-registration, statistics, plots.",
     "camera": "What sensor models see: footprint, GSD, sun and view angles, pair B/H, overlap.",
 }

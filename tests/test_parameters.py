@@ -18,6 +18,7 @@ STAGE_PARAMETERS = {
     "match": ("demtool.match.params", "MatchParams"),
     "dem": ("demtool.dem.params", "DemParams"),
     "refine": ("demtool.refine.params", "RefineParams"),
+    "mapproject": ("demtool.mapproject_params", "MapprojectParams"),
     "compare": ("demtool.compare.params", "CompareParams"),
     "camera": ("demtool.camera_params", "CameraParams"),
 }

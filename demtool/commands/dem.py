@@ -25,6 +25,11 @@ With a calibrated rectify.npz (`rectify --sensor-left/--sensor-right`), neither 
 given: every valid disparity is triangulated through the two sensor models in the
 body-fixed frame and OUT is a DEM on the body's map (heights above the reference
 sphere, the body's IAU CRS, --projection, --gsd, --max-ray-gap, --error-out).
+Map-projected stereo (line scanners, ASP's route): `demtool dem --disparity D
+--mapprojected LEFT_ORTHO RIGHT_ORTHO --out dem.tif`, D matched by sgm between two
+orthoimages of demtool mapproject on one grid: each left cell (x, y) and its right
+cell (x - d, y) are mapped back to raw pixels through the surface and sensor model
+named in the orthoimages' tags and triangulated as above (DEM on the orthos' map).
 
 Both routes remove outliers with a local median test, resample onto the target
 image's pixel grid, fill the gaps with D'Errico's spring-metaphor interpolation and
@@ -43,6 +48,9 @@ as distance / focal length), heights in metres positive toward the camera.
                      "uncalibrated projective fit.")
 @options.path_option("--cameras", "cameras.npz with the pair's cameras: calibrated "
                      "triangulation.")
+@click.option("--mapprojected", nargs=2, type=click.Path(dir_okay=False), default=None,
+              metavar="LEFT_ORTHO RIGHT_ORTHO",
+              help="The two orthoimages (demtool mapproject) the disparity was matched on.")
 @options.path_option("--scene", "scene.json with distance_m and gsd_m (metadata from synth).")
 @options.parameter_options(DemParams)
 @options.path_option("--interpolated-mask", "Also write a raster: 1 where interpolated, 0 "
@@ -53,17 +61,25 @@ as distance / focal length), heights in metres positive toward the camera.
 @click.pass_context
 def command(ctx: click.Context, points: str | None, disparity: str | None,
             rectify: str | None, reference: str | None, cameras: str | None,
-            scene: str | None, interpolated_mask: str | None, error_out: str | None,
+            scene: str | None, mapprojected: tuple[str, str] | None,
+            interpolated_mask: str | None, error_out: str | None,
             out: str,
             **values: Any) -> None:
     """Check the form (points or disparity), call :func:`demtool.runs.dem.run_dem`."""
     from demtool.runs.dem import run_dem
 
+    if mapprojected is not None and disparity is None:
+        raise click.BadParameter("--mapprojected needs --disparity", param_hint="--mapprojected")
     options.exclusive({"--points": points is not None, "--disparity": disparity is not None},
                       exactly_one=True)
-    if disparity is not None:
+    if mapprojected is not None:
+        if rectify or reference or cameras:
+            raise click.BadParameter("--mapprojected takes no --rectify, --reference or "
+                                     "--cameras", param_hint="--mapprojected")
+    elif disparity is not None:
         if rectify is None:
-            raise click.BadParameter("--disparity needs --rectify", param_hint="--rectify")
+            raise click.BadParameter("--disparity needs --rectify (or --mapprojected)",
+                                     param_hint="--rectify")
         options.exclusive({"--reference": reference is not None,
                            "--cameras": cameras is not None})
     elif rectify or reference or cameras or error_out:
@@ -72,4 +88,5 @@ def command(ctx: click.Context, points: str | None, disparity: str | None,
     run_dem(out, DemParams.from_options(values), points_path=points, disparity_path=disparity,
             rectify_path=rectify, reference_path=reference, cameras_path=cameras,
             scene_path=scene, mask_path=interpolated_mask, error_path=error_out,
+            mapprojected=mapprojected,
             resolved=options.resolved_params(ctx))

@@ -19,7 +19,14 @@ EI + δ·Egrad + γ·Eint + τ·Edepth over slopes and heights, with a local alb
 heights tied to the input so the absolute heights stay.  Sun and view come from the
 image's tags (written by `demtool synth`) unless given; directions are in the grid
 frame (x image right, y image up, z toward the camera).  Defaults: the NavCam and
-LRO NAC studies.""")
+LRO NAC studies.
+
+On the body's map (a DEM with a CRS): IMAGE is an orthoimage of `demtool mapproject`
+(or a raw image with --sensor, map-projected here); the sun and view come from the
+sensor model in each point's local east-north-up frame, per tile where they vary by
+more than --max-illumination-change; a DEM in degrees is put on a metric grid with the
+body's radius; a map image with no sensor model (a mosaic) is refused unless the sun
+is given.""")
 @options.input_file("image")
 @options.input_file("dem")
 @options.out_file("Refined DEM (GeoTIFF, same grid as DEM); a sidecar OUT.json is written "
@@ -34,10 +41,12 @@ LRO NAC studies.""")
                        "grid frame [default: image tag view_vector_grid, else nadir 0,0,1].")
 @options.parameter_options(RefineParams)
 @options.path_option("--albedo-out", "Also write the local albedo map (GeoTIFF, DEM grid).")
+@options.path_option("--sensor", "Sensor model of a raw IMAGE, map-projected onto a DEM on the "
+                     "body's map (an orthoimage of `demtool mapproject` names its own).")
 @click.pass_context
 def command(ctx: click.Context, image: str, dem: str, out: str, sun_azimuth: float | None,
             sun_elevation: float | None, sun_vector: Any, view_vector: Any,
-            albedo_out: str | None, **values: Any) -> None:
+            albedo_out: str | None, sensor: str | None, **values: Any) -> None:
     """Check option combinations, call :func:`demtool.runs.refine.run_refine`."""
     from demtool.runs.refine import run_refine
 
@@ -48,4 +57,4 @@ def command(ctx: click.Context, image: str, dem: str, out: str, sun_azimuth: flo
                        "--sun-azimuth/--sun-elevation": sun_azimuth is not None})
     run_refine(image, dem, out, RefineParams.from_options(values), sun_azimuth=sun_azimuth,
                sun_elevation=sun_elevation, sun_vector=sun_vector, view_vector=view_vector,
-               albedo_out=albedo_out, resolved=options.resolved_params(ctx))
+               albedo_out=albedo_out, sensor_path=sensor, resolved=options.resolved_params(ctx))

@@ -92,6 +92,11 @@ class RefineParams(SfsParameters):
         σ of the Gaussian smoothing of the anchor DEM the iterations start from, px.
     max_nan_fraction : float
         Largest fraction of NaN in the input DEM (gaps below it are filled).
+    max_illumination_change : float
+        Map route: above this spread (degrees) of the sun or view direction over the DEM
+        the DEM is refined per tile, each under its own directions.
+    illumination_tile : int
+        Map route: tile size (px) when refining per tile.
     """
 
     median: int = parameter(15, "Median prefilter of the input DEM, odd window in pixels "
@@ -106,6 +111,11 @@ class RefineParams(SfsParameters):
     max_nan_fraction: float = parameter(
         0.2, "Refuse a DEM with more NaN than this fraction (gaps below it are filled).",
         minimum=0.0, maximum=1.0)
+    max_illumination_change: float = parameter(
+        1.0, "Map route: refine per tile when the sun or view direction from the sensor "
+        "model varies by more than this over the DEM, degrees.", minimum=0.0, min_open=True)
+    illumination_tile: int = parameter(
+        512, "Map route: tile size when refining per tile, px.", minimum=64)
 
     def sfs(self) -> SfsParameters:
         """The shape-from-shading part, for :func:`demtool.refine.refine_heights`."""

@@ -156,6 +156,7 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
             rectify_path: PathLike = None, reference_path: PathLike = None,
             cameras_path: PathLike = None, scene_path: PathLike = None,
             mask_path: PathLike = None, error_path: PathLike = None,
+            mapprojected: tuple[str | os.PathLike, str | os.PathLike] | None = None,
             resolved: dict | None = None) -> dict:
     """Run the dem stage: read the inputs, build the DEM, write it with its sidecar.
 
@@ -163,7 +164,10 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
     one of ``reference_path`` (projective fit) or ``cameras_path`` (triangulation), or
     neither with a calibrated ``rectify_path`` (sensor models: a DEM on the body's map,
     :func:`demtool.runs.dem_sensors.run_dem_sensors`; ``error_path`` writes its
-    triangulation-error raster).  ``mask_path`` also writes the interpolation mask.
+    triangulation-error raster), or ``disparity_path`` with ``mapprojected`` = (left
+    orthoimage, right orthoimage) from ``demtool mapproject`` (a DEM on the body's map,
+    :func:`demtool.runs.dem_mapprojected.run_dem_mapprojected`).  ``mask_path`` also
+    writes the interpolation mask.
     Returns the sidecar summary.
     """
     import numpy as np
@@ -175,12 +179,23 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
     run = StageRun("dem", params, resolved=resolved,
                    inputs={"--points": points_path, "--disparity": disparity_path,
                            "--rectify": rectify_path, "--reference": reference_path,
-                           "--cameras": cameras_path, "--scene": scene_path},
+                           "--cameras": cameras_path, "--scene": scene_path,
+                           "--mapprojected LEFT": mapprojected[0] if mapprojected else None,
+                           "--mapprojected RIGHT": mapprojected[1] if mapprojected else None},
                    outputs={"--out": out, "--interpolated-mask": mask_path,
                             "--error-out": error_path, "sidecar": sidecar_path(out)})
     log, prov = run.log, run.provenance
     for path in run.input_paths():
         dio.require_file(path, "input file")
+    if disparity_path is not None and mapprojected is not None:
+        from demtool.errors import ParameterError
+        from demtool.runs.dem_mapprojected import run_dem_mapprojected
+
+        if rectify_path or reference_path or cameras_path:
+            raise ParameterError("--mapprojected takes no --rectify, --reference or --cameras")
+        return run_dem_mapprojected(run, params, out, disparity_path=disparity_path,
+                                    left_path=mapprojected[0], right_path=mapprojected[1],
+                                    mask_path=mask_path, error_path=error_path)
     if disparity_path is not None:
         from demtool.errors import ParameterError
         from demtool.runs.dem_sensors import is_calibrated, run_dem_sensors

@@ -72,14 +72,11 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
     """
     import numpy as np
 
-    from demtool import io as dio
-    from demtool.dem.sensors import default_max_ray_gap, dem_on_map, triangulate_sensors
     from demtool.errors import InputError, ProcessingError
-    from demtool.maps import body_from_radii
     from demtool.rectify_calibrated import rect_to_pixels, scene_distance
     from demtool.runs.dem import read_disparity
 
-    log, prov = run.log, run.provenance
+    log = run.log
     left, right = models_from_rectification(rectification, rectify_path)
     if left.radii is None:
         raise InputError(f"{rectify_path}: the sensor models have no body (local-frame "
@@ -97,38 +94,69 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
     l_line, l_sample = rect_to_pixels(left, geometry, "left", x_left, y, scene_distance(left))
     r_line, r_sample = rect_to_pixels(right, geometry, "right", x_right, y,
                                       scene_distance(right))
-    tri = triangulate_sensors(left, right, l_line, l_sample, r_line, r_sample)
+    summary, result, body = triangulate_to_map(
+        run, params, left, right, (l_line, l_sample), (r_line, r_sample),
+        source=disparity_path, range_to_gsd=1.0 / geometry.f_px)
+    summary = {"route": "disparity-sensors", **summary, "valid_disparities": int(rows.size)}
+    write_map_dem(run, params, out, result, summary, body, route="disparity-sensors",
+                  mask_path=mask_path, error_path=error_path)
+    return summary
+
+
+def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
+                       right: SensorModel, left_pixels, right_pixels, *, source,
+                       range_to_gsd: float | None = None, gsd_default: float | None = None,
+                       crs: Any = None) -> tuple[dict[str, Any], Any, Any]:
+    """Triangulate correspondences (CSM ``(line, sample)`` arrays of each side) through
+    the two models, drop points behind a camera or whose rays miss by more than
+    ``--max-ray-gap`` (default :func:`demtool.dem.sensors.default_max_ray_gap`), grid
+    them on the body's map (:func:`demtool.dem.sensors.dem_on_map`).
+
+    The GSD is ``--gsd``, else ``gsd_default``, else the median left range times
+    ``range_to_gsd`` (one pixel's angle).  ``crs``: the map's CRS when
+    ``--projection auto`` (None: a new one).  Returns (summary, MapDem, body).
+    """
+    import numpy as np
+
+    from demtool.dem.sensors import default_max_ray_gap, dem_on_map, triangulate_sensors
+    from demtool.errors import ProcessingError
+    from demtool.maps import body_from_radii
+
+    log = run.log
+    tri = triangulate_sensors(left, right, *left_pixels, *right_pixels)
     finite = np.isfinite(tri.xyz).all(axis=1)
     in_front = finite & tri.in_front
     if not in_front.any():
-        raise ProcessingError(f"{disparity_path}: no disparity triangulates in front of both "
+        raise ProcessingError(f"{source}: no disparity triangulates in front of both "
                               "cameras")
-    f_px = geometry.f_px
-    estimated_gsd = float(np.median(tri.range_left[in_front]) / f_px)
-    gsd = float(params.gsd) if params.gsd is not None else estimated_gsd
+    if params.gsd is not None:
+        gsd, gsd_source = float(params.gsd), "--gsd"
+    elif gsd_default is not None:
+        gsd, gsd_source = float(gsd_default), "orthoimage"
+    else:
+        gsd = float(np.median(tri.range_left[in_front]) * range_to_gsd)
+        gsd_source = "estimated"
     gaps = tri.gap[in_front]
     max_gap = (float(params.max_ray_gap) if params.max_ray_gap is not None
                else default_max_ray_gap(gaps, gsd))
     keep = in_front & (tri.gap <= max_gap)
     median_gap = float(np.median(gaps))
-    log.info("%d valid disparities: %d behind a camera, %d rays missing by more than %.3g m "
-             "(median gap %.3g m, GSD %.3g m)", rows.size, int((finite & ~tri.in_front).sum()),
+    log.info("%d correspondences: %d behind a camera, %d rays missing by more than %.3g m "
+             "(median gap %.3g m, GSD %.3g m)", finite.size, int((finite & ~tri.in_front).sum()),
              int((in_front & ~keep).sum()), max_gap, median_gap, gsd)
     a, b = left.radii
     body = body_from_radii(a, a, b)
-    result = dem_on_map(tri.xyz[keep], tri.gap[keep], body, gsd_m=gsd,
+    use_crs = crs if params.projection == "auto" else None
+    result = dem_on_map(tri.xyz[keep], tri.gap[keep], body, gsd_m=gsd, crs=use_crs,
                         projection=params.projection, left=left, right=right,
                         median_px=params.median)
-    grid = result.grid
     summary: dict[str, Any] = {
-        "route": "disparity-sensors",
         "body": body.name,
-        "crs": grid.crs.name,
+        "crs": result.grid.crs.name,
         "projection": params.projection,
         "shape": list(result.dem.shape),
         "gsd_m": gsd,
-        "gsd_source": "--gsd" if params.gsd is not None else "estimated",
-        "valid_disparities": int(rows.size),
+        "gsd_source": gsd_source,
         "behind_camera": int((finite & ~tri.in_front).sum()),
         "max_ray_gap_m": max_gap,
         "max_ray_gap_source": "--max-ray-gap" if params.max_ray_gap is not None else "default",
@@ -138,11 +166,26 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
         "interpolated_fraction": float(result.filled.sum() / max(1, result.overlap.sum())),
         **result.report,
     }
+    return summary, result, body
+
+
+def write_map_dem(run: StageRun, params: DemParams, out, result, summary: dict[str, Any],
+                  body, *, route: str, mask_path: PathLike = None,
+                  error_path: PathLike = None) -> None:
+    """Write a DEM on the body's map (OUT, ``--interpolated-mask``, ``--error-out``, the
+    sidecar) in one transaction."""
+    import numpy as np
+
+    from demtool import io as dio
+
+    log, prov = run.log, run.provenance
+    grid = result.grid
+    gsd = summary["gsd_m"]
     log.info("DEM %d×%d on %s, GSD %.4g m, %.1f %% of the overlap measured, heights %.4g … "
              "%.4g m above the %.1f km sphere", grid.width, grid.height, grid.crs.name, gsd,
              100 * result.report["measured_fraction_of_overlap"], summary["height_min_m"],
              summary["height_max_m"], body.radius / 1e3)
-    tags = prov.tags(dem_route="disparity-sensors", gsd_m=gsd,
+    tags = prov.tags(dem_route=route, gsd_m=gsd,
                      units="metres above the reference sphere", **body.tags())
     filled = result.filled.astype(np.float32)
     filled[np.isnan(result.dem)] = np.nan
@@ -164,4 +207,3 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
                              band_names=["ray_gap"])
             outputs.append(Path(error_path))
         prov.write_sidecar(out, summary, outputs=outputs)
-    return summary

@@ -16,6 +16,27 @@ RIGHT_RECT = "right_rect.tif"
 RECTIFY_NPZ = "rectify.npz"
 
 
+def _refuse_map_projected(left, right) -> None:
+    """Two images on one map grid (orthoimages) are already aligned: no rectification.
+
+    Raises
+    ------
+    InputError
+        Both images carry the same CRS and pixel size (a map-projected pair).
+    """
+    from demtool.errors import InputError
+
+    if left.crs is None or right.crs is None or left.crs != right.crs:
+        return
+    if not all(abs(a - b) <= 1e-6 * abs(a) for a, b in zip(left.spacing, right.spacing,
+                                                          strict=True)):
+        return
+    raise InputError(f"{left.path}: {left.path.name} and {right.path.name} are already on "
+                     "the same map grid (map-projected images): rectifying them would only "
+                     "invent a transformation; match them directly (sgm/match) and "
+                     "triangulate with `dem --mapprojected`")
+
+
 CALIBRATED_ONLY = ("systematic_residual", "max_pointing_correction")
 
 
@@ -58,6 +79,7 @@ def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
     out = Path(out_dir)
     left_image = dio.read_image(left_path, what="left image")
     right_image = dio.read_image(right_path, what="right image")
+    _refuse_map_projected(left_image, right_image)  # whatever their texture
     check_texture(left_image.data, left_path, what="left image")
     check_texture(right_image.data, right_path, what="right image")
     left_name, right_name = Path(left_path).stem, Path(right_path).stem

@@ -149,6 +149,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
                sun_vector: tuple[float, float, float] | None = None,
                view_vector: tuple[float, float, float] | None = None,
                albedo_out: str | os.PathLike | None = None,
+               sensor_path: str | os.PathLike | None = None,
                resolved: dict[str, Any] | None = None) -> RefineResult:
     """Refine the DEM at ``dem_path`` with the shading of ``image_path``; write ``out``.
 
@@ -157,6 +158,13 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     provenance sidecar with the energies per iteration) and, if asked, the albedo map,
     all in one transaction.  ``params`` defaults to :class:`RefineParams()`; the
     sun and view directions default to the image's tags.
+
+    A DEM on the body's map (with a CRS) takes the map route
+    (:mod:`demtool.runs.refine_map`): a DEM in degrees is put on a metric grid, the
+    image is an orthoimage of ``demtool mapproject`` or a raw image with
+    ``sensor_path`` (map-projected here), and the sun and view come from the sensor
+    model per point's local east-north-up frame, per tile where they vary.  The refined
+    DEM is then on the (metric) map grid.
 
     Raises
     ------
@@ -180,22 +188,51 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
 
     params = params or RefineParams()
     run = StageRun("refine", params, resolved=resolved,
-                   inputs={"IMAGE": image_path, "DEM": dem_path},
+                   inputs={"IMAGE": image_path, "DEM": dem_path, "--sensor": sensor_path},
                    outputs={"--out": out, "--albedo-out": albedo_out,
                             "sidecar": sidecar_path(out)})
     log, prov = run.log, run.provenance
     dem = io.read_raster(dem_path, what="DEM")
-    image = io.read_image(image_path, what="image")
     check_magnitude(dem.data, dem_path, what="DEM")
-    check_texture(image.data, image_path, what="image")
-    illumination, sources = resolve_illumination(
-        image, sun_azimuth=sun_azimuth, sun_elevation=sun_elevation, sun_vector=sun_vector,
-        view_vector=view_vector)
+    map_route = None
+    map_report: dict[str, Any] = {}
+    if dem.crs is not None:
+        from demtool.runs.refine_map import metric_dem, resolve_map_route
+
+        dem, converted = metric_dem(dem, log)
+        map_report["dem_converted"] = converted
+        if sensor_path is not None or (sun_vector is None and sun_azimuth is None):
+            map_route = resolve_map_route(image_path, dem, params, log,
+                                          sensor_path=sensor_path)
+            map_report.update(map_route.report)
+            if map_route.windows is not None and albedo_out is not None:
+                from demtool.errors import ParameterError
+
+                raise ParameterError("--albedo-out: not written when the DEM is refined per "
+                                     "tile (the sun or view varies by more than "
+                                     "--max-illumination-change over it)")
+    elif sensor_path is not None:
+        raise InputError(f"{dem_path}: --sensor needs a DEM on the body's map (a planetary "
+                         "CRS); this DEM is in an image frame")
+    if map_route is not None:
+        image_tags: dict[str, str] = {}
+        values, note = map_route.values, None
+        check_texture(values, image_path, what="image")
+        illumination = map_route.illuminations[0]
+        sources = {"sun": f"sensor model {map_route.report['sensor']}",
+                   "view": f"sensor model {map_route.report['sensor']}"}
+    else:
+        image = io.read_image(image_path, what="image")
+        check_texture(image.data, image_path, what="image")
+        image_tags = image.tags
+        illumination, sources = resolve_illumination(
+            image, sun_azimuth=sun_azimuth, sun_elevation=sun_elevation,
+            sun_vector=sun_vector, view_vector=view_vector)
+        values, note = image_on_dem_grid(image, dem)
+        if note:
+            log.warning("%s and %s are on different grids: %s", image.path, dem.path, note)
     log.info("sun %s from %s; view %s from %s", np.round(illumination.sun, 4).tolist(),
              sources["sun"], np.round(illumination.view, 4).tolist(), sources["view"])
-    values, note = image_on_dem_grid(image, dem)
-    if note:
-        log.warning("%s and %s are on different grids: %s", image.path, dem.path, note)
     spacing = dem.spacing
     if not all(np.isfinite(s) and s > 0 for s in spacing):
         raise InputError(f"{dem.path}: the DEM's transform has no usable pixel spacing "
@@ -209,8 +246,24 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     except ProcessingError as exc:
         raise ProcessingError(f"{dem.path}: {exc}") from None
     prepared_s = time.perf_counter() - started
-    result = refine_heights(values, prepared.dem, spacing=spacing, illumination=illumination,
-                            parameters=params.sfs(), initial=prepared.initial)
+    if map_route is not None and map_route.windows is not None:
+        from dataclasses import replace
+
+        from demtool.refine.tiles import refine_tiles
+
+        blended, tile_results = refine_tiles(
+            values, prepared.dem, spacing=spacing, windows=map_route.windows,
+            illuminations=map_route.illuminations, parameters=params.sfs(),
+            initial=prepared.initial)
+        centre = tile_results[len(tile_results) // 2]
+        result = replace(centre, dem=blended,
+                         iterations=max(r.iterations for r in tile_results),
+                         converged=all(r.converged for r in tile_results))
+        map_report["tile_iterations"] = [r.iterations for r in tile_results]
+    else:
+        result = refine_heights(values, prepared.dem, spacing=spacing,
+                                illumination=illumination, parameters=params.sfs(),
+                                initial=prepared.initial)
     sfs_s = time.perf_counter() - started - prepared_s
     log.info("DEM preparation (gap filling, median) %.1f s, shape from shading %.1f s",
              prepared_s, sfs_s)
@@ -238,6 +291,8 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
         "image_resampled": note,
         "timings_s": {"prepare_dem": round(prepared_s, 3), "sfs": round(sfs_s, 3)},
     }
+    if dem.crs is not None:
+        summary["map_route"] = map_report
     inherited = {k: v for k, v in dem.tags.items() if not k.startswith("demtool_")}
     tags = {**inherited, **prov.tags(
         frame=dem.tags.get("frame", "unknown"), units="m",
@@ -251,7 +306,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
         if albedo_out is not None:
             io.write_raster(albedo_out, result.albedo, transform=dem.transform, crs=dem.crs,
                             tags=prov.tags(frame=dem.tags.get("frame", "unknown"),
-                                           units=f"{image.tags.get('units', 'image unit')} "
+                                           units=f"{image_tags.get('units', 'image unit')} "
                                                  "per unit reflectance",
                                            content=f"local albedo (Gaussian σ = "
                                                    f"{params.albedo_sigma:g} px) of the "

@@ -26,6 +26,46 @@ def disparity_range_from_rectify(path: str | os.PathLike) -> tuple[int, int]:
     return min_disparity, math.ceil(high) - min_disparity + 1
 
 
+def is_ortho_pair(left, right) -> bool:
+    """True when both rasters are orthoimages written by ``demtool mapproject``."""
+    from demtool.runs.mapproject import SENSOR_TAG
+
+    return SENSOR_TAG in left.tags and SENSOR_TAG in right.tags
+
+
+def ortho_pair_range(left, right) -> tuple[tuple[int, int], str, dict[str, Any]]:
+    """(min_disparity, num_disparities), its source and summary entries for two
+    orthoimages on one map grid (:func:`demtool.mapstereo.ortho_disparity_range`).
+
+    Raises InputError when the orthoimages are on different grids, and when their
+    matches' north–south disparity is not small (a 1-D search along map x would not
+    find them: the pair needs a 2-D alignment).
+    """
+    from demtool.errors import InputError, ProcessingError
+    from demtool.mapstereo import MAX_DY_MEDIAN_PX, MAX_DY_SPREAD_PX, ortho_disparity_range
+
+    if left.transform != right.transform or str(left.crs) != str(right.crs):
+        raise InputError(f"{left.path} and {right.path}: the orthoimages are on different "
+                         "map grids; map-project the right one with --grid-like LEFT")
+    try:
+        found = ortho_disparity_range(left.data, right.data)
+    except ProcessingError as exc:
+        raise ProcessingError(f"{left.path} and {right.path}: cannot set the search range "
+                              f"from matches ({exc}); give --min-disparity and "
+                              "--num-disparities") from None
+    if not found.aligned:
+        raise InputError(
+            f"{left.path} and {right.path}: the orthoimages' matches are offset "
+            f"north-south by {found.dy_median:.2f} cells (spread {found.dy_spread:.2f}; "
+            f"limits {MAX_DY_MEDIAN_PX:g} and {MAX_DY_SPREAD_PX:g}): sgm searches along map "
+            "x only, the pair needs a 2-D alignment")
+    min_disparity = math.floor(found.low)
+    stats = {"ortho_matches": found.matches, "ortho_dy_median_px": found.dy_median,
+             "ortho_dy_spread_px": found.dy_spread}
+    return ((min_disparity, math.ceil(found.high) - min_disparity + 1),
+            f"SIFT matches of the orthoimages ({found.matches})", stats)
+
+
 def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
             out: str | os.PathLike, params: SgmParams | None = None, *,
             rectify: str | os.PathLike | None = None,
@@ -63,11 +103,28 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     out_path = Path(out)
     sgm_options = params.matcher_options()
     min_disparity, num_disparities = params.min_disparity, params.num_disparities
+    left_info = dio.raster_info(left_path, what="left rectified image")
+    right_info = dio.raster_info(right_path, what="right rectified image")
+    ortho = is_ortho_pair(left_info, right_info)
+    if ortho and ((left_info.height, left_info.width) != (right_info.height, right_info.width)
+                  or left_info.transform != right_info.transform):
+        raise InputError(f"{left_path} and {right_path}: the orthoimages are on different "
+                         "map grids; map-project the right one with --grid-like LEFT")
+    left = right = None
     source = "--min-disparity/--num-disparities"
+    ortho_stats: dict[str, Any] = {}
     if min_disparity is None or num_disparities is None:
-        if rectify is None:
+        if rectify is None and ortho:  # the range from the orthoimages' matches
+            left = dio.read_raster(left_path, what="left rectified image")
+            right = dio.read_raster(right_path, what="right rectified image")
+            from_file, source, ortho_stats = ortho_pair_range(left, right)
+            min_disparity = from_file[0] if min_disparity is None else min_disparity
+            num_disparities = from_file[1] if num_disparities is None else num_disparities
+        elif rectify is None:
             raise ParameterError("give the disparity range: --rectify RECTIFY_NPZ, or both "
-                                 "--min-disparity and --num-disparities")
+                                 "--min-disparity and --num-disparities (or two orthoimages "
+                                 "from demtool mapproject)")
+    if min_disparity is None or num_disparities is None:
         from_file = disparity_range_from_rectify(rectify)
         min_disparity = from_file[0] if min_disparity is None else min_disparity
         num_disparities = from_file[1] if num_disparities is None else num_disparities
@@ -95,8 +152,9 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
         return sgm_tiled(run, left_path, right_path, out, params, shape, source=source,
                          min_disparity=min_disparity, num_disparities=num_disparities,
                          confidence=confidence, rectify=rectify)
-    left = dio.read_raster(left_path, what="left rectified image")
-    right = dio.read_raster(right_path, what="right rectified image")
+    if left is None:
+        left = dio.read_raster(left_path, what="left rectified image")
+        right = dio.read_raster(right_path, what="right rectified image")
     check_stereo_pair(left, right, rectify)
     log.info("matching %s / %s: %d×%d px, disparities %d … %d, cost %s, %d paths",
              left_path, right_path, width, left.data.shape[0], min_disparity, max_disparity,
@@ -126,7 +184,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
              ", ".join(f"{k} {v:.1f} s" for k, v in result.timings.items() if k != "total"))
     summary = {**stats, "min_disparity": min_disparity, "num_disparities": num_disparities,
                "disparity_range_source": source, "resolved": result.parameters,
-               "timings_s": result.timings, "passes": result.levels,
+               **ortho_stats, "timings_s": result.timings, "passes": result.levels,
                "convention": "x_right = x_left - d, pixels, NaN = invalid"}
     frame = left.tags.get("frame", f"image:{Path(left_path).stem}")
     tags = provenance.tags(frame=frame, disparity_convention="x_right = x_left - d",
@@ -134,10 +192,11 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
                            cost=result.parameters["cost"])
     outputs: list[str | os.PathLike] = [out_path]
     with run.transaction():
-        dio.write_raster(out_path, disparity, transform=left.transform, tags=tags,
-                         band_names=["disparity"])
+        dio.write_raster(out_path, disparity, transform=left.transform, crs=left.crs,
+                         tags=tags, band_names=["disparity"])
         if confidence is not None:
             dio.write_raster(confidence, result.confidence, transform=left.transform,
+                             crs=left.crs,
                              tags={**tags, "quantity": "sgm confidence (S2 - S1) / S2"},
                              band_names=["confidence"])
             outputs.append(confidence)

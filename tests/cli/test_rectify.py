@@ -94,3 +94,27 @@ def test_cli_disparity_range_option(pair_files, tmp_path):
     errors = [line for line in bad.output.splitlines() if line.startswith("Error:")]
     assert len(errors) == 1 and "--disparity-range" in errors[0]
     assert not bad_out.exists() or not any(bad_out.iterdir())
+
+
+def test_rectify_refuses_two_images_on_one_map_grid(tmp_path):
+    """A map-projected pair (same CRS and pixel size) is pointed to the map route."""
+    from affine import Affine
+
+    from demtool.maps import body_by_name, make_projection
+
+    crs = make_projection(body_by_name("Moon"), "equirectangular", 10.0, 5.0)
+    rng = np.random.default_rng(0)
+    paths = []
+    for k in range(2):
+        path = tmp_path / f"ortho_{k}.tif"
+        dio.write_raster(path, rng.random((64, 64)), crs=crs,
+                         transform=Affine(1.0, 0, 100.0 + k, 0, -1.0, 5000.0))
+        paths.append(path)
+    out = tmp_path / "rect"
+    result = CliRunner().invoke(cli, ["rectify", str(paths[0]), str(paths[1]), "--out",
+                                      str(out)])
+    assert result.exit_code == 1, result.output
+    errors = [ln for ln in result.output.splitlines() if ln.startswith("Error")]
+    assert len(errors) == 1 and "same map grid" in errors[0] and "--mapprojected" in errors[0]
+    assert str(paths[0]) in errors[0]
+    assert not out.exists()

@@ -1,0 +1,48 @@
+"""`demtool mapproject`: the options of :class:`demtool.mapproject_params.MapprojectParams`
+and one call."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import click
+
+from demtool import option_types, options
+from demtool.mapproject_params import MapprojectParams
+from demtool.stages import STAGES
+
+
+@click.command(name="mapproject", help=STAGES["mapproject"] + """
+
+Every cell of the map grid is a ground point (map x, y -> lon, lat -> body-fixed XYZ
+at the DEM's height, or at --height above the body's reference sphere), projected into
+IMAGE through the sensor model and resampled there (bicubic); NaN where the ground is
+not seen.  The grid is the DEM's lattice over the image's footprint, or a new one from
+--gsd/--projection/--bounds.  OUT is tagged with the sensor model and the surface
+(mapproject_sensor, mapproject_surface, mapproject_dem / mapproject_height_m) so that
+later stages (dem --mapprojected, refine) can undo the projection.""")
+@options.input_file("image")
+@options.path_option("--sensor", "Sensor model of IMAGE (ALE ISD JSON, ISIS3 cube with "
+                     "SPICE, ASP .tsai).", required=True)
+@options.path_option("--dem", "DEM on the body's map to project onto (heights above the "
+                     "reference sphere).")
+@options.path_option("--grid-like", "Write OUT on this raster's map grid (CRS, transform, "
+                     "size), e.g. the other orthoimage of a stereo pair.")
+@options.out_file("Orthoimage (GeoTIFF).")
+@options.path_option("--angles-out", "Also write incidence, emission and phase angles "
+                     "(degrees, 3 bands) on the same grid.")
+@options.parameter_options(MapprojectParams)
+@click.option("--bounds", type=(option_types.FLOAT,) * 4, default=None,
+              metavar="LON_MIN LAT_MIN LON_MAX LAT_MAX",
+              help="Area to cover, degrees (default: the image's footprint).")
+@click.pass_context
+def command(ctx: click.Context, image: str, sensor: str, dem: str | None, grid_like: str | None,
+            out: str, angles_out: str | None, **values: Any) -> None:
+    """Options -> MapprojectParams -> :func:`demtool.runs.mapproject.run_mapproject`."""
+    from demtool.runs.mapproject import run_mapproject
+
+    options.exclusive({"--dem": dem is not None, "--height": values.get("height") is not None},
+                      exactly_one=True)
+    run_mapproject(image, sensor, out, MapprojectParams.from_options(values), dem_path=dem,
+                   angles_out=angles_out, grid_like=grid_like,
+                   resolved=options.resolved_params(ctx))

@@ -1,0 +1,155 @@
+"""Map-projected branch of ``demtool dem``: a disparity between two orthoimages (one map
+grid, ``x_right = x_left − d`` in map columns) triangulated through the sensor models
+the orthoimages were projected with, onto the body's map.
+
+For every valid left cell (row, col) with disparity d, the right cell is
+(row, col − d).  Each cell is raised to the surface its orthoimage was projected on
+(the DEM or constant height named in its tags, :data:`demtool.runs.mapproject.DEM_TAG`
+/ :data:`~demtool.runs.mapproject.HEIGHT_TAG`) and projected into its raw image
+through its sensor model (:func:`demtool.mapstereo.raw_coordinates`); the two raw
+pixels are triangulated as in the calibrated frame route
+(:func:`demtool.runs.dem_sensors.triangulate_to_map`).  ASP's map-projected stereo
+does the same (Beyer et al. 2018, §2.3).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+if TYPE_CHECKING:
+    from demtool.dem.params import DemParams
+    from demtool.runs import StageRun
+
+PathLike = str | os.PathLike | None
+
+
+class Ortho(NamedTuple):
+    """An orthoimage's grid, sensor model and surface (heights at map x, y)."""
+
+    info: Any
+    sensor: Any
+    heights: Any  # callable (x, y) -> heights above the body's sphere, metres
+    surface: str
+
+
+def read_ortho(path, *, what: str) -> Ortho:
+    """Read an orthoimage's tags: its sensor model and the surface it was projected on.
+
+    Raises InputError (one line naming the file) when it has no mapproject tags, its
+    sensor file or DEM is missing, or it is not on a projected map.
+    """
+    from pathlib import Path
+
+    import numpy as np
+
+    from demtool import io as dio
+    from demtool.errors import InputError
+    from demtool.mapproject import sensor_body
+    from demtool.maps import map_to_lonlat, to_pyproj_crs
+    from demtool.runs.mapproject import (
+        DEM_TAG,
+        HEIGHT_TAG,
+        SENSOR_TAG,
+        SURFACE_TAG,
+        _read_dem,
+    )
+    from demtool.sensors import read_sensor
+
+    info = dio.raster_info(path, what=what)
+    tags = info.tags
+    if SENSOR_TAG not in tags or SURFACE_TAG not in tags:
+        raise InputError(f"{path}: {what} has no sensor tags ({SENSOR_TAG}, {SURFACE_TAG}); "
+                         "give orthoimages written by demtool mapproject")
+    sensor_path = Path(tags[SENSOR_TAG])
+    if not sensor_path.is_file():
+        raise InputError(f"{path}: its sensor model {sensor_path} (tag {SENSOR_TAG}) is "
+                         "missing")
+    if info.crs is None or not to_pyproj_crs(info.crs).is_projected:
+        raise InputError(f"{path}: {what} is not on a projected map of the body")
+    sensor = read_sensor(sensor_path)
+    crs = to_pyproj_crs(info.crs)
+    if tags[SURFACE_TAG] == "height" and HEIGHT_TAG in tags:
+        try:
+            height = float(tags[HEIGHT_TAG])
+        except ValueError:
+            raise InputError(f"{path}: tag {HEIGHT_TAG}={tags[HEIGHT_TAG]!r} is not a "
+                             "number") from None
+
+        def heights(x, y):
+            return np.full(np.shape(x), height)
+    elif tags[SURFACE_TAG] == "dem" and DEM_TAG in tags:
+        dem_path = Path(tags[DEM_TAG])
+        if not dem_path.is_file():
+            raise InputError(f"{path}: the DEM it was projected on, {dem_path} (tag "
+                             f"{DEM_TAG}), is missing")
+        surface = _read_dem(dem_path, sensor_path, sensor_body(sensor))
+        same = not surface.geographic and to_pyproj_crs(surface.info.crs) == crs
+
+        def heights(x, y):
+            if same:
+                return surface.heights_xy(x, y)
+            return surface.heights_lonlat(*map_to_lonlat(crs, x, y))
+    else:
+        raise InputError(f"{path}: tag {SURFACE_TAG}={tags[SURFACE_TAG]!r} without its "
+                         f"{DEM_TAG} or {HEIGHT_TAG}")
+    return Ortho(info, sensor, heights, tags[SURFACE_TAG])
+
+
+def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_path,
+                         left_path, right_path, mask_path: PathLike = None,
+                         error_path: PathLike = None) -> dict[str, Any]:
+    """Triangulate a disparity between two orthoimages through their sensor models,
+    grid on the body's map (the orthoimages' CRS unless ``--projection`` says
+    otherwise; GSD: ``--gsd`` or the orthoimages'), write OUT (+ mask, error, sidecar).
+    Returns the sidecar summary.
+    """
+    import numpy as np
+
+    from demtool import io as dio
+    from demtool.errors import InputError, ProcessingError
+    from demtool.maps import to_pyproj_crs
+    from demtool.mapstereo import disparity_cells, map_cells_xy, raw_coordinates
+    from demtool.runs.dem_sensors import triangulate_to_map, write_map_dem
+
+    log = run.log
+    left = read_ortho(left_path, what="left orthoimage")
+    right = read_ortho(right_path, what="right orthoimage")
+    li, ri = left.info, right.info
+    if (li.transform != ri.transform or (li.width, li.height) != (ri.width, ri.height)
+            or to_pyproj_crs(li.crs) != to_pyproj_crs(ri.crs)):
+        raise InputError(f"{left_path} and {right_path}: the orthoimages are on different "
+                         "map grids (map-project the right one with --grid-like LEFT)")
+    if left.sensor.radii is None or right.sensor.radii is None:
+        raise InputError(f"{left_path}: its sensor models are not on a body")
+    disparity = dio.read_raster(disparity_path, what="disparity")
+    if (disparity.data.shape != (li.height, li.width) or disparity.transform != li.transform
+            or disparity.crs is None or to_pyproj_crs(disparity.crs) != to_pyproj_crs(li.crs)):
+        raise InputError(f"{disparity_path}: disparity is not on the grid of the left "
+                         f"orthoimage {left_path} ({disparity.data.shape[1]}×"
+                         f"{disparity.data.shape[0]} vs {li.width}×{li.height} cells, or "
+                         "another transform/CRS); match the orthoimages with demtool sgm")
+    rows, l_cols, r_cols = disparity_cells(disparity.data)
+    if rows.size < 3:
+        raise ProcessingError(f"{disparity_path}: fewer than 3 valid disparities")
+    crs = to_pyproj_crs(li.crs)
+    l_h = left.heights(*map_cells_xy(li.transform, rows, l_cols))
+    r_h = right.heights(*map_cells_xy(ri.transform, rows, r_cols))
+    l_line, l_sample = raw_coordinates(left.sensor, crs, li.transform, rows, l_cols, l_h)
+    r_line, r_sample = raw_coordinates(right.sensor, crs, ri.transform, rows, r_cols, r_h)
+    seen = np.isfinite(l_line) & np.isfinite(l_sample) & np.isfinite(r_line) & \
+        np.isfinite(r_sample)
+    log.info("%d valid disparities, %d seen by both sensors", rows.size, int(seen.sum()))
+    if seen.sum() < 3:
+        raise ProcessingError(f"{disparity_path}: fewer than 3 disparities map back into "
+                              "both raw images")
+    gsd = float(np.sqrt(abs(li.transform.a * li.transform.e)))
+    summary, result, body = triangulate_to_map(
+        run, params, left.sensor, right.sensor, (l_line[seen], l_sample[seen]),
+        (r_line[seen], r_sample[seen]), source=disparity_path, gsd_default=gsd, crs=crs)
+    summary = {"route": "disparity-mapprojected", **summary,
+               "valid_disparities": int(rows.size), "unseen_disparities": int((~seen).sum()),
+               "surfaces": [left.surface, right.surface]}
+    write_map_dem(run, params, out, result, summary, body, route="disparity-mapprojected",
+                  mask_path=mask_path, error_path=error_path)
+    return summary

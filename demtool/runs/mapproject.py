@@ -1,0 +1,359 @@
+"""Runner of ``demtool mapproject``: an image resampled onto the body's map through its
+sensor model, tile by tile (the image, the DEM and the output are read and written in
+windows, so neither has to fit in memory)."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import numpy as np
+
+from demtool.runs import StageRun
+
+if TYPE_CHECKING:
+    from demtool.mapproject_params import MapprojectParams
+
+#: tags every orthoimage carries so later stages can undo the projection
+SENSOR_TAG = "mapproject_sensor"
+SURFACE_TAG = "mapproject_surface"
+DEM_TAG = "mapproject_dem"
+HEIGHT_TAG = "mapproject_height_m"
+ANGLE_BANDS = ["incidence_deg", "emission_deg", "phase_deg"]
+
+
+class DemSurface(NamedTuple):
+    """A DEM read in windows: its :class:`demtool.io.RasterInfo` and the offset (metres)
+    from its own sphere's heights to heights above the body's reference sphere."""
+
+    info: Any
+    offset_m: float
+    geographic: bool
+
+    def heights_lonlat(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+        """Heights (metres above the body's sphere) at lon/lat (degrees), bilinear."""
+        from demtool.maps import lonlat_to_map, wrap_longitude
+
+        crs = self.info.crs
+        if self.geographic:
+            t = self.info.transform
+            center = t.c + t.a * 0.5 * self.info.width
+            x, y = wrap_longitude(lon, center), np.asarray(lat, dtype=np.float64)
+        else:
+            x, y = lonlat_to_map(crs, lon, lat)
+        return self.heights_xy(x, y)
+
+    def heights_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Heights at map coordinates of the DEM's own CRS (NaN off the DEM)."""
+        from demtool import io as dio
+        from demtool.mapproject import bilinear_heights
+
+        inv = ~self.info.transform
+        x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        col = inv.a * x + inv.b * y + inv.c - 0.5
+        row = inv.d * x + inv.e * y + inv.f - 0.5
+        good = np.isfinite(col) & np.isfinite(row)
+        out = np.full(np.shape(col), np.nan)
+        if not good.any():
+            return out
+        r0 = max(int(math.floor(row[good].min())) - 1, 0)
+        r1 = min(int(math.floor(row[good].max())) + 3, self.info.height)
+        c0 = max(int(math.floor(col[good].min())) - 1, 0)
+        c1 = min(int(math.floor(col[good].max())) + 3, self.info.width)
+        if r1 <= r0 or c1 <= c0:
+            return out
+        data = dio.read_window(self.info.path, (r0, r1, c0, c1), what="DEM")
+        out = bilinear_heights(data, row - r0, col - c0)
+        return out + self.offset_m
+
+
+def _read_dem(dem_path, sensor_path, body):
+    from demtool import io as dio
+    from demtool.errors import InputError
+    from demtool.maps import body_from_crs, crs_radius, same_body, to_pyproj_crs
+
+    info = dio.raster_info(dem_path, what="DEM")
+    if info.crs is None:
+        raise InputError(f"{dem_path}: DEM has no CRS; mapproject needs a DEM on the body's "
+                         "map (a planetary CRS)")
+    crs = to_pyproj_crs(info.crs)
+    dem_body = body_from_crs(crs)
+    if not same_body(dem_body, body):
+        raise InputError(f"{dem_path}: is a DEM of {dem_body.name} but the sensor model "
+                         f"{sensor_path} sees {body.name}")
+    try:
+        radius = crs_radius(crs)
+    except ValueError:
+        raise InputError(f"{dem_path}: DEM is on an ellipsoid; demtool's map heights are above "
+                         "the body's reference sphere (reproject it onto the sphere)") from None
+    return DemSurface(info=info, offset_m=radius - body.radius, geographic=crs.is_geographic)
+
+
+def _footprint_heights(surface: DemSurface | None, height: float, sensor, body):
+    """Heights along the image's outer edge, from the DEM where given (two passes)."""
+    from demtool.mapproject import ground_footprint
+    from demtool.maps import xyz_to_lonlat_height
+
+    if surface is None:
+        return height
+    h: Any = 0.0
+    for _ in range(2):
+        xyz = ground_footprint(sensor, body.radius, h)
+        lon, lat, _ = xyz_to_lonlat_height(xyz, radii=body.radius)
+        found = surface.heights_lonlat(lon, lat)
+        fallback = float(np.nanmedian(found)) if np.isfinite(found).any() else 0.0
+        h = np.where(np.isfinite(found), found, fallback)
+    return h
+
+
+def _grid(sensor, body, surface: DemSurface | None, params, log):
+    """The output grid: the DEM's lattice over the footprint, or a new grid."""
+    from demtool.errors import InputError, ProcessingError
+    from demtool.mapproject import ground_footprint, ortho_grid
+    from demtool.maps import MapGrid, grid_from_lonlat, to_pyproj_crs, xyz_to_lonlat_height
+
+    height = params.height if params.height is not None else 0.0
+    edge_h = _footprint_heights(surface, height, sensor, body)
+    projected = surface is not None and not surface.geographic
+    try:
+        if projected and params.gsd is None and params.bounds is None:
+            info = surface.info
+            xyz = ground_footprint(sensor, body.radius, edge_h)
+            if not np.isfinite(xyz).all():
+                raise ValueError("part of the image does not see the body (limb in view); "
+                                 "give --bounds")
+            lon, lat, _ = xyz_to_lonlat_height(xyz, radii=body.radius)
+            box = grid_from_lonlat(body, lon, lat, abs(info.transform.a),
+                                   crs=to_pyproj_crs(info.crs))
+            inverse = ~info.transform
+            (ca, ra), (cb, rb) = inverse @ (box.transform.c, box.transform.f), inverse @ (
+                box.transform.c + box.width * box.transform.a,
+                box.transform.f + box.height * box.transform.e)
+            c0, c1 = max(math.floor(min(ca, cb)) - 1, 0), min(math.ceil(max(ca, cb)) + 1,
+                                                              info.width)
+            r0, r1 = max(math.floor(min(ra, rb)) - 1, 0), min(math.ceil(max(ra, rb)) + 1,
+                                                              info.height)
+            if c1 <= c0 or r1 <= r0:
+                raise InputError(f"{info.path}: DEM does not cover the image's footprint")
+            from affine import Affine
+
+            transform = info.transform @ Affine.translation(c0, r0)
+            log.info("grid: the DEM's lattice over the image's footprint")
+            return MapGrid(crs=to_pyproj_crs(info.crs), transform=transform, width=c1 - c0,
+                           height=r1 - r0)
+        crs = to_pyproj_crs(surface.info.crs) if projected and params.projection == "auto" \
+            else None
+        mean_h = float(np.mean(edge_h))
+        return ortho_grid(sensor, body, height=mean_h, gsd=params.gsd,
+                          projection=params.projection, bounds=params.bounds, crs=crs)
+    except ValueError as exc:
+        raise ProcessingError(f"{sensor.name or 'sensor'}: cannot build the map grid: {exc}"
+                              ) from None
+
+
+def _grid_like(path, sensor_path, body, params):
+    """The map grid of an existing raster (``--grid-like``)."""
+    from demtool import io as dio
+    from demtool.errors import InputError, ParameterError
+    from demtool.maps import MapGrid, body_from_crs, same_body, to_pyproj_crs
+
+    if params.gsd is not None or params.bounds is not None:
+        raise ParameterError("--grid-like sets the grid: drop --gsd and --bounds")
+    info = dio.raster_info(path, what="grid raster")
+    crs = None if info.crs is None else to_pyproj_crs(info.crs)
+    if crs is None or not crs.is_projected:
+        raise InputError(f"{path}: --grid-like needs a raster on a projected map of the body")
+    if not same_body(body_from_crs(crs), body):
+        raise InputError(f"{path}: is a map of {body_from_crs(crs).name} but the sensor model "
+                         f"{sensor_path} sees {body.name}")
+    return MapGrid(crs=crs, transform=info.transform, width=info.width, height=info.height)
+
+
+def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike,
+                   out_path: str | os.PathLike, params: MapprojectParams | None = None, *,
+                   dem_path: str | os.PathLike | None = None,
+                   angles_out: str | os.PathLike | None = None,
+                   grid_like: str | os.PathLike | None = None,
+                   resolved: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Map-project IMAGE through SENSOR onto a DEM (or the sphere raised by ``--height``).
+
+    Writes ``out_path`` (float32 orthoimage, NaN where not seen, tagged with the sensor
+    model, the surface and the body; see :data:`SENSOR_TAG` …), its sidecar
+    ``<out>.json``, and with ``angles_out`` a 3-band raster of incidence, emission and
+    phase angles (degrees, relative to the sphere's normal) on the same grid.  With
+    ``grid_like`` the grid is that raster's (its CRS, transform and size; a map of the
+    sensor's body), so two orthoimages of a stereo pair share one grid.
+
+    Returns
+    -------
+    dict
+        The run's summary (grid, valid fraction, lattice steps, timings).
+    """
+    from demtool import io as dio
+    from demtool.errors import InputError, ParameterError
+    from demtool.logs import progress
+    from demtool.mapproject import (
+        illumination_angles,
+        image_coordinates,
+        image_window,
+        resample_tile,
+        sensor_body,
+        tile_misses_image,
+        tile_windows,
+    )
+    from demtool.mapproject_params import MapprojectParams
+    from demtool.maps import map_to_lonlat, map_to_xyz, to_pyproj_crs
+    from demtool.sensors import read_sensor
+
+    params = params or MapprojectParams()
+    run = StageRun("mapproject", params, resolved=resolved,
+                   inputs={"IMAGE": image_path, "--sensor": sensor_path, "--dem": dem_path,
+                           "--grid-like": grid_like},
+                   outputs={"--out": out_path, "--angles-out": angles_out})
+    log = run.log
+    if (dem_path is None) == (params.height is None):
+        raise ParameterError("give exactly one of --dem and --height")
+    sensor = read_sensor(sensor_path)
+    if sensor.radii is None:
+        raise InputError(f"{sensor_path}: is a camera in a local frame, not on a body; "
+                         "mapproject needs a planetary sensor model (ISD, cube, .tsai)")
+    info = dio.raster_info(image_path, what="image")
+    if (info.height, info.width) != sensor.image_size:
+        raise InputError(f"{image_path}: image is {info.width} x {info.height} pixels but the "
+                         f"sensor model {sensor_path} describes {sensor.samples} x "
+                         f"{sensor.lines}")
+    body = sensor_body(sensor)
+    surface = _read_dem(dem_path, sensor_path, body) if dem_path is not None else None
+    grid = (_grid_like(grid_like, sensor_path, body, params) if grid_like is not None
+            else _grid(sensor, body, surface, params, log))
+    same_crs = surface is not None and not surface.geographic and \
+        to_pyproj_crs(surface.info.crs) == grid.crs
+    gsd = grid.gsd[0]
+    log.info("%s -> %d x %d map cells at %.4g m on %s (%s)", Path(image_path).name,
+             grid.width, grid.height, gsd, body.name, grid.crs.name)
+    surface_tags = ({SURFACE_TAG: "dem", DEM_TAG: str(Path(dem_path).resolve())}
+                    if dem_path is not None else
+                    {SURFACE_TAG: "height", HEIGHT_TAG: float(params.height)})
+    tags = run.provenance.tags(
+        frame="map", **body.tags(), **surface_tags,
+        **{SENSOR_TAG: str(Path(sensor_path).resolve())},
+        mapproject_image=str(Path(image_path).resolve()), sensor_name=sensor.name,
+        sensor_kind=sensor.kind, image_size=[sensor.lines, sensor.samples])
+    windows = tile_windows(grid.shape, params.tile_size)
+    steps: dict[int, int] = {}
+    worst = 0.0
+    valid = skipped = 0
+    started = time.perf_counter()
+    outputs = [out_path] + ([angles_out] if angles_out is not None else [])
+    with dio.output_transaction(), contextlib.ExitStack() as stack:
+        ortho = stack.enter_context(dio.raster_writer(
+            out_path, height=grid.height, width=grid.width, transform=grid.transform,
+            crs=grid.crs, tags=tags))
+        angle_writer = None if angles_out is None else stack.enter_context(dio.raster_writer(
+            angles_out, height=grid.height, width=grid.width, count=3,
+            transform=grid.transform, crs=grid.crs, tags={**tags, "bands": ANGLE_BANDS},
+            band_names=ANGLE_BANDS))
+        for window in progress(windows, "mapproject tiles"):
+            r0, r1, c0, c1 = window
+            t = grid.transform
+            cc, rr = np.meshgrid(np.arange(c0, c1) + 0.5, np.arange(r0, r1) + 0.5)
+            x, y = t.a * cc + t.b * rr + t.c, t.d * cc + t.e * rr + t.f
+            if surface is None:
+                heights = np.full(x.shape, float(params.height))
+            elif same_crs:
+                heights = surface.heights_xy(x, y)
+            else:
+                heights = surface.heights_lonlat(*map_to_lonlat(grid.crs, x, y))
+            finite = heights[np.isfinite(heights)]
+            if not finite.size or tile_misses_image(sensor, grid.crs, grid.transform, window,
+                                                    finite.min(), finite.max()):
+                skipped += 1
+                nan = np.full(x.shape, np.nan, dtype=np.float32)
+                ortho.write(nan, r0, c0)
+                if angle_writer is not None:
+                    angle_writer.write(np.stack([nan] * 3), r0, c0)
+                continue
+            coords = image_coordinates(sensor, grid.crs, grid.transform, window, heights,
+                                       step=params.step, tolerance=params.tolerance,
+                                       seed=params.seed)
+            steps[coords.step] = steps.get(coords.step, 0) + 1
+            worst = max(worst, coords.max_error_px)
+            span = image_window(coords.line, coords.sample, sensor.lines, sensor.samples)
+            if span is None:
+                values = np.full(x.shape, np.nan, dtype=np.float32)
+            else:
+                pixels = dio.read_window(image_path, span, what="image")
+                values = resample_tile(pixels, (span[0], span[2]), coords.line,
+                                       coords.sample, sensor.lines, sensor.samples)
+            valid += int(np.isfinite(values).sum())
+            ortho.write(values, r0, c0)
+            if angle_writer is not None:
+                xyz = map_to_xyz(grid.crs, x, y, heights)
+                seen = np.where(np.isfinite(values), coords.line, np.nan)
+                angle_writer.write(np.stack(illumination_angles(sensor, xyz, seen)), r0, c0)
+        elapsed = time.perf_counter() - started
+        cells = grid.width * grid.height
+        summary = {
+            "image": Path(image_path).name, "sensor": sensor.name, "body": body.name,
+            "crs": grid.crs.name, "width": grid.width, "height": grid.height, "gsd_m": gsd,
+            "transform": list(grid.transform)[:6],
+            "surface": surface_tags[SURFACE_TAG],
+            "valid_fraction": round(valid / cells, 6) if cells else 0.0,
+            "tiles": len(windows), "tiles_off_image": skipped,
+            "lattice_steps": {str(k): v for k, v in sorted(steps.items())},
+            "max_interpolation_error_px": round(worst, 6),
+            "cells_per_second": round(cells / elapsed) if elapsed > 0 else None,
+        }
+        if valid == 0:
+            raise InputError(f"{image_path}: no map cell sees the image (check --dem, "
+                             "--height and --bounds)")
+        run.provenance.write_sidecar(out_path, summary, outputs=outputs)
+    log.info("%d x %d orthoimage, %.1f %% seen, lattice steps %s, max interpolation error "
+             "%.2g px, %.1f s", grid.width, grid.height, 100 * summary["valid_fraction"],
+             summary["lattice_steps"], worst, elapsed)
+    return summary
+
+
+def orthoimage_on_grid(image_path: str | os.PathLike, sensor, dem) -> np.ndarray:
+    """An image map-projected (in memory) onto a DEM's grid at the DEM's heights.
+
+    Parameters
+    ----------
+    image_path : path-like
+        The raw image (read in windows).
+    sensor : SensorModel
+        Its model; the image must have the model's size.
+    dem : demtool.io.Raster
+        Heights above the body's reference sphere on a projected map grid.
+
+    Returns
+    -------
+    (H, W) float32 on the DEM's grid, NaN where not seen.
+    """
+    from demtool import io as dio
+    from demtool.errors import InputError
+    from demtool.mapproject import image_coordinates, image_window, resample_tile, tile_windows
+    from demtool.mapproject_params import MapprojectParams
+
+    info = dio.raster_info(image_path, what="image")
+    if (info.height, info.width) != sensor.image_size:
+        raise InputError(f"{image_path}: image is {info.width} x {info.height} pixels but its "
+                         f"sensor model describes {sensor.samples} x {sensor.lines}")
+    defaults = MapprojectParams()
+    out = np.full(dem.data.shape, np.nan, dtype=np.float32)
+    for window in tile_windows(dem.data.shape, defaults.tile_size):
+        r0, r1, c0, c1 = window
+        coords = image_coordinates(sensor, dem.crs, dem.transform, window,
+                                   dem.data[r0:r1, c0:c1], step=defaults.step,
+                                   tolerance=defaults.tolerance)
+        span = image_window(coords.line, coords.sample, sensor.lines, sensor.samples)
+        if span is None:
+            continue
+        pixels = dio.read_window(image_path, span, what="image")
+        out[r0:r1, c0:c1] = resample_tile(pixels, (span[0], span[2]), coords.line,
+                                          coords.sample, sensor.lines, sensor.samples)
+    return out

@@ -23,7 +23,10 @@ Conventions
   (−x side) of the rectified frame, and decreases otherwise.
 * No mirror flip and at most a 90° rotation: the rotation that brings the epipole to
   the x axis is the smaller of the two candidates, and both homographies keep the
-  orientation of the image (positive Jacobian determinant).
+  orientation of the image (positive Jacobian determinant).  A turn of more than
+  ``MAX_ROTATION_DEG`` (10°) is kept only when the matches' parallax runs along the
+  epipolar lines (a baseline along the columns), and refused otherwise (already
+  aligned images): :func:`demtool.rectify_checks.check_rotation`.
 
 References
 ----------
@@ -51,86 +54,26 @@ from demtool.homography import (  # noqa: F401  (re-exported for the dem stage)
     warp_to_rectified,
 )
 from demtool.logs import get_logger
+from demtool.rectify_checks import (  # noqa: F401  (public here since issue 13)
+    DISPARITY_MARGIN_FRACTION,
+    DISPARITY_PERCENTILES,
+    MAX_ROTATION_DEG,
+    MIN_RANGE_SUPPORT,
+    MIN_TURN_ANISOTROPY,
+    MIN_TURN_PARALLAX_PX,
+    PARALLAX_NOISE_RATIO,
+    _check_parallax,
+    check_rotation,
+    epipolar_parallax,
+    gric_difference,
+    robust_disparity_range,
+    rotation_at_centre,
+)
 
 log = get_logger(__name__)
 
 #: A rectified canvas larger than this many times the two images' area is refused.
 MAX_CANVAS_GROWTH = 4.0
-#: Fraction of the inlier disparity span added to each side of the disparity range.
-DISPARITY_MARGIN_FRACTION = 0.1
-#: Percentiles of the inlier disparities that bound the range (robust to a few gross
-#: mismatches that lie on their epipolar line and so pass every geometric test).
-DISPARITY_PERCENTILES = (1.0, 99.0)
-#: A rectification that turns either image by more than this (degrees, at the image
-#: centre) must be supported by the matches' parallax (:func:`check_rotation`).
-MAX_ROTATION_DEG = 10.0
-#: ... by at least this RMS parallax along the epipolar lines, pixels ...
-MIN_TURN_PARALLAX_PX = 1.0
-#: ... this many times the parallax across them.
-MIN_TURN_ANISOTROPY = 3.0
-#: Each end of the disparity range must be reached by at least this many control points.
-MIN_RANGE_SUPPORT = 3
-#: The GRIC test refuses a pair only if its RMS residual parallax (after the best
-#: homography) is also below this many times the matching noise σ.
-PARALLAX_NOISE_RATIO = 5.0
-
-
-def robust_disparity_range(disparities: np.ndarray, *, margin: float = 2.0,
-                           percentiles: tuple[float, float] = DISPARITY_PERCENTILES,
-                           margin_fraction: float = DISPARITY_MARGIN_FRACTION,
-                           min_support: int = MIN_RANGE_SUPPORT,
-                           what: str = "the image pair") -> np.ndarray:
-    """Search range of the dense matcher from the control points' disparities.
-
-    The ``percentiles`` of the disparities, pulled in so that each end is reached by at
-    least ``min_support`` control points, then widened on each side by the larger of
-    ``margin`` pixels and ``margin_fraction`` of the span between them.  A gross
-    mismatch that happens to lie on its epipolar line passes RANSAC and the
-    vertical-residual loop; with the minimum and maximum it would widen the range
-    arbitrarily (one match at 376 px where the rest lie in −10 … 30).  Percentiles
-    alone do not stop it when there are few control points: with 40 of them the 99th
-    percentile lies 39 % of the way from the second largest disparity to the largest,
-    so one match still sets the range; the support rule (the ``min_support``-th
-    smallest and largest disparities bound the range) does.  The control points
-    left outside are logged, not refused: they are single matches, not evidence.
-
-    Parameters
-    ----------
-    disparities : (N,) float
-        ``x_left_rect − x_right_rect`` of the control points, pixels.
-    min_support : int
-        Least number of control points at or beyond each end of the range (before the
-        margin); fewer than ``2 * min_support`` finite disparities is an error.
-
-    Returns
-    -------
-    (2,) float64
-        (min, max) disparity, pixels.
-
-    Raises
-    ------
-    ProcessingError
-        Too few finite disparities to support a range.
-    """
-    d = np.sort(np.asarray(disparities, np.float64).reshape(-1))
-    d = d[np.isfinite(d)]
-    min_support = max(1, int(min_support))
-    if d.size == 0:
-        raise ProcessingError("no control point disparity to set the disparity range from")
-    if d.size < 2 * min_support:
-        raise ProcessingError(
-            f"{what}: only {d.size} control point disparities; each end of the disparity "
-            f"range needs {min_support} to support it (give --disparity-range MIN MAX)")
-    low, high = np.percentile(d, percentiles)
-    low = max(float(low), float(d[min_support - 1]))
-    high = min(float(high), float(d[-min_support]))
-    outside = int(np.sum(d < low) + np.sum(d > high))
-    if d[0] < low - margin or d[-1] > high + margin:
-        log.info("%s: %d control points with disparities beyond %.1f … %.1f px (extremes "
-                 "%.1f and %.1f px) left out of the range: each end needs %d matches",
-                 what, outside, low, high, d[0], d[-1], min_support)
-    pad = max(float(margin), margin_fraction * float(high - low))
-    return np.array([low - pad, high + pad])
 
 
 @dataclass(frozen=True)
@@ -350,199 +293,6 @@ def loop_zhang_shear(H: np.ndarray, size: np.ndarray) -> np.ndarray:
     if sa < 0:
         sa, sb = -sa, -sb
     return np.array([[sa, sb, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-
-
-# --------------------------------------------------------------------------------------
-# The study's pipeline
-# --------------------------------------------------------------------------------------
-
-
-def gric_difference(F: np.ndarray, H: np.ndarray, points_left: np.ndarray,
-                    points_right: np.ndarray) -> tuple[float, float]:
-    """Torr's GRIC of the homography model minus that of the fundamental matrix.
-
-    GRIC = Σ ρ(e_i² / σ²) + λ1 d n + λ2 k with ρ(x) = min(x, λ3 (r - d)), r = 4 (two
-    2-D points), λ1 = ln r, λ2 = ln(r n), λ3 = 2; F: manifold dimension d = 3 with
-    k = 7 parameters, H: d = 2, k = 8 (Torr 1998, "Geometric motion segmentation and
-    model selection", Phil. Trans. R. Soc. A 356, eq. 5; Pollefeys et al. 2002 use it
-    to detect degenerate views).  e_i is the Sampson distance for F and the
-    symmetric transfer error / 2 for H (both approximate the distance in the 4-D
-    joint image space); σ is estimated robustly from the F residuals.
-
-    Returns
-    -------
-    difference : float
-        GRIC(H) - GRIC(F): negative when the homography explains the matches at least
-        as well, i.e. the pair has no usable parallax.
-    sigma : float
-        The noise estimate, pixels.
-    """
-    n = len(points_left)
-    e_f = features.sampson_distance(F, points_left, points_right)
-    sigma = max(1.4826 * float(np.median(e_f)), 1e-3)
-    forward = apply_homography(H, points_left) - points_right
-    backward = apply_homography(np.linalg.inv(H), points_right) - points_left
-    e_h2 = (np.sum(forward**2, axis=1) + np.sum(backward**2, axis=1)) / 4.0
-    e_h2 = np.where(np.isfinite(e_h2), e_h2, np.inf)
-    r, lambda3 = 4.0, 2.0
-    lambda1, lambda2 = np.log(r), np.log(r * n)
-    gric_f = np.sum(np.minimum(e_f**2 / sigma**2, lambda3 * (r - 3))) + lambda1 * 3 * n \
-        + lambda2 * 7
-    gric_h = np.sum(np.minimum(e_h2 / sigma**2, lambda3 * (r - 2))) + lambda1 * 2 * n \
-        + lambda2 * 8
-    return float(gric_h - gric_f), sigma
-
-
-def _check_parallax(F: np.ndarray, points_left: np.ndarray, points_right: np.ndarray,
-                    threshold_px: float, what: str) -> None:
-    """Refuse pairs whose matches one homography explains: F is then undetermined.
-
-    Identical images, a pure rotation of the camera, or a flat scene seen from two
-    places map one image onto the other by a homography; the epipolar geometry (and
-    hence the rectification and the heights) is then not defined.  The homography is
-    preferred by Torr's model-selection criterion (:func:`gric_difference`) when the
-    residual parallax is below about 0.9 σ RMS.
-    """
-    import cv2
-
-    H, _ = cv2.findHomography(points_left, points_right, cv2.RANSAC, threshold_px)
-    if H is None or not np.all(np.isfinite(H)) or abs(np.linalg.det(H)) < 1e-12:
-        return
-    difference, sigma = gric_difference(F, H, points_left, points_right)
-    transfer = np.linalg.norm(apply_homography(H, points_left) - points_right, axis=1)
-    parallax = float(np.sqrt(np.nanmean(transfer**2)))
-    beyond = int(np.sum(transfer > 3.0 * sigma))
-    log.debug("%s: GRIC(H) - GRIC(F) = %.1f; RMS residual parallax %.3f px, noise σ %.3f px",
-              what, difference, parallax, sigma)
-    if difference <= 0 and parallax > PARALLAX_NOISE_RATIO * sigma:
-        # GRIC caps each point's cost, so a dominant plane plus strong parallax elsewhere
-        # can favour H; that parallax is what determines F
-        log.info("%s: GRIC prefers a homography (GRIC(H) − GRIC(F) = %.1f), but the RMS "
-                 "residual parallax %.2f px is %.0f× the matching noise %.2f px (%d of %d "
-                 "matches beyond 3σ): kept", what, difference, parallax,
-                 parallax / sigma, sigma, beyond, len(points_left))
-        return
-    if difference <= 0:
-        raise ProcessingError(
-            f"{what}: one homography explains the {len(points_left)} matches as well as a "
-            f"fundamental matrix (GRIC(H) − GRIC(F) = {difference:.1f}; RMS residual "
-            f"parallax {parallax:.2f} px for a matching noise σ of {sigma:.2f} px, "
-            f"{beyond} matches beyond 3σ): no parallax (identical images, a pure rotation "
-            "or a flat scene), so the epipolar geometry is undefined")
-
-
-def rotation_at_centre(H: np.ndarray, size: np.ndarray) -> float:
-    """Rotation the homography H applies at the centre of an image, degrees.
-
-    The angle of the rotation part of the Jacobian J of x → H x (dehomogenised) at the
-    image centre, taken from the similarity closest to J: ``atan2(J10 − J01, J00 + J11)``,
-    counter-clockwise in the (x right, y down) pixel frame shown as usual, in (−180, 180].
-
-    Parameters
-    ----------
-    H : (3, 3) float
-        Homography from original to rectified pixel coordinates.
-    size : (2,) int
-        (width, height) of the image, pixels.
-    """
-    H = np.asarray(H, np.float64)
-    centre = (np.asarray(size, np.float64).reshape(2) - 1.0) / 2.0
-    w = float(_homogeneous_w(H, centre[None])[0])
-    image = apply_homography(H, centre[None])[0]
-    J = (H[:2, :2] - np.outer(image, H[2, :2])) / w
-    return float(np.degrees(np.arctan2(J[1, 0] - J[0, 1], J[0, 0] + J[1, 1])))
-
-
-def epipolar_parallax(F: np.ndarray, points_left: np.ndarray,
-                      points_right: np.ndarray) -> tuple[float, float]:
-    """RMS parallax of the matches along and across the epipolar lines, pixels.
-
-    A homography (fitted by least squares to all matches, independently of F) takes out
-    what the two views share — offset, rotation, scale, perspective of the mean scene
-    plane; what remains is the parallax.  In a genuine stereo pair it runs along the epipolar lines through the
-    right epipole (the plane-plus-parallax decomposition, H&Z sect. 13.3); when F is set
-    by noise (already aligned images with no parallax to speak of) it has no preferred
-    direction, or none of F's.
-
-    Parameters
-    ----------
-    F : (3, 3) float
-        Fundamental matrix, ``x_right^T F x_left = 0``.
-    points_left, points_right : (N, 2) float
-        Matches (x, y), pixels, N >= 4.
-
-    Returns
-    -------
-    along, across : float
-        RMS of the affine residuals projected on each match's epipolar line in the right
-        image and on its normal, pixels.
-    """
-    import cv2
-
-    pl = np.asarray(points_left, np.float64)
-    pr = np.asarray(points_right, np.float64)
-    H, _ = cv2.findHomography(pl, pr, 0)  # least squares over all matches
-    if H is None or not np.all(np.isfinite(H)):
-        return 0.0, 0.0
-    residual = pr - apply_homography(H, pl)
-    lines = np.column_stack([pl, np.ones(len(pl))]) @ np.asarray(F, np.float64).T
-    direction = np.column_stack([lines[:, 1], -lines[:, 0]])
-    direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-300)
-    along = np.sum(residual * direction, axis=1)
-    across = residual[:, 0] * -direction[:, 1] + residual[:, 1] * direction[:, 0]
-    return float(np.sqrt(np.mean(along**2))), float(np.sqrt(np.mean(across**2)))
-
-
-def check_rotation(H_left: np.ndarray, H_right: np.ndarray, F: np.ndarray,
-                   points_left: np.ndarray, points_right: np.ndarray, size_left: np.ndarray,
-                   size_right: np.ndarray, *, max_rotation_deg: float = MAX_ROTATION_DEG,
-                   what: str = "the image pair") -> float:
-    """Refuse a rectification that turns an image by more than the matches justify.
-
-    Hartley's rectification turns each image so that its epipolar lines become rows:
-    by the angle of the epipole's direction, folded to ±90°.  A pair whose baseline
-    runs along the image columns legitimately turns by ~90°; a pair of already aligned
-    images (two orthoimages on one map grid, sub-pixel parallax) also turns by up to
-    90° when F is fitted to noise, and the rectification is then meaningless.  The rule
-    that tells them apart: a turn larger than ``max_rotation_deg`` (either image, at its
-    centre, :func:`rotation_at_centre`) is kept only if the matches' parallax
-    (:func:`epipolar_parallax`) runs along F's epipolar lines, with an RMS of at least
-    :data:`MIN_TURN_PARALLAX_PX` pixels and :data:`MIN_TURN_ANISOTROPY` times the
-    parallax across them — i.e. the epipole's direction is what the matches show.
-
-    Returns
-    -------
-    float
-        The larger absolute turn of the two images, degrees.
-
-    Raises
-    ------
-    ProcessingError
-        A turn above ``max_rotation_deg`` that the parallax does not support.
-    """
-    turn_left = rotation_at_centre(H_left, size_left)
-    turn_right = rotation_at_centre(H_right, size_right)
-    turn = max(abs(turn_left), abs(turn_right))
-    if turn <= max_rotation_deg:
-        return turn
-    along, across = epipolar_parallax(F, points_left, points_right)
-    log.debug("%s: rectification turns the images by %.1f° and %.1f°; parallax %.2f px RMS "
-              "along the epipolar lines, %.2f px across", what, turn_left, turn_right,
-              along, across)
-    if along >= MIN_TURN_PARALLAX_PX and along >= MIN_TURN_ANISOTROPY * across:
-        log.info("%s: the rectification turns the images by %.0f° and %.0f°, as the "
-                 "matches' parallax (%.1f px RMS along the epipolar lines, %.1f px across) "
-                 "runs at that angle: the baseline is not along the rows", what,
-                 turn_left, turn_right, along, across)
-        return turn
-    raise ProcessingError(
-        f"{what}: the rectification would turn the images by {turn_left:.0f}° and "
-        f"{turn_right:.0f}° (more than {max_rotation_deg:g}°), but the matches' parallax "
-        f"does not show that baseline ({along:.2f} px RMS along the epipolar lines, "
-        f"{across:.2f} px across; a turn needs >= {MIN_TURN_PARALLAX_PX:g} px and "
-        f"{MIN_TURN_ANISOTROPY:g}x): the images look already aligned (orthoimages or one "
-        "map grid); use the map-projected route (demtool mapproject, then dem "
-        "--mapprojected) or a pair with more parallax")
 
 
 def _canvas(H_left: np.ndarray, H_right: np.ndarray, size_left: np.ndarray,

@@ -57,7 +57,6 @@ from demtool.logs import get_logger
 from demtool.rectify_checks import (  # noqa: F401  (public here since issue 13)
     DISPARITY_MARGIN_FRACTION,
     DISPARITY_PERCENTILES,
-    MAX_ROTATION_DEG,
     MIN_RANGE_SUPPORT,
     MIN_TURN_ANISOTROPY,
     MIN_TURN_PARALLAX_PX,
@@ -74,6 +73,9 @@ log = get_logger(__name__)
 
 #: A rectified canvas larger than this many times the two images' area is refused.
 MAX_CANVAS_GROWTH = 4.0
+#: A rectification that turns either image by more than this (degrees, at the image
+#: centre) must be what the matches' parallax shows (:func:`check_rotation`).
+MAX_ROTATION_DEG = 10.0
 
 
 @dataclass(frozen=True)

@@ -34,10 +34,9 @@ DISPARITY_MARGIN_FRACTION = 0.1
 #: Percentiles of the inlier disparities that bound the range (robust to a few gross
 #: mismatches that lie on their epipolar line and so pass every geometric test).
 DISPARITY_PERCENTILES = (1.0, 99.0)
-#: A rectification that turns either image by more than this (degrees, at the image
-#: centre) must be supported by the matches' parallax (:func:`check_rotation`).
-MAX_ROTATION_DEG = 10.0
-#: ... by at least this RMS parallax along the epipolar lines, pixels ...
+#: A turn above ``max_rotation_deg`` (:func:`check_rotation`; the rectify default is
+#: ``demtool.rectify.MAX_ROTATION_DEG``) needs at least this RMS parallax along the
+#: epipolar lines, pixels ...
 MIN_TURN_PARALLAX_PX = 1.0
 #: ... this many times the parallax across them.
 MIN_TURN_ANISOTROPY = 3.0
@@ -244,7 +243,7 @@ def epipolar_parallax(F: np.ndarray, points_left: np.ndarray,
 
 def check_rotation(H_left: np.ndarray, H_right: np.ndarray, F: np.ndarray,
                    points_left: np.ndarray, points_right: np.ndarray, size_left: np.ndarray,
-                   size_right: np.ndarray, *, max_rotation_deg: float = MAX_ROTATION_DEG,
+                   size_right: np.ndarray, *, max_rotation_deg: float,
                    what: str = "the image pair") -> float:
     """Refuse a rectification that turns an image by more than the matches justify.
 

@@ -325,10 +325,12 @@ def test_a_turn_against_the_parallax_is_refused():
     size = np.array([500, 500])
     with pytest.raises(ProcessingError, match=r"iso: .*turn the images by 90° and 90°.*"
                                               r"does not show that baseline"):
-        rectify.check_rotation(quarter, quarter, F_rows, left, right, size, size, what="iso")
+        rectify.check_rotation(quarter, quarter, F_rows, left, right, size, size,
+                               max_rotation_deg=10.0, what="iso")
     # a turn within the limit is not questioned, whatever the parallax
     small = np.array([[np.cos(0.1), -np.sin(0.1), 0], [np.sin(0.1), np.cos(0.1), 0], [0, 0, 1]])
-    assert rectify.check_rotation(small, small, F_rows, left, right, size, size) == \
+    assert rectify.check_rotation(small, small, F_rows, left, right, size, size,
+                                  max_rotation_deg=10.0) == \
         pytest.approx(np.degrees(0.1))
 
 

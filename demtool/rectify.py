@@ -55,6 +55,7 @@ from demtool.homography import (  # noqa: F401  (re-exported for the dem stage)
 )
 from demtool.logs import get_logger
 from demtool.rectify_checks import (  # noqa: F401  (public here since issue 13)
+    ALIGNED_SHIFT_PX,
     DISPARITY_MARGIN_FRACTION,
     DISPARITY_PERCENTILES,
     MIN_RANGE_SUPPORT,
@@ -62,6 +63,7 @@ from demtool.rectify_checks import (  # noqa: F401  (public here since issue 13)
     MIN_TURN_PARALLAX_PX,
     PARALLAX_NOISE_RATIO,
     _check_parallax,
+    alignment_shift,
     check_rotation,
     epipolar_parallax,
     gric_difference,

@@ -35,11 +35,13 @@ DISPARITY_MARGIN_FRACTION = 0.1
 #: mismatches that lie on their epipolar line and so pass every geometric test).
 DISPARITY_PERCENTILES = (1.0, 99.0)
 #: A turn above ``max_rotation_deg`` (:func:`check_rotation`; the rectify default is
-#: ``demtool.rectify.MAX_ROTATION_DEG``) needs at least this RMS parallax along the
-#: epipolar lines, pixels ...
-MIN_TURN_PARALLAX_PX = 1.0
-#: ... this many times the parallax across them.
+#: ``demtool.rectify.MAX_ROTATION_DEG``) needs this many times more RMS parallax along
+#: the epipolar lines than across them ...
 MIN_TURN_ANISOTROPY = 3.0
+#: ... and, for images already on one grid (the matches' homography moves no corner by
+#: more than ALIGNED_SHIFT_PX pixels), at least MIN_TURN_PARALLAX_PX of it, pixels.
+ALIGNED_SHIFT_PX = 2.0
+MIN_TURN_PARALLAX_PX = 1.0
 #: Each end of the disparity range must be reached by at least this many control points.
 MIN_RANGE_SUPPORT = 3
 #: The GRIC test refuses a pair only if its RMS residual parallax (after the best
@@ -241,6 +243,31 @@ def epipolar_parallax(F: np.ndarray, points_left: np.ndarray,
     return float(np.sqrt(np.mean(along**2))), float(np.sqrt(np.mean(across**2)))
 
 
+def alignment_shift(points_left: np.ndarray, points_right: np.ndarray,
+                    size_left: np.ndarray) -> float:
+    """How far the matches' least-squares homography moves the left image's corners, px.
+
+    Near zero (a pixel or two) when the two images are already on one grid — two
+    orthoimages of one map, or a pair co-registered by someone else.
+
+    Parameters
+    ----------
+    points_left, points_right : (N, 2) float
+        Matches (x, y), pixels, N >= 4.
+    size_left : (2,) int
+        (width, height) of the left image, pixels.
+    """
+    import cv2
+
+    H, _ = cv2.findHomography(np.asarray(points_left, np.float64),
+                              np.asarray(points_right, np.float64), 0)
+    if H is None or not np.all(np.isfinite(H)):
+        return float("inf")
+    width, height = (float(v) - 1.0 for v in np.asarray(size_left).reshape(2))
+    corners = np.array([[0.0, 0.0], [width, 0.0], [width, height], [0.0, height]])
+    return float(np.max(np.linalg.norm(apply_homography(H, corners) - corners, axis=1)))
+
+
 def check_rotation(H_left: np.ndarray, H_right: np.ndarray, F: np.ndarray,
                    points_left: np.ndarray, points_right: np.ndarray, size_left: np.ndarray,
                    size_right: np.ndarray, *, max_rotation_deg: float,
@@ -251,12 +278,23 @@ def check_rotation(H_left: np.ndarray, H_right: np.ndarray, F: np.ndarray,
     by the angle of the epipole's direction, folded to ±90°.  A pair whose baseline
     runs along the image columns legitimately turns by ~90°; a pair of already aligned
     images (two orthoimages on one map grid, sub-pixel parallax) also turns by up to
-    90° when F is fitted to noise, and the rectification is then meaningless.  The rule
-    that tells them apart: a turn larger than ``max_rotation_deg`` (either image, at its
-    centre, :func:`rotation_at_centre`) is kept only if the matches' parallax
-    (:func:`epipolar_parallax`) runs along F's epipolar lines, with an RMS of at least
-    :data:`MIN_TURN_PARALLAX_PX` pixels and :data:`MIN_TURN_ANISOTROPY` times the
-    parallax across them — i.e. the epipole's direction is what the matches show.
+    90° when F follows sub-pixel signals, and the rectification is then an artefact.
+    The rule that tells them apart, for a turn larger than ``max_rotation_deg`` (either
+    image, at its centre, :func:`rotation_at_centre`):
+
+    1. the matches' parallax (:func:`epipolar_parallax`) must run along F's epipolar
+       lines: RMS along them at least :data:`MIN_TURN_ANISOTROPY` times the RMS
+       across — the epipole's direction is what the matches show, not F fitted to
+       noise;
+    2. images already on one grid (:func:`alignment_shift` below
+       :data:`ALIGNED_SHIFT_PX`) must in addition show at least
+       :data:`MIN_TURN_PARALLAX_PX` of RMS parallax along the epipolar lines: with
+       sub-pixel parallax the pair belongs to the map-projected route.
+
+    A raw pair with its baseline along the columns (the 192-px synthetic scene's
+    view_00/view_03, B/H 0.5: turn −72°, parallax 0.79 px along and 0.22 px across, the
+    matches' homography moving the corners by 28 px) passes; two aligned images with 0.3 px of parallax along the
+    columns (0.05 px across, corners moved < 0.1 px) are refused.
 
     Returns
     -------
@@ -274,20 +312,28 @@ def check_rotation(H_left: np.ndarray, H_right: np.ndarray, F: np.ndarray,
     if turn <= max_rotation_deg:
         return turn
     along, across = epipolar_parallax(F, points_left, points_right)
+    shift = alignment_shift(points_left, points_right, size_left)
     log.debug("%s: rectification turns the images by %.1f° and %.1f°; parallax %.2f px RMS "
-              "along the epipolar lines, %.2f px across", what, turn_left, turn_right,
-              along, across)
-    if along >= MIN_TURN_PARALLAX_PX and along >= MIN_TURN_ANISOTROPY * across:
-        log.info("%s: the rectification turns the images by %.0f° and %.0f°, as the "
-                 "matches' parallax (%.1f px RMS along the epipolar lines, %.1f px across) "
-                 "runs at that angle: the baseline is not along the rows", what,
-                 turn_left, turn_right, along, across)
-        return turn
-    raise ProcessingError(
-        f"{what}: the rectification would turn the images by {turn_left:.0f}° and "
-        f"{turn_right:.0f}° (more than {max_rotation_deg:g}°), but the matches' parallax "
-        f"does not show that baseline ({along:.2f} px RMS along the epipolar lines, "
-        f"{across:.2f} px across; a turn needs >= {MIN_TURN_PARALLAX_PX:g} px and "
-        f"{MIN_TURN_ANISOTROPY:g}x): the images look already aligned (orthoimages or one "
-        "map grid); use the map-projected route (demtool mapproject, then dem "
-        "--mapprojected) or a pair with more parallax")
+              "along the epipolar lines, %.2f px across; the matches' homography moves the "
+              "corners by up to %.1f px", what, turn_left, turn_right, along, across, shift)
+    head = (f"{what}: the rectification would turn the images by {turn_left:.0f}° and "
+            f"{turn_right:.0f}° (more than {max_rotation_deg:g}°), but ")
+    if along < MIN_TURN_ANISOTROPY * across:
+        raise ProcessingError(
+            head + f"the matches' parallax does not show that baseline ({along:.2f} px RMS "
+            f"along the epipolar lines, {across:.2f} px across; a turn needs "
+            f"{MIN_TURN_ANISOTROPY:g}x): F follows noise; check that the images overlap "
+            "and differ in viewpoint, or use the map-projected route (demtool mapproject, "
+            "then dem --mapprojected)")
+    if shift < ALIGNED_SHIFT_PX and along < MIN_TURN_PARALLAX_PX:
+        raise ProcessingError(
+            head + f"the images are already aligned (one homography moves them by at most "
+            f"{shift:.2f} px) with only {along:.2f} px RMS of parallax along the epipolar "
+            f"lines (a turn needs {MIN_TURN_PARALLAX_PX:g} px): orthoimages or one map "
+            "grid; use the map-projected route (demtool mapproject, then dem "
+            "--mapprojected)")
+    log.info("%s: the rectification turns the images by %.0f° and %.0f°, as the matches' "
+             "parallax (%.2f px RMS along the epipolar lines, %.2f px across) runs at that "
+             "angle: the baseline is not along the rows", what, turn_left, turn_right,
+             along, across)
+    return turn

@@ -242,15 +242,18 @@ def test_a_flat_pair_is_refused_with_what_was_seen():
 # ------------------------------------------------- turns and single-match ranges (issue 12)
 
 
-def _parallax_along(angle_deg, parallax_px, noise_px=0.05, n=400, seed=1, fraction=1.0):
+def _parallax_along(angle_deg, parallax_px, noise_px=0.05, n=400, seed=1, fraction=1.0,
+                    aligned=False):
     """Matches of a plane (homography) plus parallax along the direction ``angle_deg``.
 
     The right epipole is at infinity in that direction, so F = [e']× H and Hartley's
-    rectification turns the images by ``angle_deg`` (folded to ±90°).
+    rectification turns the images by ``angle_deg`` (folded to ±90°).  ``aligned``: the
+    plane maps the images onto each other (H = identity, two orthoimages of one grid).
     """
     rng = np.random.default_rng(seed)
     left = rng.uniform(20, 480, (n, 2))
-    H = np.array([[1.01, 0.005, 6.0], [-0.004, 0.995, 4.0], [0.0, 0.0, 1.0]])
+    H = np.eye(3) if aligned else np.array([[1.01, 0.005, 6.0], [-0.004, 0.995, 4.0],
+                                             [0.0, 0.0, 1.0]])
     right = apply_homography(H, left)
     direction = np.array([np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))])
     moved = rng.random(n) < fraction
@@ -297,22 +300,29 @@ def test_an_oblique_baseline_is_turned_by_its_angle():
     assert rectify.rotation_at_centre(out.H_right, out.size_right) == pytest.approx(-35, abs=2)
 
 
-def test_a_turn_the_parallax_does_not_show_is_refused():
+def test_aligned_images_are_not_turned():
     """Aligned images (sub-pixel parallax along the columns): the 90° turn is refused."""
-    left, right = _parallax_along(90.0, 0.8)  # 0.46 px RMS parallax, 0.05 px noise
+    left, right = _parallax_along(90.0, 0.8, aligned=True)  # 0.46 px RMS, 0.05 px noise
+    size = np.array([500, 500])
+    assert rectify.alignment_shift(left, right, size) < 0.5
     F, inliers = rectify.features.ransac_fundamental(left, right, threshold_px=1.0, seed=0,
                                                      what="aligned")
-    H_left, H_right = rectify.hartley_homographies(F, left[inliers], right[inliers],
-                                                   np.array([500, 500]), np.array([500, 500]))
-    assert abs(rectify.rotation_at_centre(H_right, np.array([500, 500]))) > 80  # it would turn
+    H_left, H_right = rectify.hartley_homographies(F, left[inliers], right[inliers], size, size)
+    assert abs(rectify.rotation_at_centre(H_right, size)) > 80  # it would turn
     with pytest.raises(ProcessingError, match=r"aligned: the rectification would turn the "
-                                              r"images by -?\d+° .*0\.\d\d px RMS along.*"
-                                              r"mapproject"):
+                                              r"images by -?\d+° .*already aligned .*0\.\d\d "
+                                              r"px RMS of parallax.*mapproject"):
         rectify.rectify_matches(left, right, (500, 500), (500, 500), what="aligned")
     # the same sub-pixel parallax along the rows needs no turn and is rectified
-    left, right = _parallax_along(0.0, 0.8)
+    left, right = _parallax_along(0.0, 0.8, aligned=True)
     out = rectify.rectify_matches(left, right, (500, 500), (500, 500), what="rows")
     assert abs(rectify.rotation_at_centre(out.H_left, out.size_left)) < 2
+    # and a raw pair (views 8 px apart) with that parallax along the columns is turned:
+    # a weak but genuine stereo pair, not two orthoimages
+    left, right = _parallax_along(90.0, 0.8)
+    out = rectify.rectify_matches(left, right, (500, 500), (500, 500), what="raw")
+    assert abs(abs(rectify.rotation_at_centre(out.H_left, out.size_left)) - 90) < 3
+    assert rectify.alignment_shift(left, right, size) > rectify.ALIGNED_SHIFT_PX
 
 
 def test_a_turn_against_the_parallax_is_refused():
@@ -363,3 +373,26 @@ def test_a_single_match_on_its_epipolar_line_does_not_set_the_range():
     low, high = out.disparity_range
     assert high < d[-2] + 0.1 * (d[-2] - d[0]) + 2.5  # ... but does not set the range
     assert low <= d[2] and high >= d[-3]
+
+
+def test_the_synthetic_column_baseline_pair_is_turned_and_rectified(small_scene):
+    """view_00/view_03 of the small scene (camera 490 m along −y at 1000 m, B/H 0.5):
+    a genuine −72° turn with sub-pixel-RMS parallax on images that are not aligned."""
+    from demtool.synth import rectified_correspondence, truth_disparity
+
+    left = small_scene.images[small_scene.target]
+    right = small_scene.images["view_03"]
+    result = rectify.rectify_pair(left, right, what="view_00 / view_03")
+    assert -80 < rectify.rotation_at_centre(result.H_left, result.size_left) < -60
+    along, across = rectify.epipolar_parallax(result.F, result.points_left,
+                                              result.points_right)
+    assert along < rectify.MIN_TURN_PARALLAX_PX and along > 3 * across
+    assert rectify.alignment_shift(result.points_left, result.points_right,
+                                   result.size_left) > 10  # 28 px: not one grid
+    width, height = result.size_rect
+    match = rectified_correspondence(small_scene, result.H_left, result.H_right,
+                                     (height, width))
+    visible = truth_disparity(small_scene, result.H_left, result.H_right,
+                              (height, width)).visible
+    rows = np.arange(height, dtype=float)[:, None] - match.y_right
+    assert np.sqrt(np.nanmean(rows[visible] ** 2)) < 0.3  # truth rows agree

@@ -293,8 +293,9 @@ def check_rotation(H_left: np.ndarray, H_right: np.ndarray, F: np.ndarray,
 
     A raw pair with its baseline along the columns (the 192-px synthetic scene's
     view_00/view_03, B/H 0.5: turn −72°, parallax 0.79 px along and 0.22 px across, the
-    matches' homography moving the corners by 28 px) passes; two aligned images with 0.3 px of parallax along the
-    columns (0.05 px across, corners moved < 0.1 px) are refused.
+    matches' homography moving the corners by 28 px) passes; two aligned images with
+    0.3 px of parallax along the columns (0.05 px across, corners moved < 0.1 px) are
+    refused.
 
     Returns
     -------

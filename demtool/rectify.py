@@ -23,7 +23,10 @@ Conventions
   (−x side) of the rectified frame, and decreases otherwise.
 * No mirror flip and at most a 90° rotation: the rotation that brings the epipole to
   the x axis is the smaller of the two candidates, and both homographies keep the
-  orientation of the image (positive Jacobian determinant).
+  orientation of the image (positive Jacobian determinant).  A turn of more than
+  ``MAX_ROTATION_DEG`` (10°) is kept only when the matches' parallax runs along the
+  epipolar lines (a baseline along the columns), and refused otherwise (already
+  aligned images): :func:`demtool.rectify_checks.check_rotation`.
 
 References
 ----------
@@ -51,49 +54,30 @@ from demtool.homography import (  # noqa: F401  (re-exported for the dem stage)
     warp_to_rectified,
 )
 from demtool.logs import get_logger
+from demtool.rectify_checks import (  # noqa: F401  (public here since issue 13)
+    ALIGNED_SHIFT_PX,
+    DISPARITY_MARGIN_FRACTION,
+    DISPARITY_PERCENTILES,
+    MIN_RANGE_SUPPORT,
+    MIN_TURN_ANISOTROPY,
+    MIN_TURN_PARALLAX_PX,
+    PARALLAX_NOISE_RATIO,
+    _check_parallax,
+    alignment_shift,
+    check_rotation,
+    epipolar_parallax,
+    gric_difference,
+    robust_disparity_range,
+    rotation_at_centre,
+)
 
 log = get_logger(__name__)
 
 #: A rectified canvas larger than this many times the two images' area is refused.
 MAX_CANVAS_GROWTH = 4.0
-#: Fraction of the inlier disparity span added to each side of the disparity range.
-DISPARITY_MARGIN_FRACTION = 0.1
-#: Percentiles of the inlier disparities that bound the range (robust to a few gross
-#: mismatches that lie on their epipolar line and so pass every geometric test).
-DISPARITY_PERCENTILES = (1.0, 99.0)
-#: The GRIC test refuses a pair only if its RMS residual parallax (after the best
-#: homography) is also below this many times the matching noise σ.
-PARALLAX_NOISE_RATIO = 5.0
-
-
-def robust_disparity_range(disparities: np.ndarray, *, margin: float = 2.0,
-                           percentiles: tuple[float, float] = DISPARITY_PERCENTILES,
-                           margin_fraction: float = DISPARITY_MARGIN_FRACTION) -> np.ndarray:
-    """Search range of the dense matcher from the control points' disparities.
-
-    The ``percentiles`` of the disparities, widened on each side by the larger of
-    ``margin`` pixels and ``margin_fraction`` of the span between them.  A gross
-    mismatch that happens to lie on its epipolar line passes RANSAC and the
-    vertical-residual loop; with the minimum and maximum it would widen the range
-    arbitrarily (one match at 376 px where the rest lie in −10 … 30).
-
-    Parameters
-    ----------
-    disparities : (N,) float
-        ``x_left_rect − x_right_rect`` of the control points, pixels.
-
-    Returns
-    -------
-    (2,) float64
-        (min, max) disparity, pixels.
-    """
-    d = np.asarray(disparities, np.float64)
-    d = d[np.isfinite(d)]
-    if d.size == 0:
-        raise ProcessingError("no control point disparity to set the disparity range from")
-    low, high = np.percentile(d, percentiles) if d.size >= 20 else (d.min(), d.max())
-    pad = max(float(margin), margin_fraction * float(high - low))
-    return np.array([low - pad, high + pad])
+#: A rectification that turns either image by more than this (degrees, at the image
+#: centre) must be what the matches' parallax shows (:func:`check_rotation`).
+MAX_ROTATION_DEG = 10.0
 
 
 @dataclass(frozen=True)
@@ -315,85 +299,6 @@ def loop_zhang_shear(H: np.ndarray, size: np.ndarray) -> np.ndarray:
     return np.array([[sa, sb, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 
 
-# --------------------------------------------------------------------------------------
-# The study's pipeline
-# --------------------------------------------------------------------------------------
-
-
-def gric_difference(F: np.ndarray, H: np.ndarray, points_left: np.ndarray,
-                    points_right: np.ndarray) -> tuple[float, float]:
-    """Torr's GRIC of the homography model minus that of the fundamental matrix.
-
-    GRIC = Σ ρ(e_i² / σ²) + λ1 d n + λ2 k with ρ(x) = min(x, λ3 (r - d)), r = 4 (two
-    2-D points), λ1 = ln r, λ2 = ln(r n), λ3 = 2; F: manifold dimension d = 3 with
-    k = 7 parameters, H: d = 2, k = 8 (Torr 1998, "Geometric motion segmentation and
-    model selection", Phil. Trans. R. Soc. A 356, eq. 5; Pollefeys et al. 2002 use it
-    to detect degenerate views).  e_i is the Sampson distance for F and the
-    symmetric transfer error / 2 for H (both approximate the distance in the 4-D
-    joint image space); σ is estimated robustly from the F residuals.
-
-    Returns
-    -------
-    difference : float
-        GRIC(H) - GRIC(F): negative when the homography explains the matches at least
-        as well, i.e. the pair has no usable parallax.
-    sigma : float
-        The noise estimate, pixels.
-    """
-    n = len(points_left)
-    e_f = features.sampson_distance(F, points_left, points_right)
-    sigma = max(1.4826 * float(np.median(e_f)), 1e-3)
-    forward = apply_homography(H, points_left) - points_right
-    backward = apply_homography(np.linalg.inv(H), points_right) - points_left
-    e_h2 = (np.sum(forward**2, axis=1) + np.sum(backward**2, axis=1)) / 4.0
-    e_h2 = np.where(np.isfinite(e_h2), e_h2, np.inf)
-    r, lambda3 = 4.0, 2.0
-    lambda1, lambda2 = np.log(r), np.log(r * n)
-    gric_f = np.sum(np.minimum(e_f**2 / sigma**2, lambda3 * (r - 3))) + lambda1 * 3 * n \
-        + lambda2 * 7
-    gric_h = np.sum(np.minimum(e_h2 / sigma**2, lambda3 * (r - 2))) + lambda1 * 2 * n \
-        + lambda2 * 8
-    return float(gric_h - gric_f), sigma
-
-
-def _check_parallax(F: np.ndarray, points_left: np.ndarray, points_right: np.ndarray,
-                    threshold_px: float, what: str) -> None:
-    """Refuse pairs whose matches one homography explains: F is then undetermined.
-
-    Identical images, a pure rotation of the camera, or a flat scene seen from two
-    places map one image onto the other by a homography; the epipolar geometry (and
-    hence the rectification and the heights) is then not defined.  The homography is
-    preferred by Torr's model-selection criterion (:func:`gric_difference`) when the
-    residual parallax is below about 0.9 σ RMS.
-    """
-    import cv2
-
-    H, _ = cv2.findHomography(points_left, points_right, cv2.RANSAC, threshold_px)
-    if H is None or not np.all(np.isfinite(H)) or abs(np.linalg.det(H)) < 1e-12:
-        return
-    difference, sigma = gric_difference(F, H, points_left, points_right)
-    transfer = np.linalg.norm(apply_homography(H, points_left) - points_right, axis=1)
-    parallax = float(np.sqrt(np.nanmean(transfer**2)))
-    beyond = int(np.sum(transfer > 3.0 * sigma))
-    log.debug("%s: GRIC(H) - GRIC(F) = %.1f; RMS residual parallax %.3f px, noise σ %.3f px",
-              what, difference, parallax, sigma)
-    if difference <= 0 and parallax > PARALLAX_NOISE_RATIO * sigma:
-        # GRIC caps each point's cost, so a dominant plane plus strong parallax elsewhere
-        # can favour H; that parallax is what determines F
-        log.info("%s: GRIC prefers a homography (GRIC(H) − GRIC(F) = %.1f), but the RMS "
-                 "residual parallax %.2f px is %.0f× the matching noise %.2f px (%d of %d "
-                 "matches beyond 3σ): kept", what, difference, parallax,
-                 parallax / sigma, sigma, beyond, len(points_left))
-        return
-    if difference <= 0:
-        raise ProcessingError(
-            f"{what}: one homography explains the {len(points_left)} matches as well as a "
-            f"fundamental matrix (GRIC(H) − GRIC(F) = {difference:.1f}; RMS residual "
-            f"parallax {parallax:.2f} px for a matching noise σ of {sigma:.2f} px, "
-            f"{beyond} matches beyond 3σ): no parallax (identical images, a pure rotation "
-            "or a flat scene), so the epipolar geometry is undefined")
-
-
 def _canvas(H_left: np.ndarray, H_right: np.ndarray, size_left: np.ndarray,
             size_right: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Translate both homographies onto the smallest canvas that holds both images."""
@@ -440,6 +345,7 @@ def rectify_matches(points_left: np.ndarray, points_right: np.ndarray, size_left
                     shear: bool = True, disparity_margin: float = 2.0, min_inliers: int = 8,
                     max_iterations: int = 20, seed: int = 0, n_matches: int | None = None,
                     disparity_range: tuple[float, float] | None = None,
+                    max_rotation_deg: float = MAX_ROTATION_DEG,
                     what: str = "the image pair") -> Rectification:
     """Rectify a pair from its (putative) matches: robust F, Hartley, the outlier loop.
 
@@ -470,6 +376,9 @@ def rectify_matches(points_left: np.ndarray, points_right: np.ndarray, size_left
         Number of matches before this step (for the report); default N.
     disparity_range : (float, float), optional
         The (min, max) disparity to report instead of the one from the control points.
+    max_rotation_deg : float
+        A rectification turning either image by more is kept only if the matches'
+        parallax supports it (:func:`check_rotation`).
     what : str
         Name of the pair for messages, e.g. ``"left.tif / right.tif"``.
 
@@ -481,7 +390,8 @@ def rectify_matches(points_left: np.ndarray, points_right: np.ndarray, size_left
     ------
     ProcessingError
         Too few matches or inliers, zero parallax (identical images, pure rotation,
-        flat scene), epipole inside the image, or a canvas that would explode.
+        flat scene), epipole inside the image, a canvas that would explode, or a turn
+        the parallax does not support.
     """
     if max_vertical_residual <= 0:
         raise ParameterError(f"max_vertical_residual must be > 0, got {max_vertical_residual}")
@@ -522,11 +432,13 @@ def rectify_matches(points_left: np.ndarray, points_right: np.ndarray, size_left
                                   f"{min_inliers} are needed")
         pl, pr = pl[keep], pr[keep]
         F = features.fit_fundamental(pl, pr)
+    check_rotation(H_left, H_right, F, pl, pr, size_left, size_right,
+                   max_rotation_deg=max_rotation_deg, what=what)
     left_rect = apply_homography(H_left, pl)
     right_rect = apply_homography(H_right, pr)
     if disparity_range is None:
         disparity_range = robust_disparity_range(left_rect[:, 0] - right_rect[:, 0],
-                                                 margin=disparity_margin)
+                                                 margin=disparity_margin, what=what)
     disparity_range = np.asarray(disparity_range, np.float64).reshape(2)
     rms = float(np.sqrt(np.mean((left_rect[:, 1] - right_rect[:, 1]) ** 2)))
     return Rectification(
@@ -544,6 +456,7 @@ def rectify_pair(left: np.ndarray, right: np.ndarray, *, min_matches: int = 30,
                  disparity_margin: float = 2.0, max_features: int = 0,
                  contrast_threshold: float = 0.04, seed: int = 0,
                  disparity_range: tuple[float, float] | None = None,
+                 max_rotation_deg: float = MAX_ROTATION_DEG,
                  what: str = "the image pair") -> Rectification:
     """Uncalibrated rectification of two images (the SIAM route of the NavCam study).
 
@@ -560,7 +473,7 @@ def rectify_pair(left: np.ndarray, right: np.ndarray, *, min_matches: int = 30,
     contrast_threshold : float
         SIFT contrast threshold.
     ransac_threshold, max_vertical_residual, shear, disparity_margin, seed,
-    disparity_range, what
+    disparity_range, max_rotation_deg, what
         See :func:`rectify_matches`.
 
     Returns
@@ -588,4 +501,4 @@ def rectify_pair(left: np.ndarray, right: np.ndarray, *, min_matches: int = 30,
                            max_vertical_residual=max_vertical_residual, shear=shear,
                            disparity_margin=disparity_margin, min_inliers=min_matches,
                            seed=seed, n_matches=len(pairs), disparity_range=disparity_range,
-                           what=what)
+                           max_rotation_deg=max_rotation_deg, what=what)

@@ -237,3 +237,165 @@ def test_a_flat_pair_is_refused_with_what_was_seen():
     with pytest.raises(ProcessingError, match=r"flat: .*GRIC\(H\) − GRIC\(F\) = -?\d.*RMS "
                                               r"residual parallax \d+\.\d+ px.*σ of \d"):
         rectify.rectify_matches(left, right, (500, 500), (500, 500), what="flat")
+
+
+# ------------------------------------------------- turns and single-match ranges (issue 12)
+
+
+def _parallax_along(angle_deg, parallax_px, noise_px=0.05, n=400, seed=1, fraction=1.0,
+                    aligned=False):
+    """Matches of a plane (homography) plus parallax along the direction ``angle_deg``.
+
+    The right epipole is at infinity in that direction, so F = [e']× H and Hartley's
+    rectification turns the images by ``angle_deg`` (folded to ±90°).  ``aligned``: the
+    plane maps the images onto each other (H = identity, two orthoimages of one grid).
+    """
+    rng = np.random.default_rng(seed)
+    left = rng.uniform(20, 480, (n, 2))
+    H = np.eye(3) if aligned else np.array([[1.01, 0.005, 6.0], [-0.004, 0.995, 4.0],
+                                             [0.0, 0.0, 1.0]])
+    right = apply_homography(H, left)
+    direction = np.array([np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))])
+    moved = rng.random(n) < fraction
+    right[moved] += rng.uniform(-parallax_px, parallax_px, moved.sum())[:, None] * direction
+    right += rng.normal(0, noise_px, right.shape)
+    left += rng.normal(0, noise_px, left.shape)
+    return left, right
+
+
+def test_rotation_at_centre_measures_a_known_turn():
+    for angle in (0.0, 30.0, -90.0, 135.0):
+        c, s = np.cos(np.radians(angle)), np.sin(np.radians(angle))
+        H = np.array([[2 * c, -2 * s, 5.0], [2 * s, 2 * c, -7.0], [0.0, 0.0, 1.0]])
+        assert rectify.rotation_at_centre(H, np.array([500, 300])) == pytest.approx(angle,
+                                                                                     abs=1e-9)
+    # a projective map: the rotation of the polar decomposition of the local Jacobian
+    P = np.array([[1.0, 0.2, 0.0], [-0.1, 1.1, 0.0], [1e-3, 4e-4, 1.0]])
+    centre, step = np.array([249.5, 149.5]), 1e-5
+    ends = apply_homography(P, np.array([centre, centre + [step, 0], centre + [0, step]]))
+    J = np.column_stack([ends[1] - ends[0], ends[2] - ends[0]]) / step
+    U, _, Vt = np.linalg.svd(J)
+    R = U @ Vt
+    polar = np.degrees(np.arctan2(R[1, 0], R[0, 0]))
+    assert abs(polar) > 3  # a real turn to measure
+    assert rectify.rotation_at_centre(P, np.array([500, 300])) == pytest.approx(polar, abs=1e-3)
+
+
+def test_a_vertical_baseline_is_turned_by_90_degrees():
+    """Parallax along the columns (20 px RMS, ~0.3 across): the 90° turn is the geometry."""
+    left, right = _parallax_along(90.0, 35.0)
+    out = rectify.rectify_matches(left, right, (500, 500), (500, 500), what="vertical")
+    turn = rectify.rotation_at_centre(out.H_left, out.size_left)
+    assert abs(abs(turn) - 90.0) < 2.0
+    assert out.rms_vertical_residual < 0.2
+    assert np.ptp(out.disparities) > 50  # the parallax became disparity
+    along, across = rectify.epipolar_parallax(out.F, out.points_left, out.points_right)
+    assert along > 15 and across < 0.05 * along
+
+
+def test_an_oblique_baseline_is_turned_by_its_angle():
+    left, right = _parallax_along(35.0, 30.0)
+    out = rectify.rectify_matches(left, right, (500, 500), (500, 500), what="oblique")
+    # turning the parallax direction (35°) onto the x axis is a turn of −35°
+    assert rectify.rotation_at_centre(out.H_right, out.size_right) == pytest.approx(-35, abs=2)
+
+
+def test_aligned_images_are_not_turned():
+    """Aligned images (sub-pixel parallax along the columns): the 90° turn is refused."""
+    left, right = _parallax_along(90.0, 0.8, aligned=True)  # 0.46 px RMS, 0.05 px noise
+    size = np.array([500, 500])
+    assert rectify.alignment_shift(left, right, size) < 0.5
+    F, inliers = rectify.features.ransac_fundamental(left, right, threshold_px=1.0, seed=0,
+                                                     what="aligned")
+    H_left, H_right = rectify.hartley_homographies(F, left[inliers], right[inliers], size, size)
+    assert abs(rectify.rotation_at_centre(H_right, size)) > 80  # it would turn
+    with pytest.raises(ProcessingError, match=r"aligned: the rectification would turn the "
+                                              r"images by -?\d+° .*already aligned .*0\.\d\d "
+                                              r"px RMS of parallax.*mapproject"):
+        rectify.rectify_matches(left, right, (500, 500), (500, 500), what="aligned")
+    # the same sub-pixel parallax along the rows needs no turn and is rectified
+    left, right = _parallax_along(0.0, 0.8, aligned=True)
+    out = rectify.rectify_matches(left, right, (500, 500), (500, 500), what="rows")
+    assert abs(rectify.rotation_at_centre(out.H_left, out.size_left)) < 2
+    # and a raw pair (views 8 px apart) with that parallax along the columns is turned:
+    # a weak but genuine stereo pair, not two orthoimages
+    left, right = _parallax_along(90.0, 0.8)
+    out = rectify.rectify_matches(left, right, (500, 500), (500, 500), what="raw")
+    assert abs(abs(rectify.rotation_at_centre(out.H_left, out.size_left)) - 90) < 3
+    assert rectify.alignment_shift(left, right, size) > rectify.ALIGNED_SHIFT_PX
+
+
+def test_a_turn_against_the_parallax_is_refused():
+    """An F whose epipolar lines (rows) cross the matches' parallax (columns): refused."""
+    left, right = _parallax_along(90.0, 3.0, noise_px=0.3, seed=4)
+    F_rows = np.array([[0, 0, 0], [0, 0, -1], [0, 1, 0.0]])  # [e]x, e = (1, 0, 0)
+    along, across = rectify.epipolar_parallax(F_rows, left, right)
+    assert along < 0.6 and across > 1.5  # the parallax is across F's lines
+    quarter = np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1.0]])  # a 90° turn
+    size = np.array([500, 500])
+    with pytest.raises(ProcessingError, match=r"iso: .*turn the images by 90° and 90°.*"
+                                              r"does not show that baseline"):
+        rectify.check_rotation(quarter, quarter, F_rows, left, right, size, size,
+                               max_rotation_deg=10.0, what="iso")
+    # a turn within the limit is not questioned, whatever the parallax
+    small = np.array([[np.cos(0.1), -np.sin(0.1), 0], [np.sin(0.1), np.cos(0.1), 0], [0, 0, 1]])
+    assert rectify.check_rotation(small, small, F_rows, left, right, size, size,
+                                  max_rotation_deg=10.0) == \
+        pytest.approx(np.degrees(0.1))
+
+
+def test_one_match_does_not_set_the_disparity_range():
+    """Issue 13's percentiles alone let one match set the range of a small set of points."""
+    rng = np.random.default_rng(8)
+    true = rng.uniform(-10.0, 30.0, 40)
+    with_one = np.append(true, 376.0)
+    low, high = np.percentile(with_one, rectify.DISPARITY_PERCENTILES)
+    assert high > 150  # the 99th percentile of 41 points is pulled 40 % of the way to 376
+    low, high = rectify.robust_disparity_range(with_one)
+    assert low <= np.sort(true)[2]
+    assert np.sort(true)[-3] <= high <= true.max() + 0.1 * np.ptp(true) + 1e-9
+    assert low >= true.min() - 0.1 * np.ptp(true) - 1e-9
+    # with 2000 points the percentiles already hold it (issue 13), and still do
+    many = np.append(rng.uniform(-10.0, 30.0, 2000), [376.0, -300.0])
+    low, high = rectify.robust_disparity_range(many)
+    assert -15 < low < -9 and 29 < high < 35
+    with pytest.raises(ProcessingError, match="pair: only 5 control point.*needs 3.*"
+                                              "--disparity-range"):
+        rectify.robust_disparity_range(np.arange(5.0), what="pair")
+
+
+def test_a_single_match_on_its_epipolar_line_does_not_set_the_range():
+    left, right = _parallax_along(0.0, 10.0, n=40, seed=6)
+    right[7, 0] += 300.0  # on its epipolar line (a row): passes RANSAC and the row test
+    out = rectify.rectify_matches(left, right, (500, 500), (500, 500), what="one")
+    assert len(out.points_left) == 40  # the match is kept as a control point ...
+    d = np.sort(out.disparities)
+    low, high = out.disparity_range
+    assert high < d[-2] + 0.1 * (d[-2] - d[0]) + 2.5  # ... but does not set the range
+    assert low <= d[2] and high >= d[-3]
+
+
+def test_the_synthetic_column_baseline_pair_is_turned_and_rectified(small_scene):
+    """view_00/view_03 of the small scene (camera 490 m along −y at 1000 m, B/H 0.5):
+    a genuine −72° turn with sub-pixel-RMS parallax on images that are not aligned."""
+    from demtool.synth import target_points
+
+    left = small_scene.images[small_scene.target]
+    right = small_scene.images["view_03"]
+    result = rectify.rectify_pair(left, right, what="view_00 / view_03")
+    assert -80 < rectify.rotation_at_centre(result.H_left, result.size_left) < -60
+    along, across = rectify.epipolar_parallax(result.F, result.points_left,
+                                              result.points_right)
+    assert along < rectify.MIN_TURN_PARALLAX_PX and along > 3 * across
+    assert rectify.alignment_shift(result.points_left, result.points_right,
+                                   result.size_left) > 10  # 28 px: not one grid
+    # true correspondences: target pixels cast onto the truth DEM, seen by view_03
+    camera = small_scene.cameras[small_scene.target]
+    rows, cols = np.mgrid[3:camera.height:6, 3:camera.width:6]
+    pixels = np.column_stack([cols.ravel(), rows.ravel()]).astype(float)
+    seen = small_scene.cameras["view_03"].project(target_points(small_scene, pixels))
+    inside = np.all(np.isfinite(seen), axis=1) & np.all((seen > 0) & (seen < 191), axis=1)
+    assert inside.sum() > 300
+    row_error = (apply_homography(result.H_left, pixels[inside])[:, 1]
+                 - apply_homography(result.H_right, seen[inside])[:, 1])
+    assert np.sqrt(np.mean(row_error**2)) < 0.3  # 0.11 px

@@ -66,7 +66,7 @@ def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
 
     from demtool import io as dio
     from demtool.checks import check_texture
-    from demtool.rectify import rectify_pair, warp_to_rectified
+    from demtool.rectify import rectify_pair, rotation_at_centre, warp_to_rectified
     from demtool.rectify_params import RectifyParams
 
     params = params or RectifyParams()
@@ -110,6 +110,10 @@ def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
         "size_left": result.size_left.tolist(),
         "size_right": result.size_right.tolist(),
         "size_rect": result.size_rect.tolist(),
+        # the turn each image takes (refused above MAX_ROTATION_DEG unless the parallax
+        # shows it: demtool.rectify_checks.check_rotation)
+        "turn_deg": [round(rotation_at_centre(result.H_left, result.size_left), 2),
+                     round(rotation_at_centre(result.H_right, result.size_right), 2)],
     }
     log.info("%s: %d matches, %d RANSAC inliers, %d control points after %d outlier "
              "pass(es)", pair, result.n_matches, result.n_ransac_inliers,

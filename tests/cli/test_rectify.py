@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import cv2
 import numpy as np
@@ -118,3 +119,50 @@ def test_rectify_refuses_two_images_on_one_map_grid(tmp_path):
     assert len(errors) == 1 and "same map grid" in errors[0] and "--mapprojected" in errors[0]
     assert str(paths[0]) in errors[0]
     assert not out.exists()
+
+
+# ------------------------------------------------- issue 12: turns the matches must show
+
+
+def test_cli_turns_a_pair_whose_baseline_runs_along_the_columns(stereo_scene, tmp_path):
+    """The stereo scene transposed: its baseline is vertical, and the ~80° turn is kept."""
+    from demtool.rectify import rotation_at_centre
+
+    folder = tmp_path / "columns"
+    folder.mkdir()
+    dio.write_raster(folder / "top.tif", np.ascontiguousarray(stereo_scene.left.T))
+    dio.write_raster(folder / "bottom.tif", np.ascontiguousarray(stereo_scene.right.T))
+    out = tmp_path / "stereo"
+    run = CliRunner().invoke(cli, ["rectify", str(folder / "top.tif"),
+                                   str(folder / "bottom.tif"), "--out", str(out)])
+    assert run.exit_code == 0, run.output
+    assert "the baseline is not along the rows" in run.output
+    data = dio.read_npz(out / "rectify.npz", "rectification")
+    turn = rotation_at_centre(data["H_left"], data["size_left"])
+    assert 70 < abs(turn) < 100
+    sidecar = json.loads((out / "rectify.npz.json").read_text())
+    assert sidecar["summary"]["turn_deg"][0] == pytest.approx(turn, abs=0.01)
+    assert float(data["rms_vertical_residual"]) < 0.5
+    # the canvas stays the images' size, not inflated by the turn
+    assert np.prod(data["size_rect"]) < 1.5 * np.prod(data["size_left"])
+
+
+def test_cli_refuses_to_turn_aligned_images(stereo_scene, tmp_path):
+    """Issue 12's HiRISE symptom: two aligned images (sub-pixel parallax) turned by 90°."""
+    height, width = stereo_scene.left.shape
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
+    dy = 0.6 * np.sin(2 * np.pi * xx / 97.0) * np.cos(2 * np.pi * yy / 131.0)
+    shifted = cv2.remap(stereo_scene.left.astype(np.float32), xx, yy + dy, cv2.INTER_CUBIC)
+    folder = tmp_path / "aligned"
+    folder.mkdir()
+    dio.write_raster(folder / "ortho_a.tif", stereo_scene.left)
+    dio.write_raster(folder / "ortho_b.tif", shifted)
+    out = tmp_path / "out"
+    run = CliRunner().invoke(cli, ["rectify", str(folder / "ortho_a.tif"),
+                                   str(folder / "ortho_b.tif"), "--out", str(out)])
+    assert run.exit_code == 1
+    errors = [line for line in run.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1
+    assert "ortho_a.tif" in errors[0] and "ortho_b.tif" in errors[0]
+    assert re.search(r"turn the images by -?9\d°", errors[0]) and "mapproject" in errors[0]
+    assert not out.exists() or not any(out.iterdir())

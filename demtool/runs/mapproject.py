@@ -71,20 +71,30 @@ class DemSurface(NamedTuple):
         return out + self.offset_m
 
 
+
+def require_same_body(path: str | os.PathLike, crs: Any, body: Any,
+                      sensor_path: str | os.PathLike, what: str) -> None:
+    """InputError naming both files when the raster at ``path`` (CRS ``crs``) is on
+    another body than the sensor model's ``body``."""
+    from demtool.errors import InputError
+    from demtool.maps import body_from_crs, same_body
+
+    raster_body = body_from_crs(crs)
+    if not same_body(raster_body, body):
+        raise InputError(f"{path}: is {what} of {raster_body.name} but the sensor model "
+                         f"{sensor_path} sees {body.name}")
+
 def _read_dem(dem_path, sensor_path, body):
     from demtool import io as dio
     from demtool.errors import InputError
-    from demtool.maps import body_from_crs, crs_radius, same_body, to_pyproj_crs
+    from demtool.maps import crs_radius, to_pyproj_crs
 
     info = dio.raster_info(dem_path, what="DEM")
     if info.crs is None:
         raise InputError(f"{dem_path}: DEM has no CRS; mapproject needs a DEM on the body's "
                          "map (a planetary CRS)")
     crs = to_pyproj_crs(info.crs)
-    dem_body = body_from_crs(crs)
-    if not same_body(dem_body, body):
-        raise InputError(f"{dem_path}: is a DEM of {dem_body.name} but the sensor model "
-                         f"{sensor_path} sees {body.name}")
+    require_same_body(dem_path, crs, body, sensor_path, "a DEM")
     try:
         radius = crs_radius(crs)
     except ValueError:
@@ -159,7 +169,7 @@ def _grid_like(path, sensor_path, body, params):
     """The map grid of an existing raster (``--grid-like``)."""
     from demtool import io as dio
     from demtool.errors import InputError, ParameterError
-    from demtool.maps import MapGrid, body_from_crs, same_body, to_pyproj_crs
+    from demtool.maps import MapGrid, to_pyproj_crs
 
     if params.gsd is not None or params.bounds is not None:
         raise ParameterError("--grid-like sets the grid: drop --gsd and --bounds")
@@ -167,9 +177,7 @@ def _grid_like(path, sensor_path, body, params):
     crs = None if info.crs is None else to_pyproj_crs(info.crs)
     if crs is None or not crs.is_projected:
         raise InputError(f"{path}: --grid-like needs a raster on a projected map of the body")
-    if not same_body(body_from_crs(crs), body):
-        raise InputError(f"{path}: is a map of {body_from_crs(crs).name} but the sensor model "
-                         f"{sensor_path} sees {body.name}")
+    require_same_body(path, crs, body, sensor_path, "a map")
     return MapGrid(crs=crs, transform=info.transform, width=info.width, height=info.height)
 
 

@@ -78,12 +78,14 @@ def image_on_map(image_path, sensor_path, dem, params, log):
     resampled onto the DEM grid when its grid differs.
     """
     from demtool import io as dio
-    from demtool.runs.mapproject import orthoimage_on_grid
+    from demtool.mapproject import sensor_body
+    from demtool.runs.mapproject import orthoimage_on_grid, require_same_body
     from demtool.runs.refine import image_on_dem_grid
     from demtool.sensors import read_sensor
 
     if sensor_path is not None:
         sensor = read_sensor(sensor_path)
+        require_same_body(dem.path, dem.crs, sensor_body(sensor), sensor_path, "a DEM")
         values = orthoimage_on_grid(image_path, sensor, dem)
         log.info("%s map-projected through %s onto the DEM grid", image_path, sensor_path)
         return values, sensor, Path(sensor_path)
@@ -95,6 +97,7 @@ def image_on_map(image_path, sensor_path, dem, params, log):
         raise InputError(f"{image_path}: its sensor model {path} (tag {SENSOR_TAG}) is not "
                          "found; give --sensor")
     sensor = read_sensor(path)
+    require_same_body(dem.path, dem.crs, sensor_body(sensor), path, "a DEM")
     values, note = image_on_dem_grid(image, dem)
     if note:
         log.info("%s", note)

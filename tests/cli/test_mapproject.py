@@ -215,6 +215,27 @@ def test_refuses_dem_of_another_body(scene, tmp_path):
     assert_refused(result, out, str(dem), "Mars", "Moon")
 
 
+def test_refine_refuses_a_dem_of_another_body_than_its_sensor(scene, tmp_path):
+    """refine on the map: a Mars DEM with a lunar image and sensor, raw and ortho routes."""
+    from demtool.maps import make_projection
+
+    mars = body_by_name("Mars")
+    grid = scene["grid"]
+    dem = tmp_path / "mars_dem.tif"
+    dio.write_raster(dem, np.zeros(grid.shape), transform=grid.transform,
+                     crs=make_projection(mars, "equirectangular", 10.0, 5.0), tags=mars.tags())
+    out = tmp_path / "refined.tif"
+    raw = CliRunner().invoke(cli, ["refine", str(scene["image"]), str(dem), "--sensor",
+                                   str(scene["isd"]), "--out", str(out)])
+    assert_refused(raw, out, str(dem), "Mars", "Moon", str(scene["isd"]))
+    ortho = tmp_path / "ortho.tif"
+    made = invoke(scene["image"], "--sensor", scene["isd"], "--dem", scene["dem"], "--out",
+                  ortho)
+    assert made.exit_code == 0, made.output
+    tagged = CliRunner().invoke(cli, ["refine", str(ortho), str(dem), "--out", str(out)])
+    assert_refused(tagged, out, str(dem), "Mars", "Moon")
+
+
 def test_refuses_dem_without_crs(scene, tmp_path):
     dem = tmp_path / "frame_dem.tif"
     dio.write_raster(dem, np.zeros((20, 20)))

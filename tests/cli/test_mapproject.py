@@ -215,6 +215,30 @@ def test_refuses_dem_of_another_body(scene, tmp_path):
     assert_refused(result, out, str(dem), "Mars", "Moon")
 
 
+def test_ortho_on_the_sphere_covers_the_camera_footprint(scene, tmp_path):
+    """Issue 12: without a DEM, the orthoimage's footprint is `demtool camera`'s."""
+    from demtool.sensors.info import footprint
+    from demtool.sensors.polygons import point_in_polygon, polygon_area
+
+    out = tmp_path / "sphere.tif"
+    result = invoke(scene["image"], "--sensor", scene["isd"], "--height", 0, "--out", out)
+    assert result.exit_code == 0, result.output
+    ortho = dio.read_raster(out)
+    outline = footprint(scene["sensor"], MOON, points_per_edge=64)
+    x, y, _ = xyz_to_map(ortho.crs, outline.xyz)
+    rows, cols = np.nonzero(np.isfinite(ortho.data))
+    t = ortho.transform
+    cx = t.c + t.a * (cols + 0.5) + t.b * (rows + 0.5)
+    cy = t.f + t.d * (cols + 0.5) + t.e * (rows + 0.5)
+    inside = point_in_polygon(cx, cy, x, y)
+    assert inside.mean() > 0.999  # every seen cell is inside the camera's footprint
+    gsd = abs(t.a)
+    seen_area, outline_area = rows.size * gsd * abs(t.e), abs(polygon_area(x, y))
+    # the ortho loses the bicubic kernel's half-width (~1.5 px) along the image border
+    border = 1.5 * gsd * 2 * (np.ptp(x) + np.ptp(y))
+    assert outline_area - border < seen_area <= outline_area * 1.001
+
+
 def test_refine_refuses_a_dem_of_another_body_than_its_sensor(scene, tmp_path):
     """refine on the map: a Mars DEM with a lunar image and sensor, raw and ortho routes."""
     from demtool.maps import make_projection

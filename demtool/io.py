@@ -69,6 +69,17 @@ def require_file(path: str | os.PathLike, what: str = "file") -> Path:
 # --------------------------------------------------------------------------------------
 
 
+def decode_tag(tags: dict[str, str], key: str, default: Any = None) -> Any:
+    """A raster tag written as JSON, decoded (the raw string when it is not JSON);
+    ``default`` if absent."""
+    if key not in tags:
+        return default
+    try:
+        return json.loads(tags[key])
+    except json.JSONDecodeError:
+        return tags[key]
+
+
 @dataclass(frozen=True)
 class Raster:
     """A raster band read from disk.
@@ -100,12 +111,7 @@ class Raster:
 
     def tag_json(self, key: str, default: Any = None) -> Any:
         """Decode a tag that was written as JSON (parameters, vectors); ``default`` if absent."""
-        if key not in self.tags:
-            return default
-        try:
-            return json.loads(self.tags[key])
-        except json.JSONDecodeError:
-            return self.tags[key]
+        return decode_tag(self.tags, key, default)
 
 
 def image_frame_transform(gsd_m: float = 1.0):
@@ -355,12 +361,7 @@ class RasterInfo:
 
     def tag_json(self, key: str, default: Any = None) -> Any:
         """Decode a tag written as JSON; ``default`` if absent."""
-        if key not in self.tags:
-            return default
-        try:
-            return json.loads(self.tags[key])
-        except json.JSONDecodeError:
-            return self.tags[key]
+        return decode_tag(self.tags, key, default)
 
 
 def raster_info(path: str | os.PathLike, *, what: str = "raster") -> RasterInfo:

@@ -405,9 +405,27 @@ def _keys(t):
     return 0.0
 
 
+@njit(cache=True)
+def _bicubic_at(image, r, c):
+    """Keys bicubic convolution of ``image`` at fractional (row, col), edges clamped."""
+    h, w = image.shape
+    ri = int(math.floor(r))
+    ci = int(math.floor(c))
+    fr = r - ri
+    fc = c - ci
+    acc = 0.0
+    for a in range(-1, 3):
+        wr = _keys(fr - a)
+        rr = min(max(ri + a, 0), h - 1)
+        for b in range(-1, 3):
+            wc = _keys(fc - b)
+            cc = min(max(ci + b, 0), w - 1)
+            acc += wr * wc * image[rr, cc]
+    return acc
+
+
 @njit(cache=True, parallel=True)
 def _bicubic(image, row, col, out):
-    h, w = image.shape
     n = row.shape[0]
     for p in prange(n):
         r = row[p]
@@ -415,19 +433,7 @@ def _bicubic(image, row, col, out):
         if not (math.isfinite(r) and math.isfinite(c)):
             out[p] = np.nan
             continue
-        ri = int(math.floor(r))
-        ci = int(math.floor(c))
-        fr = r - ri
-        fc = c - ci
-        acc = 0.0
-        for a in range(-1, 3):
-            wr = _keys(fr - a)
-            rr = min(max(ri + a, 0), h - 1)
-            for b in range(-1, 3):
-                wc = _keys(fc - b)
-                cc = min(max(ci + b, 0), w - 1)
-                acc += wr * wc * image[rr, cc]
-        out[p] = acc
+        out[p] = _bicubic_at(image, r, c)
 
 
 def bicubic_sample(image: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
@@ -490,7 +496,6 @@ def image_window(line: np.ndarray, sample: np.ndarray, lines: int, samples: int,
 def _bicubic_csm(image, row0, col0, line, sample, lines, samples, out):
     """:func:`_bicubic` at CSM coordinates of a window starting at (row0, col0); NaN off
     the full image [0, lines] × [0, samples]."""
-    h, w = image.shape
     for p in prange(line.shape[0]):
         ln = line[p]
         sm = sample[p]
@@ -499,19 +504,7 @@ def _bicubic_csm(image, row0, col0, line, sample, lines, samples, out):
             continue
         r = ln - 0.5 - row0
         c = sm - 0.5 - col0
-        ri = int(math.floor(r))
-        ci = int(math.floor(c))
-        fr = r - ri
-        fc = c - ci
-        acc = 0.0
-        for a in range(-1, 3):
-            wr = _keys(fr - a)
-            rr = min(max(ri + a, 0), h - 1)
-            for b in range(-1, 3):
-                wc = _keys(fc - b)
-                cc = min(max(ci + b, 0), w - 1)
-                acc += wr * wc * image[rr, cc]
-        out[p] = acc
+        out[p] = _bicubic_at(image, r, c)
 
 
 def resample_tile(image: np.ndarray, offset: tuple[int, int], line: np.ndarray,

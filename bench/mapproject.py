@@ -1,4 +1,5 @@
-"""Speed and memory of ``demtool mapproject`` on a large synthetic line-scan image.
+"""Speed and memory of ``demtool mapproject`` on a large synthetic line-scan image, and the
+map-projected stereo route's time beside the image-frame route's.
 
 Target (issue 12): a 4096 × 16384 (samples × lines) line-scan image map-projected in
 ≤ 30 s with a peak of ≤ 1 GB, on 2 cores.  The image is a synthetic lunar pushbroom
@@ -113,8 +114,63 @@ def main() -> None:
         print(f"{label:22s} {cells:12,d} {100 * s['valid_fraction']:7.1f} {s['wall_s']:7.1f} "
               f"{s['process_s']:9.1f} {s['cpu_s']:7.1f} {s['peak_mb']:8.0f} "
               f"{s['max_interpolation_error_px']:10.4f}  <= 30 s, <= 1000 MB")
-    print("map-projected stereo route vs image-frame route: not measured yet "
-          "(dem --mapprojected is not built on this branch)")
+    route_times(folder / "routes")
+
+
+def _demtool(*args) -> float:
+    """Run ``demtool -q ARGS`` in a child process; its wall time, seconds."""
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "demtool", "-q", *map(str, args)], check=True)
+    return time.perf_counter() - start
+
+
+def _accuracy(dem: Path, truth: Path, out: Path) -> dict:
+    done = subprocess.run([sys.executable, "-m", "demtool", "-q", "compare", str(dem),
+                           str(truth), "--out", str(out), "--no-plots", "--json"],
+                          check=True, capture_output=True, text=True)
+    report = json.loads(done.stdout)
+    return {"rmse": report["before_alignment"]["rmse"], "mean": report["before_alignment"]["mean"],
+            "completeness": report["completeness"]}
+
+
+def route_times(work: Path) -> None:
+    """The two stereo routes on one synthetic frame-camera scene (issue 12).
+
+    ``synth --sensor frame`` (the demo scene on the Moon); image-frame route: calibrated
+    ``rectify`` → ``sgm`` → ``dem``; map-projected route: ``mapproject`` both views onto
+    the sphere → ``sgm`` on the orthos → ``dem --mapprojected``.  Both DEMs are compared
+    with ``truth_dem_map.tif`` before any alignment.
+    """
+    scene, frame, ortho = work / "scene", work / "frame", work / "ortho"
+    _demtool("synth", "--sensor", "frame", "--out", scene)
+    left, right = scene / "view_00", scene / "view_01"
+    times = {"image-frame": {}, "map-projected": {}}
+    t = times["image-frame"]
+    t["rectify"] = _demtool("rectify", f"{left}.tif", f"{right}.tif", "--sensor-left",
+                            f"{left}.json", "--sensor-right", f"{right}.json", "--out", frame)
+    t["sgm"] = _demtool("sgm", frame / "left_rect.tif", frame / "right_rect.tif", "--rectify",
+                        frame / "rectify.npz", "--out", frame / "disparity.tif")
+    t["dem"] = _demtool("dem", "--disparity", frame / "disparity.tif", "--rectify",
+                        frame / "rectify.npz", "--out", frame / "dem.tif")
+    t = times["map-projected"]
+    t["mapproject"] = (_demtool("mapproject", f"{left}.tif", "--sensor", f"{left}.json",
+                                "--height", 0, "--out", ortho / "left.tif")
+                       + _demtool("mapproject", f"{right}.tif", "--sensor", f"{right}.json",
+                                  "--height", 0, "--grid-like", ortho / "left.tif", "--out",
+                                  ortho / "right.tif"))
+    t["sgm"] = _demtool("sgm", ortho / "left.tif", ortho / "right.tif", "--out",
+                        ortho / "disparity.tif")
+    t["dem"] = _demtool("dem", "--disparity", ortho / "disparity.tif", "--mapprojected",
+                        ortho / "left.tif", ortho / "right.tif", "--out", ortho / "dem.tif")
+    truth = scene / "truth_dem_map.tif"
+    print("\nstereo routes on the synthetic frame scene (wall s per stage, child processes; "
+          "DEM against truth_dem_map.tif before alignment):")
+    for route, folder in (("image-frame", frame), ("map-projected", ortho)):
+        stages = times[route]
+        a = _accuracy(folder / "dem.tif", truth, folder / "report")
+        print(f"  {route:14s} " + ", ".join(f"{k} {v:.1f}" for k, v in stages.items())
+              + f"; total {sum(stages.values()):.1f} s; RMSE {a['rmse']:.3f} m, mean "
+              f"{a['mean']:+.3f} m, complete {a['completeness']:.1f} %")
 
 
 if __name__ == "__main__":

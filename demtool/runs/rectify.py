@@ -75,7 +75,7 @@ def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
                    outputs={"--out": [Path(out_dir) / n for n in (LEFT_RECT, RIGHT_RECT,
                                                                   RECTIFY_NPZ)],
                             "sidecar": sidecar_path(Path(out_dir) / RECTIFY_NPZ)})
-    log, provenance = run.log, run.provenance
+    log = run.log
     out = Path(out_dir)
     left_image = dio.read_image(left_path, what="left image")
     right_image = dio.read_image(right_path, what="right image")
@@ -137,15 +137,31 @@ def run_rectify(left_path: str | os.PathLike, right_path: str | os.PathLike,
         "n_ransac_inliers": np.asarray(result.n_ransac_inliers),
         "iterations": np.asarray(result.iterations),
     }
-    npz_path = out / RECTIFY_NPZ
-    with run.transaction():
-        for path, image, name, H in ((out / LEFT_RECT, left_rect, left_name, result.H_left),
-                                     (out / RIGHT_RECT, right_rect, right_name, result.H_right)):
-            dio.write_raster(path, image, transform=dio.image_frame_transform(1.0),
-                             tags=provenance.tags(frame=f"image:{name}_rect", rectified_from=name,
-                                                  homography=H.tolist(),
-                                                  disparity_range=result.disparity_range.tolist()))
-        dio.write_npz(npz_path, "rectification", arrays)
-        provenance.write_sidecar(npz_path, summary,
-                                 outputs=[out / LEFT_RECT, out / RIGHT_RECT, npz_path])
+    write_rectified_pair(run, out, (left_rect, right_rect), (left_name, right_name), arrays,
+                         summary, ({"homography": result.H_left.tolist()},
+                                   {"homography": result.H_right.tolist()}))
     return result
+
+
+def write_rectified_pair(run: StageRun, out: Path, images, names, arrays: dict,
+                         summary: dict, side_tags=({}, {})) -> None:
+    """Write OUT/left_rect.tif, OUT/right_rect.tif, OUT/rectify.npz and its sidecar in
+    the run's transaction (both rectify routes).
+
+    ``images``/``names``: (left, right) rectified rasters and original view names;
+    ``arrays``: the rectification NPZ content; ``side_tags``: extra tags of each image.
+    """
+    from demtool import io as dio
+
+    npz_path = out / RECTIFY_NPZ
+    disparity_range = [float(v) for v in arrays["disparity_range"]]
+    with run.transaction():
+        for path, image, name, extra in zip((out / LEFT_RECT, out / RIGHT_RECT), images, names,
+                                            side_tags, strict=True):
+            dio.write_raster(path, image, transform=dio.image_frame_transform(1.0),
+                             tags=run.provenance.tags(frame=f"image:{name}_rect",
+                                                      rectified_from=name, **extra,
+                                                      disparity_range=disparity_range))
+        dio.write_npz(npz_path, "rectification", arrays)
+        run.provenance.write_sidecar(npz_path, summary,
+                                     outputs=[out / LEFT_RECT, out / RIGHT_RECT, npz_path])

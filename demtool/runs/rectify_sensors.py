@@ -14,14 +14,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from demtool.runs import StageRun, sidecar_path
+from demtool.runs.rectify import LEFT_RECT, RECTIFY_NPZ, RIGHT_RECT, write_rectified_pair
 
 if TYPE_CHECKING:
     from demtool.rectify_params import RectifyParams
     from demtool.sensors.base import SensorModel
 
-LEFT_RECT = "left_rect.tif"
-RIGHT_RECT = "right_rect.tif"
-RECTIFY_NPZ = "rectify.npz"
 RADII_RTOL = 1e-6
 
 
@@ -121,7 +119,7 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
         raise ParameterError(f"{missing} is needed too: give both sensor models or neither")
     if params.disparity_range is not None:
         raise ParameterError("--disparity-range is not used with sensor models")
-    log, provenance = run.log, run.provenance
+    log = run.log
     for path in run.input_paths():
         dio.require_file(path, "input file")
     out = Path(out_dir)
@@ -228,15 +226,6 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
         **model_to_arrays(left_model, "sensor_left_"),
         **model_to_arrays(result.right_model, "sensor_right_"),
     }
-    npz_path = out / RECTIFY_NPZ
-    with run.transaction():
-        for path, image, name in ((out / LEFT_RECT, left_rect, left_name),
-                                  (out / RIGHT_RECT, right_rect, right_name)):
-            dio.write_raster(path, image, transform=dio.image_frame_transform(1.0),
-                             tags=provenance.tags(frame=f"image:{name}_rect", rectified_from=name,
-                                                  calibrated=True,
-                                                  disparity_range=result.disparity_range.tolist()))
-        dio.write_npz(npz_path, "rectification", arrays)
-        provenance.write_sidecar(npz_path, summary,
-                                 outputs=[out / LEFT_RECT, out / RIGHT_RECT, npz_path])
+    write_rectified_pair(run, out, (left_rect, right_rect), (left_name, right_name), arrays,
+                         summary, ({"calibrated": True}, {"calibrated": True}))
     return result

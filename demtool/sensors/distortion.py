@@ -29,6 +29,8 @@ model           coefficients
 ``brownconrady``  ``[xp, yp, k1, k2, k3, p1, p2, phi]`` (ASP / VisionWorkbench),
                 ``remove`` in closed form, on normalised coordinates
 ``photometrix``  ``[xp, yp, k1, k2, k3, p1, p2]`` (ASP / VisionWorkbench), likewise
+``apollometric``  ``[xp, yp, k1, k2, k3, j1, j2, t0]`` (ISIS ``ApolloMetricDistortionMap``;
+                the NAIF IK's ``INS-91x240_PP``, ``_OD_K``, ``_DECENTER``), in mm
 ==============  ===============================================================
 
 The two ASP models are defined from distorted to undistorted coordinates in the
@@ -43,12 +45,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 MODELS = ("none", "radial", "transverse", "radtan", "lrolrocnac", "dawnfc", "kaguyalism",
-          "cahvor", "lunarorbiter", "brown", "brownconrady", "photometrix")
+          "cahvor", "lunarorbiter", "brown", "brownconrady", "photometrix", "apollometric")
 NONE = "none"
 BROWN = "brown"
 _COUNTS = {"radial": (3,), "transverse": (20,), "radtan": (5,), "lrolrocnac": (1,),
            "dawnfc": (1,), "kaguyalism": (10,), "cahvor": (5,), "lunarorbiter": (6,),
-           "brown": (4, 5, 8), "brownconrady": (8,), "photometrix": (7,), "none": (0,)}
+           "brown": (4, 5, 8), "brownconrady": (8,), "photometrix": (7,), "apollometric": (8,),
+           "none": (0,)}
 
 
 @dataclass(frozen=True)
@@ -416,13 +419,58 @@ def _numeric_inverse(remove):
     return apply
 
 
+# ---------------------------------------------------------------------------------------
+# Apollo Metric (Mapping) Camera: ISIS ``ApolloMetricDistortionMap`` (DOI-USGS/ISIS3,
+# isis/src/apollo/objs/ApolloMetricCamera/ApolloMetricDistortionMap.cpp), coefficients
+# from the NAIF IK (INS-915240 / -916240 / -917240: _PP, _OD_K, _DECENTER)
+# ---------------------------------------------------------------------------------------
+
+def _apollo_offsets(x, y, c):
+    """Radial + decentering correction at coordinates (x, y) relative to the principal
+    point: ``(x D(r²) − T sin t0, y D(r²) + T cos t0)``, ``D = k1 r² + k2 r⁴ + k3 r⁶``,
+    ``T = j1 r² + j2 r⁴`` (mm)."""
+    _, _, k1, k2, k3, j1, j2, t0 = c
+    rr = x * x + y * y
+    radial = rr * (k1 + rr * (k2 + rr * k3))
+    tangential = rr * (j1 + rr * j2)
+    return x * radial - tangential * np.sin(t0), y * radial + tangential * np.cos(t0)
+
+
+def _apollo_remove(x, y, c, f, tol):
+    # ISIS SetFocalPlane: reduce to the principal point, then add the correction; the
+    # undistorted coordinates are relative to the principal point (the optical axis).
+    ix, iy = x - c[0], y - c[1]
+    ox, oy = _apollo_offsets(ix, iy, c)
+    return ix + ox, iy + oy
+
+
+def _apollo_apply(x, y, c, f, tol):
+    # ISIS SetUndistortedFocalPlane: fixed-point iteration t ← u − offsets(t) from t = u,
+    # until both coordinates move by at most ``tol`` mm (ISIS: 1e-6, at most 50 passes);
+    # points that do not converge are NaN (ISIS returns false for them).
+    tx, ty = x.copy(), y.copy()
+    active = np.ones(np.shape(x), dtype=bool)
+    with np.errstate(all="ignore"):
+        for _ in range(50):
+            ox, oy = _apollo_offsets(tx, ty, c)
+            nx, ny = x - ox, y - oy
+            moved = (np.abs(nx - tx) > tol) | (np.abs(ny - ty) > tol)
+            tx, ty = np.where(active, nx, tx), np.where(active, ny, ty)
+            active &= moved
+            if not active.any():
+                break
+    tx = np.where(active, np.nan, tx)
+    ty = np.where(active, np.nan, ty)
+    return tx + c[0], ty + c[1]
+
+
 _APPLY = {"radial": _radial_apply, "transverse": _transverse_apply, "radtan": _radtan_apply,
           "lrolrocnac": _lroc_apply, "dawnfc": _dawn_apply, "kaguyalism": _kaguya_apply,
           "cahvor": _cahvor_apply, "lunarorbiter": _lo_apply, "brown": _brown_apply,
           "brownconrady": _numeric_inverse(_brownconrady_remove),
-          "photometrix": _numeric_inverse(_photometrix_remove)}
+          "photometrix": _numeric_inverse(_photometrix_remove), "apollometric": _apollo_apply}
 _REMOVE = {"radial": _radial_remove, "transverse": _transverse_remove,
            "radtan": _radtan_remove, "lrolrocnac": _lroc_remove, "dawnfc": _dawn_remove,
            "kaguyalism": _kaguya_remove, "cahvor": _cahvor_remove, "lunarorbiter": _lo_remove,
            "brown": _brown_remove, "brownconrady": _brownconrady_remove,
-           "photometrix": _photometrix_remove}
+           "photometrix": _photometrix_remove, "apollometric": _apollo_remove}

@@ -18,6 +18,9 @@ MODELS = {
     "cahvor": ([-1e-4, 2e-6, 0.0, 0.3, -0.2], 8.0, 1.0),
     "lunarorbiter": ([1e-4, -2e-4, 0.1, -0.05, -1e-5, 1e-8], 50.0, 1.0),
     "brown": ([-0.25, 0.08, 1e-3, -5e-4, -0.01], 0.6, 1.0),
+    # Apollo 15 Metric (NAIF IK INS-915240_PP, _OD_K, _DECENTER), film half-width 57 mm
+    "apollometric": ([-0.006, -0.002, -1.3361854e-06, 5.2261757e-10, -5.0728336e-14,
+                      -5.4958195e-07, -4.608942e-11, 2.965907], 57.0, 1.0),
 }
 
 
@@ -64,3 +67,41 @@ def test_bad_models_are_refused():
         Distortion("fisheye", [1.0])
     with pytest.raises(ValueError, match="coefficients"):
         Distortion("radial", [1.0, 2.0])
+
+
+AS15_METRIC = [-0.006, -0.002,                                     # INS-915240_PP (mm)
+               -1.3361854e-06, 5.2261757e-10, -5.0728336e-14,     # INS-915240_OD_K
+               -5.4958195e-07, -4.608942e-11, 2.965907]           # INS-915240_DECENTER
+
+
+def test_apollometric_is_isis_formula():
+    """ISIS ApolloMetricDistortionMap::SetFocalPlane, written out term by term for the
+    Apollo 15 Metric Camera's IK coefficients (the values the cubes' NaifKeywords carry)."""
+    d = Distortion("apollometric", AS15_METRIC)
+    x, y = 40.0 - (-0.006), -30.0 - (-0.002)          # reduced to the principal point
+    rr = x * x + y * y
+    dr = 1 - 1.3361854e-06 * rr + 5.2261757e-10 * rr ** 2 - 5.0728336e-14 * rr ** 3
+    dt = -5.4958195e-07 * rr - 4.608942e-11 * rr ** 2
+    ux, uy = d.remove(40.0, -30.0)
+    assert ux == pytest.approx(dr * x - dt * np.sin(2.965907), abs=1e-12)
+    assert uy == pytest.approx(dr * y + dt * np.cos(2.965907), abs=1e-12)
+    # The same numbers as literals (mm): at r = 50 mm the lens moves the point by
+    # 36 µm (7 pixels of the 5 µm scan), mostly radially inwards.
+    assert ux == pytest.approx(39.971620676, abs=1e-8)
+    assert uy == pytest.approx(-29.970366527, abs=1e-8)
+    # The principal point itself is undistorted and becomes the optical axis.
+    ux, uy = d.remove(-0.006, -0.002)
+    assert abs(ux) < 1e-15 and abs(uy) < 1e-15
+    # ISIS's inverse (SetUndistortedFocalPlane) converges to 1e-6 mm; ours matches
+    # the forward map to that tolerance and better.
+    dx, dy = d.apply(39.971620676101544, -29.970366527330520)
+    assert dx == pytest.approx(40.0, abs=1e-9) and dy == pytest.approx(-30.0, abs=1e-9)
+
+
+def test_apollometric_inverse_gives_up_like_isis():
+    # Far outside the film (r = 10 m) the fixed-point iteration diverges: ISIS returns
+    # false there; the model returns NaN rather than a wrong point.
+    d = Distortion("apollometric", AS15_METRIC)
+    dx, dy = d.apply(np.array([10.0, 1e4]), np.array([5.0, 0.0]))
+    assert np.isfinite(dx[0]) and np.isfinite(dy[0])
+    assert np.isnan(dx[1]) and np.isnan(dy[1])

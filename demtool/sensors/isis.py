@@ -9,14 +9,20 @@ J2000 → frame quaternions ``J2000Q0..3`` (scalar first), with an optional
 comes from the ``NaifKeywords`` object: ``INS<code>_FOCAL_LENGTH`` (mm),
 ``_ITRANSS``/``_ITRANSL`` (focal plane → detector), ``_BORESIGHT_SAMPLE/LINE`` or
 ``_CCD_CENTER`` (ISIS 1-based detector origin; the image centre when neither is
-given, as for Apollo Metric), and ``BODY<code>_RADII`` (km).  An
+given: ISIS's ``ApolloMetricCamera`` sets it to ``(ParentSamples / 2, ParentLines / 2)``),
+and ``BODY<code>_RADII`` (km).  An
 ``AlphaCube`` group (a crop or rescale of the original image) maps the cube's
 pixels to the original detector: ``alpha = start + (end − start) / beta_size ·
 (beta − 0.5)`` in ISIS's 1-based coordinates (ISIS ``AlphaCube``).
 
-Lens distortion is not read from cubes yet (ISIS's per-mission distortion maps,
-e.g. Apollo's r²/r⁴/r⁶ radial plus decentering, are not the CSM models); the model
-is built without it and says so in its ``notes``.
+Lens distortion: the Apollo Metric cameras (NAIF codes −915240, −916240, −917240) get
+ISIS's ``ApolloMetricDistortionMap`` (``INS<code>_PP``, ``_OD_K``, ``_DECENTER``; the
+``apollometric`` model of :mod:`demtool.sensors.distortion`).  Other instruments'
+ISIS distortion maps are not read yet; their models are built without distortion and
+say so in their ``notes``.
+
+Reference: DOI-USGS/ISIS3 ``isis/src/apollo/objs/ApolloMetricCamera/`` (camera and
+distortion map), ``isis/src/base/objs/AlphaCube``.
 """
 
 from __future__ import annotations
@@ -27,10 +33,13 @@ import numpy as np
 
 from demtool.errors import InputError
 from demtool.sensors.base import Detector
+from demtool.sensors.distortion import Distortion
 from demtool.sensors.frame import FrameSensor
 from demtool.sensors.isd import Orientations
 
 _TYPES = {"Double": "f8", "Integer": "i4", "Real": "f4"}
+#: NAIF codes of the Apollo 15, 16 and 17 Metric (Mapping) Cameras (ISIS ApolloMetricCamera).
+APOLLO_METRIC_CODES = (-915240, -916240, -917240)
 
 
 def _read_label(path: Path) -> tuple[dict, bytes]:
@@ -150,11 +159,11 @@ def read_cube(path: str | Path) -> FrameSensor:
         center_l = float(_naif(p, naif, f"{ins}_BORESIGHT_LINE", 1)[0])
     elif f"{ins}_CCD_CENTER" in naif:
         center_s, center_l = _naif(p, naif, f"{ins}_CCD_CENTER", 2)
-    else:  # e.g. Apollo Metric: the origin is the centre of the (original) image
+    else:  # Apollo Metric: ISIS sets the origin to (ParentSamples / 2, ParentLines / 2)
         alpha = label["IsisCube"].get("AlphaCube")
         full_s = float(alpha["AlphaSamples"]) if alpha is not None else samples
         full_l = float(alpha["AlphaLines"]) if alpha is not None else lines
-        center_s, center_l = full_s / 2.0 + 0.5, full_l / 2.0 + 0.5
+        center_s, center_l = full_s / 2.0, full_l / 2.0
     body_keys = [k for k in naif.keys() if k.startswith("BODY") and k.endswith("_RADII")]
     if not body_keys:
         raise InputError(f"{p}: NaifKeywords lacks the key 'BODY<code>_RADII'")
@@ -192,9 +201,21 @@ def read_cube(path: str | Path) -> FrameSensor:
     sun_body = body.matrices_at(sun_times[:1])[0] @ sun[0] * 1000.0
     # ISIS's zDirection: the side of the focal plane the body is on (Apollo Metric: −z).
     z_direction = -1.0 if rotation[:, 2] @ position_body > 0 else 1.0
+    distortion, notes = _distortion(p, naif, code)
     model = FrameSensor(position=position_body, rotation=rotation, focal_length=focal,
-                        detector=detector, lines=lines, samples=samples,
+                        detector=detector, distortion=distortion, lines=lines, samples=samples,
                         radii=(float(radii[0]), float(radii[2])), sun=sun_body, name=p.stem,
                         time=time, z_direction=z_direction)
-    model.notes = ["lens distortion of the ISIS camera model not applied"]
+    model.notes = notes
     return model
+
+
+def _distortion(path: Path, naif, code: int) -> tuple[Distortion | None, list[str]]:
+    """The lens distortion of an ISIS camera from its NAIF keywords, and notes."""
+    ins = f"INS{code}"
+    if code not in APOLLO_METRIC_CODES:
+        return None, ["lens distortion of the ISIS camera model not applied"]
+    pp = _naif(path, naif, f"{ins}_PP", 2) if f"{ins}_PP" in naif else np.zeros(2)
+    odk = _naif(path, naif, f"{ins}_OD_K", 3)
+    decenter = _naif(path, naif, f"{ins}_DECENTER", 3)
+    return Distortion("apollometric", np.concatenate([pp, odk, decenter])), []

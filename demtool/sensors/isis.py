@@ -27,6 +27,7 @@ distortion map), ``isis/src/base/objs/AlphaCube``.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -219,3 +220,50 @@ def _distortion(path: Path, naif, code: int) -> tuple[Distortion | None, list[st
     odk = _naif(path, naif, f"{ins}_OD_K", 3)
     decenter = _naif(path, naif, f"{ins}_DECENTER", 3)
     return Distortion("apollometric", np.concatenate([pp, odk, decenter])), []
+
+
+def read_footprint(path: str | Path) -> list[np.ndarray]:
+    """The footprint polygon ISIS's ``footprintinit`` stored in a cube.
+
+    The label's ``Object = Polygon`` (``Name = Footprint``, ``StartByte`` 1-based,
+    ``Bytes``) points at a WKT ``MULTIPOLYGON`` of planetocentric longitude and latitude
+    (degrees) of the image border, each ring closed; ISIS computes it with the camera
+    and the cube's shape model (a DEM such as LOLA's where ``spiceinit`` used one).
+
+    Returns
+    -------
+    list of (N, 2) float64
+        Each outer ring's vertices ``(longitude, latitude)``, degrees, without the
+        closing repeat of the first vertex.
+
+    Raises
+    ------
+    InputError
+        Not a cube; no footprint (run ``footprintinit``); a polygon that is not WKT.
+    """
+    p = Path(path)
+    label, data = _read_label(p)
+    polygon = next((obj for key, obj in label.items()
+                    if key == "Polygon" and str(obj.get("Name", "")) == "Footprint"), None)
+    if polygon is None:
+        raise InputError(f"{p}: the cube has no footprint polygon (run footprintinit)")
+    try:
+        start, size = int(polygon["StartByte"]) - 1, int(polygon["Bytes"])
+    except KeyError as exc:
+        raise InputError(f"{p}: the footprint polygon lacks the key {exc}") from None
+    text = data[start:start + size].decode("latin-1").strip()
+    if not text.upper().startswith(("MULTIPOLYGON", "POLYGON")) or start + size > len(data):
+        raise InputError(f"{p}: the footprint polygon is not WKT (starts {text[:20]!r})")
+    rings = []
+    for polygon_text in re.findall(r"\(\(([^()]*)\)", text):  # outer rings only
+        try:
+            ring = np.array([[float(v) for v in vertex.split()]
+                             for vertex in polygon_text.split(",")], dtype=np.float64)
+        except ValueError:
+            ring = np.zeros((0, 1))
+        if ring.ndim != 2 or ring.shape[1] != 2 or len(ring) < 4:
+            raise InputError(f"{p}: the footprint polygon has a malformed ring")
+        rings.append(ring[:-1] if np.array_equal(ring[0], ring[-1]) else ring)
+    if not rings:
+        raise InputError(f"{p}: the footprint polygon has no ring")
+    return rings

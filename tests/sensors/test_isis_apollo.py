@@ -120,6 +120,20 @@ def test_alphacube_window_maps_to_the_full_scan(tmp_path):
     assert crop.image_size == (500, 500)
 
 
+def test_apollo_cube_model_survives_an_isd_round_trip(tmp_path):
+    # bundle writes adjusted cubes as ISDs: the distortion goes with them (as an
+    # ``apollometric`` block, which demtool reads back; usgscsm has no such model).
+    from demtool.sensors.isd import isd_from_sensor, sensor_from_isd
+
+    model = read_cube(write_cube(tmp_path / "full.cub"))
+    isd = isd_from_sensor(model)
+    assert list(isd["optical_distortion"]) == ["apollometric"]
+    again = sensor_from_isd(isd)
+    line, sample = np.meshgrid(np.linspace(0.5, 22899.5, 5), np.linspace(0.5, 22899.5, 5))
+    np.testing.assert_allclose(again.image_to_ground(line, sample),
+                               model.image_to_ground(line, sample), atol=1e-6)
+
+
 def test_other_instruments_keep_no_distortion(tmp_path):
     naif = {k.replace("915240", "123456"): v for k, v in NAIF.items()}
     path = write_cube(tmp_path / "other.cub", naif=naif)

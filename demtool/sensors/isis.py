@@ -129,8 +129,9 @@ def read_cube(path: str | Path) -> FrameSensor:
     ------
     InputError
         Not a cube; no attached SPICE (the message says to run ``spiceinit
-        attach=true`` or to pass an ISD); a missing table, field or NAIF keyword; an
-        empty table.
+        attach=true`` or to pass an ISD); a missing table, field or NAIF keyword
+        (for Apollo Metric also ``_OD_K`` and ``_DECENTER``, 3 values each, and
+        ``_PP``, 2 values, when present); an empty table.
     """
     p = Path(path)
     label, data = _read_label(p)
@@ -251,8 +252,10 @@ def read_footprint(path: str | Path) -> list[np.ndarray]:
         start, size = int(polygon["StartByte"]) - 1, int(polygon["Bytes"])
     except KeyError as exc:
         raise InputError(f"{p}: the footprint polygon lacks the key {exc}") from None
+    if start < 0 or start + size > len(data):
+        raise InputError(f"{p}: the footprint polygon runs past the end of the file")
     text = data[start:start + size].decode("latin-1").strip()
-    if not text.upper().startswith(("MULTIPOLYGON", "POLYGON")) or start + size > len(data):
+    if not text.upper().startswith(("MULTIPOLYGON", "POLYGON")):
         raise InputError(f"{p}: the footprint polygon is not WKT (starts {text[:20]!r})")
     rings = []
     for polygon_text in re.findall(r"\(\(([^()]*)\)", text):  # outer rings only

@@ -171,10 +171,18 @@ def test_read_footprint(tmp_path):
     (b"<gml:MultiPolygon/>", "not WKT"),
     (b"MULTIPOLYGON (((1 2, 3 4, 1 2)))", "malformed ring"),
     (b"MULTIPOLYGON (((1 2 3, 3 4 5, 5 6 7, 1 2 3)))", "malformed ring"),
+    (b"MULTIPOLYGON EMPTY", "no ring"),
 ])
 def test_bad_footprint(tmp_path, footprint, message):
     with pytest.raises(InputError, match=r"f\.cub: .*" + message):
         read_footprint(write_cube(tmp_path / "f.cub", footprint=footprint))
+
+
+def test_footprint_past_the_end(tmp_path):
+    path = write_cube(tmp_path / "f.cub")
+    path.write_bytes(path.read_bytes()[:-10])
+    with pytest.raises(InputError, match=r"f\.cub: the footprint polygon runs past the end"):
+        read_footprint(path)
 
 
 # ---------------------------------------------------------------------------------------

@@ -14,7 +14,8 @@ the cube models, and compared with where SIFT found them:
   is the surface.
 
 Prints the residuals (median, 90th percentile, along/across track) with and without
-the Apollo Metric lens distortion.
+the Apollo Metric lens distortion, and after turning 0298 by the one small rotation
+that best explains what is left on LOLA's heights (the SPICE's relative pointing).
 
     python bench/apollo15_transfer.py
 """
@@ -101,6 +102,20 @@ def transfer(left, right, pa, pb, surface=None):
     return np.column_stack([sample, line]) - pb
 
 
+def rotated(model, omega_mrad):
+    """The frame model turned by the small rotation ``omega`` (camera axes, mrad)."""
+    from scipy.spatial.transform import Rotation
+
+    from demtool.sensors.frame import FrameSensor
+
+    turn = Rotation.from_rotvec(np.asarray(omega_mrad) * 1e-3).as_matrix()
+    return FrameSensor(position=model.position, rotation=model.rotation @ turn,
+                       focal_length=model.focal_length, detector=model.detector,
+                       distortion=model.distortion, lines=model.lines, samples=model.samples,
+                       radii=model.radii, sun=model.sun, name=model.name, time=model.time,
+                       z_direction=model.z_direction)
+
+
 def main() -> int:
     if not (LEFT.exists() and RIGHT.exists()):
         print(f"skipped: {CUBES} is absent (the Apollo 15 cubes are in ../shared/data)")
@@ -137,6 +152,18 @@ def main() -> int:
             d = transfer(*models, pa, pb, surf)
             n = np.hypot(d[:, 0], d[:, 1])
             print(f"| {lens} | {name} | {np.median(n):.2f} | {np.percentile(n, 90):.2f} | "
+                  f"{np.median(d[:, 0]):+.2f} | {np.median(d[:, 1]):+.2f} |")
+        if lens != "none":  # how much of the rest one rotation of 0298 explains
+            from scipy.optimize import least_squares
+
+            def turned(omega, models=models, surface=surface):
+                return transfer(models[0], rotated(models[1], omega), pa, pb, surface).ravel()
+
+            omega = least_squares(turned, np.zeros(3), loss="soft_l1", f_scale=3.0).x
+            d = turned(omega).reshape(-1, 2)
+            n = np.hypot(d[:, 0], d[:, 1])
+            print(f"| {lens} | LOLA, 0298 turned by ({', '.join(f'{w:+.2f}' for w in omega)})"
+                  f" mrad | {np.median(n):.2f} | {np.percentile(n, 90):.2f} | "
                   f"{np.median(d[:, 0]):+.2f} | {np.median(d[:, 1]):+.2f} |")
         fit = np.concatenate(fits)
         print(f"|   | footprint vertices reached (ISIS camera reproduced): median "

@@ -10,7 +10,12 @@ prior; demtool searches it in 1-D along map x (the Middlebury convention
 ``x_right = x_left − d`` in map columns) and refuses a pair whose residual north–south
 disparity is not small (it needs a 2-D search or an affine alignment, future work).
 
-Pure functions: arrays in, arrays out.
+Both matchers, ``sgm`` and ``match``, take the same route: :func:`is_ortho_pair` tells
+two orthoimages of ``demtool mapproject`` apart, :func:`ortho_pair_matches` checks their
+grids and sets the search range from their SIFT matches (which ``match`` also takes as
+its seeds).
+
+Pure functions: arrays (or rasters as read) in, arrays out; no file I/O.
 """
 
 from __future__ import annotations
@@ -40,6 +45,8 @@ class OrthoRange(NamedTuple):
     dy_spread : float, map cells, 1.4826 × median absolute deviation of dy
     matches : int, number of matches used
     aligned : bool, dy small enough for a 1-D search along map x
+    points_left, points_right : (N, 2) float64, map cells (x = column, y = row)
+        The matches kept (gross mismatches dropped), left and right.
     """
 
     low: float
@@ -48,6 +55,8 @@ class OrthoRange(NamedTuple):
     dy_spread: float
     matches: int
     aligned: bool
+    points_left: np.ndarray
+    points_right: np.ndarray
 
 
 def ortho_disparity_range(left: np.ndarray, right: np.ndarray, *, margin: float = 2.0,
@@ -103,14 +112,75 @@ def ortho_disparity_range(left: np.ndarray, right: np.ndarray, *, margin: float 
     if keep.sum() < MIN_MATCHES:
         raise ProcessingError(f"only {int(keep.sum())} consistent SIFT matches "
                               f"(of {dx.size}); at least {MIN_MATCHES} set the search range")
-    dx, dy = dx[keep], dy[keep]
+    dx, dy, pa, pb = dx[keep], dy[keep], pa[keep], pb[keep]
     low, high = robust_disparity_range(dx, margin=margin)
     dy_median = float(np.median(dy))
     dy_spread = float(1.4826 * np.median(np.abs(dy - dy_median)))
     aligned = abs(dy_median) <= max_dy_median and dy_spread <= max_dy_spread
     log.info("%d ortho matches: disparity %.2f … %.2f cells, dy median %.3f, spread %.3f",
              dx.size, low, high, dy_median, dy_spread)
-    return OrthoRange(float(low), float(high), dy_median, dy_spread, int(dx.size), aligned)
+    return OrthoRange(float(low), float(high), dy_median, dy_spread, int(dx.size), aligned,
+                      pa, pb)
+
+
+def is_ortho_pair(left, right) -> bool:
+    """True when both rasters (``demtool.io.Raster`` or ``RasterInfo``) are orthoimages
+    written by ``demtool mapproject`` (they carry its sensor tag)."""
+    from demtool.runs.mapproject import SENSOR_TAG
+
+    return SENSOR_TAG in left.tags and SENSOR_TAG in right.tags
+
+
+def ortho_pair_matches(left, right, *, stage: str) -> tuple[OrthoRange, str, dict]:
+    """The search range of two orthoimages as read, checked for a 1-D search along map x.
+
+    Parameters
+    ----------
+    left, right : demtool.io.Raster
+        Orthoimages (``data`` (H, W) float, NaN = not seen; ``transform``, ``crs``,
+        ``path``).
+    stage : str
+        The matcher (``"sgm"``, ``"match"``), named in the refusal.
+
+    Returns
+    -------
+    found : OrthoRange
+        From :func:`ortho_disparity_range`.
+    source : str
+        Where the range came from, for the sidecar.
+    stats : dict
+        ``ortho_matches``, ``ortho_dy_median_px``, ``ortho_dy_spread_px`` for the sidecar.
+
+    Raises
+    ------
+    InputError
+        The orthoimages are on different map grids, or their matches are offset
+        north–south (a 1-D search along map x would not find them: the pair needs a 2-D
+        alignment).
+    ProcessingError
+        Too few matches to set the range.
+    """
+    from demtool.errors import InputError
+
+    if (left.transform != right.transform or str(left.crs) != str(right.crs)
+            or left.data.shape != right.data.shape):
+        raise InputError(f"{left.path} and {right.path}: the orthoimages are on different "
+                         "map grids; map-project the right one with --grid-like LEFT")
+    try:
+        found = ortho_disparity_range(left.data, right.data)
+    except ProcessingError as exc:
+        raise ProcessingError(f"{left.path} and {right.path}: cannot set the search range "
+                              f"from matches ({exc}); give the disparity range "
+                              "(--min-disparity and --num-disparities for sgm)") from None
+    if not found.aligned:
+        raise InputError(
+            f"{left.path} and {right.path}: the orthoimages' matches are offset "
+            f"north-south by {found.dy_median:.2f} cells (spread {found.dy_spread:.2f}; "
+            f"limits {MAX_DY_MEDIAN_PX:g} and {MAX_DY_SPREAD_PX:g}): {stage} searches along "
+            "map x only, the pair needs a 2-D alignment")
+    stats = {"ortho_matches": found.matches, "ortho_dy_median_px": found.dy_median,
+             "ortho_dy_spread_px": found.dy_spread}
+    return found, f"SIFT matches of the orthoimages ({found.matches})", stats
 
 
 def map_cells_xy(transform, rows: np.ndarray, cols: np.ndarray

@@ -4,11 +4,12 @@ cells of a map-grid disparity."""
 import numpy as np
 import pytest
 
-from demtool.errors import ProcessingError
+from demtool.errors import InputError, ProcessingError
 from demtool.mapstereo import (
     disparity_cells,
     map_cells_xy,
     ortho_disparity_range,
+    ortho_pair_matches,
 )
 from tests.helpers.texture import texture
 
@@ -62,3 +63,47 @@ def test_map_cells_xy_is_the_cell_centre():
     x, y = map_cells_xy(t, np.array([0.0, 2.0]), np.array([0.0, 1.5]))
     np.testing.assert_allclose(x, [-9.75, -9.0])
     np.testing.assert_allclose(y, [19.75, 18.75])
+
+
+def _ortho(name, data, transform=None):
+    """A raster as read (what ortho_pair_matches looks at)."""
+    from types import SimpleNamespace
+
+    from affine import Affine
+
+    return SimpleNamespace(path=name, data=data, crs="ESRI:103881",
+                           transform=transform or Affine(0.5, 0, 0, 0, -0.5, 0))
+
+
+def test_the_kept_matches_are_seeds_of_the_known_shift():
+    left, right = _pair(dx=4, dy=0)
+    found, source, stats = ortho_pair_matches(_ortho("l.tif", left), _ortho("r.tif", right),
+                                              stage="match")
+    assert found.points_left.shape == found.points_right.shape == (found.matches, 2)
+    d = found.points_left - found.points_right
+    assert np.median(d[:, 0]) == pytest.approx(4.0, abs=0.1)  # x_right = x_left - 4
+    assert np.median(np.abs(d[:, 1])) < 0.1
+    assert stats["ortho_matches"] == found.matches and str(found.matches) in source
+
+
+def test_pair_offset_north_south_is_refused_naming_the_stage():
+    left, right = _pair(dx=3, dy=2)
+    with pytest.raises(InputError, match="north-south.*match searches along map x"):
+        ortho_pair_matches(_ortho("l.tif", left), _ortho("r.tif", right), stage="match")
+
+
+def test_pair_on_different_grids_is_refused():
+    from affine import Affine
+
+    left, right = _pair(dx=3, dy=0)
+    moved = _ortho("r.tif", right, Affine(0.5, 0, 1.5, 0, -0.5, 0))
+    with pytest.raises(InputError, match="r.tif.*different map grids.*--grid-like"):
+        ortho_pair_matches(_ortho("l.tif", left), moved, stage="sgm")
+    with pytest.raises(InputError, match="different map grids"):
+        ortho_pair_matches(_ortho("l.tif", left), _ortho("r.tif", right[:-4]), stage="sgm")
+
+
+def test_textureless_pair_is_refused_naming_both_files():
+    flat = np.full((64, 64), 100.0, dtype=np.float32)
+    with pytest.raises(ProcessingError, match="l.tif and r.tif: cannot set the search range"):
+        ortho_pair_matches(_ortho("l.tif", flat), _ortho("r.tif", flat), stage="match")

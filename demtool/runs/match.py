@@ -35,7 +35,10 @@ def _load_pair(left_path: str | os.PathLike, right_path: str | os.PathLike,
     left = dio.read_raster(left_path, what="left image")
     right = dio.read_raster(right_path, what="right image")
     if rectify is None:
-        if left.data.shape != right.data.shape:
+        from demtool.mapstereo import is_ortho_pair
+
+        # orthoimages: their grids are checked with their matches (ortho_pair_matches)
+        if left.data.shape != right.data.shape and not is_ortho_pair(left, right):
             raise InputError(
                 f"{left_path} and {right_path}: the rectified images differ in size "
                 f"({left.data.shape[1]} x {left.data.shape[0]} and {right.data.shape[1]} x "
@@ -85,7 +88,11 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
     rectify``), or — with ``rectify`` — the original pair, which is then warped onto
     the rectified canvas with the homographies of ``rectify.npz`` (bilinear, NaN
     outside).  ``rectify.npz`` also supplies seed matches (its rectified inliers) and
-    the disparity range.  All outputs are written in one output transaction.
+    the disparity range.  Two orthoimages of ``demtool mapproject`` on one map grid
+    (no ``rectify``) are matched along map x, seeded by their SIFT matches, which also
+    set the range (:func:`demtool.mapstereo.ortho_pair_matches`); the disparity is then
+    on the left orthoimage's grid (transform and CRS), for ``dem --mapprojected``.
+    All outputs are written in one output transaction.
 
     Large pairs run in tiles (``--tile-size``, ``--workers``, ``--scheduler``,
     ``--dry-run``; :mod:`demtool.tiled.match`), written window by window.
@@ -97,6 +104,7 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
     import numpy as np
 
     from demtool import io as dio
+    from demtool.mapstereo import is_ortho_pair, ortho_pair_matches
     from demtool.match import check_seed_points, match
     from demtool.match.params import MatchParams
 
@@ -125,6 +133,14 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
     check_stereo_pair(left, right, rectify, rectification=rect, rectified=not warped)
     seed_points = None
     disparity_range = None
+    ortho_stats: dict[str, Any] = {}
+    if rect is None and is_ortho_pair(left, right):  # map-projected stereo (issue 12)
+        found, source, ortho_stats = ortho_pair_matches(left, right, stage="match")
+        seed_points = (found.points_left, found.points_right)
+        disparity_range = (found.low, found.high)
+        ortho_stats["disparity_range_source"] = source
+        log.info("orthoimages on one map grid: %d seeds from their matches, disparity "
+                 "%.2f … %.2f cells", found.matches, found.low, found.high)
     if rect is not None:
         seed_points = check_seed_points(rect["points_left_rect"], rect["points_right_rect"],
                                         left_rect.shape, right_rect.shape,
@@ -143,23 +159,24 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
         frame = f"image:{Path(left_path).stem}_rect"
     else:
         frame = left.tags.get("frame", f"image:{Path(left_path).stem}")
-    summary = {**result.summary, "input_rectified_here": warped,
+    summary = {**result.summary, **ortho_stats, "input_rectified_here": warped,
                "convention": "x_right = x_left - d, pixels, NaN = not matched"}
     tags = provenance.tags(frame=frame, disparity_convention="x_right = x_left - d",
                            template=template, threshold=threshold, grid_spacing=grid_spacing,
                            completeness_percent=result.summary["completeness_percent"])
     transform = left.transform if not warped else dio.image_frame_transform(1.0)
+    crs = left.crs if not warped else None  # an orthoimage's map CRS
     outputs: list[str | os.PathLike] = [out_path]
     with run.transaction():
-        dio.write_raster(out_path, result.disparity, transform=transform, tags=tags,
+        dio.write_raster(out_path, result.disparity, transform=transform, crs=crs, tags=tags,
                          band_names=["disparity"])
         if correlation_out is not None:
             dio.write_raster(correlation_out, result.correlation, transform=transform,
-                             tags={**tags, "quantity": "LSM correlation coefficient"},
+                             crs=crs, tags={**tags, "quantity": "LSM correlation coefficient"},
                              band_names=["correlation"])
             outputs.append(correlation_out)
         if sigma_out is not None:
-            dio.write_raster(sigma_out, result.sigma, transform=transform,
+            dio.write_raster(sigma_out, result.sigma, transform=transform, crs=crs,
                              tags={**tags, "quantity": "LSM standard deviation of the "
                                                        "disparity, pixels"},
                              band_names=["sigma"])

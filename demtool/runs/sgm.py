@@ -26,44 +26,14 @@ def disparity_range_from_rectify(path: str | os.PathLike) -> tuple[int, int]:
     return min_disparity, math.ceil(high) - min_disparity + 1
 
 
-def is_ortho_pair(left, right) -> bool:
-    """True when both rasters are orthoimages written by ``demtool mapproject``."""
-    from demtool.runs.mapproject import SENSOR_TAG
-
-    return SENSOR_TAG in left.tags and SENSOR_TAG in right.tags
-
-
 def ortho_pair_range(left, right) -> tuple[tuple[int, int], str, dict[str, Any]]:
     """(min_disparity, num_disparities), its source and summary entries for two
-    orthoimages on one map grid (:func:`demtool.mapstereo.ortho_disparity_range`).
+    orthoimages on one map grid (:func:`demtool.mapstereo.ortho_pair_matches`)."""
+    from demtool.mapstereo import ortho_pair_matches
 
-    Raises InputError when the orthoimages are on different grids, and when their
-    matches' north–south disparity is not small (a 1-D search along map x would not
-    find them: the pair needs a 2-D alignment).
-    """
-    from demtool.errors import InputError, ProcessingError
-    from demtool.mapstereo import MAX_DY_MEDIAN_PX, MAX_DY_SPREAD_PX, ortho_disparity_range
-
-    if left.transform != right.transform or str(left.crs) != str(right.crs):
-        raise InputError(f"{left.path} and {right.path}: the orthoimages are on different "
-                         "map grids; map-project the right one with --grid-like LEFT")
-    try:
-        found = ortho_disparity_range(left.data, right.data)
-    except ProcessingError as exc:
-        raise ProcessingError(f"{left.path} and {right.path}: cannot set the search range "
-                              f"from matches ({exc}); give --min-disparity and "
-                              "--num-disparities") from None
-    if not found.aligned:
-        raise InputError(
-            f"{left.path} and {right.path}: the orthoimages' matches are offset "
-            f"north-south by {found.dy_median:.2f} cells (spread {found.dy_spread:.2f}; "
-            f"limits {MAX_DY_MEDIAN_PX:g} and {MAX_DY_SPREAD_PX:g}): sgm searches along map "
-            "x only, the pair needs a 2-D alignment")
+    found, source, stats = ortho_pair_matches(left, right, stage="sgm")
     min_disparity = math.floor(found.low)
-    stats = {"ortho_matches": found.matches, "ortho_dy_median_px": found.dy_median,
-             "ortho_dy_spread_px": found.dy_spread}
-    return ((min_disparity, math.ceil(found.high) - min_disparity + 1),
-            f"SIFT matches of the orthoimages ({found.matches})", stats)
+    return (min_disparity, math.ceil(found.high) - min_disparity + 1), source, stats
 
 
 def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
@@ -90,6 +60,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     from demtool import io as dio
     from demtool import tiling
     from demtool.errors import InputError, ParameterError
+    from demtool.mapstereo import is_ortho_pair
     from demtool.sgm import sgm
     from demtool.sgm.params import SgmParams
 

@@ -189,7 +189,7 @@ class RefineTileJob:
         from demtool.sensors import read_sensor
 
         r0, _, c0, _ = tile.outer
-        transform = Affine(*self.transform[:6]) * Affine.translation(c0, r0)
+        transform = Affine(*self.transform[:6]) @ Affine.translation(c0, r0)
         window = dio.Raster(data=dem, transform=transform, crs=CRS.from_wkt(self.crs_wkt),
                             tags={}, path=Path(self.dem_path))
         windows, pairs, _ = map_illumination(read_sensor(self.sensor_path), window, params,
@@ -242,7 +242,7 @@ def read_decimated(path: str | os.PathLike, shape: tuple[int, int], cells: int, 
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
         data = dataset.read([1], out_shape=(1, rows, cols), masked=True)
         values = dio.physical_values(data, [dataset.scales[0]], [dataset.offsets[0]])[0]
-        transform = dataset.transform * Affine.scale(width / cols, height / rows)
+        transform = dataset.transform @ Affine.scale(width / cols, height / rows)
         return dio.Raster(data=values, transform=transform, crs=dataset.crs,
                           tags=dict(dataset.tags()), path=Path(path))
 

@@ -41,8 +41,8 @@ import numpy as np
 
 from demtool.tiling import Tile, plan_tiles, read_window, wants_tiles
 
-PROCESS_BYTES = 250 * 2**20  # a worker process with numpy, numba, scipy and rasterio
-BYTES_PER_PIXEL = 400  # SfS state, solver arrays, DCT temporaries (float32 and float64)
+PROCESS_BYTES = 200 * 2**20  # a worker process with numpy, numba, scipy and rasterio (measured)
+BYTES_PER_PIXEL = 250  # SfS arrays (measured ~210: 395 MB at 1024², 288 MB at 738²)
 STRIP_ROWS = 256  # rows read at a time by the global pass
 MEDIAN_SAMPLE = 4_000_000  # image pixels the median is computed from, at most
 DECIMATED_CELLS = 1_000_000  # cells of the decimated DEM the sensor geometry is read on

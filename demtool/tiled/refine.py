@@ -26,9 +26,10 @@ Agreement with the untiled run, the tolerance (issue 15: RMSE of the difference
 < 0.02 GSD): 0.0034 GSD on a 384² hills scene in 4 tiles of 192 px
 (tests/refine/test_tiled_refine.py), 0.0019 GSD on a 1024² relief in tiles of 512 px
 (bench/scale.py), 0.014 GSD on the lunar map scene with margins of 48 px; the RMSE
-against the truth is the untiled run's within 1 %.  What differs: the per-tile stopping rule (each tile
-converges on its own energy), the despike threshold's grid-wide spread (each tile's
-window), and gaps wider than the margin (filled from the tile's window only).
+against the truth is the untiled run's within 1 %.  What differs: the per-tile stopping
+rule (each tile converges on its own energy), the despike threshold's grid-wide spread
+(each tile's window), cast shadows longer than the margin, and gaps wider than the
+margin (filled from the tile's window only).
 """
 
 from __future__ import annotations
@@ -162,7 +163,7 @@ class RefineTileJob:
                     initial=prepared.initial, image_median=self.image_median)
                 albedo = np.full(refined.shape, np.nan, np.float32)
                 info["geometry_windows"] = len(windows[0])
-        except ProcessingError as exc:  # too few lit pixels in this window: not refined
+        except ProcessingError as exc:  # a window SfS cannot use (under 5 % of it lit)
             out[0] = prepared.initial[rows, cols]
             return out, {"skipped": str(exc).splitlines()[0][:200], **_changes(
                 out[0], prepared.dem[rows, cols])}
@@ -213,7 +214,7 @@ def _changes(refined: np.ndarray, anchor: np.ndarray) -> dict[str, Any]:
 def _summary(infos: list[dict[str, Any]]) -> dict[str, Any]:
     pixels = sum(int(i.get("pixels", 0)) for i in infos) or 1
     iterations = [i.get("iterations") for i in infos]
-    skipped = [{"tile": k, "reason": i["skipped"]} for k, i in enumerate(infos)
+    skipped = [{"tile": i.get("index"), "reason": i["skipped"]} for i in infos
                if i.get("skipped")]
     return {"tile_iterations": iterations,
             "tiles_converged": sum(bool(i.get("converged")) for i in infos),
@@ -413,7 +414,11 @@ def refine_tiled(run: Any, image_path: str | os.PathLike, dem_path: str | os.Pat
     log.info("refining %s with %s in tiles: %d×%d px", dem_path, image_path, width, height)
 
     def summarize(infos: list[dict[str, Any]]) -> dict[str, Any]:
-        summary = {**_summary(infos), "dem_nan_fraction_filled": shared.nan_fraction,
+        tiles = _summary(infos)
+        for skipped in tiles["tiles_not_refined"]:
+            log.warning("%s kept its start surface: %s",
+                        tiling.tiles[skipped["tile"]].describe(), skipped["reason"])
+        summary = {**tiles, "dem_nan_fraction_filled": shared.nan_fraction,
                    "image_median": shared.image_median,
                    "sun_vector_grid": illumination.sun.tolist(), "sun_source": sources["sun"],
                    "view_vector_grid": illumination.view.tolist(),

@@ -249,7 +249,8 @@ def refine_table(work: Path, sizes: list[int], tile: int = 512) -> None:
             results[label] = dio.read_raster(out).data
             error = float(np.sqrt(np.mean((results[label] - truth) ** 2)))
             print(f"refine {size:>5}²  {label:<20} {run['wall_s']:7.1f} s  "
-                  f"{run['peak_mb']:7.0f} MB  RMSE vs truth {error:.3f} m", flush=True)
+                  f"{run['cpu_s']:7.1f} s CPU  {run['peak_mb']:7.0f} MB  RMSE vs truth "
+                  f"{error:.3f} m", flush=True)
         if len(results) == 2:
             untiled, tiled = results.values()
             difference = float(np.sqrt(np.mean((tiled - untiled) ** 2))) / gsd

@@ -10,6 +10,12 @@ from dataclasses import dataclass
 
 from demtool.parameters import Parameters, parameter
 from demtool.reflectance import MODELS
+from demtool.tiling import (
+    dry_run_field,
+    scheduler_field,
+    tile_overlap_field,
+    tile_size_field,
+)
 
 
 @dataclass(frozen=True)
@@ -97,6 +103,8 @@ class RefineParams(SfsParameters):
         the DEM is refined per tile, each under its own directions.
     illumination_tile : int
         Map route: tile size (px) when refining per tile.
+    workers, tile_size, tile_overlap, scheduler, dry_run
+        Large DEMs in tiles on Dask (:mod:`demtool.tiled.refine`; README "Scale").
     """
 
     median: int = parameter(15, "Median prefilter of the input DEM, odd window in pixels "
@@ -116,6 +124,16 @@ class RefineParams(SfsParameters):
         "model varies by more than this over the DEM, degrees.", minimum=0.0, min_open=True)
     illumination_tile: int = parameter(
         512, "Map route: tile size when refining per tile, px.", minimum=64)
+    # Tiles (demtool.tiling; README "Scale"): tiled, --workers is the Dask worker count.
+    workers: int = parameter(0, "Tiled: Dask worker processes (0 or 1: the tiles one after "
+                             "the other in this process); untiled: threads of the compiled "
+                             "kernels (0 = all cores).", minimum=0)
+    tile_size: int = tile_size_field()
+    tile_overlap: int | None = tile_overlap_field(
+        "4 × the larger of --lowpass-sigma and --albedo-sigma + --median + 3 × "
+        "--start-sigma + --border-taper")
+    scheduler: str | None = scheduler_field()
+    dry_run: bool = dry_run_field()
 
     def sfs(self) -> SfsParameters:
         """The shape-from-shading part, for :func:`demtool.refine.refine_heights`."""

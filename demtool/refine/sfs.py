@@ -153,7 +153,8 @@ class _State:
 
 
 class _Solver:
-    def __init__(self, image, dem, spacing, illumination, params, valid) -> None:
+    def __init__(self, image, dem, spacing, illumination, params, valid,
+                 image_median=None) -> None:
         from demtool.refine import kernels
         from demtool.reflectance import mcewen_L
 
@@ -173,7 +174,9 @@ class _Solver:
         self.valid = valid
         self.image = np.where(valid, image, 0.0).astype(np.float32)
         self.image_nan = np.where(valid, image, np.nan).astype(np.float32)
-        self.image_median = float(np.median(image[valid])) if valid.any() else 0.0
+        if image_median is None:
+            image_median = float(np.median(image[valid])) if valid.any() else 0.0
+        self.image_median = float(image_median)
         self.taper = border_taper(self.shape, params.border_px)
         self.inner = np.zeros(self.shape, dtype=bool)
         self.inner[1:-1, 1:-1] = True
@@ -285,7 +288,8 @@ class _Solver:
 def refine_heights(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, float],
                    illumination: Illumination, parameters: SfsParameters | None = None,
                    valid: np.ndarray | None = None,
-                   initial: np.ndarray | None = None) -> RefineResult:
+                   initial: np.ndarray | None = None,
+                   image_median: float | None = None) -> RefineResult:
     """Refine a coarse DEM by shape from shading of one image on the same grid.
 
     Parameters
@@ -310,6 +314,10 @@ def refine_heights(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, 
         constrain (slopes across the sun) keep what they have here, so a slightly
         smoothed DEM is a better start than a noisy one
         (:func:`demtool.refine.prepare.prepare_dem` gives both).
+    image_median : float, optional
+        The image's median over its valid pixels, in the image's unit, which the shadow
+        threshold scales (default: this ``image``'s; a tile of a larger image passes the
+        whole image's, :mod:`demtool.tiled.refine`).
 
     Returns
     -------
@@ -341,7 +349,7 @@ def refine_heights(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, 
         raise ProcessingError("the DEM has non-finite heights; fill them first")
     usable = np.isfinite(image) if valid is None else (np.asarray(valid, bool)
                                                        & np.isfinite(image))
-    solver = _Solver(image, dem, spacing, illumination, params, usable)
+    solver = _Solver(image, dem, spacing, illumination, params, usable, image_median)
     state = solver.state_from_heights(dem if initial is None else initial)
     shadow, albedo, weight = solver.photometry(state)
     normalised = solver.image / albedo

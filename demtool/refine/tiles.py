@@ -58,7 +58,8 @@ def tile_weight(shape: tuple[int, int], window: tuple[int, int, int, int], ramp:
 def refine_tiles(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, float],
                  windows: list[tuple[int, int, int, int]], illuminations: list[Any],
                  parameters: Any = None, initial: np.ndarray | None = None,
-                 ramp: int = 32) -> tuple[np.ndarray, list[Any]]:
+                 ramp: int = 32, image_median: float | None = None
+                 ) -> tuple[np.ndarray, list[Any]]:
     """Refine ``dem`` tile by tile (:func:`demtool.refine.refine_heights`) and blend.
 
     Parameters
@@ -75,6 +76,8 @@ def refine_tiles(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, fl
         Starting heights.
     ramp : int
         Width of the blending ramps, px (about half the overlap).
+    image_median : float, optional
+        The whole image's median (the shadow threshold's scale); default: each tile's.
 
     Returns
     -------
@@ -93,7 +96,7 @@ def refine_tiles(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, fl
         start = None if initial is None else initial[r0:r1, c0:c1]
         result = refine_heights(image[r0:r1, c0:c1], dem[r0:r1, c0:c1], spacing=spacing,
                                 illumination=illumination, parameters=parameters,
-                                initial=start)
+                                initial=start, image_median=image_median)
         w = tile_weight(dem.shape, window, ramp)
         total[r0:r1, c0:c1] += w * result.dem
         weights[r0:r1, c0:c1] += w

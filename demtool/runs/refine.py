@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from demtool.io import Raster
     from demtool.refine import Illumination, RefineResult
     from demtool.refine.params import RefineParams
+    from demtool.tiled import TiledResult
 
 
 def resolve_illumination(image: Raster, *, sun_azimuth: float | None = None,
@@ -150,7 +151,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
                view_vector: tuple[float, float, float] | None = None,
                albedo_out: str | os.PathLike | None = None,
                sensor_path: str | os.PathLike | None = None,
-               resolved: dict[str, Any] | None = None) -> RefineResult:
+               resolved: dict[str, Any] | None = None) -> RefineResult | TiledResult:
     """Refine the DEM at ``dem_path`` with the shading of ``image_path``; write ``out``.
 
     Writes ``out`` (float32 GeoTIFF, the DEM's grid, transform, CRS and tags plus the
@@ -165,6 +166,10 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     ``sensor_path`` (map-projected here), and the sun and view come from the sensor
     model per point's local east-north-up frame, per tile where they vary.  The refined
     DEM is then on the (metric) map grid.
+
+    Large DEMs run in tiles (``--tile-size``, ``--workers``, ``--scheduler``,
+    ``--dry-run``; :mod:`demtool.tiled.refine`), written window by window; the result is
+    then a :class:`demtool.tiled.TiledResult`.
 
     Raises
     ------
@@ -192,6 +197,20 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
                    outputs={"--out": out, "--albedo-out": albedo_out,
                             "sidecar": sidecar_path(out)})
     log, prov = run.log, run.provenance
+    from demtool import tiling
+
+    shape = tiling.raster_shape(dem_path, "DEM")
+    if tiling.wants_tiles(*shape, params):  # large DEMs: tiles, Dask (README "Scale")
+        from demtool.tiled.refine import refine_tiled
+
+        return refine_tiled(run, image_path, dem_path, out, params, shape,
+                            sun_azimuth=sun_azimuth, sun_elevation=sun_elevation,
+                            sun_vector=sun_vector, view_vector=view_vector,
+                            albedo_out=albedo_out, sensor_path=sensor_path)
+    if params.workers:
+        import numba
+
+        numba.set_num_threads(min(int(params.workers), numba.config.NUMBA_NUM_THREADS))
     dem = io.read_raster(dem_path, what="DEM")
     check_magnitude(dem.data, dem_path, what="DEM")
     map_route = None

@@ -47,6 +47,7 @@ from demtool.tiling import Tile, TileCache, plan_tiles, read_window, wants_tiles
 MEASURE_MARGIN = 32  # px around a core: the outlier test's neighbours and the splat's reach
 FILL_MARGIN = 64  # px: default overlap of the fine solves (any overlap is exact when f = 1)
 COARSE_MAX_CELLS = 1024 * 1024  # cells of the coarse global solve (decimated beyond)
+SWEEPS = 1  # fill sweeps before the final one when the coarse solve is decimated
 PROCESS_BYTES = 250 * 2**20  # a worker process with numpy, scipy, rasterio
 SAMPLE_BYTES = 700  # per disparity sample: correspondences, rays, points, the kNN query
 CELL_BYTES = 200  # per cell of a fine solve: the spring system and its multigrid
@@ -135,6 +136,7 @@ class DemTileJob:
     factor: int = 1
     step: str = "fill"
     work: str = ""
+    ring: str = ""  # the work folder's sub-folder of an earlier fill sweep ("" = coarse)
     stage: str = "dem"
     bands: tuple[str, ...] = ("height", "interpolated")
 
@@ -273,7 +275,11 @@ class DemTileJob:
             ring[:, -1] |= window[3] > c1
             info = TileCache(Path(self.work) / "measured").info(tile)
         unknown_ring = ring & ~np.isfinite(grid)
-        if unknown_ring.any():
+        if unknown_ring.any() and self.ring:
+            earlier = read_cached_window(Path(self.work) / self.ring, self.tile_size,
+                                         self.shape, window)
+            grid[unknown_ring] = earlier[unknown_ring]
+        elif unknown_ring.any():
             rows, cols = np.nonzero(unknown_ring)
             grid[rows, cols] = self._coarse_at(rows + window[0], cols + window[2])
         if not np.isfinite(grid).any():
@@ -482,7 +488,12 @@ def dem_tiled(run: Any, params: Any, out: str | os.PathLike, pair: TiledPair, *,
             part = coarse_path.with_name(f"coarse.{os.getpid()}.part.npy")
             np.save(part, inpaint_springs(coarse))
             os.replace(part, coarse_path)
-        return replace(fill_job, work=str(folder))
+        fill_job = replace(fill_job, work=str(folder))
+        for sweep in range(1, SWEEPS + 1 if factor > 1 else 1):  # Schwarz sweeps
+            run_tiles(fill_job, tiling.tiles, TileCache(folder / f"sweep{sweep}"),
+                      workers=params.workers, scheduler=params.scheduler, log=run.log)
+            fill_job = replace(fill_job, ring=f"sweep{sweep}")
+        return fill_job
 
     transform = dio.image_frame_transform(gsd)
     frame = f"image:{pair.target_name}"

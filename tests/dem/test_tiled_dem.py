@@ -261,3 +261,41 @@ def test_coarse_factor_keeps_the_coarse_grid_within_its_budget():
     assert tiled_dem.coarse_factor(1000, 1000, 1024 * 1024) == 1
     assert tiled_dem.coarse_factor(20_000, 50_000, 1024 * 1024) == 31
     assert 646 * 1613 <= 1024 * 1024 < 667 * 1667  # the grids at f = 31 and f = 30
+
+
+@pytest.mark.slow
+def test_tiled_dem_on_the_small_synthetic_scene(small_scene_dir, tmp_path):
+    """rectify → sgm → dem on the small scene: 9 tiles of 64 px; as accurate as untiled."""
+    from demtool.dem.params import DemParams
+    from demtool.runs.dem import run_dem
+    from demtool.runs.rectify import run_rectify
+    from demtool.runs.sgm import run_sgm
+
+    stereo = tmp_path / "stereo"
+    run_rectify(small_scene_dir / "view_00.tif", small_scene_dir / "view_01.tif", stereo)
+    run_sgm(stereo / "left_rect.tif", stereo / "right_rect.tif", stereo / "disparity.tif",
+            rectify=stereo / "rectify.npz")
+    truth = dio.read_raster(small_scene_dir / "truth_dem_target.tif").data
+    results = {}
+    for name, tile_size in (("untiled", 0), ("tiled", 64)):
+        out = tmp_path / f"{name}.tif"
+        summary = run_dem(out, DemParams(tile_size=tile_size),
+                          disparity_path=stereo / "disparity.tif",
+                          rectify_path=stereo / "rectify.npz",
+                          cameras_path=small_scene_dir / "cameras.npz",
+                          mask_path=tmp_path / f"mask_{name}.tif")
+        results[name] = (dio.read_raster(out), dio.read_raster(tmp_path / f"mask_{name}.tif"),
+                         summary)
+    (untiled, untiled_mask, _), (tiled, tiled_mask, summary) = results.values()
+    assert summary["tiling"]["tiles"] == 9
+    difference = np.abs(tiled.data - untiled.data)
+    assert np.mean(difference < 0.01) >= 0.995 and difference.max() < 0.02  # metres
+    assert np.array_equal(tiled_mask.data, untiled_mask.data)
+    assert tiled.spacing[0] == pytest.approx(untiled.spacing[0], rel=1e-5)
+
+    def nmad_error(heights: np.ndarray) -> float:
+        error = heights - truth
+        return float(1.4826 * np.median(np.abs(error - np.median(error))))
+
+    assert nmad_error(untiled.data) < 0.5  # metres: a DEM of the scene, not noise
+    assert nmad_error(tiled.data) == pytest.approx(nmad_error(untiled.data), abs=1e-3)

@@ -135,7 +135,8 @@ def splat_bilinear(pixels: np.ndarray, values: np.ndarray, shape: tuple[int, int
 
 
 def local_median_statistics(pixels: np.ndarray, values: np.ndarray, *,
-                            neighbours: int = 16) -> tuple[np.ndarray, np.ndarray]:
+                            neighbours: int = 16, at: np.ndarray | None = None
+                            ) -> tuple[np.ndarray, np.ndarray]:
     """Median and NMAD of each sample's ``neighbours`` nearest samples (itself excluded).
 
     The statistics of :func:`local_median_inliers` (Westerweel & Scarano 2005).
@@ -148,17 +149,21 @@ def local_median_statistics(pixels: np.ndarray, values: np.ndarray, *,
         Heights.
     neighbours : int
         Neighbours per sample (clipped to 3 … N − 1).
+    at : (M,) int, optional
+        Only the statistics of these samples (default: all); their neighbours are still
+        sought among all N.
 
     Returns
     -------
-    local_median, local_nmad : (N,) float64
+    local_median, local_nmad : (N,) float64, or (M,) with ``at``
     """
     from scipy.spatial import cKDTree
 
     values = np.asarray(values, dtype=np.float64)
     k = int(min(max(neighbours, 3), len(values) - 1))
     tree = cKDTree(np.asarray(pixels, dtype=np.float64))
-    _, index = tree.query(pixels, k=k + 1)
+    queries = np.asarray(pixels) if at is None else np.asarray(pixels)[at]
+    _, index = tree.query(queries, k=k + 1)
     neighbour_values = values[index[:, 1:]]
     local_median = np.median(neighbour_values, axis=1)
     local_nmad = NMAD_FACTOR * np.median(np.abs(neighbour_values - local_median[:, None]), axis=1)

@@ -37,6 +37,7 @@ tests/dem/test_tiled_dem.py and bench/scale.py state the tolerances achieved.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 from dataclasses import dataclass, replace
@@ -45,6 +46,12 @@ from typing import Any
 
 import numpy as np
 
+from demtool.tiled.dem_grids import (
+    coarse_measured,
+    histogram_median,
+    log_histogram,
+    read_cached_window,
+)
 from demtool.tiling import Tile, TileCache, plan_tiles, read_window, wants_tiles
 
 MEASURE_MARGIN = 32  # px around a core: the outlier test's neighbours and the splat's reach
@@ -57,7 +64,6 @@ SAMPLE_BYTES = 700  # per disparity sample: correspondences, rays, points, the k
 CELL_BYTES = 200  # per cell of a fine solve: the spring system and its multigrid
 NMAD_BINS_PER_DECADE = 1000  # histogram of the local NMADs (0.23 % bins)
 DEPTH_BINS_PER_DECADE = 100_000  # histogram of the depths (0.0023 % bins)
-LOG_LOW = -12.0  # log10 of the smallest value the histograms tell apart
 STEP_BANDS = {"stats": ("samples",), "measure": ("measured",),
               "fill": ("height", "interpolated")}
 
@@ -74,38 +80,6 @@ def coarse_factor(height: int, width: int, max_cells: int | None = None) -> int:
 def default_overlap(median_px: int, factor: int) -> int:
     """Margin of the fine solves, px: 64 (16 f when decimated) + the median's half width."""
     return max(FILL_MARGIN, 16 * factor if factor > 1 else 0) + max(median_px, 0) // 2
-
-
-# ------------------------------------------------------------------- histograms, medians
-def log_histogram(values: np.ndarray, bins_per_decade: int) -> dict[str, int]:
-    """Sparse histogram of ``log10(values)`` (values ≤ 1e-12 in the first bin)."""
-    values = np.asarray(values, dtype=np.float64)
-    values = values[np.isfinite(values)]
-    index = np.floor((np.log10(np.maximum(values, 10.0**LOG_LOW)) - LOG_LOW)
-                     * bins_per_decade).astype(np.int64)
-    bins, counts = np.unique(index, return_counts=True)
-    return {str(int(b)): int(c) for b, c in zip(bins, counts, strict=True)}
-
-
-def histogram_median(histograms: list[dict[str, int]], bins_per_decade: int) -> float | None:
-    """Median of the values behind merged :func:`log_histogram` s (log-linear in a bin).
-
-    None when the histograms are empty.
-    """
-    merged: dict[int, int] = {}
-    for histogram in histograms:
-        for key, count in histogram.items():
-            merged[int(key)] = merged.get(int(key), 0) + int(count)
-    total = sum(merged.values())
-    if total == 0:
-        return None
-    bins = np.array(sorted(merged))
-    counts = np.array([merged[b] for b in bins], dtype=np.float64)
-    before = np.cumsum(counts) - counts
-    half = 0.5 * total
-    i = int(np.searchsorted(before + counts, half))
-    position = bins[i] + min(max((half - before[i]) / counts[i], 0.0), 1.0)
-    return float(10.0 ** (LOG_LOW + position / bins_per_decade))
 
 
 def _widen(window: tuple[int, int, int, int], margin: int) -> tuple[int, int, int, int]:
@@ -321,49 +295,6 @@ class DemTileJob:
         return PROCESS_BYTES + max(samples * SAMPLE_BYTES, height * width * CELL_BYTES)
 
 
-# ------------------------------------------------------------------ the cached grid
-def _cache_path(folder: Path, index: int) -> Path:
-    return TileCache(folder).path(Tile(index, (0, 0, 0, 0), (0, 0, 0, 0)))
-
-
-def read_cached_window(folder: str | os.PathLike, tile_size: int, shape: tuple[int, int],
-                       window: tuple[int, int, int, int], band: int = 0) -> np.ndarray:
-    """``[row0, row1) × [col0, col1)`` of a raster held as cached tile cores (float64).
-
-    The cores are those of :func:`demtool.tiling.plan_tiles` (row-major, ``tile_size``
-    squares) on a ``shape`` raster; only the cores the window meets are read.
-    """
-    r0, r1, c0, c1 = window
-    columns = math.ceil(shape[1] / tile_size)
-    out = np.full((r1 - r0, c1 - c0), np.nan)
-    for tr in range(r0 // tile_size, (r1 - 1) // tile_size + 1):
-        for tc in range(c0 // tile_size, (c1 - 1) // tile_size + 1):
-            core = np.load(_cache_path(Path(folder), tr * columns + tc), mmap_mode="r",
-                           allow_pickle=False)[band]
-            tr0, tc0 = tr * tile_size, tc * tile_size
-            a0, a1 = max(r0, tr0), min(r1, tr0 + core.shape[0])
-            b0, b1 = max(c0, tc0), min(c1, tc0 + core.shape[1])
-            out[a0 - r0:a1 - r0, b0 - c0:b1 - c0] = core[a0 - tr0:a1 - tr0, b0 - tc0:b1 - tc0]
-    return out
-
-
-def coarse_measured(folder: str | os.PathLike, tiles, shape: tuple[int, int],
-                    factor: int) -> np.ndarray:
-    """The cached measured grid block-averaged by ``factor`` (NaN where no cell measured)."""
-    coarse_shape = (math.ceil(shape[0] / factor), math.ceil(shape[1] / factor))
-    sums, counts = np.zeros(coarse_shape), np.zeros(coarse_shape)
-    for tile in tiles:
-        core = np.load(_cache_path(Path(folder), tile.index), mmap_mode="r",
-                       allow_pickle=False)[0]
-        r0, _, c0, _ = tile.core
-        rows, cols = np.nonzero(np.isfinite(core))
-        cells = (rows + r0) // factor, (cols + c0) // factor
-        np.add.at(sums, cells, np.asarray(core[rows, cols], dtype=np.float64))
-        np.add.at(counts, cells, 1.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
-
-
 # ------------------------------------------------------------------------ the runner
 @dataclass(frozen=True)
 class TiledPair:
@@ -423,12 +354,33 @@ def dem_tiled(run: Any, params: Any, out: str | os.PathLike, pair: TiledPair, *,
     """The tiled calibrated disparity route (called by :func:`demtool.runs.dem.run_dem`).
 
     ``gsd`` (metres) when known (``--gsd``, the scene); else estimated from the median
-    depth of the samples (the statistics pass) × the target's pixel angle.
+    depth of the samples (the statistics pass) × the target's pixel angle.  With
+    ``--workers N`` (N ≥ 2) one local cluster runs every pass.
 
     Returns
     -------
     demtool.tiled.TiledResult
     """
+    with contextlib.ExitStack() as stack:
+        return _passes(run, params, out, pair, mask_path=mask_path, gsd=gsd,
+                       gsd_source=gsd_source, stack=stack)
+
+
+def _local_cluster(stack: contextlib.ExitStack, job: DemTileJob, workers: int) -> str:
+    """Start the ``--workers`` LocalCluster once for every pass; its scheduler's address."""
+    from distributed import LocalCluster
+
+    from demtool.distributed import LOCAL_CLUSTER_OPTIONS, _start_workers_from_a_forkserver
+
+    _start_workers_from_a_forkserver(stack, job)
+    cluster = stack.enter_context(LocalCluster(n_workers=workers, memory_limit=0,
+                                               **LOCAL_CLUSTER_OPTIONS))
+    return cluster.scheduler_address
+
+
+def _passes(run: Any, params: Any, out: str | os.PathLike, pair: TiledPair, *, mask_path,
+            gsd: float | None, gsd_source: str, stack: contextlib.ExitStack):
+    """The body of :func:`dem_tiled`: the passes of the module docstring."""
     from demtool import io as dio
     from demtool.dem.points import pixel_angle
     from demtool.distributed import run_tiles
@@ -458,14 +410,16 @@ def dem_tiled(run: Any, params: Any, out: str | os.PathLike, pair: TiledPair, *,
                      median_px=params.median, factor=factor)
     inputs = [pair.disparity_path, pair.rectify_path, pair.cameras_path]
     parameters = {**params.as_dict(), "gsd": gsd, "coarse_factor": factor}
+    workers, scheduler = params.workers, params.scheduler
+    if workers >= 2 and not scheduler and not params.dry_run:  # one cluster, every pass
+        scheduler, workers = _local_cluster(stack, job, workers), 0
     stats_infos: list[dict[str, Any]] = []
     stats_cache = None
     if not params.dry_run:  # the outlier floor and the median depth, before the lock
         key = cache_key(inputs, parameters, tiling, {"pass": "stats"})
         stats_cache = TileCache(work_folder(out) / f"{key}-stats")
         stats_infos = run_tiles(job.at_step("stats"), tiling.tiles, stats_cache,
-                                workers=params.workers, scheduler=params.scheduler,
-                                log=run.log)
+                                workers=workers, scheduler=scheduler, log=run.log)
         if sum(int(i.get("samples", 0)) for i in stats_infos) < 10:
             raise ProcessingError("fewer than 10 triangulated disparities in the target "
                                   "image; at least 10 are needed to interpolate a DEM")
@@ -481,7 +435,7 @@ def dem_tiled(run: Any, params: Any, out: str | os.PathLike, pair: TiledPair, *,
     def prepare(fill_job: DemTileJob, folder: Path) -> DemTileJob:
         measured = TileCache(folder / "measured")
         run_tiles(fill_job.at_step("measure"), tiling.tiles, measured,
-                  workers=params.workers, scheduler=params.scheduler, log=run.log)
+                  workers=workers, scheduler=scheduler, log=run.log)
         coarse_path = folder / "coarse.npy"
         if not coarse_path.is_file():
             from demtool.interpolate import inpaint_springs
@@ -497,7 +451,7 @@ def dem_tiled(run: Any, params: Any, out: str | os.PathLike, pair: TiledPair, *,
         fill_job = replace(fill_job, work=str(folder))
         for sweep in range(1, SWEEPS + 1 if factor > 1 else 1):  # Schwarz sweeps
             run_tiles(fill_job, tiling.tiles, TileCache(folder / f"sweep{sweep}"),
-                      workers=params.workers, scheduler=params.scheduler, log=run.log)
+                      workers=workers, scheduler=scheduler, log=run.log)
             fill_job = replace(fill_job, ring=f"sweep{sweep}")
         return fill_job
 
@@ -527,8 +481,8 @@ def dem_tiled(run: Any, params: Any, out: str | os.PathLike, pair: TiledPair, *,
                 "outlier_nmad_floor_m": job.floor, "coarse_factor": factor}
 
     result = run_tiled(run, job, tiling, outputs, inputs=inputs, parameters=parameters,
-                       transform=transform, workers=params.workers,
-                       scheduler=params.scheduler, dry_run=params.dry_run,
+                       transform=transform, workers=workers,
+                       scheduler=scheduler, dry_run=params.dry_run,
                        summarize=summarize, prepare=prepare)
     if stats_cache is not None:
         stats_cache.remove()

@@ -25,6 +25,7 @@ from demtool import tiling
 from demtool.camera import cameras_to_arrays
 from demtool.cli import cli
 from demtool.tiled import dem as tiled_dem
+from demtool.tiled import dem_grids
 from tests.helpers.dem import (
     BASELINE,
     RECTIFY,
@@ -250,11 +251,11 @@ def test_a_disparity_of_another_canvas_is_refused_in_tiles(pair, tmp_path):
 def test_histogram_median_is_within_its_bin():
     rng = np.random.default_rng(1)
     values = rng.lognormal(-2.0, 1.0, 100_001)
-    halves = [tiled_dem.log_histogram(values[:40_000], 1000),
-              tiled_dem.log_histogram(values[40_000:], 1000)]
-    median = tiled_dem.histogram_median(halves, 1000)
+    halves = [dem_grids.log_histogram(values[:40_000], 1000),
+              dem_grids.log_histogram(values[40_000:], 1000)]
+    median = dem_grids.histogram_median(halves, 1000)
     assert median == pytest.approx(np.median(values), rel=2.4e-3)
-    assert tiled_dem.histogram_median([{}], 1000) is None
+    assert dem_grids.histogram_median([{}], 1000) is None
 
 
 def test_coarse_factor_keeps_the_coarse_grid_within_its_budget():

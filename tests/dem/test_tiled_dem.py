@@ -300,3 +300,32 @@ def test_tiled_dem_on_the_small_synthetic_scene(small_scene_dir, tmp_path):
 
     assert nmad_error(untiled.data) < 0.5  # metres: a DEM of the scene, not noise
     assert nmad_error(tiled.data) == pytest.approx(nmad_error(untiled.data), abs=1e-3)
+
+
+def test_a_locked_output_is_refused(pair, tmp_path):
+    out = tmp_path / "dem.tif"
+    with tiling.output_lock(out):
+        result = dem(pair, out, *TILE)
+    assert result.exit_code == 1
+    assert f"{out}: another demtool run is writing this output" in result.output
+    assert not out.exists() and result.output.count("\n") == 1
+
+
+def test_an_unreachable_scheduler_names_the_option(pair, tmp_path, monkeypatch):
+    monkeypatch.setattr("demtool.distributed.CONNECT_TIMEOUT", "1s")
+    out = tmp_path / "dem.tif"
+    result = dem(pair, out, *TILE, "--scheduler", "tcp://127.0.0.1:9")
+    assert result.exit_code == 1
+    assert "--scheduler tcp://127.0.0.1:9: cannot connect to the Dask scheduler" in result.output
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_two_local_dask_workers_give_the_same_dem(pair, tmp_path):
+    one, two = tmp_path / "one.tif", tmp_path / "two.tif"
+    assert dem(pair, one, *TILE).exit_code == 0
+    result = dem(pair, two, *TILE, "--workers", "2")
+    assert result.exit_code == 0, result.output
+    assert np.array_equal(outputs(one)[0], outputs(two)[0])
+    assert np.array_equal(outputs(one)[1], outputs(two)[1])
+    assert not tiling.work_folder(two).exists()

@@ -449,8 +449,9 @@ def _passes(run: Any, params: Any, out: str | os.PathLike, pair: TiledPair, *, m
             np.save(part, inpaint_springs(coarse))
             os.replace(part, coarse_path)
         fill_job = replace(fill_job, work=str(folder))
-        for sweep in range(1, SWEEPS + 1 if factor > 1 else 1):  # Schwarz sweeps
-            run_tiles(fill_job, tiling.tiles, TileCache(folder / f"sweep{sweep}"),
+        for sweep in range(1, SWEEPS + 1 if factor > 1 else 1):  # Schwarz sweeps, unfiltered
+            run_tiles(replace(fill_job, median_px=0), tiling.tiles,
+                      TileCache(folder / f"sweep{sweep}"),
                       workers=workers, scheduler=scheduler, log=run.log)
             fill_job = replace(fill_job, ring=f"sweep{sweep}")
         return fill_job

@@ -329,3 +329,17 @@ def test_two_local_dask_workers_give_the_same_dem(pair, tmp_path):
     assert np.array_equal(outputs(one)[0], outputs(two)[0])
     assert np.array_equal(outputs(one)[1], outputs(two)[1])
     assert not tiling.work_folder(two).exists()
+
+
+def test_the_median_filter_in_tiles_matches_untiled(pair, tmp_path, monkeypatch):
+    reference = tmp_path / "untiled.tif"
+    assert dem(pair, reference, "--median", "5").exit_code == 0
+    expected = outputs(reference)[0]
+    full, decimated = tmp_path / "full.tif", tmp_path / "decimated.tif"
+    assert dem(pair, full, *TILE, "--median", "5").exit_code == 0
+    assert np.abs(outputs(full)[0] - expected).max() < 1e-5
+    monkeypatch.setattr(tiled_dem, "COARSE_MAX_CELLS", 600)  # f = 4: a sweep, then the median
+    result = dem(pair, decimated, *TILE, "--median", "5", "--tile-overlap", "16")
+    assert result.exit_code == 0, result.output
+    difference = np.abs(outputs(decimated)[0] - expected)
+    assert np.mean(difference < 0.01) >= 0.995 and difference.max() < 0.02

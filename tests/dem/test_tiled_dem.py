@@ -343,3 +343,16 @@ def test_the_median_filter_in_tiles_matches_untiled(pair, tmp_path, monkeypatch)
     assert result.exit_code == 0, result.output
     difference = np.abs(outputs(decimated)[0] - expected)
     assert np.mean(difference < 0.01) >= 0.995 and difference.max() < 0.02
+
+
+def test_a_disparity_of_another_pair_is_refused_in_tiles(pair, tmp_path):
+    folder = tmp_path / "pair"
+    folder.mkdir()
+    for name in ("rectify.npz", "cameras.npz"):
+        (folder / name).write_bytes((pair / name).read_bytes())
+    disparity = dio.read_raster(pair / "disparity.tif").data
+    dio.write_raster(folder / "disparity.tif", disparity, tags={"frame": "image:other_rect"})
+    result = dem(folder, tmp_path / "dem.tif", *TILE)
+    assert result.exit_code == 1
+    assert "disparity in frame image:other_rect, but" in result.output
+    assert result.output.count("\n") == 1 and not (tmp_path / "dem.tif").exists()

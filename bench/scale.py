@@ -193,6 +193,40 @@ def resume(work: Path) -> dict:
             "log": [line for line in again["stderr"].splitlines() if "found in" in line]}
 
 
+def dem_table(work: Path, sizes: list[int], untiled_max: int = 2048) -> None:
+    """`demtool dem` (calibrated disparity route, bench/_scale_dem.py pairs): untiled (up to
+    ``untiled_max``², its memory grows with the image) vs tiles of 1024 px, 1 worker;
+    wall, peak memory of the tree, share of cells within 0.01 m of the untiled DEM and
+    RMSE against the truth."""
+    from bench._scale_dem import write_dem_pair
+    from demtool import io as dio
+
+    print("\ndem   run                  wall       CPU      peak tree   vs untiled "
+          "(target: ≥ 99.5 % within 0.01 m)   RMSE vs truth")
+    for size in sizes:
+        folder = work / f"dem_{size}"
+        write_dem_pair(folder, size)
+        truth, untiled = np.load(folder / "truth.npy"), None
+        runs = [("untiled", ())] if size <= untiled_max else []
+        for label, options in (*runs, ("tiled, 1 worker", ("--tile-size", "1024"))):
+            out = folder / f"{label.replace(' ', '_').replace(',', '')}.tif"
+            result = run_measured([DEMTOOL, "dem", "--disparity", str(folder / "disparity.tif"),
+                                   "--rectify", str(folder / "rectify.npz"), "--cameras",
+                                   str(folder / "cameras.npz"), "--out", str(out), *options])
+            if result["code"] != 0:
+                print(f"{size}² {label}: failed\n{result['stderr']}")
+                continue
+            heights = dio.read_raster(out).data
+            untiled = heights if label == "untiled" else untiled
+            same = ("—" if untiled is None or label == "untiled" else
+                    f"{100 * np.mean(np.abs(heights - untiled) <= 0.01):.4f} %, max "
+                    f"{np.abs(heights - untiled).max():.3f} m")
+            print(f"{size:>5}²  {label:<17} {result['wall_s']:7.1f} s  {result['cpu_s']:7.1f} s"
+                  f"  {result['peak_mb']:7.0f} MB  {same:<34}  "
+                  f"{np.sqrt(np.mean((heights - truth) ** 2)):.4f} m", flush=True)
+        del truth, untiled
+
+
 def projection(rows: list[dict]) -> None:
     tiled = [r for r in rows if r["run"] == "tiled, 1 worker" and r["tiling"]]
     if not tiled:
@@ -294,6 +328,7 @@ def main() -> None:
                   f"{outcome['byte_identical']}  {outcome['log']}")
         projection(rows)
         refine_table(work, [1024] if args.quick else [1024, 2048])
+        dem_table(work, [1024] if args.quick else [2048, 4096])
 
 
 if __name__ == "__main__":

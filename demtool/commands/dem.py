@@ -85,8 +85,10 @@ def command(ctx: click.Context, points: str | None, disparity: str | None,
     elif rectify or reference or cameras or error_out:
         raise click.BadParameter("--rectify, --reference, --cameras and --error-out belong to the "
                                  "--disparity form", param_hint="--points")
-    run_dem(out, DemParams.from_options(values), points_path=points, disparity_path=disparity,
-            rectify_path=rectify, reference_path=reference, cameras_path=cameras,
-            scene_path=scene, mask_path=interpolated_mask, error_path=error_out,
-            mapprojected=mapprojected,
-            resolved=options.resolved_params(ctx))
+    summary = run_dem(out, DemParams.from_options(values), points_path=points,
+                      disparity_path=disparity, rectify_path=rectify,
+                      reference_path=reference, cameras_path=cameras, scene_path=scene,
+                      mask_path=interpolated_mask, error_path=error_out,
+                      mapprojected=mapprojected, resolved=options.resolved_params(ctx))
+    if summary.get("dry_run"):  # --dry-run (tiles): the plan on stdout
+        click.echo(summary["dry_run"])

@@ -134,8 +134,44 @@ def splat_bilinear(pixels: np.ndarray, values: np.ndarray, shape: tuple[int, int
     return grid.reshape(shape), total.reshape(shape)
 
 
+def local_median_statistics(pixels: np.ndarray, values: np.ndarray, *,
+                            neighbours: int = 16, at: np.ndarray | None = None
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """Median and NMAD of each sample's ``neighbours`` nearest samples (itself excluded).
+
+    The statistics of :func:`local_median_inliers` (Westerweel & Scarano 2005).
+
+    Parameters
+    ----------
+    pixels : (N, 2) float
+        Sample positions (x, y), pixels; N ≥ 4.
+    values : (N,) float
+        Heights.
+    neighbours : int
+        Neighbours per sample (clipped to 3 … N − 1).
+    at : (M,) int, optional
+        Only the statistics of these samples (default: all); their neighbours are still
+        sought among all N.
+
+    Returns
+    -------
+    local_median, local_nmad : (N,) float64, or (M,) with ``at``
+    """
+    from scipy.spatial import cKDTree
+
+    values = np.asarray(values, dtype=np.float64)
+    k = int(min(max(neighbours, 3), len(values) - 1))
+    tree = cKDTree(np.asarray(pixels, dtype=np.float64))
+    queries = np.asarray(pixels) if at is None else np.asarray(pixels)[at]
+    _, index = tree.query(queries, k=k + 1)
+    neighbour_values = values[index[:, 1:]]
+    local_median = np.median(neighbour_values, axis=1)
+    local_nmad = NMAD_FACTOR * np.median(np.abs(neighbour_values - local_median[:, None]), axis=1)
+    return local_median, local_nmad
+
+
 def local_median_inliers(pixels: np.ndarray, values: np.ndarray, *, neighbours: int = 16,
-                         threshold: float = 3.0) -> np.ndarray:
+                         threshold: float = 3.0, floor: float | None = None) -> np.ndarray:
     """Robust local-median outlier test of scattered heights.
 
     A sample is an outlier when it differs from the median of its ``neighbours``
@@ -155,25 +191,24 @@ def local_median_inliers(pixels: np.ndarray, values: np.ndarray, *, neighbours: 
         Neighbours compared with (≥ 3).
     threshold : float
         Multiple of the NMAD beyond which a sample is rejected (≤ 0 disables the test).
+    floor : float, optional
+        The NMAD floor, same units as ``values``; default the median local NMAD of these
+        samples (a tiled run passes the median over the whole image,
+        :mod:`demtool.tiled.dem`).
 
     Returns
     -------
     (N,) bool
         True for the samples kept.
     """
-    from scipy.spatial import cKDTree
-
     values = np.asarray(values, dtype=np.float64)
     count = len(values)
     if threshold <= 0 or count <= 3:
         return np.ones(count, dtype=bool)
-    k = int(min(max(neighbours, 3), count - 1))
-    tree = cKDTree(np.asarray(pixels, dtype=np.float64))
-    _, index = tree.query(pixels, k=k + 1)
-    neighbour_values = values[index[:, 1:]]
-    local_median = np.median(neighbour_values, axis=1)
-    local_nmad = NMAD_FACTOR * np.median(np.abs(neighbour_values - local_median[:, None]), axis=1)
-    floor = max(float(np.median(local_nmad)), 1e-12)
+    local_median, local_nmad = local_median_statistics(pixels, values, neighbours=neighbours)
+    if floor is None:
+        floor = float(np.median(local_nmad))
+    floor = max(float(floor), 1e-12)
     return np.abs(values - local_median) <= threshold * np.maximum(local_nmad, floor)
 
 

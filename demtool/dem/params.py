@@ -11,6 +11,12 @@ from dataclasses import dataclass
 from demtool.dem.routes import OutlierOptions
 from demtool.maps.projections import PROJECTIONS
 from demtool.parameters import Parameters, core_default, parameter, seed_field
+from demtool.tiling import (
+    dry_run_field,
+    scheduler_field,
+    tile_overlap_field,
+    tile_size_field,
+)
 
 
 @dataclass(frozen=True)
@@ -40,6 +46,16 @@ class DemParams(Parameters):
         None, "Sensor models: drop points whose rays miss each other by more, metres "
         "(default: median gap + max(4 NMAD, 2 GSD)).", minimum=0.0, min_open=True)
     seed: int = seed_field()
+    # Tiles over the output grid (demtool.tiled.dem; README "Scale"): disparity route with
+    # --cameras only.
+    workers: int = parameter(0, "Tiled runs: Dask worker processes (0 or 1 = the tiles one "
+                             "after the other in this process).", minimum=0)
+    tile_size: int = tile_size_field()
+    tile_overlap: int | None = tile_overlap_field(
+        "64 px + the median filter's half width, 16 × the coarse solve's decimation when it "
+        "decimates")
+    scheduler: str | None = scheduler_field()
+    dry_run: bool = dry_run_field()
 
     def outliers(self) -> OutlierOptions:
         """The outlier test of the core."""

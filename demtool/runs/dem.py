@@ -84,6 +84,70 @@ def read_disparity(disparity_path: str | os.PathLike, rectify_path: str | os.Pat
     return dataclasses.replace(disparity, data=checked.disparity)
 
 
+def _pair_names(disparity_path, rectify_path, rectification: dict, frame: str,
+                target: str | None) -> tuple[str, str, str, str]:
+    """(left name, right name, target name, target side) of a disparity's pair, checked."""
+    from demtool.errors import InputError
+
+    left_name = str(rectification["left_name"])
+    right_name = str(rectification["right_name"])
+    if frame.startswith("image:") and frame != f"image:{left_name}_rect":
+        raise InputError(f"{disparity_path}: disparity in frame {frame}, but {rectify_path} "
+                         f"rectifies {left_name} (image:{left_name}_rect); is it the "
+                         "rectification of this pair?")
+    target_name = target or left_name
+    if target_name not in (left_name, right_name):
+        raise InputError(f"{rectify_path}: target {target_name} is neither the left "
+                         f"({left_name}) nor the right ({right_name}) image of the pair")
+    return left_name, right_name, target_name, "left" if target_name == left_name else "right"
+
+
+def _pair_cameras(cameras_path, rectify_path, rectification: dict, left_name: str,
+                  right_name: str) -> dict:
+    """The pair's cameras from cameras.npz, checked against the rectification's sizes."""
+    from demtool import io as dio
+    from demtool.camera import cameras_from_arrays
+    from demtool.errors import InputError
+
+    cameras = cameras_from_arrays(dio.read_npz(cameras_path, "cameras"))
+    missing = [n for n in (left_name, right_name) if n not in cameras]
+    if missing:
+        raise InputError(f"{cameras_path}: no camera for {', '.join(missing)}")
+    for name, side_name in ((left_name, "left"), (right_name, "right")):
+        size = tuple(int(v) for v in rectification[f"size_{side_name}"])
+        if (cameras[name].width, cameras[name].height) != size:
+            raise InputError(f"{cameras_path}: camera {name} is {cameras[name].width}×"
+                             f"{cameras[name].height} px but {rectify_path} says the "
+                             f"{side_name} image is {size[0]}×{size[1]}")
+    return cameras
+
+
+def _tiled_pair(disparity_path, rectify_path, cameras_path, target: str | None) -> Any:
+    """The checked inputs of the tiled calibrated route (:mod:`demtool.tiled.dem`),
+    read without the disparity's pixels."""
+    from demtool import io as dio
+    from demtool.errors import InputError
+    from demtool.tiled.dem import TiledPair
+    from demtool.tiling import raster_shape
+
+    rectification = dio.read_npz(rectify_path, "rectification")
+    width_rect, height_rect = (int(v) for v in rectification["size_rect"])
+    shape = raster_shape(disparity_path, "disparity")
+    if shape != (height_rect, width_rect):
+        raise InputError(f"{disparity_path}: disparity is {shape[1]}×{shape[0]} px but "
+                         f"{rectify_path} has a {width_rect}×{height_rect} rectified canvas")
+    with dio._open_dataset(Path(disparity_path), "disparity") as dataset:
+        frame = dataset.tags().get("frame", "")
+    left_name, right_name, target_name, side = _pair_names(
+        disparity_path, rectify_path, rectification, frame, target)
+    cameras = _pair_cameras(cameras_path, rectify_path, rectification, left_name, right_name)
+    low, high = (float(v) for v in rectification["disparity_range"])
+    return TiledPair(str(disparity_path), str(rectify_path), str(cameras_path),
+                     rectification["H_left"], rectification["H_right"], cameras[left_name],
+                     cameras[right_name], side, target_name, (height_rect, width_rect),
+                     (low, high))
+
+
 def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.PathLike, *,
                      reference_path: str | os.PathLike | None,
                      cameras_path: str | os.PathLike | None, target: str | None,
@@ -93,7 +157,6 @@ def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.P
 
     from demtool import dem as core
     from demtool import io as dio
-    from demtool.camera import cameras_from_arrays
     from demtool.checks import check_magnitude
     from demtool.errors import InputError
     from demtool.logs import get_logger
@@ -101,31 +164,13 @@ def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.P
     rectification = dio.read_npz(rectify_path, "rectification")
     disparity = read_disparity(disparity_path, rectify_path, rectification,
                                rectification["size_rect"], get_logger("dem"))
-    left_name = str(rectification["left_name"])
-    right_name = str(rectification["right_name"])
-    frame = disparity.tags.get("frame", "")
-    if frame.startswith("image:") and frame != f"image:{left_name}_rect":
-        raise InputError(f"{disparity_path}: disparity in frame {frame}, but {rectify_path} "
-                         f"rectifies {left_name} (image:{left_name}_rect); is it the "
-                         "rectification of this pair?")
-    target_name = target or left_name
-    if target_name not in (left_name, right_name):
-        raise InputError(f"{rectify_path}: target {target_name} is neither the left "
-                         f"({left_name}) nor the right ({right_name}) image of the pair")
-    side = "left" if target_name == left_name else "right"
+    left_name, right_name, target_name, side = _pair_names(
+        disparity_path, rectify_path, rectification, disparity.tags.get("frame", ""), target)
     width, height = (int(v) for v in rectification[f"size_{side}"])
     H_left, H_right = rectification["H_left"], rectification["H_right"]
     if cameras_path is not None:
-        cameras = cameras_from_arrays(dio.read_npz(cameras_path, "cameras"))
-        missing = [n for n in (left_name, right_name) if n not in cameras]
-        if missing:
-            raise InputError(f"{cameras_path}: no camera for {', '.join(missing)}")
-        for name, side_name in ((left_name, "left"), (right_name, "right")):
-            size = tuple(int(v) for v in rectification[f"size_{side_name}"])
-            if (cameras[name].width, cameras[name].height) != size:
-                raise InputError(f"{cameras_path}: camera {name} is {cameras[name].width}×"
-                                 f"{cameras[name].height} px but {rectify_path} says the "
-                                 f"{side_name} image is {size[0]}×{size[1]}")
+        cameras = _pair_cameras(cameras_path, rectify_path, rectification, left_name,
+                                right_name)
         result = core.dem_from_disparity_calibrated(
             disparity.data, H_left, H_right, cameras[left_name], cameras[right_name],
             target=side, outliers=outliers, median_px=median_px)
@@ -215,6 +260,12 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
             raise ParameterError("--error-out belongs to the sensor-model route (a calibrated "
                                  "rectify.npz)")
     scene = read_scene_description(scene_path) if scene_path is not None else {}
+    if _tile_options(params):  # large images: tiles over the output grid (README "Scale")
+        tiled = _dem_tiled(run, params, out, disparity_path=disparity_path,
+                           rectify_path=rectify_path, cameras_path=cameras_path,
+                           scene=scene, scene_path=scene_path, mask_path=mask_path)
+        if tiled is not None:
+            return tiled
     outliers = params.outliers()
     target, median_px, mask_band = params.target, params.median, params.mask_band
     if points_path is not None:
@@ -268,3 +319,33 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
             outputs.append(Path(mask_path))
         prov.write_sidecar(out, summary, outputs=outputs)
     return summary
+
+
+def _tile_options(params: DemParams) -> bool:
+    return bool(params.tile_size or params.scheduler or params.dry_run)
+
+
+def _dem_tiled(run: StageRun, params: DemParams, out, *, disparity_path, rectify_path,
+               cameras_path, scene: dict, scene_path, mask_path) -> dict | None:
+    """The calibrated disparity route in tiles (:mod:`demtool.tiled.dem`); None when the
+    target fits in one tile (the untiled path then runs); the other routes refuse the
+    tile options."""
+    from demtool.errors import ParameterError
+    from demtool.tiled.dem import dem_tiled
+    from demtool.tiling import wants_tiles
+
+    if disparity_path is None or cameras_path is None:
+        raise ParameterError("--tile-size/--scheduler/--dry-run: only the calibrated "
+                             "disparity route (--disparity with --cameras) runs in tiles")
+    pair = _tiled_pair(disparity_path, rectify_path, cameras_path, params.target)
+    camera = pair.left_camera if pair.side == "left" else pair.right_camera
+    if not wants_tiles(camera.height, camera.width, params):
+        return None
+    if params.gsd is not None:
+        gsd, source = float(params.gsd), "--gsd"
+    elif "gsd_m" in scene:
+        gsd, source = scene_number(scene, scene_path, "gsd_m"), "scene"
+    else:
+        gsd, source = None, "estimated"
+    result = dem_tiled(run, params, out, pair, mask_path=mask_path, gsd=gsd, gsd_source=source)
+    return {"dry_run": result.dry_run} if result.dry_run is not None else result.summary

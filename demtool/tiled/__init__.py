@@ -62,7 +62,7 @@ class TiledResult:
 def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOutput], *,
               inputs: Sequence[str | os.PathLike], parameters: Mapping[str, Any],
               transform=None, crs=None, workers: int = 0, scheduler: str | None = None,
-              dry_run: bool = False, summarize=None) -> TiledResult:
+              dry_run: bool = False, summarize=None, prepare=None) -> TiledResult:
     """Run ``job`` on ``tiling`` and write ``outputs`` (see the module docstring).
 
     Parameters
@@ -85,6 +85,11 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
         Plan and time one tile; write nothing.
     summarize : callable, optional
         ``summarize(tiles_info) -> dict``: the stage's summary for the sidecar.
+    prepare : callable, optional
+        ``prepare(job, folder) -> job``: earlier passes a stage needs before its tiles
+        (``dem``: the samples' statistics, the measured grid, a coarse global solve),
+        run under the lock when some tile is missing, with the work folder to keep
+        their own resumable results in; returns the job to run.
 
     Raises
     ------
@@ -119,6 +124,8 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
         return TiledResult(tiling, dry_run=text)
     with output_lock(main):
         start = time.perf_counter()
+        if prepare is not None and not all(cache.done(t) for t in tiling.tiles):
+            job = prepare(job, cache.folder)
         infos = run_tiles(job, tiling.tiles, cache, workers=workers, scheduler=scheduler,
                           log=run.log)
         wall = time.perf_counter() - start

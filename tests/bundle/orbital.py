@@ -3,8 +3,9 @@ ground-control tests (``bundle --reference-dem``) and bench/bundle_reference_dem
 
 Frame cameras at ``altitude`` (default 100 km) in a ``rows × columns`` grid ``spacing``
 apart, aimed at the block centre; a field of view ``field_deg`` (Apollo Metric: 74°,
-LRO WAC: 60° (monochrome)); hills of ``relief`` metres (5–40 km wavelengths, slopes up
-to ~0.2); tie points on the terrain seen through the true models with Gaussian noise;
+LRO WAC: 60° (monochrome)); hills of ``relief`` metres (7–41 km wavelengths, slopes up
+to ~0.3 at 1 km amplitude); tie points on the terrain seen through the true models
+with Gaussian noise;
 a reference DEM that is the truth sampled at a coarse post spacing with Gaussian
 noise (like LOLA gridded products: 100 m–1 km posts, metres of noise).  Everything is
 analytic (no rendering), so a test runs in seconds.
@@ -36,12 +37,13 @@ def _enu():
     return east, np.cross(up, east), up
 
 
-def relief(lon_deg, lat_deg, amplitude: float = 1000.0) -> np.ndarray:
+def relief(lon_deg, lat_deg, amplitude: float = 1000.0, scale: float = 1.0) -> np.ndarray:
     """Heights (m) above the sphere at planetocentric lon/lat (degrees): three hill
-    trains of 5–40 km wavelengths, ``amplitude`` the sum of their amplitudes."""
+    trains of 7–41 km wavelengths (times ``scale``), ``amplitude`` the sum of their
+    amplitudes."""
     east, north, _ = _enu()
     local = _unit(lon_deg, lat_deg) * RADIUS - _unit(*CENTRE_LONLAT) * RADIUS
-    x, y = local @ east, local @ north
+    x, y = local @ east / scale, local @ north / scale
     return amplitude * (0.45 * np.sin(2 * np.pi * (x / 23e3 + y / 37e3))
                         + 0.35 * np.cos(2 * np.pi * (y / 17e3 - x / 41e3))
                         + 0.20 * np.sin(2 * np.pi * (x + 0.5 * y) / 7e3))
@@ -100,7 +102,7 @@ def perturbed(models, *, position_m: float = 50.0, pointing_mrad: float = 0.5,
 
 
 def ground_points(count: int, *, half_width_m: float = 60e3, amplitude: float = 1000.0,
-                  seed: int = 2) -> np.ndarray:
+                  scale: float = 1.0, seed: int = 2) -> np.ndarray:
     """(count, 3) body-fixed points on the terrain, uniform over ±``half_width_m``."""
     rng = np.random.default_rng(seed)
     east, north, _ = _enu()
@@ -110,7 +112,7 @@ def ground_points(count: int, *, half_width_m: float = 60e3, amplitude: float = 
     unit = flat / np.linalg.norm(flat, axis=1, keepdims=True)
     lon = np.degrees(np.arctan2(unit[:, 1], unit[:, 0]))
     lat = np.degrees(np.arcsin(unit[:, 2]))
-    return unit * (RADIUS + relief(lon, lat, amplitude))[:, None]
+    return unit * (RADIUS + relief(lon, lat, amplitude, scale))[:, None]
 
 
 def tie_observations(models, xyz, *, noise_px: float = 0.2, seed: int = 3):
@@ -132,7 +134,8 @@ def tie_observations(models, xyz, *, noise_px: float = 0.2, seed: int = 3):
 
 
 def reference_dem(*, spacing_m: float = 500.0, noise_m: float = 3.0,
-                  half_width_m: float = 90e3, amplitude: float = 1000.0, seed: int = 4):
+                  half_width_m: float = 90e3, amplitude: float = 1000.0, scale: float = 1.0,
+                  seed: int = 4):
     """The terrain on an equirectangular map of the Moon's sphere centred on the block,
     posts ``spacing_m`` apart with Gaussian noise ``noise_m``.
 
@@ -151,5 +154,5 @@ def reference_dem(*, spacing_m: float = 500.0, noise_m: float = 3.0,
     lon, lat = map_to_lonlat(crs, transform.c + cols * spacing_m,
                              transform.f - rows * spacing_m)
     rng = np.random.default_rng(seed)
-    heights = relief(lon, lat, amplitude) + rng.normal(0.0, noise_m, lon.shape)
+    heights = relief(lon, lat, amplitude, scale) + rng.normal(0.0, noise_m, lon.shape)
     return heights, transform, crs

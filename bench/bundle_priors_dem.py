@@ -45,6 +45,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -169,12 +170,15 @@ def degraded_reference(truth: Path, out: Path, *, factor: int, noise_m: float,
     ``noise_m`` metres, written with the truth's CRS and body tags.  Returns the path
     and the DEM's error at the truth's cells (RMS of the truth minus its block means,
     and the noise), metres."""
+    from affine import Affine
+
     from demtool import io as dio
 
     raster = dio.read_raster(truth, what="truth DEM")
     h, w = (s // factor * factor for s in raster.data.shape)
     blocks = raster.data[:h, :w].reshape(h // factor, factor, w // factor, factor)
-    with np.errstate(invalid="ignore"):
+    with warnings.catch_warnings():  # blocks in the truth's no-data margin stay NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
         coarse = np.nanmean(blocks.astype(np.float64), axis=(1, 3))
     detail = blocks - coarse[:, None, :, None]
     error = float(np.sqrt(np.nanmean(detail ** 2) + noise_m ** 2))
@@ -182,8 +186,8 @@ def degraded_reference(truth: Path, out: Path, *, factor: int, noise_m: float,
     body_tags = {k: v for k, v in raster.tags.items()
                  if k.startswith("body") or k in ("reference_sphere_radius_m",
                                                   "height_reference")}
-    dio.write_raster(out, coarse, transform=raster.transform
-                     * raster.transform.scale(factor, factor), crs=raster.crs,
+    dio.write_raster(out, coarse, transform=raster.transform @ Affine.scale(factor),
+                     crs=raster.crs,
                      tags=body_tags)
     return out, error
 

@@ -235,7 +235,8 @@ def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int
                seed: int = 0, zero_mean: bool = False, say=print,
                synth_args: tuple = (), reference: tuple[int, float] | None = None,
                reference_sigma: float | None = None, max_features: int = 8192,
-               similarity: bool = True) -> dict:
+               similarity: bool = True,
+               routes: tuple[str, ...] = ("true", "perturbed", "adjusted")) -> dict:
     """Run the whole check in ``work``; print the tables through ``say`` and return
     ``{"pose": {label: (errors, common, relative)}, "datum": {label: datum_shift(...)},
     "dem": {label: report.json dict or the error line}}``.
@@ -316,6 +317,8 @@ def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int
     say("|---|---|---|---|---|---|---|---|")
     for label, folder in (("true", scene), ("perturbed", work / "perturbed"),
                           ("adjusted", work / "adjusted")):
+        if label not in routes:
+            continue
         try:
             report = dem_route(scene, folder, work / f"dem_{label}", target, partner,
                                similarity=similarity)
@@ -349,6 +352,10 @@ def main() -> None:
     parser.add_argument("--max-features", type=int, default=8192, help="bundle option")
     parser.add_argument("--synth", default="",
                         help="more synth options, e.g. '--altitude 100000 --gsd 100'")
+    parser.add_argument("--routes", default="true,perturbed,adjusted",
+                        help="the ISDs to run the DEM route with (comma-separated)")
+    parser.add_argument("--no-similarity", action="store_true",
+                        help="skip the compare with a similarity co-registration")
     parser.add_argument("--keep", type=Path, default=None, help="work folder to keep")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
@@ -357,6 +364,7 @@ def main() -> None:
                    synth_args=tuple(args.synth.split()), max_features=args.max_features,
                    reference=None if args.reference_post is None else
                    (args.reference_post, args.reference_noise),
+                   routes=tuple(args.routes.split(",")), similarity=not args.no_similarity,
                    say=lambda text: print(text, flush=True))
 
 

@@ -37,8 +37,8 @@ ORBITAL = dict(altitude=100e3, field_deg=60.0, size=2048, spacing=30e3, noise_px
                count=12000, dem_post_m=500.0, dem_noise_m=3.0, dem_sigma_m=5.0,
                relief_m=1000.0, scale=1.0)
 #: synth --sensor frame's default block: 1 km up, 256–512 px over 128–256 m, views a few
-#: hundred metres apart; the terrain 100 × smaller (hills of 10 m over 70–410 m)
-NEAR = dict(ORBITAL, altitude=1e3, field_deg=14.6, size=512, spacing=300.0, count=6000,
+#: hundred metres apart (here 100 m); the terrain 100 × smaller (10 m hills, 70–410 m)
+NEAR = dict(ORBITAL, altitude=1e3, field_deg=14.6, size=512, spacing=100.0, count=6000,
             dem_post_m=8.0, dem_noise_m=0.2, dem_sigma_m=0.3, relief_m=10.0, scale=0.01)
 
 

@@ -294,6 +294,12 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
                  "pointing %.4f mrad", name, row["observations"],
                  row["mean_residual_px"] or float("nan"), row["position_change_m"],
                  row["pointing_change_mrad"])
+    if "reference_dem" in summary:
+        dem = summary["reference_dem"]
+        log.info("reference DEM: %d tie points on it, height residual median %.2f m, "
+                 "RMS %.2f m (sigma %.2f m)", dem["points_on_dem"],
+                 dem["height_residual_median_m"] or float("nan"),
+                 dem["height_residual_rms_m"] or float("nan"), dem["sigma_m"])
     with dio.output_transaction():
         dio.write_npz(out, "bundle", adjusted.result.to_arrays())
         outputs = [Path(out)]

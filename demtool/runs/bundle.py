@@ -300,6 +300,9 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
                  "RMS %.2f m (sigma %.2f m)", dem["points_on_dem"],
                  dem["height_residual_median_m"] or float("nan"),
                  dem["height_residual_rms_m"] or float("nan"), dem["sigma_m"])
+        if not dem["points_on_dem"]:
+            log.warning("no tie point lies on the reference DEM's data: the block's datum "
+                        "is the priors' alone")
     with dio.output_transaction():
         dio.write_npz(out, "bundle", adjusted.result.to_arrays())
         outputs = [Path(out)]

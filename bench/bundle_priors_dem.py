@@ -26,8 +26,15 @@ is known only to about (position accuracy) / altitude.
 Stages run through the CLI (``python -m demtool``) in subprocesses, as the Makefile
 chains them.
 
+With ``--reference-post N [--reference-noise M]`` the bundle also gets
+``--reference-dem``: synth's map truth averaged over N×N cells plus noise (a LOLA-like
+product), which ties the block's datum to the ground (bench/bundle_reference_dem.py
+has the analytic orbital tables).  ``--synth '...'`` passes more synth options (an
+orbital geometry).
+
 Usage: ``.venv/bin/python bench/bundle_priors_dem.py [--size 256] [--image-size 256]
-[--views 8] [--seed 0] [--zero-mean] [--keep DIR]``
+[--views 8] [--seed 0] [--zero-mean] [--reference-post N [--reference-noise M]]
+[--synth '--altitude 100000 ...'] [--keep DIR]``
 """
 
 from __future__ import annotations
@@ -38,6 +45,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -155,7 +163,37 @@ def datum_shift(folder: Path, scene: Path, names: list[str], target: str
         float(residual.max()), pixels
 
 
-def dem_route(scene: Path, isds: Path, work: Path, target: str, partner: str) -> dict:
+def degraded_reference(truth: Path, out: Path, *, factor: int, noise_m: float,
+                       seed: int) -> tuple[Path, float]:
+    """A LOLA-like reference DEM: ``truth`` (the map truth of synth) averaged over
+    ``factor × factor`` blocks (posts ``factor`` times coarser) plus Gaussian noise of
+    ``noise_m`` metres, written with the truth's CRS and body tags.  Returns the path
+    and the DEM's error at the truth's cells (RMS of the truth minus its block means,
+    and the noise), metres."""
+    from affine import Affine
+
+    from demtool import io as dio
+
+    raster = dio.read_raster(truth, what="truth DEM")
+    h, w = (s // factor * factor for s in raster.data.shape)
+    blocks = raster.data[:h, :w].reshape(h // factor, factor, w // factor, factor)
+    with warnings.catch_warnings():  # blocks in the truth's no-data margin stay NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        coarse = np.nanmean(blocks.astype(np.float64), axis=(1, 3))
+    detail = blocks - coarse[:, None, :, None]
+    error = float(np.sqrt(np.nanmean(detail ** 2) + noise_m ** 2))
+    coarse += np.random.default_rng(seed).normal(0.0, noise_m, coarse.shape)
+    body_tags = {k: v for k, v in raster.tags.items()
+                 if k.startswith("body") or k in ("reference_sphere_radius_m",
+                                                  "height_reference")}
+    dio.write_raster(out, coarse, transform=raster.transform @ Affine.scale(factor),
+                     crs=raster.crs,
+                     tags=body_tags)
+    return out, error
+
+
+def dem_route(scene: Path, isds: Path, work: Path, target: str, partner: str, *,
+              similarity: bool = True) -> dict:
     """rectify (calibrated) → sgm → dem → compare; the compare report's headline."""
     work.mkdir(parents=True, exist_ok=True)
     wall = demtool("rectify", scene / f"{target}.tif", scene / f"{partner}.tif",
@@ -168,6 +206,9 @@ def dem_route(scene: Path, isds: Path, work: Path, target: str, partner: str) ->
     wall += demtool("compare", work / "dem.tif", scene / "truth_dem_map.tif",
                     "--out", work / "report", "--label", work.name)
     report = json.loads((work / "report" / "report.json").read_text())
+    if not similarity:
+        report["_wall_s"] = wall
+        return report
     # co-registered by a similarity too (shift, then ICP with scale): what is left once
     # the block's datum, which tie points cannot see, is taken out
     wall += demtool("compare", work / "dem.tif", scene / "truth_dem_map.tif",
@@ -191,14 +232,24 @@ def headline(report: dict) -> dict:
 
 
 def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int = 8,
-               seed: int = 0, zero_mean: bool = False, say=print) -> dict:
+               seed: int = 0, zero_mean: bool = False, say=print,
+               synth_args: tuple = (), reference: tuple[int, float] | None = None,
+               reference_sigma: float | None = None, max_features: int = 8192,
+               similarity: bool = True,
+               routes: tuple[str, ...] = ("true", "perturbed", "adjusted")) -> dict:
     """Run the whole check in ``work``; print the tables through ``say`` and return
     ``{"pose": {label: (errors, common, relative)}, "datum": {label: datum_shift(...)},
-    "dem": {label: report.json dict or the error line}}``."""
+    "dem": {label: report.json dict or the error line}}``.
+
+    ``synth_args`` are more ``synth`` options (an orbital geometry: ``--altitude``,
+    ``--gsd``, ``--spacing``, ``--relief`` …); ``reference`` = (post factor, noise m)
+    adds ``--reference-dem``: the map truth degraded by
+    :func:`degraded_reference`, weighted by ``reference_sigma`` (default: that DEM's
+    RMS error at the truth's cells, at least 0.1 m)."""
     results: dict = {"pose": {}, "datum": {}, "dem": {}}
     scene = work / "scene"
     wall = demtool("synth", "--sensor", "frame", "--size", size, "--image-size", image_size,
-                   "--views", views, "--seed", seed, "--out", scene)
+                   "--views", views, "--seed", seed, *synth_args, "--out", scene)
     description = json.loads((scene / "scene.json").read_text())
     target, partner = description["target"], description["partner"]
     names = sorted(p.stem for p in scene.glob("view_*.tif"))
@@ -208,7 +259,18 @@ def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int
 
     perturb(scene, work / "perturbed", names, np.random.default_rng(seed + 1),
             zero_mean=zero_mean)
-    wall = demtool("bundle", *[scene / f"{n}.tif" for n in names],
+    extra: list = ["--max-features", max_features]
+    if reference is not None:
+        factor, noise = reference
+        ref, error = degraded_reference(scene / "truth_dem_map.tif",
+                                        work / "reference_dem.tif", factor=factor,
+                                        noise_m=noise, seed=seed + 2)
+        if reference_sigma is None:
+            reference_sigma = max(error, 0.1)
+        extra += ["--reference-dem", ref, "--reference-dem-sigma", reference_sigma]
+        say(f"reference DEM: truth averaged over {factor}×{factor} posts, noise {noise} m, "
+            f"--reference-dem-sigma {reference_sigma:.2f} m")
+    wall = demtool("bundle", *[scene / f"{n}.tif" for n in names], *extra,
                    *[a for n in names for a in ("--sensors", work / "perturbed" /
                                                 f"{n}.json")],
                    "--matcher", "spatial", "--position-sigma", POSITION_ERROR_M,
@@ -255,8 +317,11 @@ def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int
     say("|---|---|---|---|---|---|---|---|")
     for label, folder in (("true", scene), ("perturbed", work / "perturbed"),
                           ("adjusted", work / "adjusted")):
+        if label not in routes:
+            continue
         try:
-            report = dem_route(scene, folder, work / f"dem_{label}", target, partner)
+            report = dem_route(scene, folder, work / f"dem_{label}", target, partner,
+                               similarity=similarity)
         except StageFailed as exc:
             results["dem"][label] = str(exc)
             say(f"| {label} | — | — | — | — | — | — | — | {exc}")
@@ -264,7 +329,8 @@ def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int
         results["dem"][label] = report
         h = headline(report)
         dx, dy, dz = h["shift_m"]
-        say(f"| {label} | {h['rmse']:.3f} | {report['_rmse_similarity']:.3f} | "
+        similar = report.get("_rmse_similarity", float("nan"))
+        say(f"| {label} | {h['rmse']:.3f} | {similar:.3f} | "
             f"{h['rmse_before']:.3f} | {h['mean_before']:.3f} | "
             f"{dx:.2f}, {dy:.2f}, {dz:.2f} | {h['completeness']:.1f} | "
             f"{report['_wall_s']:.0f} |")
@@ -279,11 +345,26 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of synth and the errors")
     parser.add_argument("--zero-mean", action="store_true",
                         help="pairwise opposite errors: the block's mean error is zero")
+    parser.add_argument("--reference-post", type=int, default=None,
+                        help="bundle --reference-dem: the truth averaged over N×N cells")
+    parser.add_argument("--reference-noise", type=float, default=0.0,
+                        help="Gaussian noise of that reference DEM, metres")
+    parser.add_argument("--max-features", type=int, default=8192, help="bundle option")
+    parser.add_argument("--synth", default="",
+                        help="more synth options, e.g. '--altitude 100000 --gsd 100'")
+    parser.add_argument("--routes", default="true,perturbed,adjusted",
+                        help="the ISDs to run the DEM route with (comma-separated)")
+    parser.add_argument("--no-similarity", action="store_true",
+                        help="skip the compare with a similarity co-registration")
     parser.add_argument("--keep", type=Path, default=None, help="work folder to keep")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
         experiment(args.keep or Path(scratch), size=args.size, image_size=args.image_size,
                    views=args.views, seed=args.seed, zero_mean=args.zero_mean,
+                   synth_args=tuple(args.synth.split()), max_features=args.max_features,
+                   reference=None if args.reference_post is None else
+                   (args.reference_post, args.reference_noise),
+                   routes=tuple(args.routes.split(",")), similarity=not args.no_similarity,
                    say=lambda text: print(text, flush=True))
 
 

@@ -47,5 +47,9 @@ class BundleParams(Parameters):
     pointing_sigma: float = parameter(1.0, "With sensor models: standard deviation of the "
                                       "prior pointing, milliradians.", minimum=0.0,
                                       min_open=True)
+    reference_dem_sigma: float = parameter(10.0, "With --reference-dem: standard deviation "
+                                           "of its heights at the tie points (noise and "
+                                           "interpolation), metres.", minimum=0.0,
+                                           min_open=True)
     seed: int = seed_field()
     workers: int = workers_field()

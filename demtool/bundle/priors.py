@@ -21,8 +21,10 @@ over the offsets of every image and the tie points ``X_j`` (Huber loss ρ on the
 reprojection residuals, 1 px scale), starting from tie points triangulated with the
 prior models, so no two-view initialisation is needed: any pair whose rays meet
 registers.  ``σ_p`` is ``--position-sigma`` (m), ``σ_θ`` ``--pointing-sigma`` (mrad).
-The block's common offset (a shift or turn of all images together) is determined by
-the priors alone, so it is only as good as their mean.
+The block's common offset (a shift, turn or scale of all images together) is
+determined by the priors alone, so it is only as good as their mean, unless a
+reference DEM ties the tie points' heights to the ground (``surface``,
+:mod:`demtool.bundle.surface`).  The solver is :mod:`demtool.bundle.lm`.
 """
 
 from __future__ import annotations
@@ -220,6 +222,10 @@ def triangulate(models: Sequence[SensorModel], obs: Observations) -> tuple[np.nd
     return points + reference, miss
 
 
+def _finite(value) -> float | None:
+    return float(value) if np.isfinite(value) else None
+
+
 @dataclass(frozen=True)
 class PriorAdjustment:
     """The outcome of :func:`adjust_with_priors`.
@@ -238,6 +244,12 @@ class PriorAdjustment:
         RMS reprojection residual with the prior models and triangulated points.
     pixel_sigma : float
         Sigma of the image observations in the final adjustment, pixels.
+    surface_residuals : (P,) float64 or None
+        With a reference DEM: the tie points' heights minus the DEM's, metres (NaN off
+        the DEM).
+    covariance : (6N, 6N) float64 or None
+        Covariance of the pose offsets (per image: dC in metres, rotation in mrad) from
+        the images, the priors and the DEM at the solution.
     """
 
     offsets: list[PoseOffset]
@@ -246,11 +258,22 @@ class PriorAdjustment:
     residuals: np.ndarray
     initial_rms_px: float
     pixel_sigma: float = 1.0
+    surface_residuals: np.ndarray | None = None
+    covariance: np.ndarray | None = None
+
+    def sigmas(self) -> np.ndarray:
+        """(N, 2): each image's position (m) and pointing (mrad) standard deviation,
+        the root sum of squares over the three axes of :attr:`covariance`."""
+        if self.covariance is None:
+            return np.full((len(self.offsets), 2), np.nan)
+        d = np.diag(self.covariance).reshape(-1, 6)
+        return np.sqrt(np.stack([d[:, :3].sum(axis=1), d[:, 3:].sum(axis=1)], axis=1))
 
     def image_report(self, names: Sequence[str]) -> dict[str, dict]:
         """Per image: observations, mean and RMS residual (px), position change (m) and
         pointing change (mrad) from the prior."""
         norms = np.linalg.norm(self.residuals, axis=1)
+        sigmas = self.sigmas()
         report = {}
         for i, name in enumerate(names):
             sel = self.observations.image == i
@@ -262,126 +285,17 @@ class PriorAdjustment:
                 "position_change_m": self.offsets[i].position_change_m,
                 "position_change_xyz_m": [float(v) for v in self.offsets[i].translation],
                 "pointing_change_mrad": self.offsets[i].pointing_change_mrad,
+                "position_sigma_m": _finite(sigmas[i, 0]),
+                "pointing_sigma_mrad": _finite(sigmas[i, 1]),
             }
         return report
-
-
-def _project(models, pivots, obs, cams, points) -> np.ndarray:
-    """Reprojection residuals (M, 2), pixels, of ``points`` (P, 3) through the models moved
-    by ``cams`` (N, 6: dC in metres, w in milliradians)."""
-    out = np.empty((len(obs.image), 2))
-    for i, model in enumerate(models):
-        sel = obs.image == i
-        if not np.any(sel):
-            continue
-        offset = PoseOffset(cams[i, :3], cams[i, 3:] * 1e-3, pivots[i])
-        line, sample = model.ground_to_image(offset.to_original(points[obs.point[sel]]))
-        out[sel, 0] = line - obs.line[sel]
-        out[sel, 1] = sample - obs.sample[sel]
-    return np.nan_to_num(out, nan=1e3, posinf=1e3, neginf=-1e3)
-
-
-#: forward-difference steps: metres (positions, points) and milliradians (pointing)
-_STEP = 1e-3
-
-
-def _jacobians(models, pivots, obs, cams, points, base):
-    """Forward-difference Jacobian blocks: (M, 2, 6) per camera offset, (M, 2, 3) per
-    point (each observation depends on one image and one point, so one perturbation of
-    every image (point) at once gives a whole column block)."""
-    jc = np.empty((len(obs.image), 2, 6))
-    jp = np.empty((len(obs.image), 2, 3))
-    for k in range(6):
-        moved = cams.copy()
-        moved[:, k] += _STEP
-        jc[:, :, k] = (_project(models, pivots, obs, moved, points) - base) / _STEP
-    for k in range(3):
-        moved = points.copy()
-        moved[:, k] += _STEP
-        jp[:, :, k] = (_project(models, pivots, obs, cams, moved) - base) / _STEP
-    return jc, jp
-
-
-def _cost(residuals, cams, prior_weights, huber, sigma):
-    norms = np.linalg.norm(residuals, axis=1)
-    rho = np.where(norms <= huber, norms ** 2, 2 * huber * norms - huber ** 2)
-    return float(rho.sum() / sigma ** 2 + np.sum(cams ** 2 * prior_weights))
-
-
-def _solve(models, pivots, obs, cams, points, prior_weights, *, huber: float, sigma: float,
-           iterations: int):
-    """Levenberg–Marquardt on the reduced camera system (Schur complement of the points;
-    Triggs et al. 2000, sect. 6.1), Huber weights re-computed each iteration (IRLS);
-    image residuals weighted by ``1 / sigma²`` (pixels), the Huber threshold ``huber``
-    in pixels."""
-    n = len(models)
-    n_points = len(points)
-    base = _project(models, pivots, obs, cams, points)
-    cost = _cost(base, cams, prior_weights, huber, sigma)
-    lam = 1e-3
-    for _ in range(iterations):
-        jc, jp = _jacobians(models, pivots, obs, cams, points, base)
-        norms = np.linalg.norm(base, axis=1)
-        w = np.where(norms <= huber, 1.0, huber / np.maximum(norms, 1e-12)) / sigma ** 2
-        wjc = jc * w[:, None, None]
-        u_obs = np.einsum("mki,mkj->mij", wjc, jc)
-        u = np.zeros((n, 6, 6))
-        np.add.at(u, obs.image, u_obs)
-        u[:, np.arange(6), np.arange(6)] += prior_weights
-        v = np.zeros((n_points, 3, 3))
-        np.add.at(v, obs.point, np.einsum("mki,mkj->mij", jp * w[:, None, None], jp))
-        wm = np.einsum("mki,mkj->mij", wjc, jp)  # (M, 6, 3)
-        gc = np.zeros((n, 6))
-        np.add.at(gc, obs.image, -np.einsum("mki,mk->mi", wjc, base))
-        gc -= prior_weights * cams
-        gp = np.zeros((n_points, 3))
-        np.add.at(gp, obs.point, -np.einsum("mki,mk->mi", jp * w[:, None, None], base))
-        # G_j (3, 6n): the W blocks of point j's observations, by image
-        g = np.zeros((n_points, 3, n, 6))
-        np.add.at(g, (obs.point, slice(None), obs.image),
-                  np.swapaxes(wm, 1, 2))
-        g = g.reshape(n_points, 3, 6 * n)
-        while True:
-            ud = u.copy()
-            ud[:, np.arange(6), np.arange(6)] *= 1.0 + lam
-            vd = v.copy()
-            vd[:, np.arange(3), np.arange(3)] *= 1.0 + lam
-            vd[:, np.arange(3), np.arange(3)] += 1e-12
-            v_inv = np.linalg.inv(vd)
-            s = np.zeros((6 * n, 6 * n))
-            for i in range(n):
-                s[6 * i:6 * i + 6, 6 * i:6 * i + 6] = ud[i]
-            vg = v_inv @ g  # (P, 3, 6n)
-            s -= np.einsum("pki,pkj->ij", g, vg)
-            rhs = gc.ravel() - np.einsum("pki,pk->i", vg, gp)
-            try:
-                dc = np.linalg.solve(s, rhs)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            dp = np.einsum("pij,pj->pi", v_inv, gp - np.einsum("pki,i->pk", g, dc))
-            new_cams = cams + dc.reshape(n, 6)
-            new_points = points + dp
-            new_base = _project(models, pivots, obs, new_cams, new_points)
-            new_cost = _cost(new_base, new_cams, prior_weights, huber, sigma)
-            if new_cost <= cost:
-                lam = max(lam / 10, 1e-9)
-                break
-            lam *= 10
-            if lam > 1e8:
-                return cams, points, base
-        converged = cost - new_cost <= 1e-10 * cost
-        cams, points, base, cost = new_cams, new_points, new_base, new_cost
-        if converged or np.max(np.abs(dc)) < 1e-6:
-            break
-    return cams, points, base
 
 
 def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
                        position_sigma: float, pointing_sigma: float,
                        outlier_px: float = 3.0, max_iterations: int = 30,
-                       huber_px: float = 2.0, min_pixel_sigma: float = 0.05
-                       ) -> PriorAdjustment:
+                       huber_px: float = 2.0, min_pixel_sigma: float = 0.05,
+                       surface=None) -> PriorAdjustment:
     """Adjust constant pose offsets of sensor models and tie points, priors on the poses.
 
     Parameters
@@ -405,6 +319,10 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
         The image observations are weighted with a sigma of 1 px in the first round,
         then with their robust RMS residual (never below this, pixels): tie points
         good to 0.05 px outweigh the pose priors accordingly.
+    surface : demtool.bundle.surface.ReferenceSurface, optional
+        A reference DEM: each tie point's height is tied to it with the surface's sigma
+        (Huber loss, 2 sigmas), which fixes the block's datum (height, tilt, scale and,
+        over relief, horizontal position) that tie points and priors leave open.
 
     Returns
     -------
@@ -415,6 +333,8 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
     ProcessingError
         No tie points, or an image with none (it cannot be adjusted).
     """
+    from demtool.bundle import lm
+
     n_images = len(models)
     pivots = [pivot_of(m) for m in models]
     prior_weights = np.array([1 / position_sigma ** 2] * 3 + [1 / pointing_sigma ** 2] * 3)
@@ -432,11 +352,11 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
                    for i, m in enumerate(models)]
         points0, _ = triangulate(current, obs)
         if round_ == 0:
-            start = _project(models, pivots, obs, cams, points0)
+            start = lm.project(models, pivots, obs, cams, points0)
             initial_rms = float(np.sqrt(np.mean(np.sum(start ** 2, axis=1))))
-        cams, points, residuals = _solve(models, pivots, obs, cams, points0, prior_weights,
-                                         huber=huber_px * pixel_sigma, sigma=pixel_sigma,
-                                         iterations=max_iterations)
+        cams, points, residuals, covariance = lm.solve(
+            models, pivots, obs, cams, points0, prior_weights, huber=huber_px * pixel_sigma,
+            sigma=pixel_sigma, iterations=max_iterations, surface=surface)
         norms = np.linalg.norm(residuals, axis=1)
         log.info("adjustment round %d: %d observations, %d tie points, RMS %.3f px "
                  "(image sigma %.3f px)", round_ + 1, len(obs.image), obs.point_count,
@@ -453,4 +373,6 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
                for i in range(n_images)]
     return PriorAdjustment(offsets=offsets, points=points, observations=obs,
                            residuals=residuals, initial_rms_px=initial_rms,
-                           pixel_sigma=pixel_sigma)
+                           pixel_sigma=pixel_sigma, covariance=covariance,
+                           surface_residuals=None if surface is None else
+                           surface.residuals(points))

@@ -94,7 +94,8 @@ class SensorBlockAdjustment:
 def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
                         models: Sequence[SensorModel], *, pairing: str = "exhaustive",
                         position_sigma: float, pointing_sigma: float,
-                        max_features: int = 8192, seed: int = 0) -> SensorBlockAdjustment:
+                        max_features: int = 8192, seed: int = 0,
+                        surface=None) -> SensorBlockAdjustment:
     """Tie points and pose-prior bundle adjustment of images with sensor models.
 
     Parameters
@@ -113,6 +114,8 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
         SIFT keypoints per image.
     seed : int
         Seed of the robust matching.
+    surface : demtool.bundle.surface.ReferenceSurface, optional
+        A reference DEM tying the tie points' heights (the block's datum).
 
     Raises
     ------
@@ -129,7 +132,7 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
         raise ProcessingError("no tie points between the images: they may not overlap "
                               "or lack texture (try more --max-features)")
     adjustment = adjust_with_priors(models, obs, position_sigma=position_sigma,
-                                    pointing_sigma=pointing_sigma)
+                                    pointing_sigma=pointing_sigma, surface=surface)
     adjusted = [AdjustedSensor(m, o) for m, o in zip(models, adjustment.offsets, strict=True)]
     kept = adjustment.observations
     norms = np.linalg.norm(adjustment.residuals, axis=1)
@@ -174,5 +177,15 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
         "target": str(names[0]),
         "images": images_report,
     }
+    if surface is not None:
+        dh = adjustment.surface_residuals
+        on = np.isfinite(dh)
+        summary["reference_dem"] = {
+            "sigma_m": surface.sigma,
+            "points_on_dem": int(on.sum()),
+            "height_residual_median_m": float(np.median(dh[on])) if on.any() else None,
+            "height_residual_rms_m": float(np.sqrt(np.mean(dh[on] ** 2)))
+            if on.any() else None,
+        }
     return SensorBlockAdjustment(result=result, adjustment=adjustment, adjusted=adjusted,
                                  summary=summary)

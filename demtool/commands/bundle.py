@@ -36,7 +36,12 @@ offset, for line scanners too) and the tie points are adjusted with priors weigh
 --position-sigma (m) and --pointing-sigma (mrad).  No two-view initialisation is needed.
 --adjusted-dir receives the adjusted models in their own format (ISD JSON for ISDs and
 cubes, .tsai for .tsai) for rectify, dem and mapproject; OUT.json reports each image's
-residual, observations, and change of position (m) and pointing (mrad).
+residual, observations, change of position (m) and pointing (mrad) and their standard
+deviations.  Tie points fix the block's shape, not its datum (a shift, turn or scale of
+the whole block), which the priors alone only place as well as their mean:
+--reference-dem DEM (LOLA, MOLA: a DEM on the models' body) ties every tie point's
+height to the DEM's (bilinear, Huber loss, --reference-dem-sigma metres), as ASP's
+bundle_adjust --heights-from-dem does, so the block follows the ground.
 """
 
 
@@ -57,11 +62,16 @@ residual, observations, and change of position (m) and pointing (mrad).
 @click.option("--adjusted-dir", type=click.Path(file_okay=False),
               help="Write the adjusted sensor models into this folder (with --sensors or "
               "cubes).")
+@options.path_option("--reference-dem", "A DEM on the body's map (e.g. LOLA, MOLA) tying "
+                     "the tie points' heights, weighted by --reference-dem-sigma: the "
+                     "block's height, tilt, scale and (over relief) position (with "
+                     "sensor models).")
 @options.parameter_options(BundleParams)
 @click.pass_context
 def command(ctx: click.Context, inputs: tuple[str, ...], images: str | None, out: str,
             colmap_dir: str | None, cameras: str | None, align_cameras: str | None,
-            sensors: tuple[str, ...], adjusted_dir: str | None, **values: Any) -> None:
+            sensors: tuple[str, ...], adjusted_dir: str | None, reference_dem: str | None,
+            **values: Any) -> None:
     """Options → BundleParams → :func:`demtool.runs.bundle.run_bundle`."""
     from demtool.cli import AppState
     from demtool.runs.bundle import run_bundle
@@ -77,5 +87,6 @@ def command(ctx: click.Context, inputs: tuple[str, ...], images: str | None, out
     run_bundle(list(inputs), out, BundleParams.from_options(values), image_list=images,
                colmap_dir=colmap_dir, cameras_path=cameras, align_path=align_cameras,
                sensors=list(sensors) or None, adjusted_dir=adjusted_dir,
+               reference_dem=reference_dem,
                verbose=state is not None and state.verbosity > 0,
                resolved=options.resolved_params(ctx))

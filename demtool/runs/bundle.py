@@ -50,13 +50,15 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
                cameras_path: str | os.PathLike | None = None,
                align_path: str | os.PathLike | None = None,
                sensors: Sequence[str | os.PathLike] | None = None,
-               adjusted_dir: str | os.PathLike | None = None, verbose: bool = False,
+               adjusted_dir: str | os.PathLike | None = None,
+               reference_dem: str | os.PathLike | None = None, verbose: bool = False,
                resolved: dict | None = None) -> dict:
     """Run the bundle stage: read the block, adjust it, write bundle.npz and its sidecar.
 
     ``inputs`` is one selection.json or image paths (or empty with ``image_list``);
     ``cameras_path`` gives known intrinsics (not with ``params.focal_px``),
-    ``align_path`` known camera centres to align the model to; ``colmap_dir`` also
+    ``align_path`` known camera centres to align the model to; ``reference_dem`` (with
+    sensor models) a DEM tying the tie points' heights; ``colmap_dir`` also
     receives the COLMAP model.  ``verbose`` shows COLMAP's own log.  Returns the sidecar
     summary.
     """
@@ -77,6 +79,7 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
     if sensor_paths is not None:
         return run_bundle_with_sensors(block, sensor_paths, out, params, image_list=image_list,
                                        adjusted_dir=adjusted_dir, inputs=list(inputs),
+                                       reference_dem=reference_dem,
                                        resolved=resolved, started=started,
                                        other_options={"--colmap-dir": colmap_dir,
                                                       "--cameras": cameras_path,
@@ -86,10 +89,11 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
 
         raise ParameterError("--matcher spatial needs sensor models (--sensors, or ISIS "
                              "cubes with SPICE as the images)")
-    if adjusted_dir is not None:
+    if adjusted_dir is not None or reference_dem is not None:
         from demtool.errors import ParameterError
 
-        raise ParameterError("--adjusted-dir needs sensor models (--sensors, or ISIS cubes "
+        option = "--adjusted-dir" if adjusted_dir is not None else "--reference-dem"
+        raise ParameterError(f"{option} needs sensor models (--sensors, or ISIS cubes "
                              "with SPICE as the images)")
     known_cameras = None
     if cameras_path is not None:
@@ -194,7 +198,8 @@ def _adjusted_name(sensor: Path, kind: str) -> str:
 
 def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, params, *,
                             image_list=None, adjusted_dir=None, inputs=(), resolved=None,
-                            started: float = 0.0, other_options=None) -> dict:
+                            started: float = 0.0, other_options=None,
+                            reference_dem=None) -> dict:
     """The ``--sensors`` route of :func:`run_bundle`: tie points, pose-prior bundle
     adjustment of the models in the body-fixed frame, ``bundle.npz`` (tie points and
     local pinholes, metric) and the adjusted models in their own formats."""
@@ -237,7 +242,7 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
         {"SELECTION": inputs[0]} if block.target is not None else {}
     run = StageRun("bundle", params, resolved=resolved,
                    inputs={**sources, "images": list(block.paths),
-                           "--sensors": list(sensor_paths)},
+                           "--sensors": list(sensor_paths), "--reference-dem": reference_dem},
                    outputs={"--out": out, "adjusted models": adjusted_paths or None},
                    folders={"--adjusted-dir": adjusted_dir})
     log, prov = run.log, run.provenance
@@ -260,6 +265,12 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
                              f"image {path} is {data.shape[1]}x{data.shape[0]}; give the "
                              "model of that image")
         images.append(data)
+    surface = None
+    if reference_dem is not None:
+        from demtool.runs.bundle_reference import read_reference_surface
+
+        surface = read_reference_surface(reference_dem, models, sensor_paths,
+                                         sigma=params.reference_dem_sigma)
     if params.matcher == "spatial" and any(m.radii is None for m in models):
         raise ParameterError("--matcher spatial needs the body's radii; .tsai files carry "
                              "none: give an ISD or cube too, or another --matcher")
@@ -268,7 +279,8 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
     adjusted = adjust_sensor_block(list(block.names), images, models, pairing=pairing,
                                    position_sigma=params.position_sigma,
                                    pointing_sigma=params.pointing_sigma,
-                                   max_features=params.max_features, seed=params.seed)
+                                   max_features=params.max_features, seed=params.seed,
+                                   surface=surface)
     summary = adjusted.summary
     summary["source"] = block.source
     summary["aligned"] = True
@@ -282,6 +294,15 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
                  "pointing %.4f mrad", name, row["observations"],
                  row["mean_residual_px"] or float("nan"), row["position_change_m"],
                  row["pointing_change_mrad"])
+    if "reference_dem" in summary:
+        dem = summary["reference_dem"]
+        log.info("reference DEM: %d tie points on it, height residual median %.2f m, "
+                 "RMS %.2f m (sigma %.2f m)", dem["points_on_dem"],
+                 dem["height_residual_median_m"] or float("nan"),
+                 dem["height_residual_rms_m"] or float("nan"), dem["sigma_m"])
+        if not dem["points_on_dem"]:
+            log.warning("no tie point lies on the reference DEM's data: the block's datum "
+                        "is the priors' alone")
     with dio.output_transaction():
         dio.write_npz(out, "bundle", adjusted.result.to_arrays())
         outputs = [Path(out)]

@@ -1,0 +1,197 @@
+"""Levenberg–Marquardt of the pose-prior bundle adjustment (:mod:`demtool.bundle.priors`).
+
+Unknowns: a constant pose offset per image (``cams`` (N, 6): translation ``dC`` in
+metres, rotation vector in milliradians, about the image's pivot) and the tie points
+(P, 3) body-fixed metres.  The cost (Triggs et al. 2000, "Bundle adjustment — a modern
+synthesis", sect. 3 and 4.4) is
+
+    Σ_obs ρ(|x_obs − π_i(X_j)| / σ_px)  +  Σ_i cams_i² · prior_weights
+    [ + Σ_j ρ((h(X_j) − h_DEM(X_j)) / σ_DEM) ]
+
+(ρ the Huber loss; the bracket only with a reference DEM, :mod:`demtool.bundle.surface`),
+minimised on the reduced camera system (Schur complement of the points, Triggs et al.
+2000, sect. 6.1) with IRLS weights re-computed each iteration.  The inverse of the
+reduced camera matrix at the solution (no damping) is the covariance of the pose
+offsets (Triggs et al. 2000, sect. 10; Förstner & Wrobel 2016, sect. 4.2): how well
+the images, the priors and the DEM determine each image's position and pointing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from demtool.bundle.priors import PoseOffset
+
+#: forward-difference steps: metres (positions, points) and milliradians (pointing)
+_STEP = 1e-3
+
+
+def project(models, pivots, obs, cams, points) -> np.ndarray:
+    """Reprojection residuals (M, 2), pixels, of ``points`` (P, 3) through the models moved
+    by ``cams`` (N, 6: dC in metres, w in milliradians)."""
+    out = np.empty((len(obs.image), 2))
+    for i, model in enumerate(models):
+        sel = obs.image == i
+        if not np.any(sel):
+            continue
+        offset = PoseOffset(cams[i, :3], cams[i, 3:] * 1e-3, pivots[i])
+        line, sample = model.ground_to_image(offset.to_original(points[obs.point[sel]]))
+        out[sel, 0] = line - obs.line[sel]
+        out[sel, 1] = sample - obs.sample[sel]
+    return np.nan_to_num(out, nan=1e3, posinf=1e3, neginf=-1e3)
+
+
+def _jacobians(models, pivots, obs, cams, points, base):
+    """Forward-difference Jacobian blocks: (M, 2, 6) per camera offset, (M, 2, 3) per
+    point (each observation depends on one image and one point, so one perturbation of
+    every image (point) at once gives a whole column block)."""
+    jc = np.empty((len(obs.image), 2, 6))
+    jp = np.empty((len(obs.image), 2, 3))
+    for k in range(6):
+        moved = cams.copy()
+        moved[:, k] += _STEP
+        jc[:, :, k] = (project(models, pivots, obs, moved, points) - base) / _STEP
+    for k in range(3):
+        moved = points.copy()
+        moved[:, k] += _STEP
+        jp[:, :, k] = (project(models, pivots, obs, cams, moved) - base) / _STEP
+    return jc, jp
+
+
+def _cost(residuals, cams, prior_weights, huber, sigma):
+    norms = np.linalg.norm(residuals, axis=1)
+    rho = np.where(norms <= huber, norms ** 2, 2 * huber * norms - huber ** 2)
+    return float(rho.sum() / sigma ** 2 + np.sum(cams ** 2 * prior_weights))
+
+
+def _surface_cost(surface, points, threshold: float) -> float:
+    if surface is None:
+        return 0.0
+    from demtool.bundle.surface import huber_cost
+
+    return huber_cost(surface.residuals(points) / surface.sigma, threshold)
+
+
+@dataclass
+class _Normal:
+    """Normal equations of one iteration: camera blocks ``u`` (N, 6, 6), point blocks
+    ``v`` (P, 3, 3), coupling ``g`` (P, 3, 6N), right-hand sides ``gc`` (N, 6) and
+    ``gp`` (P, 3)."""
+
+    u: np.ndarray
+    v: np.ndarray
+    g: np.ndarray
+    gc: np.ndarray
+    gp: np.ndarray
+
+
+def _normal_equations(models, pivots, obs, cams, points, base, prior_weights, *, huber,
+                      sigma, surface, surface_huber) -> _Normal:
+    n, n_points = len(models), len(points)
+    jc, jp = _jacobians(models, pivots, obs, cams, points, base)
+    norms = np.linalg.norm(base, axis=1)
+    w = np.where(norms <= huber, 1.0, huber / np.maximum(norms, 1e-12)) / sigma ** 2
+    wjc = jc * w[:, None, None]
+    u = np.zeros((n, 6, 6))
+    np.add.at(u, obs.image, np.einsum("mki,mkj->mij", wjc, jc))
+    u[:, np.arange(6), np.arange(6)] += prior_weights
+    v = np.zeros((n_points, 3, 3))
+    np.add.at(v, obs.point, np.einsum("mki,mkj->mij", jp * w[:, None, None], jp))
+    wm = np.einsum("mki,mkj->mij", wjc, jp)  # (M, 6, 3)
+    gc = np.zeros((n, 6))
+    np.add.at(gc, obs.image, -np.einsum("mki,mk->mi", wjc, base))
+    gc -= prior_weights * cams
+    gp = np.zeros((n_points, 3))
+    np.add.at(gp, obs.point, -np.einsum("mki,mk->mi", jp * w[:, None, None], base))
+    if surface is not None:  # the reference DEM: one height residual per tie point
+        from demtool.bundle.surface import surface_normal_equations
+
+        v_dem, g_dem, _ = surface_normal_equations(surface, points, threshold=surface_huber)
+        v += v_dem
+        gp += g_dem
+    # G_j (3, 6n): the W blocks of point j's observations, by image
+    g = np.zeros((n_points, 3, n, 6))
+    np.add.at(g, (obs.point, slice(None), obs.image), np.swapaxes(wm, 1, 2))
+    return _Normal(u, v, g.reshape(n_points, 3, 6 * n), gc, gp)
+
+
+def _reduced(normal: _Normal, lam: float):
+    """Damped reduced camera system: ``S`` (6N, 6N), its right-hand side (6N,) and the
+    inverted damped point blocks (P, 3, 3)."""
+    n = len(normal.u)
+    ud = normal.u.copy()
+    ud[:, np.arange(6), np.arange(6)] *= 1.0 + lam
+    vd = normal.v.copy()
+    vd[:, np.arange(3), np.arange(3)] *= 1.0 + lam
+    vd[:, np.arange(3), np.arange(3)] += 1e-12
+    v_inv = np.linalg.inv(vd)
+    s = np.zeros((6 * n, 6 * n))
+    for i in range(n):
+        s[6 * i:6 * i + 6, 6 * i:6 * i + 6] = ud[i]
+    vg = v_inv @ normal.g  # (P, 3, 6n)
+    s -= np.einsum("pki,pkj->ij", normal.g, vg)
+    rhs = normal.gc.ravel() - np.einsum("pki,pk->i", vg, normal.gp)
+    return s, rhs, v_inv
+
+
+def solve(models, pivots, obs, cams, points, prior_weights, *, huber: float, sigma: float,
+          iterations: int, surface=None, surface_huber: float = 2.0):
+    """Minimise the cost of the module docstring from ``cams`` (N, 6) and ``points``
+    (P, 3); image residuals weighted by ``1 / sigma²`` (pixels), Huber thresholds
+    ``huber`` (pixels) and ``surface_huber`` (DEM sigmas).
+
+    Returns
+    -------
+    cams : (N, 6) float64
+    points : (P, 3) float64
+    residuals : (M, 2) float64, pixels
+    covariance : (6N, 6N) float64
+        Of ``cams`` (metres, milliradians) at the solution; NaN where singular.
+    """
+    n = len(models)
+    options = {"huber": huber, "sigma": sigma, "surface": surface,
+               "surface_huber": surface_huber}
+    base = project(models, pivots, obs, cams, points)
+    cost = _cost(base, cams, prior_weights, huber, sigma) + _surface_cost(
+        surface, points, surface_huber)
+    lam = 1e-3
+    for _ in range(iterations):
+        normal = _normal_equations(models, pivots, obs, cams, points, base, prior_weights,
+                                   **options)
+        stalled = False
+        while True:
+            s, rhs, v_inv = _reduced(normal, lam)
+            try:
+                dc = np.linalg.solve(s, rhs)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            dp = np.einsum("pij,pj->pi", v_inv,
+                           normal.gp - np.einsum("pki,i->pk", normal.g, dc))
+            new_cams = cams + dc.reshape(n, 6)
+            new_points = points + dp
+            new_base = project(models, pivots, obs, new_cams, new_points)
+            new_cost = _cost(new_base, new_cams, prior_weights, huber, sigma) + \
+                _surface_cost(surface, new_points, surface_huber)
+            if new_cost <= cost:
+                lam = max(lam / 10, 1e-9)
+                break
+            lam *= 10
+            if lam > 1e8:
+                stalled = True
+                break
+        if stalled:
+            break
+        converged = cost - new_cost <= 1e-10 * cost
+        cams, points, base, cost = new_cams, new_points, new_base, new_cost
+        if converged or np.max(np.abs(dc)) < 1e-6:
+            break
+    normal = _normal_equations(models, pivots, obs, cams, points, base, prior_weights,
+                               **options)
+    try:
+        covariance = np.linalg.inv(_reduced(normal, 0.0)[0])
+    except np.linalg.LinAlgError:
+        covariance = np.full((6 * n, 6 * n), np.nan)
+    return cams, points, base, covariance

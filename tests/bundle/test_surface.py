@@ -1,0 +1,68 @@
+"""demtool.bundle.surface: heights of a reference DEM below body-fixed points."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from demtool.bundle.surface import ReferenceSurface, huber_cost, huber_weights
+from demtool.maps import lonlat_height_to_xyz, xyz_to_lonlat_height
+from tests.bundle import orbital
+
+
+def _surface(spacing_m=500.0, noise_m=0.0, sigma=5.0):
+    heights, transform, crs = orbital.reference_dem(spacing_m=spacing_m, noise_m=noise_m,
+                                                    half_width_m=40e3)
+    return ReferenceSurface(heights, transform, crs, orbital.RADIUS, sigma)
+
+
+def test_dem_heights_follow_the_terrain_and_residuals_are_heights_above_it():
+    surface = _surface(spacing_m=250.0)
+    xyz = orbital.ground_points(400, half_width_m=35e3, seed=7)
+    lon, lat, h = xyz_to_lonlat_height(xyz, radii=orbital.RADIUS)
+    # bilinear between 250 m posts of hills of >= 7 km wavelength: error < 1 % of 1 km
+    assert surface.dem_heights(xyz) == pytest.approx(h, abs=8.0)
+    raised = lonlat_height_to_xyz(lon, lat, h + 30.0, radii=orbital.RADIUS)
+    assert np.median(surface.residuals(raised)) == pytest.approx(30.0, abs=1.0)
+    # off the DEM: NaN, not a height
+    far = lonlat_height_to_xyz(lon + 5.0, lat, h, radii=orbital.RADIUS)
+    assert np.isnan(surface.residuals(far)).all()
+
+
+def test_gradient_is_up_minus_the_slope():
+    """d(h − h_DEM)/dX = up − ∇h_DEM: a metre up raises the residual by a metre, a metre
+    downhill raises it by the slope."""
+    surface = _surface(spacing_m=100.0)
+    xyz = orbital.ground_points(50, half_width_m=30e3, seed=8)
+    _, gradient = surface.residuals_and_gradient(xyz)
+    up = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+    assert np.sum(gradient * up, axis=1) == pytest.approx(1.0, abs=0.02)
+    east, north, _ = orbital._enu()
+    lon, lat, _ = xyz_to_lonlat_height(xyz, radii=orbital.RADIUS)
+    step = 20.0 / orbital.RADIUS * 180 / np.pi  # 20 m east in degrees (at the latitude)
+    slope_e = (orbital.relief(lon + step / np.cos(np.radians(lat)), lat)
+               - orbital.relief(lon - step / np.cos(np.radians(lat)), lat)) / 40.0
+    assert gradient @ east == pytest.approx(-slope_e, abs=0.03)
+
+
+def test_geographic_dem_gives_the_same_heights():
+    from affine import Affine
+
+    from demtool.maps import body_by_name
+
+    crs = body_by_name("Moon").geographic_crs()
+    lon0, lat0 = orbital.CENTRE_LONLAT
+    step = 0.005
+    n = 200
+    transform = Affine(step, 0.0, lon0 - 0.5 * n * step, 0.0, -step, lat0 + 0.5 * n * step)
+    cols, rows = np.meshgrid(np.arange(n) + 0.5, np.arange(n) + 0.5)
+    heights = orbital.relief(transform.c + cols * step, transform.f - rows * step)
+    surface = ReferenceSurface(heights, transform, crs, orbital.RADIUS, 5.0)
+    xyz = orbital.ground_points(200, half_width_m=12e3, seed=9)  # DEM: ±15 km
+    assert np.abs(surface.residuals(xyz)).max() < 2.0  # bilinear over 150 m posts
+
+
+def test_huber_loss_weights_and_cost():
+    r = np.array([0.5, -1.0, 4.0, np.nan])
+    assert huber_weights(r, 2.0) == pytest.approx([1.0, 1.0, 0.5, 0.0])
+    assert huber_cost(r, 2.0) == pytest.approx(0.25 + 1.0 + (16.0 - 4.0))

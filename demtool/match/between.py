@@ -39,6 +39,7 @@ from numba import njit, prange
 from demtool.logs import get_logger
 from demtool.match.icgn import _cubic_value, _gradient
 from demtool.match.lsm import _FASTMATH, cubic_support_mask, template_weights
+from demtool.match.ncc import integral_invalid
 
 log = get_logger(__name__)
 
@@ -144,22 +145,32 @@ def _gradients(left: np.ndarray, left_ok: np.ndarray) -> tuple[np.ndarray, np.nd
     return gx, gy
 
 
+@njit(cache=True, inline="always")
+def _box_clean(table: np.ndarray, r0: int, c0: int, r1: int, c1: int) -> bool:
+    """True when rows r0 … r1 and columns c0 … c1 (inclusive) lie inside ``table``'s
+    image and hold no invalid pixel (``table``: :func:`demtool.match.ncc.integral_invalid`)."""
+    if r0 < 0 or c0 < 0 or r1 >= table.shape[0] - 1 or c1 >= table.shape[1] - 1:
+        return False
+    return (table[r1 + 1, c1 + 1] - table[r0, c1 + 1] - table[r1 + 1, c0]
+            + table[r0, c0]) == 0
+
+
 @njit(cache=True, fastmath=_FASTMATH)
-def _refine_one(left, left_ok, gx, gy, right, right_ok4, row, col, x0, y0, a1, a2, b1, b2,
-                half, iterations, weights, result):
+def _refine_one(left, left_table, gx, gy, right, right_table4, row, col, x0, y0, a1, a2, b1,
+                b2, half, iterations, weights, result):
     """Translation IC-GN of the template at (row, col); ``result`` = x, y, correlation, ok.
 
-    ``ok`` is 1.0 when every iteration found valid data and a non-singular Hessian,
-    else 0.0 (and x, y are the start).  The correlation is that of the last
-    resampled window (before the last update).
+    ``left_table`` / ``right_table4``: summed-area tables of the invalid left pixels and
+    of the right pixels without a valid 4 × 4 cubic support, so that each window is
+    checked once, not per sample.  ``ok`` is 1.0 when every iteration found valid data
+    and a non-singular Hessian, else 0.0 (and x, y are the start).  The correlation is
+    that of the last resampled window (before the last update).
     """
-    height_l, width_l = left.shape
-    height_r, width_r = right.shape
     result[0] = x0
     result[1] = y0
     result[2] = np.nan
     result[3] = 0.0
-    if row - half < 0 or row + half >= height_l or col - half < 0 or col + half >= width_l:
+    if not _box_clean(left_table, row - half, col - half, row + half, col + half):
         return
     sw = 0.0
     sf = 0.0
@@ -175,8 +186,6 @@ def _refine_one(left, left_ok, gx, gy, right, right_ok4, row, col, x0, y0, a1, a
         for u in range(-half, half + 1):
             r = row + v
             c = col + u
-            if not left_ok[r, c]:
-                return
             w = weights[v + half, u + half]
             f = left[r, c]
             fx = gx[r, c]
@@ -198,10 +207,15 @@ def _refine_one(left, left_ok, gx, gy, right, right_ok4, row, col, x0, y0, a1, a
         return
     cx -= f_mean * mx  # Σ w fx (f − f̄)
     cy -= f_mean * my
+    ex = half * (abs(a1) + abs(a2))  # half extents of the warped template
+    ey = half * (abs(b1) + abs(b2))
     x = x0
     y = y0
     corr = np.nan
     for _ in range(iterations):
+        if not _box_clean(right_table4, int(np.floor(y - ey)), int(np.floor(x - ex)),
+                          int(np.floor(y + ey)), int(np.floor(x + ex))):
+            return
         sg = 0.0
         sgg = 0.0
         sfg = 0.0
@@ -213,9 +227,6 @@ def _refine_one(left, left_ok, gx, gy, right, right_ok4, row, col, x0, y0, a1, a
                 ys = y + b1 * u + b2 * v
                 xi = int(np.floor(xs))
                 yi = int(np.floor(ys))
-                if (xi < 1 or yi < 1 or xi >= width_r - 2 or yi >= height_r - 2
-                        or not right_ok4[yi, xi]):
-                    return
                 g = _cubic_value(right, xi, yi, xs - xi, ys - yi)
                 w = weights[v + half, u + half]
                 wg = w * g
@@ -243,12 +254,12 @@ def _refine_one(left, left_ok, gx, gy, right, right_ok4, row, col, x0, y0, a1, a
 
 
 @njit(cache=True, parallel=True)
-def _refine_batch(left, left_ok, gx, gy, right, right_ok4, rows, cols, x0, y0, affine, half,
-                  iterations, weights, out):
+def _refine_batch(left, left_table, gx, gy, right, right_table4, rows, cols, x0, y0, affine,
+                  half, iterations, weights, out):
     for k in prange(rows.shape[0]):
-        _refine_one(left, left_ok, gx, gy, right, right_ok4, rows[k], cols[k], x0[k], y0[k],
-                    affine[k, 0], affine[k, 1], affine[k, 2], affine[k, 3], half, iterations,
-                    weights, out[k])
+        _refine_one(left, left_table, gx, gy, right, right_table4, rows[k], cols[k], x0[k],
+                    y0[k], affine[k, 0], affine[k, 1], affine[k, 2], affine[k, 3], half,
+                    iterations, weights, out[k])
 
 
 class Refined(NamedTuple):
@@ -325,7 +336,8 @@ def refine_translation(left: np.ndarray, right: np.ndarray, rows: np.ndarray,
         def f64(a):
             return np.ascontiguousarray(a, dtype=np.float64)
 
-        _refine_batch(left_filled, left_ok, gx, gy, right_filled, cubic_support_mask(right_ok),
+        _refine_batch(left_filled, integral_invalid(left_ok), gx, gy, right_filled,
+                      integral_invalid(cubic_support_mask(right_ok)),
                       np.ascontiguousarray(rows, dtype=np.int64),
                       np.ascontiguousarray(cols, dtype=np.int64), f64(x_start), f64(y_start),
                       f64(affine).reshape(n, 4), template // 2, int(iterations),

@@ -21,6 +21,13 @@ matched; a pixel between four accepted nodes that agree within
 such corners (a disparity edge, the border of the accepted area) is matched itself, and
 a pixel with no accepted corner stays NaN.
 
+5. Refinement (``refine``, default 1 iteration): every accepted disparity, matched or
+   interpolated, is refined with its own template by a translation-only
+   inverse-compositional Gauss–Newton step whose template shape is the LSM affine
+   solution (bilinear between the nodes) — :mod:`demtool.match.between`.  It restores
+   the detail that interpolation between nodes smooths, at about a fifth of the cost of
+   matching every pixel.
+
 References
 ----------
 Grün, A. (1985). Adaptive least squares correlation. S. Afr. J. Photogramm. 14(3).
@@ -94,8 +101,11 @@ class MatchResult:
 
 
 def check_parameters(template: int, threshold: float, grid_spacing: int, levels: int,
-                     search_margin: float, rounds: int, weighting: float = 0.0) -> None:
+                     search_margin: float, rounds: int, weighting: float = 0.0,
+                     refine: int = 0) -> None:
     """Raise ParameterError for option values outside their ranges."""
+    if refine < 0:
+        raise ParameterError(f"refine must be >= 0 iterations (0 = off), got {refine}")
     if not (np.isfinite(weighting) and weighting >= 0):
         raise ParameterError(f"weighting must be a Gaussian sigma >= 0 pixels (0 = uniform), "
                              f"got {weighting}")
@@ -255,6 +265,12 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
         Grün's ordinary LSM as in the HiRISE study).  Centre weighting reduces the
         smoothing of relief finer than the template; the acceptance test then uses
         the weighted correlation coefficient.
+    refine : int
+        Inverse-compositional Gauss–Newton iterations that refine every accepted
+        disparity with its own template and the affine shape of its LSM solution
+        (interpolated between the nodes for interpolated pixels;
+        :func:`demtool.match.between.polish`); 0 = off.  Completeness is unchanged: a
+        refinement that fails keeps the disparity it started from.
 
     Returns
     -------
@@ -269,7 +285,7 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
     """
     started = time.perf_counter()
     check_parameters(template, threshold, grid_spacing, levels, search_margin, rounds,
-                     weighting)
+                     weighting, refine)
     left = np.asarray(left, dtype=np.float64)
     right = np.asarray(right, dtype=np.float64)
     if left.ndim != 2 or right.ndim != 2:

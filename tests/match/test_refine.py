@@ -134,3 +134,17 @@ def test_refinement_makes_grid_spacing_2_more_accurate_at_no_loss_of_completenes
     assert plain.summary["refined"] is None
     ok = np.isfinite(refined.disparity)
     assert np.all(refined.correlation[ok] >= 0.9)
+
+
+def test_negative_refine_is_a_parameter_error():
+    from click.testing import CliRunner
+
+    from demtool.cli import cli
+    from demtool.errors import ParameterError
+
+    left, right, _ = textured_pair(64, 80, seed=1)
+    with pytest.raises(ParameterError, match="refine must be >= 0"):
+        match(left, right, template=13, refine=-1)
+    result = CliRunner().invoke(cli, ["match", "l.tif", "r.tif", "--out", "d.tif",
+                                      "--refine", "-1"])
+    assert result.exit_code == 2 and "x>=0" in result.output

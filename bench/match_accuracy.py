@@ -36,11 +36,13 @@ tsukuba, venus, cones, teddy
     cones and teddy 1/4 px), which puts a floor under every method's MAE.
 
 Usage: ``.venv/bin/python bench/match_accuracy.py [--quick] [--pairs synthetic,cones]
-[--templates 9,17] [--thresholds 0.9,0.8] [--no-references]`` (``--no-references``:
-the `match` rows only).  Each `match` run prints its wall and CPU time per megapixel
-(issue 13's target: ≤ 15 s/MP wall on 2 cores at the defaults).  ``--quick`` uses a 256-px synthetic
-scene, templates 9, 17, 25 and the pairs synthetic, tsukuba, venus.  Timings depend
-on the machine's load; they are printed for orientation only.
+[--templates 9,17] [--thresholds 0.9,0.8] [--refine 0,1] [--no-references]``
+(``--no-references``: the `match` rows only; ``--refine 0,1``: each `match` run without
+and with the IC-GN refinement of its disparities).  Each `match` run prints its wall
+and CPU time per megapixel (issue 13's target: ≤ 15 s/MP wall on 2 cores at the
+defaults).  ``--quick`` uses a 256-px synthetic scene, templates 9, 17, 25 and the
+pairs synthetic, tsukuba, venus.  Timings depend on the machine's load; they are printed
+for orientation only.
 """
 
 from __future__ import annotations
@@ -86,7 +88,7 @@ def scores(disparity: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict[s
 
 
 def run_pair(name: str, data, templates, thresholds, weighting: float = 0.0,
-             references: bool = True) -> list[dict]:
+             references: bool = True, refines: tuple[int, ...] = (1,)) -> list[dict]:
     """Every method on one pair; prints its table and returns the rows."""
     from demtool.errors import DemtoolError
     from demtool.match import match
@@ -111,16 +113,17 @@ def run_pair(name: str, data, templates, thresholds, weighting: float = 0.0,
         start = time.perf_counter()
         runs.append(("OpenCV SGBM HH", opencv_sgbm(left, right, min_disparity, count)[0],
                      time.perf_counter() - start))
-    configs = [(t, r, 0.0) for t in templates for r in thresholds]
+    configs = [(t, r, 0.0, n) for t in templates for r in thresholds for n in refines]
     if weighting > 0:  # centre-weighted LSM at the study's threshold
-        configs += [(t, thresholds[0], weighting) for t in templates]
-    for template, threshold, sigma_w in configs:
-        label = f"match t={template} r>={threshold}" + (f" w={sigma_w:g}" if sigma_w else "")
+        configs += [(t, thresholds[0], weighting, n) for t in templates for n in refines]
+    for template, threshold, sigma_w, refine in configs:
+        label = (f"match t={template} r>={threshold}" + (f" w={sigma_w:g}" if sigma_w else "")
+                 + (f" ref={refine}" if len(refines) > 1 else ""))
         start = time.perf_counter()
         cpu = time.process_time()
         try:
             result = match(left, right, template=template, threshold=threshold,
-                           seed_points=seeds, weighting=sigma_w)
+                           seed_points=seeds, weighting=sigma_w, refine=refine)
             disparity = result.disparity
         except DemtoolError as exc:
             print(f"  {label}: failed: {exc}")
@@ -172,6 +175,9 @@ def main() -> None:
     parser.add_argument("--thresholds", default=None, help="comma-separated thresholds")
     parser.add_argument("--no-references", action="store_true",
                         help="match only: no SGM and OpenCV rows")
+    parser.add_argument("--refine", default="1",
+                        help="comma-separated IC-GN refinement iterations of match "
+                             "(e.g. 0,1: before and after the refinement)")
     parser.add_argument("--weighting", type=float, default=3.0,
                         help="also run centre-weighted LSM (Gaussian sigma, px) on the "
                              "synthetic pair; 0 = no")
@@ -183,20 +189,23 @@ def main() -> None:
                  else ([9, 17, 25] if args.quick else list(ALL_TEMPLATES)))
     thresholds = ([float(t) for t in args.thresholds.split(",")] if args.thresholds
                   else list(ALL_THRESHOLDS))
+    refines = tuple(int(n) for n in args.refine.split(","))
     rows: list[dict] = []
     for name in pairs:
         if name == "synthetic":
             rows += run_pair(name, synthetic_pair(args.quick), templates, thresholds,
-                             args.weighting, references=not args.no_references)
+                             args.weighting, references=not args.no_references,
+                             refines=refines)
         elif name == "synthetic1024":
             rows += run_pair(name, synthetic_pair_1024(), templates, thresholds,
-                             args.weighting, references=not args.no_references)
+                             args.weighting, references=not args.no_references,
+                             refines=refines)
         elif name in MIDDLEBURY_PAIRS:
             if not (MIDDLEBURY / name).is_dir():
                 print(f"\n{name}: {MIDDLEBURY / name} not found; skipped")
                 continue
             rows += run_pair(name, middlebury_pair(name), templates, thresholds,
-                             references=not args.no_references)
+                             references=not args.no_references, refines=refines)
         else:
             raise SystemExit(f"unknown pair {name!r}; choose from synthetic, synthetic1024, "
                              + ", ".join(MIDDLEBURY_PAIRS))

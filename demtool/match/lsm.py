@@ -77,6 +77,10 @@ class LSMResult(NamedTuple):
         Gauss–Newton iterations used.
     status : (N,) int8
         ``CONVERGED`` (0) or the reason of the failure (see ``STATUS_NAMES``).
+    affine : (N, 4) float64 or None
+        The affine shape ``a1, a2, b1, b2`` of each converged solution (eq. 10;
+        ``x' = a0 + a1 u + a2 v``, ``y' = b0 + b1 u + b2 v``); NaN elsewhere, and
+        for ``method="inverse"``.
     """
 
     x_right: np.ndarray
@@ -85,6 +89,7 @@ class LSMResult(NamedTuple):
     sigma_x: np.ndarray
     iterations: np.ndarray
     status: np.ndarray
+    affine: np.ndarray | None = None
 
 
 @njit(cache=True, inline="always")
@@ -174,10 +179,11 @@ def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4:
             result: np.ndarray) -> None:
     """Least-squares match of the template centred on left pixel (row, col).
 
-    ``result`` (float64, 6) receives x_right, y_right, correlation, sigma_x,
-    iterations, status.  ``weights`` (template-sized, mean 1) weight the
-    observations (ones: ordinary LSM).  From the third iteration on, a correlation below
-    ``give_up_below`` stops the iterations (status ``NOT_CONVERGED``).
+    ``result`` (float64, 6 or 10) receives x_right, y_right, correlation, sigma_x,
+    iterations, status (and at convergence the affine terms a1, a2, b1, b2).
+    ``weights`` (template-sized, mean 1) weight the observations (ones: ordinary LSM).
+    From the third iteration on, a correlation below ``give_up_below`` stops the
+    iterations (status ``NOT_CONVERGED``).
     ``right_ok4[y, x]`` is True when the 4 × 4 cubic-convolution neighbourhood of
     (x + [0, 1), y + [0, 1)) is valid.  See :func:`lsm_match`.
     """
@@ -338,6 +344,11 @@ def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4:
     result[3] = np.sqrt(sigma0_sq * max(delta[0], 0.0))
     result[4] = iteration
     result[5] = CONVERGED
+    if result.shape[0] >= 10:  # the affine shape a1 a2 b1 b2
+        result[6] = p[1]
+        result[7] = p[2]
+        result[8] = p[4]
+        result[9] = p[5]
 
 
 @njit(cache=True, parallel=True)
@@ -456,7 +467,7 @@ def lsm_match(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.nd
     cols = np.ascontiguousarray(cols, dtype=np.int64)
     x_start = np.ascontiguousarray(x_start, dtype=np.float64)
     y_start = np.ascontiguousarray(y_start, dtype=np.float64)
-    out = np.empty((rows.shape[0], 6), dtype=np.float64)
+    out = np.full((rows.shape[0], 10), np.nan)
     if rows.shape[0]:
         if method == "inverse":
             from demtool.match.icgn import icgn_batch as batch
@@ -468,4 +479,4 @@ def lsm_match(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.nd
               template_weights(template, weighting), out)
     return LSMResult(x_right=out[:, 0], y_right=out[:, 1], correlation=out[:, 2],
                      sigma_x=out[:, 3], iterations=out[:, 4].astype(np.int32),
-                     status=out[:, 5].astype(np.int8))
+                     status=out[:, 5].astype(np.int8), affine=out[:, 6:])

@@ -49,6 +49,10 @@ class MatchParams(Parameters):
         CORE["weighting"], "Gaussian LSM observation weights of this sigma, px (0 = "
         "uniform, the HiRISE study's LSM). Centre weighting resolves fine relief that a "
         "uniform template averages away.", minimum=0.0)
+    refine: int = parameter(
+        CORE["refine"], "Inverse-compositional Gauss-Newton iterations that refine every "
+        "accepted disparity (interpolated ones from the nodes' interpolated LSM shape) "
+        "with its own template; 0 = off.", minimum=0)
     sift: bool = parameter(CORE["use_sift"], "Detect SIFT seed matches (besides Förstner "
                            "corners and --rectify's).")
     workers: int = workers_field()

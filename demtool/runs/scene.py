@@ -64,14 +64,19 @@ def scene_sun_vector(description: dict[str, Any]) -> np.ndarray | None:
 def load_scene(folder: str | os.PathLike, *, with_geometry: bool = True) -> Scene:
     """Read a scene folder written by ``demtool synth`` back into a Scene.
 
+    A ``pinhole`` scene's cameras come from ``cameras.npz``; a ``frame`` scene has
+    both ``cameras.npz`` and one ISD per view; a ``linescan`` scene only the ISDs
+    (``scene.json``'s ``sensor_models``), read with :func:`demtool.sensors.read_sensor`
+    into ``Scene.sensors``, with ``Scene.placement`` rebuilt from the parameters.
+
     Parameters
     ----------
     folder : path-like
         The ``--out`` folder of ``demtool synth``.
     with_geometry : bool
         If True (default), recompute each view's hit depths and shadow masks by ray
-        casting the truth DEM (about a second per 512 × 512 view); otherwise
-        ``depths`` and ``shadows`` are empty.
+        casting the truth DEM through the view's camera or sensor model (about a second
+        per 512 × 512 view); otherwise ``depths`` and ``shadows`` are empty.
 
     Raises
     ------
@@ -93,8 +98,11 @@ def load_scene(folder: str | os.PathLike, *, with_geometry: bool = True) -> Scen
         target, partner = description["target"], description["partner"]
     except (KeyError, TypeError) as exc:
         raise InputError(f"{root / 'scene.json'}: not a demtool synth scene ({exc})") from None
-    cameras = cameras_from_arrays(io.read_npz(root / "cameras.npz", "cameras"))
-    names = tuple(description.get("names", sorted(cameras)))
+    kind = description.get("sensor", "pinhole")
+    cameras = ({} if kind == "linescan"
+               else cameras_from_arrays(io.read_npz(root / "cameras.npz", "cameras")))
+    placement, sensors = _scene_sensors(root, description, params, kind)
+    names = tuple(description.get("names", sorted(cameras or sensors)))
     dem = io.read_raster(root / "truth_dem.tif", what="truth DEM")
     albedo = io.read_raster(root / "albedo.tif", what="albedo map")
     truth_target = io.read_raster(root / "truth_dem_target.tif", what="target truth DEM")
@@ -104,9 +112,10 @@ def load_scene(folder: str | os.PathLike, *, with_geometry: bool = True) -> Scen
     sun = sun_from_angles(params.sun_incidence_deg, params.sun_azimuth_deg)
     if with_geometry:
         field = render.height_field(dem.data.astype(np.float64), dem.transform)
+        views = sensors or cameras
         for name in names:
             geometry = render.view_geometry(field, albedo.data.astype(np.float64),
-                                            cameras[name], sun)
+                                            views[name], sun, placement=placement)
             depths[name], shadows[name] = geometry.depth, geometry.shadow
     return Scene(params=params, dem=dem.data, dem_transform=dem.transform, albedo=albedo.data,
                  names=names, target=target, partner=partner, cameras=cameras, images=images,
@@ -115,4 +124,33 @@ def load_scene(folder: str | os.PathLike, *, with_geometry: bool = True) -> Scen
                  distance_m=float(description["distance_m"]),
                  dn_per_reflectance=float(description.get("dn_per_reflectance", np.nan)),
                  render_time_s=float(description.get("render_time_s", np.nan)),
-                 timings=dict(description.get("timings_s", {})))
+                 timings=dict(description.get("timings_s", {})), sensor=kind,
+                 placement=placement, sensors=sensors)
+
+
+def _scene_sensors(root: Path, description: dict[str, Any], params: Any, kind: str
+                   ) -> tuple[Any, dict[str, Any]]:
+    """The placement and the sensor models of a ``frame`` or ``linescan`` scene folder
+    (``(None, {})`` for a ``pinhole`` one).
+
+    Raises
+    ------
+    InputError
+        ``scene.json`` names no ISDs for a sensor scene, or an ISD is missing or bad
+        (naming the file).
+    """
+    from demtool.errors import InputError
+    from demtool.sensors import read_sensor
+    from demtool.synth.body import placement
+
+    if kind == "pinhole":
+        return None, {}
+    files = description.get("sensor_models")
+    if not isinstance(files, dict) or not files:
+        raise InputError(f"{root / 'scene.json'}: a '{kind}' scene without 'sensor_models' "
+                         "(the ISD of each view); write it again with demtool synth")
+    try:
+        place = placement(params.body, params.center_lon_deg, params.center_lat_deg)
+    except ValueError as exc:
+        raise InputError(f"{root / 'scene.json'}: {exc}") from None
+    return place, {name: read_sensor(root / str(file)) for name, file in files.items()}

@@ -22,16 +22,11 @@ from numba import njit, prange
 
 
 @njit(cache=True)
-def _lagrange(values, t0, dt, time, max_order, out):
-    """usgscsm ``lagrangeInterp`` of the rows of ``values`` (n, k) at one time → out (k,)."""
-    n = values.shape[0]
-    k = values.shape[1]
-    for c in range(k):
-        out[c] = 0.0
+def _lagrange_setup(n, t0, dt, time, max_order):
+    """usgscsm ``lagrangeInterp``'s choice at one time for n equally spaced samples:
+    (first sample, order, τ, shift); one sample gives order 1 (the sample itself)."""
     if n == 1:
-        for c in range(k):
-            out[c] = values[0, c]
-        return
+        return 0, 1, 0.0, 0
     fndex = (time - t0) / dt
     index = int(math.trunc(fndex))
     if index < 0:
@@ -47,16 +42,26 @@ def _lagrange(values, t0, dt, time, max_order, out):
         order = 8
     if order > max_order:
         order = max_order
-    tau = fndex - index
     shift = order // 2 - 1
-    first = index - shift
-    for j in range(order):
-        weight = 1.0
-        for m in range(order):
-            if m != j:
-                weight *= (tau - (m - shift)) / (j - m)
-        for c in range(k):
-            out[c] += weight * values[first + j, c]
+    return index - shift, order, fndex - index, shift
+
+
+@njit(cache=True)
+def _lagrange_weight(j, order, tau, shift):
+    """Weight of the j-th node, computed as demtool.sensors.base._lagrange_weights does
+    (prefix and suffix products of τ − x_m over an integer denominator), so the compiled
+    and numpy paths round alike."""
+    left = 1.0
+    for m in range(j):
+        left *= tau - (m - shift)
+    right = 1.0
+    for m in range(order - 1, j, -1):
+        right *= tau - (m - shift)
+    denominator = 1
+    for m in range(order):
+        if m != j:
+            denominator *= j - m
+    return left * right / denominator
 
 
 @njit(cache=True)
@@ -65,6 +70,49 @@ def _line_time(line, int_lines, int_starts, int_times):
     if index < 0:
         index = 0
     return int_starts[index] + int_times[index] * (line - int_lines[index] + 0.5)
+
+
+@njit(cache=True)
+def _pose(time, positions, t0_ephem, dt_ephem, quaternions, t0_quat, dt_quat, quat_order):
+    """Sensor position and sensor-to-body rotation at one time, as 12 scalars
+    ``(px, py, pz, r00, r01, r02, r10, r11, r12, r20, r21, r22)`` (no heap allocation).
+
+    The position and the quaternion are Lagrange-interpolated (usgscsm
+    ``lagrangeInterp``, order ≤ 8 and ≤ ``quat_order``); the quaternion is normalised
+    and turned into the active rotation of ``demtool.sensors.base.quaternion_to_matrix``
+    (scalar last).
+    """
+    first, order, tau, shift = _lagrange_setup(positions.shape[0], t0_ephem, dt_ephem,
+                                               time, 8)
+    px = 0.0
+    py = 0.0
+    pz = 0.0
+    for j in range(order):
+        w = _lagrange_weight(j, order, tau, shift)
+        px += w * positions[first + j, 0]
+        py += w * positions[first + j, 1]
+        pz += w * positions[first + j, 2]
+    first, order, tau, shift = _lagrange_setup(quaternions.shape[0], t0_quat, dt_quat,
+                                               time, quat_order)
+    qx = 0.0
+    qy = 0.0
+    qz = 0.0
+    qw = 0.0
+    for j in range(order):
+        w = _lagrange_weight(j, order, tau, shift)
+        qx += w * quaternions[first + j, 0]
+        qy += w * quaternions[first + j, 1]
+        qz += w * quaternions[first + j, 2]
+        qw += w * quaternions[first + j, 3]
+    norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    qx, qy, qz, qw = qx / norm, qy / norm, qz / norm, qw / norm
+    return (px, py, pz,
+            qx * qx - qy * qy - qz * qz + qw * qw, 2 * (qx * qy - qz * qw),
+            2 * (qx * qz + qy * qw),
+            2 * (qx * qy + qz * qw), -qx * qx + qy * qy - qz * qz + qw * qw,
+            2 * (qy * qz - qx * qw),
+            2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw),
+            -qx * qx - qy * qy + qz * qz + qw * qw)
 
 
 @njit(parallel=True, cache=True)
@@ -110,31 +158,66 @@ def detector_view(lines, xyz, int_lines, int_starts, int_times, positions, t0_ep
             depth[i] = np.nan
             continue
         time = _line_time(line, int_lines, int_starts, int_times)
-        pos = np.empty(3)
-        q = np.empty(4)
-        _lagrange(positions, t0_ephem, dt_ephem, time, 8, pos)
-        _lagrange(quaternions, t0_quat, dt_quat, time, quat_order, q)
-        norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-        qx, qy, qz, qw = q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm
-        # Columns of the sensor-to-body rotation (quaternion_to_matrix).
-        r00 = qx * qx - qy * qy - qz * qz + qw * qw
-        r10 = 2 * (qx * qy + qz * qw)
-        r20 = 2 * (qx * qz - qy * qw)
-        r01 = 2 * (qx * qy - qz * qw)
-        r11 = -qx * qx + qy * qy - qz * qz + qw * qw
-        r21 = 2 * (qy * qz + qx * qw)
-        r02 = 2 * (qx * qz + qy * qw)
-        r12 = 2 * (qy * qz - qx * qw)
-        r22 = -qx * qx - qy * qy + qz * qz + qw * qw
-        dx = xyz[i, 0] - pos[0]
-        dy = xyz[i, 1] - pos[1]
-        dz = xyz[i, 2] - pos[2]
+        p0, p1, p2, r00, r01, r02, r10, r11, r12, r20, r21, r22 = _pose(
+            time, positions, t0_ephem, dt_ephem, quaternions, t0_quat, dt_quat, quat_order)
+        dx = xyz[i, 0] - p0
+        dy = xyz[i, 1] - p1
+        dz = xyz[i, 2] - p2
         cx = r00 * dx + r10 * dy + r20 * dz
         cy = r01 * dx + r11 * dy + r21 * dz
         cz = r02 * dx + r12 * dy + r22 * dz
-        toward = -1.0 if r02 * pos[0] + r12 * pos[1] + r22 * pos[2] > 0 else 1.0
+        toward = -1.0 if r02 * p0 + r12 * p1 + r22 * p2 > 0 else 1.0
         scale = focal_length / cz if cz != 0.0 else np.nan
         x[i] = cx * scale
         y[i] = cy * scale
         depth[i] = toward * cz
     return x, y, depth
+
+
+@njit(parallel=True, cache=True)
+def image_rays(lines, u, v, int_lines, int_starts, int_times, positions, t0_ephem, dt_ephem,
+               quaternions, t0_quat, dt_quat, quat_order, focal_length):
+    """Imaging rays of image lines and undistorted focal-plane points (``image_to_ray``).
+
+    Parameters
+    ----------
+    lines : (N,) float64
+        Image lines (CSM convention).
+    u, v : (N,) float64
+        Undistorted focal-plane coordinates of the samples, mm.
+    int_lines, int_starts, int_times, positions, t0_ephem, dt_ephem, quaternions,
+    t0_quat, dt_quat, quat_order, focal_length
+        As :func:`detector_view`.
+
+    Returns
+    -------
+    origin : (N, 3) float64
+        Sensor positions at the lines' exposures, body-fixed metres.
+    direction : (N, 3) float64
+        Unit look vectors ``R (−u, −v, −f)``, body-fixed, turned toward the body (the
+        sign rule of ``LineScanSensor.image_to_ray``); NaN where the line is not finite.
+    """
+    n = lines.shape[0]
+    origin = np.empty((n, 3))
+    direction = np.empty((n, 3))
+    for i in prange(n):
+        line = lines[i]
+        if not math.isfinite(line):
+            for c in range(3):
+                origin[i, c] = np.nan
+                direction[i, c] = np.nan
+            continue
+        time = _line_time(line, int_lines, int_starts, int_times)
+        p0, p1, p2, r00, r01, r02, r10, r11, r12, r20, r21, r22 = _pose(
+            time, positions, t0_ephem, dt_ephem, quaternions, t0_quat, dt_quat, quat_order)
+        lx, ly, lz = -u[i], -v[i], -focal_length
+        look0 = r00 * lx + r01 * ly + r02 * lz
+        look1 = r10 * lx + r11 * ly + r12 * lz
+        look2 = r20 * lx + r21 * ly + r22 * lz
+        sign = -1.0 if look0 * p0 + look1 * p1 + look2 * p2 > 0 else 1.0
+        scale = sign / math.sqrt(look0 * look0 + look1 * look1 + look2 * look2)
+        origin[i, 0], origin[i, 1], origin[i, 2] = p0, p1, p2
+        direction[i, 0] = look0 * scale
+        direction[i, 1] = look1 * scale
+        direction[i, 2] = look2 * scale
+    return origin, direction

@@ -14,8 +14,9 @@ Ground to image is iterative, as in usgscsm: find the line whose exposure sees t
 ground point on the detector line (detector-line coordinate 0), here by a
 vectorised chord (fixed-slope Newton) steps from an affine approximation of the model,
 then read the sample from the same projection.  Each step's pose and projection run
-compiled, one point per thread (:mod:`demtool.sensors.kernels`); the lens
-distortion is applied with numpy.  Light time and aberration are ignored, as usgscsm
+compiled, one point per thread (:mod:`demtool.sensors.kernels`), and so does the
+pose and look vector of image to ground; the lens distortion is applied and removed
+with numpy.  Light time and aberration are ignored, as usgscsm
 does by default.
 
 Reference: DOI-USGS/usgscsm ``src/UsgsAstroLsSensorModel.cpp`` (``getImageTime``,
@@ -146,7 +147,34 @@ class LineScanSensor(SensorModel):
 
     # -- interface --------------------------------------------------------------------
     def image_to_ray(self, line, sample) -> Ray:
-        """Imaging rays; the first pixel's centre is at ``(line, sample) = (0.5, 0.5)``."""
+        """Imaging rays; the first pixel's centre is at ``(line, sample) = (0.5, 0.5)``.
+
+        The exposure pose and the look vector of each point are computed compiled
+        (:func:`demtool.sensors.kernels.image_rays`); :meth:`_image_to_ray_numpy` is the
+        same computation in numpy.  Returns origins (body-fixed metres) and unit
+        directions, both of shape ``broadcast(line, sample).shape + (3,)``.
+        """
+        from demtool.sensors.kernels import image_rays
+
+        line, sample = np.broadcast_arrays(np.asarray(line, dtype=np.float64),
+                                           np.asarray(sample, dtype=np.float64))
+        x, y = self.detector.to_focal_plane(np.zeros_like(sample), sample)
+        u, v = self.distortion.remove(x, y)
+        origin, look = image_rays(
+            np.ascontiguousarray(line.reshape(-1)),
+            np.ascontiguousarray(np.broadcast_to(u, line.shape).reshape(-1)),
+            np.ascontiguousarray(np.broadcast_to(v, line.shape).reshape(-1)),
+            self.int_lines, self.int_start_times, self.int_times, self.positions,
+            self.t0_ephem, self.dt_ephem, self.quaternions, self.t0_quat, self.dt_quat,
+            self._quat_order(), self.focal_length)
+        return Ray(origin.reshape(line.shape + (3,)), look.reshape(line.shape + (3,)))
+
+    def _quat_order(self) -> int:
+        """Highest Lagrange order of the quaternion interpolation (as :meth:`rotation_at`)."""
+        return 4 if len(self.quaternions) * 4 < 6 else 8
+
+    def _image_to_ray_numpy(self, line, sample) -> Ray:
+        """:meth:`image_to_ray` in numpy (the reference the compiled kernel must match)."""
         line, sample = np.broadcast_arrays(np.asarray(line, dtype=np.float64),
                                            np.asarray(sample, dtype=np.float64))
         time = self.line_time(line)
@@ -183,12 +211,11 @@ class LineScanSensor(SensorModel):
         (:func:`demtool.sensors.kernels.detector_view`); line (N,), xyz (N, 3)."""
         from demtool.sensors.kernels import detector_view
 
-        quat_order = 4 if len(self.quaternions) * 4 < 6 else 8
         fx, fy, depth = detector_view(
             np.ascontiguousarray(line, dtype=np.float64),
             np.ascontiguousarray(xyz, dtype=np.float64), self.int_lines,
             self.int_start_times, self.int_times, self.positions, self.t0_ephem,
-            self.dt_ephem, self.quaternions, self.t0_quat, self.dt_quat, quat_order,
+            self.dt_ephem, self.quaternions, self.t0_quat, self.dt_quat, self._quat_order(),
             self.focal_length)
         dx, dy = self.distortion.apply(fx, fy)
         det_line, det_sample = self.detector.to_pixel(dx, dy)

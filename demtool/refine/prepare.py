@@ -101,6 +101,9 @@ def prepare_dem(dem: np.ndarray, *, median_size: int = RefineParams.median,
     DEM's shape rather than its pixel-scale noise.  Measured on the default scene
     (slope-error ratio, noisy σ6 input / SIAM DEM): 0.488 / 0.486 from σ = 2,
     0.493 / 0.512 from the 15 px median, 0.577 / 0.535 from the anchor itself.
+    σ = 1 instead of 2 (issue 12, slope ratio): demo line-scan 0.508 → 0.500, but demo
+    image-frame 0.422 → 0.431, seed 1 line-scan 0.397 → 0.403, seed 1 image-frame
+    0.322 → 0.335, 192-cell line-scan 0.612 → 0.621 — not adopted.
 
     Parameters
     ----------

@@ -180,8 +180,8 @@ def _align(sources, tiles, params, target, factor, log):
         for key in ("dx_px", "dy_px"):
             alignment.shift[key] *= factor
             alignment.shift_uncertainty[key] *= factor
-        alignment.warnings.append(f"co-registration fitted on every {factor}th cell of the "
-                                  "grid (the windowed comparison's decimated grid)")
+        alignment.warnings.append(f"co-registration fitted on one cell in {factor} x {factor} "
+                                  "of the grid (the windowed comparison's decimated grid)")
     return alignment
 
 

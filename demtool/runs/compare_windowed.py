@@ -331,6 +331,9 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
         except InputError:
             check_same_grid(_Header(infos["dem"]), _Header(mask_info))
         mask_source = Source(Path(mask_path), "mask", _grid(mask_info), target)
+    lines = [tuple(float(v) for v in line) for line in params.profiles] or \
+        default_profiles(target.shape)
+    _check_profiles(lines, target.shape)
     out = Path(out_dir)
     label = params.label or Path(dem_path).stem
     frame = infos["reference" if params.grid == "reference" else "dem"].tags.get("frame")
@@ -366,9 +369,6 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
                           "transform": list(target.transform)[:6], "frame": frame,
                           "from_geographic": degrees}
         report["warnings"] = [*body_warnings, *report["warnings"]]
-        lines = [tuple(float(v) for v in line) for line in params.profiles] or \
-            default_profiles(target.shape)
-        _check_profiles(lines, target.shape)
         report["profiles_px"] = [list(line) for line in lines]
         report["also"] = [{"label": name, "dem": str(path), **_headline(r["report"]),
                            "alignment": r["report"]["alignment"],

@@ -188,10 +188,26 @@ def test_bad_windowed_options_fail_cleanly(pair, tmp_path, args, message):
     assert not out.exists() or not any(Path(out).iterdir())
 
 
-def test_windowed_command_line(pair, tmp_path):
+def test_windowed_command_line_with_also(pair, tmp_path):
+    out, memory = tmp_path / "out", tmp_path / "memory"
+    args = [pair / "dem.tif", pair / "reference.tif", "--also", pair / "dem_offset.tif",
+            "--no-plots"]
+    result = _invoke(*args, "--out", out, "--tile-size", "48")
+    assert result.exit_code == 0, result.output
+    assert _invoke(*args, "--out", memory).exit_code == 0
+    report, want = dio.read_json(out / "report.json"), dio.read_json(memory / "report.json")
+    assert report["windowed"]["windows"] == 4 and report["figures"] == []
+    also, also_want = report["also"][0], want["also"][0]
+    assert also["label"] == "dem_offset" and also["count"] == also_want["count"]
+    for key in ("rmse", "nmad", "median"):
+        assert also[key] == pytest.approx(also_want[key], rel=1e-9), key
+
+
+def test_a_mask_on_another_grid_is_refused_in_windows(pair, tmp_path):
     out = tmp_path / "out"
     result = _invoke(pair / "dem.tif", pair / "reference.tif", "--out", out, "--tile-size",
-                     "48", "--no-plots")
-    assert result.exit_code == 0, result.output
-    report = dio.read_json(out / "report.json")
-    assert report["windowed"]["windows"] == 4 and report["figures"] == []
+                     "32", "--mask", pair / "dem_offset.tif")
+    assert result.exit_code == 1, result.output
+    lines = [ln for ln in result.output.strip().splitlines() if ln.startswith("Error")]
+    assert len(lines) == 1 and "dem_offset.tif: mask is" in lines[0], result.output
+    assert not out.exists() or not any(Path(out).iterdir())

@@ -225,6 +225,7 @@ def compare_one(sources: dict[str, Source | None], target: Any, params: Any, til
     rows, cols = -(-height // factor), -(-width // factor)
     figures = {k: np.full((rows, cols), np.nan) for k in ("aligned", "reference", "difference")}
     figures["coverage"] = np.full((rows, cols), np.nan, dtype=np.float32)
+    figures["mask"] = np.zeros((rows, cols), dtype=bool)
     considered = covered = 0
     passes = 0
     with contextlib.ExitStack() as stack:
@@ -251,6 +252,9 @@ def compare_one(sources: dict[str, Source | None], target: Any, params: Any, til
                     for name in ("aligned", "reference", "difference", "coverage"):
                         part, rs, cs = _decimate(getattr(values, name), tile.core, factor)
                         figures[name][rs, cs] = part
+                    if mask is not None:
+                        part, rs, cs = _decimate(mask[tile.crop], tile.core, factor)
+                        figures["mask"][rs, cs] = part
             for stream in (after, before, *classes):
                 stream.end_pass()
             if all(s.done for s in (after, before, *classes)):
@@ -262,8 +266,8 @@ def compare_one(sources: dict[str, Source | None], target: Any, params: Any, til
     spacing = float(np.sqrt(sx * sy)) * factor
     try:
         spectrum = coherence_spectrum(figures["aligned"] if sources["mask"] is None
-                                      else np.where(np.isfinite(figures["difference"]),
-                                                    figures["aligned"], np.nan),
+                                      else np.where(figures["mask"], figures["aligned"],
+                                                    np.nan),
                                       figures["reference"], spacing=spacing)
         resolution = effective_resolution(spectrum, spacing, 0.5)
     except ProcessingError as exc:

@@ -151,15 +151,15 @@ def test_only_windows_are_read(pair, tmp_path, monkeypatch):
 
 
 def test_a_grid_beyond_the_memory_budget_is_compared_in_windows(tmp_path):
-    """160² cells × 160 bytes > 2 MiB: windows of √(2 MiB / 160) = 114 cells, the
-    alignment on every 2nd cell (2 MiB / 200 bytes = 10 485 cells < 160²)."""
+    """160² cells × 160 bytes > 3 MiB: windows of √(3 MiB / 160) = 140 cells, the
+    alignment on every 2nd cell (3 MiB / 400 bytes = 7864 cells < 160²)."""
     truth = fractal(160, relief=25.0, seed=5)
     dem = fourier_shift(truth, 1.3, -0.7) + 2.0
     transform = dio.image_frame_transform(SPACING)
     dio.write_raster(tmp_path / "reference.tif", truth, transform=transform)
     dio.write_raster(tmp_path / "dem.tif", dem, transform=transform)
-    report = compare(tmp_path, tmp_path / "out", max_memory_mb=2.0)
-    assert report["windowed"]["tile_size"] == 114
+    report = compare(tmp_path, tmp_path / "out", max_memory_mb=3.0)
+    assert report["windowed"]["tile_size"] == 140
     assert report["windowed"]["alignment_decimation"] == 2
     assert report["shift"]["dx_px"] == pytest.approx(-1.3, abs=0.05)
     assert report["shift"]["dy_px"] == pytest.approx(0.7, abs=0.05)

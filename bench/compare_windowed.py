@@ -23,26 +23,38 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 DEMTOOL = str(Path(sys.executable).with_name("demtool"))
 
 
-def make_pair(folder: Path, size: int) -> tuple[Path, Path]:
-    """A fractal reference and its displaced, noisy copy, ``size`` × ``size``, 2 m cells."""
-    from demtool import io as dio
-    from tests.helpers.compare import fourier_shift, fractal
+MAKE_PAIR = """
+import sys
+from pathlib import Path
+import numpy as np
+sys.path.insert(0, {root!r})
+from demtool import io as dio
+from tests.helpers.compare import fourier_shift, fractal
+size, folder = {size}, Path({folder!r})
+truth = fractal(size, relief=25.0 * size / 96, seed=11).astype(np.float32)
+dem = fourier_shift(truth, 1.3, -0.7) + 2.0
+dem += np.random.default_rng(12).normal(scale=0.05, size=dem.shape)
+transform = dio.image_frame_transform(2.0)
+dio.write_raster(folder / "reference.tif", truth, transform=transform)
+dio.write_raster(folder / "dem.tif", dem.astype(np.float32), transform=transform)
+"""
 
-    truth = fractal(size, relief=25.0 * size / 96, seed=11).astype(np.float32)
-    dem = fourier_shift(truth, 1.3, -0.7) + 2.0
-    dem += np.random.default_rng(12).normal(scale=0.05, size=dem.shape)
-    transform = dio.image_frame_transform(2.0)
-    reference, dem_path = folder / "reference.tif", folder / "dem.tif"
-    dio.write_raster(reference, truth, transform=transform)
-    dio.write_raster(dem_path, dem.astype(np.float32), transform=transform)
-    return dem_path, reference
+
+def make_pair(folder: Path, size: int) -> tuple[Path, Path]:
+    """A fractal reference and its displaced, noisy copy, ``size`` × ``size``, 2 m cells.
+
+    Made in a child process: a child started later inherits the high-water mark of this
+    process's memory (Linux records the old address space's peak at ``exec``, and
+    ``subprocess`` forks with ``vfork``), so this process must stay small.
+    """
+    subprocess.run([sys.executable, "-c", MAKE_PAIR.format(root=str(ROOT), size=size,
+                                                           folder=str(folder))], check=True)
+    return folder / "dem.tif", folder / "reference.tif"
 
 
 def run(args: list[str]) -> tuple[float, float]:

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from demtool.core_source import core_defaults
 from demtool.maps import PROJECTIONS
 from demtool.parameters import Parameters, parameter, seed_field
+from demtool.tiling import dry_run_field, scheduler_field
 
 # read from the source, so --help loads no numba (demtool.mapproject compiles kernels)
 CORE = core_defaults("demtool.mapproject:image_coordinates")
@@ -30,12 +31,19 @@ class MapprojectParams(Parameters):
         None, "Area to cover, degrees: LON_MIN LAT_MIN LON_MAX LAT_MAX (default: the "
         "image's footprint).", metavar="LON_MIN LAT_MIN LON_MAX LAT_MAX", cli=False)
     tile_size: int = parameter(1024, "Map cells per tile side (memory: about 60 bytes a "
-                               "cell).", minimum=16)
+                               "cell), in this process or on the tile engine.", minimum=16)
     step: int = parameter(CORE["step"], "First lattice spacing of the exact projection, "
                           "cells (refined until --tolerance holds).", minimum=1)
     tolerance: float = parameter(CORE["tolerance"], "Largest interpolation error of the "
                                  "image coordinates, pixels.", minimum=0.0, min_open=True)
     seed: int = seed_field()
+    # The tile engine (demtool.tiled.mapproject; README "Scale"): off by default.
+    workers: int = parameter(0, "Run the map tiles on the tile engine (resumable, cached "
+                             "in a work folder): 1 = one after the other in this process, "
+                             "N >= 2 = N Dask worker processes; 0 = the in-process loop.",
+                             minimum=0)
+    scheduler: str | None = scheduler_field()
+    dry_run: bool = dry_run_field()
 
     def check(self) -> None:
         super().check()

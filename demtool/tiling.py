@@ -392,10 +392,12 @@ def raster_shape(path: str | os.PathLike, what: str = "raster") -> tuple[int, in
 
 
 def write_tiled_raster(path: str | os.PathLike, tiling: Tiling, cache: TileCache, *,
-                       band: int = 0, transform=None, crs=None,
+                       band: int | Sequence[int] = 0, transform=None, crs=None,
                        tags: Mapping[str, Any] | None = None,
-                       band_name: str | None = None) -> Path:
+                       band_name: str | Sequence[str] | None = None) -> Path:
     """Assemble band ``band`` of the cached tile cores into a GeoTIFF, window by window.
+
+    A sequence of bands (and of names) writes a multi-band file, in that order.
 
     The file has the profile of :func:`demtool.io.write_raster` (float32, NaN nodata,
     deflate with the floating-point predictor, 256 px blocks) and is written
@@ -414,14 +416,17 @@ def write_tiled_raster(path: str | os.PathLike, tiling: Tiling, cache: TileCache
     from demtool import io as dio
     from demtool.outputs import atomic_path, write_error
 
-    profile = {"driver": "GTiff", "dtype": "float32", "nodata": float("nan"), "count": 1,
+    bands = [band] if isinstance(band, int) else list(band)
+    names = [band_name] if isinstance(band_name, str) else list(band_name or [])
+    profile = {"driver": "GTiff", "dtype": "float32", "nodata": float("nan"),
+               "count": len(bands),
                "height": tiling.height, "width": tiling.width,
                "transform": transform if transform is not None else dio.image_frame_transform(1.0),
                "crs": crs, "compress": "deflate", "predictor": 3,
                "tiled": tiling.width >= BLOCK and tiling.height >= BLOCK}
     if profile["tiled"]:
         profile.update(blockxsize=BLOCK, blockysize=BLOCK)
-    if tiling.width * tiling.height * 4 > 3.5e9:
+    if tiling.width * tiling.height * 4 * len(bands) > 3.5e9:
         profile["BIGTIFF"] = "YES"
     with atomic_path(path, suffix=".tif") as temporary, warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
@@ -429,12 +434,12 @@ def write_tiled_raster(path: str | os.PathLike, tiling: Tiling, cache: TileCache
             with rasterio.open(temporary, "w", **profile) as dst:
                 for tile in tiling.tiles:
                     r0, r1, c0, c1 = tile.core
-                    values = cache.load(tile)[band]
-                    dst.write(values, 1, window=Window(c0, r0, c1 - c0, r1 - r0))
+                    values = cache.load(tile)[bands]
+                    dst.write(values, window=Window(c0, r0, c1 - c0, r1 - r0))
                 if tags:
                     dst.update_tags(**{k: dio._tag_value(v) for k, v in tags.items()})
-                if band_name:
-                    dst.set_band_description(1, band_name)
+                for index, name in enumerate(names, start=1):
+                    dst.set_band_description(index, name)
         except (RasterioError, CPLE_BaseError) as exc:
             raise write_error(path, exc) from None
     return Path(path)

@@ -24,8 +24,10 @@ __all__ = [
     "lanczos_shift",
     "resample_to_grid",
     "sample_bilinear",
+    "same_grid",
     "sample_cubic",
     "shift_dem",
+    "source_pixels",
 ]
 
 log = get_logger(__name__)
@@ -426,6 +428,52 @@ def _check_overlap(src: Grid, dst: Grid) -> None:
             "coordinates); check that both are in the same frame or carry their CRS")
 
 
+def _reprojects(src: Grid, dst: Grid) -> bool:
+    """True when the two grids have different CRSs (an exact pyproj reprojection)."""
+    return src.crs is not None and dst.crs is not None and src.crs != dst.crs
+
+
+def source_pixels(src: Grid, dst: Grid, window: tuple[int, int, int, int]
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Where the centres of ``dst``'s cells in ``window`` fall in ``src``, pixels.
+
+    Parameters
+    ----------
+    src, dst : Grid
+    window : (row0, row1, col0, col1)
+        Cells of ``dst``, half-open.
+
+    Returns
+    -------
+    rows, cols : (row1 − row0, col1 − col0) float64
+        Array coordinates in ``src`` (the centre of pixel [r, c] at (r, c)): through the
+        two affine transforms, or, when the CRSs differ, through an exact pyproj
+        transformation (``always_xy``).  The numbers of a cell do not depend on the
+        window it is computed in, so a raster resampled window by window equals the
+        raster resampled whole (:func:`resample_to_grid`).
+    """
+    r0, r1, c0, c1 = window
+    cc, rr = np.meshgrid(np.arange(c0, c1, dtype=np.float64) + 0.5,
+                         np.arange(r0, r1, dtype=np.float64) + 0.5)
+    if _reprojects(src, dst):
+        from pyproj import Transformer
+
+        from demtool.maps import to_pyproj_crs
+
+        transformer = Transformer.from_crs(to_pyproj_crs(dst.crs), to_pyproj_crs(src.crs),
+                                           always_xy=True)
+        t = dst.transform
+        x, y = transformer.transform(t.a * cc + t.b * rr + t.c, t.d * cc + t.e * rr + t.f)
+        x, y = np.asarray(x), np.asarray(y)
+        inverse = ~src.transform
+        return (inverse.d * x + inverse.e * y + inverse.f - 0.5,
+                inverse.a * x + inverse.b * y + inverse.c - 0.5)
+    # destination pixel centre (c + 0.5, r + 0.5) -> map -> source pixel centre coordinates
+    to_src = ~src.transform @ dst.transform
+    return (to_src.d * cc + to_src.e * rr + to_src.f - 0.5,
+            to_src.a * cc + to_src.b * rr + to_src.c - 0.5)
+
+
 def _reproject_bilinear(values: np.ndarray, src: Grid, dst: Grid,
                         rows_per_block: int = 256) -> np.ndarray:
     """Bilinear reprojection: each destination cell centre is transformed exactly (pyproj,
@@ -436,26 +484,19 @@ def _reproject_bilinear(values: np.ndarray, src: Grid, dst: Grid,
     smooths the DEM by up to ~1.4 px) nor approximates the transformation (0.125 px), so a
     surface reprojected between two CRSs stays within bilinear interpolation's error.
     """
-    from pyproj import Transformer
-
-    from demtool.maps import to_pyproj_crs
-
-    transformer = Transformer.from_crs(to_pyproj_crs(dst.crs), to_pyproj_crs(src.crs),
-                                       always_xy=True)
-    inverse = ~src.transform
     rows, cols = dst.shape
     out = np.empty(dst.shape, dtype=np.float64)
-    centre_cols = np.arange(cols, dtype=np.float64) + 0.5
-    t = dst.transform
     for start in range(0, rows, rows_per_block):
         stop = min(rows, start + rows_per_block)
-        cc, rr = np.meshgrid(centre_cols, np.arange(start, stop, dtype=np.float64) + 0.5)
-        x, y = transformer.transform(t.a * cc + t.b * rr + t.c, t.d * cc + t.e * rr + t.f)
-        x, y = np.asarray(x), np.asarray(y)
-        src_cols = inverse.a * x + inverse.b * y + inverse.c - 0.5
-        src_rows = inverse.d * x + inverse.e * y + inverse.f - 0.5
+        src_rows, src_cols = source_pixels(src, dst, (start, stop, 0, cols))
         out[start:stop] = sample_bilinear(values, src_rows, src_cols)
     return out
+
+
+def same_grid(src: Grid, dst: Grid) -> bool:
+    """True when :func:`resample_to_grid` copies (one shape, one transform, no CRS change)."""
+    return (not _reprojects(src, dst) and tuple(src.shape) == tuple(dst.shape)
+            and src.transform.almost_equals(dst.transform))
 
 
 def resample_to_grid(values: np.ndarray, src: Grid, dst: Grid) -> np.ndarray:
@@ -489,17 +530,12 @@ def resample_to_grid(values: np.ndarray, src: Grid, dst: Grid) -> np.ndarray:
     if values.shape != tuple(src.shape):
         raise ValueError(f"values have shape {values.shape}, grid says {src.shape}")
     _check_overlap(src, dst)
-    if src.crs is not None and dst.crs is not None and src.crs != dst.crs:
+    if _reprojects(src, dst):
         return _reproject_bilinear(values, src, dst)
     if (src.crs is None) != (dst.crs is None):
         log.warning("one raster has a CRS and the other has none: assuming both transforms "
                     "are in the same map coordinates")
-    if tuple(src.shape) == tuple(dst.shape) and src.transform.almost_equals(dst.transform):
+    if same_grid(src, dst):
         return np.asarray(values, dtype=np.float64).copy()
-    # destination pixel centre (c + 0.5, r + 0.5) -> map -> source pixel centre coordinates
-    to_src = ~src.transform @ dst.transform
-    rows, cols = np.indices(dst.shape, dtype=np.float64)
-    cc, rr = cols + 0.5, rows + 0.5
-    src_cols = to_src.a * cc + to_src.b * rr + to_src.c - 0.5
-    src_rows = to_src.d * cc + to_src.e * rr + to_src.f - 0.5
+    src_rows, src_cols = source_pixels(src, dst, (0, dst.shape[0], 0, dst.shape[1]))
     return sample_bilinear(values, src_rows, src_cols)

@@ -111,6 +111,68 @@ def format_table(rows: Sequence[tuple[str, dict[str, Any]]]) -> str:
     return "\n".join(lines)
 
 
+def make_figures(comparisons: Sequence[tuple[str, Any]], reference_values, lines,
+                 spacing: tuple[float, float], label: str) -> dict[str, bytes]:
+    """The PNG figures of a comparison: name -> bytes (``comparisons[0]`` is the main DEM's
+    :class:`demtool.compare.Comparison`, the others the ``--also`` DEMs')."""
+    from demtool.compare import plots as figure_maker
+
+    main = comparisons[0][1]
+    stats = main.report
+    figures: dict[str, bytes] = {}
+    figures["difference.png"] = figure_maker.difference_figure(
+        main.difference, spacing, title=f"{label} − reference", stats=stats)
+    figures["dems.png"] = figure_maker.dems_figure(
+        [(label, main.aligned), *[(n, c.aligned) for n, c in comparisons[1:]],
+         ("reference", reference_values)], spacing)
+    figures["profiles.png"] = figure_maker.profiles_figure(
+        [("reference", reference_values), (label, main.aligned),
+         *[(n, c.aligned) for n, c in comparisons[1:]]], lines, spacing)
+    figures["histogram.png"] = figure_maker.histogram_figure(main.difference, stats=stats,
+                                                             title=f"{label} − reference")
+    figures["completeness.png"] = figure_maker.completeness_figure(
+        main.coverage, spacing, percent=main.report["completeness"], title=label)
+    resolution = main.report["effective_resolution"]
+    if main.spectrum is not None and resolution is not None:
+        figures["coherence.png"] = figure_maker.coherence_figure(
+            main.spectrum.frequency, main.spectrum.coherence,
+            cutoff_per_m=resolution["coherent_frequency_per_m"],
+            threshold=resolution["threshold"], title=f"{label} vs reference")
+    return figures
+
+
+def _windowed(run, dem_path, reference_path, out_dir, params, mask_path, also):
+    """The windowed comparison's report when ``--tile-size`` or the memory budget asks for
+    it (:func:`demtool.runs.compare_windowed.windowed_tile_size`), else None."""
+    from demtool import io as dio
+    from demtool.compare.planetary import check_bodies, metric_grid
+    from demtool.runs.compare_windowed import (
+        _grid,
+        _Header,
+        compare_windowed,
+        windowed_tile_size,
+    )
+
+    infos = {"dem": dio.raster_info(dem_path, what="DEM"),
+             "reference": dio.raster_info(reference_path, what="reference DEM")}
+    target, degrees = metric_grid(_grid(infos[params.grid]))
+    tile_size = windowed_tile_size(target.shape, params)
+    if not tile_size:
+        return None
+    infos[str(dem_path)] = infos["dem"]
+    for path in also:
+        infos[str(path)] = dio.raster_info(path, what="DEM (--also)")
+    for path in (dem_path, *also):
+        check_same_frame(_Header(infos[str(path)]), _Header(infos["reference"]),
+                         "compare rasters of one frame (e.g. a target-frame DEM with "
+                         "truth_dem_target.tif)")
+    body_warnings = check_bodies([(i.path, i.crs) for i in (infos["reference"], infos["dem"],
+                                                            *(infos[str(p)] for p in also))])
+    return compare_windowed(run, dem_path, reference_path, out_dir, params, tile_size,
+                            infos=infos, target=target, degrees=degrees, mask_path=mask_path,
+                            also=also, body_warnings=body_warnings)
+
+
 def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
                 out_dir: str | os.PathLike, params: CompareParams | None = None, *,
                 mask_path: str | os.PathLike | None = None, also: Sequence[str] = (),
@@ -147,6 +209,9 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     log, provenance = run.log, run.provenance
     grid, align, label = params.grid, params.align, params.label
     out = Path(out_dir)
+    windowed = _windowed(run, dem_path, reference_path, out_dir, params, mask_path, also)
+    if windowed is not None:
+        return windowed
     dem = _read_dem(dem_path, "DEM")
     reference = _read_dem(reference_path, "reference DEM")
     extra = [_read_dem(path, "DEM (--also)") for path in also]
@@ -211,28 +276,8 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     for message in report["warnings"]:
         log.warning("%s: %s", label, message)
 
-    figures: dict[str, bytes] = {}
-    if params.plots:
-        spacing = (sx, sy)
-        stats = main.report
-        figures["difference.png"] = figure_maker.difference_figure(
-            main.difference, spacing, title=f"{label} − reference", stats=stats)
-        figures["dems.png"] = figure_maker.dems_figure(
-            [(label, main.aligned), *[(n, c.aligned) for n, c in comparisons[1:]],
-             ("reference", reference_values)], spacing)
-        figures["profiles.png"] = figure_maker.profiles_figure(
-            [("reference", reference_values), (label, main.aligned),
-             *[(n, c.aligned) for n, c in comparisons[1:]]], lines, spacing)
-        figures["histogram.png"] = figure_maker.histogram_figure(main.difference, stats=stats,
-                                                          title=f"{label} − reference")
-        figures["completeness.png"] = figure_maker.completeness_figure(
-            main.coverage, spacing, percent=main.report["completeness"], title=label)
-        resolution = main.report["effective_resolution"]
-        if main.spectrum is not None and resolution is not None:
-            figures["coherence.png"] = figure_maker.coherence_figure(
-                main.spectrum.frequency, main.spectrum.coherence,
-                cutoff_per_m=resolution["coherent_frequency_per_m"],
-                threshold=resolution["threshold"], title=f"{label} vs reference")
+    figures = make_figures(comparisons, reference_values, lines, (sx, sy), label) \
+        if params.plots else {}
     report["figures"] = sorted(figures)
 
     report_path = out / REPORT

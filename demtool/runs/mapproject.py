@@ -23,7 +23,6 @@ SENSOR_TAG = "mapproject_sensor"
 SURFACE_TAG = "mapproject_surface"
 DEM_TAG = "mapproject_dem"
 HEIGHT_TAG = "mapproject_height_m"
-ANGLE_BANDS = ["incidence_deg", "emission_deg", "phase_deg"]
 
 
 class DemSurface(NamedTuple):
@@ -84,7 +83,9 @@ def require_same_body(path: str | os.PathLike, crs: Any, body: Any,
         raise InputError(f"{path}: is {what} of {raster_body.name} but the sensor model "
                          f"{sensor_path} sees {body.name}")
 
-def _read_dem(dem_path, sensor_path, body):
+def read_dem_surface(dem_path, sensor_path, body) -> DemSurface:
+    """The DEM at ``dem_path`` as a :class:`DemSurface` (checked: a map of the sensor's
+    body, on a sphere)."""
     from demtool import io as dio
     from demtool.errors import InputError
     from demtool.maps import crs_radius, to_pyproj_crs
@@ -101,6 +102,9 @@ def _read_dem(dem_path, sensor_path, body):
         raise InputError(f"{dem_path}: DEM is on an ellipsoid; demtool's map heights are above "
                          "the body's reference sphere (reproject it onto the sphere)") from None
     return DemSurface(info=info, offset_m=radius - body.radius, geographic=crs.is_geographic)
+
+
+_read_dem = read_dem_surface  # the name demtool.runs.dem_mapprojected imports
 
 
 def _footprint_heights(surface: DemSurface | None, height: float, sensor, body):
@@ -204,18 +208,15 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     from demtool import io as dio
     from demtool.errors import InputError, ParameterError
     from demtool.logs import progress
-    from demtool.mapproject import (
-        illumination_angles,
-        image_coordinates,
-        image_window,
-        resample_tile,
-        sensor_body,
-        tile_misses_image,
-        tile_windows,
-    )
+    from demtool.mapproject import native_gsd, sensor_body
     from demtool.mapproject_params import MapprojectParams
-    from demtool.maps import map_to_lonlat, map_to_xyz, to_pyproj_crs
+    from demtool.maps import to_pyproj_crs
     from demtool.sensors import read_sensor
+    from demtool.tiled.mapproject import (
+        MapprojectTileJob,
+        engine_tile_size,
+        mapproject_tiled,
+    )
 
     params = params or MapprojectParams()
     run = StageRun("mapproject", params, resolved=resolved,
@@ -235,7 +236,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
                          f"sensor model {sensor_path} describes {sensor.samples} x "
                          f"{sensor.lines}")
     body = sensor_body(sensor)
-    surface = _read_dem(dem_path, sensor_path, body) if dem_path is not None else None
+    surface = read_dem_surface(dem_path, sensor_path, body) if dem_path is not None else None
     grid = (_grid_like(grid_like, sensor_path, body, params) if grid_like is not None
             else _grid(sensor, body, surface, params, log))
     same_crs = surface is not None and not surface.geographic and \
@@ -251,10 +252,46 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
         **{SENSOR_TAG: str(Path(sensor_path).resolve())},
         mapproject_image=str(Path(image_path).resolve()), sensor_name=sensor.name,
         sensor_kind=sensor.kind, image_size=[sensor.lines, sensor.samples])
+    try:
+        pixels_per_cell = (gsd / native_gsd(sensor, body.radius)) ** 2
+    except ValueError:
+        pixels_per_cell = 1.0
+    job = MapprojectTileJob(str(image_path), str(sensor_path),
+                            None if dem_path is None else str(dem_path), params.height,
+                            grid.crs.to_wkt(), tuple(grid.transform)[:6], same_crs,
+                            params.step, params.tolerance, params.seed,
+                            angles=angles_out is not None, pixels_per_cell=pixels_per_cell)
+    head = {"image": Path(image_path).name, "sensor": sensor.name, "body": body.name,
+            "crs": grid.crs.name, "width": grid.width, "height": grid.height, "gsd_m": gsd,
+            "transform": list(grid.transform)[:6], "surface": surface_tags[SURFACE_TAG]}
+    engine_size = engine_tile_size(grid.shape, params)
+    if engine_size:
+        inputs = [p for p in (image_path, sensor_path, dem_path, grid_like) if p is not None]
+        result = mapproject_tiled(run, job, grid, engine_size, params, out_path=out_path,
+                                  angles_out=angles_out, tags=tags, inputs=inputs,
+                                  extra_summary=head)
+        if result.dry_run is not None:
+            return {**head, "dry_run": result.dry_run}
+        summary = result.summary
+    else:
+        summary = _project_in_process(run, job, sensor, surface, grid, tags, head, params,
+                                      out_path, angles_out, progress)
+    log.info("%d x %d orthoimage, %.1f %% seen, lattice steps %s, max interpolation error "
+             "%.2g px", grid.width, grid.height, 100 * summary["valid_fraction"],
+             summary["lattice_steps"], summary["max_interpolation_error_px"])
+    return summary
+
+
+def _project_in_process(run, job, sensor, surface, grid, tags, head, params, out_path,
+                        angles_out, progress) -> dict[str, Any]:
+    """The default path: the map tiles one after the other, written as they finish."""
+    from demtool import io as dio
+    from demtool.errors import InputError
+    from demtool.mapproject import tile_windows
+    from demtool.tiled.mapproject import ANGLE_BANDS, project_window, summarize_tiles
+
     windows = tile_windows(grid.shape, params.tile_size)
-    steps: dict[int, int] = {}
-    worst = 0.0
-    valid = skipped = 0
+    infos = []
     started = time.perf_counter()
     outputs = [out_path] + ([angles_out] if angles_out is not None else [])
     with dio.output_transaction(), contextlib.ExitStack() as stack:
@@ -263,66 +300,22 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
             crs=grid.crs, tags=tags))
         angle_writer = None if angles_out is None else stack.enter_context(dio.raster_writer(
             angles_out, height=grid.height, width=grid.width, count=3,
-            transform=grid.transform, crs=grid.crs, tags={**tags, "bands": ANGLE_BANDS},
-            band_names=ANGLE_BANDS))
+            transform=grid.transform, crs=grid.crs, tags={**tags, "bands": list(ANGLE_BANDS)},
+            band_names=list(ANGLE_BANDS)))
         for window in progress(windows, "mapproject tiles"):
-            r0, r1, c0, c1 = window
-            t = grid.transform
-            cc, rr = np.meshgrid(np.arange(c0, c1) + 0.5, np.arange(r0, r1) + 0.5)
-            x, y = t.a * cc + t.b * rr + t.c, t.d * cc + t.e * rr + t.f
-            if surface is None:
-                heights = np.full(x.shape, float(params.height))
-            elif same_crs:
-                heights = surface.heights_xy(x, y)
-            else:
-                heights = surface.heights_lonlat(*map_to_lonlat(grid.crs, x, y))
-            finite = heights[np.isfinite(heights)]
-            if not finite.size or tile_misses_image(sensor, grid.crs, grid.transform, window,
-                                                    finite.min(), finite.max()):
-                skipped += 1
-                nan = np.full(x.shape, np.nan, dtype=np.float32)
-                ortho.write(nan, r0, c0)
-                if angle_writer is not None:
-                    angle_writer.write(np.stack([nan] * 3), r0, c0)
-                continue
-            coords = image_coordinates(sensor, grid.crs, grid.transform, window, heights,
-                                       step=params.step, tolerance=params.tolerance,
-                                       seed=params.seed)
-            steps[coords.step] = steps.get(coords.step, 0) + 1
-            worst = max(worst, coords.max_error_px)
-            span = image_window(coords.line, coords.sample, sensor.lines, sensor.samples)
-            if span is None:
-                values = np.full(x.shape, np.nan, dtype=np.float32)
-            else:
-                pixels = dio.read_window(image_path, span, what="image")
-                values = resample_tile(pixels, (span[0], span[2]), coords.line,
-                                       coords.sample, sensor.lines, sensor.samples)
-            valid += int(np.isfinite(values).sum())
-            ortho.write(values, r0, c0)
+            values, info = project_window(job, sensor, surface, window)
+            infos.append(info)
+            ortho.write(values[0], window[0], window[2])
             if angle_writer is not None:
-                xyz = map_to_xyz(grid.crs, x, y, heights)
-                seen = np.where(np.isfinite(values), coords.line, np.nan)
-                angle_writer.write(np.stack(illumination_angles(sensor, xyz, seen)), r0, c0)
+                angle_writer.write(values[1:], window[0], window[2])
         elapsed = time.perf_counter() - started
         cells = grid.width * grid.height
-        summary = {
-            "image": Path(image_path).name, "sensor": sensor.name, "body": body.name,
-            "crs": grid.crs.name, "width": grid.width, "height": grid.height, "gsd_m": gsd,
-            "transform": list(grid.transform)[:6],
-            "surface": surface_tags[SURFACE_TAG],
-            "valid_fraction": round(valid / cells, 6) if cells else 0.0,
-            "tiles": len(windows), "tiles_off_image": skipped,
-            "lattice_steps": {str(k): v for k, v in sorted(steps.items())},
-            "max_interpolation_error_px": round(worst, 6),
-            "cells_per_second": round(cells / elapsed) if elapsed > 0 else None,
-        }
-        if valid == 0:
-            raise InputError(f"{image_path}: no map cell sees the image (check --dem, "
+        summary = {**head, **summarize_tiles(infos, cells),
+                   "cells_per_second": round(cells / elapsed) if elapsed > 0 else None}
+        if summary["valid_cells"] == 0:
+            raise InputError(f"{job.image_path}: no map cell sees the image (check --dem, "
                              "--height and --bounds)")
         run.provenance.write_sidecar(out_path, summary, outputs=outputs)
-    log.info("%d x %d orthoimage, %.1f %% seen, lattice steps %s, max interpolation error "
-             "%.2g px, %.1f s", grid.width, grid.height, 100 * summary["valid_fraction"],
-             summary["lattice_steps"], worst, elapsed)
     return summary
 
 

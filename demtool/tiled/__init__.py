@@ -41,12 +41,13 @@ from demtool.tiling import (
 
 @dataclass
 class TiledOutput:
-    """One raster a tiled run writes: a band of the job's tiles, its tags and name."""
+    """One raster a tiled run writes: a band of the job's tiles (or several, for a
+    multi-band file), its tags and name(s)."""
 
     path: str | os.PathLike
-    band: int
+    band: int | Sequence[int]
     tags: Mapping[str, Any]
-    band_name: str
+    band_name: str | Sequence[str]
 
 
 @dataclass

@@ -202,7 +202,7 @@ class MapDemTileJob:
             out[0] = splat_median(p, np.concatenate(heights), (h, w))[0]
             out[1] = splat_median(p, np.concatenate(gaps), (h, w))[0]
         left, right = self.orthos()
-        t = Affine(*self.grid_transform[:6]) * Affine.translation(c0, r0)
+        t = Affine(*self.grid_transform[:6]) @ Affine.translation(c0, r0)
         grid = MapGrid(to_pyproj_crs(left.info.crs), t, w, h)
         measured = np.isfinite(out[0])
         out[2] = overlap_mask(grid, left.sensor, right.sensor, self.overlap_height) | measured

@@ -250,6 +250,10 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
             if reference_path is not None or cameras_path is not None:
                 raise ParameterError(f"{rectify_path} is calibrated (it carries the sensor "
                                      "models): drop --reference/--cameras")
+            if _tile_options(params):
+                raise ParameterError("--tile-size/--scheduler/--dry-run: the calibrated "
+                                     "sensor-model route (rectify --sensor-left/--sensor-"
+                                     "right) does not run in tiles yet")
             return run_dem_sensors(run, params, out, disparity_path=disparity_path,
                                    rectify_path=rectify_path, rectification=rectification,
                                    mask_path=mask_path, error_path=error_path)
@@ -329,7 +333,7 @@ def _dem_tiled(run: StageRun, params: DemParams, out, *, disparity_path, rectify
                cameras_path, scene: dict, scene_path, mask_path) -> dict | None:
     """The calibrated disparity route in tiles (:mod:`demtool.tiled.dem`); None when the
     target fits in one tile (the untiled path then runs); the other routes refuse the
-    tile options."""
+    tile options (the map-projected route has its own, :mod:`demtool.tiled.dem_map`)."""
     from demtool.errors import ParameterError
     from demtool.tiled.dem import dem_tiled
     from demtool.tiling import wants_tiles

@@ -432,6 +432,7 @@ def _passes(run, params, out, disparity_path: str, left_path: str, right_path: s
                 "map_shape": list(shape), "map_gsd_m": gsd, "overlap_cells": overlap_cells,
                 "measured_cells": measured, "filled_cells": filled,
                 "measured_fraction_of_overlap": measured / max(1, overlap_cells),
+                "points_per_measured_cell": kept / max(1, measured),
                 "height_min_m": min(float(i["height_min"]) for i in fills),
                 "height_max_m": max(float(i["height_max"]) for i in fills),
                 "height_median_m": overlap_height, "valid_disparities": valid,

@@ -101,3 +101,109 @@ def test_tiled_map_dem_is_as_accurate_against_truth(pair):
     gsd = abs(read(pair["left"]).transform.a)
     assert rmse["untiled"] < gsd  # the untiled route's own check (tests/cli/test_mapstereo)
     assert abs(rmse["tiled"] - rmse["untiled"]) <= 0.02 * gsd, rmse
+
+
+def tiled_dem(pair, out, *extra):
+    return invoke("-q", "dem", "--disparity", pair["disparity"], "--mapprojected",
+                  pair["left"], pair["right"], "--out", out, "--tile-size", TILE, *extra)
+
+
+def test_a_failed_tile_then_a_resumed_run_writes_the_same_bytes(pair, tmp_path, monkeypatch):
+    from demtool import tiling
+    from demtool.tiled import dem_map
+
+    out = tmp_path / "run" / "dem.tif"
+    error = out.with_name("error.tif")
+    extra = ("--error-out", error)
+    assert tiled_dem(pair, out, *extra).exit_code == 0
+    reference = out.read_bytes(), error.read_bytes()
+    for path in (out, error, out.with_suffix(".tif.json")):
+        path.unlink()
+    original = dem_map.MapDemTileJob.compute
+    calls = []
+
+    def failing(self, tile, threads):
+        calls.append((self.step, tile.index))
+        if self.step == "fill" and tile.index == 2:
+            raise RuntimeError("worker lost")
+        return original(self, tile, threads)
+
+    monkeypatch.setattr(dem_map.MapDemTileJob, "compute", failing)
+    result = tiled_dem(pair, out, *extra)
+    assert result.exit_code == 1
+    assert "tile 2 (rows 0–64, columns 128–" in result.output
+    assert "failed: worker lost" in result.output and result.output.count("\n") == 1
+    assert not out.exists() and not error.exists() and not out.with_suffix(".tif.json").exists()
+    fills = sum(step == "fill" for step, _ in calls)
+    calls.clear()
+    monkeypatch.setattr(dem_map.MapDemTileJob, "compute", lambda self, tile, threads: (
+        calls.append((self.step, tile.index)), original(self, tile, threads))[1])
+    result = tiled_dem(pair, out, *extra)
+    assert result.exit_code == 0, result.output
+    assert fills == 3 and calls[0] == ("fill", 2)  # only the missing tiles, no points again
+    assert all(step == "fill" for step, _ in calls)
+    assert (out.read_bytes(), error.read_bytes()) == reference
+    assert not tiling.work_folder(out).exists()
+
+
+def test_a_decimated_coarse_solve_and_the_median_stay_within_a_centimetre(
+        pair, tmp_path, monkeypatch):
+    from demtool.tiled import dem as tiled_dem_module
+
+    untiled = tmp_path / "untiled.tif"
+    result = invoke("-q", "dem", "--disparity", pair["disparity"], "--mapprojected",
+                    pair["left"], pair["right"], "--out", untiled, "--median", "5")
+    assert result.exit_code == 0, result.output
+    monkeypatch.setattr(tiled_dem_module, "COARSE_MAX_CELLS", 3000)  # 192² → 48²: f = 4
+    out = tmp_path / "tiled.tif"
+    result = tiled_dem(pair, out, "--median", "5")
+    assert result.exit_code == 0, result.output
+    assert json.loads(out.with_suffix(".tif.json").read_text())["summary"][
+        "coarse_factor"] == 4
+    a, b = read(untiled).data.astype(np.float64), read(out).data.astype(np.float64)
+    assert np.array_equal(np.isfinite(a), np.isfinite(b))
+    difference = np.abs(a - b)[np.isfinite(a)]
+    assert np.mean(difference < 0.01) >= 0.995 and difference.max() < 0.05
+
+
+@pytest.mark.slow
+def test_two_local_dask_workers_give_the_same_dem(pair, tmp_path):
+    out = tmp_path / "two.tif"
+    result = tiled_dem(pair, out, "--workers", "2")
+    assert result.exit_code == 0, result.output
+    assert np.array_equal(read(out).data, read(pair["tiled"]["dem"]).data, equal_nan=True)
+
+
+@pytest.mark.parametrize("options, message", [
+    (("--mask-band",), "--mask-band is not written in tiles: use --interpolated-mask"),
+    (("--dry-run",), "--dry-run: the map-projected route plans its tiles"),
+    (("--projection", "polar-stereographic"), "--projection polar-stereographic: the "
+     "map-projected route in tiles grids on the orthoimages' map")])
+def test_options_the_tiled_route_refuses_name_the_option(pair, tmp_path, options, message):
+    out = tmp_path / "dem.tif"
+    result = tiled_dem(pair, out, *options)
+    assert result.exit_code == 1
+    assert message in result.output and result.output.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_disparity_off_the_left_grid_is_refused_in_tiles(pair, tmp_path):
+    disparity = read(pair["disparity"])
+    cropped = tmp_path / "cropped.tif"
+    dio.write_raster(cropped, disparity.data[:-8], transform=disparity.transform,
+                     crs=disparity.crs)
+    out = tmp_path / "dem.tif"
+    result = invoke("-q", "dem", "--disparity", cropped, "--mapprojected", pair["left"],
+                    pair["right"], "--out", out, "--tile-size", TILE)
+    assert result.exit_code == 1
+    assert "disparity is not on the grid of the left orthoimage" in result.output
+    assert result.output.count("\n") == 1 and not out.exists()
+
+
+def test_a_grid_that_fits_in_one_tile_runs_untiled(pair, tmp_path):
+    out = tmp_path / "dem.tif"
+    result = invoke("-q", "dem", "--disparity", pair["disparity"], "--mapprojected",
+                    pair["left"], pair["right"], "--out", out, "--tile-size", 512)
+    assert result.exit_code == 0, result.output
+    assert "tiling" not in json.loads(out.with_suffix(".tif.json").read_text())["summary"]
+    assert np.array_equal(read(out).data, read(pair["untiled"]["dem"]).data, equal_nan=True)

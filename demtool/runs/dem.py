@@ -250,10 +250,6 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
             if reference_path is not None or cameras_path is not None:
                 raise ParameterError(f"{rectify_path} is calibrated (it carries the sensor "
                                      "models): drop --reference/--cameras")
-            if _tile_options(params):
-                raise ParameterError("--tile-size/--scheduler/--dry-run: the calibrated "
-                                     "sensor-model route (rectify --sensor-left/--sensor-"
-                                     "right) does not run in tiles yet")
             return run_dem_sensors(run, params, out, disparity_path=disparity_path,
                                    rectify_path=rectify_path, rectification=rectification,
                                    mask_path=mask_path, error_path=error_path)

@@ -176,16 +176,27 @@ def _tiled(run: StageRun, params: DemParams, out, disparity_path, left_path, rig
            li, mask_path, error_path) -> dict[str, Any] | None:
     """The route in tiles (:mod:`demtool.tiled.dem_map`); None when the orthoimages' grid
     fits in one tile (the untiled path then runs)."""
+    import numpy as np
+
     from demtool import io as dio
-    from demtool.tiled.dem_map import dem_map_tiled
+    from demtool.maps import to_pyproj_crs
+    from demtool.tiled.dem_map import ortho
+    from demtool.tiled.dem_map_run import dem_map_tiled, mapprojected_job
     from demtool.tiling import wants_tiles
 
     info = dio.raster_info(disparity_path, what="disparity")
     _check_disparity_grid(disparity_path, left_path, li, (info.height, info.width),
                           info.transform, info.crs)
-    if not wants_tiles(li.height, li.width, params):
+    tile_size = wants_tiles(li.height, li.width, params)
+    if not tile_size:
         return None
-    result = dem_map_tiled(run, params, out, disparity_path=disparity_path,
-                           left_path=left_path, right_path=right_path, mask_path=mask_path,
-                           error_path=error_path)
+    job = mapprojected_job(disparity_path, left_path, right_path, tile_size)
+    result = dem_map_tiled(
+        run, params, out, job, inputs=[str(disparity_path), str(left_path), str(right_path)],
+        gsd_default=float(np.sqrt(abs(li.transform.a * li.transform.e))),
+        crs=to_pyproj_crs(li.crs), summary={
+            "route": "disparity-mapprojected",
+            "surfaces": [ortho(str(p), w).surface for p, w in (
+                (left_path, "left orthoimage"), (right_path, "right orthoimage"))]},
+        mask_path=mask_path, error_path=error_path)
     return result.summary

@@ -176,9 +176,7 @@ def test_two_local_dask_workers_give_the_same_dem(pair, tmp_path):
 
 @pytest.mark.parametrize("options, message", [
     (("--mask-band",), "--mask-band is not written in tiles: use --interpolated-mask"),
-    (("--dry-run",), "--dry-run: the map-projected route plans its tiles"),
-    (("--projection", "polar-stereographic"), "--projection polar-stereographic: the "
-     "map-projected route in tiles grids on the orthoimages' map")])
+    (("--dry-run",), "--dry-run: the sensor-model routes plan their output tiles")])
 def test_options_the_tiled_route_refuses_name_the_option(pair, tmp_path, options, message):
     out = tmp_path / "dem.tif"
     result = tiled_dem(pair, out, *options)

@@ -10,9 +10,9 @@ the body's map (the median of the points falling in each cell,
 step resumable in the work folder:
 
 1. **points** (tiles of the disparity grid, no margin): each disparity cell
-   triangulated once; its longitude, latitude and height above the sphere (offsets from
-   the tile's first point, kept in the tile's info), ray gap and left range cached
-   (NaN where no point, or behind a camera);
+   triangulated once; its longitude, latitude, height above the sphere, ray gap and
+   left range cached in float64 (:func:`split64`; NaN where no point, or behind a
+   camera);
 2. **statistics** (the runner, one cached tile at a time): exact medians
    (:func:`demtool.tiled.dem_map_run.streaming_median`) for the GSD, the gap threshold
    ``median + max(4 NMAD, 2 GSD)`` (:func:`demtool.dem.sensors.default_max_ray_gap`) and
@@ -30,7 +30,8 @@ step resumable in the work folder:
    :data:`demtool.tiled.dem.COARSE_MAX_CELLS` cells.
 
 The per-cell median needs no neighbour and the statistics are exact, so the measured
-grid equals the untiled one up to float32 storage of the points (micrometres);
+grid equals the untiled one but for the order of floating-point sums (the map's
+centre);
 tests/dem/test_tiled_dem_sensors.py states the agreement achieved.
 """
 
@@ -50,7 +51,9 @@ from demtool.tiled.dem_grids import read_cached_window
 from demtool.tiling import Tile, TileCache, plan_tiles, read_window
 
 POINT_BYTES = 400  # per disparity cell: raw coordinates, rays, points
-STEP_BANDS = {"points": ("dlon", "dlat", "dheight", "gap", "range_left"),
+STEP_BANDS = {"points": tuple(f"{name}_{part}" for name in ("lon", "lat", "height", "gap",
+                                                              "range_left")
+                              for part in ("high", "low")),
               "measure": ("measured", "ray_gap", "overlap"),
               "fill": ("height", "interpolated", "ray_gap")}
 
@@ -96,13 +99,21 @@ def sphere_radius(model) -> float:
     return body_from_radii(a, a, b).radius
 
 
-def stored_points(values: np.ndarray, info: dict[str, Any]
+def split64(values: np.ndarray) -> np.ndarray:
+    """float64 values as two float32 bands, ``high + low`` (float32 tile caches keep
+    them to ~1e-14 relative): (2, ...) float32."""
+    values = np.asarray(values, dtype=np.float64)
+    high = values.astype(np.float32)
+    return np.stack([high, (values - high.astype(np.float64)).astype(np.float32)])
+
+
+def stored_points(values: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(lon, lat, height, gap, range_left) (N,) float64 of a cached points tile's points."""
-    ok = np.isfinite(values[2])
-    lon0, lat0, height0 = info.get("ref", (0.0, 0.0, 0.0))
+    """(lon, lat, height, gap, range_left) (N,) float64 of a cached points tile's points
+    (bands in :func:`split64` pairs)."""
+    ok = np.isfinite(values[4])
     v = values[:, ok].astype(np.float64)
-    return v[0] + lon0, v[1] + lat0, v[2] + height0, v[3], v[4]
+    return tuple(v[2 * i] + v[2 * i + 1] for i in range(5))
 
 
 @dataclass(frozen=True)
@@ -196,7 +207,7 @@ class MapDemTileJob:
         from demtool.maps.frames import xyz_to_lonlat_height
 
         r0, r1, c0, c1 = tile.core
-        out = np.full((5, r1 - r0, c1 - c0), np.nan, dtype=np.float32)
+        out = np.full((10, r1 - r0, c1 - c0), np.nan, dtype=np.float32)
         disparity = read_window(self.disparity_path, tile.core, what="disparity")
         raw = self._raw_ortho if self.source == "mapprojected" else self._raw_rectified
         (l_line, l_sample), (r_line, r_sample), rows, cols = raw(disparity, r0, c0)
@@ -217,11 +228,9 @@ class MapDemTileJob:
         if not front.any():
             return out, info
         lon, lat, height = xyz_to_lonlat_height(tri.xyz[front], radii=sphere_radius(left))
-        ref = (float(lon[0]), float(lat[0]), float(height[0]))
-        info["ref"] = ref
-        out[:, rows[seen][front], cols[seen][front]] = np.stack([
-            lon - ref[0], lat - ref[1], height - ref[2], tri.gap[front],
-            tri.range_left[front]])
+        values = np.stack([lon, lat, height, tri.gap[front], tri.range_left[front]])
+        out[:, rows[seen][front], cols[seen][front]] = split64(values).transpose(
+            1, 0, 2).reshape(10, -1)
         return out, info
 
     # ------------------------------------------------------------------ step 3
@@ -244,7 +253,7 @@ class MapDemTileJob:
         for ptile, box in zip(ptiles, self.boxes, strict=True):
             if box is None or box[0] >= r1 or box[1] <= r0 or box[2] >= c1 or box[3] <= c0:
                 continue
-            lon, lat, height, gap, _ = stored_points(cache.load(ptile), cache.info(ptile))
+            lon, lat, height, gap, _ = stored_points(cache.load(ptile))
             keep = gap <= self.max_gap
             x, y = lonlat_to_map(crs, lon[keep], lat[keep])
             px = (np.asarray(x) - c) / a - 0.5  # as demtool.dem.sensors.dem_on_map

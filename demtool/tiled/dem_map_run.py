@@ -103,9 +103,9 @@ def dem_map_tiled(run: Any, params: Any, out: str | os.PathLike, job: MapDemTile
 def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gsd, log):
     """(gsd, gsd source, threshold, median gap, front, kept, heights' median)."""
     def band(index: int):
-        return lambda: (stored_points(points.load(t), points.info(t))[index] for t in tiles)
+        return lambda: (stored_points(points.load(t))[index] for t in tiles)
 
-    front = sum(int(np.isfinite(points.load(t)[2]).sum()) for t in tiles)
+    front = sum(int(np.isfinite(points.load(t)[4]).sum()) for t in tiles)
     if gsd is None:
         gsd = streaming_median(band(4)) * range_to_gsd
     median_gap = streaming_median(band(3))
@@ -119,7 +119,7 @@ def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gs
 
     def kept_heights():
         for t in tiles:
-            _, _, height, gap, _ = stored_points(points.load(t), points.info(t))
+            _, _, height, gap, _ = stored_points(points.load(t))
             yield height[gap <= max_gap]
 
     kept = sum(h.size for h in kept_heights())
@@ -136,7 +136,7 @@ def _grid(params, points: TileCache, tiles, body, gsd: float, max_gap: float, cr
     from demtool.maps.projections import lonlat_to_map, make_projection
 
     def kept(t):
-        lon, lat, _, gap, _ = stored_points(points.load(t), points.info(t))
+        lon, lat, _, gap, _ = stored_points(points.load(t))
         return lon[gap <= max_gap], lat[gap <= max_gap]
 
     if crs is None or params.projection != "auto":  # as choose_projection: the mean direction
@@ -210,7 +210,7 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
         gsd, gsd_source = float(gsd_default), "orthoimage"
     else:
         gsd, gsd_source = None, "estimated"
-    if sum(int(np.isfinite(points.load(t)[2]).any()) for t in points_tiles) == 0:
+    if sum(int(np.isfinite(points.load(t)[4]).any()) for t in points_tiles) == 0:
         raise ProcessingError(f"{source}: no disparity triangulates in front of both "
                               "cameras")
     gsd, max_gap, median_gap, front, kept, overlap_height = _statistics(

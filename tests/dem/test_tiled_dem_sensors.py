@@ -205,3 +205,116 @@ def test_a_grid_that_fits_in_one_tile_runs_untiled(pair, tmp_path):
     assert result.exit_code == 0, result.output
     assert "tiling" not in json.loads(out.with_suffix(".tif.json").read_text())["summary"]
     assert np.array_equal(read(out).data, read(pair["untiled"]["dem"]).data, equal_nan=True)
+
+
+# ------------------------------------------------- the calibrated rectified (frame) route
+@pytest.fixture(scope="module")
+def frame(tmp_path_factory):
+    work = tmp_path_factory.mktemp("tiled_dem_frame")
+    scene = work / "scene"
+    result = invoke("synth", "--sensor", "frame", "--size", SIZE, "--image-size", SIZE,
+                    "--out", scene)
+    assert result.exit_code == 0, result.output
+    meta = json.loads((scene / "scene.json").read_text())
+    left, right = meta["target"], meta["partner"]
+    rect = work / "rect"
+    result = invoke("rectify", scene / f"{left}.tif", scene / f"{right}.tif",
+                    "--sensor-left", scene / f"{left}.json", "--sensor-right",
+                    scene / f"{right}.json", "--out", rect)
+    assert result.exit_code == 0, result.output
+    disparity = work / "disparity.tif"
+    result = invoke("sgm", rect / "left_rect.tif", rect / "right_rect.tif", "--rectify",
+                    rect / "rectify.npz", "--out", disparity)
+    assert result.exit_code == 0, result.output
+    outputs = {}
+    for name, extra in (("untiled", ()), ("tiled", ("--tile-size", TILE))):
+        paths = {k: work / f"{name}_{k}.tif" for k in ("dem", "mask", "error")}
+        result = invoke("-q", "dem", "--disparity", disparity, "--rectify",
+                        rect / "rectify.npz", "--error-out", paths["error"],
+                        "--interpolated-mask", paths["mask"], "--out", paths["dem"], *extra)
+        assert result.exit_code == 0, result.output
+        outputs[name] = paths
+    return {"work": work, "scene": scene, "rectify": rect / "rectify.npz",
+            "disparity": disparity, **outputs}
+
+
+def test_tiled_frame_dem_matches_the_untiled_one(frame):
+    untiled, tiled = read(frame["untiled"]["dem"]), read(frame["tiled"]["dem"])
+    assert tiled.data.shape == untiled.data.shape
+    # The map's centre is a mean of unit vectors summed in another order: same to 1e-12.
+    assert np.allclose(tuple(tiled.transform), tuple(untiled.transform), rtol=1e-12,
+                       atol=1e-9)
+    assert tiled.crs.to_dict().keys() == untiled.crs.to_dict().keys()
+    for key, value in untiled.crs.to_dict().items():
+        assert tiled.crs.to_dict()[key] == (pytest.approx(value, rel=1e-12, abs=1e-12)
+                                            if isinstance(value, float) else value), key
+    a, b = untiled.data.astype(np.float64), tiled.data.astype(np.float64)
+    assert np.array_equal(np.isfinite(a), np.isfinite(b))  # same completeness
+    assert np.isfinite(a).mean() > 0.9
+    difference = np.abs(a - b)[np.isfinite(a)]
+    assert np.mean(difference <= 0.01) >= 0.995 and difference.max() < 1e-4
+    for key in ("mask", "error"):
+        x = read(frame["untiled"][key]).data.astype(np.float64)
+        y = read(frame["tiled"][key]).data.astype(np.float64)
+        assert np.array_equal(np.isnan(x), np.isnan(y)), key
+        assert np.nanmax(np.abs(x - y)) <= 1e-6, key
+    summary = json.loads(frame["tiled"]["dem"].with_suffix(".tif.json").read_text())["summary"]
+    plain = json.loads(frame["untiled"]["dem"].with_suffix(".tif.json").read_text())["summary"]
+    assert summary["route"] == "disparity-sensors" and summary["tiling"]["tiles"] >= 4
+    for key in ("points", "measured_cells", "filled_cells", "overlap_cells",
+                "rejected_ray_gap", "behind_camera", "valid_disparities"):
+        assert summary[key] == plain[key], key
+    for key in ("gsd_m", "max_ray_gap_m", "median_ray_gap_m", "height_median_m"):
+        assert summary[key] == pytest.approx(plain[key], rel=1e-9), key
+
+
+def test_tiled_frame_dem_is_as_accurate_against_truth(frame):
+    truth = read(frame["scene"] / "truth_dem_map.tif")
+    rmse = {}
+    for name in ("untiled", "tiled"):
+        diff = on_truth(frame[name]["dem"], truth) - truth.data
+        ok = np.isfinite(diff)
+        assert ok.sum() > 0.5 * truth.data.size
+        rmse[name] = float(np.sqrt(np.mean(diff[ok] ** 2)))
+    gsd = abs(truth.transform.a)
+    assert rmse["untiled"] < gsd
+    assert abs(rmse["tiled"] - rmse["untiled"]) <= 0.02 * gsd, rmse
+
+
+def test_a_disparity_of_another_canvas_is_refused_in_tiles(frame, tmp_path):
+    disparity = read(frame["disparity"])
+    cropped = tmp_path / "cropped.tif"
+    dio.write_raster(cropped, disparity.data[:-8])
+    out = tmp_path / "dem.tif"
+    result = invoke("-q", "dem", "--disparity", cropped, "--rectify", frame["rectify"],
+                    "--out", out, "--tile-size", TILE)
+    assert result.exit_code == 1
+    assert f"{cropped}: disparity is" in result.output and "rectified canvas" in result.output
+    assert result.output.count("\n") == 1 and not out.exists()
+
+
+def test_a_disparity_mostly_outside_the_range_is_refused_in_tiles(frame, tmp_path):
+    disparity = read(frame["disparity"])
+    shifted = tmp_path / "shifted.tif"
+    dio.write_raster(shifted, disparity.data + 1000.0)
+    out = tmp_path / "dem.tif"
+    result = invoke("-q", "dem", "--disparity", shifted, "--rectify", frame["rectify"],
+                    "--out", out, "--tile-size", TILE)
+    assert result.exit_code == 1
+    assert "of the disparities lie outside" in result.output
+    assert result.output.count("\n") == 1 and not out.exists()
+
+
+def test_streaming_median_is_numpys_median():
+    from demtool.tiled.dem_map_run import streaming_median
+
+    rng = np.random.default_rng(3)
+    for size in (1, 2, 7, 10_000, 10_001):
+        values = np.concatenate([rng.standard_cauchy(size), [np.nan]])  # heavy tails
+        chunks = np.array_split(values, 5)
+        expected = float(np.median(values[np.isfinite(values)]))
+        assert streaming_median(lambda c=chunks: iter(c), bins=16, collect=8) == expected
+        assert streaming_median(lambda c=chunks: iter(c)) == expected
+    ties = [np.full(100, 2.5), np.full(50, 1.0)]
+    assert streaming_median(lambda: iter(ties), bins=4, collect=3) == 2.5
+    assert streaming_median(lambda: iter([np.array([np.nan])])) is None

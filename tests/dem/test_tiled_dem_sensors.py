@@ -108,16 +108,32 @@ def tiled_dem(pair, out, *extra):
                   pair["left"], pair["right"], "--out", out, "--tile-size", TILE, *extra)
 
 
-def test_a_failed_tile_then_a_resumed_run_writes_the_same_bytes(pair, tmp_path, monkeypatch):
+def route_dem(scenes, route, out, *extra):
+    """The tiled dem of ``route`` ("mapprojected" or "frame") written to ``out``."""
+    if route == "mapprojected":
+        return tiled_dem(scenes["pair"], out, *extra)
+    frame = scenes["frame"]
+    return invoke("-q", "dem", "--disparity", frame["disparity"], "--rectify",
+                  frame["rectify"], "--out", out, "--tile-size", TILE, *extra)
+
+
+@pytest.fixture(scope="module")
+def scenes(pair, frame):
+    return {"pair": pair, "frame": frame}
+
+
+@pytest.mark.parametrize("route", ["mapprojected", "frame"])
+def test_a_failed_tile_then_a_resumed_run_writes_the_same_bytes(scenes, route, tmp_path,
+                                                                monkeypatch):
     from demtool import tiling
     from demtool.tiled import dem_map
 
     out = tmp_path / "run" / "dem.tif"
-    error = out.with_name("error.tif")
-    extra = ("--error-out", error)
-    assert tiled_dem(pair, out, *extra).exit_code == 0
-    reference = out.read_bytes(), error.read_bytes()
-    for path in (out, error, out.with_suffix(".tif.json")):
+    error, mask = out.with_name("error.tif"), out.with_name("mask.tif")
+    extra = ("--error-out", error, "--interpolated-mask", mask)
+    assert route_dem(scenes, route, out, *extra).exit_code == 0
+    reference = out.read_bytes(), error.read_bytes(), mask.read_bytes()
+    for path in (out, error, mask, out.with_suffix(".tif.json")):
         path.unlink()
     original = dem_map.MapDemTileJob.compute
     calls = []
@@ -129,20 +145,20 @@ def test_a_failed_tile_then_a_resumed_run_writes_the_same_bytes(pair, tmp_path, 
         return original(self, tile, threads)
 
     monkeypatch.setattr(dem_map.MapDemTileJob, "compute", failing)
-    result = tiled_dem(pair, out, *extra)
+    result = route_dem(scenes, route, out, *extra)
     assert result.exit_code == 1
     assert "tile 2 (rows 0–64, columns 128–" in result.output
     assert "failed: worker lost" in result.output and result.output.count("\n") == 1
-    assert not out.exists() and not error.exists() and not out.with_suffix(".tif.json").exists()
+    assert not any(p.exists() for p in (out, error, mask, out.with_suffix(".tif.json")))
     fills = sum(step == "fill" for step, _ in calls)
     calls.clear()
     monkeypatch.setattr(dem_map.MapDemTileJob, "compute", lambda self, tile, threads: (
         calls.append((self.step, tile.index)), original(self, tile, threads))[1])
-    result = tiled_dem(pair, out, *extra)
+    result = route_dem(scenes, route, out, *extra)
     assert result.exit_code == 0, result.output
     assert fills == 3 and calls[0] == ("fill", 2)  # only the missing tiles, no points again
     assert all(step == "fill" for step, _ in calls)
-    assert (out.read_bytes(), error.read_bytes()) == reference
+    assert (out.read_bytes(), error.read_bytes(), mask.read_bytes()) == reference
     assert not tiling.work_folder(out).exists()
 
 
@@ -167,11 +183,16 @@ def test_a_decimated_coarse_solve_and_the_median_stay_within_a_centimetre(
 
 
 @pytest.mark.slow
-def test_two_local_dask_workers_give_the_same_dem(pair, tmp_path):
+@pytest.mark.parametrize("route", ["mapprojected", "frame"])
+def test_two_local_dask_workers_give_the_same_dem(scenes, route, tmp_path):
+    from demtool import tiling
+
     out = tmp_path / "two.tif"
-    result = tiled_dem(pair, out, "--workers", "2")
+    result = route_dem(scenes, route, out, "--workers", "2")
     assert result.exit_code == 0, result.output
-    assert np.array_equal(read(out).data, read(pair["tiled"]["dem"]).data, equal_nan=True)
+    reference = scenes["pair" if route == "mapprojected" else "frame"]["tiled"]["dem"]
+    assert np.array_equal(read(out).data, read(reference).data, equal_nan=True)
+    assert not tiling.work_folder(out).exists()
 
 
 @pytest.mark.parametrize("options, message", [

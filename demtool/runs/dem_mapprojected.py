@@ -199,4 +199,4 @@ def _tiled(run: StageRun, params: DemParams, out, disparity_path, left_path, rig
             "surfaces": [ortho(str(p), w).surface for p, w in (
                 (left_path, "left orthoimage"), (right_path, "right orthoimage"))]},
         mask_path=mask_path, error_path=error_path)
-    return result.summary
+    return {"dry_run": result.dry_run} if result.dry_run is not None else result.summary

@@ -240,4 +240,4 @@ def _tiled(run: StageRun, params: DemParams, out, disparity_path, rectify_path,
                            range_to_gsd=1.0 / geometry.f_px,
                            summary={"route": "disparity-sensors"}, mask_path=mask_path,
                            error_path=error_path)
-    return result.summary
+    return {"dry_run": result.dry_run} if result.dry_run is not None else result.summary

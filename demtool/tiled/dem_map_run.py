@@ -181,18 +181,25 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
 
     if params.mask_band:
         raise ParameterError("--mask-band is not written in tiles: use --interpolated-mask")
-    if params.dry_run:
-        raise ParameterError("--dry-run: the sensor-model routes plan their output tiles "
-                             "from the triangulated points; run without --dry-run")
+    overlap = params.tile_overlap
+    if overlap is not None and params.median > 1 and overlap < params.median // 2:
+        raise ParameterError(f"--tile-overlap must be >= {params.median // 2} px (half the "
+                             f"--median window), got {overlap}")
     source = job.disparity_path
     tile_size = job.tile_size
-    points_tiles = plan_tiles(*job.disparity_shape, tile_size, overlap=0).tiles
+    points_tiling = plan_tiles(*job.disparity_shape, tile_size, overlap=0)
+    points_tiles = points_tiling.tiles
+    if params.dry_run:  # the output grid comes from the points: plan and time the points pass
+        run.log.info("dry run: the points pass over the disparity grid (the output map "
+                     "grid, about as large, is known after it)")
+        return run_tiled(run, job.at_step("points"), points_tiling,
+                         [TiledOutput(out, 0, {}, "height")], inputs=inputs,
+                         parameters=params.as_dict(), dry_run=True)
     workers, scheduler = params.workers, params.scheduler
     if workers >= 2 and not scheduler:  # one cluster, every pass
         scheduler, workers = _local_cluster(stack, job, workers), 0
     # 1. points, outside the lock (as tiled/dem.py's statistics)
-    key = cache_key(inputs, params.as_dict(), plan_tiles(*job.disparity_shape, tile_size,
-                                                         overlap=0), {"pass": "points"})
+    key = cache_key(inputs, params.as_dict(), points_tiling, {"pass": "points"})
     points = TileCache(work_folder(out) / f"{key}-points")
     infos = run_tiles(job.at_step("points"), points_tiles, points, workers=workers,
                       scheduler=scheduler, log=run.log)
@@ -226,9 +233,6 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     factor = coarse_factor(*shape)
     overlap = (default_overlap(params.median, factor) if params.tile_overlap is None
                else params.tile_overlap)
-    if params.median > 1 and overlap < params.median // 2:
-        raise ParameterError(f"--tile-overlap must be >= {params.median // 2} px (half the "
-                             f"--median window), got {overlap}")
     tiling = plan_tiles(*shape, tile_size, overlap=overlap)
     t = grid.transform
     job = replace(job, shape=shape, grid_transform=tuple(t)[:6], crs_wkt=grid.crs.to_wkt(),

@@ -197,7 +197,7 @@ def test_two_local_dask_workers_give_the_same_dem(scenes, route, tmp_path):
 
 @pytest.mark.parametrize("options, message", [
     (("--mask-band",), "--mask-band is not written in tiles: use --interpolated-mask"),
-    (("--dry-run",), "--dry-run: the sensor-model routes plan their output tiles")])
+    (("--median", "5", "--tile-overlap", "1"), "--tile-overlap must be >= 2 px")])
 def test_options_the_tiled_route_refuses_name_the_option(pair, tmp_path, options, message):
     out = tmp_path / "dem.tif"
     result = tiled_dem(pair, out, *options)
@@ -339,3 +339,13 @@ def test_streaming_median_is_numpys_median():
     ties = [np.full(100, 2.5), np.full(50, 1.0)]
     assert streaming_median(lambda: iter(ties), bins=4, collect=3) == 2.5
     assert streaming_median(lambda: iter([np.array([np.nan])])) is None
+
+
+@pytest.mark.parametrize("route", ["mapprojected", "frame"])
+def test_dry_run_plans_the_points_pass_and_writes_nothing(scenes, route, tmp_path):
+    out = tmp_path / "dem.tif"
+    result = route_dem(scenes, route, out, "--dry-run")
+    assert result.exit_code == 0, result.output
+    assert " tiles (" in result.output and " of 64 px" in result.output, result.output
+    assert "estimated peak memory per worker:" in result.output
+    assert list(tmp_path.iterdir()) == []

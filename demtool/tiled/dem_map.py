@@ -25,7 +25,7 @@ step resumable in the work folder:
    the median per cell, the ray gaps likewise, and the stereo overlap of its cells
    (:func:`demtool.dem.sensors.overlap_mask`);
 4. **coarse global fill, fine fills** as in :mod:`demtool.tiled.dem`
-   (:func:`~demtool.tiled.dem.prepare_fill`, :func:`~demtool.tiled.dem.fill_core`):
+   (:func:`~demtool.tiled.dem_grids.prepare_fill`, :func:`~demtool.tiled.dem_grids.fill_core`):
    exact up to the solver's tolerance while the grid has at most
    :data:`demtool.tiled.dem.COARSE_MAX_CELLS` cells.
 
@@ -46,8 +46,8 @@ from typing import Any
 
 import numpy as np
 
-from demtool.tiled.dem import CELL_BYTES, PROCESS_BYTES, fill_core
-from demtool.tiled.dem_grids import read_cached_window
+from demtool.tiled.dem import CELL_BYTES, PROCESS_BYTES
+from demtool.tiled.dem_grids import fill_core, read_cached_window
 from demtool.tiling import Tile, TileCache, plan_tiles, read_window
 
 POINT_BYTES = 400  # per disparity cell: raw coordinates, rays, points

@@ -16,7 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from demtool.tiled.dem import coarse_factor, default_overlap, prepare_fill
+from demtool.tiled import dem as tiled_dem
+from demtool.tiled.dem import coarse_factor, default_overlap
+from demtool.tiled.dem_grids import prepare_fill
 from demtool.tiled.dem_map import MapDemTileJob, ortho, rectified_pair, stored_points
 from demtool.tiling import TileCache, plan_tiles
 
@@ -244,7 +246,7 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     def prepare(fill_job: MapDemTileJob, folder: Path) -> MapDemTileJob:
         return prepare_fill(fill_job.at_step("measure"), fill_job, tiling.tiles, shape,
                             factor, folder, workers=workers, scheduler=scheduler,
-                            log=run.log)
+                            log=run.log, sweeps=tiled_dem.SWEEPS)
 
     prov = run.provenance
     route = route_summary.get("route", "")

@@ -207,11 +207,15 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
                       scheduler=scheduler, log=run.log)
     valid = sum(int(i.get("valid", 0)) for i in infos)
     seen = sum(int(i.get("seen", 0)) for i in infos)
+
+    def refuse(message: str) -> ProcessingError:  # the inputs' fault: no cache to resume
+        points.remove()
+        return ProcessingError(message)
+
     if valid < 3:
-        raise ProcessingError(f"{source}: fewer than 3 valid disparities")
+        raise refuse(f"{source}: fewer than 3 valid disparities")
     if seen < 3:
-        raise ProcessingError(f"{source}: fewer than 3 disparities map back into both raw "
-                              "images")
+        raise refuse(f"{source}: fewer than 3 disparities map back into both raw images")
     # 2. statistics and the output grid
     if params.gsd is not None:
         gsd, gsd_source = float(params.gsd), "--gsd"
@@ -220,12 +224,11 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     else:
         gsd, gsd_source = None, "estimated"
     if sum(int(np.isfinite(points.load(t)[4]).any()) for t in points_tiles) == 0:
-        raise ProcessingError(f"{source}: no disparity triangulates in front of both "
-                              "cameras")
+        raise refuse(f"{source}: no disparity triangulates in front of both cameras")
     gsd, max_gap, median_gap, front, kept, overlap_height = _statistics(
         params, points, points_tiles, gsd, range_to_gsd, run.log)
     if kept < 3:
-        raise ProcessingError(f"only {kept} triangulated points: nothing to grid")
+        raise refuse(f"only {kept} triangulated points: nothing to grid")
     left, _ = job.sensors()
     a, b = left.radii
     body = body_from_radii(a, a, b)

@@ -349,3 +349,20 @@ def test_dry_run_plans_the_points_pass_and_writes_nothing(scenes, route, tmp_pat
     assert " tiles (" in result.output and " of 64 px" in result.output, result.output
     assert "estimated peak memory per worker:" in result.output
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_disparity_with_two_values_is_refused_in_tiles_leaving_nothing(pair, tmp_path):
+    disparity = read(pair["disparity"])
+    sparse = tmp_path / "inputs" / "sparse.tif"
+    sparse.parent.mkdir()
+    data = np.full(disparity.data.shape, np.nan, dtype=np.float32)
+    data[5, 5:7] = disparity.data[100, 100]
+    dio.write_raster(sparse, data, transform=disparity.transform, crs=disparity.crs)
+    out = tmp_path / "run" / "dem.tif"
+    out.parent.mkdir()
+    result = invoke("-q", "dem", "--disparity", sparse, "--mapprojected", pair["left"],
+                    pair["right"], "--out", out, "--tile-size", TILE)
+    assert result.exit_code == 1
+    assert f"{sparse}: fewer than 3 valid disparities" in result.output
+    assert result.output.count("\n") == 1
+    assert list(out.parent.iterdir()) == []  # no output, no work folder

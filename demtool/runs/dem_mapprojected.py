@@ -102,7 +102,8 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     """Triangulate a disparity between two orthoimages through their sensor models,
     grid on the body's map (the orthoimages' CRS unless ``--projection`` says
     otherwise; GSD: ``--gsd`` or the orthoimages'), write OUT (+ mask, error, sidecar).
-    Returns the sidecar summary.
+    Returns the sidecar summary.  With the tile options on a grid larger than one tile,
+    in tiles (:mod:`demtool.tiled.dem_map`).
     """
     import numpy as np
 

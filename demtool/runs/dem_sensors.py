@@ -68,7 +68,8 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
     Writes OUT (heights above the body's sphere, the body's projected CRS; with
     ``--mask-band`` a second band = filled cells), ``--interpolated-mask`` (1 = filled),
     ``--error-out`` (median ray gap per cell, metres) and the sidecar.  Returns the
-    sidecar summary.
+    sidecar summary.  With the tile options on a canvas larger than one tile, in tiles
+    (:mod:`demtool.tiled.dem_map`).
     """
     import numpy as np
 

@@ -329,7 +329,7 @@ def _dem_tiled(run: StageRun, params: DemParams, out, *, disparity_path, rectify
                cameras_path, scene: dict, scene_path, mask_path) -> dict | None:
     """The calibrated disparity route in tiles (:mod:`demtool.tiled.dem`); None when the
     target fits in one tile (the untiled path then runs); the other routes refuse the
-    tile options."""
+    tile options (the map-projected route has its own, :mod:`demtool.tiled.dem_map`)."""
     from demtool.errors import ParameterError
     from demtool.tiled.dem import dem_tiled
     from demtool.tiling import wants_tiles

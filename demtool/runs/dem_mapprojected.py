@@ -102,7 +102,8 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     """Triangulate a disparity between two orthoimages through their sensor models,
     grid on the body's map (the orthoimages' CRS unless ``--projection`` says
     otherwise; GSD: ``--gsd`` or the orthoimages'), write OUT (+ mask, error, sidecar).
-    Returns the sidecar summary.
+    Returns the sidecar summary.  With the tile options on a grid larger than one tile,
+    in tiles (:mod:`demtool.tiled.dem_map`).
     """
     import numpy as np
 
@@ -122,6 +123,11 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
                          "map grids (map-project the right one with --grid-like LEFT)")
     if left.sensor.radii is None or right.sensor.radii is None:
         raise InputError(f"{left_path}: its sensor models are not on a body")
+    if params.tile_size or params.scheduler or params.dry_run:  # README "Scale"
+        tiled = _tiled(run, params, out, disparity_path, left_path, right_path, li,
+                       mask_path, error_path)
+        if tiled is not None:
+            return tiled
     disparity = dio.read_raster(disparity_path, what="disparity")
     if (disparity.data.shape != (li.height, li.width) or disparity.transform != li.transform
             or disparity.crs is None or to_pyproj_crs(disparity.crs) != to_pyproj_crs(li.crs)):
@@ -153,3 +159,45 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     write_map_dem(run, params, out, result, summary, body, route="disparity-mapprojected",
                   mask_path=mask_path, error_path=error_path)
     return summary
+
+
+def _check_disparity_grid(disparity_path, left_path, li, shape, transform, crs) -> None:
+    from demtool.errors import InputError
+    from demtool.maps import to_pyproj_crs
+
+    if (shape != (li.height, li.width) or transform != li.transform or crs is None
+            or to_pyproj_crs(crs) != to_pyproj_crs(li.crs)):
+        raise InputError(f"{disparity_path}: disparity is not on the grid of the left "
+                         f"orthoimage {left_path} ({shape[1]}×{shape[0]} vs "
+                         f"{li.width}×{li.height} cells, or another transform/CRS); match "
+                         "the orthoimages with demtool sgm")
+
+
+def _tiled(run: StageRun, params: DemParams, out, disparity_path, left_path, right_path,
+           li, mask_path, error_path) -> dict[str, Any] | None:
+    """The route in tiles (:mod:`demtool.tiled.dem_map`); None when the orthoimages' grid
+    fits in one tile (the untiled path then runs)."""
+    import numpy as np
+
+    from demtool import io as dio
+    from demtool.maps import to_pyproj_crs
+    from demtool.tiled.dem_map import ortho
+    from demtool.tiled.dem_map_run import dem_map_tiled, mapprojected_job
+    from demtool.tiling import wants_tiles
+
+    info = dio.raster_info(disparity_path, what="disparity")
+    _check_disparity_grid(disparity_path, left_path, li, (info.height, info.width),
+                          info.transform, info.crs)
+    tile_size = wants_tiles(li.height, li.width, params)
+    if not tile_size:
+        return None
+    job = mapprojected_job(disparity_path, left_path, right_path, tile_size)
+    result = dem_map_tiled(
+        run, params, out, job, inputs=[str(disparity_path), str(left_path), str(right_path)],
+        gsd_default=float(np.sqrt(abs(li.transform.a * li.transform.e))),
+        crs=to_pyproj_crs(li.crs), summary={
+            "route": "disparity-mapprojected",
+            "surfaces": [ortho(str(p), w).surface for p, w in (
+                (left_path, "left orthoimage"), (right_path, "right orthoimage"))]},
+        mask_path=mask_path, error_path=error_path)
+    return {"dry_run": result.dry_run} if result.dry_run is not None else result.summary

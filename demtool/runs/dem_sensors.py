@@ -68,7 +68,8 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
     Writes OUT (heights above the body's sphere, the body's projected CRS; with
     ``--mask-band`` a second band = filled cells), ``--interpolated-mask`` (1 = filled),
     ``--error-out`` (median ray gap per cell, metres) and the sidecar.  Returns the
-    sidecar summary.
+    sidecar summary.  With the tile options on a canvas larger than one tile, in tiles
+    (:mod:`demtool.tiled.dem_map`).
     """
     import numpy as np
 
@@ -82,6 +83,11 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
         raise InputError(f"{rectify_path}: the sensor models have no body (local-frame "
                          "pinholes): a DEM on the body's map needs body-fixed models")
     geometry = geometry_from_rectification(rectification, left, right)
+    if params.tile_size or params.scheduler or params.dry_run:  # README "Scale"
+        tiled = _tiled(run, params, out, disparity_path, rectify_path, rectification,
+                       geometry, mask_path, error_path)
+        if tiled is not None:
+            return tiled
     disparity = read_disparity(disparity_path, rectify_path, rectification,
                                geometry.size_rect, log)
     d = disparity.data
@@ -207,3 +213,32 @@ def write_map_dem(run: StageRun, params: DemParams, out, result, summary: dict[s
                              band_names=["ray_gap"])
             outputs.append(Path(error_path))
         prov.write_sidecar(out, summary, outputs=outputs)
+
+
+def _tiled(run: StageRun, params: DemParams, out, disparity_path, rectify_path,
+           rectification: dict, geometry, mask_path, error_path) -> dict[str, Any] | None:
+    """The route in tiles (:mod:`demtool.tiled.dem_map`); None when the rectified canvas
+    fits in one tile (the untiled path then runs)."""
+    from demtool.errors import InputError
+    from demtool.tiled.dem import check_disparity_file
+    from demtool.tiled.dem_map_run import dem_map_tiled, rectified_job
+    from demtool.tiling import raster_shape, wants_tiles
+
+    width, height = (int(v) for v in geometry.size_rect)
+    shape = raster_shape(disparity_path, "disparity")
+    if shape != (height, width):
+        raise InputError(f"{disparity_path}: disparity is {shape[1]}×{shape[0]} px but "
+                         f"{rectify_path} has a {width}×{height} rectified canvas")
+    tile_size = wants_tiles(height, width, params)
+    if not tile_size:
+        return None
+    low, high = (float(v) for v in rectification["disparity_range"])
+    bounds = check_disparity_file(str(disparity_path), (height, width), (low, high),
+                                  source=str(rectify_path), log=run.log)
+    job = rectified_job(disparity_path, rectify_path, tile_size, bounds)
+    result = dem_map_tiled(run, params, out, job,
+                           inputs=[str(disparity_path), str(rectify_path)],
+                           range_to_gsd=1.0 / geometry.f_px,
+                           summary={"route": "disparity-sensors"}, mask_path=mask_path,
+                           error_path=error_path)
+    return {"dry_run": result.dry_run} if result.dry_run is not None else result.summary

@@ -47,10 +47,10 @@ from typing import Any
 import numpy as np
 
 from demtool.tiled.dem_grids import (
-    coarse_measured,
+    fill_core,
     histogram_median,
     log_histogram,
-    read_cached_window,
+    prepare_fill,
 )
 from demtool.tiling import Tile, TileCache, plan_tiles, read_window, wants_tiles
 
@@ -233,59 +233,20 @@ class DemTileJob:
             "depth": log_histogram(found["depth"][owned], DEPTH_BINS_PER_DECADE)}
 
     def _fill(self, tile: Tile) -> tuple[np.ndarray, dict[str, Any]]:
-        from scipy.ndimage import median_filter
-
-        from demtool.errors import ProcessingError
-        from demtool.interpolate import inpaint_springs
-
-        height, width = self.shape
-        r0, r1, c0, c1 = tile.outer
         if not self.work:  # calibration: this window measured and filled on its own
             grid, info = self.measured(tile, tile.outer)
-            window = tile.outer
-            ring = np.zeros(grid.shape, dtype=bool)
+            core, measured = fill_core(tile, self.shape, self.tile_size, grid=grid,
+                                       median_px=self.median_px)
         else:
-            window = (r0 - (r0 > 0), r1 + (r1 < height), c0 - (c0 > 0), c1 + (c1 < width))
-            grid = read_cached_window(Path(self.work) / "measured", self.tile_size,
-                                      self.shape, window)
-            ring = np.zeros(grid.shape, dtype=bool)
-            ring[0, :] |= window[0] < r0
-            ring[-1, :] |= window[1] > r1
-            ring[:, 0] |= window[2] < c0
-            ring[:, -1] |= window[3] > c1
+            core, measured = fill_core(tile, self.shape, self.tile_size, work=self.work,
+                                       ring=self.ring, factor=self.factor,
+                                       median_px=self.median_px)
             info = TileCache(Path(self.work) / "measured").info(tile)
-        unknown_ring = ring & ~np.isfinite(grid)
-        if unknown_ring.any() and self.ring:
-            earlier = read_cached_window(Path(self.work) / self.ring, self.tile_size,
-                                         self.shape, window)
-            grid[unknown_ring] = earlier[unknown_ring]
-        elif unknown_ring.any():
-            rows, cols = np.nonzero(unknown_ring)
-            grid[rows, cols] = self._coarse_at(rows + window[0], cols + window[2])
-        if not np.isfinite(grid).any():
-            raise ProcessingError("no measured height in the tile's window")
-        filled = inpaint_springs(grid)
-        inner = filled[r0 - window[0]:r1 - window[0], c0 - window[2]:c1 - window[2]]
-        if self.median_px > 1:
-            inner = median_filter(inner, size=self.median_px, mode="nearest")
-        rows, cols = tile.crop
-        core = inner[rows, cols]
-        measured = np.isfinite(grid[r0 - window[0]:r1 - window[0],
-                                    c0 - window[2]:c1 - window[2]][rows, cols])
         out = np.stack([core, (~measured).astype(np.float64)]).astype(np.float32)
         return out, {"samples": int(info.get("samples", 0)),
                      "outliers_removed": int(info.get("outliers_removed", 0)),
                      "cells_measured": int(measured.sum()),
                      "height_min": float(core.min()), "height_max": float(core.max())}
-
-    def _coarse_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """The coarse solution at fine cells (bilinear between coarse cell centres)."""
-        from scipy.ndimage import map_coordinates
-
-        coarse = np.load(Path(self.work) / "coarse.npy", allow_pickle=False)
-        f = self.factor
-        return map_coordinates(coarse, [(rows + 0.5) / f - 0.5, (cols + 0.5) / f - 0.5],
-                               order=1, mode="nearest")
 
     def memory_bytes(self, tile: Tile) -> int:
         """The disparity samples of the measuring window, or the fine solve's window."""
@@ -433,28 +394,9 @@ def _passes(run: Any, params: Any, out: str | os.PathLike, pair: TiledPair, *, m
     gsd = float(gsd) if gsd is not None else 1.0
 
     def prepare(fill_job: DemTileJob, folder: Path) -> DemTileJob:
-        measured = TileCache(folder / "measured")
-        run_tiles(fill_job.at_step("measure"), tiling.tiles, measured,
-                  workers=workers, scheduler=scheduler, log=run.log)
-        coarse_path = folder / "coarse.npy"
-        if not coarse_path.is_file():
-            from demtool.interpolate import inpaint_springs
-
-            coarse = coarse_measured(folder / "measured", tiling.tiles, shape, factor)
-            if not np.isfinite(coarse).any():
-                raise ProcessingError("no measured height in the target grid")
-            run.log.info("coarse global fill: %d×%d cells (decimation %d)",
-                         coarse.shape[1], coarse.shape[0], factor)
-            part = coarse_path.with_name(f"coarse.{os.getpid()}.part.npy")
-            np.save(part, inpaint_springs(coarse))
-            os.replace(part, coarse_path)
-        fill_job = replace(fill_job, work=str(folder))
-        for sweep in range(1, SWEEPS + 1 if factor > 1 else 1):  # Schwarz sweeps, unfiltered
-            run_tiles(replace(fill_job, median_px=0), tiling.tiles,
-                      TileCache(folder / f"sweep{sweep}"),
-                      workers=workers, scheduler=scheduler, log=run.log)
-            fill_job = replace(fill_job, ring=f"sweep{sweep}")
-        return fill_job
+        return prepare_fill(fill_job.at_step("measure"), fill_job, tiling.tiles, shape,
+                            factor, folder, workers=workers, scheduler=scheduler,
+                            log=run.log, sweeps=SWEEPS)
 
     transform = dio.image_frame_transform(gsd)
     frame = f"image:{pair.target_name}"

@@ -1,14 +1,17 @@
-"""Helpers of the tiled ``demtool dem`` (:mod:`demtool.tiled.dem`): log histograms and
-their merged median (the outlier floor and the median depth over the whole image from
-per-tile summaries), and the grids held as cached tile cores (a window of them, their
-block average for the coarse solve).
+"""Helpers of the tiled ``demtool dem`` (:mod:`demtool.tiled.dem`,
+:mod:`demtool.tiled.dem_map`): log histograms and their merged median (the outlier floor
+and the median depth over the whole image from per-tile summaries), the grids held as
+cached tile cores (a window of them, their block average for the coarse solve), and the
+gap fill of both (the coarse global solve, the fine solves of the tiles).
 """
 
 from __future__ import annotations
 
 import math
 import os
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -89,3 +92,98 @@ def coarse_measured(folder: str | os.PathLike, tiles, shape: tuple[int, int],
         np.add.at(counts, cells, 1.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+
+
+# ------------------------------------------------------------ the fill (shared)
+def coarse_at(work: str | os.PathLike, factor: int, rows: np.ndarray, cols: np.ndarray
+              ) -> np.ndarray:
+    """The coarse solution ``work/coarse.npy`` at fine cells (bilinear between coarse
+    cell centres)."""
+    from scipy.ndimage import map_coordinates
+
+    coarse = np.load(Path(work) / "coarse.npy", allow_pickle=False)
+    return map_coordinates(coarse, [(rows + 0.5) / factor - 0.5, (cols + 0.5) / factor - 0.5],
+                           order=1, mode="nearest")
+
+
+def fill_core(tile: Tile, shape: tuple[int, int], tile_size: int, *,
+              grid: np.ndarray | None = None, work: str | os.PathLike = "", ring: str = "",
+              factor: int = 1, median_px: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """One fine solve (step 4 of :mod:`demtool.tiled.dem`): the filled core and its measured
+    cells.
+
+    ``grid`` (the measured heights on ``tile.outer``, NaN = unmeasured) fills that window
+    on its own (a calibration tile); else the window ± one cell is read from the cached
+    measured grid ``work/measured`` (band 0, cores of ``tile_size`` on a ``shape`` grid),
+    the unmeasured ring held at the earlier sweep ``work/ring`` or the coarse solve.
+
+    Returns (core heights (h, w) float64, measured (h, w) bool).
+    """
+    from scipy.ndimage import median_filter
+
+    from demtool.errors import ProcessingError
+    from demtool.interpolate import inpaint_springs
+
+    height, width = shape
+    r0, r1, c0, c1 = tile.outer
+    if grid is not None:
+        window = tile.outer
+        ring_mask = np.zeros(grid.shape, dtype=bool)
+    else:
+        window = (r0 - (r0 > 0), r1 + (r1 < height), c0 - (c0 > 0), c1 + (c1 < width))
+        grid = read_cached_window(Path(work) / "measured", tile_size, shape, window)
+        ring_mask = np.zeros(grid.shape, dtype=bool)
+        ring_mask[0, :] |= window[0] < r0
+        ring_mask[-1, :] |= window[1] > r1
+        ring_mask[:, 0] |= window[2] < c0
+        ring_mask[:, -1] |= window[3] > c1
+    unknown_ring = ring_mask & ~np.isfinite(grid)
+    if unknown_ring.any() and ring:
+        earlier = read_cached_window(Path(work) / ring, tile_size, shape, window)
+        grid[unknown_ring] = earlier[unknown_ring]
+    elif unknown_ring.any():
+        rows, cols = np.nonzero(unknown_ring)
+        grid[rows, cols] = coarse_at(work, factor, rows + window[0], cols + window[2])
+    if not np.isfinite(grid).any():
+        raise ProcessingError("no measured height in the tile's window")
+    filled = inpaint_springs(grid)
+    inner = filled[r0 - window[0]:r1 - window[0], c0 - window[2]:c1 - window[2]]
+    if median_px > 1:
+        inner = median_filter(inner, size=median_px, mode="nearest")
+    rows, cols = tile.crop
+    measured = np.isfinite(grid[r0 - window[0]:r1 - window[0],
+                                c0 - window[2]:c1 - window[2]][rows, cols])
+    return inner[rows, cols], measured
+
+
+def prepare_fill(measure_job: Any, fill_job: Any, tiles, shape: tuple[int, int],
+                 factor: int, folder: Path, *, workers: int, scheduler: str | None,
+                 log, sweeps: int = 1) -> Any:
+    """Steps 2–3 of :mod:`demtool.tiled.dem` (and ``sweeps`` Schwarz sweeps) in
+    ``folder``: the measured grid of ``measure_job`` cached in ``folder/measured``
+    (band 0 = heights), its coarse global fill ``folder/coarse.npy``; returns
+    ``fill_job`` pointing at them.  Both jobs carry ``work``, ``ring`` and
+    ``median_px`` fields (dataclasses)."""
+    from demtool.distributed import run_tiles
+    from demtool.errors import ProcessingError
+
+    run_tiles(measure_job, tiles, TileCache(folder / "measured"),
+              workers=workers, scheduler=scheduler, log=log)
+    coarse_path = folder / "coarse.npy"
+    if not coarse_path.is_file():
+        from demtool.interpolate import inpaint_springs
+
+        coarse = coarse_measured(folder / "measured", tiles, shape, factor)
+        if not np.isfinite(coarse).any():
+            raise ProcessingError("no measured height in the output grid")
+        log.info("coarse global fill: %d×%d cells (decimation %d)",
+                 coarse.shape[1], coarse.shape[0], factor)
+        part = coarse_path.with_name(f"coarse.{os.getpid()}.part.npy")
+        np.save(part, inpaint_springs(coarse))
+        os.replace(part, coarse_path)
+    fill_job = replace(fill_job, work=str(folder))
+    for sweep in range(1, sweeps + 1 if factor > 1 else 1):  # Schwarz sweeps, unfiltered
+        run_tiles(replace(fill_job, median_px=0), tiles, TileCache(folder / f"sweep{sweep}"),
+                  workers=workers, scheduler=scheduler, log=log)
+        fill_job = replace(fill_job, ring=f"sweep{sweep}")
+    return fill_job

@@ -163,6 +163,57 @@ def datum_shift(folder: Path, scene: Path, names: list[str], target: str
         float(residual.max()), pixels
 
 
+def tie_bias(scene: Path, names: list[str], *, max_features: int = 8192) -> dict:
+    """Bias of ``bundle``'s tie observations against the truth, per image (issue 14).
+
+    The tracks of :func:`demtool.bundle.ties.tie_points` (all pairs) are cast from their
+    first observation onto synth's terrain (the renderer's ray cast through the true
+    ISD) and the ground point is projected into the track's other images through their
+    true ISDs.  Returns ``{name: (count, mean sample, mean line, median sample, median
+    line, RMS)}``, observed minus true, pixels (observations within 3 px), relative to
+    each track's first image (its own error taken as zero: the first view has no row,
+    and an error common to all images does not show).  A common
+    offset of a few hundredths of a pixel in every image is what ``--reference-dem``
+    turns into a pointing bias of the whole block (README, issue 14).
+    """
+    from itertools import combinations
+
+    from demtool import io as dio
+    from demtool.bundle.ties import tie_points
+    from demtool.sensors import read_sensor
+    from demtool.synth import render
+    from demtool.synth.body import placement
+
+    body = json.loads((scene / "scene.json").read_text())["body"]
+    place = placement(body["body"], body["center_lon_deg"], body["center_lat_deg"])
+    dem = dio.read_raster(scene / "truth_dem.tif", what="truth DEM")
+    field = render.height_field(dem.data.astype(np.float64), dem.transform)
+    images = [dio.read_raster(scene / f"{n}.tif", what="image").data for n in names]
+    models = [read_sensor(scene / f"{n}.json") for n in names]
+    obs, _ = tie_points(images, list(combinations(range(len(names)), 2)),
+                        max_features=max_features)
+    index = np.arange(len(obs.point))
+    first = np.full(int(obs.point.max()) + 1, len(index))
+    np.minimum.at(first, obs.point, index)
+    ground = np.full((len(first), 3), np.nan)
+    for i, model in enumerate(models):
+        starts = first[obs.image[first] == i]
+        pixels = np.column_stack([obs.sample[starts] - 0.5, obs.line[starts] - 0.5])
+        hits = render.pixel_hits(field, model, pixels, placement=place)
+        ground[obs.point[starts]] = place.to_body(hits)
+    table = {}
+    for i, (name, model) in enumerate(zip(names, models, strict=True)):
+        k = (obs.image == i) & (first[obs.point] != index)
+        line, sample = model.ground_to_image(ground[obs.point[k]])
+        error = np.column_stack([obs.sample[k] - sample, obs.line[k] - line])
+        error = error[np.all(np.abs(error) < 3.0, axis=1)]
+        if not len(error):
+            continue
+        mean, median = error.mean(axis=0), np.median(error, axis=0)
+        table[name] = (len(error), *mean, *median, float(np.sqrt(np.mean(error ** 2))))
+    return table
+
+
 def degraded_reference(truth: Path, out: Path, *, factor: int, noise_m: float,
                        seed: int) -> tuple[Path, float]:
     """A LOLA-like reference DEM: ``truth`` (the map truth of synth) averaged over
@@ -235,7 +286,7 @@ def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int
                seed: int = 0, zero_mean: bool = False, say=print,
                synth_args: tuple = (), reference: tuple[int, float] | None = None,
                reference_sigma: float | None = None, max_features: int = 8192,
-               similarity: bool = True,
+               similarity: bool = True, ties: bool = False,
                routes: tuple[str, ...] = ("true", "perturbed", "adjusted")) -> dict:
     """Run the whole check in ``work``; print the tables through ``say`` and return
     ``{"pose": {label: (errors, common, relative)}, "datum": {label: datum_shift(...)},
@@ -245,7 +296,8 @@ def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int
     ``--gsd``, ``--spacing``, ``--relief`` …); ``reference`` = (post factor, noise m)
     adds ``--reference-dem``: the map truth degraded by
     :func:`degraded_reference`, weighted by ``reference_sigma`` (default: that DEM's
-    RMS error at the truth's cells, at least 0.1 m)."""
+    RMS error at the truth's cells, at least 0.1 m); ``ties`` first prints
+    :func:`tie_bias`."""
     results: dict = {"pose": {}, "datum": {}, "dem": {}}
     scene = work / "scene"
     wall = demtool("synth", "--sensor", "frame", "--size", size, "--image-size", image_size,
@@ -257,6 +309,15 @@ def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int
         f"--views {len(names)} --seed {seed}: {wall:.1f} s; errors "
         + ("pairwise opposite (zero mean)" if zero_mean else "independent"))
 
+    if ties:
+        say("\nTie observations minus their true positions (tracks cast from their first "
+            "image onto the truth through the true ISDs), pixels")
+        say("| view | observations | mean sample | mean line | median sample "
+            "| median line | RMS |")
+        say("|---|---|---|---|---|---|---|")
+        for name, row in tie_bias(scene, names, max_features=max_features).items():
+            say(f"| {name} | {row[0]} | " + " | ".join(f"{v:+.4f}" for v in row[1:5])
+                + f" | {row[5]:.3f} |")
     perturb(scene, work / "perturbed", names, np.random.default_rng(seed + 1),
             zero_mean=zero_mean)
     extra: list = ["--max-features", max_features]
@@ -356,6 +417,8 @@ def main() -> None:
                         help="the ISDs to run the DEM route with (comma-separated)")
     parser.add_argument("--no-similarity", action="store_true",
                         help="skip the compare with a similarity co-registration")
+    parser.add_argument("--ties", action="store_true",
+                        help="report the tie observations' bias against the truth")
     parser.add_argument("--keep", type=Path, default=None, help="work folder to keep")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
@@ -365,6 +428,7 @@ def main() -> None:
                    reference=None if args.reference_post is None else
                    (args.reference_post, args.reference_noise),
                    routes=tuple(args.routes.split(",")), similarity=not args.no_similarity,
+                   ties=args.ties,
                    say=lambda text: print(text, flush=True))
 
 

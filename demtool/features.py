@@ -253,7 +253,10 @@ def detect_sift(image: np.ndarray, *, mask: np.ndarray | None = None, max_featur
         detect_mask = cv2.erode(detect_mask, kernel, borderType=cv2.BORDER_REPLICATE)
     sift = cv2.SIFT_create(nfeatures=int(max_features), nOctaveLayers=int(n_octave_layers),
                            contrastThreshold=float(contrast_threshold),
-                           edgeThreshold=float(edge_threshold))
+                           edgeThreshold=float(edge_threshold),
+                           # without it the doubled first octave puts every keypoint
+                           # +0.25 px off in x and y (OpenCV >= 4.8 option; issue 14)
+                           enable_precise_upscale=True)
     keypoints, descriptors = sift.detectAndCompute(image8, detect_mask)
     if not keypoints or descriptors is None:
         return Features.empty()

@@ -45,7 +45,7 @@ def sift_matches(left: Path, right: Path) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = np.percentile(a, [1, 99])
         return np.clip((a - lo) / (hi - lo) * 255, 0, 255).astype(np.uint8)
 
-    sift = cv2.SIFT_create()
+    sift = cv2.SIFT_create(enable_precise_upscale=True)  # as demtool.features.detect_sift
     ka, da = sift.detectAndCompute(grey(left), None)
     kb, db = sift.detectAndCompute(grey(right), None)
     pairs = [m for m, n in cv2.BFMatcher().knnMatch(da, db, k=2) if m.distance < 0.8 * n.distance]

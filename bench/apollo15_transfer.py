@@ -37,6 +37,7 @@ def sift_matches(left: Path, right: Path) -> tuple[np.ndarray, np.ndarray]:
     """Inlier SIFT matches, (N, 2) (sample, line) CSM pixel coordinates in each."""
     import cv2
 
+    from demtool.features import SIFT_UPSCALE_BIAS_PX
     from demtool.io import read_image
 
     def grey(path):
@@ -45,12 +46,12 @@ def sift_matches(left: Path, right: Path) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = np.percentile(a, [1, 99])
         return np.clip((a - lo) / (hi - lo) * 255, 0, 255).astype(np.uint8)
 
-    sift = cv2.SIFT_create(enable_precise_upscale=True)  # as demtool.features.detect_sift
+    sift = cv2.SIFT_create()
     ka, da = sift.detectAndCompute(grey(left), None)
     kb, db = sift.detectAndCompute(grey(right), None)
     pairs = [m for m, n in cv2.BFMatcher().knnMatch(da, db, k=2) if m.distance < 0.8 * n.distance]
-    pa = np.float64([ka[m.queryIdx].pt for m in pairs])
-    pb = np.float64([kb[m.trainIdx].pt for m in pairs])
+    pa = np.float64([ka[m.queryIdx].pt for m in pairs]) - SIFT_UPSCALE_BIAS_PX
+    pb = np.float64([kb[m.trainIdx].pt for m in pairs]) - SIFT_UPSCALE_BIAS_PX
     _, mask = cv2.findFundamentalMat(pa, pb, cv2.FM_RANSAC, 1.0, 0.999)
     keep = mask.ravel().astype(bool)
     return pa[keep] + 0.5, pb[keep] + 0.5  # OpenCV pixel centres are integers

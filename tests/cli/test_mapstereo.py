@@ -14,6 +14,7 @@ from demtool.cli import cli
 from demtool.compare.grids import Grid, resample_to_grid
 from demtool.runs.mapproject import SENSOR_TAG
 from tests.cli.test_mapproject import assert_refused
+from tests.helpers.linescan import synth_ortho_pair
 
 SIZE = 192  # cells and pixels; the whole chain runs in about 10 s
 
@@ -42,20 +43,8 @@ def nan_slope_error(a, b, spacing):
 @pytest.fixture(scope="module")
 def route(tmp_path_factory):
     work = tmp_path_factory.mktemp("mapstereo")
-    scene = work / "scene"
-    result = invoke("synth", "--sensor", "linescan", "--size", SIZE, "--image-size", SIZE,
-                    "--out", scene)
-    assert result.exit_code == 0, result.output
-    meta = json.loads((scene / "scene.json").read_text())
-    left, right = work / "left_ortho.tif", work / "right_ortho.tif"
+    scene, meta, left, right = synth_ortho_pair(work, SIZE)
     names = (meta["target"], meta["partner"])
-    result = invoke("mapproject", scene / f"{names[0]}.tif", "--sensor",
-                    scene / f"{names[0]}.json", "--height", 0, "--out", left)
-    assert result.exit_code == 0, result.output
-    result = invoke("mapproject", scene / f"{names[1]}.tif", "--sensor",
-                    scene / f"{names[1]}.json", "--height", 0, "--grid-like", left,
-                    "--out", right)
-    assert result.exit_code == 0, result.output
     disparity = work / "disparity.tif"
     result = invoke("sgm", left, right, "--out", disparity)
     assert result.exit_code == 0, result.output

@@ -13,6 +13,7 @@ from click.testing import CliRunner
 from demtool import io as dio
 from demtool.cli import cli
 from tests.cli.test_mapstereo import on_truth
+from tests.helpers.linescan import synth_ortho_pair
 
 SIZE = 192  # cells; the orthoimages' grid
 TILE = 64  # ≥ 9 tiles of the disparity grid, ≥ 4 of the output grid
@@ -25,20 +26,7 @@ def invoke(*args):
 @pytest.fixture(scope="module")
 def pair(tmp_path_factory):
     work = tmp_path_factory.mktemp("tiled_dem_map")
-    scene = work / "scene"
-    result = invoke("synth", "--sensor", "linescan", "--size", SIZE, "--image-size", SIZE,
-                    "--out", scene)
-    assert result.exit_code == 0, result.output
-    meta = json.loads((scene / "scene.json").read_text())
-    left, right = work / "left_ortho.tif", work / "right_ortho.tif"
-    names = (meta["target"], meta["partner"])
-    result = invoke("mapproject", scene / f"{names[0]}.tif", "--sensor",
-                    scene / f"{names[0]}.json", "--height", 0, "--out", left)
-    assert result.exit_code == 0, result.output
-    result = invoke("mapproject", scene / f"{names[1]}.tif", "--sensor",
-                    scene / f"{names[1]}.json", "--height", 0, "--grid-like", left,
-                    "--out", right)
-    assert result.exit_code == 0, result.output
+    scene, _, left, right = synth_ortho_pair(work, SIZE)
     disparity = work / "disparity.tif"
     result = invoke("sgm", left, right, "--out", disparity)
     assert result.exit_code == 0, result.output

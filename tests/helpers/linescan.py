@@ -173,3 +173,35 @@ def write_truth_dem(path, grid, surface=terrain):
     dio.write_raster(path, surface(lon, lat), transform=grid.transform, crs=grid.crs,
                      tags=MOON.tags())
     return path
+
+
+def synth_ortho_pair(work, size: int):
+    """``synth --sensor linescan`` in ``work/scene`` and both views map-projected onto the
+    sphere (the right on the left's grid), as `make demo`'s line-scan route does.
+
+    Returns ``(scene, meta, left_ortho, right_ortho)``: the scene folder, its
+    ``scene.json`` (``meta["target"]`` is the left view) and the two orthoimage paths.
+    """
+    import json
+    from pathlib import Path
+
+    from click.testing import CliRunner
+
+    from demtool.cli import cli
+
+    def invoke(*args):
+        result = CliRunner().invoke(cli, [*map(str, args)])
+        assert result.exit_code == 0, result.output
+
+    work = Path(work)
+    scene = work / "scene"
+    invoke("synth", "--sensor", "linescan", "--size", size, "--image-size", size,
+           "--out", scene)
+    meta = json.loads((scene / "scene.json").read_text())
+    names = (meta["target"], meta["partner"])
+    left, right = work / "left_ortho.tif", work / "right_ortho.tif"
+    invoke("mapproject", scene / f"{names[0]}.tif", "--sensor", scene / f"{names[0]}.json",
+           "--height", 0, "--out", left)
+    invoke("mapproject", scene / f"{names[1]}.tif", "--sensor", scene / f"{names[1]}.json",
+           "--height", 0, "--grid-like", left, "--out", right)
+    return scene, meta, left, right

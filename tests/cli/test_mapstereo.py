@@ -11,24 +11,15 @@ from click.testing import CliRunner
 
 from demtool import io as dio
 from demtool.cli import cli
-from demtool.compare.grids import Grid, resample_to_grid
 from demtool.runs.mapproject import SENSOR_TAG
 from tests.cli.test_mapproject import assert_refused
-from tests.helpers.linescan import synth_ortho_pair
+from tests.helpers.linescan import copy_raster, on_truth, synth_ortho_pair
 
 SIZE = 192  # cells and pixels; the whole chain runs in about 10 s
 
 
 def invoke(*args):
     return CliRunner().invoke(cli, [*map(str, args)])
-
-
-def on_truth(path, truth):
-    """A DEM resampled onto the truth's map grid (no alignment)."""
-    dem = dio.read_raster(path)
-    return resample_to_grid(dem.data.astype(np.float64),
-                            Grid(dem.data.shape, dem.transform, dem.crs),
-                            Grid(truth.data.shape, truth.transform, truth.crs))
 
 
 def nan_slope_error(a, b, spacing):
@@ -107,27 +98,22 @@ def test_refine_on_the_map_improves_dem_linescan(route):
     assert slope[1] < 0.65 * slope[0]
 
 
-def _copy(src, dst, *, data=None, tags=None, transform=None):
-    raster = dio.read_raster(src)
-    dio.write_raster(dst, raster.data if data is None else data,
-                     transform=transform or raster.transform, crs=raster.crs,
-                     tags=raster.tags if tags is None else tags)
-    return dst
-
-
 @pytest.mark.slow
-def test_sgm_refuses_orthos_offset_north_south(route, tmp_path):
+@pytest.mark.parametrize("stage", ["sgm", "match"])
+def test_stereo_refuses_orthos_offset_north_south(route, tmp_path, stage):
+    """Both matchers share the ortho-pair check (demtool.mapstereo.ortho_pair_matches)."""
     right = dio.read_raster(route["right"])
-    shifted = _copy(route["right"], tmp_path / "shifted.tif",
-                    data=np.roll(right.data, 3, axis=0))
+    shifted = copy_raster(route["right"], tmp_path / "shifted.tif",
+                          data=np.roll(right.data, 3, axis=0))
     out = tmp_path / "d.tif"
-    result = invoke("sgm", route["left"], shifted, "--out", out)
-    assert_refused(result, out, str(route["left"]), str(shifted), "north-south", "2-D")
+    result = invoke(stage, route["left"], shifted, "--out", out)
+    assert_refused(result, out, str(route["left"]), str(shifted), "north-south",
+                   f"{stage} searches along map x", "2-D")
 
 
 @pytest.mark.slow
 def test_dem_refuses_an_ortho_without_sensor_tags(route, tmp_path):
-    plain = _copy(route["left"], tmp_path / "plain.tif", tags={"frame": "map"})
+    plain = copy_raster(route["left"], tmp_path / "plain.tif", tags={"frame": "map"})
     out = tmp_path / "dem.tif"
     result = invoke("dem", "--disparity", route["disparity"], "--mapprojected", plain,
                     route["right"], "--out", out)
@@ -137,7 +123,7 @@ def test_dem_refuses_an_ortho_without_sensor_tags(route, tmp_path):
 @pytest.mark.slow
 def test_dem_refuses_an_ortho_whose_sensor_is_gone(route, tmp_path):
     tags = {**dio.read_raster(route["right"]).tags, SENSOR_TAG: str(tmp_path / "gone.json")}
-    orphan = _copy(route["right"], tmp_path / "orphan.tif", tags=tags)
+    orphan = copy_raster(route["right"], tmp_path / "orphan.tif", tags=tags)
     out = tmp_path / "dem.tif"
     result = invoke("dem", "--disparity", route["disparity"], "--mapprojected",
                     route["left"], orphan, "--out", out)
@@ -148,9 +134,9 @@ def test_dem_refuses_an_ortho_whose_sensor_is_gone(route, tmp_path):
 def test_dem_refuses_orthos_of_different_grids(route, tmp_path):
     from affine import Affine
 
-    moved = _copy(route["right"], tmp_path / "moved.tif",
-                  transform=dio.read_raster(route["right"]).transform
-                  @ Affine.translation(3, 0))
+    moved = copy_raster(route["right"], tmp_path / "moved.tif",
+                        transform=dio.read_raster(route["right"]).transform
+                        @ Affine.translation(3, 0))
     out = tmp_path / "dem.tif"
     result = invoke("dem", "--disparity", route["disparity"], "--mapprojected",
                     route["left"], moved, "--out", out)
@@ -160,7 +146,7 @@ def test_dem_refuses_orthos_of_different_grids(route, tmp_path):
 @pytest.mark.slow
 def test_dem_refuses_a_disparity_off_the_left_grid(route, tmp_path):
     d = dio.read_raster(route["disparity"])
-    cropped = _copy(route["disparity"], tmp_path / "cropped.tif", data=d.data[:-2])
+    cropped = copy_raster(route["disparity"], tmp_path / "cropped.tif", data=d.data[:-2])
     out = tmp_path / "dem.tif"
     result = invoke("dem", "--disparity", cropped, "--mapprojected", route["left"],
                     route["right"], "--out", out)
@@ -177,7 +163,8 @@ def test_mapprojected_needs_disparity(tmp_path):
 
 
 @pytest.mark.slow
-def test_sgm_refuses_orthos_of_different_grids(route, tmp_path):
+@pytest.mark.parametrize("stage", ["sgm", "match"])
+def test_stereo_refuses_orthos_of_different_grids(route, tmp_path, stage):
     scene, meta = route["scene"], route["meta"]
     own = tmp_path / "own_grid.tif"
     result = invoke("mapproject", scene / f"{meta['partner']}.tif", "--sensor",
@@ -185,5 +172,5 @@ def test_sgm_refuses_orthos_of_different_grids(route, tmp_path):
                     "--out", own)
     assert result.exit_code == 0, result.output
     out = tmp_path / "d.tif"
-    result = invoke("sgm", route["left"], own, "--out", out)
+    result = invoke(stage, route["left"], own, "--out", out)
     assert_refused(result, out, str(own), "different map grids", "--grid-like")

@@ -12,8 +12,7 @@ from click.testing import CliRunner
 
 from demtool import io as dio
 from demtool.cli import cli
-from tests.cli.test_mapstereo import on_truth
-from tests.helpers.linescan import synth_ortho_pair
+from tests.helpers.linescan import on_truth, synth_ortho_pair
 
 SIZE = 192  # cells; the orthoimages' grid
 TILE = 64  # ≥ 9 tiles of the disparity grid, ≥ 4 of the output grid

@@ -205,3 +205,27 @@ def synth_ortho_pair(work, size: int):
     invoke("mapproject", scene / f"{names[1]}.tif", "--sensor", scene / f"{names[1]}.json",
            "--height", 0, "--grid-like", left, "--out", right)
     return scene, meta, left, right
+
+
+def on_truth(path, truth):
+    """The DEM at ``path`` resampled onto the map grid of ``truth`` (a demtool.io Raster),
+    without alignment: (H, W) float64, NaN where the DEM has no value."""
+    from demtool import io as dio
+    from demtool.compare.grids import Grid, resample_to_grid
+
+    dem = dio.read_raster(path)
+    return resample_to_grid(dem.data.astype(np.float64),
+                            Grid(dem.data.shape, dem.transform, dem.crs),
+                            Grid(truth.data.shape, truth.transform, truth.crs))
+
+
+def copy_raster(src, dst, *, data=None, tags=None, transform=None):
+    """Write ``src`` again at ``dst`` with its data, tags or transform replaced (a way to
+    make a bad input from a good one); returns ``dst``."""
+    from demtool import io as dio
+
+    raster = dio.read_raster(src)
+    dio.write_raster(dst, raster.data if data is None else data,
+                     transform=transform or raster.transform, crs=raster.crs,
+                     tags=raster.tags if tags is None else tags)
+    return dst

@@ -12,23 +12,14 @@ from click.testing import CliRunner
 
 from demtool import io as dio
 from demtool.cli import cli
-from demtool.compare.grids import Grid, resample_to_grid
 from tests.cli.test_mapproject import assert_refused
-from tests.helpers.linescan import synth_ortho_pair
+from tests.helpers.linescan import copy_raster, on_truth, synth_ortho_pair
 
 SIZE = 192  # cells and pixels, as the sgm route's test (tests/cli/test_mapstereo.py)
 
 
 def invoke(*args):
     return CliRunner().invoke(cli, [*map(str, args)])
-
-
-def _copy(src, dst, *, data=None, tags=None, transform=None):
-    raster = dio.read_raster(src)
-    dio.write_raster(dst, raster.data if data is None else data,
-                     transform=transform or raster.transform, crs=raster.crs,
-                     tags=raster.tags if tags is None else tags)
-    return dst
 
 
 @pytest.fixture(scope="module")
@@ -50,15 +41,6 @@ def route(tmp_path_factory):
     assert result.exit_code == 0, result.output
     return {"work": work, "scene": scene, "meta": meta, "left": left, "right": right,
             "disparity": disparity, "dem": dem, "refined": refined}
-
-
-@pytest.mark.slow
-def on_truth(path, truth):
-    """A DEM resampled onto the truth's map grid (no alignment)."""
-    raster = dio.read_raster(path)
-    return resample_to_grid(raster.data.astype(np.float64),
-                            Grid(raster.data.shape, raster.transform, raster.crs),
-                            Grid(truth.data.shape, truth.transform, truth.crs))
 
 
 def sun_slope_errors(dem, truth, spacing, sun):
@@ -139,35 +121,11 @@ def test_refine_on_the_map_corrects_the_slopes_the_shading_observes(route):
 
 
 @pytest.mark.slow
-def test_match_refuses_orthos_offset_north_south(route, tmp_path):
-    right = dio.read_raster(route["right"])
-    shifted = _copy(route["right"], tmp_path / "shifted.tif",
-                    data=np.roll(right.data, 3, axis=0))
-    out = tmp_path / "d.tif"
-    result = invoke("match", route["left"], shifted, "--out", out)
-    assert_refused(result, out, str(route["left"]), str(shifted), "north-south",
-                   "match searches along map x", "2-D")
-
-
-@pytest.mark.slow
-def test_match_refuses_orthos_of_different_grids(route, tmp_path):
-    scene, meta = route["scene"], route["meta"]
-    own = tmp_path / "own_grid.tif"
-    result = invoke("mapproject", scene / f"{meta['partner']}.tif", "--sensor",
-                    scene / f"{meta['partner']}.json", "--height", 0, "--gsd", 0.6,
-                    "--out", own)
-    assert result.exit_code == 0, result.output
-    out = tmp_path / "d.tif"
-    result = invoke("match", route["left"], own, "--out", out)
-    assert_refused(result, out, str(own), "different map grids", "--grid-like")
-
-
-@pytest.mark.slow
 def test_match_refuses_textureless_orthos(route, tmp_path):
     left = dio.read_raster(route["left"])
     flat = np.where(np.isfinite(left.data), 100.0, np.nan).astype(np.float32)
-    a = _copy(route["left"], tmp_path / "flat_left.tif", data=flat)
-    b = _copy(route["right"], tmp_path / "flat_right.tif", data=flat)
+    a = copy_raster(route["left"], tmp_path / "flat_left.tif", data=flat)
+    b = copy_raster(route["right"], tmp_path / "flat_right.tif", data=flat)
     out = tmp_path / "d.tif"
     result = invoke("match", a, b, "--out", out)
     assert_refused(result, out, str(a))

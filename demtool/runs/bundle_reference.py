@@ -43,7 +43,7 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
     from demtool.errors import InputError
     from demtool.mapproject import ground_footprint, sensor_body
     from demtool.maps import lonlat_to_map, to_pyproj_crs, wrap_longitude, xyz_to_lonlat_height
-    from demtool.runs.mapproject import _read_dem
+    from demtool.runs.mapproject import read_dem_surface
 
     dio.require_file(path, "reference DEM")
     index = next((i for i, m in enumerate(models) if m.radii is not None), None)
@@ -55,7 +55,7 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
     if info.crs is None:
         raise InputError(f"{path}: reference DEM has no CRS, so its body and units (metres "
                          "or degrees) are unknown; give a DEM on the body's map")
-    dem = _read_dem(path, sensor_paths[index], body)  # same body, on the sphere
+    dem = read_dem_surface(path, sensor_paths[index], body)  # same body, on the sphere
     crs = to_pyproj_crs(info.crs)
     lons, lats = [], []
     for model in models:

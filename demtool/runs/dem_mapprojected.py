@@ -52,7 +52,7 @@ def read_ortho(path, *, what: str) -> Ortho:
         HEIGHT_TAG,
         SENSOR_TAG,
         SURFACE_TAG,
-        _read_dem,
+        read_dem_surface,
     )
     from demtool.sensors import read_sensor
 
@@ -83,7 +83,7 @@ def read_ortho(path, *, what: str) -> Ortho:
         if not dem_path.is_file():
             raise InputError(f"{path}: the DEM it was projected on, {dem_path} (tag "
                              f"{DEM_TAG}), is missing")
-        surface = _read_dem(dem_path, sensor_path, sensor_body(sensor))
+        surface = read_dem_surface(dem_path, sensor_path, sensor_body(sensor))
         same = not surface.geographic and to_pyproj_crs(surface.info.crs) == crs
 
         def heights(x, y):

@@ -104,9 +104,6 @@ def read_dem_surface(dem_path, sensor_path, body) -> DemSurface:
     return DemSurface(info=info, offset_m=radius - body.radius, geographic=crs.is_geographic)
 
 
-_read_dem = read_dem_surface  # the name demtool.runs.dem_mapprojected imports
-
-
 def _footprint_heights(surface: DemSurface | None, height: float, sensor, body):
     """Heights along the image's outer edge, from the DEM where given (two passes)."""
     from demtool.mapproject import ground_footprint

@@ -22,15 +22,8 @@ from demtool.tiled.dem_grids import prepare_fill
 from demtool.tiled.dem_map import MapDemTileJob, ortho, rectified_pair, stored_points
 from demtool.tiling import TileCache, plan_tiles
 
-MEDIAN_BINS = 4096  # bins of each refinement round of streaming_median
+MEDIAN_BINS = 4096  # bins of each refinement pass of streaming_median
 MEDIAN_COLLECT = 1 << 20  # values gathered in memory for the final selection
-
-
-def _bin_index(values: np.ndarray, lo: float, hi: float, bins: int) -> np.ndarray:
-    if not hi > lo:
-        return np.zeros(values.shape, dtype=np.int64)
-    index = np.floor((values - lo) / (hi - lo) * bins)
-    return np.clip(index, 0, bins - 1).astype(np.int64)
 
 
 def streaming_median(chunks: Callable[[], Iterable[np.ndarray]], *, bins: int = MEDIAN_BINS,
@@ -38,48 +31,33 @@ def streaming_median(chunks: Callable[[], Iterable[np.ndarray]], *, bins: int = 
     """The exact median (``np.median``'s) of values given in chunks, in bounded memory.
 
     ``chunks()`` yields the arrays again at each call (one pass each).  A first pass finds
-    the count and the range; each further pass histograms the values still in the
-    running (``bins`` bins) and keeps the bins of the two middle ranks, until at most
-    ``collect`` values remain: those are gathered and sorted (selection by histogram
-    refinement).  NaNs are ignored; None when there is no value.
+    the count and the range; then the two middle order statistics are selected by
+    histogram refinement (:class:`demtool.compare.streaming.OrderStatistic`, ``bins``
+    bins a pass, the last ``collect`` values gathered and sorted), both from the same
+    passes.  NaNs are ignored; None when there is no value.
     """
+    from demtool.compare.streaming import OrderStatistic
+
+    def finite():
+        for chunk in chunks():
+            v = np.asarray(chunk, dtype=np.float64).ravel()
+            yield v[np.isfinite(v)]
+
     count, lo, hi = 0, math.inf, -math.inf
-    for chunk in chunks():
-        v = np.asarray(chunk, dtype=np.float64).ravel()
-        v = v[np.isfinite(v)]
+    for v in finite():
         if v.size:
             count, lo, hi = count + v.size, min(lo, float(v.min())), max(hi, float(v.max()))
     if count == 0:
         return None
-    ranks = [(count - 1) // 2, count // 2]
-    rounds: list[tuple[float, float, int, int]] = []
-
-    def running(chunk: np.ndarray) -> np.ndarray:
-        v = np.asarray(chunk, dtype=np.float64).ravel()
-        v = v[np.isfinite(v)]
-        for r_lo, r_hi, first, last in rounds:
-            index = _bin_index(v, r_lo, r_hi, bins)
-            v = v[(index >= first) & (index <= last)]
-        return v
-
-    below, remaining = 0, count
-    for _ in range(16):
-        if remaining <= collect or not hi > lo:
-            break
-        counts = np.zeros(bins, dtype=np.int64)
-        for chunk in chunks():
-            counts += np.bincount(_bin_index(running(chunk), lo, hi, bins), minlength=bins)
-        cumulative = np.cumsum(counts)
-        first = int(np.searchsorted(cumulative, ranks[0] - below, side="right"))
-        last = int(np.searchsorted(cumulative, ranks[1] - below, side="right"))
-        rounds.append((lo, hi, first, last))
-        before = int(cumulative[first] - counts[first])
-        below, remaining = below + before, int(cumulative[last]) - before
-        lo, hi = lo + first * (hi - lo) / bins, lo + (last + 1) * (hi - lo) / bins
-    if not hi > lo and remaining > collect:  # every remaining value is the same
-        return float(lo)
-    values = np.sort(np.concatenate([running(chunk) for chunk in chunks()]))
-    return float(0.5 * (values[ranks[0] - below] + values[ranks[1] - below]))
+    middle = [OrderStatistic(rank, count, lo, hi, bins=bins, gather_limit=collect)
+              for rank in ((count - 1) // 2, count // 2)]
+    while not all(statistic.done for statistic in middle):
+        for v in finite():
+            for statistic in middle:
+                statistic.add(v)
+        for statistic in middle:
+            statistic.end_pass()
+    return float(0.5 * (middle[0].value + middle[1].value))
 
 
 def dem_map_tiled(run: Any, params: Any, out: str | os.PathLike, job: MapDemTileJob, *,

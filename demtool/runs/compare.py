@@ -111,6 +111,46 @@ def format_table(rows: Sequence[tuple[str, dict[str, Any]]]) -> str:
     return "\n".join(lines)
 
 
+def assemble_report(reports: Sequence[tuple[str, dict[str, Any]]], *, dem_path, reference_path,
+                    also: Sequence[str], grid: str, target: Any, frame: str | None,
+                    degrees: Any, body_warnings: Sequence[str], lines, log) -> dict[str, Any]:
+    """The report of one comparison run from each DEM's own report (main DEM first, then
+    the ``also`` DEMs), logged as the table and the warnings; in memory and in windows."""
+    label, main = reports[0]
+    report: dict[str, Any] = {"label": label, "dem": str(dem_path),
+                              "reference": str(reference_path), **main}
+    report["grid"] = {**main["grid"], "on": grid,
+                      "crs": target.crs.to_string() if target.crs else None,
+                      "transform": list(target.transform)[:6], "frame": frame,
+                      "from_geographic": degrees}
+    report["warnings"] = [*body_warnings, *report["warnings"]]
+    report["profiles_px"] = [list(line) for line in lines]
+    report["also"] = [{"label": name, "dem": str(path), **_headline(r),
+                       "alignment": r["alignment"], "warnings": r["warnings"]}
+                      for (name, r), path in zip(reports[1:], also, strict=True)]
+    log.info("\n%s", format_table(reports))
+    for message in report["warnings"]:
+        log.warning("%s: %s", label, message)
+    return report
+
+
+def write_report(provenance: Any, out: Path, report: dict[str, Any],
+                 figures: dict[str, bytes]) -> None:
+    """``report.json`` (with its figures and provenance), the PNG figures and the sidecar,
+    inside the caller's output transaction (``difference.tif`` is the caller's)."""
+    from demtool import io as dio
+
+    report["figures"] = sorted(figures)
+    report_path = out / REPORT
+    outputs = [report_path, out / DIFFERENCE, *[out / name for name in figures]]
+    report["provenance"] = provenance.record(_headline(report), outputs)
+    for name, content in figures.items():
+        with dio.atomic_path(out / name, suffix=".png") as temporary:
+            temporary.write_bytes(content)
+    dio.write_json(report_path, report)
+    provenance.write_sidecar(report_path, _headline(report), outputs=outputs)
+
+
 def make_figures(comparisons: Sequence[tuple[str, Any]], reference_values, lines,
                  spacing: tuple[float, float], label: str) -> dict[str, bytes]:
     """The PNG figures of a comparison: name -> bytes (``comparisons[0]`` is the main DEM's
@@ -256,42 +296,19 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
                                   mask=mask, slope_bins=params.slope_bins,
                                   icp_scale=params.icp_scale, seed=params.seed)
         comparisons.append((name, comparison))
+    report = assemble_report([(name, c.report) for name, c in comparisons],
+                             dem_path=dem_path, reference_path=reference_path, also=also,
+                             grid=grid, target=target, frame=frame, degrees=degrees,
+                             body_warnings=body_warnings, lines=lines, log=log)
     main = comparisons[0][1]
-    report: dict[str, Any] = {
-        "label": label,
-        "dem": str(dem_path),
-        "reference": str(reference_path),
-        **main.report,
-    }
-    report["grid"] = {**main.report["grid"], "on": grid,
-                      "crs": target.crs.to_string() if target.crs else None,
-                      "transform": list(target.transform)[:6], "frame": frame,
-                      "from_geographic": degrees}
-    report["warnings"] = [*body_warnings, *report["warnings"]]
-    report["profiles_px"] = [list(line) for line in lines]
-    report["also"] = [{"label": name, "dem": str(path), **_headline(c.report),
-                       "alignment": c.report["alignment"], "warnings": c.report["warnings"]}
-                      for (name, c), path in zip(comparisons[1:], also, strict=True)]
-    log.info("\n%s", format_table([(name, c.report) for name, c in comparisons]))
-    for message in report["warnings"]:
-        log.warning("%s: %s", label, message)
 
     figures = make_figures(comparisons, reference_values, lines, (sx, sy), label) \
         if params.plots else {}
-    report["figures"] = sorted(figures)
-
-    report_path = out / REPORT
-    outputs = [report_path, out / DIFFERENCE, *[out / name for name in figures]]
-    report["provenance"] = provenance.record(_headline(report), outputs)
     with run.transaction():
         dio.write_raster(out / DIFFERENCE, main.difference, transform=target.transform,
                          crs=target.crs,
                          tags=provenance.tags(frame=frame or "unknown", label=label,
                                               quantity="aligned DEM - reference (m)",
                                               shift=report["shift"]))
-        for name, content in figures.items():
-            with dio.atomic_path(out / name, suffix=".png") as temporary:
-                temporary.write_bytes(content)
-        dio.write_json(report_path, report)
-        provenance.write_sidecar(report_path, _headline(report), outputs=outputs)
+        write_report(provenance, out, report, figures)
     return report

@@ -314,11 +314,10 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
     from demtool.compare.windowed import WINDOWED_METHODS
     from demtool.runs.compare import (
         DIFFERENCE,
-        REPORT,
         _check_profiles,
-        _headline,
-        format_table,
+        assemble_report,
         make_figures,
+        write_report,
     )
 
     log, provenance = run.log, run.provenance
@@ -347,7 +346,6 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
     reference = Source(Path(reference_path), "reference DEM", _grid(infos["reference"]),
                        target)
     results = []
-    report_path = out / REPORT
     with run.transaction():
         for index, (name, path) in enumerate(((label, dem_path),
                                               *((Path(p).stem, p) for p in also))):
@@ -366,21 +364,11 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
                                               else None)))
         main = results[0][1]
         factor = main["factor"]
-        report: dict[str, Any] = {"label": label, "dem": str(dem_path),
-                                  "reference": str(reference_path), **main["report"]}
-        report["grid"] = {**main["report"]["grid"], "on": params.grid,
-                          "crs": target.crs.to_string() if target.crs else None,
-                          "transform": list(target.transform)[:6], "frame": frame,
-                          "from_geographic": degrees}
-        report["warnings"] = [*body_warnings, *report["warnings"]]
-        report["profiles_px"] = [list(line) for line in lines]
-        report["also"] = [{"label": name, "dem": str(path), **_headline(r["report"]),
-                           "alignment": r["report"]["alignment"],
-                           "warnings": r["report"]["warnings"]}
-                          for (name, r), path in zip(results[1:], also, strict=True)]
-        log.info("\n%s", format_table([(name, r["report"]) for name, r in results]))
-        for message in report["warnings"]:
-            log.warning("%s: %s", label, message)
+        report = assemble_report([(name, r["report"]) for name, r in results],
+                                 dem_path=dem_path, reference_path=reference_path, also=also,
+                                 grid=params.grid, target=target, frame=frame,
+                                 degrees=degrees, body_warnings=body_warnings, lines=lines,
+                                 log=log)
         figures = {}
         if params.plots:
             decimated = [tuple(v / factor for v in line) for line in lines]
@@ -388,12 +376,5 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
                                    main["comparison"].reference, decimated,
                                    (target.spacing[0] * factor, target.spacing[1] * factor),
                                    label)
-        report["figures"] = sorted(figures)
-        outputs = [report_path, out / DIFFERENCE, *[out / name for name in figures]]
-        report["provenance"] = provenance.record(_headline(report), outputs)
-        for name, content in figures.items():
-            with dio.atomic_path(out / name, suffix=".png") as temporary:
-                temporary.write_bytes(content)
-        dio.write_json(report_path, report)
-        provenance.write_sidecar(report_path, _headline(report), outputs=outputs)
+        write_report(provenance, out, report, figures)
     return report

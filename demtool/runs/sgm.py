@@ -61,8 +61,8 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     from demtool import tiling
     from demtool.errors import InputError, ParameterError
     from demtool.mapstereo import is_ortho_pair
-    from demtool.sgm import sgm
     from demtool.sgm.params import SgmParams
+    from demtool.sgm.widen import sgm_widening
 
     params = params or SgmParams()
     run = StageRun("sgm", params, resolved=resolved,
@@ -130,8 +130,13 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     log.info("matching %s / %s: %d×%d px, disparities %d … %d, cost %s, %d paths",
              left_path, right_path, width, left.data.shape[0], min_disparity, max_disparity,
              params.cost, params.paths)
-    result = sgm(left.data, right.data, min_disparity=min_disparity,
-                 num_disparities=num_disparities, **sgm_options)
+    # a range given explicitly is the user's; one estimated from matches may miss terrain
+    explicit = params.min_disparity is not None and params.num_disparities is not None
+    result = sgm_widening(left.data, right.data, min_disparity=min_disparity,
+                          num_disparities=num_disparities,
+                          widenings=0 if explicit else params.widen_range, **sgm_options)
+    min_disparity = result.parameters["min_disparity"]
+    num_disparities = result.parameters["num_disparities"]
     disparity = result.disparity
     valid = np.isfinite(disparity)
     input_valid = np.isfinite(left.data)
@@ -154,7 +159,9 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
              else "none", result.timings["total"],
              ", ".join(f"{k} {v:.1f} s" for k, v in result.timings.items() if k != "total"))
     summary = {**stats, "min_disparity": min_disparity, "num_disparities": num_disparities,
-               "disparity_range_source": source, "resolved": result.parameters,
+               "disparity_range_source": source,
+               "range_widenings": result.parameters["range_widenings"],
+               "resolved": result.parameters,
                **ortho_stats, "timings_s": result.timings, "passes": result.levels,
                "convention": "x_right = x_left - d, pixels, NaN = invalid"}
     frame = left.tags.get("frame", f"image:{Path(left_path).stem}")

@@ -73,6 +73,11 @@ class SgmParams(Parameters):
                                   "10).", minimum=0.0, maximum=1.0, max_open=True)
     fill: bool = parameter(CORE["fill"], "Fill pixels left invalid from their neighbours "
                            "(occlusions from the background); they get confidence 0.")
+    widen_range: int = parameter(
+        2, "Match again over a wider range, at most this many times, while pixels sit "
+        "exactly at a bound of a range estimated from matches (terrain beyond the "
+        "matches' range; 0 = off; a range given with --min-disparity/--num-disparities "
+        "is never widened).", minimum=0)
     max_memory_mb: float = parameter(
         CORE["max_memory_mb"], "Budget of the aggregated-cost volumes (and row buffers) "
         "of the strips matched at once, MiB; the image is cut into strips beyond it.",
@@ -90,7 +95,7 @@ class SgmParams(Parameters):
     def matcher_options(self) -> dict:
         """Keywords of :func:`demtool.sgm.sgm` besides the images and the range."""
         values = self.as_dict()
-        del values["min_disparity"], values["num_disparities"]
+        del values["min_disparity"], values["num_disparities"], values["widen_range"]
         for name in TILE_FIELDS:
             del values[name]
         return values

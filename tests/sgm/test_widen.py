@@ -1,0 +1,137 @@
+"""Tests of the disparity range's widening where SGM saturates at a bound (demtool.sgm.widen)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from demtool import io as dio
+from demtool.cli import cli
+from demtool.sgm import sgm
+from demtool.sgm.widen import (
+    MIN_STEP_PX,
+    is_saturated,
+    saturated_bounds,
+    sgm_widening,
+    widened_range,
+)
+from tests.helpers.sgm import error_rates, smooth_disparity_pair
+
+
+@pytest.fixture(scope="module")
+def far_pair():
+    """A smooth pair whose disparities run 2 … 13 px (offset 6 ± 4, + 0 … 3 down)."""
+    return smooth_disparity_pair(offset=6.0, amplitude=4.0)
+
+
+def visible(truth: np.ndarray) -> np.ndarray:
+    columns = np.arange(truth.shape[1])[None, :]
+    return (columns - truth) >= 1
+
+
+def test_saturated_bounds_count_pixels_exactly_at_each_bound():
+    disparity = np.array([[-3.0, -3.0, -2.9, 5.0], [5.0, 5.0, np.nan, 4.99]])
+    assert saturated_bounds(disparity, -3, 9) == (2, 3)
+    assert is_saturated(32, 1000) and not is_saturated(31, 1000)
+    assert not is_saturated(99, 2_000_000) and is_saturated(200, 2_000_000)
+
+
+def test_widened_range_extends_only_the_saturated_side_and_fits_the_image():
+    assert widened_range(-2, 9, False, True, 128) == (-2, 9 + MIN_STEP_PX)
+    assert widened_range(-10, 21, True, False, 128) == (-20, 31)
+    assert widened_range(-10, 21, True, True, 128) == (-20, 41)
+    low, count = widened_range(-60, 121, True, True, 128)
+    assert count < 128 and low > -128 and low + count - 1 < 128
+
+
+def test_a_narrow_range_saturates_and_widening_recovers_the_far_disparities(far_pair):
+    left, right, truth = far_pair
+    narrow = sgm(left, right, min_disparity=-2, num_disparities=9, cost="census")
+    at_low, at_high = saturated_bounds(narrow.disparity, -2, 9)
+    assert at_high > 0.1 * truth.size > at_low  # disparities above 6 pile up at 6
+    assert error_rates(narrow.disparity, truth, visible(truth))["bad2"] > 0.3
+
+    result = sgm_widening(left, right, min_disparity=-2, num_disparities=9, widenings=3,
+                          cost="census")
+    history = result.parameters["range_widenings"]
+    assert history and history[0]["from"] == [-2, 9] and history[0]["saturated_high"] == at_high
+    low, count = result.parameters["min_disparity"], result.parameters["num_disparities"]
+    assert low <= -2 and low + count - 1 >= 14  # the range now covers the truth (≤ 13.1)
+    rates = error_rates(result.disparity, truth, visible(truth))
+    assert rates["bad2"] < 0.05 and rates["mae"] < 0.2, rates
+
+
+def test_a_range_that_covers_the_disparities_is_matched_once(far_pair):
+    left, right, truth = far_pair
+    result = sgm_widening(left, right, min_disparity=-2, num_disparities=20, cost="census")
+    assert result.parameters["range_widenings"] == []
+    assert (result.parameters["min_disparity"], result.parameters["num_disparities"]) == (-2, 20)
+
+
+def test_no_widening_when_told_so(far_pair):
+    left, right, _ = far_pair
+    result = sgm_widening(left, right, min_disparity=-2, num_disparities=9, widenings=0,
+                          cost="census")
+    assert result.parameters["range_widenings"] == []
+    assert result.parameters["num_disparities"] == 9
+
+
+@pytest.fixture(scope="module")
+def far_pair_dir(tmp_path_factory, far_pair):
+    """The far pair with a rectify.npz whose range (from 'matches') stops at 6 px."""
+    folder = tmp_path_factory.mktemp("sgm_far")
+    left, right, truth = far_pair
+    dio.write_raster(folder / "left_rect.tif", left, tags={"frame": "image:view_00_rect"})
+    dio.write_raster(folder / "right_rect.tif", right, tags={"frame": "image:view_01_rect"})
+    np.save(folder / "truth.npy", truth)
+    points = np.array([[10.0, 10.0], [50.0, 40.0], [90.0, 70.0]])
+    dio.write_npz(folder / "rectify.npz", "rectification", {
+        "H_left": np.eye(3), "H_right": np.eye(3), "F": np.zeros((3, 3)),
+        "size_left": np.array([128, 96]), "size_right": np.array([128, 96]),
+        "size_rect": np.array([128, 96]), "points_left": points, "points_right": points,
+        "points_left_rect": points, "points_right_rect": points,
+        "disparity_range": np.array([-2.0, 6.0]), "left_name": np.asarray("view_00"),
+        "right_name": np.asarray("view_01")})
+    return folder
+
+
+def test_cli_widens_an_estimated_range_and_says_so(far_pair_dir, tmp_path):
+    out = tmp_path / "d.tif"
+    result = CliRunner().invoke(cli, ["sgm", str(far_pair_dir / "left_rect.tif"),
+                                      str(far_pair_dir / "right_rect.tif"), "--rectify",
+                                      str(far_pair_dir / "rectify.npz"), "--cost", "census",
+                                      "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "upper bound -2 … 6" in result.output and "matching again over" in result.output
+    raster = dio.read_raster(out)
+    truth = np.load(far_pair_dir / "truth.npy")
+    assert error_rates(raster.data, truth, visible(truth))["bad2"] < 0.05
+    low, count = raster.tag_json("min_disparity"), raster.tag_json("num_disparities")
+    assert low <= -2 and low + count - 1 >= 14
+    summary = json.loads((tmp_path / "d.tif.json").read_text())["summary"]
+    assert summary["range_widenings"][0]["from"] == [-2, 9]
+    assert summary["num_disparities"] == raster.tag_json("num_disparities")
+
+
+def test_cli_never_widens_a_range_given_explicitly(far_pair_dir, tmp_path):
+    out = tmp_path / "d.tif"
+    result = CliRunner().invoke(cli, ["-q", "sgm", str(far_pair_dir / "left_rect.tif"),
+                                      str(far_pair_dir / "right_rect.tif"), "--cost", "census",
+                                      "--min-disparity", "-2", "--num-disparities", "9",
+                                      "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    summary = json.loads((tmp_path / "d.tif.json").read_text())["summary"]
+    assert summary["range_widenings"] == [] and summary["num_disparities"] == 9
+
+
+def test_cli_widen_range_zero_keeps_the_estimated_range(far_pair_dir, tmp_path):
+    out = tmp_path / "d.tif"
+    result = CliRunner().invoke(cli, ["-q", "sgm", str(far_pair_dir / "left_rect.tif"),
+                                      str(far_pair_dir / "right_rect.tif"), "--rectify",
+                                      str(far_pair_dir / "rectify.npz"), "--cost", "census",
+                                      "--widen-range", "0", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert dio.read_raster(out).tag_json("num_disparities") == 9

@@ -140,10 +140,9 @@ $(WORK)/reports/dem_frame/report.json: $(WORK)/dem_frame.tif
 # refine keeps its own spike test (--spike-threshold 4) instead of the NavCam preset's
 # median everywhere: the map-projected stereo DEM has no spikes to remove, and a 15-px
 # median of every cell costs it the detail SfS then has to recover (measured on the demo
-# scene: RMSE 0.64x -> 0.49x, slope error 0.54x -> 0.51x of dem_linescan's).  The
-# refined slope error (0.153) equals the image-frame route's after refine (0.154): one
-# image's shading fixes the along-sun slopes (0.239 -> 0.080), not the across-sun ones
-# (0.185 -> 0.131), so the 0.51x is set by dem_linescan's start, not the map route.
+# scene: RMSE 0.64x -> 0.48x of dem_linescan's).  Slope error of dem_linescan_refined:
+# 0.487x of dem_linescan's on the demo scene, 0.33-0.43x on seeds 1-7 (the truth
+# resampled bicubically onto the DEMs' grid; bench/linescan_route.py prints the table).
 LINESCAN_SCENE := $(WORK)/scene_linescan
 LINESCAN_STEREO := $(WORK)/stereo_linescan
 PRODUCTS += dem_linescan dem_linescan_match dem_linescan_refined

@@ -93,12 +93,13 @@ class SgmTileJob:
     num_disparities: int
     options: tuple[tuple[str, Any], ...]  # keywords of demtool.sgm.sgm (workers excluded)
     ranges: tuple[tuple[int, int], ...] = ()  # per tile (min, num); empty: the global one
+    widenings: int = 0  # re-matches of a tile saturated at a bound (demtool.sgm.widen)
     stage: str = "sgm"
     bands: tuple[str, ...] = ("disparity", "confidence")
     preload: tuple[str, ...] = ("demtool.sgm",)  # imported once by the workers' forkserver
 
     def compute(self, tile: Tile, threads: int) -> tuple[np.ndarray, dict[str, Any]]:
-        from demtool.sgm import sgm
+        from demtool.sgm.widen import sgm_widening
 
         left = read_window(self.left_path, tile.outer, what="left rectified image")
         right = read_window(self.right_path, tile.outer, what="right rectified image")
@@ -108,8 +109,12 @@ class SgmTileJob:
             return out, {"valid": 0}
         low, count = (self.ranges[tile.index] if self.ranges
                       else (self.min_disparity, self.num_disparities))
-        result = sgm(left, right, min_disparity=low, num_disparities=count, workers=threads,
-                     **dict(self.options))
+        # a widened range still fits the tile: matches beyond its window come out NaN,
+        # and the core sits the overlap inside it
+        result = sgm_widening(left, right, min_disparity=low, num_disparities=count,
+                              widenings=self.widenings, workers=threads, **dict(self.options))
+        low = result.parameters["min_disparity"]
+        count = result.parameters["num_disparities"]
         out[0] = result.disparity[rows, cols]
         out[1] = result.confidence[rows, cols]
         return out, {"valid": int(np.isfinite(out[0]).sum()),
@@ -118,7 +123,8 @@ class SgmTileJob:
                      "min": float(np.nanmin(out[0])) if np.isfinite(out[0]).any() else None,
                      "max": float(np.nanmax(out[0])) if np.isfinite(out[0]).any() else None,
                      "input_valid": int(np.isfinite(left[rows, cols]).sum()),
-                     "range": [low, count]}
+                     "range": [low, count],
+                     "widened": len(result.parameters["range_widenings"])}
 
     def memory_bytes(self, tile: Tile) -> int:
         """S (uint16, 2 bytes a cell), ~16 float32 images, and the process (measured)."""
@@ -174,8 +180,10 @@ def sgm_tiled(run: Any, left_path: str | os.PathLike, right_path: str | os.PathL
         own = sum(r != (min_disparity, num_disparities) for r in ranges)
         run.log.info("%d of %d tiles search the range of the matches inside them", own,
                      len(ranges))
+    explicit = params.min_disparity is not None and params.num_disparities is not None
     job = SgmTileJob(str(left_path), str(right_path), min_disparity, num_disparities,
-                     tuple(sorted(options.items())), ranges)
+                     tuple(sorted(options.items())), ranges,
+                     widenings=0 if explicit else params.widen_range)
     with dio._open_dataset(Path(left_path), "left rectified image") as dataset:
         transform, frame = dataset.transform, dataset.tags().get("frame")
     if transform.is_identity:
@@ -197,6 +205,7 @@ def sgm_tiled(run: Any, left_path: str | os.PathLike, right_path: str | os.PathL
     def summarize(infos: list[dict[str, Any]]) -> dict[str, Any]:
         return {**_summary(infos, height * width), "min_disparity": min_disparity,
                 "tile_ranges": [i.get("range") for i in infos],
+                "tiles_widened": sum(1 for i in infos if i.get("widened")),
                 "num_disparities": num_disparities, "disparity_range_source": source,
                 "convention": "x_right = x_left - d, pixels, NaN = invalid"}
 

@@ -135,3 +135,17 @@ def test_cli_widen_range_zero_keeps_the_estimated_range(far_pair_dir, tmp_path):
                                       "--widen-range", "0", "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert dio.read_raster(out).tag_json("num_disparities") == 9
+
+
+def test_tiled_sgm_widens_each_saturated_tile(far_pair_dir, tmp_path):
+    out = tmp_path / "d.tif"
+    result = CliRunner().invoke(cli, ["-q", "sgm", str(far_pair_dir / "left_rect.tif"),
+                                      str(far_pair_dir / "right_rect.tif"), "--rectify",
+                                      str(far_pair_dir / "rectify.npz"), "--cost", "census",
+                                      "--tile-size", "64", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    summary = json.loads((tmp_path / "d.tif.json").read_text())["summary"]
+    assert summary["tiles_widened"] >= 1
+    assert max(low + count - 1 for low, count in summary["tile_ranges"]) >= 14
+    truth = np.load(far_pair_dir / "truth.npy")
+    assert error_rates(dio.read_raster(out).data, truth, visible(truth))["bad2"] < 0.05

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from demtool import io as dio
 from demtool.cli import cli
-from tests.helpers.sgm import error_rates, smooth_disparity_pair
+from tests.helpers.sgm import error_rates, smooth_disparity_pair, write_rectified_pair
 
 PRESETS = Path(__file__).resolve().parents[2] / "configs"
 
@@ -22,17 +22,7 @@ def pair_dir(tmp_path_factory):
     folder = tmp_path_factory.mktemp("sgm_pair")
     left, right, truth = smooth_disparity_pair(offset=0.0)
     left[:, :4] = np.nan  # outside the warped image
-    dio.write_raster(folder / "left_rect.tif", left, tags={"frame": "image:view_00_rect"})
-    dio.write_raster(folder / "right_rect.tif", right, tags={"frame": "image:view_01_rect"})
-    np.save(folder / "truth.npy", truth)
-    points = np.array([[10.0, 10.0], [50.0, 40.0], [90.0, 70.0]])
-    dio.write_npz(folder / "rectify.npz", "rectification", {
-        "H_left": np.eye(3), "H_right": np.eye(3), "F": np.zeros((3, 3)),
-        "size_left": np.array([128, 96]), "size_right": np.array([128, 96]),
-        "size_rect": np.array([128, 96]), "points_left": points, "points_right": points,
-        "points_left_rect": points, "points_right_rect": points,
-        "disparity_range": np.array([-11.5, 11.2]), "left_name": np.asarray("view_00"),
-        "right_name": np.asarray("view_01")})
+    write_rectified_pair(folder, left, right, truth, (-11.5, 11.2))
     return folder
 
 

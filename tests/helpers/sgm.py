@@ -117,3 +117,24 @@ def error_rates(disparity: np.ndarray, truth: np.ndarray, mask: np.ndarray
             "bad1": float((error > 1).mean()) if error.size else float("nan"),
             "bad2": float((error > 2).mean()) if error.size else float("nan"),
             "mae": float(error.mean()) if error.size else float("nan")}
+
+
+def write_rectified_pair(folder, left: np.ndarray, right: np.ndarray, truth: np.ndarray,
+                         disparity_range: tuple[float, float]) -> None:
+    """``left_rect.tif``, ``right_rect.tif``, ``truth.npy`` and an identity ``rectify.npz``
+    whose ``disparity_range`` (what rectify estimated from its matches) is given."""
+    from demtool import io as dio
+
+    height, width = left.shape
+    dio.write_raster(folder / "left_rect.tif", left, tags={"frame": "image:view_00_rect"})
+    dio.write_raster(folder / "right_rect.tif", right, tags={"frame": "image:view_01_rect"})
+    np.save(folder / "truth.npy", truth)
+    points = np.array([[10.0, 10.0], [50.0, 40.0], [90.0, 70.0]])
+    size = np.array([width, height])
+    dio.write_npz(folder / "rectify.npz", "rectification", {
+        "H_left": np.eye(3), "H_right": np.eye(3), "F": np.zeros((3, 3)),
+        "size_left": size, "size_right": size, "size_rect": size,
+        "points_left": points, "points_right": points,
+        "points_left_rect": points, "points_right_rect": points,
+        "disparity_range": np.array(disparity_range, dtype=float),
+        "left_name": np.asarray("view_00"), "right_name": np.asarray("view_01")})

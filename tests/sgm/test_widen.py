@@ -18,7 +18,7 @@ from demtool.sgm.widen import (
     sgm_widening,
     widened_range,
 )
-from tests.helpers.sgm import error_rates, smooth_disparity_pair
+from tests.helpers.sgm import error_rates, smooth_disparity_pair, write_rectified_pair
 
 
 @pytest.fixture(scope="module")
@@ -83,27 +83,21 @@ def test_no_widening_when_told_so(far_pair):
 def far_pair_dir(tmp_path_factory, far_pair):
     """The far pair with a rectify.npz whose range (from 'matches') stops at 6 px."""
     folder = tmp_path_factory.mktemp("sgm_far")
-    left, right, truth = far_pair
-    dio.write_raster(folder / "left_rect.tif", left, tags={"frame": "image:view_00_rect"})
-    dio.write_raster(folder / "right_rect.tif", right, tags={"frame": "image:view_01_rect"})
-    np.save(folder / "truth.npy", truth)
-    points = np.array([[10.0, 10.0], [50.0, 40.0], [90.0, 70.0]])
-    dio.write_npz(folder / "rectify.npz", "rectification", {
-        "H_left": np.eye(3), "H_right": np.eye(3), "F": np.zeros((3, 3)),
-        "size_left": np.array([128, 96]), "size_right": np.array([128, 96]),
-        "size_rect": np.array([128, 96]), "points_left": points, "points_right": points,
-        "points_left_rect": points, "points_right_rect": points,
-        "disparity_range": np.array([-2.0, 6.0]), "left_name": np.asarray("view_00"),
-        "right_name": np.asarray("view_01")})
+    write_rectified_pair(folder, *far_pair, (-2.0, 6.0))
     return folder
+
+
+def run_sgm(folder, out, *options, quiet=True):
+    """``demtool sgm`` on the far pair (census cost) with ``options``."""
+    return CliRunner().invoke(cli, [*(["-q"] if quiet else []), "sgm",
+                                    str(folder / "left_rect.tif"),
+                                    str(folder / "right_rect.tif"), "--cost", "census",
+                                    *map(str, options), "--out", str(out)])
 
 
 def test_cli_widens_an_estimated_range_and_says_so(far_pair_dir, tmp_path):
     out = tmp_path / "d.tif"
-    result = CliRunner().invoke(cli, ["sgm", str(far_pair_dir / "left_rect.tif"),
-                                      str(far_pair_dir / "right_rect.tif"), "--rectify",
-                                      str(far_pair_dir / "rectify.npz"), "--cost", "census",
-                                      "--out", str(out)])
+    result = run_sgm(far_pair_dir, out, "--rectify", far_pair_dir / "rectify.npz", quiet=False)
     assert result.exit_code == 0, result.output
     assert "upper bound -2 … 6" in result.output and "matching again over" in result.output
     raster = dio.read_raster(out)
@@ -118,10 +112,7 @@ def test_cli_widens_an_estimated_range_and_says_so(far_pair_dir, tmp_path):
 
 def test_cli_never_widens_a_range_given_explicitly(far_pair_dir, tmp_path):
     out = tmp_path / "d.tif"
-    result = CliRunner().invoke(cli, ["-q", "sgm", str(far_pair_dir / "left_rect.tif"),
-                                      str(far_pair_dir / "right_rect.tif"), "--cost", "census",
-                                      "--min-disparity", "-2", "--num-disparities", "9",
-                                      "--out", str(out)])
+    result = run_sgm(far_pair_dir, out, "--min-disparity", -2, "--num-disparities", 9)
     assert result.exit_code == 0, result.output
     summary = json.loads((tmp_path / "d.tif.json").read_text())["summary"]
     assert summary["range_widenings"] == [] and summary["num_disparities"] == 9
@@ -129,20 +120,16 @@ def test_cli_never_widens_a_range_given_explicitly(far_pair_dir, tmp_path):
 
 def test_cli_widen_range_zero_keeps_the_estimated_range(far_pair_dir, tmp_path):
     out = tmp_path / "d.tif"
-    result = CliRunner().invoke(cli, ["-q", "sgm", str(far_pair_dir / "left_rect.tif"),
-                                      str(far_pair_dir / "right_rect.tif"), "--rectify",
-                                      str(far_pair_dir / "rectify.npz"), "--cost", "census",
-                                      "--widen-range", "0", "--out", str(out)])
+    result = run_sgm(far_pair_dir, out, "--rectify", far_pair_dir / "rectify.npz",
+                     "--widen-range", 0)
     assert result.exit_code == 0, result.output
     assert dio.read_raster(out).tag_json("num_disparities") == 9
 
 
 def test_tiled_sgm_widens_each_saturated_tile(far_pair_dir, tmp_path):
     out = tmp_path / "d.tif"
-    result = CliRunner().invoke(cli, ["-q", "sgm", str(far_pair_dir / "left_rect.tif"),
-                                      str(far_pair_dir / "right_rect.tif"), "--rectify",
-                                      str(far_pair_dir / "rectify.npz"), "--cost", "census",
-                                      "--tile-size", "64", "--out", str(out)])
+    result = run_sgm(far_pair_dir, out, "--rectify", far_pair_dir / "rectify.npz",
+                     "--tile-size", 64)
     assert result.exit_code == 0, result.output
     summary = json.loads((tmp_path / "d.tif.json").read_text())["summary"]
     assert summary["tiles_widened"] >= 1

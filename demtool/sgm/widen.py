@@ -112,10 +112,11 @@ def sgm_widening(left: np.ndarray, right: np.ndarray, *, min_disparity: int,
         low, high = is_saturated(at_low, valid), is_saturated(at_high, valid)
         if not (low or high) or len(history) >= widenings:
             if low or high:
-                log.warning("%d / %d pixels still at the disparity range's lower / upper "
-                            "bound %d … %d after %d widenings: give the range "
-                            "(--min-disparity/--num-disparities)", at_low, at_high,
-                            min_disparity, min_disparity + num_disparities - 1, len(history))
+                log.warning("%d / %d pixels at the disparity range's lower / upper bound "
+                            "%d … %d%s: the terrain there may lie beyond the range (give a "
+                            "wider one with --min-disparity/--num-disparities)", at_low,
+                            at_high, min_disparity, min_disparity + num_disparities - 1,
+                            f" after {len(history)} widening(s)" if history else "")
             break
         wider = widened_range(min_disparity, num_disparities, low, high, width)
         if wider == (min_disparity, num_disparities):

@@ -33,6 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from demtool.bundle.priors import Observations
+from demtool.errors import ParameterError
 from demtool.logs import get_logger
 
 log = get_logger(__name__)
@@ -102,6 +103,11 @@ def refine_observations(images: Sequence[np.ndarray], obs: Observations, *,
     min_correlation : float
         Least correlation coefficient of an accepted LSM match.
 
+    Raises
+    ------
+    ParameterError
+        ``template``, ``max_move_px`` or ``min_correlation`` out of range.
+
     Returns
     -------
     observations : Observations
@@ -111,8 +117,13 @@ def refine_observations(images: Sequence[np.ndarray], obs: Observations, *,
     """
     from demtool.match.lsm import CONVERGED, lsm_match
 
+    if template < 5 or template % 2 == 0:
+        raise ParameterError(f"tie refinement: template must be odd and >= 5, got {template}")
     if max_move_px <= 0:
-        raise ValueError(f"max_move_px must be > 0, got {max_move_px}")
+        raise ParameterError(f"tie refinement: max_move_px must be > 0, got {max_move_px}")
+    if not -1.0 <= min_correlation <= 1.0:
+        raise ParameterError("tie refinement: min_correlation must be in [-1, 1], got "
+                             f"{min_correlation}")
     ref = reference_observations(obs)
     ref_of = ref[obs.point]
     is_ref = ref_of == np.arange(len(obs.image))

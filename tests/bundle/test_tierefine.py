@@ -137,9 +137,9 @@ def _parallax_errors(scene, obs):
 
 @pytest.mark.slow
 def test_rendered_block_tie_observations_are_unbiased():
-    """SIFT's blob centres on rough shaded terrain carry a parallax bias (+0.015 px here,
-    metres of height at orbital B/H) and 0.21 px RMS; after LSM the bias is below
-    0.01 px and the RMS about halved."""
+    """SIFT's blob centres on rough shaded terrain carry a parallax bias (+0.015 and
+    +0.018 px here: 1.5–2 m of height at B/H 0.3) and 0.21 px RMS; after LSM the bias is
+    below 0.01 px (0.002, 0.007) and the RMS 0.09 px."""
     from demtool.synth import SceneParams, make_scene
 
     scene = make_scene(SceneParams(**ORBITAL))
@@ -150,9 +150,9 @@ def test_rendered_block_tie_observations_are_unbiased():
     assert report["refine"]["points_out"] > 1500
     before = _parallax_errors(scene, sift)
     after = _parallax_errors(scene, refined)
-    assert max(abs(v[0]) for v in before.values()) > 0.012
+    assert max(abs(v[0]) for v in before.values()) > 0.014
     assert max(v[1] for v in before.values()) > 0.18
     for mean, rms, count in after.values():
         assert count > 1000
-        assert abs(mean) < 0.008
+        assert abs(mean) < 0.01
         assert rms < 0.12

@@ -34,7 +34,13 @@ orbital geometry).
 
 Usage: ``.venv/bin/python bench/bundle_priors_dem.py [--size 256] [--image-size 256]
 [--views 8] [--seed 0] [--zero-mean] [--reference-post N [--reference-noise M]]
-[--synth '--altitude 100000 ...'] [--keep DIR]``
+[--synth '--altitude 100000 ...'] [--scene DIR] [--no-refine-ties] [--ties]
+[--keep DIR]``
+
+``--ties`` first prints each image pair's tie-observation error against the truth, split
+along and across the pair's parallax direction, for SIFT and for SIFT + LSM (issue 14);
+``--scene`` reuses a rendered scene; ``--no-refine-ties`` runs ``bundle`` on SIFT's
+positions.
 """
 
 from __future__ import annotations

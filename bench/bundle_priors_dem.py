@@ -34,7 +34,13 @@ orbital geometry).
 
 Usage: ``.venv/bin/python bench/bundle_priors_dem.py [--size 256] [--image-size 256]
 [--views 8] [--seed 0] [--zero-mean] [--reference-post N [--reference-noise M]]
-[--synth '--altitude 100000 ...'] [--keep DIR]``
+[--synth '--altitude 100000 ...'] [--scene DIR] [--no-refine-ties] [--ties]
+[--keep DIR]``
+
+``--ties`` first prints each image pair's tie-observation error against the truth, split
+along and across the pair's parallax direction, for SIFT and for SIFT + LSM (issue 14);
+``--scene`` reuses a rendered scene; ``--no-refine-ties`` runs ``bundle`` on SIFT's
+positions.
 """
 
 from __future__ import annotations
@@ -163,18 +169,21 @@ def datum_shift(folder: Path, scene: Path, names: list[str], target: str
         float(residual.max()), pixels
 
 
-def tie_bias(scene: Path, names: list[str], *, max_features: int = 8192) -> dict:
-    """Bias of ``bundle``'s tie observations against the truth, per image (issue 14).
+def tie_bias(scene: Path, names: list[str], *, max_features: int = 8192,
+             refine: bool = True) -> dict:
+    """Bias of ``bundle``'s tie observations against the truth, per image pair (issue 14).
 
-    The tracks of :func:`demtool.bundle.ties.tie_points` (all pairs) are cast from their
-    first observation onto synth's terrain (the renderer's ray cast through the true
-    ISD) and the ground point is projected into the track's other images through their
-    true ISDs.  Returns ``{name: (count, mean sample, mean line, median sample, median
-    line, RMS)}``, observed minus true, pixels (observations within 3 px), relative to
-    each track's first image (its own error taken as zero: the first view has no row,
-    and an error common to all images does not show).  A common
-    offset of a few hundredths of a pixel in every image is what ``--reference-dem``
-    turns into a pointing bias of the whole block (README, issue 14).
+    The tracks of :func:`demtool.bundle.ties.tie_points` (all pairs; ``refine``: with
+    the LSM refinement of :mod:`demtool.bundle.tierefine`) are cast, for every pair of
+    images (i, j) that a track meets, from its observation in i onto synth's terrain
+    (the renderer's ray cast through the true ISD) and projected into j through j's true
+    ISD.  The observed-minus-true offset in j is split along the pair's parallax
+    direction (where a ground point moves in j as it rises: a bias there is a height
+    bias of the pair's tie points) and across it.  Returns ``{"i-j": (count, mean
+    along, median along, mean across, median across, RMS, metres of height per pixel
+    of parallax)}``, pixels (observations within 3 px).  A parallax bias of a few
+    hundredths of a pixel is metres of height at orbital B/H, which ``--reference-dem``
+    turns into a common offset of the block (README, issue 14).
     """
     from itertools import combinations
 
@@ -190,27 +199,39 @@ def tie_bias(scene: Path, names: list[str], *, max_features: int = 8192) -> dict
     field = render.height_field(dem.data.astype(np.float64), dem.transform)
     images = [dio.read_raster(scene / f"{n}.tif", what="image").data for n in names]
     models = [read_sensor(scene / f"{n}.json") for n in names]
-    obs, _ = tie_points(images, list(combinations(range(len(names)), 2)),
-                        max_features=max_features)
-    index = np.arange(len(obs.point))
-    first = np.full(int(obs.point.max()) + 1, len(index))
-    np.minimum.at(first, obs.point, index)
-    ground = np.full((len(first), 3), np.nan)
+    pairs = list(combinations(range(len(names)), 2))
+    obs, _ = tie_points(images, pairs, max_features=max_features, refine=refine)
+    pixels = np.column_stack([obs.sample - 0.5, obs.line - 0.5])
+    ground = np.full((len(pixels), 3), np.nan)  # every observation cast through its view
     for i, model in enumerate(models):
-        starts = first[obs.image[first] == i]
-        pixels = np.column_stack([obs.sample[starts] - 0.5, obs.line[starts] - 0.5])
-        hits = render.pixel_hits(field, model, pixels, placement=place)
-        ground[obs.point[starts]] = place.to_body(hits)
+        k = obs.image == i
+        ground[k] = place.to_body(render.pixel_hits(field, model, pixels[k], placement=place))
     table = {}
-    for i, (name, model) in enumerate(zip(names, models, strict=True)):
-        k = (obs.image == i) & (first[obs.point] != index)
-        line, sample = model.ground_to_image(ground[obs.point[k]])
-        error = np.column_stack([obs.sample[k] - sample, obs.line[k] - line])
-        error = error[np.all(np.abs(error) < 3.0, axis=1)]
-        if not len(error):
+    for i, j in pairs:
+        in_i = np.full(obs.point_count, -1)
+        in_j = np.full(obs.point_count, -1)
+        in_i[obs.point[obs.image == i]] = np.flatnonzero(obs.image == i)
+        in_j[obs.point[obs.image == j]] = np.flatnonzero(obs.image == j)
+        both = (in_i >= 0) & (in_j >= 0)
+        a, b = in_i[both], in_j[both]
+        good = np.isfinite(ground[a, 0])
+        a, b = a[good], b[good]
+        line, sample = models[j].ground_to_image(ground[a])
+        up = ground[a] / np.linalg.norm(ground[a], axis=1, keepdims=True)
+        line2, sample2 = models[j].ground_to_image(ground[a] + 100.0 * up)
+        rise = np.column_stack([sample2 - sample, line2 - line])
+        px_per_100m = np.linalg.norm(rise, axis=1)
+        rise /= px_per_100m[:, None]
+        error = np.column_stack([obs.sample[b] - sample, obs.line[b] - line])
+        ok = np.all(np.abs(error) < 3.0, axis=1)
+        if not ok.any():
             continue
-        mean, median = error.mean(axis=0), np.median(error, axis=0)
-        table[name] = (len(error), *mean, *median, float(np.sqrt(np.mean(error ** 2))))
+        along = np.sum(error * rise, axis=1)[ok]
+        across = (rise[:, 0] * error[:, 1] - rise[:, 1] * error[:, 0])[ok]
+        table[f"{i}-{j}"] = (int(ok.sum()), float(along.mean()), float(np.median(along)),
+                             float(across.mean()), float(np.median(across)),
+                             float(np.sqrt(np.mean(error[ok] ** 2))),
+                             float(100.0 / np.median(px_per_100m[ok])))
     return table
 
 
@@ -286,7 +307,8 @@ def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int
                seed: int = 0, zero_mean: bool = False, say=print,
                synth_args: tuple = (), reference: tuple[int, float] | None = None,
                reference_sigma: float | None = None, max_features: int = 8192,
-               similarity: bool = True, ties: bool = False,
+               similarity: bool = True, ties: bool = False, refine_ties: bool = True,
+               scene: Path | None = None,
                routes: tuple[str, ...] = ("true", "perturbed", "adjusted")) -> dict:
     """Run the whole check in ``work``; print the tables through ``say`` and return
     ``{"pose": {label: (errors, common, relative)}, "datum": {label: datum_shift(...)},
@@ -297,30 +319,42 @@ def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int
     adds ``--reference-dem``: the map truth degraded by
     :func:`degraded_reference`, weighted by ``reference_sigma`` (default: that DEM's
     RMS error at the truth's cells, at least 0.1 m); ``ties`` first prints
-    :func:`tie_bias`."""
+    :func:`tie_bias`; ``refine_ties`` False runs ``bundle --no-refine-ties``; ``scene``
+    reuses a rendered ``synth --sensor frame`` folder (read only) instead of rendering
+    one (``size``, ``image_size``, ``views``, ``synth_args`` are then ignored)."""
     results: dict = {"pose": {}, "datum": {}, "dem": {}}
-    scene = work / "scene"
-    wall = demtool("synth", "--sensor", "frame", "--size", size, "--image-size", image_size,
-                   "--views", views, "--seed", seed, *synth_args, "--out", scene)
+    if scene is None:
+        scene = work / "scene"
+        wall = demtool("synth", "--sensor", "frame", "--size", size, "--image-size",
+                       image_size, "--views", views, "--seed", seed, *synth_args,
+                       "--out", scene)
+    else:
+        wall = 0.0
     description = json.loads((scene / "scene.json").read_text())
     target, partner = description["target"], description["partner"]
     names = sorted(p.stem for p in scene.glob("view_*.tif"))
-    say(f"synth --sensor frame --size {size} --image-size {image_size} "
-        f"--views {len(names)} --seed {seed}: {wall:.1f} s; errors "
-        + ("pairwise opposite (zero mean)" if zero_mean else "independent"))
+    made = (f"synth --sensor frame --size {size} --image-size {image_size} --views "
+            f"{len(names)} --seed {seed}: {wall:.1f} s" if wall else f"scene {scene}")
+    say(f"{made}; errors " + ("pairwise opposite (zero mean)" if zero_mean
+                              else "independent")
+        + ("" if refine_ties else "; bundle --no-refine-ties"))
 
     if ties:
-        say("\nTie observations minus their true positions (tracks cast from their first "
-            "image onto the truth through the true ISDs), pixels")
-        say("| view | observations | mean sample | mean line | median sample "
-            "| median line | RMS |")
-        say("|---|---|---|---|---|---|---|")
-        for name, row in tie_bias(scene, names, max_features=max_features).items():
-            say(f"| {name} | {row[0]} | " + " | ".join(f"{v:+.4f}" for v in row[1:5])
-                + f" | {row[5]:.3f} |")
+        say("\nTie observations minus their true positions, per image pair (observation in "
+            "i cast onto the truth through the true ISD, projected into j), pixels")
+        say("| ties | pair | observations | mean along base | median along | mean across "
+            "| median across | RMS | m height / px | mean along → m height |")
+        say("|---|---|---|---|---|---|---|---|---|---|")
+        for label, refine in (("SIFT", False), ("SIFT + LSM", True)):
+            for pair, row in tie_bias(scene, names, max_features=max_features,
+                                      refine=refine).items():
+                say(f"| {label} | {pair} | {row[0]} | "
+                    + " | ".join(f"{v:+.4f}" for v in row[1:5])
+                    + f" | {row[5]:.3f} | {row[6]:.0f} | {row[1] * row[6]:+.2f} |")
     perturb(scene, work / "perturbed", names, np.random.default_rng(seed + 1),
             zero_mean=zero_mean)
-    extra: list = ["--max-features", max_features]
+    extra: list = ["--max-features", max_features,
+                   "--refine-ties" if refine_ties else "--no-refine-ties"]
     if reference is not None:
         factor, noise = reference
         ref, error = degraded_reference(scene / "truth_dem_map.tif",
@@ -419,6 +453,10 @@ def main() -> None:
                         help="skip the compare with a similarity co-registration")
     parser.add_argument("--ties", action="store_true",
                         help="report the tie observations' bias against the truth")
+    parser.add_argument("--no-refine-ties", action="store_true",
+                        help="bundle --no-refine-ties (SIFT tie points as detected)")
+    parser.add_argument("--scene", type=Path, default=None,
+                        help="reuse this synth --sensor frame folder (read only)")
     parser.add_argument("--keep", type=Path, default=None, help="work folder to keep")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
@@ -428,7 +466,7 @@ def main() -> None:
                    reference=None if args.reference_post is None else
                    (args.reference_post, args.reference_noise),
                    routes=tuple(args.routes.split(",")), similarity=not args.no_similarity,
-                   ties=args.ties,
+                   ties=args.ties, refine_ties=not args.no_refine_ties, scene=args.scene,
                    say=lambda text: print(text, flush=True))
 
 

@@ -35,5 +35,6 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
         "adjust_with_priors", "triangulate"),
     "sensorblock": ("SensorBlockAdjustment", "adjust_sensor_block", "local_pinhole"),
     "ties": ("footprint", "image_pairs", "overlapping_pairs", "tie_points"),
+    "tierefine": ("RefineReport", "reference_observations", "refine_observations"),
     "writeback": ("adjust_isd", "adjust_tsai", "model_isd"),
 })

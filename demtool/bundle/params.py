@@ -51,5 +51,9 @@ class BundleParams(Parameters):
                                            "of its heights at the tie points (noise and "
                                            "interpolation), metres.", minimum=0.0,
                                            min_open=True)
+    refine_ties: bool = parameter(True, "With sensor models: re-measure the SIFT tie "
+                                  "points by affine least-squares matching (removes "
+                                  "SIFT's perspective-dependent bias).",
+                                  flag="--refine-ties/--no-refine-ties")
     seed: int = seed_field()
     workers: int = workers_field()

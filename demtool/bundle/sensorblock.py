@@ -95,7 +95,7 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
                         models: Sequence[SensorModel], *, pairing: str = "exhaustive",
                         position_sigma: float, pointing_sigma: float,
                         max_features: int = 8192, seed: int = 0,
-                        surface=None) -> SensorBlockAdjustment:
+                        surface=None, refine_ties: bool = True) -> SensorBlockAdjustment:
     """Tie points and pose-prior bundle adjustment of images with sensor models.
 
     Parameters
@@ -116,6 +116,9 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
         Seed of the robust matching.
     surface : demtool.bundle.surface.ReferenceSurface, optional
         A reference DEM tying the tie points' heights (the block's datum).
+    refine_ties : bool
+        Re-measure the SIFT tracks by affine least-squares matching
+        (:mod:`demtool.bundle.tierefine`).
 
     Raises
     ------
@@ -127,7 +130,8 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
         raise ProcessingError("no two images overlap (footprints of the sensor models); "
                               "check the --sensors order or the images")
     log.info("matching %d image pairs (%s)", len(pairs), pairing)
-    obs, ties = tie_points(images, pairs, max_features=max_features, seed=seed)
+    obs, ties = tie_points(images, pairs, max_features=max_features, seed=seed,
+                           refine=refine_ties)
     if obs.point_count == 0:
         raise ProcessingError("no tie points between the images: they may not overlap "
                               "or lack texture (try more --max-features)")
@@ -165,6 +169,7 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
         "frame": "body-fixed, metres",
         "pairing": pairing,
         "pairs": report_by_name(ties["pairs"], names),
+        "tie_refinement": ties.get("refine"),
         "points": int(n_points),
         "observations": int(len(kept.image)),
         "mean_track_length": float(track.mean()) if n_points else 0.0,

@@ -8,7 +8,10 @@
 * :func:`tie_points`: SIFT (Lowe 2004) in every image, ratio-test matches of each pair
   checked by a robust fundamental matrix, joined into multi-view tracks
   (union-find; a track that meets an image twice is dropped), as
-  :class:`demtool.bundle.priors.Observations`.
+  :class:`demtool.bundle.priors.Observations`; by default every track is then
+  re-measured by affine least-squares matching against its reference observation
+  (:mod:`demtool.bundle.tierefine`), which removes the perspective-dependent
+  localisation bias of SIFT's blob centres (issue 14).
 """
 
 from __future__ import annotations
@@ -172,7 +175,8 @@ def _find(parent: np.ndarray, i: int) -> int:
 
 def tie_points(images: Sequence[np.ndarray], pairs: Sequence[tuple[int, int]], *,
                max_features: int = 8192, ratio: float = 0.8, threshold_px: float = 1.5,
-               min_matches: int = 15, seed: int = 0) -> tuple[Observations, dict]:
+               min_matches: int = 15, seed: int = 0, refine: bool = True,
+               refine_template: int = 15) -> tuple[Observations, dict]:
     """Multi-view SIFT tracks of a block.
 
     Parameters
@@ -191,13 +195,20 @@ def tie_points(images: Sequence[np.ndarray], pairs: Sequence[tuple[int, int]], *
         Pairs with fewer inliers contribute nothing.
     seed : int
         Seed of the robust estimator.
+    refine : bool
+        Re-measure each track by affine LSM against its reference observation
+        (:func:`demtool.bundle.tierefine.refine_observations`).
+    refine_template : int
+        LSM template size of that refinement, pixels (odd).
 
     Returns
     -------
     observations : Observations
         CSM image coordinates (pixel centre ``(r + 0.5, c + 0.5)``).
     report : dict
-        ``pairs``: inlier matches per matched pair ``"i-j"``.
+        ``pairs``: inlier matches per matched pair ``"i-j"``; ``refine``: the
+        refinement's :class:`~demtool.bundle.tierefine.RefineReport` as a dict (with
+        ``refine`` only).
     """
     from demtool.errors import ProcessingError
     from demtool.features import detect_sift, match_descriptors, ransac_fundamental
@@ -251,6 +262,11 @@ def tie_points(images: Sequence[np.ndarray], pairs: Sequence[tuple[int, int]], *
                        line=xy[:, 1] + 0.5, sample=xy[:, 0] + 0.5)
     log.info("%d tie points, %d observations from %d pairs", obs.point_count, len(obs.image),
              sum(1 for v in report.values() if v >= min_matches))
+    if refine and len(obs.image):
+        from demtool.bundle.tierefine import refine_observations
+
+        obs, refined = refine_observations(images, obs, template=refine_template)
+        return obs, {"pairs": report, "refine": refined.as_dict()}
     return obs, {"pairs": report}
 
 

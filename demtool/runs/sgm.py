@@ -130,11 +130,9 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     log.info("matching %s / %s: %d×%d px, disparities %d … %d, cost %s, %d paths",
              left_path, right_path, width, left.data.shape[0], min_disparity, max_disparity,
              params.cost, params.paths)
-    # a range given explicitly is the user's; one estimated from matches may miss terrain
-    explicit = params.min_disparity is not None and params.num_disparities is not None
     result = sgm_widening(left.data, right.data, min_disparity=min_disparity,
-                          num_disparities=num_disparities,
-                          widenings=0 if explicit else params.widen_range, **sgm_options)
+                          num_disparities=num_disparities, widenings=params.widenings,
+                          **sgm_options)
     min_disparity = result.parameters["min_disparity"]
     num_disparities = result.parameters["num_disparities"]
     disparity = result.disparity

@@ -92,6 +92,17 @@ class SgmParams(Parameters):
     scheduler: str | None = scheduler_field()
     dry_run: bool = dry_run_field()
 
+    @property
+    def range_given(self) -> bool:
+        """Both ends of the search range given (the user's range: never widened)."""
+        return self.min_disparity is not None and self.num_disparities is not None
+
+    @property
+    def widenings(self) -> int:
+        """Re-matches allowed by :func:`demtool.sgm.widen.sgm_widening`: ``widen_range``
+        for a range estimated from matches, 0 for one given with the options."""
+        return 0 if self.range_given else self.widen_range
+
     def matcher_options(self) -> dict:
         """Keywords of :func:`demtool.sgm.sgm` besides the images and the range."""
         values = self.as_dict()

@@ -63,16 +63,14 @@ def widened_range(min_disparity: int, num_disparities: int, low: bool, high: boo
     """The range with each saturated side extended by half its span (≥ MIN_STEP_PX),
     kept inside what an image ``width`` pixels wide allows (|d| < width, span < width)."""
     step = max(MIN_STEP_PX, num_disparities // 2)
-    lower = min_disparity - step if low else min_disparity
-    upper = min_disparity + num_disparities - 1 + (step if high else 0)
-    lower, upper = max(lower, -(width - 1)), min(upper, width - 1)
-    while upper - lower + 1 >= width:  # trim the widened sides back to fit
-        if high and upper > min_disparity + num_disparities - 1:
-            upper -= 1
-        elif low and lower < min_disparity:
-            lower += 1
-        else:
-            break
+    old_upper = min_disparity + num_disparities - 1
+    lower = max(min_disparity - step if low else min_disparity, -(width - 1))
+    upper = min(old_upper + step if high else old_upper, width - 1)
+    excess = upper - lower + 2 - width  # the span must stay below the width
+    if excess > 0:  # give back the widening, upper side first
+        cut = min(excess, upper - old_upper)
+        upper -= cut
+        lower += min(excess - cut, min_disparity - lower)
     return lower, upper - lower + 1
 
 
@@ -96,7 +94,8 @@ def sgm_widening(left: np.ndarray, right: np.ndarray, *, min_disparity: int,
     SGMResult
         The last match; ``parameters["min_disparity"]``/``["num_disparities"]`` are the
         range it searched and ``parameters["range_widenings"]`` lists each widening as
-        ``{"from": [min, num], "to": [min, num], "saturated_low": n, "saturated_high": n}``.
+        ``{"from": [min, num], "to": [min, num], "saturated_low": n, "saturated_high": n}``;
+        ``timings["total"]`` sums every match, the other timings are the last one's.
     """
     from demtool.sgm.matcher import sgm
 

@@ -172,7 +172,7 @@ def sgm_tiled(run: Any, left_path: str | os.PathLike, right_path: str | os.PathL
     for name in ("workers", "tile_size", "tile_overlap", "scheduler", "dry_run"):
         options.pop(name, None)
     ranges: tuple[tuple[int, int], ...] = ()
-    if rectify is not None and (params.min_disparity is None or params.num_disparities is None):
+    if rectify is not None and not params.range_given:
         content = dio.read_npz(rectify, "rectification")
         ranges = tile_ranges(tiling.tiles, np.asarray(content["points_left_rect"], float),
                              np.asarray(content["points_right_rect"], float), min_disparity,
@@ -180,10 +180,8 @@ def sgm_tiled(run: Any, left_path: str | os.PathLike, right_path: str | os.PathL
         own = sum(r != (min_disparity, num_disparities) for r in ranges)
         run.log.info("%d of %d tiles search the range of the matches inside them", own,
                      len(ranges))
-    explicit = params.min_disparity is not None and params.num_disparities is not None
     job = SgmTileJob(str(left_path), str(right_path), min_disparity, num_disparities,
-                     tuple(sorted(options.items())), ranges,
-                     widenings=0 if explicit else params.widen_range)
+                     tuple(sorted(options.items())), ranges, widenings=params.widenings)
     with dio._open_dataset(Path(left_path), "left rectified image") as dataset:
         transform, frame = dataset.transform, dataset.tags().get("frame")
     if transform.is_identity:

@@ -74,6 +74,14 @@ def _surface_cost(surface, points, threshold: float) -> float:
     return huber_cost(surface.residuals(points) / surface.sigma, threshold)
 
 
+def total_cost(models, pivots, obs, cams, points, prior_weights, *, huber: float,
+               sigma: float, surface=None, surface_huber: float = 2.0) -> float:
+    """The cost of the module docstring at ``cams`` (N, 6) and ``points`` (P, 3)."""
+    base = project(models, pivots, obs, cams, points)
+    return _cost(base, cams, prior_weights, huber, sigma) + _surface_cost(
+        surface, points, surface_huber)
+
+
 @dataclass
 class _Normal:
     """Normal equations of one iteration: camera blocks ``u`` (N, 6, 6), point blocks

@@ -24,19 +24,25 @@ registers.  ``σ_p`` is ``--position-sigma`` (m), ``σ_θ`` ``--pointing-sigma``
 The block's common offset (a shift, turn or scale of all images together) is
 determined by the priors alone, so it is only as good as their mean, unless a
 reference DEM ties the tie points' heights to the ground (``surface``,
-:mod:`demtool.bundle.surface`).  The solver is :mod:`demtool.bundle.lm`.
+:mod:`demtool.bundle.surface`).  With one, the first adjustment also runs from the
+prior block registered to the DEM (:func:`demtool.bundle.surface.register_points`) and
+the solution of lower cost is kept.  The solver is :mod:`demtool.bundle.lm`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from demtool.errors import ProcessingError
 from demtool.logs import get_logger
 from demtool.sensors.base import Ray, SensorModel
+
+if TYPE_CHECKING:
+    from demtool.bundle.surface import SurfaceShift
 
 log = get_logger(__name__)
 
@@ -250,6 +256,9 @@ class PriorAdjustment:
     covariance : (6N, 6N) float64 or None
         Covariance of the pose offsets (per image: dC in metres, rotation in mrad) from
         the images, the priors and the DEM at the solution.
+    surface_shift : demtool.bundle.surface.SurfaceShift or None
+        With a reference DEM: the translation that registered the prior block's tie
+        points to it before the adjustment (its start).
     """
 
     offsets: list[PoseOffset]
@@ -260,6 +269,7 @@ class PriorAdjustment:
     pixel_sigma: float = 1.0
     surface_residuals: np.ndarray | None = None
     covariance: np.ndarray | None = None
+    surface_shift: SurfaceShift | None = None
 
     def sigmas(self) -> np.ndarray:
         """(N, 2): each image's position (m) and pointing (mrad) standard deviation,
@@ -339,6 +349,7 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
     pivots = [pivot_of(m) for m in models]
     prior_weights = np.array([1 / position_sigma ** 2] * 3 + [1 / pointing_sigma ** 2] * 3)
     cams = np.zeros((n_images, 6))
+    registered = None
     initial_rms = float("nan")
     pixel_sigma = 1.0
     for round_ in range(2):
@@ -354,9 +365,28 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
         if round_ == 0:
             start = lm.project(models, pivots, obs, cams, points0)
             initial_rms = float(np.sqrt(np.mean(np.sum(start ** 2, axis=1))))
+        options = {"huber": huber_px * pixel_sigma, "sigma": pixel_sigma, "surface": surface}
         cams, points, residuals, covariance = lm.solve(
-            models, pivots, obs, cams, points0, prior_weights, huber=huber_px * pixel_sigma,
-            sigma=pixel_sigma, iterations=max_iterations, surface=surface)
+            models, pivots, obs, cams, points0, prior_weights, iterations=max_iterations,
+            **options)
+        if round_ == 0 and surface is not None:
+            registered = _register(surface, points0, pivots, position_sigma, pointing_sigma)
+        if round_ == 0 and registered is not None:
+            # a second start, every sensor and point moved onto the DEM alike; the lower
+            # cost of the two solutions wins (a start beyond the DEM fit's reach converges
+            # on a wrong fit with perfect residuals)
+            moved = np.zeros_like(cams)
+            moved[:, :3] = registered.shift
+            other = lm.solve(models, pivots, obs, moved, points0 + registered.shift,
+                             prior_weights, iterations=max_iterations, **options)
+            costs = [lm.total_cost(models, pivots, obs, c, p, prior_weights, **options)
+                     for c, p in ((cams, points), other[:2])]
+            log.info("adjustment from the priors: cost %.6g; from the registered block: "
+                     "%.6g", *costs)
+            if costs[1] < costs[0]:
+                cams, points, residuals, covariance = other
+            else:
+                registered = replace(registered, used=False)
         norms = np.linalg.norm(residuals, axis=1)
         log.info("adjustment round %d: %d observations, %d tie points, RMS %.3f px "
                  "(image sigma %.3f px)", round_ + 1, len(obs.image), obs.point_count,
@@ -375,4 +405,25 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
                            residuals=residuals, initial_rms_px=initial_rms,
                            pixel_sigma=pixel_sigma, covariance=covariance,
                            surface_residuals=None if surface is None else
-                           surface.residuals(points))
+                           surface.residuals(points), surface_shift=registered)
+
+
+def _register(surface, points, pivots, position_sigma: float, pointing_sigma: float):
+    """:func:`demtool.bundle.surface.register_points` of the prior block's tie points,
+    searched within three times the priors' ground uncertainty (position and pointing
+    at the sensors' median range), logged."""
+    from demtool.bundle.surface import register_points
+
+    ranges = [np.median(np.linalg.norm(points - p, axis=1)) for p in pivots]
+    ground_sigma = np.hypot(position_sigma, float(np.median(ranges)) * pointing_sigma * 1e-3)
+    found = register_points(surface, points, radius_m=3.0 * ground_sigma)
+    if found is None:
+        log.warning("reference DEM: fewer than half of the tie points lie on its data "
+                    "within %.0f m of the priors; the adjustment starts from the priors",
+                    3.0 * ground_sigma)
+        return None
+    log.info("reference DEM: the prior block registered by %+.1f m east, %+.1f m north, "
+             "%+.1f m up (searched %.0f m around the priors; height residual spread "
+             "%.2f -> %.2f m)", found.east_m, found.north_m, found.up_m, found.searched_m,
+             found.spread_before_m, found.spread_m)
+    return found

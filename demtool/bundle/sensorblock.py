@@ -192,5 +192,11 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
             "height_residual_rms_m": float(np.sqrt(np.mean(dh[on] ** 2)))
             if on.any() else None,
         }
+        shift = adjustment.surface_shift
+        if shift is not None:
+            summary["reference_dem"]["registration"] = {
+                "east_m": shift.east_m, "north_m": shift.north_m, "up_m": shift.up_m,
+                "searched_m": shift.searched_m, "spread_before_m": shift.spread_before_m,
+                "spread_m": shift.spread_m, "used": shift.used}
     return SensorBlockAdjustment(result=result, adjustment=adjustment, adjusted=adjusted,
                                  summary=summary)

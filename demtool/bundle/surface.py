@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from demtool.mapproject import bilinear_heights
-from demtool.maps import lonlat_to_map, wrap_longitude, xyz_to_lonlat_height
+from demtool.maps import enu_frame, lonlat_to_map, wrap_longitude, xyz_to_lonlat_height
 
 #: forward-difference step of the height residual's gradient, metres
 GRADIENT_STEP_M = 0.01
@@ -60,9 +60,9 @@ class ReferenceSurface:
     radius: float
     sigma: float
 
-    def dem_heights(self, xyz) -> np.ndarray:
-        """DEM heights (metres above the sphere, bilinear) below body-fixed points
-        (..., 3) metres; NaN off the DEM or on its no-data cells."""
+    def pixels(self, xyz) -> tuple[np.ndarray, np.ndarray]:
+        """Fractional (row, col) of ``heights`` below body-fixed points (..., 3) metres
+        (pixel centres at integers)."""
         lon, lat, _ = xyz_to_lonlat_height(np.asarray(xyz, dtype=np.float64),
                                            radii=self.radius)
         if self.crs.is_geographic:
@@ -74,11 +74,41 @@ class ReferenceSurface:
         inv = ~self.transform
         col = inv.a * x + inv.b * y + inv.c - 0.5
         row = inv.d * x + inv.e * y + inv.f - 0.5
+        return row, col
+
+    def dem_heights(self, xyz) -> np.ndarray:
+        """DEM heights (metres above the sphere, bilinear) below body-fixed points
+        (..., 3) metres; NaN off the DEM or on its no-data cells."""
+        row, col = self.pixels(xyz)
         good = np.isfinite(row) & np.isfinite(col)
         out = np.full(np.shape(row), np.nan)
         if np.any(good):
             out[good] = bilinear_heights(self.heights, row[good], col[good])
         return out
+
+    def post_spacing_m(self, xyz) -> float:
+        """The DEM's post spacing (metres) at a body-fixed point (3,): the geometric mean
+        of its cells' ground extents there."""
+        xyz = np.asarray(xyz, dtype=np.float64).reshape(3)
+        east, north, _ = local_axes(xyz)
+        row, col = self.pixels(np.stack([xyz, xyz + east, xyz + north]))
+        along = np.array([[col[1] - col[0], row[1] - row[0]], [col[2] - col[0], row[2] - row[0]]])
+        return float(1.0 / np.sqrt(abs(np.linalg.det(along))))
+
+    def smoothed(self, sigma_m: float, at) -> ReferenceSurface:
+        """This DEM smoothed by a Gaussian of ``sigma_m`` metres (at the point ``at``;
+        no-data cells neither count nor are filled)."""
+        from scipy.ndimage import gaussian_filter
+
+        sigma_cells = sigma_m / self.post_spacing_m(at)
+        if sigma_cells < 0.5:
+            return self
+        valid = np.isfinite(self.heights)
+        total = gaussian_filter(np.where(valid, self.heights, 0.0), sigma_cells)
+        weight = gaussian_filter(valid.astype(np.float64), sigma_cells)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            heights = np.where(weight > 0.5, total / weight, np.nan)
+        return ReferenceSurface(heights, self.transform, self.crs, self.radius, self.sigma)
 
     def residuals(self, xyz) -> np.ndarray:
         """``h(X) − h_DEM(X)`` of body-fixed points (P, 3), metres; NaN off the DEM."""
@@ -97,6 +127,139 @@ class ReferenceSurface:
             moved[:, k] += GRADIENT_STEP_M
             gradient[:, k] = (self.residuals(moved) - base) / GRADIENT_STEP_M
         return base, gradient
+
+
+def local_axes(xyz) -> np.ndarray:
+    """(3, 3): rows the east, north and up unit vectors at a body-fixed point (3,)
+    (:func:`demtool.maps.enu_frame`; radial up)."""
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(3)
+    lon, lat, _ = xyz_to_lonlat_height(xyz, radii=float(np.linalg.norm(xyz)))
+    return enu_frame(lon, lat)
+
+
+@dataclass(frozen=True)
+class SurfaceShift:
+    """A translation that puts a point cloud onto a reference DEM
+    (:func:`register_points`).
+
+    Attributes
+    ----------
+    shift : (3,) float64
+        Body-fixed metres to add to the points (and to the sensors that see them).
+    east_m, north_m, up_m : float
+        The same in the local frame at the points' centre.
+    spread_m, spread_before_m : float
+        Robust spread (1.4826 × median absolute deviation) of the points' height
+        residuals after and before the shift, metres.
+    searched_m : float
+        Radius of the horizontal search, metres.
+    used : bool
+        Whether an adjustment started from it (:func:`demtool.bundle.priors.
+        adjust_with_priors` keeps it only where its solution costs less).
+    """
+
+    shift: np.ndarray
+    east_m: float
+    north_m: float
+    up_m: float
+    spread_m: float
+    spread_before_m: float
+    searched_m: float
+    used: bool = True
+
+
+#: shifts per axis and side of each level of the horizontal search
+SEARCH_STEPS = 10
+
+
+def _spread(surface: ReferenceSurface, points: np.ndarray, offsets: np.ndarray,
+            min_fraction: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """Median and robust spread of the height residuals (S,) of ``points`` (P, 3) moved
+    by each of ``offsets`` (S, 3); spread inf where fewer than ``min_fraction`` of the
+    points lie on the DEM's data."""
+    moved = points[None, :, :] + offsets[:, None, :]
+    r = surface.residuals(moved.reshape(-1, 3)).reshape(len(offsets), len(points))
+    enough = np.mean(np.isfinite(r), axis=1) >= min_fraction
+    median = np.full(len(offsets), np.nan)
+    spread = np.full(len(offsets), np.inf)
+    if np.any(enough):
+        median[enough] = np.nanmedian(r[enough], axis=1)
+        spread[enough] = 1.4826 * np.nanmedian(np.abs(r[enough] - median[enough, None]),
+                                               axis=1)
+    return median, spread
+
+
+def register_points(surface: ReferenceSurface, points: np.ndarray, *, radius_m: float,
+                    max_points: int = 4000, seed: int = 0) -> SurfaceShift | None:
+    """The translation within ``radius_m`` (horizontally) that best puts points onto the
+    DEM: the least robust spread of their height residuals, then their median height
+    offset removed.
+
+    The least-squares adjustment ties points to the DEM through its local slopes, so it
+    only finds the DEM's fit from within a fraction of the terrain's smallest features;
+    sensor positions off by more (SPICE of a narrow-angle camera, tens to hundreds of
+    pixels) converge on a wrong fit with perfect residuals.  As ASP aligns a cloud to a
+    reference DEM before ``bundle_adjust`` (``pc_align`` with ``--max-displacement``),
+    the cloud is first registered by a search: a grid of 2·SEARCH_STEPS + 1 shifts per
+    axis over the whole radius on the DEM smoothed to the grid's step (so a coarse
+    step sees no aliased detail), then around the best with steps a quarter as long,
+    down to a quarter of the DEM's post spacing.
+
+    Parameters
+    ----------
+    surface : ReferenceSurface
+    points : (P, 3) float64
+        Body-fixed metres (e.g. tie points triangulated with the prior models).
+    radius_m : float
+        Horizontal search radius, metres (the priors' ground uncertainty, 3 σ).
+    max_points : int
+        Points used (an even subsample of more).
+    seed : int
+        Seed of that subsample.
+
+    Returns
+    -------
+    SurfaceShift or None
+        None when fewer than half of the points lie on the DEM at every shift.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    points = points[np.all(np.isfinite(points), axis=1)]
+    if len(points) > max_points:
+        points = points[np.random.default_rng(seed).choice(len(points), max_points,
+                                                           replace=False)]
+    if len(points) < 3:
+        return None
+    centre = points.mean(axis=0)
+    east, north, up = local_axes(centre)
+    post = surface.post_spacing_m(centre)
+    median0, spread0 = _spread(surface, points, np.zeros((1, 3)))
+    best = np.zeros(2)
+    half, step = radius_m, max(radius_m / SEARCH_STEPS, 0.25 * post)
+    while True:
+        coarse = surface.smoothed(0.5 * step, centre)
+        k = int(np.ceil(half / step))
+        grid = np.arange(-k, k + 1) * step
+        de, dn = np.meshgrid(best[0] + grid, best[1] + grid, indexing="ij")
+        inside = np.hypot(de, dn) <= radius_m + 1e-9
+        de, dn = de[inside], dn[inside]
+        _, spread = _spread(coarse, points, de[:, None] * east + dn[:, None] * north)
+        if not np.isfinite(spread).any():
+            return None
+        # equal spreads (flat ground, no data to tell) keep the shift nearest the priors
+        pick = int(np.argmin(spread + 1e-9 * np.hypot(de - best[0], dn - best[1])
+                             + 1e-9 * np.hypot(de, dn)))
+        best = np.array([de[pick], dn[pick]])
+        if step <= 0.25 * post:
+            break
+        half, step = 2.0 * step, max(step / 4.0, 0.25 * post)
+    horizontal = best[0] * east + best[1] * north
+    median, spread = _spread(surface, points, horizontal[None, :])
+    if not np.isfinite(spread[0]):
+        return None
+    shift = horizontal - median[0] * up
+    return SurfaceShift(shift=shift, east_m=float(best[0]), north_m=float(best[1]),
+                        up_m=float(-median[0]), spread_m=float(spread[0]),
+                        spread_before_m=float(spread0[0]), searched_m=float(radius_m))
 
 
 def huber_weights(normalised: np.ndarray, threshold: float) -> np.ndarray:

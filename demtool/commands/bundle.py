@@ -41,7 +41,10 @@ deviations.  Tie points fix the block's shape, not its datum (a shift, turn or s
 the whole block), which the priors alone only place as well as their mean:
 --reference-dem DEM (LOLA, MOLA: a DEM on the models' body) ties every tie point's
 height to the DEM's (bilinear, Huber loss, --reference-dem-sigma metres), as ASP's
-bundle_adjust --heights-from-dem does, so the block follows the ground.
+bundle_adjust --heights-from-dem does, so the block follows the ground; the prior block
+is first registered to the DEM by a search of shifts within 3 sigmas of the priors (as
+ASP's pc_align before bundle_adjust), and the adjustment from there is kept where it
+costs less than the one from the priors.
 """
 
 

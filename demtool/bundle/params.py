@@ -55,5 +55,10 @@ class BundleParams(Parameters):
                                   "points by affine least-squares matching (removes "
                                   "SIFT's perspective-dependent bias).",
                                   flag="--refine-ties/--no-refine-ties")
+    register_to_dem: bool = parameter(True, "With --reference-dem: also adjust from the "
+                                      "prior block registered to the DEM (a search of "
+                                      "shifts within 3 sigmas of the priors) and keep the "
+                                      "solution of lower cost.",
+                                      flag="--register-to-dem/--no-register-to-dem")
     seed: int = seed_field()
     workers: int = workers_field()

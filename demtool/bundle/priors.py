@@ -305,7 +305,7 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
                        position_sigma: float, pointing_sigma: float,
                        outlier_px: float = 3.0, max_iterations: int = 30,
                        huber_px: float = 2.0, min_pixel_sigma: float = 0.05,
-                       surface=None) -> PriorAdjustment:
+                       surface=None, register_to_dem: bool = True) -> PriorAdjustment:
     """Adjust constant pose offsets of sensor models and tie points, priors on the poses.
 
     Parameters
@@ -333,6 +333,12 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
         A reference DEM: each tie point's height is tied to it with the surface's sigma
         (Huber loss, 2 sigmas), which fixes the block's datum (height, tilt, scale and,
         over relief, horizontal position) that tie points and priors leave open.
+    register_to_dem : bool
+        With ``surface``: the first adjustment runs twice, from the priors and from the
+        prior block registered to the DEM (:func:`demtool.bundle.surface.
+        register_points`, shifts within 3 σ of the priors' ground uncertainty), and the
+        solution of lower cost goes on (a start beyond the reach of the DEM's slopes
+        converges on a wrong fit with perfect residuals).
 
     Returns
     -------
@@ -369,7 +375,7 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
         cams, points, residuals, covariance = lm.solve(
             models, pivots, obs, cams, points0, prior_weights, iterations=max_iterations,
             **options)
-        if round_ == 0 and surface is not None:
+        if round_ == 0 and surface is not None and register_to_dem:
             registered = _register(surface, points0, pivots, position_sigma, pointing_sigma)
         if round_ == 0 and registered is not None:
             # a second start, every sensor and point moved onto the DEM alike; the lower

@@ -95,7 +95,8 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
                         models: Sequence[SensorModel], *, pairing: str = "exhaustive",
                         position_sigma: float, pointing_sigma: float,
                         max_features: int = 8192, seed: int = 0,
-                        surface=None, refine_ties: bool = True) -> SensorBlockAdjustment:
+                        surface=None, refine_ties: bool = True,
+                        register_to_dem: bool = True) -> SensorBlockAdjustment:
     """Tie points and pose-prior bundle adjustment of images with sensor models.
 
     Parameters
@@ -119,6 +120,9 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
     refine_ties : bool
         Re-measure the SIFT tracks by affine least-squares matching
         (:mod:`demtool.bundle.tierefine`).
+    register_to_dem : bool
+        With ``surface``: also adjust from the prior block registered to it and keep
+        the solution of lower cost (:func:`demtool.bundle.priors.adjust_with_priors`).
 
     Raises
     ------
@@ -136,7 +140,8 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
         raise ProcessingError("no tie points between the images: they may not overlap "
                               "or lack texture (try more --max-features)")
     adjustment = adjust_with_priors(models, obs, position_sigma=position_sigma,
-                                    pointing_sigma=pointing_sigma, surface=surface)
+                                    pointing_sigma=pointing_sigma, surface=surface,
+                                    register_to_dem=register_to_dem)
     adjusted = [AdjustedSensor(m, o) for m, o in zip(models, adjustment.offsets, strict=True)]
     kept = adjustment.observations
     norms = np.linalg.norm(adjustment.residuals, axis=1)

@@ -280,7 +280,8 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
                                    position_sigma=params.position_sigma,
                                    pointing_sigma=params.pointing_sigma,
                                    max_features=params.max_features, seed=params.seed,
-                                   surface=surface, refine_ties=params.refine_ties)
+                                   surface=surface, refine_ties=params.refine_ties,
+                                   register_to_dem=params.register_to_dem)
     summary = adjusted.summary
     summary["source"] = block.source
     summary["aligned"] = True

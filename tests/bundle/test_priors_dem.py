@@ -5,20 +5,14 @@ the true, perturbed and adjusted ISDs."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-BENCH = Path(__file__).resolve().parents[2] / "bench" / "bundle_priors_dem.py"
+from tests.helpers.bench import load_bench
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("bundle_priors_dem", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_bench("bundle_priors_dem")
 
 
 @pytest.mark.slow

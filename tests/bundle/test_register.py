@@ -92,3 +92,30 @@ def test_line_scan_pair_starting_beyond_the_dem_fit_ends_on_the_ground(tmp_path)
     assert registration["spread_m"] < registration["spread_before_m"]
     offsets = register_bench.ground_offsets(scene, tmp_path / "adjusted", names)
     assert np.all(offsets[:, 0] < 0.3), offsets
+
+
+def test_a_geographic_dem_gives_the_same_registration():
+    """A DEM in degrees of longitude and latitude (LOLA's simple cylindrical products):
+    post spacing and search in metres all the same (0.001° ≈ 30 m posts here)."""
+    from affine import Affine
+
+    from demtool.maps import body_by_name
+
+    lon0, lat0 = orbital.CENTRE_LONLAT
+    step, n = 0.001, 900
+    transform = Affine(step, 0.0, lon0 - 0.5 * n * step, 0.0, -step, lat0 + 0.5 * n * step)
+    cols, rows = np.meshgrid(np.arange(n) + 0.5, np.arange(n) + 0.5)
+    heights = orbital.relief(transform.c + cols * step, transform.f - rows * step,
+                             amplitude=500.0, scale=0.2)
+    surface = ReferenceSurface(heights, transform, body_by_name("Moon").geographic_crs(),
+                               orbital.RADIUS, 2.0)
+    centre = orbital.ground_points(1, half_width_m=1.0, amplitude=500.0, scale=0.2)[0]
+    assert surface.post_spacing_m(centre) == pytest.approx(
+        np.sqrt(np.cos(np.radians(lat0))) * np.radians(step) * orbital.RADIUS, rel=0.01)
+    east, north, up = orbital._enu()
+    moved_by = 150.0 * east - 120.0 * north - 20.0 * up
+    xyz = orbital.ground_points(1500, half_width_m=10e3, amplitude=500.0, scale=0.2)
+    found = register_points(surface, xyz + moved_by, radius_m=300.0)
+    error = found.shift + moved_by
+    assert abs(error @ east) < 10.0 and abs(error @ north) < 10.0
+    assert abs(error @ up) < 1.0

@@ -95,20 +95,27 @@ class ReferenceSurface:
         along = np.array([[col[1] - col[0], row[1] - row[0]], [col[2] - col[0], row[2] - row[0]]])
         return float(1.0 / np.sqrt(abs(np.linalg.det(along))))
 
-    def smoothed(self, sigma_m: float, at) -> ReferenceSurface:
-        """This DEM smoothed by a Gaussian of ``sigma_m`` metres (at the point ``at``;
-        no-data cells neither count nor are filled)."""
-        from scipy.ndimage import gaussian_filter
-
-        sigma_cells = sigma_m / self.post_spacing_m(at)
-        if sigma_cells < 0.5:
+    def coarsened(self, factor: int, *, rows_per_chunk: int = 256) -> ReferenceSurface:
+        """This DEM averaged over ``factor × factor`` posts (a pyramid level; a block with
+        fewer than half its posts on data is no data), read in chunks of block rows so a
+        large window needs no full-size temporary."""
+        if factor <= 1:
             return self
-        valid = np.isfinite(self.heights)
-        total = gaussian_filter(np.where(valid, self.heights, 0.0), sigma_cells)
-        weight = gaussian_filter(valid.astype(np.float64), sigma_cells)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            heights = np.where(weight > 0.5, total / weight, np.nan)
-        return ReferenceSurface(heights, self.transform, self.crs, self.radius, self.sigma)
+        from affine import Affine
+
+        rows, cols = (n // factor for n in self.heights.shape)
+        out = np.full((rows, cols), np.nan)
+        for r0 in range(0, rows, rows_per_chunk):
+            r1 = min(rows, r0 + rows_per_chunk)
+            blocks = self.heights[r0 * factor:r1 * factor, :cols * factor].reshape(
+                r1 - r0, factor, cols, factor)
+            valid = np.isfinite(blocks)
+            count = valid.sum(axis=(1, 3))
+            total = np.where(valid, blocks, 0.0).sum(axis=(1, 3))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                out[r0:r1] = np.where(count * 2 >= factor * factor, total / count, np.nan)
+        return ReferenceSurface(out, self.transform @ Affine.scale(factor), self.crs,
+                                self.radius, self.sigma)
 
     def residuals(self, xyz) -> np.ndarray:
         """``h(X) − h_DEM(X)`` of body-fixed points (P, 3), metres; NaN off the DEM."""
@@ -201,9 +208,9 @@ def register_points(surface: ReferenceSurface, points: np.ndarray, *, radius_m: 
     pixels) converge on a wrong fit with perfect residuals.  As ASP aligns a cloud to a
     reference DEM before ``bundle_adjust`` (``pc_align`` with ``--max-displacement``),
     the cloud is first registered by a search: a grid of 2·SEARCH_STEPS + 1 shifts per
-    axis over the whole radius on the DEM smoothed to the grid's step (so a coarse
-    step sees no aliased detail), then around the best with steps a quarter as long,
-    down to a quarter of the DEM's post spacing.
+    axis over the whole radius on the DEM averaged over posts as long as the grid's
+    step (a pyramid level, so a coarse step sees no aliased detail), then around the
+    best with steps a quarter as long, down to a quarter of the DEM's post spacing.
 
     Parameters
     ----------
@@ -236,7 +243,7 @@ def register_points(surface: ReferenceSurface, points: np.ndarray, *, radius_m: 
     best = np.zeros(2)
     half, step = radius_m, max(radius_m / SEARCH_STEPS, 0.25 * post)
     while True:
-        coarse = surface.smoothed(0.5 * step, centre)
+        coarse = surface.coarsened(int(step // post))
         k = int(np.ceil(half / step))
         grid = np.arange(-k, k + 1) * step
         de, dn = np.meshgrid(best[0] + grid, best[1] + grid, indexing="ij")

@@ -66,3 +66,19 @@ def test_huber_loss_weights_and_cost():
     r = np.array([0.5, -1.0, 4.0, np.nan])
     assert huber_weights(r, 2.0) == pytest.approx([1.0, 1.0, 0.5, 0.0])
     assert huber_cost(r, 2.0) == pytest.approx(0.25 + 1.0 + (16.0 - 4.0))
+
+
+def test_coarsened_dem_is_the_block_mean():
+    """A pyramid level: 2 × 2 block means on posts twice as long; a block with fewer than
+    half its posts on data is no data; heights at a point follow the coarse posts."""
+    surface = _surface(spacing_m=100.0)
+    heights = surface.heights.copy()
+    heights[0, 0] = heights[0, 1] = heights[1, 0] = np.nan
+    surface = ReferenceSurface(heights, surface.transform, surface.crs, surface.radius, 5.0)
+    coarse = surface.coarsened(2, rows_per_chunk=7)
+    assert coarse.transform.a == pytest.approx(200.0)
+    assert np.isnan(coarse.heights[0, 0])
+    assert coarse.heights[3, 5] == pytest.approx(heights[6:8, 10:12].mean())
+    xyz = orbital.ground_points(200, half_width_m=30e3, seed=4)
+    assert coarse.dem_heights(xyz) == pytest.approx(surface.dem_heights(xyz), abs=10.0)
+    assert surface.coarsened(1) is surface

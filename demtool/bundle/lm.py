@@ -74,14 +74,6 @@ def _surface_cost(surface, points, threshold: float) -> float:
     return huber_cost(surface.residuals(points) / surface.sigma, threshold)
 
 
-def total_cost(models, pivots, obs, cams, points, prior_weights, *, huber: float,
-               sigma: float, surface=None, surface_huber: float = 2.0) -> float:
-    """The cost of the module docstring at ``cams`` (N, 6) and ``points`` (P, 3)."""
-    base = project(models, pivots, obs, cams, points)
-    return _cost(base, cams, prior_weights, huber, sigma) + _surface_cost(
-        surface, points, surface_huber)
-
-
 @dataclass
 class _Normal:
     """Normal equations of one iteration: camera blocks ``u`` (N, 6, 6), point blocks
@@ -157,6 +149,8 @@ def solve(models, pivots, obs, cams, points, prior_weights, *, huber: float, sig
     residuals : (M, 2) float64, pixels
     covariance : (6N, 6N) float64
         Of ``cams`` (metres, milliradians) at the solution; NaN where singular.
+    cost : float
+        The cost of the module docstring at the solution.
     """
     n = len(models)
     options = {"huber": huber, "sigma": sigma, "surface": surface,
@@ -202,4 +196,4 @@ def solve(models, pivots, obs, cams, points, prior_weights, *, huber: float, sig
         covariance = np.linalg.inv(_reduced(normal, 0.0)[0])
     except np.linalg.LinAlgError:
         covariance = np.full((6 * n, 6 * n), np.nan)
-    return cams, points, base, covariance
+    return cams, points, base, covariance, cost

@@ -372,27 +372,25 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
             start = lm.project(models, pivots, obs, cams, points0)
             initial_rms = float(np.sqrt(np.mean(np.sum(start ** 2, axis=1))))
         options = {"huber": huber_px * pixel_sigma, "sigma": pixel_sigma, "surface": surface}
-        cams, points, residuals, covariance = lm.solve(
+        cams, points, residuals, covariance, cost = lm.solve(
             models, pivots, obs, cams, points0, prior_weights, iterations=max_iterations,
             **options)
         if round_ == 0 and surface is not None and register_to_dem:
             registered = _register(surface, points0, pivots, position_sigma, pointing_sigma)
-        if round_ == 0 and registered is not None:
-            # a second start, every sensor and point moved onto the DEM alike; the lower
-            # cost of the two solutions wins (a start beyond the DEM fit's reach converges
-            # on a wrong fit with perfect residuals)
-            moved = np.zeros_like(cams)
-            moved[:, :3] = registered.shift
-            other = lm.solve(models, pivots, obs, moved, points0 + registered.shift,
-                             prior_weights, iterations=max_iterations, **options)
-            costs = [lm.total_cost(models, pivots, obs, c, p, prior_weights, **options)
-                     for c, p in ((cams, points), other[:2])]
-            log.info("adjustment from the priors: cost %.6g; from the registered block: "
-                     "%.6g", *costs)
-            if costs[1] < costs[0]:
-                cams, points, residuals, covariance = other
-            else:
-                registered = replace(registered, used=False)
+            if registered is not None:
+                # a second start, every sensor and point moved onto the DEM alike; the
+                # lower cost of the two solutions wins (a start beyond the DEM fit's
+                # reach converges on a wrong fit with perfect residuals)
+                moved = np.zeros_like(cams)
+                moved[:, :3] = registered.shift
+                other = lm.solve(models, pivots, obs, moved, points0 + registered.shift,
+                                 prior_weights, iterations=max_iterations, **options)
+                log.info("adjustment from the priors: cost %.6g; from the registered "
+                         "block: %.6g", cost, other[4])
+                if other[4] < cost:
+                    cams, points, residuals, covariance, cost = other
+                else:
+                    registered = replace(registered, used=False)
         norms = np.linalg.norm(residuals, axis=1)
         log.info("adjustment round %d: %d observations, %d tie points, RMS %.3f px "
                  "(image sigma %.3f px)", round_ + 1, len(obs.image), obs.point_count,

@@ -239,7 +239,7 @@ def register_points(surface: ReferenceSurface, points: np.ndarray, *, radius_m: 
     centre = points.mean(axis=0)
     east, north, up = local_axes(centre)
     post = surface.post_spacing_m(centre)
-    median0, spread0 = _spread(surface, points, np.zeros((1, 3)))
+    _, spread0 = _spread(surface, points, np.zeros((1, 3)))
     best = np.zeros(2)
     half, step = radius_m, max(radius_m / SEARCH_STEPS, 0.25 * post)
     while True:
@@ -252,7 +252,8 @@ def register_points(surface: ReferenceSurface, points: np.ndarray, *, radius_m: 
         _, spread = _spread(coarse, points, de[:, None] * east + dn[:, None] * north)
         if not np.isfinite(spread).any():
             return None
-        # equal spreads (flat ground, no data to tell) keep the shift nearest the priors
+        # equal spreads (flat ground, no data to tell) keep the shift nearest the last
+        # level's best, then nearest the priors
         pick = int(np.argmin(spread + 1e-9 * np.hypot(de - best[0], dn - best[1])
                              + 1e-9 * np.hypot(de, dn)))
         best = np.array([de[pick], dn[pick]])

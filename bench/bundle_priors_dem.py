@@ -169,7 +169,7 @@ def datum_shift(folder: Path, scene: Path, names: list[str], target: str
         float(residual.max()), pixels
 
 
-def tie_bias(scene: Path, names: list[str], *, max_features: int = 8192,
+def tie_bias(scene: Path, names: list[str], *, max_features: int | None = None,
              refine: bool = True) -> dict:
     """Bias of ``bundle``'s tie observations against the truth, per image pair (issue 14).
 
@@ -306,7 +306,7 @@ def headline(report: dict) -> dict:
 def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int = 8,
                seed: int = 0, zero_mean: bool = False, say=print,
                synth_args: tuple = (), reference: tuple[int, float] | None = None,
-               reference_sigma: float | None = None, max_features: int = 8192,
+               reference_sigma: float | None = None, max_features: int | None = None,
                similarity: bool = True, ties: bool = False, refine_ties: bool = True,
                scene: Path | None = None,
                routes: tuple[str, ...] = ("true", "perturbed", "adjusted")) -> dict:
@@ -353,8 +353,9 @@ def experiment(work: Path, *, size: int = 256, image_size: int = 256, views: int
                     + f" | {row[5]:.3f} | {row[6]:.0f} | {row[1] * row[6]:+.2f} |")
     perturb(scene, work / "perturbed", names, np.random.default_rng(seed + 1),
             zero_mean=zero_mean)
-    extra: list = ["--max-features", max_features,
-                   "--refine-ties" if refine_ties else "--no-refine-ties"]
+    extra: list = ["--refine-ties" if refine_ties else "--no-refine-ties"]
+    if max_features is not None:
+        extra += ["--max-features", max_features]
     if reference is not None:
         factor, noise = reference
         ref, error = degraded_reference(scene / "truth_dem_map.tif",
@@ -444,7 +445,8 @@ def main() -> None:
                         help="bundle --reference-dem: the truth averaged over N×N cells")
     parser.add_argument("--reference-noise", type=float, default=0.0,
                         help="Gaussian noise of that reference DEM, metres")
-    parser.add_argument("--max-features", type=int, default=8192, help="bundle option")
+    parser.add_argument("--max-features", type=int, default=None,
+                        help="bundle option (default: bundle's)")
     parser.add_argument("--synth", default="",
                         help="more synth options, e.g. '--altitude 100000 --gsd 100'")
     parser.add_argument("--routes", default="true,perturbed,adjusted",

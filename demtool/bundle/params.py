@@ -39,8 +39,10 @@ class BundleParams(Parameters):
                              "up to 100 images.",
                              choices=(*(m for m in MATCHERS if m != "pairs"), "spatial"),
                              what="matcher")
-    max_features: int = parameter(CORE["max_features"], "SIFT features per image.",
-                                  minimum=64)
+    max_features: int | None = parameter(
+        None, f"SIFT features per image (default: {CORE['max_features']}; with sensor "
+        "models one per 64 pixels of image, 8192 to 65536: dense tie points tie the "
+        "block to --reference-dem more tightly).", minimum=64, metavar="N")
     position_sigma: float = parameter(100.0, "With sensor models: standard deviation of the "
                                       "prior sensor positions, metres.", minimum=0.0,
                                       min_open=True)

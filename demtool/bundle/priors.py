@@ -46,6 +46,10 @@ if TYPE_CHECKING:
 
 log = get_logger(__name__)
 
+#: block-mean factors of the reference DEM on which the first adjustment runs in turn,
+#: coarse to fine (the last, 1, is the DEM itself)
+SURFACE_LEVELS = (2, 1)
+
 
 def rotation_matrices(rotvec) -> np.ndarray:
     """Rodrigues' formula: rotation vectors (..., 3) in radians → matrices (..., 3, 3)."""
@@ -371,10 +375,15 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
         if round_ == 0:
             start = lm.project(models, pivots, obs, cams, points0)
             initial_rms = float(np.sqrt(np.mean(np.sum(start ** 2, axis=1))))
-        options = {"huber": huber_px * pixel_sigma, "sigma": pixel_sigma, "surface": surface}
-        cams, points, residuals, covariance, cost = lm.solve(
-            models, pivots, obs, cams, points0, prior_weights, iterations=max_iterations,
-            **options)
+        options = {"huber": huber_px * pixel_sigma, "sigma": pixel_sigma,
+                   "iterations": max_iterations}
+        # the first adjustment climbs down a block-mean pyramid of the DEM: bilinear
+        # heights of a rough DEM make the fit's cost rugged at the scale of its posts,
+        # with local minima a few metres apart; the coarse levels smooth them away
+        levels = [surface.coarsened(f) for f in SURFACE_LEVELS] if round_ == 0 and \
+            surface is not None else [surface]
+        cams, points, residuals, covariance, cost = _solve_down(
+            models, pivots, obs, cams, points0, prior_weights, levels, options)
         if round_ == 0 and surface is not None and register_to_dem:
             registered = _register(surface, points0, pivots, position_sigma, pointing_sigma)
             if registered is not None:
@@ -383,8 +392,8 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
                 # reach converges on a wrong fit with perfect residuals)
                 moved = np.zeros_like(cams)
                 moved[:, :3] = registered.shift
-                other = lm.solve(models, pivots, obs, moved, points0 + registered.shift,
-                                 prior_weights, iterations=max_iterations, **options)
+                other = _solve_down(models, pivots, obs, moved, points0 + registered.shift,
+                                    prior_weights, levels, options)
                 log.info("adjustment from the priors: cost %.6g; from the registered "
                          "block: %.6g", cost, other[4])
                 if other[4] < cost:
@@ -410,6 +419,18 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
                            pixel_sigma=pixel_sigma, covariance=covariance,
                            surface_residuals=None if surface is None else
                            surface.residuals(points), surface_shift=registered)
+
+
+def _solve_down(models, pivots, obs, cams, points, prior_weights, surfaces, options):
+    """:func:`demtool.bundle.lm.solve` on each of ``surfaces`` in turn (coarse to fine,
+    ``None`` = no DEM), each from the last's solution; the last solution."""
+    from demtool.bundle import lm
+
+    for surface in surfaces:
+        solution = lm.solve(models, pivots, obs, cams, points, prior_weights,
+                            surface=surface, **options)
+        cams, points = solution[0], solution[1]
+    return solution
 
 
 def _register(surface, points, pivots, position_sigma: float, pointing_sigma: float):

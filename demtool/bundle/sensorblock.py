@@ -94,7 +94,7 @@ class SensorBlockAdjustment:
 def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
                         models: Sequence[SensorModel], *, pairing: str = "exhaustive",
                         position_sigma: float, pointing_sigma: float,
-                        max_features: int = 8192, seed: int = 0,
+                        max_features: int | None = None, seed: int = 0,
                         surface=None, refine_ties: bool = True,
                         register_to_dem: bool = True) -> SensorBlockAdjustment:
     """Tie points and pose-prior bundle adjustment of images with sensor models.
@@ -111,8 +111,9 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
         Pairs to match (spatial: overlapping footprints of the prior models).
     position_sigma, pointing_sigma : float
         Prior standard deviations, metres and milliradians.
-    max_features : int
-        SIFT keypoints per image.
+    max_features : int, optional
+        SIFT keypoints per image; default one per 64 px of image, 8192 to 65536
+        (:func:`demtool.bundle.ties.features_per_image`).
     seed : int
         Seed of the robust matching.
     surface : demtool.bundle.surface.ReferenceSurface, optional

@@ -138,8 +138,9 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
     options = core.SfmOptions(
         shared_camera=params.shared_camera,
         camera_model=params.camera_model or ("PINHOLE" if known else "SIMPLE_RADIAL"),
-        matcher=params.matcher, max_features=params.max_features, seed=params.seed,
-        workers=params.workers)
+        matcher=params.matcher,
+        max_features=params.max_features or core.SfmOptions.max_features,
+        seed=params.seed, workers=params.workers)
     adjusted = core.adjust_block(images(), options, target=block.target, intrinsics=intrinsics,
                                  self_calibration=params.self_calibrate,
                                  keep_model=colmap_dir is not None)

@@ -65,7 +65,13 @@ def test_line_scan_pair_starting_beyond_the_dem_fit_ends_on_the_ground(tmp_path)
     the adjustment converged on a wrong fit with perfect residuals: the adjusted models
     put the ground 0.63 px (3 m) off in both images (measured before the registration,
     and with ``--no-register-to-dem`` in bench/bundle_register.py); from the block
-    registered to the DEM first it ends 0.12 px off, the lower cost of the two."""
+    registered to the DEM first it ended 0.12 px off, the lower cost of the two.  With
+    the denser default tie points (12656 keypoints per 900 px image instead of 8192)
+    the two starts swapped roles (0.17 px from the priors, 0.74 px from the registered
+    block, at a lower cost: local minima a few metres apart on the bilinear DEM); with
+    the first adjustment run on the DEM averaged over 2 × 2 posts, then on the DEM, both
+    starts end 0.13–0.15 px off (the priors' at the lower cost, so the registration is
+    found but not used)."""
     from demtool.cli import cli
 
     bench, register_bench = load_bench("bundle_priors_dem"), load_bench("bundle_register")
@@ -88,10 +94,9 @@ def test_line_scan_pair_starting_beyond_the_dem_fit_ends_on_the_ground(tmp_path)
     assert done.exit_code == 0, done.output
     summary = json.loads((tmp_path / "bundle.npz.json").read_text())["summary"]
     registration = summary["reference_dem"]["registration"]
-    assert registration["used"]
     assert registration["spread_m"] < registration["spread_before_m"]
     offsets = register_bench.ground_offsets(scene, tmp_path / "adjusted", names)
-    assert np.all(offsets[:, 0] < 0.3), offsets
+    assert np.all(offsets[:, 0] < 0.3), (offsets, registration)
 
 
 def test_a_geographic_dem_gives_the_same_registration():

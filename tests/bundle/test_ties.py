@@ -63,3 +63,29 @@ def test_tie_points_are_tracks_across_images():
 
     points, miss = triangulate(truth, obs)
     assert np.median(miss) < 30.0  # pixels of 100 m, 40° field of view
+
+
+def test_default_keypoints_grow_with_the_image_within_bounds():
+    assert ties.features_per_image((256, 256)) == ties.MIN_FEATURES
+    assert ties.features_per_image((1500, 2000)) == 1500 * 2000 // ties.PIXELS_PER_FEATURE
+    assert ties.features_per_image((2048, 2048)) == 65536
+    assert ties.features_per_image((5000, 20000)) == ties.MAX_FEATURES
+
+
+def test_tie_points_ask_each_image_for_its_default_keypoints(monkeypatch):
+    from demtool import features
+
+    asked = []
+    real = features.detect_sift
+
+    def spy(image, **kwargs):
+        asked.append((np.shape(image), kwargs["max_features"]))
+        return real(image, **kwargs)
+
+    monkeypatch.setattr(features, "detect_sift", spy)
+    images = [np.random.default_rng(0).random((120, 100)), np.zeros((1500, 2000))]
+    ties.tie_points(images, [(0, 1)], refine=False)
+    assert asked == [((120, 100), 8192), ((1500, 2000), 46875)]
+    asked.clear()
+    ties.tie_points(images, [(0, 1)], max_features=500, refine=False)
+    assert [k for _, k in asked] == [500, 500]

@@ -259,7 +259,12 @@ class PriorAdjustment:
         the DEM).
     covariance : (6N, 6N) float64 or None
         Covariance of the pose offsets (per image: dC in metres, rotation in mrad) from
-        the images, the priors and the DEM at the solution.
+        the images, the priors and the DEM at the solution, their errors taken as
+        independent (the inverse normal matrix).
+    jackknife_covariance : (6N, 6N) float64 or None
+        With a reference DEM: the same from a spatial delete-a-group jackknife
+        (:func:`demtool.bundle.lm.jackknife_covariance`, 3 × 3 blocks of the ground),
+        which sees the DEM's spatially correlated errors that ``covariance`` ignores.
     surface_shift : demtool.bundle.surface.SurfaceShift or None
         With a reference DEM: the translation that registered the prior block's tie
         points to it before the adjustment (its start).
@@ -274,20 +279,27 @@ class PriorAdjustment:
     surface_residuals: np.ndarray | None = None
     covariance: np.ndarray | None = None
     surface_shift: SurfaceShift | None = None
+    jackknife_covariance: np.ndarray | None = None
 
-    def sigmas(self) -> np.ndarray:
-        """(N, 2): each image's position (m) and pointing (mrad) standard deviation,
-        the root sum of squares over the three axes of :attr:`covariance`."""
+    def sigmas(self, *, formal: bool = False) -> np.ndarray:
+        """(N, 2): each image's position (m) and pointing (mrad) standard deviation, the
+        root sum of squares over the three axes; per axis the larger of the formal
+        (:attr:`covariance`) and the jackknife variance (where there is one; nine
+        groups make the jackknife itself uncertain, so it only ever widens), or the
+        formal one alone with ``formal``."""
         if self.covariance is None:
             return np.full((len(self.offsets), 2), np.nan)
-        d = np.diag(self.covariance).reshape(-1, 6)
+        d = np.diag(self.covariance)
+        if self.jackknife_covariance is not None and not formal:
+            d = np.fmax(d, np.diag(self.jackknife_covariance))
+        d = d.reshape(-1, 6)
         return np.sqrt(np.stack([d[:, :3].sum(axis=1), d[:, 3:].sum(axis=1)], axis=1))
 
     def image_report(self, names: Sequence[str]) -> dict[str, dict]:
         """Per image: observations, mean and RMS residual (px), position change (m) and
         pointing change (mrad) from the prior."""
         norms = np.linalg.norm(self.residuals, axis=1)
-        sigmas = self.sigmas()
+        sigmas, formal = self.sigmas(), self.sigmas(formal=True)
         report = {}
         for i, name in enumerate(names):
             sel = self.observations.image == i
@@ -301,6 +313,8 @@ class PriorAdjustment:
                 "pointing_change_mrad": self.offsets[i].pointing_change_mrad,
                 "position_sigma_m": _finite(sigmas[i, 0]),
                 "pointing_sigma_mrad": _finite(sigmas[i, 1]),
+                "position_sigma_formal_m": _finite(formal[i, 0]),
+                "pointing_sigma_formal_mrad": _finite(formal[i, 1]),
             }
         return report
 
@@ -414,11 +428,34 @@ def adjust_with_priors(models: Sequence[SensorModel], obs: Observations, *,
         pixel_sigma = float(np.clip(robust, min_pixel_sigma, 1.0))
     offsets = [PoseOffset(cams[i, :3].copy(), cams[i, 3:] * 1e-3, pivots[i])
                for i in range(n_images)]
+    jackknife = None
+    if surface is not None:
+        jackknife = lm.jackknife_covariance(models, pivots, obs, cams, points, prior_weights,
+                                            spatial_groups(points), surface=surface,
+                                            huber=huber_px * pixel_sigma, sigma=pixel_sigma)
     return PriorAdjustment(offsets=offsets, points=points, observations=obs,
                            residuals=residuals, initial_rms_px=initial_rms,
                            pixel_sigma=pixel_sigma, covariance=covariance,
+                           jackknife_covariance=jackknife,
                            surface_residuals=None if surface is None else
                            surface.residuals(points), surface_shift=registered)
+
+
+def spatial_groups(points, per_axis: int = 3) -> np.ndarray:
+    """(P,) int: the block of each body-fixed point (P, 3) in a ``per_axis × per_axis``
+    split of the ground at the quantiles of its east and north coordinates (about the
+    points' mean), so every block holds about as many points."""
+    from demtool.bundle.surface import local_axes
+
+    points = np.asarray(points, dtype=np.float64)
+    centre = points.mean(axis=0)
+    east, north, _ = local_axes(centre)
+    index = []
+    for axis in (east, north):
+        along = (points - centre) @ axis
+        edges = np.quantile(along, np.linspace(0, 1, per_axis + 1)[1:-1])
+        index.append(np.searchsorted(edges, along, side="right"))
+    return index[0] * per_axis + index[1]
 
 
 def _solve_down(models, pivots, obs, cams, points, prior_weights, surfaces, options):

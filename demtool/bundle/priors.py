@@ -26,7 +26,11 @@ determined by the priors alone, so it is only as good as their mean, unless a
 reference DEM ties the tie points' heights to the ground (``surface``,
 :mod:`demtool.bundle.surface`).  With one, the first adjustment also runs from the
 prior block registered to the DEM (:func:`demtool.bundle.surface.register_points`) and
-the solution of lower cost is kept.  The solver is :mod:`demtool.bundle.lm`.
+the solution of lower cost is kept; each of these first adjustments runs on the DEM
+averaged over 2 × 2 posts before the DEM itself (:data:`SURFACE_LEVELS`), and the
+reported pose uncertainty also comes from a spatial jackknife
+(:func:`demtool.bundle.lm.jackknife_covariance`), since a gridded DEM's errors are
+spatially correlated.  The solver is :mod:`demtool.bundle.lm`.
 """
 
 from __future__ import annotations

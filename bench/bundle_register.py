@@ -20,7 +20,6 @@ Usage: ``.venv/bin/python bench/bundle_register.py [--seeds 0,1,2]
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import sys
 import tempfile
@@ -36,11 +35,11 @@ SYNTH = ("--sensor", "linescan", "--altitude", "100000", "--gsd", "5", "--spacin
 
 
 def _priors_bench():
-    path = Path(__file__).resolve().parent / "bundle_priors_dem.py"
-    spec = importlib.util.spec_from_file_location("bundle_priors_dem", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    """bench/bundle_priors_dem.py, whose perturbation and reference DEM this bench shares
+    (``bench`` as a namespace package from the repository root)."""
+    from bench import bundle_priors_dem
+
+    return bundle_priors_dem
 
 
 def ground_offsets(scene: Path, adjusted: Path, names: list[str]) -> np.ndarray:

@@ -16,7 +16,6 @@ Usage: ``.venv/bin/python bench/tiled_mapproject.py [--lines 8192] [--samples 20
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
 import resource
@@ -34,11 +33,9 @@ DEMTOOL = str(Path(sys.executable).with_name("demtool"))
 
 
 def _write_inputs():
-    spec = importlib.util.spec_from_file_location("bench_mapproject",
-                                                  ROOT / "bench" / "mapproject.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.write_inputs
+    from bench.mapproject import write_inputs
+
+    return write_inputs
 
 
 def run(args: list[str]) -> tuple[float, float]:

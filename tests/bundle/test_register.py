@@ -70,8 +70,8 @@ def test_line_scan_pair_starting_beyond_the_dem_fit_ends_on_the_ground(tmp_path)
     the two starts swapped roles (0.17 px from the priors, 0.74 px from the registered
     block, at a lower cost: local minima a few metres apart on the bilinear DEM); with
     the first adjustment run on the DEM averaged over 2 × 2 posts, then on the DEM, both
-    starts end 0.13–0.15 px off (the priors' at the lower cost, so the registration is
-    found but not used)."""
+    starts end 0.13–0.15 px off after the first round and 0.17 px after the second (the
+    priors' start at the lower cost, so the registration is found but not used)."""
     from demtool.cli import cli
 
     bench, register_bench = load_bench("bundle_priors_dem"), load_bench("bundle_register")

@@ -89,3 +89,16 @@ def test_tie_points_ask_each_image_for_its_default_keypoints(monkeypatch):
     asked.clear()
     ties.tie_points(images, [(0, 1)], max_features=500, refine=False)
     assert [k for _, k in asked] == [500, 500]
+
+
+def test_bundle_help_states_the_default_density():
+    """``--max-features``'s help writes the rule out (params stays free of the core's
+    imports, which ``--help`` would pay for); it must say what the core does."""
+    import dataclasses
+
+    from demtool.bundle.params import BundleParams
+
+    field = next(f for f in dataclasses.fields(BundleParams) if f.name == "max_features")
+    text = field.metadata["help"]
+    assert f"one per {ties.PIXELS_PER_FEATURE} pixels" in text
+    assert f"{ties.MIN_FEATURES} to {ties.MAX_FEATURES}" in text

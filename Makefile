@@ -202,7 +202,7 @@ $(WORK)/reports/%/report.json: $(WORK)/%.tif
 	$(DT) compare $< $(TRUTH) --out $(WORK)/reports/$* --label $*
 
 demo: $(foreach p,$(PRODUCTS),$(WORK)/reports/$(p)/report.json)
-	@$(BIN)/python -m demtool.summary $(foreach p,$(PRODUCTS),$(WORK)/reports/$(p)/report.json)
+	@$(BIN)/python -m demtool.compare.summary $(foreach p,$(PRODUCTS),$(WORK)/reports/$(p)/report.json)
 
 clean:
 	rm -rf $(WORK)

@@ -23,7 +23,7 @@ def terrain(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def cameras(size: int):
-    from demtool.camera import PinholeCamera
+    from demtool.sensors.pinhole import PinholeCamera
 
     shift = FOCAL * BASE / ALTITUDE
     R = np.diag([1.0, -1.0, -1.0])  # looking down, image y toward −Y (north up)
@@ -43,7 +43,7 @@ def write_dem_pair(folder: Path, size: int, strip: int = 256) -> None:
     from rasterio.errors import NotGeoreferencedWarning
 
     from demtool import io as dio
-    from demtool.camera import cameras_to_arrays
+    from demtool.sensors.pinhole import cameras_to_arrays
 
     folder.mkdir(parents=True, exist_ok=True)
     left, right = cameras(size)

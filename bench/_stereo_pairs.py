@@ -1,7 +1,7 @@
 """Stereo pairs with truth shared by the stereo benchmarks, and the OpenCV reference.
 
 - :func:`synthetic_pair`: the synthetic scene's target/partner pair, rectified by
-  ``demtool.rectify``, with the truth disparity from ``demtool.synth.truth_disparity``.
+  ``demtool.rectify.core``, with the truth disparity from ``demtool.synth.truth_disparity``.
 - :func:`middlebury_pair`: a Middlebury pair from ``../shared/data/middlebury`` (read
   its README; © Middlebury College, Scharstein & Szeliski 2002, 2003; Hirschmüller &
   Scharstein 2007 for cloth3).
@@ -63,8 +63,8 @@ def synthetic_pair(quick: bool, params=None) -> StereoPair:
     ``params`` (a :class:`demtool.synth.SceneParams`) renders another scene; else the
     default scene, or a 256² one when ``quick``.
     """
-    from demtool.homography import warp_to_rectified
-    from demtool.rectify import rectify_pair
+    from demtool.imaging.homography import warp_to_rectified
+    from demtool.rectify.core import rectify_pair
     from demtool.synth import SceneParams, make_scene, truth_disparity
 
     if params is None:
@@ -238,7 +238,7 @@ def opencv_sgbm(left: np.ndarray, right: np.ndarray, min_disparity: int, num_dis
     """
     import cv2
 
-    from demtool.features import to_uint8
+    from demtool.imaging.features import to_uint8
 
     count = int(math.ceil(num_disparities / 16) * 16)
     valid = np.isfinite(left) & np.isfinite(right)

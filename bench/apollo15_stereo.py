@@ -26,11 +26,11 @@ LEFT, RIGHT = CUBES / "AS15-M-0297_crop.cub", CUBES / "AS15-M-0298_crop.cub"
 
 def run(folder: Path) -> dict:
     from demtool.dem.params import DemParams
-    from demtool.rectify_params import RectifyParams
-    from demtool.runs.dem import run_dem
-    from demtool.runs.rectify import run_rectify
-    from demtool.runs.sgm import run_sgm
+    from demtool.dem.run import run_dem
+    from demtool.rectify.params import RectifyParams
+    from demtool.rectify.run import run_rectify
     from demtool.sgm.params import SgmParams
+    from demtool.sgm.run import run_sgm
 
     rect = folder / "rect"
     times = {}

@@ -37,7 +37,7 @@ def sift_matches(left: Path, right: Path) -> tuple[np.ndarray, np.ndarray]:
     """Inlier SIFT matches, (N, 2) (sample, line) CSM pixel coordinates in each."""
     import cv2
 
-    from demtool.features import SIFT_UPSCALE_BIAS_PX
+    from demtool.imaging.features import SIFT_UPSCALE_BIAS_PX
     from demtool.io import read_image
 
     def grey(path):

@@ -42,7 +42,7 @@ def plain_pycolmap(work: Path) -> dict:
 
 
 def demtool_bundle(work: Path, frames: list[Path]) -> dict:
-    from demtool.runs.bundle import run_bundle
+    from demtool.bundle.run import run_bundle
 
     selection = work / "selection.json"
     selection.write_text(json.dumps({

@@ -26,7 +26,7 @@ def main() -> None:
         print(f"skipped: Apollo 15 cubes not found in {CUBES.resolve()}")
         return
     from demtool.bundle.params import BundleParams
-    from demtool.runs.bundle import run_bundle
+    from demtool.bundle.run import run_bundle
 
     with tempfile.TemporaryDirectory() as scratch:
         work = Path(scratch)

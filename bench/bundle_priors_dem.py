@@ -87,7 +87,7 @@ def perturb(scene: Path, out: Path, names: list[str], rng: np.random.Generator, 
     """Write each view's ISD moved by 50 m and turned by 0.5 mrad (random directions;
     with ``zero_mean`` every second view takes the opposite of the previous one's
     offsets, so the block's mean error is zero where the number of views is even)."""
-    from demtool.bundle.priors import PoseOffset, pivot_of
+    from demtool.bundle.offsets import PoseOffset, pivot_of
     from demtool.bundle.writeback import adjust_isd, dumps_isd
     from demtool.sensors import read_sensor
 
@@ -109,7 +109,7 @@ def pose_errors(folder: Path, scene: Path, names: list[str]) -> np.ndarray:
     """(N, 2) position error (m) and pointing error (mrad) of each model vs the truth;
     (2, 3) the block's common error: mean position offset (m, body-fixed) and mean
     rotation vector (mrad); (N, 2) the errors with that common error removed."""
-    from demtool.bundle.priors import rotation_vector
+    from demtool.bundle.offsets import rotation_vector
     from demtool.sensors import read_sensor
 
     errors, d_pos, d_rot = [], [], []

@@ -22,9 +22,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def run(size: int) -> None:
+    from demtool.bundle.offsets import rotation_vector
     from demtool.bundle.params import BundleParams
-    from demtool.bundle.priors import rotation_vector
-    from demtool.runs.bundle import run_bundle
+    from demtool.bundle.run import run_bundle
     from demtool.sensors import read_sensor
     from tests.bundle import frames
 

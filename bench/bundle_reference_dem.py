@@ -44,7 +44,8 @@ NEAR = dict(ORBITAL, altitude=1e3, field_deg=14.6, size=512, spacing=100.0, coun
 
 def run_case(case: dict, *, reference: bool, zero_mean: bool, seed: int = 1) -> dict:
     """Adjust one block; the errors and sigmas of the module docstring."""
-    from demtool.bundle.priors import AdjustedSensor, adjust_with_priors, rotation_vector
+    from demtool.bundle.offsets import rotation_vector
+    from demtool.bundle.priors import AdjustedSensor, adjust_with_priors
     from demtool.bundle.surface import ReferenceSurface
     from tests.bundle import orbital
 

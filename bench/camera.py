@@ -13,7 +13,7 @@ import io
 import time
 from pathlib import Path
 
-from demtool.runs.camera import run_camera
+from demtool.camera.run import run_camera
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT / ".." / "shared" / "data" / "sensors"

@@ -30,8 +30,8 @@ sys.path.insert(0, str(ROOT))
 
 CHILD = """
 import json, sys, time
-from demtool.mapproject_params import MapprojectParams
-from demtool.runs.mapproject import run_mapproject
+from demtool.mapproject.params import MapprojectParams
+from demtool.mapproject.run import run_mapproject
 args = json.loads(sys.argv[1])
 start = time.perf_counter()
 summary = run_mapproject(args["image"], args["isd"], args["out"],
@@ -45,7 +45,7 @@ print(json.dumps(summary))
 def write_inputs(folder: Path, lines: int, samples: int):
     """The ISD, a textured image written in blocks, and a 4 m DEM of the hills."""
     from demtool import io as dio
-    from demtool.mapproject import ortho_grid
+    from demtool.mapproject.core import ortho_grid
     from demtool.maps import snap_grid
     from tests.helpers.linescan import MOON, isd_dict, linescan_sensor, write_truth_dem
 

@@ -20,7 +20,7 @@ Pairs
 -----
 synthetic
     The synthetic scene's target/partner pair (``demtool.synth``), rectified by
-    ``demtool.rectify``; truth from ``demtool.synth.truth.truth_disparity``, scored on
+    ``demtool.rectify.core``; truth from ``demtool.synth.truth.truth_disparity``, scored on
     its visible pixels.  Needs no outside data.
 synthetic1024
     The same scene rendered at 1024 × 1024 px (over a 1024-cell DEM): the pair of

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from demtool import io
-from demtool.robust import nmad
+from demtool.imaging.robust import nmad
 
 QUICK_SCENE = ["--seed", "0", "--size", "256", "--views", "4", "--image-size", "192",
                "--craters", "20", "--crater-max", "50", "--boulders", "100"]
@@ -79,8 +79,8 @@ def griddata_reference(bundle_path: Path, scene: dict, out: Path) -> None:
     """BAM points, eq. 2 heights, SciPy griddata instead of springs (same outlier test)."""
     from scipy.interpolate import griddata
 
-    from demtool.camera import cameras_from_arrays
     from demtool.dem import local_median_inliers, target_samples
+    from demtool.sensors.pinhole import cameras_from_arrays
 
     bundle = io.read_npz(bundle_path, "bundle")
     index = int(bundle["target_index"])

@@ -3,7 +3,7 @@
 For the synthetic scene's target and every other view (B/H 0.1-0.5), both methods
 start from the same SIFT matches (ratio test + mutual check):
 
-* demtool: :func:`demtool.rectify.rectify_matches` (MAGSAC F, Hartley rectification,
+* demtool: :func:`demtool.rectify.core.rectify_matches` (MAGSAC F, Hartley rectification,
   1-px vertical-residual outlier loop, shear, translation);
 * OpenCV: ``cv2.findFundamentalMat(USAC_MAGSAC, 1 px)`` then
   ``cv2.stereoRectifyUncalibrated(threshold=1)`` — the usual script.
@@ -39,10 +39,10 @@ import time
 import cv2
 import numpy as np
 
-from demtool import features
 from demtool.errors import ProcessingError
-from demtool.homography import apply_homography
-from demtool.rectify import rectify_matches
+from demtool.imaging import features
+from demtool.imaging.homography import apply_homography
+from demtool.rectify.core import rectify_matches
 from demtool.synth import SceneParams, make_scene, target_points
 
 SMALL = dict(seed=0, dem_size=256, n_views=4, image_size=192, crater_count=20,

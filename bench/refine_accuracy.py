@@ -13,7 +13,7 @@ command's defaults (the NavCam/LRO NAC parameters) through :func:`run_refine`:
 Per scene and input: RMSE and NMAD of the heights against the truth, RMS slope error
 (the RMS length of the difference of the gradient vectors, m/m, and the RMS
 difference of the slope angles, degrees), the mean height shift (|shift| < 0.1 GSD),
-the coherent cut-off frequency (`demtool.spectral.coherence_cutoff`, coherence with the
+the coherent cut-off frequency (`demtool.imaging.spectral.coherence_cutoff`, coherence with the
 truth ≥ 0.5), before → after, and the ratios beside the targets: RMSE ≤ 0.6 × before,
 slope error ≤ 0.5 × before, coherent frequency ≥ 2 × before.
 
@@ -35,12 +35,12 @@ import numpy as np
 from scipy import ndimage
 
 from demtool import io
+from demtool.imaging.robust import nmad
+from demtool.imaging.spectral import coherence_cutoff
 from demtool.logs import configure_logging
-from demtool.robust import nmad
-from demtool.runs.refine import run_refine
-from demtool.runs.synth import run_synth
-from demtool.spectral import coherence_cutoff
+from demtool.refine.run import run_refine
 from demtool.synth import SceneParams
+from demtool.synth.run import run_synth
 
 SMALL = dict(seed=0, dem_size=256, image_size=192, crater_count=20,
              crater_max_diameter_m=50.0, boulder_count=100)
@@ -76,10 +76,10 @@ def input_b(scene_dir: Path, work: Path) -> tuple[Path | None, str]:
     """The SIAM DEM from rectify → sgm → dem --cameras, or (None, why not)."""
     import logging
 
+    from demtool.dem.run import run_dem
     from demtool.errors import DemtoolError
-    from demtool.runs.dem import run_dem
-    from demtool.runs.rectify import run_rectify
-    from demtool.runs.sgm import run_sgm
+    from demtool.rectify.run import run_rectify
+    from demtool.sgm.run import run_sgm
 
     description = io.read_json(scene_dir / "scene.json")
     target, partner = description["target"], description["partner"]

@@ -35,8 +35,8 @@ from scipy import ndimage
 
 from demtool import io
 from demtool.logs import configure_logging
-from demtool.runs.synth import run_synth
 from demtool.synth import SceneParams
+from demtool.synth.run import run_synth
 
 DEMTOOL = Path(sys.executable).with_name("demtool")
 CORES = 2

@@ -47,8 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     import numba
 
     from demtool.provenance import Provenance
-    from demtool.runs.synth import write_scene
     from demtool.synth import SceneParams, make_scene
+    from demtool.synth.run import write_scene
 
     threads = args.threads or numba.config.NUMBA_NUM_THREADS
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))

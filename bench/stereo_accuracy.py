@@ -8,7 +8,7 @@ invalid fraction and the MAE of the valid pixels (both over ``all``).  The left
 right image).  Methods: demtool's default ``sgm``, ``--cost census``, and OpenCV's
 StereoSGBM MODE_HH (block 5, P1 8·25, P2 32·25, disp12MaxDiff 1, uniqueness 10,
 speckle 100/2, same disparity range; 8-bit images, float ones stretched by
-``demtool.features.to_uint8``), all in the same run.
+``demtool.imaging.features.to_uint8``), all in the same run.
 
 Targets (issue 13), on the five Middlebury pairs and every weak-texture pair: the
 default's bad-2 (``all``, invalid = bad) at or below OpenCV's on each pair and on
@@ -18,7 +18,7 @@ Pairs
 -----
 synthetic
     The synthetic scene's target/partner pair (``demtool.synth``), rectified by
-    ``demtool.rectify``; truth from ``demtool.synth.truth.truth_disparity`` (visible
+    ``demtool.rectify.core``; truth from ``demtool.synth.truth.truth_disparity`` (visible
     pixels).  Needs no outside data; printed, not part of the targets.
 weak1 … weak6
     Generated planetary-like pairs (``_stereo_pairs.WEAK_TEXTURE_PAIRS``): fractal

@@ -2,7 +2,7 @@
 
 Each stage (:data:`demtool.stages.STAGES`) lives in ``demtool/commands/<stage>.py``
 as a thin click command that resolves options, calls the stage's runner
-(``demtool.runs.<stage>``) and lets :class:`DemtoolError` reach the group, which
+(``demtool.<stage>.run``) and lets :class:`DemtoolError` reach the group, which
 prints it on one line and exits with status 1.  Commands are imported
 lazily so ``demtool --help`` stays fast.
 """
@@ -106,7 +106,7 @@ def cli(ctx: click.Context, verbose: int, quiet: int, debug: bool, config_path: 
     Each stage reads and writes files (GeoTIFF, NPZ, JSON), so stages chain in shell
     pipelines, Makefiles and batch jobs.  Run ``demtool STAGE --help`` for a stage.
     """
-    from demtool.config import load_config, to_default_map
+    from demtool.commands.config import load_config, to_default_map
     from demtool.logs import configure_logging
 
     configure_logging(verbose - quiet)

@@ -345,7 +345,7 @@ def output_transaction(inputs: Paths = None, outputs: Paths = None, *,
         declared inputs, and two writes to one file are refused, declared or not.
     declared : bool
         ``outputs`` and ``output_dirs`` are the complete list of what the block writes
-        (as :class:`demtool.runs.StageRun` declares them): with the environment
+        (as :class:`demtool.stagerun.StageRun` declares them): with the environment
         variable ``DEMTOOL_CHECK_DECLARED_OUTPUTS`` set (the tests set it), a write of
         any other file is refused, so a forgotten declaration cannot slip past the
         checks above.

@@ -6,7 +6,7 @@ default, admissible range, choices and help text:
 
 * :meth:`Parameters.check` validates every field against it and raises
   :class:`~demtool.errors.ParameterError` naming the option (``--size``);
-* :func:`demtool.options.parameter_options` turns the fields into click options (the
+* :func:`demtool.commands.options.parameter_options` turns the fields into click options (the
   CLI layer; this module never imports click).
 
 A field's option is ``--<field name>`` with dashes, unless ``option=`` gives another

@@ -2,7 +2,7 @@
 
 A light module (no click, no numpy) shared by the command line (:mod:`demtool.cli`,
 which lists the stages and loads ``demtool.commands.<stage>``), the runners
-(``demtool.runs.<stage>``) and the tests.  A new stage is added here first; see
+(``demtool.<stage>.run``) and the tests.  A new stage is added here first; see
 CONTRIBUTING.md ("Adding a stage").
 """
 

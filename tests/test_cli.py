@@ -8,7 +8,7 @@ from click.testing import CliRunner
 
 from demtool import __version__
 from demtool.cli import STAGES, cli, stage_options
-from demtool.config import load_config, to_default_map
+from demtool.commands.config import load_config, to_default_map
 from demtool.errors import InputError, ParameterError
 
 CONFIGS = sorted((Path(__file__).parent.parent / "configs").glob("*.toml"))

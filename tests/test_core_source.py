@@ -11,7 +11,7 @@ from demtool.parameters import core_defaults as imported_defaults
 from demtool.stages import STAGES
 
 HEAVY = ("numba", "cv2", "pycolmap")
-REFS = ["demtool.sgm.matcher:sgm", "demtool.match.dense:match", "demtool.rectify:rectify_pair",
+REFS = ["demtool.sgm.matcher:sgm", "demtool.match.dense:match", "demtool.rectify.core:rectify_pair",
         "demtool.compare.core:compare_dems"]
 CONSTANTS = ["demtool.sgm.disparity:SUBPIXEL_MODES", "demtool.sgm.matcher:CENSUS_WINDOWS",
              "demtool.sgm.matcher:COSTS", "demtool.compare.align:ALIGN_METHODS"]

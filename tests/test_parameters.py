@@ -11,16 +11,16 @@ from demtool.parameters import Parameters, core_default, describe_range, paramet
 # every stage's parameter dataclass (module, class)
 STAGE_PARAMETERS = {
     "synth": ("demtool.synth.params", "SceneParams"),
-    "select": ("demtool.select_params", "SelectParams"),
+    "select": ("demtool.select.params", "SelectParams"),
     "bundle": ("demtool.bundle.params", "BundleParams"),
-    "rectify": ("demtool.rectify_params", "RectifyParams"),
+    "rectify": ("demtool.rectify.params", "RectifyParams"),
     "sgm": ("demtool.sgm.params", "SgmParams"),
     "match": ("demtool.match.params", "MatchParams"),
     "dem": ("demtool.dem.params", "DemParams"),
     "refine": ("demtool.refine.params", "RefineParams"),
-    "mapproject": ("demtool.mapproject_params", "MapprojectParams"),
+    "mapproject": ("demtool.mapproject.params", "MapprojectParams"),
     "compare": ("demtool.compare.params", "CompareParams"),
-    "camera": ("demtool.camera_params", "CameraParams"),
+    "camera": ("demtool.camera.params", "CameraParams"),
 }
 
 
@@ -88,7 +88,7 @@ def test_core_defaults_are_the_stage_defaults():
     """The stage parameters read their defaults from the core (written once)."""
     from demtool.compare import compare_dems
     from demtool.match import match
-    from demtool.rectify import rectify_pair
+    from demtool.rectify.core import rectify_pair
     from demtool.refine.prepare import prepare_dem
     from demtool.sgm import sgm
 

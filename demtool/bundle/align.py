@@ -8,8 +8,8 @@ from dataclasses import replace
 import numpy as np
 
 from demtool.bundle.model import BundleResult
-from demtool.camera import PinholeCamera
 from demtool.errors import ProcessingError
+from demtool.sensors.pinhole import PinholeCamera
 
 
 def umeyama(source: np.ndarray, target: np.ndarray, *,

@@ -88,7 +88,7 @@ def adjust_block(images: Iterable[tuple[str, np.ndarray]], options: SfmOptions, 
     """
     import cv2
 
-    from demtool.features import to_uint8
+    from demtool.imaging.features import to_uint8
 
     with tempfile.TemporaryDirectory(prefix="demtool-bundle-") as scratch:
         work = Path(scratch)

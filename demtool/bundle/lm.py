@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from demtool.bundle.priors import PoseOffset
+from demtool.bundle.offsets import PoseOffset
 
 #: forward-difference steps: metres (positions, points) and milliradians (pointing)
 _STEP = 1e-3

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from demtool.bundle.colmap import CAMERA_MODELS
-from demtool.camera import PinholeCamera, from_pycolmap
 from demtool.errors import ProcessingError
+from demtool.sensors.pinhole import PinholeCamera, from_pycolmap
 
 
 @dataclass(frozen=True)

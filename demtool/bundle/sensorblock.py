@@ -18,10 +18,10 @@ import numpy as np
 from demtool.bundle.model import BundleResult
 from demtool.bundle.priors import AdjustedSensor, PriorAdjustment, adjust_with_priors
 from demtool.bundle.ties import image_pairs, report_by_name, tie_points
-from demtool.camera import PinholeCamera
 from demtool.errors import ProcessingError
 from demtool.logs import get_logger
 from demtool.sensors.base import SensorModel
+from demtool.sensors.pinhole import PinholeCamera
 
 log = get_logger(__name__)
 

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from demtool.mapproject import bilinear_heights
+from demtool.mapproject.core import bilinear_heights
 from demtool.maps import enu_frame, lonlat_to_map, wrap_longitude, xyz_to_lonlat_height
 
 #: forward-difference step of the height residual's gradient, metres

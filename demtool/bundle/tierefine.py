@@ -121,7 +121,8 @@ def refine_observations(images: Sequence[np.ndarray], obs: Observations, *,
         at a pixel centre of its image, the others at LSM positions.
     report : RefineReport
     """
-    from demtool.match.lsm import CONVERGED, lsm_match
+    from demtool.match.lsm import lsm_match
+    from demtool.match.lsm_base import CONVERGED
 
     if template < 5 or template % 2 == 0:
         raise ParameterError(f"tie refinement: template must be odd and >= 5, got {template}")

@@ -235,7 +235,7 @@ def tie_points(images: Sequence[np.ndarray], pairs: Sequence[tuple[int, int]], *
         ``refine`` only).
     """
     from demtool.errors import ProcessingError
-    from demtool.features import detect_sift, match_descriptors, ransac_fundamental
+    from demtool.imaging.features import detect_sift, match_descriptors, ransac_fundamental
 
     features = [detect_sift(np.asarray(im), max_features=max_features or
                             features_per_image(np.shape(im))) for im in images]

@@ -8,7 +8,7 @@
   :func:`demtool.sensors.read_isd`), then adjusted as above.
 * ASP ``.tsai``: the ``C`` and ``R`` lines replaced (``C' = C + dC``, ``R' = dR R``).
 
-With a :class:`demtool.bundle.priors.PoseOffset` (``X' = P + dRᵀ (X − P − dC)``, body
+With a :class:`demtool.bundle.offsets.PoseOffset` (``X' = P + dRᵀ (X − P − dC)``, body
 frame): a body-fixed position ``p`` becomes ``P + dR (p − P) + dC`` and a
 sensor-to-body rotation ``S`` becomes ``dR S``.  ISDs store J2000 positions
 ``B(t)ᵀ p`` and J2000-to-sensor pointing ``Q(t)`` with ``S = B Qᵀ``, so
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from demtool.bundle.priors import PoseOffset
+from demtool.bundle.offsets import PoseOffset
 from demtool.errors import ProcessingError
 from demtool.sensors.base import matrix_to_quaternion, quaternion_to_matrix
 from demtool.sensors.isd import Orientations, isd_from_sensor

@@ -6,8 +6,8 @@ from typing import Any
 
 import click
 
-from demtool import options
 from demtool.bundle.params import BundleParams
+from demtool.commands import options
 from demtool.stages import STAGES
 
 HELP = STAGES["bundle"] + """
@@ -75,9 +75,9 @@ def command(ctx: click.Context, inputs: tuple[str, ...], images: str | None, out
             colmap_dir: str | None, cameras: str | None, align_cameras: str | None,
             sensors: tuple[str, ...], adjusted_dir: str | None, reference_dem: str | None,
             **values: Any) -> None:
-    """Options → BundleParams → :func:`demtool.runs.bundle.run_bundle`."""
+    """Options → BundleParams → :func:`demtool.bundle.run.run_bundle`."""
+    from demtool.bundle.run import run_bundle
     from demtool.cli import AppState
-    from demtool.runs.bundle import run_bundle
 
     options.exclusive({"--focal-px": values["focal_px"] is not None,
                        "--cameras": cameras is not None})

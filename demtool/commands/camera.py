@@ -1,4 +1,4 @@
-"""`demtool camera`: the options of :class:`demtool.camera_params.CameraParams` and one
+"""`demtool camera`: the options of :class:`demtool.camera.params.CameraParams` and one
 call."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ from typing import Any
 
 import click
 
-from demtool import options
-from demtool.camera_params import CameraParams
+from demtool.camera.params import CameraParams
+from demtool.commands import options
 from demtool.stages import STAGES
 
 
@@ -28,8 +28,8 @@ sidecar).  Keys: README, section "camera".""")
 @click.pass_context
 def command(ctx: click.Context, models: tuple[str, ...], as_json: bool, out: str | None,
             **values: Any) -> None:
-    """Options → CameraParams → :func:`demtool.runs.camera.run_camera`."""
-    from demtool.runs.camera import run_camera
+    """Options → CameraParams → :func:`demtool.camera.run.run_camera`."""
+    from demtool.camera.run import run_camera
 
     run_camera(models, CameraParams.from_options(values), out=out, as_json=as_json,
                resolved=options.resolved_params(ctx))

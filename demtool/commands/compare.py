@@ -7,7 +7,7 @@ from typing import Any
 
 import click
 
-from demtool import options
+from demtool.commands import options
 from demtool.compare.params import CompareParams
 from demtool.stages import STAGES
 
@@ -57,8 +57,8 @@ dems.png, profiles.png, histogram.png, completeness.png, coherence.png.""")
 @click.pass_context
 def command(ctx: click.Context, dem: str, reference: str, out: str, mask: str | None,
             also: tuple[str, ...], as_json: bool, **values: Any) -> None:
-    """Options → CompareParams → :func:`demtool.runs.compare.run_compare`."""
-    from demtool.runs.compare import run_compare
+    """Options → CompareParams → :func:`demtool.compare.run.run_compare`."""
+    from demtool.compare.run import run_compare
 
     report = run_compare(dem, reference, out, CompareParams.from_options(values),
                          mask_path=mask, also=also, resolved=options.resolved_params(ctx))

@@ -6,7 +6,7 @@ from typing import Any
 
 import click
 
-from demtool import options
+from demtool.commands import options
 from demtool.dem.params import DemParams
 from demtool.stages import STAGES
 
@@ -65,8 +65,8 @@ def command(ctx: click.Context, points: str | None, disparity: str | None,
             interpolated_mask: str | None, error_out: str | None,
             out: str,
             **values: Any) -> None:
-    """Check the form (points or disparity), call :func:`demtool.runs.dem.run_dem`."""
-    from demtool.runs.dem import run_dem
+    """Check the form (points or disparity), call :func:`demtool.dem.run.run_dem`."""
+    from demtool.dem.run import run_dem
 
     if mapprojected is not None and disparity is None:
         raise click.BadParameter("--mapprojected needs --disparity", param_hint="--mapprojected")

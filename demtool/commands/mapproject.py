@@ -1,4 +1,4 @@
-"""`demtool mapproject`: the options of :class:`demtool.mapproject_params.MapprojectParams`
+"""`demtool mapproject`: the options of :class:`demtool.mapproject.params.MapprojectParams`
 and one call."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ from typing import Any
 
 import click
 
-from demtool import option_types, options
-from demtool.mapproject_params import MapprojectParams
+from demtool.commands import option_types, options
+from demtool.mapproject.params import MapprojectParams
 from demtool.stages import STAGES
 
 
@@ -38,8 +38,8 @@ later stages (dem --mapprojected, refine) can undo the projection.""")
 @click.pass_context
 def command(ctx: click.Context, image: str, sensor: str, dem: str | None, grid_like: str | None,
             out: str, angles_out: str | None, **values: Any) -> None:
-    """Options -> MapprojectParams -> :func:`demtool.runs.mapproject.run_mapproject`."""
-    from demtool.runs.mapproject import run_mapproject
+    """Options -> MapprojectParams -> :func:`demtool.mapproject.run.run_mapproject`."""
+    from demtool.mapproject.run import run_mapproject
 
     options.exclusive({"--dem": dem is not None, "--height": values.get("height") is not None},
                       exactly_one=True)

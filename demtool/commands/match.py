@@ -6,7 +6,7 @@ from typing import Any
 
 import click
 
-from demtool import options
+from demtool.commands import options
 from demtool.match.params import MatchParams
 from demtool.stages import STAGES
 
@@ -32,8 +32,8 @@ when its final LSM correlation coefficient reaches --threshold.""")
 @click.pass_context
 def command(ctx: click.Context, left: str, right: str, out: str, rectify: str | None,
             correlation_out: str | None, sigma_out: str | None, **values: Any) -> None:
-    """Options → MatchParams → :func:`demtool.runs.match.run_match`."""
-    from demtool.runs.match import run_match
+    """Options → MatchParams → :func:`demtool.match.run.run_match`."""
+    from demtool.match.run import run_match
 
     result = run_match(left, right, out, MatchParams.from_options(values), rectify=rectify,
                        correlation_out=correlation_out, sigma_out=sigma_out,

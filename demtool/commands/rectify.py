@@ -1,4 +1,4 @@
-"""`demtool rectify`: the options of :class:`demtool.rectify_params.RectifyParams` and one
+"""`demtool rectify`: the options of :class:`demtool.rectify.params.RectifyParams` and one
 call."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ from typing import Any
 
 import click
 
-from demtool import option_types, options
-from demtool.rectify_params import RectifyParams
+from demtool.commands import option_types, options
+from demtool.rectify.params import RectifyParams
 from demtool.stages import STAGES
 
 
@@ -37,8 +37,8 @@ pointing correction of the right camera; rectify.npz then carries both models fo
 @click.pass_context
 def command(ctx: click.Context, left: str, right: str, out: str, sensor_left: str | None,
             sensor_right: str | None, **values: Any) -> None:
-    """Options → RectifyParams → :func:`demtool.runs.rectify.run_rectify`."""
-    from demtool.runs.rectify import run_rectify
+    """Options → RectifyParams → :func:`demtool.rectify.run.run_rectify`."""
+    from demtool.rectify.run import run_rectify
 
     if (sensor_left is None) != (sensor_right is None):
         raise click.BadParameter("give both --sensor-left and --sensor-right, or neither",

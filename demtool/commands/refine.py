@@ -6,7 +6,7 @@ from typing import Any
 
 import click
 
-from demtool import option_types, options
+from demtool.commands import option_types, options
 from demtool.refine.params import RefineParams
 from demtool.stages import STAGES
 
@@ -47,8 +47,8 @@ is given.""")
 def command(ctx: click.Context, image: str, dem: str, out: str, sun_azimuth: float | None,
             sun_elevation: float | None, sun_vector: Any, view_vector: Any,
             albedo_out: str | None, sensor: str | None, **values: Any) -> None:
-    """Check option combinations, call :func:`demtool.runs.refine.run_refine`."""
-    from demtool.runs.refine import run_refine
+    """Check option combinations, call :func:`demtool.refine.run.run_refine`."""
+    from demtool.refine.run import run_refine
 
     if (sun_azimuth is None) != (sun_elevation is None):
         raise click.BadParameter("give both --sun-azimuth and --sun-elevation",

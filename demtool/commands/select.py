@@ -1,4 +1,4 @@
-"""`demtool select`: the options of :class:`demtool.select_params.SelectParams` and one call."""
+"""`demtool select`: the options of :class:`demtool.select.params.SelectParams` and one call."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ from typing import Any
 
 import click
 
-from demtool import option_types, options
-from demtool.select_params import SelectParams
+from demtool.commands import option_types, options
+from demtool.select.params import SelectParams
 from demtool.stages import STAGES
 
 
@@ -35,8 +35,8 @@ overlap, a 25° convergence and sun-azimuth diversity.""")
 def command(ctx: click.Context, images: tuple[str, ...], target: str, out: str,
             roi: tuple[float, float, float, float] | None, cameras: str | None,
             scene: str | None, cache_dir: str | None, **values: Any) -> None:
-    """Options → SelectParams → :func:`demtool.runs.select.run_select`."""
-    from demtool.runs.select import run_select
+    """Options → SelectParams → :func:`demtool.select.run.run_select`."""
+    from demtool.select.run import run_select
 
     run_select(list(images), target, out, SelectParams.from_options(values), roi=roi,
                cameras=cameras, scene=scene, cache_dir=cache_dir,

@@ -6,7 +6,7 @@ from typing import Any
 
 import click
 
-from demtool import options
+from demtool.commands import options
 from demtool.sgm.params import SgmParams
 from demtool.stages import STAGES
 
@@ -26,8 +26,8 @@ default cost is hierarchical mutual information (HMI, 1/16 → 1).""")
 @click.pass_context
 def command(ctx: click.Context, left_rect: str, right_rect: str, out: str, rectify: str | None,
             confidence: str | None, **values: Any) -> None:
-    """Options → SgmParams → :func:`demtool.runs.sgm.run_sgm`."""
-    from demtool.runs.sgm import run_sgm
+    """Options → SgmParams → :func:`demtool.sgm.run.run_sgm`."""
+    from demtool.sgm.run import run_sgm
 
     result = run_sgm(left_rect, right_rect, out, SgmParams.from_options(values),
                      rectify=rectify, confidence=confidence,

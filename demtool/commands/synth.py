@@ -6,7 +6,7 @@ from typing import Any
 
 import click
 
-from demtool import options
+from demtool.commands import options
 from demtool.stages import STAGES
 from demtool.synth.params import SceneParams
 
@@ -26,8 +26,8 @@ pair's common footprint; linescan renders two views and writes no cameras.npz.""
 @click.option("--no-craters", is_flag=True, default=False, help="Same as --craters 0.")
 @click.pass_context
 def command(ctx: click.Context, out: str, no_craters: bool, **values: Any) -> None:
-    """Options → SceneParams → :func:`demtool.runs.synth.run_synth`."""
-    from demtool.runs.synth import run_synth
+    """Options → SceneParams → :func:`demtool.synth.run.run_synth`."""
+    from demtool.synth.run import run_synth
 
     if no_craters:
         if options.given_on_command_line(ctx, "craters") and values["craters"]:

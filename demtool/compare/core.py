@@ -16,8 +16,8 @@ from demtool.compare.stats import (
     slope_degrees,
 )
 from demtool.errors import ParameterError, ProcessingError
+from demtool.imaging.spectral import CoherenceSpectrum, coherence_spectrum, cutoff_from_curve
 from demtool.logs import get_logger
-from demtool.spectral import CoherenceSpectrum, coherence_spectrum, cutoff_from_curve
 
 __all__ = ["DEFAULT_SLOPE_BINS", "Comparison", "compare_dems", "summarize"]
 

@@ -39,8 +39,8 @@ from numba import njit, prange
 
 from demtool.compare.grids import gaussian_shift
 from demtool.errors import ProcessingError
+from demtool.imaging.robust import nmad
 from demtool.logs import get_logger
-from demtool.robust import nmad
 
 __all__ = ["ShiftResult", "nuth_kaab", "vertical_offset"]
 

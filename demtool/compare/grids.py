@@ -400,8 +400,8 @@ def shift_dem(dem: np.ndarray, dx_px: float, dy_px: float, dz: float = 0.0, *,
 
 
 def _check_same_body(src: Grid, dst: Grid) -> None:
-    from demtool.compare.planetary import body_label
     from demtool.maps import body_from_crs, same_body
+    from demtool.maps.bodies import body_label
 
     first, second = body_from_crs(src.crs), body_from_crs(dst.crs)
     if not same_body(first, second):

@@ -27,8 +27,8 @@ from demtool.compare.coreg import (
 )
 from demtool.compare.grids import gaussian_shift, sample_bilinear, sample_cubic
 from demtool.errors import ProcessingError
+from demtool.imaging.robust import nmad
 from demtool.logs import get_logger
-from demtool.robust import nmad
 
 __all__ = ["IcpResult", "apply_similarity", "icp_point_to_plane", "rotation_matrix"]
 

@@ -23,23 +23,14 @@ from typing import Any
 from demtool.compare.grids import Grid
 from demtool.errors import InputError
 from demtool.logs import get_logger
+from demtool.maps.bodies import body_label
 
-__all__ = ["body_label", "check_bodies", "metric_grid"]
+__all__ = ["check_bodies", "metric_grid"]
 
 log = get_logger(__name__)
 
 # Reference surfaces of one body closer than this (metres, in a and in c) are the same.
 SURFACE_TOLERANCE_M = 1.0
-
-
-def body_label(body) -> str:
-    """``"Moon (NAIF 301, sphere R=1737400 m)"``-style description of a body."""
-    naif = f"NAIF {body.naif_id}, " if body.naif_id is not None else ""
-    if body.a == body.c:
-        shape = f"sphere R={body.radius:.10g} m"
-    else:
-        shape = f"ellipsoid a={body.a:.10g} m, c={body.c:.10g} m"
-    return f"{body.name} ({naif}{shape})"
 
 
 def check_bodies(rasters: Sequence[tuple[str | os.PathLike, Any]]) -> list[str]:

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from demtool.robust import nmad
+from demtool.imaging.robust import nmad
 
 __all__ = [
     "STAT_KEYS",

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from demtool.robust import NMAD_FACTOR
+from demtool.imaging.robust import NMAD_FACTOR
 
 __all__ = ["BINS", "GATHER_LIMIT", "Moments", "OrderStatistic", "StreamStatistics"]
 

@@ -1,6 +1,6 @@
 """The comparison of one window of a DEM larger than memory (arrays in, arrays out).
 
-:func:`demtool.runs.compare_windowed.compare_windowed` reads the DEM, the reference and
+:func:`demtool.compare.run_windowed.compare_windowed` reads the DEM, the reference and
 the mask window by window, resampled onto the comparison grid, and calls
 :func:`window_values` on each; what it returns is what :func:`demtool.compare.compare_dems`
 computes on the whole grid, restricted to the window's core:

@@ -9,7 +9,7 @@ Routes (see :mod:`demtool.dem.routes`):
   projective fit to a reference DEM (the study's uncalibrated SIAM route).
 
 All end with outlier removal, resampling to the target pixel grid and D'Errico's
-spring-metaphor gap filling (:func:`demtool.interpolate.inpaint_springs`).
+spring-metaphor gap filling (:func:`demtool.imaging.interpolate.inpaint_springs`).
 
 Names are imported lazily (PEP 562), so ``demtool dem --help`` and the
 parameter module ``demtool.dem.params`` do not pull in numba, OpenCV or pycolmap.

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from demtool.camera import PinholeCamera, triangulate_midpoint
 from demtool.errors import ProcessingError
-from demtool.robust import nmad
+from demtool.imaging.robust import nmad
+from demtool.sensors.pinhole import PinholeCamera, triangulate_midpoint
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from demtool.errors import ParameterError, ProcessingError
-from demtool.interpolate import inpaint_springs
-from demtool.robust import NMAD_FACTOR
+from demtool.imaging.interpolate import inpaint_springs
+from demtool.imaging.robust import NMAD_FACTOR
 
 
 def _inside(pixels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -194,7 +194,7 @@ def local_median_inliers(pixels: np.ndarray, values: np.ndarray, *, neighbours: 
     floor : float, optional
         The NMAD floor, same units as ``values``; default the median local NMAD of these
         samples (a tiled run passes the median over the whole image,
-        :mod:`demtool.tiled.dem`).
+        :mod:`demtool.dem.tiled`).
 
     Returns
     -------

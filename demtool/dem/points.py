@@ -13,9 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from demtool.bundle import project_points
-from demtool.camera import PinholeCamera
 from demtool.errors import ProcessingError
 from demtool.sensors.base import SensorModel
+from demtool.sensors.pinhole import PinholeCamera
 
 
 @dataclass(frozen=True)

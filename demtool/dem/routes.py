@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from demtool.camera import PinholeCamera
 from demtool.dem.disparity import (
     apply_projective_3d,
     disparity_correspondences,
@@ -30,6 +29,7 @@ from demtool.dem.grid import (
 from demtool.dem.points import heights_along_view, target_samples
 from demtool.errors import ProcessingError
 from demtool.logs import get_logger
+from demtool.sensors.pinhole import PinholeCamera
 
 log = get_logger(__name__)
 

@@ -12,7 +12,7 @@ Gridding (a robust binning): each map cell gets the median height (and median ra
 whose map position falls in it (nearest cell, :func:`demtool.dem.grid.splat_median`);
 empty cells inside the stereo overlap — cells whose centre, at the DEM's median
 height, is seen by both cameras — are filled by D'Errico's spring metaphor
-(:func:`demtool.interpolate.inpaint_springs`) and flagged in ``filled``; cells outside
+(:func:`demtool.imaging.interpolate.inpaint_springs`) and flagged in ``filled``; cells outside
 stay NaN.  At the default GSD (the images' own) about one point falls in each cell.
 """
 

@@ -34,6 +34,7 @@ from typing import Any
 __all__ = [
     "EARTH_NAIF_ID",
     "Body",
+    "body_label",
     "body_by_naif_id",
     "body_by_name",
     "body_from_crs",
@@ -393,3 +394,13 @@ def same_body(first: Body, second: Body) -> bool:
         return first.naif_id == second.naif_id
     return math.isclose(first.radius, second.radius, rel_tol=RADIUS_RTOL) and \
         math.isclose(first.c, second.c, rel_tol=RADIUS_RTOL)
+
+
+def body_label(body) -> str:
+    """``"Moon (NAIF 301, sphere R=1737400 m)"``-style description of a body."""
+    naif = f"NAIF {body.naif_id}, " if body.naif_id is not None else ""
+    if body.a == body.c:
+        shape = f"sphere R={body.radius:.10g} m"
+    else:
+        shape = f"ellipsoid a={body.a:.10g} m, c={body.c:.10g} m"
+    return f"{body.name} ({naif}{shape})"

@@ -38,7 +38,8 @@ from numba import njit, prange
 
 from demtool.logs import get_logger
 from demtool.match.icgn import _cubic_value, _gradient
-from demtool.match.lsm import _FASTMATH, cubic_support_mask, template_weights
+from demtool.match.lsm import cubic_support_mask, template_weights
+from demtool.match.lsm_base import _FASTMATH
 from demtool.match.ncc import integral_invalid
 
 log = get_logger(__name__)

@@ -49,7 +49,8 @@ import numpy as np
 from demtool.errors import ParameterError, ProcessingError
 from demtool.logs import get_logger
 from demtool.match.between import between_nodes, polish, spread_nodes
-from demtool.match.lsm import CONVERGED, lsm_match
+from demtool.match.lsm import lsm_match
+from demtool.match.lsm_base import CONVERGED
 from demtool.match.ncc import build_pyramid, integral_invalid, ncc_search
 from demtool.match.seeds import Seeds, check_seed_points, find_seeds
 from demtool.match.triangles import SeedTriangulation
@@ -257,7 +258,7 @@ def match(left: np.ndarray, right: np.ndarray, *, template: int = 17, threshold:
     disparity_range : (float, float), optional
         Disparity range for the corner seed search when there are no SIFT/prior seeds.
     use_sift : bool
-        Detect SIFT seeds (:mod:`demtool.features`).
+        Detect SIFT seeds (:mod:`demtool.imaging.features`).
     max_vertical : float
         Largest row offset (pixels) of an accepted match in the rectified pair.
     weighting : float

@@ -40,7 +40,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from demtool.match.lsm import (
+from demtool.match.lsm_base import (
     _FASTMATH,
     CONVERGED,
     DIVERGED,

@@ -36,11 +36,12 @@ import numpy as np
 from numba import njit, prange
 
 from demtool.errors import ParameterError, ProcessingError
+from demtool.imaging.robust import nmad
 from demtool.logs import get_logger
-from demtool.match.lsm import CONVERGED, lsm_match
+from demtool.match.lsm import lsm_match
+from demtool.match.lsm_base import CONVERGED
 from demtool.match.ncc import ncc_search
 from demtool.match.triangles import SeedTriangulation
-from demtool.robust import nmad
 
 log = get_logger(__name__)
 
@@ -170,7 +171,7 @@ def sift_candidates(left: np.ndarray, right: np.ndarray, *, max_vertical: float,
     (N, 2) float64, (N, 2) float64
         Matched points (x, y) in the left and right images.
     """
-    from demtool import features
+    from demtool.imaging import features
 
     feats_left = features.detect_sift(left, max_features=max_features)
     feats_right = features.detect_sift(right, max_features=max_features)
@@ -231,7 +232,7 @@ def match_on_rows(points_left: np.ndarray, descriptors_left: np.ndarray,
     """Descriptor matches of a rectified pair, searched only along the same row.
 
     Lowe's (2004) ratio test and the mutual nearest-neighbour check of
-    :func:`demtool.features.match_descriptors`, with the candidates of a keypoint
+    :func:`demtool.imaging.features.match_descriptors`, with the candidates of a keypoint
     restricted to the other image's keypoints within ``max_vertical`` rows (the
     epipolar constraint of a rectified pair): a few dozen candidates per keypoint
     instead of every keypoint, and no false match from another row.

@@ -6,7 +6,7 @@ Frame and units as in :mod:`demtool.refine.sfs`: x = columns, y = up (−rows), 
 in units of the x pixel spacing, slopes dimensionless.
 
 The photometric kernel evaluates the reflectance models of
-:mod:`demtool.reflectance` with their analytic partial derivatives (McEwen 1991,
+:mod:`demtool.imaging.reflectance` with their analytic partial derivatives (McEwen 1991,
 eq. 4 for lunar-Lambert); models without a compiled form use the numpy path of
 :func:`demtool.refine.shading.reflectance_and_gradient` instead
 (:data:`COMPILED_MODELS`).
@@ -22,7 +22,7 @@ import numpy as np
 #: Reflectance models with a compiled kernel, name → code used by the kernels.
 COMPILED_MODELS: dict[str, int] = {"lunar-lambert": 0, "lambert": 1}
 
-#: Cosines are clamped to this before dividing (as :mod:`demtool.reflectance`).
+#: Cosines are clamped to this before dividing (as :mod:`demtool.imaging.reflectance`).
 _COSINE_FLOOR = 1e-6
 
 

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from demtool.imaging.reflectance import MODELS
 from demtool.parameters import Parameters, parameter
-from demtool.reflectance import MODELS
 from demtool.tiling import (
     dry_run_field,
     scheduler_field,
@@ -31,7 +31,7 @@ class SfsParameters(Parameters):
     albedo_sigma : float
         σ_ρ of the local albedo estimate, pixels (21).
     model : str
-        Reflectance model, a name of :data:`demtool.reflectance.MODELS`.
+        Reflectance model, a name of :data:`demtool.imaging.reflectance.MODELS`.
     iterations : int
         Maximum number of outer iterations.
     tolerance : float
@@ -104,7 +104,7 @@ class RefineParams(SfsParameters):
     illumination_tile : int
         Map route: tile size (px) when refining per tile.
     workers, tile_size, tile_overlap, scheduler, dry_run
-        Large DEMs in tiles on Dask (:mod:`demtool.tiled.refine`; README "Scale").
+        Large DEMs in tiles on Dask (:mod:`demtool.refine.tiled`; README "Scale").
     """
 
     median: int = parameter(15, "Median prefilter of the input DEM, odd window in pixels "

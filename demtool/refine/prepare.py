@@ -8,10 +8,10 @@ from typing import NamedTuple
 import numpy as np
 
 from demtool.errors import ProcessingError
+from demtool.imaging.robust import NMAD_FACTOR
 from demtool.logs import get_logger
 from demtool.refine.filters import gaussian_lowpass, median_filter
 from demtool.refine.params import RefineParams
-from demtool.robust import NMAD_FACTOR
 
 log = get_logger(__name__)
 
@@ -83,7 +83,7 @@ def prepare_dem(dem: np.ndarray, *, median_size: int = RefineParams.median,
                 max_nan_fraction: float = RefineParams.max_nan_fraction) -> PreparedDem:
     """Fill the gaps of a coarse DEM, then remove its spikes with a median filter.
 
-    Gaps are filled with :func:`demtool.interpolate.inpaint_springs` (the spring
+    Gaps are filled with :func:`demtool.imaging.interpolate.inpaint_springs` (the spring
     metaphor of the NavCam study); shape from shading then refines them from the
     shading like any other pixel.  The median filter (15 px in the NavCam study)
     removes the isolated matching blunders that would otherwise anchor the low-passed
@@ -140,7 +140,7 @@ def prepare_dem(dem: np.ndarray, *, median_size: int = RefineParams.median,
             f"{100 * fraction:.1f}% of the DEM is NaN, more than the allowed "
             f"{100 * max_nan_fraction:.1f}% (--max-nan-fraction); fill or crop the DEM first")
     if missing.any():
-        from demtool.interpolate import inpaint_springs
+        from demtool.imaging.interpolate import inpaint_springs
 
         values = np.asarray(inpaint_springs(values), dtype=np.float32)
         if not np.all(np.isfinite(values)):

@@ -166,8 +166,8 @@ class _State:
 class _Solver:
     def __init__(self, image, dem, spacing, illumination, params, valid,
                  image_median=None) -> None:
+        from demtool.imaging.reflectance import mcewen_L
         from demtool.refine import kernels
-        from demtool.reflectance import mcewen_L
 
         self.kernels = kernels
         self.params = params
@@ -328,7 +328,7 @@ def refine_heights(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, 
     image_median : float, optional
         The image's median over its valid pixels, in the image's unit, which the shadow
         threshold scales (default: this ``image``'s; a tile of a larger image passes the
-        whole image's, :mod:`demtool.tiled.refine`).
+        whole image's, :mod:`demtool.refine.tiled`).
 
     Returns
     -------

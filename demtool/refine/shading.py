@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from demtool.errors import ParameterError
-from demtool.reflectance import get_model, get_partials
+from demtool.imaging.reflectance import get_model, get_partials
 
 
 @dataclass(frozen=True)
@@ -138,7 +138,7 @@ def reflectance_map(p: np.ndarray, q: np.ndarray, illumination: Illumination,
     illumination : Illumination
         Sun and view directions, grid frame.
     model : str
-        A name of :data:`demtool.reflectance.MODELS`.
+        A name of :data:`demtool.imaging.reflectance.MODELS`.
     albedo : float or (H, W) array
         Normal albedo ρ.
 

@@ -1,6 +1,6 @@
 """Plane polygons of footprints: an equal-area projection, areas, exact intersections.
 
-Pure numpy, vectorised over vertices; used by :mod:`demtool.sensors.info`.
+Pure numpy, vectorised over vertices; used by :mod:`demtool.camera.info`.
 
 The intersection of two simple polygons A and B is measured without building it: the
 boundary of A ∩ B is made of the parts of A's boundary inside B and the parts of B's

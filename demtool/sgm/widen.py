@@ -1,6 +1,6 @@
 """A disparity search range estimated from matches, widened where SGM saturates at its bounds.
 
-``rectify`` and the ortho-pair route (:mod:`demtool.mapstereo`) estimate the search range
+``rectify`` and the ortho-pair route (:mod:`demtool.mapproject.stereo`) estimate the search range
 from the sparse SIFT matches of the pair (their 1st–99th percentiles plus a margin).  Where
 the terrain the matches miss lies beyond that range — a deep crater with a shadowed,
 featureless floor, a peak without texture — winner-takes-all can only answer the range's

@@ -10,7 +10,7 @@ distance.
 
 Shading: the normal at the hit comes from the DEM gradient (central differences at
 the nodes, interpolated bilinearly), the reflectance from
-:func:`demtool.reflectance.lunar_lambert` with L from the per-pixel phase angle;
+:func:`demtool.imaging.reflectance.lunar_lambert` with L from the per-pixel phase angle;
 a hit is in cast shadow when the terrain rises above the ray from it toward the sun.
 """
 
@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from demtool.reflectance import lunar_lambert
+from demtool.imaging.reflectance import lunar_lambert
 from demtool.sensors.base import SensorModel
 
 MARCH_STEP_CELLS = 0.5  # horizontal ray-marching step, in cells

@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from demtool.camera import PinholeCamera, look_at
 from demtool.errors import ParameterError
+from demtool.imaging.reflectance import lunar_lambert, sun_vector
 from demtool.logs import get_logger
-from demtool.reflectance import lunar_lambert, sun_vector
+from demtool.sensors.pinhole import PinholeCamera, look_at
 from demtool.synth import render, terrain
 from demtool.synth.params import SceneParams
 

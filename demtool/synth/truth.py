@@ -189,7 +189,7 @@ def truth_disparity(scene, H_left: np.ndarray, H_right: np.ndarray,
     Parameters
     ----------
     scene : Scene
-        The synthetic scene (``make_scene`` or ``demtool.runs.scene.load_scene``).
+        The synthetic scene (``make_scene`` or ``demtool.synth.folder.load_scene``).
     H_left, H_right : (3, 3) float
         Homographies from original to rectified pixel coordinates.
     rect_shape : (int, int)

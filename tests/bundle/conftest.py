@@ -21,7 +21,7 @@ STRIP = dict(COMMON, layout="strip", n_views=6, partner_bh=0.25)
 def write_block(folder: Path, params: dict) -> Path:
     """Render a scene and write its views (view_NN.tif) and cameras.npz into folder."""
     from demtool import io as dio
-    from demtool.camera import cameras_to_arrays
+    from demtool.sensors.pinhole import cameras_to_arrays
     from demtool.synth import SceneParams, make_scene
 
     scene = make_scene(SceneParams(**params))

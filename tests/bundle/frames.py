@@ -68,7 +68,7 @@ def true_models(count: int = 6, size: int = SIZE) -> list[FrameSensor]:
 
 
 def rotate(rotation: np.ndarray, rotvec: np.ndarray) -> np.ndarray:
-    from demtool.bundle.priors import rotation_matrices
+    from demtool.bundle.offsets import rotation_matrices
 
     return rotation_matrices(rotvec) @ rotation
 

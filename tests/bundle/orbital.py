@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from demtool.bundle.priors import Observations, rotation_matrices
+from demtool.bundle.offsets import rotation_matrices
+from demtool.bundle.priors import Observations
 from demtool.sensors.base import Detector
 from demtool.sensors.frame import FrameSensor
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from demtool import bundle as core
-from demtool.camera import PinholeCamera, look_at, to_pycolmap
 from demtool.errors import ProcessingError
+from demtool.sensors.pinhole import PinholeCamera, look_at, to_pycolmap
 
 
 def rotation(ax: float, ay: float, az: float) -> np.ndarray:
@@ -82,7 +82,7 @@ def test_projection_matches_colmap_with_half_pixel_convention(model, extra):
     of the same camera shifted by 0.5 px (COLMAP puts the first pixel centre at 0.5)."""
     import pycolmap
 
-    from demtool.camera import from_pycolmap
+    from demtool.sensors.pinhole import from_pycolmap
 
     camera = look_at([30.0, -20.0, 400.0], [0, 0, 0], focal_px=900, width=320, height=240)
     colmap_camera, pose = to_pycolmap(camera)

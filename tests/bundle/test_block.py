@@ -10,8 +10,8 @@ import pytest
 from click.testing import CliRunner
 
 from demtool import io as dio
-from demtool.camera import cameras_from_arrays
 from demtool.cli import cli
+from demtool.sensors.pinhole import cameras_from_arrays
 
 
 def rotation_errors_deg(estimated: dict, truth: dict) -> np.ndarray:

@@ -79,7 +79,7 @@ def test_command_line_input_errors(tmp_path):
 
 def test_selection_paths_resolve_against_the_selection_file(tmp_path, monkeypatch):
     """Issue 16 class 6: a selection written by `select` works from another folder."""
-    from demtool.selection import path_relative_to
+    from demtool.select.core import path_relative_to
 
     images = make_images(tmp_path / "project" / "images", ["t", "u"])
     selection = tmp_path / "project" / "work" / "selection.json"

@@ -5,14 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from demtool.bundle.priors import (
-    AdjustedSensor,
-    PoseOffset,
-    adjust_with_priors,
-    rotation_matrices,
-    rotation_vector,
-    triangulate,
-)
+from demtool.bundle.offsets import PoseOffset, rotation_matrices, rotation_vector
+from demtool.bundle.priors import AdjustedSensor, adjust_with_priors, triangulate
 from demtool.errors import ProcessingError
 from tests.bundle import frames
 

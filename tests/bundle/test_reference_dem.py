@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from demtool.bundle.priors import AdjustedSensor, adjust_with_priors, rotation_vector
+from demtool.bundle.offsets import rotation_vector
+from demtool.bundle.priors import AdjustedSensor, adjust_with_priors
 from demtool.bundle.surface import ReferenceSurface
 from demtool.cli import cli
 from tests.bundle import frames, orbital

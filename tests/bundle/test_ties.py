@@ -73,7 +73,7 @@ def test_default_keypoints_grow_with_the_image_within_bounds():
 
 
 def test_tie_points_ask_each_image_for_its_default_keypoints(monkeypatch):
-    from demtool import features
+    from demtool.imaging import features
 
     asked = []
     real = features.detect_sift

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from demtool.bundle.priors import AdjustedSensor, PoseOffset, pivot_of
+from demtool.bundle.offsets import PoseOffset, pivot_of
+from demtool.bundle.priors import AdjustedSensor
 from demtool.bundle.writeback import adjust_isd, adjust_tsai, model_isd
 from demtool.sensors import FrameSensor, read_tsai, sensor_from_isd
 from tests.bundle import frames

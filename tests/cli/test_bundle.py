@@ -12,8 +12,8 @@ from click.testing import CliRunner
 
 from demtool import bundle as core
 from demtool import io as dio
-from demtool.camera import cameras_from_arrays
 from demtool.cli import cli
+from demtool.sensors.pinhole import cameras_from_arrays
 
 APOLLO = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "apollo15"
 
@@ -201,7 +201,7 @@ def frame_block(tmp_path_factory):
 def test_bundle_with_sensor_priors_writes_adjusted_isds(frame_block, tmp_path):
     """Frame ISDs 50 m / 0.5 mrad off: the adjusted ISDs are closer to the truth, in the
     body-fixed frame, and read back by read_sensor."""
-    from demtool.bundle.priors import rotation_vector
+    from demtool.bundle.offsets import rotation_vector
     from demtool.sensors import read_sensor
     from tests.bundle import frames
 
@@ -289,7 +289,7 @@ def test_bundle_spatial_needs_sensors_and_overlap(frame_block, tmp_path):
 def test_bundle_with_tsai_priors_writes_adjusted_tsai(frame_block, tmp_path):
     """.tsai priors (no image size, no body in the file) on three of the frames: the
     adjusted .tsai files are closer to the truth and keep their other lines."""
-    from demtool.bundle.priors import rotation_vector
+    from demtool.bundle.offsets import rotation_vector
     from demtool.sensors import read_tsai
     from tests.bundle import frames
 

@@ -11,8 +11,8 @@ from click.testing import CliRunner
 
 from demtool import io as dio
 from demtool.bundle import BundleResult
-from demtool.camera import PinholeCamera, cameras_to_arrays
 from demtool.cli import cli
+from demtool.sensors.pinhole import PinholeCamera, cameras_to_arrays
 from tests.helpers.dem import (
     BASELINE,
     RECTIFY,

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from demtool import io as dio
 from demtool.cli import cli
-from demtool.mapproject import ortho_grid
+from demtool.mapproject.core import ortho_grid
 from demtool.maps import MapGrid, body_by_name, grid_lonlat, map_to_xyz, snap_grid, xyz_to_map
 from tests.helpers.linescan import (
     MOON,
@@ -217,7 +217,7 @@ def test_refuses_dem_of_another_body(scene, tmp_path):
 
 def test_ortho_on_the_sphere_covers_the_camera_footprint(scene, tmp_path):
     """Issue 12: without a DEM, the orthoimage's footprint is `demtool camera`'s."""
-    from demtool.sensors.info import footprint
+    from demtool.camera.info import footprint
     from demtool.sensors.polygons import point_in_polygon, polygon_area
 
     out = tmp_path / "sphere.tif"

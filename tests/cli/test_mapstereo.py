@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from demtool import io as dio
 from demtool.cli import cli
-from demtool.runs.mapproject import SENSOR_TAG
+from demtool.mapproject.surface import SENSOR_TAG
 from tests.cli.test_mapproject import assert_refused
 from tests.helpers.linescan import copy_raster, on_truth, synth_ortho_pair
 
@@ -101,7 +101,7 @@ def test_refine_on_the_map_improves_dem_linescan(route):
 @pytest.mark.slow
 @pytest.mark.parametrize("stage", ["sgm", "match"])
 def test_stereo_refuses_orthos_offset_north_south(route, tmp_path, stage):
-    """Both matchers share the ortho-pair check (demtool.mapstereo.ortho_pair_matches)."""
+    """Both matchers share the ortho-pair check (demtool.mapproject.stereo.ortho_pair_matches)."""
     right = dio.read_raster(route["right"])
     shifted = copy_raster(route["right"], tmp_path / "shifted.tif",
                           data=np.roll(right.data, 3, axis=0))

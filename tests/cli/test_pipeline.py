@@ -15,7 +15,7 @@ from click.testing import CliRunner
 
 from demtool import io as dio
 from demtool.cli import cli
-from demtool.summary import format_table, summary_rows
+from demtool.compare.summary import format_table, summary_rows
 
 NAVCAM = str(Path(__file__).parents[2] / "configs" / "navcam.toml")
 

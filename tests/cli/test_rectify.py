@@ -1,4 +1,4 @@
-"""Tests of uncalibrated rectification (demtool.rectify, demtool rectify)."""
+"""Tests of uncalibrated rectification (demtool.rectify.core, demtool rectify)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from demtool import io as dio
 from demtool.cli import cli
-from demtool.homography import (
+from demtool.imaging.homography import (
     rectified_to_original,
 )
 
@@ -126,7 +126,7 @@ def test_rectify_refuses_two_images_on_one_map_grid(tmp_path):
 
 def test_cli_turns_a_pair_whose_baseline_runs_along_the_columns(stereo_scene, tmp_path):
     """The stereo scene transposed: its baseline is vertical, and the ~80° turn is kept."""
-    from demtool.rectify import rotation_at_centre
+    from demtool.rectify.core import rotation_at_centre
 
     folder = tmp_path / "columns"
     folder.mkdir()

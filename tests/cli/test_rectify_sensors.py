@@ -15,7 +15,7 @@ from demtool.cli import cli
 from demtool.dem.sensors import overlap_mask
 from demtool.maps import body_from_crs, to_pyproj_crs
 from demtool.maps.grids import MapGrid
-from demtool.sensor_arrays import rotate_pointing, rotation_vector_matrix
+from demtool.sensors.arrays import rotate_pointing, rotation_vector_matrix
 from tests.helpers.frame_scene import frame_isd, make_frame_scene, write_frame_scene
 
 
@@ -105,7 +105,7 @@ def test_pointing_correction_is_fitted_and_stored(frame_scene, tmp_path):
     assert summary["rms_vertical_residual_px"] < 0.4
     data = dio.read_npz(rect / "rectify.npz", "rectification")
     # the stored right model is the corrected one: its rays agree with the true camera's
-    from demtool.runs.dem_sensors import models_from_rectification
+    from demtool.dem.inputs import models_from_rectification
 
     _, right = models_from_rectification(data, rect / "rectify.npz")
     lines, samples = np.array([20.0, 80.0, 140.0]), np.array([30.0, 90.0, 150.0])

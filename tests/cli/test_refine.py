@@ -224,7 +224,7 @@ def test_spikes_are_removed_and_reported(tmp_path, scene):
 @pytest.mark.parametrize("preset", ["configs/navcam.toml", "configs/lro-nac.toml"])
 def test_study_presets_set_the_refine_parameters(preset):
     from demtool.cli import stage_options
-    from demtool.config import load_config, to_default_map
+    from demtool.commands.config import load_config, to_default_map
 
     root = Path(__file__).resolve().parents[2]
     defaults = to_default_map(load_config(root / preset), preset, stage_options)["refine"]

@@ -13,11 +13,11 @@ from scipy.ndimage import gaussian_filter
 
 from demtool import io as dio
 from demtool.cli import cli
-from demtool.mapproject import ortho_grid
+from demtool.imaging.reflectance import get_model
+from demtool.mapproject.core import ortho_grid
 from demtool.maps import MapGrid, grid_lonlat, snap_grid
 from demtool.refine.geometry import illumination_grid
 from demtool.refine.shading import slopes
-from demtool.reflectance import get_model
 from tests.helpers.linescan import MOON, R, isd_dict, linescan_sensor
 
 BORDER = 12

@@ -1,4 +1,4 @@
-"""Tests of image selection (demtool.selection, demtool select)."""
+"""Tests of image selection (demtool.select.core, demtool select)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from demtool import features
 from demtool import io as dio
 from demtool.cli import cli
+from demtool.imaging import features
 from tests.helpers.features import make_camera, make_terrain, render
 
 

@@ -17,9 +17,9 @@ from click.testing import CliRunner
 from scipy.ndimage import map_coordinates
 
 from demtool import io
-from demtool.camera import cameras_from_arrays
 from demtool.cli import cli
-from demtool.runs.scene import load_scene
+from demtool.sensors.pinhole import cameras_from_arrays
+from demtool.synth.folder import load_scene
 
 SCENE_FILES = ["view_00.tif", "view_01.tif", "view_02.tif", "view_03.tif", "truth_dem.tif",
                "truth_dem_target.tif", "albedo.tif", "cameras.npz", "scene.json",

@@ -7,8 +7,9 @@ from rasterio.crs import CRS
 
 from demtool import maps
 from demtool.compare.grids import Grid, resample_to_grid
-from demtool.compare.planetary import body_label, check_bodies, metric_grid
+from demtool.compare.planetary import check_bodies, metric_grid
 from demtool.errors import InputError, ProcessingError
+from demtool.maps.bodies import body_label
 
 
 def test_check_bodies_accepts_one_body_and_skips_rasters_without_crs():

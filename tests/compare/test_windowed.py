@@ -10,9 +10,9 @@ from click.testing import CliRunner
 from demtool import io as dio
 from demtool.cli import cli
 from demtool.compare.params import CompareParams
+from demtool.compare.run import run_compare
 from demtool.compare.stats import difference_statistics
 from demtool.compare.streaming import Moments, OrderStatistic, StreamStatistics
-from demtool.runs.compare import run_compare
 from tests.helpers.compare import fourier_shift, fractal
 
 SPACING = 2.0

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from demtool.camera import look_at
 from demtool.dem.points import estimate_gsd, pixel_angle
+from demtool.sensors.pinhole import look_at
 from demtool.synth import SceneParams, make_scene
 
 

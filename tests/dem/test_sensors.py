@@ -12,7 +12,7 @@ from demtool.dem.sensors import (
 )
 from demtool.maps import body_by_name
 from demtool.maps.grids import grid_xyz
-from demtool.sensor_arrays import rotate_pointing, rotation_vector_matrix
+from demtool.sensors.arrays import rotate_pointing, rotation_vector_matrix
 from tests.helpers.frame_scene import make_frame_scene
 
 

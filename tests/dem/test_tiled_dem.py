@@ -1,4 +1,4 @@
-"""``demtool dem`` in tiles (demtool.tiled.dem): tiled and untiled DEMs agree.
+"""``demtool dem`` in tiles (demtool.dem.tiled): tiled and untiled DEMs agree.
 
 A paraboloid seen by two nadir cameras (tests/helpers/dem.py, exact disparities) with a
 wide hole, a strip across the image and 1 % wild disparities keeps the checks fast and
@@ -22,10 +22,10 @@ from click.testing import CliRunner
 
 from demtool import io as dio
 from demtool import tiling
-from demtool.camera import cameras_to_arrays
 from demtool.cli import cli
-from demtool.tiled import dem as tiled_dem
-from demtool.tiled import dem_grids
+from demtool.dem import tiled as tiled_dem
+from demtool.dem import tiled_grids as dem_grids
+from demtool.sensors.pinhole import cameras_to_arrays
 from tests.helpers.dem import (
     BASELINE,
     RECTIFY,
@@ -268,9 +268,9 @@ def test_coarse_factor_keeps_the_coarse_grid_within_its_budget():
 def test_tiled_dem_on_the_small_synthetic_scene(small_scene_dir, tmp_path):
     """rectify → sgm → dem on the small scene: 9 tiles of 64 px; as accurate as untiled."""
     from demtool.dem.params import DemParams
-    from demtool.runs.dem import run_dem
-    from demtool.runs.rectify import run_rectify
-    from demtool.runs.sgm import run_sgm
+    from demtool.dem.run import run_dem
+    from demtool.rectify.run import run_rectify
+    from demtool.sgm.run import run_sgm
 
     stereo = tmp_path / "stereo"
     run_rectify(small_scene_dir / "view_00.tif", small_scene_dir / "view_01.tif", stereo)
@@ -312,7 +312,7 @@ def test_a_locked_output_is_refused(pair, tmp_path):
 
 
 def test_an_unreachable_scheduler_names_the_option(pair, tmp_path, monkeypatch):
-    monkeypatch.setattr("demtool.distributed.CONNECT_TIMEOUT", "1s")
+    monkeypatch.setattr("demtool.tiling.distributed.CONNECT_TIMEOUT", "1s")
     out = tmp_path / "dem.tif"
     result = dem(pair, out, *TILE, "--scheduler", "tcp://127.0.0.1:9")
     assert result.exit_code == 1

@@ -1,4 +1,4 @@
-"""`dem --disparity D --mapprojected LEFT RIGHT` in tiles (demtool.tiled.dem_map) on a small
+"""`dem --disparity D --mapprojected LEFT RIGHT` in tiles (demtool.dem.tiled_map) on a small
 `synth --sensor linescan` scene: the tiled DEM, mask and ray-gap raster against the
 untiled ones (issue 15: heights within 0.01 m on ≥ 99.5 % of cells, same completeness,
 as accurate against truth_dem_map.tif), resumable after a failed tile (byte-identical),
@@ -113,7 +113,7 @@ def scenes(pair, frame):
 def test_a_failed_tile_then_a_resumed_run_writes_the_same_bytes(scenes, route, tmp_path,
                                                                 monkeypatch):
     from demtool import tiling
-    from demtool.tiled import dem_map
+    from demtool.dem import tiled_map as dem_map
 
     out = tmp_path / "run" / "dem.tif"
     error, mask = out.with_name("error.tif"), out.with_name("mask.tif")
@@ -151,7 +151,7 @@ def test_a_failed_tile_then_a_resumed_run_writes_the_same_bytes(scenes, route, t
 
 def test_a_decimated_coarse_solve_and_the_median_stay_within_a_centimetre(
         pair, tmp_path, monkeypatch):
-    from demtool.tiled import dem as tiled_dem_module
+    from demtool.dem import tiled as tiled_dem_module
 
     untiled = tmp_path / "untiled.tif"
     result = invoke("-q", "dem", "--disparity", pair["disparity"], "--mapprojected",
@@ -314,7 +314,7 @@ def test_a_disparity_mostly_outside_the_range_is_refused_in_tiles(frame, tmp_pat
 
 
 def test_streaming_median_is_numpys_median():
-    from demtool.tiled.dem_map_run import streaming_median
+    from demtool.dem.tiled_map_run import streaming_median
 
     rng = np.random.default_rng(3)
     for size in (1, 2, 7, 10_000, 10_001):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from demtool.camera import PinholeCamera, look_at
+from demtool.sensors.pinhole import PinholeCamera, look_at
 
 ALTITUDE = 1000.0
 FOCAL = 2000.0  # 0.5 m per pixel at 1000 m

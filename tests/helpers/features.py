@@ -1,7 +1,7 @@
 """Small synthetic stereo scenes with known truth, for the features/rectify/select tests.
 
 A textured height field (band-pass noise albedo on smooth hills) is rendered by ray
-casting from pinhole cameras made with :func:`demtool.camera.look_at`; the surface
+casting from pinhole cameras made with :func:`demtool.sensors.pinhole.look_at`; the surface
 has relief, so the epipolar geometry of two views is well defined (a plane would be
 a degenerate configuration for the fundamental matrix).
 """
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from demtool.camera import PinholeCamera, look_at
+from demtool.sensors.pinhole import PinholeCamera, look_at
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """Small synthetic scenes with known truth for the `refine` tests (no dependency on synth).
 
 The renderer here is deliberately independent of :mod:`demtool.refine.shading`: normals
-from ``numpy.gradient`` and the lunar-Lambert function of :mod:`demtool.reflectance`.
+from ``numpy.gradient`` and the lunar-Lambert function of :mod:`demtool.imaging.reflectance`.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from demtool.reflectance import lunar_lambert, phase_angle_deg
+from demtool.imaging.reflectance import lunar_lambert, phase_angle_deg
 
 
 def sun_vector(azimuth_deg: float, elevation_deg: float) -> np.ndarray:

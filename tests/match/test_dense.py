@@ -14,7 +14,7 @@ from demtool.match import (
     match,
     ncc_search,
 )
-from demtool.match.lsm import CONVERGED, SINGULAR
+from demtool.match.lsm_base import CONVERGED, SINGULAR
 from demtool.match.seeds import forstner_points, remove_blunders
 from tests.helpers.match import texture, textured_pair
 

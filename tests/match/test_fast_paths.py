@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from demtool.match import SeedTriangulation, lsm_match, match
-from demtool.match.lsm import CONVERGED
+from demtool.match.lsm_base import CONVERGED
 from tests.helpers.match import textured_pair
 
 
@@ -93,7 +93,7 @@ def test_grid_spacing_does_not_interpolate_across_a_disparity_step():
 
 
 def test_row_matching_equals_brute_force_matching_then_the_row_filter():
-    from demtool import features
+    from demtool.imaging import features
     from demtool.match.seeds import match_on_rows
 
     rng = np.random.default_rng(6)

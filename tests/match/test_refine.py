@@ -8,7 +8,7 @@ from scipy import ndimage
 
 from demtool.match import lsm_match, match
 from demtool.match.between import between_nodes, refine_translation, spread_nodes
-from demtool.match.lsm import CONVERGED
+from demtool.match.lsm_base import CONVERGED
 from tests.helpers.match import texture, textured_pair
 
 AFFINE = np.array([[1.08, 0.06], [0.03, 0.95]])  # right = left under x' = A u + t

@@ -495,7 +495,7 @@ def test_kernels_match_the_numpy_operators():
     kernels.integrability_adjoint(p, q, gx, gy, aspect, adjoint)
     assert np.allclose(adjoint, central_gradient_adjoint(p - gx, q - gy, aspect), atol=1e-6)
     illumination = make_illumination(sun_vector(60.0, 40.0), (0.1, -0.05, 1.0))
-    from demtool.reflectance import mcewen_L
+    from demtool.imaging.reflectance import mcewen_L
 
     for model, code in kernels.COMPILED_MODELS.items():
         R, Rp, Rq = (np.empty_like(p) for _ in range(3))
@@ -536,7 +536,7 @@ def test_gradient_lowpass_is_the_gaussian_and_symmetric():
 
 
 def test_prepare_dem_fills_gaps():
-    pytest.importorskip("demtool.interpolate")
+    pytest.importorskip("demtool.imaging.interpolate")
     rows, cols = np.mgrid[0:40, 0:40].astype(np.float32)
     plane = 0.5 * cols - 0.25 * rows
     dem = plane.copy()

@@ -13,8 +13,8 @@ from click.testing import CliRunner
 from demtool import io
 from demtool.cli import cli
 from demtool.refine.params import RefineParams
-from demtool.runs.refine import run_refine
-from demtool.tiled.refine import default_overlap, global_pass
+from demtool.refine.run import run_refine
+from demtool.refine.tiled import default_overlap, global_pass
 from tests.cli import test_refine_map
 from tests.helpers.refine import hills_scene, rmse
 
@@ -97,7 +97,7 @@ def test_global_pass_median_is_exact_then_sampled(tmp_path, scene, monkeypatch):
     shared = global_pass(image, dem, (SIZE, SIZE))
     assert shared.image_median == float(np.median(scene.image))
     assert shared.nan_fraction == 0.0
-    monkeypatch.setattr("demtool.tiled.refine.MEDIAN_SAMPLE", (SIZE // 4) ** 2)  # every 4th
+    monkeypatch.setattr("demtool.refine.tiled.MEDIAN_SAMPLE", (SIZE // 4) ** 2)  # every 4th
     sampled = global_pass(image, dem, (SIZE, SIZE))
     assert sampled.image_sample.shape == (SIZE // 4, SIZE // 4)
     assert sampled.image_median == float(np.median(scene.image[::4, ::4]))
@@ -189,7 +189,7 @@ def test_small_tile_size_is_refused(tmp_path, scene):
 
 def test_failed_tile_then_resume_is_byte_identical(tmp_path, scene, monkeypatch):
     from demtool.errors import ProcessingError
-    from demtool.tiled import refine as tiled_refine
+    from demtool.refine import tiled as tiled_refine
     from demtool.tiling import work_folder
 
     image, dem = write_inputs(tmp_path, scene)

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from demtool import camera as legacy
 from demtool import io as dio
 from demtool.errors import InputError
 from demtool.sensors import PinholeCamera, SensorModel, read_sensor, read_sensors
+from demtool.sensors import pinhole as legacy
 from demtool.sensors.pinhole import cameras_to_arrays, look_at
 
 BROWN = np.array([-0.2, 0.05, 1e-3, -5e-4, 0.01])

@@ -318,8 +318,8 @@ def test_truth_of_a_large_turn_pair_names_its_views(small_scene):
     with left= / right=) agrees with point-based truth (target pixels cast onto the DEM,
     projected into view_03) to 0.11 px RMS rows; through the default partner (view_01)
     it would be 2.9 px."""
-    from demtool.homography import apply_homography
-    from demtool.rectify import rectify_pair, rotation_at_centre
+    from demtool.imaging.homography import apply_homography
+    from demtool.rectify.core import rectify_pair, rotation_at_centre
 
     rect = rectify_pair(small_scene.images["view_00"], small_scene.images["view_03"])
     assert rotation_at_centre(rect.H_left, rect.size_left) < -60

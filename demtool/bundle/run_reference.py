@@ -1,0 +1,90 @@
+"""The reference DEM of ``bundle --reference-dem``: checked against the sensor models'
+body and read (the window under the images' footprints) into a
+:class:`demtool.bundle.surface.ReferenceSurface`."""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+
+def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
+                           sensor_paths: Sequence[str | os.PathLike], *, sigma: float):
+    """The reference DEM under the images, heights above the models' body's sphere.
+
+    Parameters
+    ----------
+    path : path-like
+        A DEM on the body's map (projected or geographic CRS on the body's sphere),
+        heights in metres.
+    models : sequence of SensorModel
+        The prior models (their radii name the body; their footprints on the sphere
+        choose the window read).
+    sensor_paths : sequence of path-like
+        The models' files, for messages.
+    sigma : float
+        Standard deviation of the DEM's heights, metres.
+
+    Raises
+    ------
+    InputError
+        No CRS (units and body unknown, e.g. a grid in degrees without its body),
+        another body than the models', an ellipsoid instead of the sphere, or a DEM
+        that does not cover the images.
+    """
+    from affine import Affine
+
+    from demtool import io as dio
+    from demtool.bundle.surface import ReferenceSurface
+    from demtool.errors import InputError
+    from demtool.mapproject.core import ground_footprint, sensor_body
+    from demtool.mapproject.surface import read_dem_surface
+    from demtool.maps import lonlat_to_map, to_pyproj_crs, wrap_longitude, xyz_to_lonlat_height
+
+    dio.require_file(path, "reference DEM")
+    index = next((i for i, m in enumerate(models) if m.radii is not None), None)
+    if index is None:
+        raise InputError(f"{path}: --reference-dem needs the body's radii, and no sensor "
+                         "model carries them (.tsai files do not): give ISDs or cubes")
+    body = sensor_body(models[index])
+    info = dio.raster_info(path, what="reference DEM")
+    if info.crs is None:
+        raise InputError(f"{path}: reference DEM has no CRS, so its body and units (metres "
+                         "or degrees) are unknown; give a DEM on the body's map")
+    dem = read_dem_surface(path, sensor_paths[index], body)  # same body, on the sphere
+    crs = to_pyproj_crs(info.crs)
+    lons, lats = [], []
+    for model in models:
+        xyz = ground_footprint(model, body.radius, 0.0)
+        xyz = xyz[np.isfinite(xyz).all(axis=1)]
+        lon, lat, _ = xyz_to_lonlat_height(xyz, radii=body.radius)
+        lons.append(lon)
+        lats.append(lat)
+    lon, lat = np.concatenate(lons), np.concatenate(lats)
+    t = info.transform
+    if crs.is_geographic:
+        x, y = wrap_longitude(lon, t.c + 0.5 * t.a * info.width), lat
+    else:
+        x, y = lonlat_to_map(crs, lon, lat)
+    inverse = ~t
+    col = inverse.a * x + inverse.b * y + inverse.c
+    row = inverse.d * x + inverse.e * y + inverse.f
+    good = np.isfinite(col) & np.isfinite(row)
+    if not good.any():
+        raise InputError(f"{path}: reference DEM does not cover the images' footprints")
+    c0 = max(math.floor(col[good].min()) - 2, 0)
+    c1 = min(math.ceil(col[good].max()) + 2, info.width)
+    r0 = max(math.floor(row[good].min()) - 2, 0)
+    r1 = min(math.ceil(row[good].max()) + 2, info.height)
+    if c1 <= c0 or r1 <= r0:
+        raise InputError(f"{path}: reference DEM does not cover the images' footprints")
+    heights = dio.read_window(path, (r0, r1, c0, c1), what="reference DEM")
+    heights = heights.astype(np.float64) + dem.offset_m
+    if not np.isfinite(heights).any():
+        raise InputError(f"{path}: reference DEM has no data under the images' footprints")
+    return ReferenceSurface(heights=heights, transform=t @ Affine.translation(c0, r0),
+                            crs=crs, radius=body.radius, sigma=float(sigma))

@@ -1,0 +1,202 @@
+"""Runner of ``demtool camera``: what sensor models see (ISIS ``caminfo``, ASP
+``camera_footprint``).
+
+The report goes to stdout, the command's product as with ISIS's ``caminfo``/``campt``:
+a table by default, the JSON report with ``as_json``; logs stay on stderr.  ``out``
+also writes the JSON report (with its provenance sidecar) in one output transaction.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TextIO
+
+from demtool.stagerun import StageRun, sidecar_path
+
+if TYPE_CHECKING:
+    from demtool.camera.params import CameraParams
+    from demtool.maps import Body
+
+
+def _named_body(text: str) -> Body:
+    from demtool.errors import ParameterError
+    from demtool.maps import body_by_naif_id, body_by_name
+
+    try:
+        return body_by_naif_id(int(text)) if text.strip().lstrip("-").isdigit() \
+            else body_by_name(text)
+    except KeyError as exc:
+        raise ParameterError(f"--body: {exc.args[0]}") from None
+
+
+def _isd_naif_id(path: Path) -> int | None:
+    """The target's NAIF id an ALE ISD names in its ``naif_keywords`` (BODY<id>_RADII)."""
+    try:
+        with open(path, encoding="utf-8") as handle:
+            keywords = json.load(handle).get("naif_keywords") or {}
+    except (OSError, ValueError, AttributeError):
+        return None
+    ids = {int(m.group(1)) for k in keywords if (m := re.fullmatch(r"BODY(-?\d+)_RADII", k))}
+    return ids.pop() if len(ids) == 1 else None
+
+
+def _body_of(model, path: Path, named: Body | None) -> Body | None:
+    """The body a model is on (None: the local world frame of a pinhole)."""
+    from demtool.errors import InputError
+    from demtool.maps import body_from_radii
+    from demtool.sensors import TsaiCamera
+
+    if model.radii is None:
+        if isinstance(model, TsaiCamera):
+            raise InputError(f"{path}: a .tsai model does not say which body it sees; give "
+                             "--body (e.g. --body Moon)")
+        return None
+    a, b = model.radii
+    if named is not None:
+        return body_from_radii(a, a, b, name=named.name, naif_id=named.naif_id)
+    naif = _isd_naif_id(path) if path.suffix.lower() == ".json" else None
+    return body_from_radii(a, a, b, naif_id=naif)
+
+
+def _sized(model):
+    """A pinhole without an image size (a ``.tsai`` carries none) gets the size centred on
+    its principal point, with a note."""
+    import dataclasses
+
+    from demtool.sensors import PinholeCamera
+
+    if not isinstance(model, PinholeCamera) or (model.width > 0 and model.height > 0):
+        return model
+    width = max(1, round(2 * (model.K[0, 2] + 0.5)))
+    height = max(1, round(2 * (model.K[1, 2] + 0.5)))
+    sized = dataclasses.replace(model, width=width, height=height)
+    object.__setattr__(sized, "notes", [f"the model gives no image size: {height} x {width} "
+                                        "px assumed, centred on the principal point"])
+    return sized
+
+
+def read_models(paths: Sequence[str | os.PathLike], body: Body | None = None):
+    """Read every model of every file, by unique name, with its body and file.
+
+    Returns
+    -------
+    models : dict name → SensorModel
+    bodies : dict name → Body or None
+    files : dict name → str
+    """
+    from demtool.sensors import read_sensors
+
+    radii = (body.a, body.c) if body is not None else None
+    models, bodies, files = {}, {}, {}
+    for raw in paths:
+        path = Path(raw)
+        for name, model in read_sensors(path, radii=radii).items():
+            key = name or path.stem
+            if key in models:
+                key = f"{path.name}:{key}"
+            models[key] = _sized(model)
+            bodies[key] = _body_of(model, path, body)
+            files[key] = str(path)
+    return models, bodies, files
+
+
+def _fmt(value: Any, spec: str) -> str:
+    if value is None:
+        return "—"
+    return format(value, spec)
+
+
+CAMERA_ROWS = (
+    ("kind", "kind", "s"), ("body", "body", "s"), ("lines", "lines", "d"),
+    ("samples", "samples", "d"), ("centre lon °E", "center_lon_deg", ".5f"),
+    ("centre lat °", "center_lat_deg", ".5f"), ("GSD m/px", "gsd_m", ".4g"),
+    ("GSD line m", "gsd_line_m", ".4g"), ("GSD sample m", "gsd_sample_m", ".4g"),
+    ("altitude km", "altitude_km", ".3f"), ("slant range km", "slant_range_km", ".3f"),
+    ("emission °", "emission_deg", ".3f"), ("incidence °", "incidence_deg", ".3f"),
+    ("phase °", "phase_deg", ".3f"), ("sun azimuth °", "sun_azimuth_deg", ".3f"),
+    ("sun elevation °", "sun_elevation_deg", ".3f"), ("footprint km²", "area_km2", ".4g"))
+PAIR_COLUMNS = (("convergence °", "convergence_deg", ".3f"), ("B/H", "base_to_height", ".4f"),
+                ("base km", "base_km", ".3f"), ("overlap km²", "overlap_area_km2", ".4g"),
+                ("overlap 1st", "overlap_fraction_first", ".1%"),
+                ("overlap 2nd", "overlap_fraction_second", ".1%"))
+
+
+def format_table(report: dict[str, Any]) -> str:
+    """The report as text: one column per camera, then one line per pair, then notes."""
+    cameras = report["cameras"]
+    width = max([14, *(len(c["name"]) for c in cameras)]) + 2
+    lines = [f"{'':<16}" + "".join(f"{c['name']:>{width}}" for c in cameras)]
+    for label, key, spec in CAMERA_ROWS:
+        cells = []
+        for c in cameras:
+            value = {**c, "altitude_km": c.get("altitude_m") and c["altitude_m"] / 1e3,
+                     "slant_range_km": c.get("slant_range_m") and c["slant_range_m"] / 1e3,
+                     "area_km2": (c.get("footprint") or {}).get("area_km2")}.get(key)
+            cells.append(_fmt(value, spec))
+        lines.append(f"{label:<16}" + "".join(f"{v:>{width}}" for v in cells))
+    if report["pairs"]:
+        lines.append("")
+        names = [f"{p['first']} / {p['second']}" for p in report["pairs"]]
+        first = max(16, *(len(n) for n in names)) + 2
+        lines.append(f"{'pair':<{first}}" + "".join(f"{label:>14}"
+                                                    for label, _, _ in PAIR_COLUMNS))
+        for name, p in zip(names, report["pairs"], strict=True):
+            values = {**p, "base_km": p.get("base_m") and p["base_m"] / 1e3}
+            lines.append(f"{name:<{first}}" + "".join(
+                f"{_fmt(values.get(key), spec):>14}" for _, key, spec in PAIR_COLUMNS))
+    notes = [f"{c['name']}: {n}" for c in cameras for n in c["notes"]] + \
+        [f"{p['first']} / {p['second']}: {n}" for p in report["pairs"] for n in p["notes"]]
+    if notes:
+        lines.append("")
+        lines.extend(f"note: {n}" for n in notes)
+    return "\n".join(lines)
+
+
+def run_camera(models: Sequence[str | os.PathLike], params: CameraParams | None = None, *,
+               out: str | os.PathLike | None = None, as_json: bool = False,
+               stream: TextIO | None = None, resolved: dict[str, Any] | None = None
+               ) -> dict[str, Any]:
+    """Report what each model sees, and each pair's stereo geometry.
+
+    Reads every MODEL (:func:`demtool.sensors.read_sensors`), calls
+    :func:`demtool.camera.info.camera_info`, prints the table (or, with ``as_json``,
+    the JSON report) on ``stream`` (default stdout) and, with ``out``, writes the JSON
+    report and its sidecar ``<out>.json``.
+
+    Returns
+    -------
+    dict
+        ``cameras`` and ``pairs`` (keys: README, section "camera"); each camera also
+        has ``file``.
+    """
+    from demtool import io as dio
+    from demtool.camera.info import camera_info
+    from demtool.camera.params import CameraParams
+
+    params = params or CameraParams()
+    run = StageRun("camera", params, resolved=resolved, inputs={"MODEL": list(models)},
+                   outputs={"--out": out,
+                            "sidecar": None if out is None else sidecar_path(out)})
+    log, provenance = run.log, run.provenance
+    body = _named_body(params.body) if params.body is not None else None
+    sensors, bodies, files = read_models(models, body)
+    log.info("%d camera model(s) from %d file(s)", len(sensors), len(models))
+    report = camera_info(sensors, bodies, points_per_edge=params.points_per_edge)
+    for entry in report["cameras"]:
+        entry["file"] = files[entry["name"]]
+    for entry in report["cameras"]:
+        for note in entry["notes"]:
+            log.info("%s: %s", entry["name"], note)
+    text = dio.dumps_json(report) if as_json else format_table(report)
+    if out is not None:
+        summary = {"cameras": len(report["cameras"]), "pairs": len(report["pairs"])}
+        with run.transaction():
+            dio.write_json(out, {**report, "provenance": provenance.record(summary, [out])})
+            provenance.write_sidecar(out, summary)
+    print(text, file=stream or sys.stdout)
+    return report

@@ -1,0 +1,128 @@
+"""What both compare routes (whole grid, :mod:`demtool.compare.run`, and windowed,
+:mod:`demtool.compare.run_windowed`) write: the report, its table and the figures."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+REPORT = "report.json"
+DIFFERENCE = "difference.tif"
+
+
+FIGURES = ("difference.png", "dems.png", "profiles.png", "histogram.png", "completeness.png",
+           "coherence.png")
+
+
+def _check_profiles(profiles: Sequence[Sequence[float]], shape: tuple[int, int]) -> None:
+    from demtool.errors import ParameterError
+
+    rows, cols = shape
+    for line in profiles:
+        x0, y0, x1, y1 = line
+        inside = all(-0.5 <= x <= cols - 0.5 for x in (x0, x1)) and \
+            all(-0.5 <= y <= rows - 0.5 for y in (y0, y1))
+        if not inside:
+            raise ParameterError(f"--profile {','.join(f'{v:g}' for v in line)} leaves the "
+                                 f"comparison grid (x 0..{cols - 1}, y 0..{rows - 1} px)")
+        if x0 == x1 and y0 == y1:
+            raise ParameterError(f"--profile {','.join(f'{v:g}' for v in line)} has zero "
+                                 "length")
+
+
+def _headline(report: dict[str, Any]) -> dict[str, Any]:
+    keys = ("count", "completeness", "mean", "median", "std", "rmse", "nmad", "le90", "min",
+            "max")
+    resolution = report.get("effective_resolution") or {}
+    return {**{k: report[k] for k in keys}, "shift": report["shift"],
+            "shift_uncertainty": report["shift_uncertainty"],
+            "wavelength_m": resolution.get("wavelength_m")}
+
+
+def format_table(rows: Sequence[tuple[str, dict[str, Any]]]) -> str:
+    """Short plain-text table: one row per compared DEM."""
+    def fmt(value: Any, spec: str) -> str:
+        return "—" if value is None else format(value, spec)
+
+    header = (f"{'DEM':<20} {'n':>9} {'compl %':>8} {'mean':>8} {'RMSE':>8} {'NMAD':>8} "
+              f"{'LE90':>8} {'dx px':>7} {'dy px':>7} {'dz m':>8} {'λ coh m':>8}")
+    lines = [header]
+    for label, r in rows:
+        resolution = r.get("effective_resolution") or {}
+        lines.append(
+            f"{label[:20]:<20} {r['count']:>9d} {fmt(r['completeness'], '8.2f')} "
+            f"{fmt(r['mean'], '8.3f')} {fmt(r['rmse'], '8.3f')} {fmt(r['nmad'], '8.3f')} "
+            f"{fmt(r['le90'], '8.3f')} {r['shift']['dx_px']:7.3f} {r['shift']['dy_px']:7.3f} "
+            f"{r['shift']['dz']:8.3f} {fmt(resolution.get('wavelength_m'), '8.2f')}")
+    return "\n".join(lines)
+
+
+def assemble_report(reports: Sequence[tuple[str, dict[str, Any]]], *, dem_path, reference_path,
+                    also: Sequence[str], grid: str, target: Any, frame: str | None,
+                    degrees: Any, body_warnings: Sequence[str], lines, log) -> dict[str, Any]:
+    """The report of one comparison run from each DEM's own report (main DEM first, then
+    the ``also`` DEMs), logged as the table and the warnings; in memory and in windows."""
+    label, main = reports[0]
+    report: dict[str, Any] = {"label": label, "dem": str(dem_path),
+                              "reference": str(reference_path), **main}
+    report["grid"] = {**main["grid"], "on": grid,
+                      "crs": target.crs.to_string() if target.crs else None,
+                      "transform": list(target.transform)[:6], "frame": frame,
+                      "from_geographic": degrees}
+    report["warnings"] = [*body_warnings, *report["warnings"]]
+    report["profiles_px"] = [list(line) for line in lines]
+    report["also"] = [{"label": name, "dem": str(path), **_headline(r),
+                       "alignment": r["alignment"], "warnings": r["warnings"]}
+                      for (name, r), path in zip(reports[1:], also, strict=True)]
+    log.info("\n%s", format_table(reports))
+    for message in report["warnings"]:
+        log.warning("%s: %s", label, message)
+    return report
+
+
+def write_report(provenance: Any, out: Path, report: dict[str, Any],
+                 figures: dict[str, bytes]) -> None:
+    """``report.json`` (with its figures and provenance), the PNG figures and the sidecar,
+    inside the caller's output transaction (``difference.tif`` is the caller's)."""
+    from demtool import io as dio
+
+    report["figures"] = sorted(figures)
+    report_path = out / REPORT
+    outputs = [report_path, out / DIFFERENCE, *[out / name for name in figures]]
+    report["provenance"] = provenance.record(_headline(report), outputs)
+    for name, content in figures.items():
+        with dio.atomic_path(out / name, suffix=".png") as temporary:
+            temporary.write_bytes(content)
+    dio.write_json(report_path, report)
+    provenance.write_sidecar(report_path, _headline(report), outputs=outputs)
+
+
+def make_figures(comparisons: Sequence[tuple[str, Any]], reference_values, lines,
+                 spacing: tuple[float, float], label: str) -> dict[str, bytes]:
+    """The PNG figures of a comparison: name -> bytes (``comparisons[0]`` is the main DEM's
+    :class:`demtool.compare.Comparison`, the others the ``--also`` DEMs')."""
+    from demtool.compare import plots as figure_maker
+
+    main = comparisons[0][1]
+    stats = main.report
+    figures: dict[str, bytes] = {}
+    figures["difference.png"] = figure_maker.difference_figure(
+        main.difference, spacing, title=f"{label} − reference", stats=stats)
+    figures["dems.png"] = figure_maker.dems_figure(
+        [(label, main.aligned), *[(n, c.aligned) for n, c in comparisons[1:]],
+         ("reference", reference_values)], spacing)
+    figures["profiles.png"] = figure_maker.profiles_figure(
+        [("reference", reference_values), (label, main.aligned),
+         *[(n, c.aligned) for n, c in comparisons[1:]]], lines, spacing)
+    figures["histogram.png"] = figure_maker.histogram_figure(main.difference, stats=stats,
+                                                             title=f"{label} − reference")
+    figures["completeness.png"] = figure_maker.completeness_figure(
+        main.coverage, spacing, percent=main.report["completeness"], title=label)
+    resolution = main.report["effective_resolution"]
+    if main.spectrum is not None and resolution is not None:
+        figures["coherence.png"] = figure_maker.coherence_figure(
+            main.spectrum.frequency, main.spectrum.coherence,
+            cutoff_per_m=resolution["coherent_frequency_per_m"],
+            threshold=resolution["threshold"], title=f"{label} vs reference")
+    return figures

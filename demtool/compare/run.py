@@ -1,0 +1,205 @@
+"""Runner of ``demtool compare``: measure a DEM against a reference."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from demtool.compare.report import (
+    DIFFERENCE,
+    FIGURES,
+    REPORT,
+    _check_profiles,
+    assemble_report,
+    make_figures,
+    write_report,
+)
+from demtool.stagerun import StageRun, check_same_frame, sidecar_path
+
+if TYPE_CHECKING:
+    from demtool.compare.params import CompareParams
+
+
+def _read_dem(path: str | os.PathLike, what: str):
+    from demtool import io as dio
+
+    return dio.read_raster(path, what=what)
+
+
+def _grid_of(raster):
+    from demtool.compare.grids import Grid
+
+    return Grid(shape=raster.data.shape, transform=raster.transform, crs=raster.crs)
+
+
+def _onto(raster, grid, what: str):
+    from demtool.compare.grids import resample_to_grid
+    from demtool.errors import ProcessingError
+
+    try:
+        return resample_to_grid(raster.data, _grid_of(raster), grid)
+    except ProcessingError as exc:
+        raise ProcessingError(f"{raster.path}: {what}: {exc}") from None
+
+
+def _read_mask_raster(path: str | os.PathLike, dem, reference):
+    """The --mask raster, which must lie on the DEM's or the reference's grid and frame."""
+    from demtool import io as dio
+    from demtool.errors import InputError
+    from demtool.imaging.checks import check_same_grid
+
+    raster = dio.read_raster(path, what="mask", allow_all_nan=False)
+    try:
+        check_same_grid(reference, raster, reference_what="reference DEM")
+    except InputError:
+        check_same_grid(dem, raster)  # neither grid: say how it differs from the DEM's
+    return raster
+
+
+def _read_mask(raster, grid):
+    """Mask raster (non-zero = use) resampled onto the comparison grid."""
+    import numpy as np
+
+    from demtool.errors import InputError
+
+    values = _onto(raster, grid, "mask")
+    with np.errstate(invalid="ignore"):
+        mask = np.isfinite(values) & (np.abs(values) > 0.5)
+    if not mask.any():
+        raise InputError(f"{raster.path}: mask selects no pixel of the comparison grid")
+    return mask
+
+
+def _windowed(run, dem_path, reference_path, out_dir, params, mask_path, also):
+    """The windowed comparison's report when ``--tile-size`` or the memory budget asks for
+    it (:func:`demtool.compare.run_windowed.windowed_tile_size`), else None."""
+    from demtool import io as dio
+    from demtool.compare.planetary import check_bodies, metric_grid
+    from demtool.compare.run_windowed import (
+        _grid,
+        _Header,
+        compare_windowed,
+        windowed_tile_size,
+    )
+
+    infos = {"dem": dio.raster_info(dem_path, what="DEM"),
+             "reference": dio.raster_info(reference_path, what="reference DEM")}
+    target, degrees = metric_grid(_grid(infos[params.grid]))
+    tile_size = windowed_tile_size(target.shape, params)
+    if not tile_size:
+        return None
+    infos[str(dem_path)] = infos["dem"]
+    for path in also:
+        infos[str(path)] = dio.raster_info(path, what="DEM (--also)")
+    for path in (dem_path, *also):
+        check_same_frame(_Header(infos[str(path)]), _Header(infos["reference"]),
+                         "compare rasters of one frame (e.g. a target-frame DEM with "
+                         "truth_dem_target.tif)")
+    body_warnings = check_bodies([(i.path, i.crs) for i in (infos["reference"], infos["dem"],
+                                                            *(infos[str(p)] for p in also))])
+    return compare_windowed(run, dem_path, reference_path, out_dir, params, tile_size,
+                            infos=infos, target=target, degrees=degrees, mask_path=mask_path,
+                            also=also, body_warnings=body_warnings)
+
+
+def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
+                out_dir: str | os.PathLike, params: CompareParams | None = None, *,
+                mask_path: str | os.PathLike | None = None, also: Sequence[str] = (),
+                resolved: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Compare DEM (and ``also`` DEMs) with REFERENCE; write the report folder.
+
+    Reads the rasters, puts them on one grid (the reference's, or the DEM's with
+    ``params.grid="dem"``; reprojected when both have a different CRS), calls
+    :func:`demtool.compare.compare_dems` for each DEM, and writes into ``out_dir`` —
+    in one output transaction — ``report.json`` (figures, transform, the ``also`` DEMs
+    and the provenance under ``provenance``), ``difference.tif`` (aligned DEM −
+    reference, with provenance tags), the PNG figures and the standard provenance
+    sidecar ``report.json.json``.
+
+    Returns
+    -------
+    dict
+        The report (as written to ``report.json``).
+    """
+    import numpy as np
+
+    from demtool import io as dio
+    from demtool.compare import compare_dems
+    from demtool.compare import plots as figure_maker
+    from demtool.compare.params import CompareParams
+    from demtool.imaging.checks import check_magnitude
+
+    params = params or CompareParams()
+    run = StageRun("compare", params, resolved=resolved,
+                   inputs={"DEM": dem_path, "REFERENCE": reference_path, "--also": also,
+                           "--mask": mask_path}, folders={"--out": out_dir},
+                   outputs={"--out": [Path(out_dir) / n for n in (REPORT, DIFFERENCE, *FIGURES)],
+                            "sidecar": sidecar_path(Path(out_dir) / REPORT)})
+    log, provenance = run.log, run.provenance
+    grid, align, label = params.grid, params.align, params.label
+    out = Path(out_dir)
+    windowed = _windowed(run, dem_path, reference_path, out_dir, params, mask_path, also)
+    if windowed is not None:
+        return windowed
+    dem = _read_dem(dem_path, "DEM")
+    reference = _read_dem(reference_path, "reference DEM")
+    extra = [_read_dem(path, "DEM (--also)") for path in also]
+    for raster, what in ((dem, "DEM"), (reference, "reference DEM"),
+                         *((r, "DEM (--also)") for r in extra)):
+        check_magnitude(raster.data, raster.path, what=what)
+    mask_raster = _read_mask_raster(mask_path, dem, reference) if mask_path else None
+    for raster in (dem, *extra):
+        check_same_frame(raster, reference, "compare rasters of one frame (e.g. a "
+                         "target-frame DEM with truth_dem_target.tif)")
+    from demtool.compare.planetary import check_bodies, metric_grid
+
+    body_warnings = check_bodies([(r.path, r.crs) for r in (reference, dem, *extra)])
+    if grid == "reference":
+        target = _grid_of(reference)
+        reference_values = reference.data.astype(np.float64)
+        dem_values = _onto(dem, target, "DEM")
+        frame = reference.tags.get("frame")
+    else:
+        target = _grid_of(dem)
+        dem_values = dem.data.astype(np.float64)
+        reference_values = _onto(reference, target, "reference DEM")
+        frame = dem.tags.get("frame")
+    target, degrees = metric_grid(target)  # a degree grid is measured in metres
+    if degrees is not None:
+        reference_values = _onto(reference, target, "reference DEM")
+        dem_values = _onto(dem, target, "DEM")
+    extra_values = [_onto(raster, target, "DEM (--also)") for raster in extra]
+    mask = _read_mask(mask_raster, target) if mask_raster is not None else None
+    sx, sy = target.spacing
+    lines = [tuple(float(v) for v in line) for line in params.profiles] or \
+        figure_maker.default_profiles(target.shape)
+    _check_profiles(lines, target.shape)
+
+    label = label or Path(dem_path).stem
+    labels = [Path(p).stem for p in also]
+    log.info("%s vs %s on the %s grid (%d x %d, %.4g x %.4g m), alignment %s", dem_path,
+             reference_path, grid, target.shape[1], target.shape[0], sx, sy, align)
+    comparisons = []
+    for name, values in ((label, dem_values), *zip(labels, extra_values, strict=True)):
+        comparison = compare_dems(values, reference_values, spacing=(sx, sy), align=align,
+                                  mask=mask, slope_bins=params.slope_bins,
+                                  icp_scale=params.icp_scale, seed=params.seed)
+        comparisons.append((name, comparison))
+    report = assemble_report([(name, c.report) for name, c in comparisons],
+                             dem_path=dem_path, reference_path=reference_path, also=also,
+                             grid=grid, target=target, frame=frame, degrees=degrees,
+                             body_warnings=body_warnings, lines=lines, log=log)
+    main = comparisons[0][1]
+
+    figures = make_figures(comparisons, reference_values, lines, (sx, sy), label) \
+        if params.plots else {}
+    with run.transaction():
+        dio.write_raster(out / DIFFERENCE, main.difference, transform=target.transform,
+                         crs=target.crs,
+                         tags=provenance.tags(frame=frame or "unknown", label=label,
+                                              quantity="aligned DEM - reference (m)",
+                                              shift=report["shift"]))
+        write_report(provenance, out, report, figures)
+    return report

@@ -1,0 +1,380 @@
+"""``demtool compare`` on DEMs larger than memory: statistics window by window.
+
+Used by :func:`demtool.compare.run.run_compare` when ``--tile-size`` is given, or when
+the in-memory comparison would need more than ``--max-memory-mb``
+(:func:`windowed_tile_size`).  The comparison grid is cut into windows
+(:func:`demtool.tiling.plan_tiles`); each window of the DEM, the reference and the mask
+is read alone (:func:`demtool.io.read_window`) and resampled onto the grid by the same
+bilinear sampler and the same cell coordinates as the in-memory path
+(:func:`demtool.compare.grids.source_pixels`, :func:`~demtool.compare.grids.sample_bilinear`;
+a raster already on the grid is read as is), so every cell gets the in-memory value.
+
+1. **Alignment** on the grid decimated by ``f`` (every f-th cell in both directions, ``f``
+   the smallest integer keeping it under :data:`ALIGN_CELLS` cells, or the memory
+   budget): :func:`demtool.compare.align.coregister`; the shift is scaled back by ``f``.
+   With ``f = 1`` (a grid of at most 2 M cells) the alignment is the in-memory one.
+   ``icp`` and ``nuth-kaab+icp`` are refused (their rotation and scale are applied
+   through the whole grid); the effective resolution and the figures come from the
+   decimated grid too.
+2. **Statistics**, exact (:class:`demtool.compare.streaming.StreamStatistics`): pass 1
+   accumulates the moments and the completeness counts and writes ``difference.tif``
+   window by window; further passes (typically 4–6) find the median, LE90 and NMAD
+   exactly by bucket narrowing.  Count, mean, RMSE and std equal the in-memory figures to
+   rounding (~1e-15 relative); median, NMAD and LE90 are the same order statistics.
+
+Peak memory: one window with its margins (a few arrays of ``(tile + 2m)²`` float64), the
+decimated grid, and the order statistics' buffers (≤ 2 MiB each), not the DEM.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from demtool.errors import InputError, ParameterError, ProcessingError
+
+ALIGN_CELLS = 1 << 21  # cells of the decimated grid the alignment runs on
+BYTES_PER_CELL = 160  # in-memory compare: ~ a dozen float64 arrays of the grid + temporaries
+ALIGN_BYTES_PER_CELL = 400  # alignment on the decimated grid (measured: ~0.7 GiB at 1.9 M)
+DEFAULT_TILE = 1024
+
+
+def windowed_tile_size(shape: tuple[int, int], params: Any) -> int:
+    """The window side of a windowed comparison, or 0 for the in-memory one.
+
+    ``--tile-size N`` windows a grid larger than N cells; without it a grid whose
+    in-memory comparison needs more than ``--max-memory-mb`` (about
+    :data:`BYTES_PER_CELL` bytes a cell) is windowed with windows that fit the budget
+    (at most :data:`DEFAULT_TILE` cells a side).
+
+    Raises
+    ------
+    ParameterError
+        ``--tile-size`` between 1 and 15.
+    """
+    rows, cols = shape
+    size = int(params.tile_size)
+    if 0 < size < 16:
+        raise ParameterError(f"--tile-size must be 0 (in memory) or >= 16 cells, got {size}")
+    if size == 0:
+        budget = params.max_memory_mb * 2**20
+        if rows * cols * BYTES_PER_CELL <= budget:
+            return 0
+        size = int(min(DEFAULT_TILE, max(16, math.isqrt(int(budget / BYTES_PER_CELL)))))
+    return size if rows > size or cols > size else 0
+
+
+@dataclass
+class Source:
+    """A raster read window by window onto the comparison grid."""
+
+    path: Path
+    what: str
+    grid: Any  # its own demtool.compare.grids.Grid
+    target: Any  # the comparison grid
+    same: bool = False
+    reads: list[int] = field(default_factory=list)  # cells of each window read
+
+    def __post_init__(self) -> None:
+        from demtool.compare.grids import _check_overlap, same_grid
+
+        self.same = same_grid(self.grid, self.target)
+        if not self.same:
+            try:
+                _check_overlap(self.grid, self.target)
+            except ProcessingError as exc:
+                raise ProcessingError(f"{self.path}: {self.what}: {exc}") from None
+
+    def read(self, window: tuple[int, int, int, int]) -> np.ndarray:
+        """The window's cells of the comparison grid, float64, NaN where no value."""
+        from demtool import io as dio
+        from demtool.compare.grids import sample_bilinear, source_pixels
+
+        if self.same:
+            self.reads.append((window[1] - window[0]) * (window[3] - window[2]))
+            return dio.read_window(self.path, window, what=self.what).astype(np.float64)
+        rows, cols = source_pixels(self.grid, self.target, window)
+        shape = (window[1] - window[0], window[3] - window[2])
+        finite = np.isfinite(rows) & np.isfinite(cols)
+        height, width = self.grid.shape
+        if finite.any():
+            r0 = max(int(np.floor(rows[finite].min())), 0)
+            r1 = min(int(np.floor(rows[finite].max())) + 2, height)
+            c0 = max(int(np.floor(cols[finite].min())), 0)
+            c1 = min(int(np.floor(cols[finite].max())) + 2, width)
+            if r1 > r0 and c1 > c0:
+                self.reads.append((r1 - r0) * (c1 - c0))
+                data = dio.read_window(self.path, (r0, r1, c0, c1), what=self.what)
+                return sample_bilinear(data, rows - r0, cols - c0)
+        return np.full(shape, np.nan)
+
+
+class _Header:
+    """What the frame and grid checks read of a raster, without its pixels."""
+
+    def __init__(self, info: Any) -> None:
+        self.path, self.crs, self.transform, self.tags = (info.path, info.crs, info.transform,
+                                                          info.tags)
+        self.data = np.broadcast_to(np.float32(0), (info.height, info.width))
+
+
+def _grid(info: Any):
+    from demtool.compare.grids import Grid
+
+    return Grid(shape=(info.height, info.width), transform=info.transform, crs=info.crs)
+
+
+def _decimate(values: np.ndarray, window: tuple[int, int, int, int], factor: int
+              ) -> tuple[np.ndarray, slice, slice]:
+    """The window's cells on the decimated grid (global rows and columns ≡ 0 mod f)."""
+    r0, _, c0, _ = window
+    local = values[(-r0) % factor::factor, (-c0) % factor::factor]
+    rows = slice(-(-r0 // factor), -(-r0 // factor) + local.shape[0])
+    cols = slice(-(-c0 // factor), -(-c0 // factor) + local.shape[1])
+    return local, rows, cols
+
+
+def _align(sources, tiles, params, target, factor, log):
+    """Pass 0: the decimated DEM, reference and mask; the co-registration on them."""
+    from demtool.compare.align import coregister
+    from demtool.imaging.checks import check_magnitude
+
+    rows, cols = -(-target.shape[0] // factor), -(-target.shape[1] // factor)
+    dem = np.full((rows, cols), np.nan)
+    ref = np.full((rows, cols), np.nan)
+    mask = None if sources["mask"] is None else np.zeros((rows, cols), dtype=bool)
+    for tile in tiles:
+        core = tile.core
+        for name, array in (("dem", dem), ("reference", ref)):
+            values = sources[name].read(core)
+            check_magnitude(values, sources[name].path, what=sources[name].what)
+            part, rs, cs = _decimate(values, core, factor)
+            array[rs, cs] = part
+        if mask is not None:
+            part, rs, cs = _decimate(_mask_values(sources["mask"].read(core)), core, factor)
+            mask[rs, cs] = part
+    common = np.isfinite(dem) & np.isfinite(ref)
+    if mask is not None:
+        common &= mask
+    if not common.any():
+        raise ProcessingError("the DEM and the reference have no common valid pixel"
+                              + (" inside the mask" if mask is not None else ""))
+    sx, sy = target.spacing
+    try:
+        _, alignment = coregister(dem, ref, method=params.align, spacing=(sx * factor,
+                                                                          sy * factor),
+                                  mask=mask, icp_scale=params.icp_scale, seed=params.seed)
+    except ProcessingError as exc:
+        _, alignment = coregister(dem, ref, method="none")
+        alignment.warnings.append(f"alignment '{params.align}' failed, statistics are "
+                                  f"unaligned: {exc}")
+        log.warning("alignment '%s' failed, statistics are unaligned: %s", params.align, exc)
+    if factor > 1:
+        for key in ("dx_px", "dy_px"):
+            alignment.shift[key] *= factor
+            alignment.shift_uncertainty[key] *= factor
+        alignment.warnings.append(f"co-registration fitted on one cell in {factor} x {factor} "
+                                  "of the grid (the windowed comparison's decimated grid)")
+    return alignment
+
+
+def _mask_values(values: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(values) & (np.abs(values) > 0.5)
+
+
+def compare_one(sources: dict[str, Source | None], target: Any, params: Any, tile_size: int,
+                log: Any, *, open_writer: Any = None) -> dict[str, Any]:
+    """The windowed comparison of ``sources["dem"]`` with ``sources["reference"]``.
+
+    ``open_writer(shift)``, when given, opens the block writer of ``difference.tif``
+    (its tags carry the shift), written in the first pass.
+
+    Returns
+    -------
+    dict
+        ``report`` (the keys of :func:`demtool.compare.compare_dems`'s report plus
+        ``windowed``), ``comparison`` (a :class:`demtool.compare.Comparison` of the
+        decimated grid, for the figures) and ``factor`` (the decimation).
+    """
+    from demtool.compare.core import Comparison, effective_resolution
+    from demtool.compare.streaming import StreamStatistics
+    from demtool.compare.windowed import shift_margin, window_values
+    from demtool.imaging.spectral import coherence_spectrum
+    from demtool.tiling import plan_tiles
+
+    height, width = target.shape
+    sx, sy = target.spacing
+    budget_cells = params.max_memory_mb * 2**20 / ALIGN_BYTES_PER_CELL
+    factor = max(1, math.ceil(math.sqrt(height * width / min(ALIGN_CELLS, budget_cells))))
+    cores = plan_tiles(height, width, tile_size, overlap=0).tiles
+    alignment = _align(sources, cores, params, target, factor, log)
+    shift = alignment.shift
+    method = params.align if alignment.method == params.align else "none"
+    tiles = plan_tiles(height, width, tile_size,
+                       overlap=shift_margin(shift["dx_px"], shift["dy_px"])).tiles
+    after, before = StreamStatistics(), StreamStatistics()
+    classes = [StreamStatistics() for _ in params.slope_bins[1:]]
+    rows, cols = -(-height // factor), -(-width // factor)
+    figures = {k: np.full((rows, cols), np.nan) for k in ("aligned", "reference", "difference")}
+    figures["coverage"] = np.full((rows, cols), np.nan, dtype=np.float32)
+    figures["mask"] = np.zeros((rows, cols), dtype=bool)
+    considered = covered = 0
+    passes = 0
+    with contextlib.ExitStack() as stack:
+        writer = stack.enter_context(open_writer(shift)) if open_writer else None
+        while True:
+            passes += 1
+            for tile in tiles:
+                mask = (None if sources["mask"] is None
+                        else _mask_values(sources["mask"].read(tile.outer)))
+                values = window_values(sources["dem"].read(tile.outer),
+                                       sources["reference"].read(tile.outer), mask, tile.crop,
+                                       method=method, shift=shift, spacing=(sx, sy))
+                after.add(values.difference[np.isfinite(values.difference)])
+                before.add(values.before[np.isfinite(values.before)])
+                for stream, part in zip(classes, values.slope_classes(params.slope_bins),
+                                        strict=True):
+                    stream.add(part)
+                if passes == 1:
+                    considered += values.considered
+                    covered += values.covered
+                    if writer is not None:
+                        writer.write(values.difference.astype(np.float32), tile.core[0],
+                                     tile.core[2])
+                    for name in ("aligned", "reference", "difference", "coverage"):
+                        part, rs, cs = _decimate(getattr(values, name), tile.core, factor)
+                        figures[name][rs, cs] = part
+                    if mask is not None:
+                        part, rs, cs = _decimate(mask[tile.crop], tile.core, factor)
+                        figures["mask"][rs, cs] = part
+            for stream in (after, before, *classes):
+                stream.end_pass()
+            if all(s.done for s in (after, before, *classes)):
+                break
+    log.info("windowed comparison: %d windows of %d cells, %d passes, alignment on every "
+             "%d cell(s)", len(tiles), tile_size, passes, factor)
+    warnings = list(alignment.warnings)
+    resolution = spectrum = None
+    spacing = float(np.sqrt(sx * sy)) * factor
+    try:
+        spectrum = coherence_spectrum(figures["aligned"] if sources["mask"] is None
+                                      else np.where(figures["mask"], figures["aligned"],
+                                                    np.nan),
+                                      figures["reference"], spacing=spacing)
+        resolution = effective_resolution(spectrum, spacing, 0.5)
+    except ProcessingError as exc:
+        warnings.append(f"no effective resolution: {exc}")
+    edges = params.slope_bins
+    result = after.result()
+    reads = [n for s in sources.values() if s is not None for n in s.reads]
+    report: dict[str, Any] = {
+        **{k: result[k] for k in ("count", "mean", "median", "std", "rmse", "nmad", "le90",
+                                  "min", "max")},
+        "completeness": 100.0 * covered / considered if considered else float("nan"),
+        "shift": dict(alignment.shift), "shift_uncertainty": dict(alignment.shift_uncertainty),
+        "alignment": alignment.as_dict(), "before_alignment": before.result(),
+        "slope_classes": [{"slope_min_deg": float(lo), "slope_max_deg": float(hi),
+                           **s.result()} for lo, hi, s in zip(edges[:-1], edges[1:], classes,
+                                                              strict=True)],
+        "effective_resolution": resolution,
+        "grid": {"shape": [height, width], "spacing_m": [sx, sy]},
+        "warnings": warnings,
+        "windowed": {"tile_size": tile_size, "windows": len(tiles), "passes": passes,
+                     "margin_cells": shift_margin(shift["dx_px"], shift["dy_px"]),
+                     "alignment_decimation": factor,
+                     "largest_read_cells": max(reads, default=0),
+                     "statistics": "exact (moments; order statistics by bucket narrowing)"},
+    }
+    comparison = Comparison(report=report, aligned=figures["aligned"],
+                            reference=figures["reference"], difference=figures["difference"],
+                            coverage=figures["coverage"], slope=np.empty((0, 0)),
+                            alignment=alignment, spectrum=spectrum)
+    return {"report": report, "comparison": comparison, "factor": factor}
+
+
+def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str | os.PathLike,
+                     out_dir: str | os.PathLike, params: Any, tile_size: int, *,
+                     infos: dict[str, Any], target: Any, degrees: Any,
+                     mask_path: str | os.PathLike | None = None,
+                     also: Sequence[str] = (), body_warnings: Sequence[str] = ()
+                     ) -> dict[str, Any]:
+    """The windowed ``demtool compare`` (see the module docstring); writes what
+    :func:`demtool.compare.run.run_compare` writes and returns the report."""
+    from demtool import io as dio
+    from demtool.compare.plots import default_profiles
+    from demtool.compare.report import (
+        DIFFERENCE,
+        _check_profiles,
+        assemble_report,
+        make_figures,
+        write_report,
+    )
+    from demtool.compare.windowed import WINDOWED_METHODS
+    from demtool.imaging.checks import check_same_grid
+
+    log, provenance = run.log, run.provenance
+    if params.align not in WINDOWED_METHODS:
+        raise ParameterError(f"--align {params.align} needs the whole grid in memory; the "
+                             f"windowed comparison (--tile-size, or a grid beyond "
+                             f"--max-memory-mb) takes {', '.join(WINDOWED_METHODS)}")
+    mask_source = None
+    if mask_path is not None:
+        mask_info = dio.raster_info(mask_path, what="mask")
+        try:
+            check_same_grid(_Header(infos["reference"]), _Header(mask_info),
+                            reference_what="reference DEM")
+        except InputError:
+            check_same_grid(_Header(infos["dem"]), _Header(mask_info))
+        mask_source = Source(Path(mask_path), "mask", _grid(mask_info), target)
+    lines = [tuple(float(v) for v in line) for line in params.profiles] or \
+        default_profiles(target.shape)
+    _check_profiles(lines, target.shape)
+    out = Path(out_dir)
+    label = params.label or Path(dem_path).stem
+    frame = infos["reference" if params.grid == "reference" else "dem"].tags.get("frame")
+    log.info("%s vs %s on the %s grid (%d x %d, %.4g x %.4g m), alignment %s, in windows of "
+             "%d cells", dem_path, reference_path, params.grid, target.shape[1],
+             target.shape[0], *target.spacing, params.align, tile_size)
+    reference = Source(Path(reference_path), "reference DEM", _grid(infos["reference"]),
+                       target)
+    results = []
+    with run.transaction():
+        for index, (name, path) in enumerate(((label, dem_path),
+                                              *((Path(p).stem, p) for p in also))):
+            what = "DEM" if index == 0 else "DEM (--also)"
+            sources = {"dem": Source(Path(path), what, _grid(infos[str(path)]), target),
+                       "reference": reference, "mask": mask_source}
+            def open_writer(shift):
+                return dio.raster_writer(
+                    out / DIFFERENCE, height=target.shape[0], width=target.shape[1],
+                    transform=target.transform, crs=target.crs, tags=provenance.tags(
+                        frame=frame or "unknown", label=label,
+                        quantity="aligned DEM - reference (m)", shift=shift))
+
+            results.append((name, compare_one(sources, target, params, tile_size, log,
+                                              open_writer=open_writer if index == 0
+                                              else None)))
+        main = results[0][1]
+        factor = main["factor"]
+        report = assemble_report([(name, r["report"]) for name, r in results],
+                                 dem_path=dem_path, reference_path=reference_path, also=also,
+                                 grid=params.grid, target=target, frame=frame,
+                                 degrees=degrees, body_warnings=body_warnings, lines=lines,
+                                 log=log)
+        figures = {}
+        if params.plots:
+            decimated = [tuple(v / factor for v in line) for line in lines]
+            figures = make_figures([(n, r["comparison"]) for n, r in results],
+                                   main["comparison"].reference, decimated,
+                                   (target.spacing[0] * factor, target.spacing[1] * factor),
+                                   label)
+        write_report(provenance, out, report, figures)
+    return report

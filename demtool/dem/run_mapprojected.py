@@ -1,0 +1,133 @@
+"""Map-projected branch of ``demtool dem``: a disparity between two orthoimages (one map
+grid, ``x_right = x_left − d`` in map columns) triangulated through the sensor models
+the orthoimages were projected with, onto the body's map.
+
+For every valid left cell (row, col) with disparity d, the right cell is
+(row, col − d).  Each cell is raised to the surface its orthoimage was projected on
+(the DEM or constant height named in its tags, :data:`demtool.mapproject.surface.DEM_TAG`
+/ :data:`~demtool.mapproject.surface.HEIGHT_TAG`) and projected into its raw image
+through its sensor model (:func:`demtool.mapproject.stereo.raw_coordinates`); the two raw
+pixels are triangulated as in the calibrated frame route
+(:func:`demtool.dem.run_sensors.triangulate_to_map`).  ASP's map-projected stereo
+does the same (Beyer et al. 2018, §2.3).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import TYPE_CHECKING, Any
+
+from demtool.dem.inputs import read_ortho
+
+if TYPE_CHECKING:
+    from demtool.dem.params import DemParams
+    from demtool.stagerun import StageRun
+
+PathLike = str | os.PathLike | None
+
+
+def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_path,
+                         left_path, right_path, mask_path: PathLike = None,
+                         error_path: PathLike = None) -> dict[str, Any]:
+    """Triangulate a disparity between two orthoimages through their sensor models,
+    grid on the body's map (the orthoimages' CRS unless ``--projection`` says
+    otherwise; GSD: ``--gsd`` or the orthoimages'), write OUT (+ mask, error, sidecar).
+    Returns the sidecar summary.  With the tile options on a grid larger than one tile,
+    in tiles (:mod:`demtool.dem.tiled_map`).
+    """
+    import numpy as np
+
+    from demtool import io as dio
+    from demtool.dem.run_sensors import triangulate_to_map, write_map_dem
+    from demtool.errors import InputError, ProcessingError
+    from demtool.mapproject.stereo import disparity_cells, map_cells_xy, raw_coordinates
+    from demtool.maps import to_pyproj_crs
+
+    log = run.log
+    left = read_ortho(left_path, what="left orthoimage")
+    right = read_ortho(right_path, what="right orthoimage")
+    li, ri = left.info, right.info
+    if (li.transform != ri.transform or (li.width, li.height) != (ri.width, ri.height)
+            or to_pyproj_crs(li.crs) != to_pyproj_crs(ri.crs)):
+        raise InputError(f"{left_path} and {right_path}: the orthoimages are on different "
+                         "map grids (map-project the right one with --grid-like LEFT)")
+    if left.sensor.radii is None or right.sensor.radii is None:
+        raise InputError(f"{left_path}: its sensor models are not on a body")
+    if params.tile_size or params.scheduler or params.dry_run:  # README "Scale"
+        tiled = _tiled(run, params, out, disparity_path, left_path, right_path, li,
+                       mask_path, error_path)
+        if tiled is not None:
+            return tiled
+    disparity = dio.read_raster(disparity_path, what="disparity")
+    if (disparity.data.shape != (li.height, li.width) or disparity.transform != li.transform
+            or disparity.crs is None or to_pyproj_crs(disparity.crs) != to_pyproj_crs(li.crs)):
+        raise InputError(f"{disparity_path}: disparity is not on the grid of the left "
+                         f"orthoimage {left_path} ({disparity.data.shape[1]}×"
+                         f"{disparity.data.shape[0]} vs {li.width}×{li.height} cells, or "
+                         "another transform/CRS); match the orthoimages with demtool sgm")
+    rows, l_cols, r_cols = disparity_cells(disparity.data)
+    if rows.size < 3:
+        raise ProcessingError(f"{disparity_path}: fewer than 3 valid disparities")
+    crs = to_pyproj_crs(li.crs)
+    l_h = left.heights(*map_cells_xy(li.transform, rows, l_cols))
+    r_h = right.heights(*map_cells_xy(ri.transform, rows, r_cols))
+    l_line, l_sample = raw_coordinates(left.sensor, crs, li.transform, rows, l_cols, l_h)
+    r_line, r_sample = raw_coordinates(right.sensor, crs, ri.transform, rows, r_cols, r_h)
+    seen = np.isfinite(l_line) & np.isfinite(l_sample) & np.isfinite(r_line) & \
+        np.isfinite(r_sample)
+    log.info("%d valid disparities, %d seen by both sensors", rows.size, int(seen.sum()))
+    if seen.sum() < 3:
+        raise ProcessingError(f"{disparity_path}: fewer than 3 disparities map back into "
+                              "both raw images")
+    gsd = float(np.sqrt(abs(li.transform.a * li.transform.e)))
+    summary, result, body = triangulate_to_map(
+        run, params, left.sensor, right.sensor, (l_line[seen], l_sample[seen]),
+        (r_line[seen], r_sample[seen]), source=disparity_path, gsd_default=gsd, crs=crs)
+    summary = {"route": "disparity-mapprojected", **summary,
+               "valid_disparities": int(rows.size), "unseen_disparities": int((~seen).sum()),
+               "surfaces": [left.surface, right.surface]}
+    write_map_dem(run, params, out, result, summary, body, route="disparity-mapprojected",
+                  mask_path=mask_path, error_path=error_path)
+    return summary
+
+
+def _check_disparity_grid(disparity_path, left_path, li, shape, transform, crs) -> None:
+    from demtool.errors import InputError
+    from demtool.maps import to_pyproj_crs
+
+    if (shape != (li.height, li.width) or transform != li.transform or crs is None
+            or to_pyproj_crs(crs) != to_pyproj_crs(li.crs)):
+        raise InputError(f"{disparity_path}: disparity is not on the grid of the left "
+                         f"orthoimage {left_path} ({shape[1]}×{shape[0]} vs "
+                         f"{li.width}×{li.height} cells, or another transform/CRS); match "
+                         "the orthoimages with demtool sgm")
+
+
+def _tiled(run: StageRun, params: DemParams, out, disparity_path, left_path, right_path,
+           li, mask_path, error_path) -> dict[str, Any] | None:
+    """The route in tiles (:mod:`demtool.dem.tiled_map`); None when the orthoimages' grid
+    fits in one tile (the untiled path then runs)."""
+    import numpy as np
+
+    from demtool import io as dio
+    from demtool.dem.tiled_map import ortho
+    from demtool.dem.tiled_map_run import dem_map_tiled, mapprojected_job
+    from demtool.maps import to_pyproj_crs
+    from demtool.tiling import wants_tiles
+
+    info = dio.raster_info(disparity_path, what="disparity")
+    _check_disparity_grid(disparity_path, left_path, li, (info.height, info.width),
+                          info.transform, info.crs)
+    tile_size = wants_tiles(li.height, li.width, params)
+    if not tile_size:
+        return None
+    job = mapprojected_job(disparity_path, left_path, right_path, tile_size)
+    result = dem_map_tiled(
+        run, params, out, job, inputs=[str(disparity_path), str(left_path), str(right_path)],
+        gsd_default=float(np.sqrt(abs(li.transform.a * li.transform.e))),
+        crs=to_pyproj_crs(li.crs), summary={
+            "route": "disparity-mapprojected",
+            "surfaces": [ortho(str(p), w).surface for p, w in (
+                (left_path, "left orthoimage"), (right_path, "right orthoimage"))]},
+        mask_path=mask_path, error_path=error_path)
+    return {"dry_run": result.dry_run} if result.dry_run is not None else result.summary

@@ -1,0 +1,207 @@
+"""Calibrated branch of ``demtool dem``: a disparity map triangulated through the two
+sensor models of a calibrated ``rectify.npz`` onto the body's map.
+
+Called by :func:`demtool.dem.run.run_dem` when the rectification carries its models
+(``rectify --sensor-left/--sensor-right``).  The science lives in
+:mod:`demtool.dem.sensors` (triangulation, gap test, map gridding) and
+:mod:`demtool.rectify.calibrated` (rectified pixel → original pixel).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from demtool.dem.inputs import geometry_from_rectification, models_from_rectification
+
+if TYPE_CHECKING:
+    from demtool.dem.params import DemParams
+    from demtool.sensors.base import SensorModel
+    from demtool.stagerun import StageRun
+
+PathLike = str | os.PathLike | None
+
+
+def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
+                    rectify_path, rectification: dict, mask_path: PathLike = None,
+                    error_path: PathLike = None) -> dict[str, Any]:
+    """Triangulate every valid disparity through the models, grid on the map, write.
+
+    Writes OUT (heights above the body's sphere, the body's projected CRS; with
+    ``--mask-band`` a second band = filled cells), ``--interpolated-mask`` (1 = filled),
+    ``--error-out`` (median ray gap per cell, metres) and the sidecar.  Returns the
+    sidecar summary.  With the tile options on a canvas larger than one tile, in tiles
+    (:mod:`demtool.dem.tiled_map`).
+    """
+    import numpy as np
+
+    from demtool.dem.inputs import read_disparity
+    from demtool.errors import InputError, ProcessingError
+    from demtool.rectify.calibrated import rect_to_pixels, scene_distance
+
+    log = run.log
+    left, right = models_from_rectification(rectification, rectify_path)
+    if left.radii is None:
+        raise InputError(f"{rectify_path}: the sensor models have no body (local-frame "
+                         "pinholes): a DEM on the body's map needs body-fixed models")
+    geometry = geometry_from_rectification(rectification, left, right)
+    if params.tile_size or params.scheduler or params.dry_run:  # README "Scale"
+        tiled = _tiled(run, params, out, disparity_path, rectify_path, rectification,
+                       geometry, mask_path, error_path)
+        if tiled is not None:
+            return tiled
+    disparity = read_disparity(disparity_path, rectify_path, rectification,
+                               geometry.size_rect, log)
+    d = disparity.data
+    rows, cols = np.nonzero(np.isfinite(d))
+    if rows.size < 3:
+        raise ProcessingError(f"{disparity_path}: fewer than 3 valid disparities")
+    x_left = cols.astype(np.float64)
+    y = rows.astype(np.float64)
+    x_right = x_left - d[rows, cols]
+    l_line, l_sample = rect_to_pixels(left, geometry, "left", x_left, y, scene_distance(left))
+    r_line, r_sample = rect_to_pixels(right, geometry, "right", x_right, y,
+                                      scene_distance(right))
+    summary, result, body = triangulate_to_map(
+        run, params, left, right, (l_line, l_sample), (r_line, r_sample),
+        source=disparity_path, range_to_gsd=1.0 / geometry.f_px)
+    summary = {"route": "disparity-sensors", **summary, "valid_disparities": int(rows.size)}
+    write_map_dem(run, params, out, result, summary, body, route="disparity-sensors",
+                  mask_path=mask_path, error_path=error_path)
+    return summary
+
+
+def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
+                       right: SensorModel, left_pixels, right_pixels, *, source,
+                       range_to_gsd: float | None = None, gsd_default: float | None = None,
+                       crs: Any = None) -> tuple[dict[str, Any], Any, Any]:
+    """Triangulate correspondences (CSM ``(line, sample)`` arrays of each side) through
+    the two models, drop points behind a camera or whose rays miss by more than
+    ``--max-ray-gap`` (default :func:`demtool.dem.sensors.default_max_ray_gap`), grid
+    them on the body's map (:func:`demtool.dem.sensors.dem_on_map`).
+
+    The GSD is ``--gsd``, else ``gsd_default``, else the median left range times
+    ``range_to_gsd`` (one pixel's angle).  ``crs``: the map's CRS when
+    ``--projection auto`` (None: a new one).  Returns (summary, MapDem, body).
+    """
+    import numpy as np
+
+    from demtool.dem.sensors import default_max_ray_gap, dem_on_map, triangulate_sensors
+    from demtool.errors import ProcessingError
+    from demtool.maps import body_from_radii
+
+    log = run.log
+    tri = triangulate_sensors(left, right, *left_pixels, *right_pixels)
+    finite = np.isfinite(tri.xyz).all(axis=1)
+    in_front = finite & tri.in_front
+    if not in_front.any():
+        raise ProcessingError(f"{source}: no disparity triangulates in front of both "
+                              "cameras")
+    if params.gsd is not None:
+        gsd, gsd_source = float(params.gsd), "--gsd"
+    elif gsd_default is not None:
+        gsd, gsd_source = float(gsd_default), "orthoimage"
+    else:
+        gsd = float(np.median(tri.range_left[in_front]) * range_to_gsd)
+        gsd_source = "estimated"
+    gaps = tri.gap[in_front]
+    max_gap = (float(params.max_ray_gap) if params.max_ray_gap is not None
+               else default_max_ray_gap(gaps, gsd))
+    keep = in_front & (tri.gap <= max_gap)
+    median_gap = float(np.median(gaps))
+    log.info("%d correspondences: %d behind a camera, %d rays missing by more than %.3g m "
+             "(median gap %.3g m, GSD %.3g m)", finite.size, int((finite & ~tri.in_front).sum()),
+             int((in_front & ~keep).sum()), max_gap, median_gap, gsd)
+    a, b = left.radii
+    body = body_from_radii(a, a, b)
+    use_crs = crs if params.projection == "auto" else None
+    result = dem_on_map(tri.xyz[keep], tri.gap[keep], body, gsd_m=gsd, crs=use_crs,
+                        projection=params.projection, left=left, right=right,
+                        median_px=params.median)
+    summary: dict[str, Any] = {
+        "body": body.name,
+        "crs": result.grid.crs.name,
+        "projection": params.projection,
+        "shape": list(result.dem.shape),
+        "gsd_m": gsd,
+        "gsd_source": gsd_source,
+        "behind_camera": int((finite & ~tri.in_front).sum()),
+        "max_ray_gap_m": max_gap,
+        "max_ray_gap_source": "--max-ray-gap" if params.max_ray_gap is not None else "default",
+        "rejected_ray_gap": int((in_front & ~keep).sum()),
+        "median_ray_gap_m": median_gap,
+        "points": int(keep.sum()),
+        "interpolated_fraction": float(result.filled.sum() / max(1, result.overlap.sum())),
+        **result.report,
+    }
+    return summary, result, body
+
+
+def write_map_dem(run: StageRun, params: DemParams, out, result, summary: dict[str, Any],
+                  body, *, route: str, mask_path: PathLike = None,
+                  error_path: PathLike = None) -> None:
+    """Write a DEM on the body's map (OUT, ``--interpolated-mask``, ``--error-out``, the
+    sidecar) in one transaction."""
+    import numpy as np
+
+    from demtool import io as dio
+
+    log, prov = run.log, run.provenance
+    grid = result.grid
+    gsd = summary["gsd_m"]
+    log.info("DEM %d×%d on %s, GSD %.4g m, %.1f %% of the overlap measured, heights %.4g … "
+             "%.4g m above the %.1f km sphere", grid.width, grid.height, grid.crs.name, gsd,
+             100 * result.report["measured_fraction_of_overlap"], summary["height_min_m"],
+             summary["height_max_m"], body.radius / 1e3)
+    tags = prov.tags(dem_route=route, gsd_m=gsd,
+                     units="metres above the reference sphere", **body.tags())
+    filled = result.filled.astype(np.float32)
+    filled[np.isnan(result.dem)] = np.nan
+    data = np.stack([result.dem, filled]) if params.mask_band else result.dem
+    band_names = ["height", "interpolated"] if params.mask_band else ["height"]
+    outputs = [Path(out)]
+    with run.transaction():
+        dio.write_raster(out, data, transform=grid.transform, crs=grid.crs, tags=tags,
+                         band_names=band_names)
+        if mask_path is not None:
+            dio.write_raster(mask_path, filled, transform=grid.transform, crs=grid.crs,
+                             tags=prov.tags(meaning="1 = interpolated, 0 = measured",
+                                            **body.tags()), band_names=["interpolated"])
+            outputs.append(Path(mask_path))
+        if error_path is not None:
+            dio.write_raster(error_path, result.error, transform=grid.transform, crs=grid.crs,
+                             tags=prov.tags(meaning="median ray gap of the cell's points",
+                                            units="metres", **body.tags()),
+                             band_names=["ray_gap"])
+            outputs.append(Path(error_path))
+        prov.write_sidecar(out, summary, outputs=outputs)
+
+
+def _tiled(run: StageRun, params: DemParams, out, disparity_path, rectify_path,
+           rectification: dict, geometry, mask_path, error_path) -> dict[str, Any] | None:
+    """The route in tiles (:mod:`demtool.dem.tiled_map`); None when the rectified canvas
+    fits in one tile (the untiled path then runs)."""
+    from demtool.dem.tiled import check_disparity_file
+    from demtool.dem.tiled_map_run import dem_map_tiled, rectified_job
+    from demtool.errors import InputError
+    from demtool.tiling import raster_shape, wants_tiles
+
+    width, height = (int(v) for v in geometry.size_rect)
+    shape = raster_shape(disparity_path, "disparity")
+    if shape != (height, width):
+        raise InputError(f"{disparity_path}: disparity is {shape[1]}×{shape[0]} px but "
+                         f"{rectify_path} has a {width}×{height} rectified canvas")
+    tile_size = wants_tiles(height, width, params)
+    if not tile_size:
+        return None
+    low, high = (float(v) for v in rectification["disparity_range"])
+    bounds = check_disparity_file(str(disparity_path), (height, width), (low, high),
+                                  source=str(rectify_path), log=run.log)
+    job = rectified_job(disparity_path, rectify_path, tile_size, bounds)
+    result = dem_map_tiled(run, params, out, job,
+                           inputs=[str(disparity_path), str(rectify_path)],
+                           range_to_gsd=1.0 / geometry.f_px,
+                           summary={"route": "disparity-sensors"}, mask_path=mask_path,
+                           error_path=error_path)
+    return {"dry_run": result.dry_run} if result.dry_run is not None else result.summary

@@ -1,0 +1,305 @@
+"""``demtool dem``'s sensor-model routes in tiles: the job (the runner:
+:mod:`demtool.dem.tiled_map_run`).
+
+The untiled routes (:func:`demtool.dem.run_mapprojected.run_dem_mapprojected`, a
+disparity between two orthoimages, and :func:`demtool.dem.run_sensors.run_dem_sensors`,
+a disparity of a calibrated rectified pair) triangulate every disparity through the two
+sensor models, drop rays that miss by more than the gap threshold, grid the points on
+the body's map (the median of the points falling in each cell,
+:func:`demtool.dem.sensors.dem_on_map`) and fill the stereo overlap.  In tiles, each
+step resumable in the work folder:
+
+1. **points** (tiles of the disparity grid, no margin): each disparity cell
+   triangulated once; its longitude, latitude, height above the sphere, ray gap and
+   left range cached in float64 (:func:`split64`; NaN where no point, or behind a
+   camera);
+2. **statistics** (the runner, one cached tile at a time): exact medians
+   (:func:`demtool.dem.tiled_map_run.streaming_median`) for the GSD, the gap threshold
+   ``median + max(4 NMAD, 2 GSD)`` (:func:`demtool.dem.sensors.default_max_ray_gap`) and
+   the overlap test's height; the map (the orthoimages' CRS, or one centred on the kept
+   points' mean direction as :func:`demtool.maps.projections.choose_projection` does),
+   the grid (the kept points' bounding box, :func:`demtool.maps.grids.snap_grid`) and
+   each points tile's box in output cells;
+3. **measured grid** (tiles of the output grid): each tile reads the points tiles whose
+   box meets its core (so no margin has to be guessed from the height range) and takes
+   the median per cell, the ray gaps likewise, and the stereo overlap of its cells
+   (:func:`demtool.dem.sensors.overlap_mask`);
+4. **coarse global fill, fine fills** as in :mod:`demtool.dem.tiled`
+   (:func:`~demtool.dem.tiled_grids.prepare_fill`, :func:`~demtool.dem.tiled_grids.fill_core`):
+   exact up to the solver's tolerance while the grid has at most
+   :data:`demtool.dem.tiled.COARSE_MAX_CELLS` cells.
+
+The per-cell median needs no neighbour and the statistics are exact, so the measured
+grid equals the untiled one but for the order of floating-point sums (the map's
+centre);
+tests/dem/test_tiled_dem_sensors.py states the agreement achieved.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from demtool.dem.tiled import CELL_BYTES, PROCESS_BYTES
+from demtool.dem.tiled_grids import fill_core, read_cached_window
+from demtool.tiling import Tile, TileCache, plan_tiles, read_window
+
+POINT_BYTES = 400  # per disparity cell: raw coordinates, rays, points
+STEP_BANDS = {"points": tuple(f"{name}_{part}" for name in ("lon", "lat", "height", "gap",
+                                                              "range_left")
+                              for part in ("high", "low")),
+              "measure": ("measured", "ray_gap", "overlap"),
+              "fill": ("height", "interpolated", "ray_gap")}
+
+
+def _stamp(path: str) -> tuple[str, int, int]:
+    stat = os.stat(path)
+    return str(path), stat.st_mtime_ns, stat.st_size
+
+
+def ortho(path: str, what: str):
+    """:func:`demtool.dem.inputs.read_ortho`, once per process and file."""
+    return _ortho(_stamp(path), what)
+
+
+@functools.lru_cache(maxsize=4)
+def _ortho(stamp: tuple[str, int, int], what: str):
+    from demtool.dem.inputs import read_ortho
+
+    return read_ortho(stamp[0], what=what)
+
+
+def rectified_pair(path: str):
+    """(left model, right model, RectifiedGeometry) of a calibrated rectify.npz, once per
+    process and file."""
+    return _rectified_pair(_stamp(path))
+
+
+@functools.lru_cache(maxsize=2)
+def _rectified_pair(stamp: tuple[str, int, int]):
+    from demtool import io as dio
+    from demtool.dem.inputs import geometry_from_rectification, models_from_rectification
+
+    rectification = dio.read_npz(stamp[0], "rectification")
+    left, right = models_from_rectification(rectification, stamp[0])
+    return left, right, geometry_from_rectification(rectification, left, right)
+
+
+def sphere_radius(model) -> float:
+    """The body's reference sphere radius of a model on a body (metres)."""
+    from demtool.maps import body_from_radii
+
+    a, b = model.radii
+    return body_from_radii(a, a, b).radius
+
+
+def split64(values: np.ndarray) -> np.ndarray:
+    """float64 values as two float32 bands, ``high + low`` (float32 tile caches keep
+    them to ~1e-14 relative): (2, ...) float32."""
+    values = np.asarray(values, dtype=np.float64)
+    high = values.astype(np.float32)
+    return np.stack([high, (values - high.astype(np.float64)).astype(np.float32)])
+
+
+def stored_points(values: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(lon, lat, height, gap, range_left) (N,) float64 of a cached points tile's points
+    (bands in :func:`split64` pairs)."""
+    ok = np.isfinite(values[4])
+    v = values[:, ok].astype(np.float64)
+    return tuple(v[2 * i] + v[2 * i + 1] for i in range(5))
+
+
+@dataclass(frozen=True)
+class MapDemTileJob:
+    """One tile of a tiled sensor-model route (picklable: paths and plain values).
+
+    ``source`` is ``"mapprojected"`` (``left_path``, ``right_path``: the orthoimages) or
+    ``"rectified"`` (``rectify_path``: a calibrated rectify.npz; ``disparity_bounds``:
+    values outside are masked).  ``step`` is ``"points"`` (tiles of the disparity grid
+    ``disparity_shape``), ``"measure"`` or ``"fill"`` (tiles of the output grid
+    ``shape``, transform ``grid_transform``, CRS ``crs_wkt``); module docstring.
+    """
+
+    source: str
+    disparity_path: str
+    disparity_shape: tuple[int, int]
+    tile_size: int
+    left_path: str = ""
+    right_path: str = ""
+    rectify_path: str = ""
+    disparity_bounds: tuple[float, float] = (-math.inf, math.inf)
+    shape: tuple[int, int] = (0, 0)
+    grid_transform: tuple[float, ...] = ()
+    crs_wkt: str = ""
+    points: str = ""  # the points pass's cache folder
+    boxes: tuple = ()  # per points tile: (row0, row1, col0, col1) output cells, or None
+    max_gap: float = math.inf
+    overlap_height: float = 0.0
+    median_px: int = 0
+    factor: int = 1
+    step: str = "fill"
+    work: str = ""
+    ring: str = ""
+    stage: str = "dem"
+    bands: tuple[str, ...] = STEP_BANDS["fill"]
+
+    def at_step(self, step: str, **changes: Any) -> MapDemTileJob:
+        """This job for another step (its bands follow)."""
+        return replace(self, step=step, bands=STEP_BANDS[step], **changes)
+
+    def sensors(self):
+        """The (left, right) sensor models."""
+        if self.source == "mapprojected":
+            return (ortho(self.left_path, "left orthoimage").sensor,
+                    ortho(self.right_path, "right orthoimage").sensor)
+        return rectified_pair(self.rectify_path)[:2]
+
+    def compute(self, tile: Tile, threads: int) -> tuple[np.ndarray, dict[str, Any]]:
+        if self.step == "points":
+            return self._points(tile)
+        if self.step == "measure":
+            return self._measure(tile)
+        return self._fill(tile)
+
+    # ------------------------------------------------------------------ step 1
+    def _raw_ortho(self, disparity, r0, c0):
+        """Raw (line, sample) of each side, and the cells, of the map-projected route."""
+        from demtool.mapproject.stereo import disparity_cells, map_cells_xy, raw_coordinates
+        from demtool.maps import to_pyproj_crs
+
+        left = ortho(self.left_path, "left orthoimage")
+        right = ortho(self.right_path, "right orthoimage")
+        li, ri = left.info, right.info
+        crs = to_pyproj_crs(li.crs)
+        rows, l_cols, r_cols = disparity_cells(disparity)
+        rows_g, l_g, r_g = rows + r0, l_cols + c0, r_cols + c0
+        l_h = left.heights(*map_cells_xy(li.transform, rows_g, l_g))
+        r_h = right.heights(*map_cells_xy(ri.transform, rows_g, r_g))
+        return (raw_coordinates(left.sensor, crs, li.transform, rows_g, l_g, l_h),
+                raw_coordinates(right.sensor, crs, ri.transform, rows_g, r_g, r_h),
+                rows.astype(np.int64), l_cols.astype(np.int64))
+
+    def _raw_rectified(self, disparity, r0, c0):
+        """Raw (line, sample) of each side, and the cells, of the rectified route."""
+        from demtool.rectify.calibrated import rect_to_pixels, scene_distance
+
+        left, right, geometry = rectified_pair(self.rectify_path)
+        low, high = self.disparity_bounds
+        with np.errstate(invalid="ignore"):
+            disparity[(disparity < low) | (disparity > high)] = np.nan
+        rows, cols = np.nonzero(np.isfinite(disparity))
+        x_left = (cols + c0).astype(np.float64)
+        y = (rows + r0).astype(np.float64)
+        x_right = x_left - disparity[rows, cols]
+        return (rect_to_pixels(left, geometry, "left", x_left, y, scene_distance(left)),
+                rect_to_pixels(right, geometry, "right", x_right, y, scene_distance(right)),
+                rows, cols)
+
+    def _points(self, tile: Tile) -> tuple[np.ndarray, dict[str, Any]]:
+        from demtool.dem.sensors import triangulate_sensors
+        from demtool.maps.frames import xyz_to_lonlat_height
+
+        r0, r1, c0, c1 = tile.core
+        out = np.full((10, r1 - r0, c1 - c0), np.nan, dtype=np.float32)
+        disparity = read_window(self.disparity_path, tile.core, what="disparity")
+        raw = self._raw_ortho if self.source == "mapprojected" else self._raw_rectified
+        (l_line, l_sample), (r_line, r_sample), rows, cols = raw(disparity, r0, c0)
+        seen = (np.isfinite(l_line) & np.isfinite(l_sample) & np.isfinite(r_line)
+                & np.isfinite(r_sample))
+        if self.source == "rectified":  # the untiled route triangulates them all
+            seen[:] = True
+        info: dict[str, Any] = {"valid": int(rows.size), "seen": int(seen.sum()),
+                                "behind": 0}
+        if not seen.any():
+            return out, info
+        left, right = self.sensors()
+        tri = triangulate_sensors(left, right, l_line[seen], l_sample[seen], r_line[seen],
+                                  r_sample[seen])
+        finite = np.isfinite(tri.xyz).all(axis=1)
+        front = finite & tri.in_front
+        info["behind"] = int((finite & ~tri.in_front).sum())
+        if not front.any():
+            return out, info
+        lon, lat, height = xyz_to_lonlat_height(tri.xyz[front], radii=sphere_radius(left))
+        values = np.stack([lon, lat, height, tri.gap[front], tri.range_left[front]])
+        out[:, rows[seen][front], cols[seen][front]] = split64(values).transpose(
+            1, 0, 2).reshape(10, -1)
+        return out, info
+
+    # ------------------------------------------------------------------ step 3
+    def _measure(self, tile: Tile) -> tuple[np.ndarray, dict[str, Any]]:
+        from affine import Affine
+        from pyproj import CRS
+
+        from demtool.dem.grid import splat_median
+        from demtool.dem.sensors import overlap_mask
+        from demtool.maps.grids import MapGrid
+        from demtool.maps.projections import lonlat_to_map
+
+        r0, r1, c0, c1 = tile.core
+        h, w = r1 - r0, c1 - c0
+        crs = CRS.from_wkt(self.crs_wkt)
+        a, _, c, _, e, f = self.grid_transform[:6]
+        ptiles = plan_tiles(*self.disparity_shape, self.tile_size, overlap=0).tiles
+        cache = TileCache(self.points)
+        pixels, heights, gaps = [], [], []
+        for ptile, box in zip(ptiles, self.boxes, strict=True):
+            if box is None or box[0] >= r1 or box[1] <= r0 or box[2] >= c1 or box[3] <= c0:
+                continue
+            lon, lat, height, gap, _ = stored_points(cache.load(ptile))
+            keep = gap <= self.max_gap
+            x, y = lonlat_to_map(crs, lon[keep], lat[keep])
+            px = (np.asarray(x) - c) / a - 0.5  # as demtool.dem.sensors.dem_on_map
+            py = (np.asarray(y) - f) / e - 0.5
+            inside = (px > c0 - 0.5) & (px < c1 - 0.5) & (py > r0 - 0.5) & (py < r1 - 0.5)
+            pixels.append(np.column_stack([px[inside] - c0, py[inside] - r0]))
+            heights.append(height[keep][inside])
+            gaps.append(gap[keep][inside])
+        out = np.full((3, h, w), np.nan, dtype=np.float32)
+        points = 0
+        if pixels:
+            p = np.concatenate(pixels)
+            points = len(p)
+            out[0] = splat_median(p, np.concatenate(heights), (h, w))[0]
+            out[1] = splat_median(p, np.concatenate(gaps), (h, w))[0]
+        grid = MapGrid(crs, Affine(*self.grid_transform[:6]) @ Affine.translation(c0, r0),
+                       w, h)
+        measured = np.isfinite(out[0])
+        out[2] = overlap_mask(grid, *self.sensors(), self.overlap_height) | measured
+        return out, {"points": points, "cells_measured": int(measured.sum())}
+
+    # ------------------------------------------------------------------ step 4
+    def _fill(self, tile: Tile) -> tuple[np.ndarray, dict[str, Any]]:
+        core, measured = fill_core(tile, self.shape, self.tile_size, work=self.work,
+                                   ring=self.ring, factor=self.factor,
+                                   median_px=self.median_px)
+        folder = Path(self.work) / "measured"
+        raw = read_cached_window(folder, self.tile_size, self.shape, tile.core, band=0)
+        error = read_cached_window(folder, self.tile_size, self.shape, tile.core, band=1)
+        overlap = read_cached_window(folder, self.tile_size, self.shape, tile.core,
+                                     band=2) > 0
+        filled = overlap & ~measured
+        dem = np.where(filled | (self.median_px > 1), core, raw)
+        dem[~overlap] = np.nan
+        mask = filled.astype(np.float64)
+        mask[np.isnan(dem)] = np.nan
+        info = TileCache(folder).info(tile)
+        finite = dem[np.isfinite(dem)]
+        return np.stack([dem, mask, error]).astype(np.float32), {
+            "points": int(info.get("points", 0)), "cells_measured": int(measured.sum()),
+            "cells_filled": int(filled.sum()), "cells_overlap": int(overlap.sum()),
+            "height_min": float(finite.min()) if finite.size else math.inf,
+            "height_max": float(finite.max()) if finite.size else -math.inf}
+
+    def memory_bytes(self, tile: Tile) -> int:
+        if self.step == "points":
+            return PROCESS_BYTES + tile.core_shape[0] * tile.core_shape[1] * POINT_BYTES
+        height, width = tile.outer_shape
+        return PROCESS_BYTES + height * width * CELL_BYTES

@@ -1,0 +1,244 @@
+"""Map-projected stereo: matching two orthoimages on one map grid, and the way back
+from a map-grid disparity to raw image coordinates.
+
+Line scanners have no single centre of projection, so the pair is map-projected onto
+a smooth prior surface (``demtool mapproject``) and matched there, as ASP's
+map-projected stereo does (Beyer, Alexandrov & McMichael 2018, *The Ames Stereo
+Pipeline*, Earth and Space Science 5, §2.3).  The orthoimages of a cross-track
+(roll) pair differ by an east–west parallax proportional to the height above the
+prior; demtool searches it in 1-D along map x (the Middlebury convention
+``x_right = x_left − d`` in map columns) and refuses a pair whose residual north–south
+disparity is not small (it needs a 2-D search or an affine alignment, future work).
+
+Both matchers, ``sgm`` and ``match``, take the same route: :func:`is_ortho_pair` tells
+two orthoimages of ``demtool mapproject`` apart, :func:`ortho_pair_matches` checks their
+grids and sets the search range from their SIFT matches (which ``match`` also takes as
+its seeds).
+
+Pure functions: arrays (or rasters as read) in, arrays out; no file I/O.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from demtool.errors import ProcessingError
+from demtool.logs import get_logger
+
+log = get_logger(__name__)
+
+#: the largest median |dy| (map cells) of the matches accepted for a 1-D search
+MAX_DY_MEDIAN_PX = 0.5
+#: the largest spread (NMAD) of dy (map cells) accepted for a 1-D search
+MAX_DY_SPREAD_PX = 1.0
+#: fewest matches that set a search range
+MIN_MATCHES = 20
+
+
+class OrthoRange(NamedTuple):
+    """The search range of two orthoimages and their residual cross disparity.
+
+    low, high : float, map cells, disparity range (``x_left − x_right``) with margin
+    dy_median : float, map cells, median of ``y_right − y_left`` of the matches
+    dy_spread : float, map cells, 1.4826 × median absolute deviation of dy
+    matches : int, number of matches used
+    aligned : bool, dy small enough for a 1-D search along map x
+    points_left, points_right : (N, 2) float64, map cells (x = column, y = row)
+        The matches kept (gross mismatches dropped), left and right.
+    """
+
+    low: float
+    high: float
+    dy_median: float
+    dy_spread: float
+    matches: int
+    aligned: bool
+    points_left: np.ndarray
+    points_right: np.ndarray
+
+
+def ortho_disparity_range(left: np.ndarray, right: np.ndarray, *, margin: float = 2.0,
+                          max_dy_median: float = MAX_DY_MEDIAN_PX,
+                          max_dy_spread: float = MAX_DY_SPREAD_PX,
+                          ratio: float = 0.8) -> OrthoRange:
+    """Search range along map x from SIFT matches between two orthoimages.
+
+    Matches are SIFT keypoints (Lowe 2004) paired by the ratio test and a mutual check;
+    matches more than 5 NMAD (at least 3 cells) away from the median displacement in
+    either direction are dropped as gross mismatches, then the range is the 1st–99th
+    percentile of ``x_left − x_right`` widened by ``margin`` cells
+    (:func:`demtool.rectify.core.robust_disparity_range`).
+
+    Parameters
+    ----------
+    left, right : (H, W) float
+        Orthoimages on the same map grid, NaN = not seen.
+    margin : float
+        Widening of the range on each side, map cells.
+    max_dy_median, max_dy_spread : float
+        Limits of the residual cross disparity (map cells) for ``aligned``.
+    ratio : float
+        Lowe's ratio-test threshold.
+
+    Returns
+    -------
+    OrthoRange
+
+    Raises
+    ------
+    ProcessingError
+        Fewer than :data:`MIN_MATCHES` matches.
+    """
+    from demtool.imaging.features import detect_sift, match_descriptors
+    from demtool.rectify.core import robust_disparity_range
+
+    a = detect_sift(left, mask=np.isfinite(left))
+    b = detect_sift(right, mask=np.isfinite(right))
+    if len(a.points) < MIN_MATCHES or len(b.points) < MIN_MATCHES:
+        raise ProcessingError(f"only {len(a.points)} and {len(b.points)} SIFT keypoints")
+    pairs = match_descriptors(a.descriptors, b.descriptors, ratio=ratio, mutual=True)
+    pa = a.points[pairs[:, 0]].astype(np.float64)
+    pb = b.points[pairs[:, 1]].astype(np.float64)
+    dx = pa[:, 0] - pb[:, 0]
+    dy = pb[:, 1] - pa[:, 1]
+    keep = np.ones(dx.size, bool)
+    for values in (dx, dy):
+        if values.size:
+            med = np.median(values)
+            nmad = 1.4826 * np.median(np.abs(values - med))
+            keep &= np.abs(values - med) <= max(5.0 * nmad, 3.0)
+    if keep.sum() < MIN_MATCHES:
+        raise ProcessingError(f"only {int(keep.sum())} consistent SIFT matches "
+                              f"(of {dx.size}); at least {MIN_MATCHES} set the search range")
+    dx, dy, pa, pb = dx[keep], dy[keep], pa[keep], pb[keep]
+    low, high = robust_disparity_range(dx, margin=margin)
+    dy_median = float(np.median(dy))
+    dy_spread = float(1.4826 * np.median(np.abs(dy - dy_median)))
+    aligned = abs(dy_median) <= max_dy_median and dy_spread <= max_dy_spread
+    log.info("%d ortho matches: disparity %.2f … %.2f cells, dy median %.3f, spread %.3f",
+             dx.size, low, high, dy_median, dy_spread)
+    return OrthoRange(float(low), float(high), dy_median, dy_spread, int(dx.size), aligned,
+                      pa, pb)
+
+
+def is_ortho_pair(left, right) -> bool:
+    """True when both rasters (``demtool.io.Raster`` or ``RasterInfo``) are orthoimages
+    written by ``demtool mapproject`` (they carry its sensor tag)."""
+    from demtool.mapproject.surface import SENSOR_TAG
+
+    return SENSOR_TAG in left.tags and SENSOR_TAG in right.tags
+
+
+def ortho_pair_matches(left, right, *, stage: str) -> tuple[OrthoRange, str, dict]:
+    """The search range of two orthoimages as read, checked for a 1-D search along map x.
+
+    Parameters
+    ----------
+    left, right : demtool.io.Raster
+        Orthoimages (``data`` (H, W) float, NaN = not seen; ``transform``, ``crs``,
+        ``path``).
+    stage : str
+        The matcher (``"sgm"``, ``"match"``), named in the refusal.
+
+    Returns
+    -------
+    found : OrthoRange
+        From :func:`ortho_disparity_range`.
+    source : str
+        Where the range came from, for the sidecar.
+    stats : dict
+        ``ortho_matches``, ``ortho_dy_median_px``, ``ortho_dy_spread_px`` for the sidecar.
+
+    Raises
+    ------
+    InputError
+        The orthoimages are on different map grids, or their matches are offset
+        north–south (a 1-D search along map x would not find them: the pair needs a 2-D
+        alignment).
+    ProcessingError
+        Too few matches to set the range.
+    """
+    from demtool.errors import InputError
+
+    if (left.transform != right.transform or str(left.crs) != str(right.crs)
+            or left.data.shape != right.data.shape):
+        raise InputError(f"{left.path} and {right.path}: the orthoimages are on different "
+                         "map grids; map-project the right one with --grid-like LEFT")
+    try:
+        found = ortho_disparity_range(left.data, right.data)
+    except ProcessingError as exc:
+        raise ProcessingError(f"{left.path} and {right.path}: cannot set the search range "
+                              f"from matches ({exc}); give the disparity range "
+                              "(--min-disparity and --num-disparities for sgm)") from None
+    if not found.aligned:
+        raise InputError(
+            f"{left.path} and {right.path}: the orthoimages' matches are offset "
+            f"north-south by {found.dy_median:.2f} cells (spread {found.dy_spread:.2f}; "
+            f"limits {MAX_DY_MEDIAN_PX:g} and {MAX_DY_SPREAD_PX:g}): {stage} searches along "
+            "map x only, the pair needs a 2-D alignment")
+    stats = {"ortho_matches": found.matches, "ortho_dy_median_px": found.dy_median,
+             "ortho_dy_spread_px": found.dy_spread}
+    return found, f"SIFT matches of the orthoimages ({found.matches})", stats
+
+
+def map_cells_xy(transform, rows: np.ndarray, cols: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Map coordinates of (fractional) cell indices; the centre of cell (r, c) is at
+    ``(c + 0.5, r + 0.5)`` in the transform's pixel coordinates.
+
+    rows, cols : (N,) float, cells; returns (x, y), metres in the grid's CRS.
+    """
+    t = transform
+    cc = np.asarray(cols, dtype=np.float64) + 0.5
+    rr = np.asarray(rows, dtype=np.float64) + 0.5
+    return t.a * cc + t.b * rr + t.c, t.d * cc + t.e * rr + t.f
+
+
+def disparity_cells(disparity: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Left and right cells of every valid map-grid disparity.
+
+    disparity : (H, W) float, map cells, ``x_right = x_left − d``, NaN = invalid.
+
+    Returns
+    -------
+    rows, left_cols, right_cols : (N,) float64, cells (the right cell is
+    ``(row, col − d)``, fractional).
+    """
+    rows, cols = np.nonzero(np.isfinite(disparity))
+    d = disparity[rows, cols].astype(np.float64)
+    return rows.astype(np.float64), cols.astype(np.float64), cols - d
+
+
+def raw_coordinates(sensor, crs, transform, rows: np.ndarray, cols: np.ndarray,
+                    heights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Raw image (line, sample) of map cells on a surface, through a sensor model.
+
+    Parameters
+    ----------
+    sensor : demtool.sensors.base.SensorModel
+    crs, transform
+        The map grid (projected CRS on the body's sphere).
+    rows, cols : (N,) float
+        Cells (fractional allowed).
+    heights : (N,) float
+        The surface the orthoimage was projected on at those cells, metres above the
+        body's reference sphere (NaN = none).
+
+    Returns
+    -------
+    line, sample : (N,) float64, CSM image coordinates (NaN where unseen or no surface).
+    """
+    from demtool.maps import map_to_xyz
+
+    x, y = map_cells_xy(transform, rows, cols)
+    heights = np.asarray(heights, dtype=np.float64)
+    line = np.full(x.shape, np.nan)
+    sample = np.full(x.shape, np.nan)
+    good = np.isfinite(heights) & np.isfinite(x)
+    if good.any():
+        xyz = map_to_xyz(crs, x[good], y[good], heights[good])
+        gl, gs = sensor.ground_to_image(np.asarray(xyz).reshape(-1, 3))
+        line[good], sample[good] = gl, gs
+    return line, sample

@@ -1,0 +1,141 @@
+"""What map-projected products share with the stages that read them: the tags an
+orthoimage carries, the projection surface (a DEM or a constant height) read for a
+sensor, the body check, and a raw image resampled onto a DEM's grid.
+
+Used by the ``mapproject`` runner and its tiled job, by ``dem --mapprojected`` and by
+``refine`` on the map (:mod:`demtool.refine.run_map`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any, NamedTuple
+
+import numpy as np
+
+#: tags every orthoimage carries so later stages can undo the projection
+SENSOR_TAG = "mapproject_sensor"
+SURFACE_TAG = "mapproject_surface"
+DEM_TAG = "mapproject_dem"
+HEIGHT_TAG = "mapproject_height_m"
+
+
+class DemSurface(NamedTuple):
+    """A DEM read in windows: its :class:`demtool.io.RasterInfo` and the offset (metres)
+    from its own sphere's heights to heights above the body's reference sphere."""
+
+    info: Any
+    offset_m: float
+    geographic: bool
+
+    def heights_lonlat(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+        """Heights (metres above the body's sphere) at lon/lat (degrees), bilinear."""
+        from demtool.maps import lonlat_to_map, wrap_longitude
+
+        crs = self.info.crs
+        if self.geographic:
+            t = self.info.transform
+            center = t.c + t.a * 0.5 * self.info.width
+            x, y = wrap_longitude(lon, center), np.asarray(lat, dtype=np.float64)
+        else:
+            x, y = lonlat_to_map(crs, lon, lat)
+        return self.heights_xy(x, y)
+
+    def heights_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Heights at map coordinates of the DEM's own CRS (NaN off the DEM)."""
+        from demtool import io as dio
+        from demtool.mapproject.core import bilinear_heights
+
+        inv = ~self.info.transform
+        x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        col = inv.a * x + inv.b * y + inv.c - 0.5
+        row = inv.d * x + inv.e * y + inv.f - 0.5
+        good = np.isfinite(col) & np.isfinite(row)
+        out = np.full(np.shape(col), np.nan)
+        if not good.any():
+            return out
+        r0 = max(int(math.floor(row[good].min())) - 1, 0)
+        r1 = min(int(math.floor(row[good].max())) + 3, self.info.height)
+        c0 = max(int(math.floor(col[good].min())) - 1, 0)
+        c1 = min(int(math.floor(col[good].max())) + 3, self.info.width)
+        if r1 <= r0 or c1 <= c0:
+            return out
+        data = dio.read_window(self.info.path, (r0, r1, c0, c1), what="DEM")
+        out = bilinear_heights(data, row - r0, col - c0)
+        return out + self.offset_m
+
+
+def require_same_body(path: str | os.PathLike, crs: Any, body: Any,
+                      sensor_path: str | os.PathLike, what: str) -> None:
+    """InputError naming both files when the raster at ``path`` (CRS ``crs``) is on
+    another body than the sensor model's ``body``."""
+    from demtool.errors import InputError
+    from demtool.maps import body_from_crs, same_body
+
+    raster_body = body_from_crs(crs)
+    if not same_body(raster_body, body):
+        raise InputError(f"{path}: is {what} of {raster_body.name} but the sensor model "
+                         f"{sensor_path} sees {body.name}")
+
+
+def read_dem_surface(dem_path, sensor_path, body) -> DemSurface:
+    """The DEM at ``dem_path`` as a :class:`DemSurface` (checked: a map of the sensor's
+    body, on a sphere)."""
+    from demtool import io as dio
+    from demtool.errors import InputError
+    from demtool.maps import crs_radius, to_pyproj_crs
+
+    info = dio.raster_info(dem_path, what="DEM")
+    if info.crs is None:
+        raise InputError(f"{dem_path}: DEM has no CRS; mapproject needs a DEM on the body's "
+                         "map (a planetary CRS)")
+    crs = to_pyproj_crs(info.crs)
+    require_same_body(dem_path, crs, body, sensor_path, "a DEM")
+    try:
+        radius = crs_radius(crs)
+    except ValueError:
+        raise InputError(f"{dem_path}: DEM is on an ellipsoid; demtool's map heights are above "
+                         "the body's reference sphere (reproject it onto the sphere)") from None
+    return DemSurface(info=info, offset_m=radius - body.radius, geographic=crs.is_geographic)
+
+
+def orthoimage_on_grid(image_path: str | os.PathLike, sensor, dem) -> np.ndarray:
+    """An image map-projected (in memory) onto a DEM's grid at the DEM's heights.
+
+    Parameters
+    ----------
+    image_path : path-like
+        The raw image (read in windows).
+    sensor : SensorModel
+        Its model; the image must have the model's size.
+    dem : demtool.io.Raster
+        Heights above the body's reference sphere on a projected map grid.
+
+    Returns
+    -------
+    (H, W) float32 on the DEM's grid, NaN where not seen.
+    """
+    from demtool import io as dio
+    from demtool.errors import InputError
+    from demtool.mapproject.core import image_coordinates, image_window, resample_tile, tile_windows
+    from demtool.mapproject.params import MapprojectParams
+
+    info = dio.raster_info(image_path, what="image")
+    if (info.height, info.width) != sensor.image_size:
+        raise InputError(f"{image_path}: image is {info.width} x {info.height} pixels but its "
+                         f"sensor model describes {sensor.samples} x {sensor.lines}")
+    defaults = MapprojectParams()
+    out = np.full(dem.data.shape, np.nan, dtype=np.float32)
+    for window in tile_windows(dem.data.shape, defaults.tile_size):
+        r0, r1, c0, c1 = window
+        coords = image_coordinates(sensor, dem.crs, dem.transform, window,
+                                   dem.data[r0:r1, c0:c1], step=defaults.step,
+                                   tolerance=defaults.tolerance)
+        span = image_window(coords.line, coords.sample, sensor.lines, sensor.samples)
+        if span is None:
+            continue
+        pixels = dio.read_window(image_path, span, what="image")
+        out[r0:r1, c0:c1] = resample_tile(pixels, (span[0], span[2]), coords.line,
+                                          coords.sample, sensor.lines, sensor.samples)
+    return out

@@ -1,0 +1,180 @@
+"""Runner of ``demtool sgm``: semi-global matching of a rectified pair."""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from demtool.stagerun import StageRun, check_stereo_pair, sidecar_path
+
+if TYPE_CHECKING:
+    from demtool.sgm.params import SgmParams
+
+
+def disparity_range_from_rectify(path: str | os.PathLike) -> tuple[int, int]:
+    """(min_disparity, num_disparities) covering ``disparity_range`` of a rectify.npz."""
+    from demtool import io as dio
+    from demtool.errors import InputError
+
+    content = dio.read_npz(path, "rectification")
+    low, high = (float(v) for v in content["disparity_range"])
+    if not (math.isfinite(low) and math.isfinite(high)) or high < low:
+        raise InputError(f"{path}: disparity_range {low:g} … {high:g} is not a valid range")
+    min_disparity = math.floor(low)
+    return min_disparity, math.ceil(high) - min_disparity + 1
+
+
+def ortho_pair_range(left, right) -> tuple[tuple[int, int], str, dict[str, Any]]:
+    """(min_disparity, num_disparities), its source and summary entries for two
+    orthoimages on one map grid (:func:`demtool.mapproject.stereo.ortho_pair_matches`)."""
+    from demtool.mapproject.stereo import ortho_pair_matches
+
+    found, source, stats = ortho_pair_matches(left, right, stage="sgm")
+    min_disparity = math.floor(found.low)
+    return (min_disparity, math.ceil(found.high) - min_disparity + 1), source, stats
+
+
+def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
+            out: str | os.PathLike, params: SgmParams | None = None, *,
+            rectify: str | os.PathLike | None = None,
+            confidence: str | os.PathLike | None = None,
+            resolved: dict[str, Any] | None = None):
+    """Match LEFT_RECT and RIGHT_RECT; write the disparity GeoTIFF (and confidence).
+
+    The disparity range is ``params.min_disparity/num_disparities`` when given, else
+    the ``disparity_range`` of ``rectify``.  Writes ``out`` (float32 disparity in the left
+    rectified image's frame, ``x_right = x_left − d``, NaN = invalid), optionally the
+    confidence raster, and the sidecar ``<out>.json``, all in one output transaction.
+
+    Large pairs run in tiles (``--tile-size``, ``--workers``, ``--scheduler``,
+    ``--dry-run``; :mod:`demtool.sgm.tiled`), written window by window.
+
+    Returns
+    -------
+    demtool.sgm.SGMResult, or demtool.tiling.jobs.TiledResult for a tiled run
+    """
+    import numpy as np
+
+    from demtool import io as dio
+    from demtool import tiling
+    from demtool.errors import InputError, ParameterError
+    from demtool.mapproject.stereo import is_ortho_pair
+    from demtool.sgm.params import SgmParams
+    from demtool.sgm.widen import sgm_widening
+
+    params = params or SgmParams()
+    run = StageRun("sgm", params, resolved=resolved,
+                   inputs={"LEFT_RECT": left_path, "RIGHT_RECT": right_path,
+                           "--rectify": rectify},
+                   outputs={"--out": out, "--confidence": confidence,
+                            "sidecar": sidecar_path(out)})
+    log, provenance = run.log, run.provenance
+    out_path = Path(out)
+    sgm_options = params.matcher_options()
+    min_disparity, num_disparities = params.min_disparity, params.num_disparities
+    left_info = dio.raster_info(left_path, what="left rectified image")
+    right_info = dio.raster_info(right_path, what="right rectified image")
+    ortho = is_ortho_pair(left_info, right_info)
+    if ortho and ((left_info.height, left_info.width) != (right_info.height, right_info.width)
+                  or left_info.transform != right_info.transform):
+        raise InputError(f"{left_path} and {right_path}: the orthoimages are on different "
+                         "map grids; map-project the right one with --grid-like LEFT")
+    left = right = None
+    source = "--min-disparity/--num-disparities"
+    ortho_stats: dict[str, Any] = {}
+    if min_disparity is None or num_disparities is None:
+        if rectify is None and ortho:  # the range from the orthoimages' matches
+            left = dio.read_raster(left_path, what="left rectified image")
+            right = dio.read_raster(right_path, what="right rectified image")
+            from_file, source, ortho_stats = ortho_pair_range(left, right)
+            min_disparity = from_file[0] if min_disparity is None else min_disparity
+            num_disparities = from_file[1] if num_disparities is None else num_disparities
+        elif rectify is None:
+            raise ParameterError("give the disparity range: --rectify RECTIFY_NPZ, or both "
+                                 "--min-disparity and --num-disparities (or two orthoimages "
+                                 "from demtool mapproject)")
+    if min_disparity is None or num_disparities is None:
+        from_file = disparity_range_from_rectify(rectify)
+        min_disparity = from_file[0] if min_disparity is None else min_disparity
+        num_disparities = from_file[1] if num_disparities is None else num_disparities
+        source = f"{rectify} (disparity_range)"
+    shape = tiling.raster_shape(left_path, "left rectified image")
+    right_shape = tiling.raster_shape(right_path, "right rectified image")
+    if shape != right_shape:
+        raise InputError(
+            f"{left_path} and {right_path}: the rectified images differ in size "
+            f"({shape[1]}×{shape[0]} and {right_shape[1]}×{right_shape[0]}, width×height); "
+            "use the pair written by demtool rectify")
+    width = shape[1]
+    max_disparity = min_disparity + num_disparities - 1
+    if num_disparities >= width or max(abs(min_disparity), abs(max_disparity)) >= width:
+        raise ParameterError(f"disparity range {min_disparity} … {max_disparity} from {source} "
+                             f"is wider than the images ({width} px)")
+    if tiling.wants_tiles(*shape, params):  # large images: tiles, Dask (README "Scale")
+        from demtool.imaging.checks import check_rectification_matches
+        from demtool.sgm.tiled import sgm_tiled
+
+        if rectify is not None:  # the images are never read whole here: sizes only
+            check_rectification_matches(dio.read_npz(rectify, "rectification"), rectify,
+                                        {left_path: shape, right_path: shape}, rectified=True)
+
+        return sgm_tiled(run, left_path, right_path, out, params, shape, source=source,
+                         min_disparity=min_disparity, num_disparities=num_disparities,
+                         confidence=confidence, rectify=rectify)
+    if left is None:
+        left = dio.read_raster(left_path, what="left rectified image")
+        right = dio.read_raster(right_path, what="right rectified image")
+    check_stereo_pair(left, right, rectify)
+    log.info("matching %s / %s: %d×%d px, disparities %d … %d, cost %s, %d paths",
+             left_path, right_path, width, left.data.shape[0], min_disparity, max_disparity,
+             params.cost, params.paths)
+    result = sgm_widening(left.data, right.data, min_disparity=min_disparity,
+                          num_disparities=num_disparities, widenings=params.widenings,
+                          **sgm_options)
+    min_disparity = result.parameters["min_disparity"]
+    num_disparities = result.parameters["num_disparities"]
+    disparity = result.disparity
+    valid = np.isfinite(disparity)
+    input_valid = np.isfinite(left.data)
+    values = disparity[valid]
+    stats: dict[str, Any] = {"valid_fraction": round(float(valid.mean()), 4),
+                             "valid_fraction_of_input": round(
+                                 float(valid.sum() / max(int(input_valid.sum()), 1)), 4)}
+    if values.size:
+        percentiles = np.percentile(values, [1, 50, 99])
+        stats.update(disparity_min=float(values.min()), disparity_max=float(values.max()),
+                     disparity_mean=float(values.mean()), disparity_std=float(values.std()),
+                     disparity_p01=float(percentiles[0]), disparity_median=float(percentiles[1]),
+                     disparity_p99=float(percentiles[2]),
+                     confidence_mean=float(np.nanmean(result.confidence)))
+    else:
+        log.warning("no valid disparity: check the disparity range and the image pair")
+    log.info("%.1f %% of the pixels valid; disparity %s; %.1f s (%s)",
+             100 * stats["valid_fraction"],
+             f"{stats['disparity_min']:.1f} … {stats['disparity_max']:.1f}" if values.size
+             else "none", result.timings["total"],
+             ", ".join(f"{k} {v:.1f} s" for k, v in result.timings.items() if k != "total"))
+    summary = {**stats, "min_disparity": min_disparity, "num_disparities": num_disparities,
+               "disparity_range_source": source,
+               "range_widenings": result.parameters["range_widenings"],
+               "resolved": result.parameters,
+               **ortho_stats, "timings_s": result.timings, "passes": result.levels,
+               "convention": "x_right = x_left - d, pixels, NaN = invalid"}
+    frame = left.tags.get("frame", f"image:{Path(left_path).stem}")
+    tags = provenance.tags(frame=frame, disparity_convention="x_right = x_left - d",
+                           min_disparity=min_disparity, num_disparities=num_disparities,
+                           cost=result.parameters["cost"])
+    outputs: list[str | os.PathLike] = [out_path]
+    with run.transaction():
+        dio.write_raster(out_path, disparity, transform=left.transform, crs=left.crs,
+                         tags=tags, band_names=["disparity"])
+        if confidence is not None:
+            dio.write_raster(confidence, result.confidence, transform=left.transform,
+                             crs=left.crs,
+                             tags={**tags, "quantity": "sgm confidence (S2 - S1) / S2"},
+                             band_names=["confidence"])
+            outputs.append(confidence)
+        provenance.write_sidecar(out_path, summary, outputs=outputs)
+    return result

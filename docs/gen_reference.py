@@ -241,8 +241,9 @@ def stage_page(stage: str) -> str:
     body = help_text.split("\n\n", 1)[1] if "\n\n" in help_text else ""
     if body:
         lines += [body.replace("\b\n", ""), ""]
-    lines += [f"What the stage does, with examples and measured accuracy: "
-              f"[the {stage} stage](../stages/{stage}.md).", ""]
+    if (ROOT / "docs" / "stages" / f"{stage}.md").exists():
+        lines += [f"What the stage does, with examples and measured accuracy: "
+                  f"[the {stage} stage](../stages/{stage}.md).", ""]
     arguments = arguments_list(command)
     if arguments:
         lines += ["## Arguments", "", *arguments, ""]

@@ -10,9 +10,10 @@ the constraints between options its parameter class checks, and the error messag
 command and runner can end with (read from their source: the ``raise`` of
 ``InputError``, ``ProcessingError``, ``ParameterError``, ``DemtoolError`` and
 ``click.BadParameter``).  ``docs/reference/npz.md`` lists the NPZ kinds of
-``demtool.io.NPZ_SCHEMAS``.  The reference block of ``mkdocs.yml``'s ``nav`` (between the
-``# BEGIN reference`` and ``# END reference`` lines) is rewritten to list every page, so
-a new stage needs nothing but this command.
+``demtool.io.NPZ_SCHEMAS``.  The stages and reference blocks of ``mkdocs.yml``'s ``nav``
+(between the ``# BEGIN stages``/``# END stages`` and ``# BEGIN reference``/``# END
+reference`` lines) are rewritten to list every page, so a new stage needs nothing but
+this command (and, for its description, a ``docs/stages/<stage>.md`` page).
 """
 
 from __future__ import annotations
@@ -316,16 +317,32 @@ def pages() -> dict[Path, str]:
     return out
 
 
-def nav_text(current: str) -> str:
-    """mkdocs.yml with its reference nav block listing every page."""
-    lines = current.splitlines()
-    start = next(i for i, l in enumerate(lines) if l.strip().startswith("# BEGIN reference"))
-    end = next(i for i, l in enumerate(lines) if l.strip().startswith("# END reference"))
+def _replace_block(lines: list[str], name: str, entries: list[str]) -> list[str]:
+    """``lines`` with the nav entries between ``# BEGIN name`` and ``# END name`` replaced."""
+    start = next(i for i, l in enumerate(lines) if l.strip().startswith(f"# BEGIN {name}"))
+    end = next(i for i, l in enumerate(lines) if l.strip().startswith(f"# END {name}"))
     indent = lines[start][: len(lines[start]) - len(lines[start].lstrip())]
-    block = [f"{indent}- reference/index.md", f"{indent}- reference/files.md",
-             f"{indent}- reference/npz.md"]
-    block += [f"{indent}- demtool {s}: reference/{s}.md" for s in STAGES]
-    return "\n".join(lines[: start + 1] + block + lines[end:]) + "\n"
+    return lines[: start + 1] + [indent + entry for entry in entries] + lines[end:]
+
+
+def stage_nav() -> list[str]:
+    """The stages' pages: the index, each stage's page in pipeline order, then the others."""
+    folder = ROOT / "docs" / "stages"
+    entries = ["- stages/index.md"]
+    entries += [f"- {s}: stages/{s}.md" for s in STAGES if (folder / f"{s}.md").exists()]
+    for page in sorted(folder.glob("*.md")):
+        if page.stem not in STAGES and page.stem != "index":
+            title = page.read_text().splitlines()[0].lstrip("# ").split(":")[0]
+            entries.append(f"- {title}: stages/{page.name}")
+    return entries
+
+
+def nav_text(current: str) -> str:
+    """mkdocs.yml with its stages and reference nav blocks listing every page."""
+    lines = _replace_block(current.splitlines(), "stages", stage_nav())
+    reference = ["- reference/index.md", "- reference/files.md", "- reference/npz.md"]
+    reference += [f"- demtool {s}: reference/{s}.md" for s in STAGES]
+    return "\n".join(_replace_block(lines, "reference", reference)) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:

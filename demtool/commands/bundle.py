@@ -19,7 +19,7 @@ exhaustive or sequential (strips: neighbours in input order) matching with geome
 verification, incremental mapping with bundle adjustment.  By default all images
 share one camera: COLMAP estimates its focal length and a radial term while
 mapping, then a self-calibration frees the principal point and a second radial term
-and keeps each only where the block determines it (README, "bundle").  --focal-px or
+and keeps each only where the block determines it (docs/stages/bundle.md).  --focal-px or
 --cameras give known intrinsics (fixed unless --refine-intrinsics; one mapping pass).
 The largest model is written to OUT (bundle.npz: points, intensities, track lengths,
 reprojection errors, cameras, target index) with the sidecar OUT.json (registered

@@ -18,7 +18,7 @@ MODEL: ALE ISD JSON (frame or line scan), ISIS3 cube with SPICE attached, ASP .t
 (give --body), cameras.npz or bundle.npz (every camera in it, in the scene's local
 frame).  Prints a table (one column per model, then one row per pair) on stdout, or
 the JSON report with --json; --out also writes the JSON report (and its provenance
-sidecar).  Keys: README, section "camera".""")
+sidecar).  Keys: docs/stages/camera.md.""")
 @click.argument("models", nargs=-1, required=True, type=click.Path(dir_okay=False),
                 metavar="MODEL...")
 @options.parameter_options(CameraParams)

@@ -31,11 +31,12 @@ orthoimages of demtool mapproject on one grid: each left cell (x, y) and its rig
 cell (x - d, y) are mapped back to raw pixels through the surface and sensor model
 named in the orthoimages' tags and triangulated as above (DEM on the orthos' map).
 
-Both routes remove outliers with a local median test, resample onto the target
-image's pixel grid, fill the gaps with D'Errico's spring-metaphor interpolation and
-optionally median-filter.  OUT is in the target image frame (frame=image:<target>),
+Every route removes outliers with a local median test, fills the gaps with D'Errico's
+spring-metaphor interpolation and optionally median-filters.  The points, --cameras
+and --reference routes write OUT in the target image frame (frame=image:<target>),
 pixel spacing = GSD (--gsd, scene.json gsd_m, the reference's spacing, or estimated
-as distance / focal length), heights in metres positive toward the camera.
+as distance / focal length), heights in metres positive toward the camera; the
+sensor-model and map-projected routes write it on the body's map.
 """
 
 

@@ -18,7 +18,10 @@ original pair together with --rectify RECTIFY_NPZ (then warped here onto the
 rectified canvas).  Writes OUT, the float32 disparity in the left rectified frame
 (x_right = x_left - d, NaN = not matched), and OUT.json.  Seeds: SIFT, Förstner
 corners and the control points of --rectify, verified by LSM; a match is accepted
-when its final LSM correlation coefficient reaches --threshold.""")
+when its final LSM correlation coefficient reaches --threshold.
+
+Two orthoimages of demtool mapproject on one grid (no --rectify) are matched along
+map x, seeded by their SIFT matches; OUT is then on the left ortho's grid and CRS.""")
 @options.input_file("left")
 @options.input_file("right")
 @options.out_file("Output disparity GeoTIFF.")

@@ -61,6 +61,12 @@ class _Checks:
     def _fail(self, value: Any, message: str, param, ctx):
         self.fail(_preset_prefix(value, param, ctx) + message, param, ctx)
 
+    def _describe_range(self) -> str:
+        """The range for ``--help``; empty when unbounded (click would print ``x<=None``)."""
+        if self.min is None and self.max is None:
+            return ""
+        return super()._describe_range()
+
 
 class FloatRange(_Checks, click.FloatRange):
     """A float in an optional range; NaN and ±inf are refused unless allowed.

@@ -16,7 +16,11 @@ from demtool.stages import STAGES
 Reads the rectified pair LEFT_RECT and RIGHT_RECT (as written by demtool rectify; NaN
 outside the warped images never matches) and writes OUT, the float32 disparity in the
 left rectified image's frame (x_right = x_left - d, NaN = invalid), and OUT.json.  The
-default cost is hierarchical mutual information (HMI, 1/16 → 1).""")
+default cost is hierarchical mutual information (HMI, 1/16 → 1).
+
+Two orthoimages of demtool mapproject on one grid (map-projected stereo, line
+scanners) are matched along map x instead, the range from their SIFT matches; OUT is
+then on the left ortho's grid and CRS, for dem --mapprojected.""")
 @options.input_file("left_rect")
 @options.input_file("right_rect")
 @options.out_file("Output disparity GeoTIFF.")

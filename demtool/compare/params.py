@@ -43,7 +43,7 @@ class CompareParams(Parameters):
     label: str | None = parameter(None, "Name of DEM in the report (default: file stem).")
     plots: bool = parameter(True, "Write the PNG figures.")
     seed: int = seed_field()
-    # Windowed statistics for DEMs larger than memory (demtool/runs/compare_windowed.py).
+    # Windowed statistics for DEMs larger than memory (demtool/compare/run_windowed.py).
     tile_size: int = parameter(0, "Compare in windows of this many cells a side, reading "
                                "both rasters window by window (0 = in memory unless the "
                                "grid needs more than --max-memory-mb).", minimum=0)

@@ -46,7 +46,7 @@ class DemParams(Parameters):
         None, "Sensor models: drop points whose rays miss each other by more, metres "
         "(default: median gap + max(4 NMAD, 2 GSD)).", minimum=0.0, min_open=True)
     seed: int = seed_field()
-    # Tiles over the output grid (demtool.dem.tiled; README "Scale"): disparity route with
+    # Tiles over the output grid (demtool.dem.tiled; docs/stages/scale.md): disparity route with
     # --cameras only.
     workers: int = parameter(0, "Tiled runs: Dask worker processes (0 or 1 = the tiles one "
                              "after the other in this process).", minimum=0)

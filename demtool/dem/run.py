@@ -232,7 +232,7 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
             raise ParameterError("--error-out belongs to the sensor-model route (a calibrated "
                                  "rectify.npz)")
     scene = read_scene_description(scene_path) if scene_path is not None else {}
-    if _tile_options(params):  # large images: tiles over the output grid (README "Scale")
+    if _tile_options(params):  # large images: tiles over the output grid (docs/stages/scale.md)
         tiled = _dem_tiled(run, params, out, disparity_path=disparity_path,
                            rectify_path=rectify_path, cameras_path=cameras_path,
                            scene=scene, scene_path=scene_path, mask_path=mask_path)

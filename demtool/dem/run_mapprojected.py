@@ -53,7 +53,7 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
                          "map grids (map-project the right one with --grid-like LEFT)")
     if left.sensor.radii is None or right.sensor.radii is None:
         raise InputError(f"{left_path}: its sensor models are not on a body")
-    if params.tile_size or params.scheduler or params.dry_run:  # README "Scale"
+    if params.tile_size or params.scheduler or params.dry_run:  # docs/stages/scale.md
         tiled = _tiled(run, params, out, disparity_path, left_path, right_path, li,
                        mask_path, error_path)
         if tiled is not None:

@@ -46,7 +46,7 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
         raise InputError(f"{rectify_path}: the sensor models have no body (local-frame "
                          "pinholes): a DEM on the body's map needs body-fixed models")
     geometry = geometry_from_rectification(rectification, left, right)
-    if params.tile_size or params.scheduler or params.dry_run:  # README "Scale"
+    if params.tile_size or params.scheduler or params.dry_run:  # docs/stages/scale.md
         tiled = _tiled(run, params, out, disparity_path, rectify_path, rectification,
                        geometry, mask_path, error_path)
         if tiled is not None:

@@ -37,7 +37,7 @@ class MapprojectParams(Parameters):
     tolerance: float = parameter(CORE["tolerance"], "Largest interpolation error of the "
                                  "image coordinates, pixels.", minimum=0.0, min_open=True)
     seed: int = seed_field()
-    # The tile engine (demtool.mapproject.tiled; README "Scale"): off by default.
+    # The tile engine (demtool.mapproject.tiled; docs/stages/scale.md): off by default.
     workers: int = parameter(0, "Run the map tiles on the tile engine (resumable, cached "
                              "in a work folder): 1 = one after the other in this process, "
                              "N >= 2 = N Dask worker processes; 0 = the in-process loop.",

@@ -124,7 +124,7 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
     from demtool import tiling
 
     shape = tiling.raster_shape(left_path, "left image")
-    if tiling.wants_tiles(*shape, params):  # large pairs: tiles, Dask (README "Scale")
+    if tiling.wants_tiles(*shape, params):  # large pairs: tiles, Dask (docs/stages/scale.md)
         from demtool.match.tiled import match_tiled
 
         return match_tiled(run, left_path, right_path, out, params, shape, rectify=rectify,

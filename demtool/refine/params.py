@@ -104,7 +104,7 @@ class RefineParams(SfsParameters):
     illumination_tile : int
         Map route: tile size (px) when refining per tile.
     workers, tile_size, tile_overlap, scheduler, dry_run
-        Large DEMs in tiles on Dask (:mod:`demtool.refine.tiled`; README "Scale").
+        Large DEMs in tiles on Dask (:mod:`demtool.refine.tiled`; docs/stages/scale.md).
     """
 
     median: int = parameter(15, "Median prefilter of the input DEM, odd window in pixels "
@@ -124,7 +124,7 @@ class RefineParams(SfsParameters):
         "model varies by more than this over the DEM, degrees.", minimum=0.0, min_open=True)
     illumination_tile: int = parameter(
         512, "Map route: tile size when refining per tile, px.", minimum=64)
-    # Tiles (demtool.tiling; README "Scale"): tiled, --workers is the Dask worker count.
+    # Tiles (demtool.tiling; docs/stages/scale.md): tiled, --workers is the Dask worker count.
     workers: int = parameter(0, "Tiled: Dask worker processes (0 or 1: the tiles one after "
                              "the other in this process); untiled: threads of the compiled "
                              "kernels (0 = all cores).", minimum=0)

@@ -77,7 +77,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     from demtool import tiling
 
     shape = tiling.raster_shape(dem_path, "DEM")
-    if tiling.wants_tiles(*shape, params):  # large DEMs: tiles, Dask (README "Scale")
+    if tiling.wants_tiles(*shape, params):  # large DEMs: tiles, Dask (docs/stages/scale.md)
         from demtool.refine.tiled import refine_tiled
 
         return refine_tiled(run, image_path, dem_path, out, params, shape,

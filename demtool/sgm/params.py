@@ -84,7 +84,7 @@ class SgmParams(Parameters):
         minimum=64)
     workers: int = workers_field()
     seed: int = seed_field()
-    # Tiles (demtool.tiling; README "Scale"): tiled, --workers is the Dask worker count.
+    # Tiles (demtool.tiling; docs/stages/scale.md): tiled, --workers is the Dask worker count.
     tile_size: int = tile_size_field()
     tile_overlap: int | None = tile_overlap_field(
         "64 + the cost, census and median windows + the speckle reach; the disparity "

@@ -112,7 +112,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     if num_disparities >= width or max(abs(min_disparity), abs(max_disparity)) >= width:
         raise ParameterError(f"disparity range {min_disparity} … {max_disparity} from {source} "
                              f"is wider than the images ({width} px)")
-    if tiling.wants_tiles(*shape, params):  # large images: tiles, Dask (README "Scale")
+    if tiling.wants_tiles(*shape, params):  # large images: tiles, Dask (docs/stages/scale.md)
         from demtool.imaging.checks import check_rectification_matches
         from demtool.sgm.tiled import sgm_tiled
 

@@ -7,7 +7,9 @@ import click
 import pytest
 from click.testing import CliRunner
 
+from demtool.cli import cli
 from demtool.commands import option_types as ot
+from demtool.stages import STAGES
 
 
 class _State:
@@ -116,3 +118,11 @@ def test_types_used_directly_reject_non_numbers():
         ot.POSITIVE.convert(float("inf"), None, None)
     assert ot.INT.convert("  7 ", None, None) == 7
     assert ot.FRACTION.convert(1, None, None) == 1.0
+
+
+@pytest.mark.parametrize("stage", list(STAGES))
+def test_help_shows_no_range_for_unbounded_numbers(stage):
+    """Unbounded numbers (--seed, --min-disparity, --height) show no ``x<=None``."""
+    result = CliRunner().invoke(cli, [stage, "--help"], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert "None]" not in result.output and "x<=None" not in result.output

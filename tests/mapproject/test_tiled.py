@@ -1,4 +1,4 @@
-"""``demtool mapproject`` on the tile engine (demtool/tiled/mapproject.py): the engine's
+"""``demtool mapproject`` on the tile engine (demtool/mapproject/tiled.py): the engine's
 orthoimage and angles equal the in-process loop's, a failed tile is reported and the run
 resumes byte-identical, the dry run writes nothing, a locked output is refused."""
 

@@ -202,6 +202,7 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
             cameras_path: PathLike = None, scene_path: PathLike = None,
             mask_path: PathLike = None, error_path: PathLike = None,
             mapprojected: tuple[str | os.PathLike, str | os.PathLike] | None = None,
+            up: tuple[float, float, float] | None = None, points_out: PathLike = None,
             resolved: dict | None = None) -> dict:
     """Run the dem stage: read the inputs, build the DEM, write it with its sidecar.
 
@@ -209,10 +210,12 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
     one of ``reference_path`` (projective fit) or ``cameras_path`` (triangulation), or
     neither with a calibrated ``rectify_path`` (sensor models: a DEM on the body's map,
     :func:`demtool.runs.dem_sensors.run_dem_sensors`; ``error_path`` writes its
-    triangulation-error raster), or ``disparity_path`` with ``mapprojected`` = (left
-    orthoimage, right orthoimage) from ``demtool mapproject`` (a DEM on the body's map,
-    :func:`demtool.runs.dem_mapprojected.run_dem_mapprojected`).  ``mask_path`` also
-    writes the interpolation mask.
+    triangulation-error raster; models without a body give a DEM on a local metric grid,
+    heights along ``up`` (default the frame's +Z), and ``points_out`` writes the points
+    as PLY, :func:`demtool.runs.dem_local.run_dem_local`), or ``disparity_path`` with
+    ``mapprojected`` = (left orthoimage, right orthoimage) from ``demtool mapproject``
+    (a DEM on the body's map, :func:`demtool.runs.dem_mapprojected.run_dem_mapprojected`).
+    ``mask_path`` also writes the interpolation mask.
     Returns the sidecar summary.
     """
     import numpy as np
@@ -228,7 +231,8 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
                            "--mapprojected LEFT": mapprojected[0] if mapprojected else None,
                            "--mapprojected RIGHT": mapprojected[1] if mapprojected else None},
                    outputs={"--out": out, "--interpolated-mask": mask_path,
-                            "--error-out": error_path, "sidecar": sidecar_path(out)})
+                            "--error-out": error_path, "--points-out": points_out,
+                            "sidecar": sidecar_path(out)})
     log, prov = run.log, run.provenance
     for path in run.input_paths():
         dio.require_file(path, "input file")
@@ -238,6 +242,9 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
 
         if rectify_path or reference_path or cameras_path:
             raise ParameterError("--mapprojected takes no --rectify, --reference or --cameras")
+        if up is not None or points_out is not None:
+            raise ParameterError("--up and --points-out belong to the local-frame route, not "
+                                 "to --mapprojected")
         return run_dem_mapprojected(run, params, out, disparity_path=disparity_path,
                                     left_path=mapprojected[0], right_path=mapprojected[1],
                                     mask_path=mask_path, error_path=error_path)
@@ -252,13 +259,19 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
                                      "models): drop --reference/--cameras")
             return run_dem_sensors(run, params, out, disparity_path=disparity_path,
                                    rectify_path=rectify_path, rectification=rectification,
-                                   mask_path=mask_path, error_path=error_path)
+                                   mask_path=mask_path, error_path=error_path, up=up,
+                                   points_out=points_out)
         if reference_path is None and cameras_path is None:
             raise ParameterError(f"{rectify_path} is not calibrated: give --reference or "
                                  "--cameras (or rectify with --sensor-left/--sensor-right)")
         if error_path is not None:
             raise ParameterError("--error-out belongs to the sensor-model route (a calibrated "
                                  "rectify.npz)")
+    if up is not None or points_out is not None:
+        from demtool.errors import ParameterError
+
+        raise ParameterError("--up and --points-out belong to the local-frame route (--disparity "
+                             "with a calibrated rectify.npz of models without a body)")
     scene = read_scene_description(scene_path) if scene_path is not None else {}
     if _tile_options(params):  # large images: tiles over the output grid (README "Scale")
         tiled = _dem_tiled(run, params, out, disparity_path=disparity_path,

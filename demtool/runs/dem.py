@@ -151,8 +151,9 @@ def _tiled_pair(disparity_path, rectify_path, cameras_path, target: str | None) 
 def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.PathLike, *,
                      reference_path: str | os.PathLike | None,
                      cameras_path: str | os.PathLike | None, target: str | None,
-                     outliers: OutlierOptions, median_px: int,
-                     seed: int) -> tuple[Any, str, str, float, dict[str, Any]]:
+                     outliers: OutlierOptions, median_px: int, seed: int,
+                     max_ray_gap: float | None = None
+                     ) -> tuple[Any, str, str, float, dict[str, Any]]:
     """SIAM routes: (DemResult, target name, route tag, estimated GSD, extra summary)."""
 
     from demtool import dem as core
@@ -173,7 +174,7 @@ def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.P
                                 right_name)
         result = core.dem_from_disparity_calibrated(
             disparity.data, H_left, H_right, cameras[left_name], cameras[right_name],
-            target=side, outliers=outliers, median_px=median_px)
+            target=side, outliers=outliers, median_px=median_px, max_ray_gap=max_ray_gap)
         target_camera = cameras[target_name]
         estimated_gsd = result.report["median_depth_m"] * core.points.pixel_angle(target_camera)
         return result, target_name, "disparity-calibrated", estimated_gsd, {}
@@ -289,7 +290,7 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
         result, target_name, route, estimated_gsd, extra = _disparity_route(
             disparity_path, rectify_path, reference_path=reference_path,
             cameras_path=cameras_path, target=target, outliers=outliers,
-            median_px=median_px, seed=params.seed)
+            median_px=median_px, seed=params.seed, max_ray_gap=params.max_ray_gap)
     if params.gsd is not None:
         gsd, gsd_source = float(params.gsd), "--gsd"
     elif "gsd_m" in scene:

@@ -399,7 +399,13 @@ def rectify_sensors(left: SensorModel, right: SensorModel, points_left: np.ndarr
     pl_rect = np.stack([xl, yl], axis=-1)[inliers] + shift_l
     pr_rect = np.stack([xr, yr], axis=-1)[inliers] + shift_r
     disparities = pl_rect[:, 0] - pr_rect[:, 0]
-    disparity_range = robust_disparity_range(disparities, margin=disparity_margin)
+    disparity_range = np.array(robust_disparity_range(disparities, margin=disparity_margin),
+                               dtype=np.float64)
+    # a point at infinity has d∞ = cx_left − cx_right (one orientation, one focal length),
+    # every point in front of both cameras more: no search below it
+    infinity = geometry.cx_left - geometry.cx_right
+    disparity_range[0] = max(disparity_range[0], infinity - 1.0)
+    disparity_range[1] = max(disparity_range[1], disparity_range[0])
     return CalibratedRectification(geometry, right_model, fit, corrected,
                                    np.asarray(disparity_range, dtype=np.float64),
                                    pl[inliers], pr[inliers], pl_rect, pr_rect)

@@ -245,6 +245,13 @@ def _tiled(run: StageRun, params: DemParams, out, disparity_path, rectify_path,
     if not tile_size:
         return None
     low, high = (float(v) for v in rectification["disparity_range"])
+    from demtool import io as dio
+    from demtool.runs.dem import searched_range
+
+    with dio._open_dataset(Path(disparity_path), "disparity") as dataset:
+        searched = searched_range(dataset.tags())
+    if searched is not None:  # what sgm searched is accepted (see runs.dem.read_disparity)
+        low, high = min(low, searched[0]), max(high, searched[1])
     bounds = check_disparity_file(str(disparity_path), (height, width), (low, high),
                                   source=str(rectify_path), log=run.log)
     job = rectified_job(disparity_path, rectify_path, tile_size, bounds)

@@ -41,6 +41,8 @@ def test_rover_pair_reaches_a_local_dem(tmp_path, z_down):
     assert errors["cells"] > 20000
     assert errors["rmse_m"] < 0.01 * errors["median_range_m"]
     assert errors["behind_camera"] == 0
+    # the ground where the cameras say: the camera's height above a fitted plane
+    assert abs(errors["camera_above_plane_m"] - errors["camera_above_plane_truth_m"]) < 0.02
     summary = json.loads((tmp_path / "dem.tif.json").read_text())["summary"]
     assert summary["route"] == "disparity-local" and "behind_camera" in summary
     header = (tmp_path / "points.ply").read_bytes()[:400]

@@ -38,8 +38,10 @@ def local_dem_errors(dem_path: str | Path, scene: RoverScene) -> dict[str, float
     Each valid cell's point (local x, y, height) is taken back to the models' frame
     through the axes in the DEM's tags; its error is its height minus the truth height
     of the ground at the same horizontal position (along up).  Also: the median range
-    from the left camera to the cells (the scale of the 1 % target) and the number of
-    cells behind either camera.
+    from the left camera to the cells (the scale of the 1 % target), the number of
+    cells behind either camera, and the left camera's height above a plane fitted to
+    the DEM's cells and to the truth at the same cells (the issue's held-out check on a
+    real rover: the ground where the cameras say).
     """
     from demtool.dem.local import LocalFrame, cells_behind_cameras
 
@@ -56,6 +58,12 @@ def local_dem_errors(dem_path: str | Path, scene: RoverScene) -> dict[str, float
     truth = frame.to_local(scene.truth_xyz(points))[:, 2]
     error = h - truth
     ranges = np.linalg.norm(points - scene.left.center, axis=1)
+    camera = frame.to_local(scene.left.center[None])[0]
+
+    def height_above_plane(values):  # the held-out check's figure: a plane fitted to
+        design = np.column_stack([x, y, np.ones_like(x)])  # the ground, at the camera
+        coefficients, *_ = np.linalg.lstsq(design, values, rcond=None)
+        return float(camera[2] - coefficients @ [camera[0], camera[1], 1.0])
     return {
         "cells": int(len(h)),
         "rmse_m": float(np.sqrt(np.mean(error ** 2))),
@@ -63,4 +71,6 @@ def local_dem_errors(dem_path: str | Path, scene: RoverScene) -> dict[str, float
         "nmad_m": float(1.4826 * np.median(np.abs(error - np.median(error)))),
         "median_range_m": float(np.median(ranges)),
         "behind_camera": cells_behind_cameras(dem.data, t, frame, (scene.left, scene.right)),
+        "camera_above_plane_m": height_above_plane(h),
+        "camera_above_plane_truth_m": height_above_plane(truth),
     }

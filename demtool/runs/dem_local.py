@@ -50,6 +50,12 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
     geometry = geometry_from_rectification(rectification, left, right)
     disparity = read_disparity(disparity_path, rectify_path, rectification,
                                geometry.size_rect, log)
+    if _sgm_filled(disparity.tags):
+        log.warning("%s: sgm filled its occlusions from the background (sgm --fill, its "
+                    "default): seen obliquely, the ground hidden behind rocks then gets "
+                    "heights of the far ground (on the synthetic rover pair: RMSE 3.5 cm "
+                    "instead of 1.0 cm); match local-frame pairs with sgm --no-fill",
+                    disparity_path)
     d = disparity.data
     rows, cols = np.nonzero(np.isfinite(d))
     if rows.size < 3:
@@ -142,3 +148,15 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
             outputs.append(Path(points_out))
         prov.write_sidecar(out, summary, outputs=outputs)
     return summary
+
+
+def _sgm_filled(tags: dict) -> bool:
+    """Whether sgm wrote this disparity with its occlusion fill on (its parameters tag)."""
+    import json
+
+    if tags.get("demtool_stage") != "sgm":
+        return False
+    try:
+        return bool(json.loads(tags.get("demtool_params", "{}")).get("fill", False))
+    except (ValueError, AttributeError):
+        return False

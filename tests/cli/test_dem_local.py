@@ -61,3 +61,12 @@ def test_up_and_points_out_belong_to_the_disparity_form(tmp_path):
         assert result.exit_code == 2, result.output
         assert "--up" in result.output
     assert not list(tmp_path.iterdir())
+
+
+def test_sgm_fill_is_recognised_from_the_disparity_tags():
+    from demtool.runs.dem_local import _sgm_filled
+
+    assert _sgm_filled({"demtool_stage": "sgm", "demtool_params": '{"fill": true}'})
+    assert not _sgm_filled({"demtool_stage": "sgm", "demtool_params": '{"fill": false}'})
+    assert not _sgm_filled({"demtool_stage": "match", "demtool_params": '{"fill": true}'})
+    assert not _sgm_filled({"demtool_stage": "sgm", "demtool_params": "not json"})

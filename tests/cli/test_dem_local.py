@@ -32,8 +32,14 @@ def test_rover_pair_reaches_a_local_dem(tmp_path, z_down):
     up = ["--up", "0,0,-1"] if z_down else []
     result = _invoke("dem", "--disparity", tmp_path / "disp.tif", "--rectify",
                      rect / "rectify.npz", *up, "--points-out", tmp_path / "points.ply",
-                     "--out", tmp_path / "dem.tif")
+                     "--interpolated-mask", tmp_path / "mask.tif", "--error-out",
+                     tmp_path / "gap.tif", "--out", tmp_path / "dem.tif")
     assert result.exit_code == 0, result.output
+    mask, gap = dio.read_raster(tmp_path / "mask.tif"), dio.read_raster(tmp_path / "gap.tif")
+    for extra in (mask, gap):
+        assert extra.crs is None and extra.tags["frame"] == "map:local"
+        assert extra.transform == dio.read_raster(tmp_path / "dem.tif").transform
+    assert np.nanmax(mask.data) == 1 and np.nanmin(mask.data) == 0
     dem = dio.read_raster(tmp_path / "dem.tif")
     assert dem.crs is None and dem.tags["frame"] == "map:local"
     np.testing.assert_allclose([float(v) for v in dem.tags["local_up"].split(",")], scene.up)

@@ -120,7 +120,7 @@ def scene(seed: int, work: Path) -> dict:
             "slope": (slope0, slope1),
             "range": f"{low} … {low + count - 1}"
                      + (f" (widened from {widened[0]['from'][0]} … "
-                        f"{widened[0]['from'][0] + widened[0]['from'][1] - 1}: "
+                        f"{widened[0]['from'][1]}: "
                         f"{widened[0]['saturated_low']} / {widened[0]['saturated_high']} px "
                         "at the bounds)" if widened else ""),
             "seconds": time.perf_counter() - started}

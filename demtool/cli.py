@@ -122,7 +122,10 @@ def _raise_on_sigterm(signum, frame):  # pragma: no cover - exercised through su
 
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: SIGTERM unwinds like Ctrl-C so no partial output stays."""
+    from demtool.logs import route_library_warnings
+
     signal.signal(signal.SIGTERM, _raise_on_sigterm)
+    route_library_warnings()  # numpy & co. to the log (-v), not raw on stderr
     cli.main(args=argv, prog_name="demtool")
 
 

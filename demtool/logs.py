@@ -30,6 +30,27 @@ def configure_logging(verbosity: int) -> None:
     logger.propagate = False
 
 
+def route_library_warnings() -> None:
+    """Send Python warnings (numpy's RuntimeWarnings, rasterio's, …) to the log at DEBUG
+    under ``demtool.warnings`` instead of printing them raw on stderr.
+
+    demtool issues no warnings of its own (its reports go through ``logging``); what
+    reaches ``warnings`` comes from libraries on edge cases the stages already handle
+    (an all-NaN window, an empty slice) and would only hide the real messages.  ``-v``
+    shows them.  Called by the console entry point only (:func:`demtool.cli.main`), so
+    library callers and the test suite (where warnings fail tests) keep Python's
+    handling.
+    """
+    import warnings
+
+    logger = logging.getLogger(f"{LOGGER_NAME}.warnings")
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        logger.debug("%s: %s (%s:%d)", category.__name__, message, filename, lineno)
+
+    warnings.showwarning = show
+
+
 def get_logger(name: str) -> logging.Logger:
     """Logger for a module, under the ``demtool`` hierarchy."""
     if not name.startswith(LOGGER_NAME):

@@ -58,9 +58,33 @@ def _body_of(model, path: Path, named: Body | None) -> Body | None:
         return None
     a, b = model.radii
     if named is not None:
-        return body_from_radii(a, a, b, name=named.name, naif_id=named.naif_id)
-    naif = _isd_naif_id(path) if path.suffix.lower() == ".json" else None
-    return body_from_radii(a, a, b, naif_id=naif)
+        body = body_from_radii(a, a, b, name=named.name, naif_id=named.naif_id)
+    else:
+        naif = _isd_naif_id(path) if path.suffix.lower() == ".json" else None
+        body = body_from_radii(a, a, b, naif_id=naif)
+    _check_outside(model, path, body, named is not None)
+    return body
+
+
+def _check_outside(model, path: Path, body: Body, named: bool) -> None:
+    """InputError when the camera centre lies inside the body's ellipsoid: the model is
+    not in that body's body-fixed frame (a local-frame camera given ``--body``)."""
+    import numpy as np
+
+    from demtool.errors import InputError
+
+    lines = getattr(model, "lines", 0) or 0
+    center = np.asarray(model.camera_center(0.5 * lines), dtype=np.float64).reshape(-1)[:3]
+    a, b = model.radii
+    if not np.isfinite(center).all():
+        return
+    if (center[0] ** 2 + center[1] ** 2) / a ** 2 + center[2] ** 2 / b ** 2 < 1.0:
+        distance = float(np.linalg.norm(center))
+        hint = ("a local-frame camera (rover, lander, lab rig): --body only applies to "
+                "models in the body's body-fixed frame" if named else
+                "the model is not in the body-fixed frame of the body it names")
+        raise InputError(f"{path}: the camera centre is {distance:.6g} m from the centre of "
+                         f"{body.name} (radius {a:.6g} m), inside the body: {hint}")
 
 
 def _sized(model):

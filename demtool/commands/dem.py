@@ -25,6 +25,13 @@ With a calibrated rectify.npz (`rectify --sensor-left/--sensor-right`), neither 
 given: every valid disparity is triangulated through the two sensor models in the
 body-fixed frame and OUT is a DEM on the body's map (heights above the reference
 sphere, the body's IAU CRS, --projection, --gsd, --max-ray-gap, --error-out).
+Models with no body (rover, lander, lab rig, drone: .tsai without a body, cameras.npz,
+OpenCV/COLMAP pinholes) are triangulated in their own frame and OUT is a DEM on a local
+metric grid (frame=map:local, no CRS): heights along the frame's +Z or --up X,Y,Z
+(e.g. 0,0,-1 when the frame's Z points down), the grid's x axis the frame's X projected
+normal to up; --points-out also writes the points as PLY for tools that grid clouds.
+Every calibrated route drops points behind either camera and rays that miss by more
+than --max-ray-gap, and says how many.
 Map-projected stereo (line scanners, ASP's route): `demtool dem --disparity D
 --mapprojected LEFT_ORTHO RIGHT_ORTHO --out dem.tif`, D matched by sgm between two
 orthoimages of demtool mapproject on one grid: each left cell (x, y) and its right
@@ -58,12 +65,18 @@ sensor-model and map-projected routes write it on the body's map.
                      "where measured.")
 @options.path_option("--error-out", "Sensor-model route: also write the triangulation "
                      "error (median ray gap per cell, metres).")
+@options.vector_option("--up", help_text="Local-frame models (no body): the up direction "
+                       "heights are measured along, in the models' frame (default the "
+                       "frame's +Z; e.g. 0,0,-1 for a z-down rover frame).")
+@options.path_option("--points-out", "Local-frame models: also write the triangulated "
+                     "points (models' frame, metres) as a PLY point cloud.")
 @options.out_file("Output DEM GeoTIFF.")
 @click.pass_context
 def command(ctx: click.Context, points: str | None, disparity: str | None,
             rectify: str | None, reference: str | None, cameras: str | None,
             scene: str | None, mapprojected: tuple[str, str] | None,
             interpolated_mask: str | None, error_out: str | None,
+            up: tuple[float, float, float] | None, points_out: str | None,
             out: str,
             **values: Any) -> None:
     """Check the form (points or disparity), call :func:`demtool.dem.run.run_dem`."""
@@ -83,13 +96,15 @@ def command(ctx: click.Context, points: str | None, disparity: str | None,
                                      param_hint="--rectify")
         options.exclusive({"--reference": reference is not None,
                            "--cameras": cameras is not None})
-    elif rectify or reference or cameras or error_out:
-        raise click.BadParameter("--rectify, --reference, --cameras and --error-out belong to the "
-                                 "--disparity form", param_hint="--points")
+    elif rectify or reference or cameras or error_out or up or points_out:
+        raise click.BadParameter("--rectify, --reference, --cameras, --error-out, --up and "
+                                 "--points-out belong to the --disparity form",
+                                 param_hint="--points")
     summary = run_dem(out, DemParams.from_options(values), points_path=points,
                       disparity_path=disparity, rectify_path=rectify,
                       reference_path=reference, cameras_path=cameras, scene_path=scene,
                       mask_path=interpolated_mask, error_path=error_out,
-                      mapprojected=mapprojected, resolved=options.resolved_params(ctx))
+                      mapprojected=mapprojected, up=up, points_out=points_out,
+                      resolved=options.resolved_params(ctx))
     if summary.get("dry_run"):  # --dry-run (tiles): the plan on stdout
         click.echo(summary["dry_run"])

@@ -36,9 +36,12 @@ def input_file(name: str, **kwargs) -> click.decorators.FC:
 
 
 def path_option(flag: str, help_text: str, **kwargs) -> click.decorators.FC:
-    """An optional file option (``--rectify PATH``); the runner checks it."""
-    return click.option(flag, type=click.Path(dir_okay=False), default=None, help=help_text,
-                        **kwargs)
+    """A file option (``--rectify PATH``), optional unless ``required=True``; the runner
+    checks it.  A required one gets no default: click ≥ 8.3 takes an explicit
+    ``default=None`` as a value given, and would let a missing option through."""
+    if not kwargs.get("required"):
+        kwargs.setdefault("default", None)
+    return click.option(flag, type=click.Path(dir_okay=False), help=help_text, **kwargs)
 
 
 def _vector(ctx: click.Context, param: click.Parameter, value: str | None):

@@ -140,6 +140,11 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     log, provenance = run.log, run.provenance
     grid, align, label = params.grid, params.align, params.label
     out = Path(out_dir)
+    for path in run.input_paths():
+        dio.require_file(path, "input file")
+    from demtool.compare.frames import check_inputs
+
+    check_inputs(dem_path, reference_path, also)  # heights, one frame (one line if not)
     windowed = _windowed(run, dem_path, reference_path, out_dir, params, mask_path, also)
     if windowed is not None:
         return windowed

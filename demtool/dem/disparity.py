@@ -10,6 +10,7 @@ projective transformation fitted between (x, y, d) and a reference DEM.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -90,6 +91,50 @@ def triangulate(correspondences: Correspondences, left_camera: PinholeCamera,
                                                 correspondences.left, correspondences.right,
                                                 return_distance=True)
     return points, ray_distance
+
+
+class Screened(NamedTuple):
+    """Triangulated points kept by :func:`screen_triangulation`.
+
+    keep : (N,) bool; behind : points behind either camera; rejected_gap : points in
+    front whose rays miss by more than ``max_gap`` (metres)
+    """
+
+    keep: np.ndarray
+    behind: int
+    rejected_gap: int
+    max_gap: float
+
+
+def screen_triangulation(points: np.ndarray, ray_gap: np.ndarray, left_camera: PinholeCamera,
+                         right_camera: PinholeCamera, *,
+                         max_ray_gap: float | None = None) -> Screened:
+    """Cheirality and ray-gap test of triangulated points (every triangulating route).
+
+    A point is kept when it lies in front of both cameras (positive depth, Hartley &
+    Zisserman 2003 §6.2.3) and its two rays miss each other by at most ``max_ray_gap``;
+    the default is :func:`demtool.dem.sensors.default_max_ray_gap` with one pixel's
+    footprint at the median depth as the GSD.
+
+    points : (N, 3) world points, metres; ray_gap : (N,) metres
+    """
+    from demtool.dem.sensors import default_max_ray_gap
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    gap = np.asarray(ray_gap, dtype=np.float64).ravel()
+    finite = np.isfinite(pts).all(axis=1)
+    with np.errstate(invalid="ignore"):
+        front = finite & (left_camera.depth(pts) > 0) & (right_camera.depth(pts) > 0)
+    behind = int((finite & ~front).sum())
+    if max_ray_gap is None:
+        if front.any():
+            depth = float(np.median(left_camera.depth(pts[front])))
+            max_ray_gap = default_max_ray_gap(gap[front], depth / left_camera.focal_px)
+        else:
+            max_ray_gap = float("inf")
+    with np.errstate(invalid="ignore"):
+        keep = front & (gap <= max_ray_gap)
+    return Screened(keep, behind, int((front & ~keep).sum()), float(max_ray_gap))
 
 
 # --------------------------------------------------------------------------------------

@@ -21,10 +21,12 @@ def read_disparity(disparity_path: str | os.PathLike, rectify_path: str | os.Pat
     """The disparity raster of a rectified pair, checked against its rectification.
 
     Refuses a disparity that is not on the rectified canvas ``size_rect`` (width,
-    height); masks values far outside the rectification's ``disparity_range`` (logged
+    height); masks values far outside the range the disparity was searched over (logged
     with their count) and refuses a file where most are (see
-    :func:`demtool.imaging.checks.check_disparity_range`).  Returns the ``io.Raster`` with the
-    masked values.
+    :func:`demtool.imaging.checks.check_disparity_range`).  That range is the rectification's
+    ``disparity_range`` joined with what sgm searched, widenings included (its tags
+    ``min_disparity``/``num_disparities``): what sgm found is what dem accepts.  Returns
+    the ``io.Raster`` with the masked values.
     """
     import dataclasses
 
@@ -38,12 +40,32 @@ def read_disparity(disparity_path: str | os.PathLike, rectify_path: str | os.Pat
         raise InputError(f"{disparity_path}: disparity is {disparity.data.shape[1]}×"
                          f"{disparity.data.shape[0]} px but {rectify_path} has a "
                          f"{width_rect}×{height_rect} rectified canvas")
-    checked = check_disparity_range(disparity.data, rectification["disparity_range"],
-                                    disparity_path, source=f"{rectify_path}")
+    searched = searched_range(disparity.tags)
+    accepted = [float(v) for v in rectification["disparity_range"]]
+    source = f"{rectify_path}"
+    if searched is not None:
+        accepted = [min(accepted[0], searched[0]), max(accepted[1], searched[1])]
+        source = f"{rectify_path} and the range sgm searched ({searched[0]:g} … {searched[1]:g})"
+    checked = check_disparity_range(disparity.data, accepted, disparity_path, source=source)
     if checked.outside:
         log.warning("%s: %d disparities outside %.4g … %.4g px masked", disparity_path,
                     checked.outside, checked.low, checked.high)
     return dataclasses.replace(disparity, data=checked.disparity)
+
+
+def searched_range(tags: dict) -> tuple[float, float] | None:
+    """(min, max) disparity a matcher searched, from a disparity raster's tags
+    (``min_disparity``, ``num_disparities`` written by sgm), or None."""
+    import math
+
+    try:
+        low = float(tags["min_disparity"])
+        count = float(tags["num_disparities"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not (math.isfinite(low) and math.isfinite(count)) or count < 1:
+        return None
+    return low, low + count - 1
 
 
 def is_calibrated(rectification: dict) -> bool:

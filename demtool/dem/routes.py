@@ -154,8 +154,13 @@ def dem_from_disparity_calibrated(disparity: np.ndarray, H_left: np.ndarray,
                                   H_right: np.ndarray, left_camera: PinholeCamera,
                                   right_camera: PinholeCamera, *, target: str = "left",
                                   outliers: OutlierOptions = OutlierOptions(),
-                                  median_px: int = 0) -> DemResult:
+                                  median_px: int = 0,
+                                  max_ray_gap: float | None = None) -> DemResult:
     """DEM from a disparity map and known cameras (calibrated triangulation).
+
+    Points behind either camera are dropped, and so are rays that miss each other by
+    more than ``max_ray_gap`` metres (default
+    :func:`demtool.dem.disparity.screen_triangulation`'s); the counts are in the report.
 
     Parameters
     ----------
@@ -173,6 +178,8 @@ def dem_from_disparity_calibrated(disparity: np.ndarray, H_left: np.ndarray,
     DemResult
         Heights along the target's view direction, metres (world Z for a nadir target).
     """
+    from demtool.dem.disparity import screen_triangulation
+
     side = _target_side(target)
     corr = disparity_correspondences(disparity, H_left, H_right)
     points, ray_distance = triangulate(corr, left_camera, right_camera)
@@ -180,7 +187,10 @@ def dem_from_disparity_calibrated(disparity: np.ndarray, H_left: np.ndarray,
     heights = heights_along_view(points, target_camera)
     pixels = corr.left if side == "left" else corr.right
     ok = np.isfinite(heights) & np.isfinite(pixels).all(axis=1)
-    _check_samples(int(ok.sum()), "triangulated disparities")
+    screen = screen_triangulation(points, ray_distance, left_camera, right_camera,
+                                  max_ray_gap=max_ray_gap)
+    ok &= screen.keep
+    _check_samples(int(ok.sum()), "triangulated disparities in front of both cameras")
     pixels, heights, ray_distance = pixels[ok], heights[ok], ray_distance[ok]
     keep = local_median_inliers(pixels, heights, neighbours=outliers.neighbours,
                                 threshold=outliers.threshold)
@@ -188,13 +198,18 @@ def dem_from_disparity_calibrated(disparity: np.ndarray, H_left: np.ndarray,
                                  (target_camera.height, target_camera.width))
     report = {
         "disparities": int(len(corr.rectified)),
+        "behind_camera": screen.behind,
+        "max_ray_gap_m": screen.max_gap,
+        "rejected_ray_gap": screen.rejected_gap,
         "outliers_removed": int((~keep).sum()),
         "ray_distance_median_m": float(np.median(ray_distance)),
         "median_depth_m": float(np.median(target_camera.depth(points[ok]))),
         "cells_measured": int(np.isfinite(measured).sum()),
     }
-    log.info("%d disparities triangulated (median ray gap %.3g m), %d outliers removed",
-             report["disparities"], report["ray_distance_median_m"], report["outliers_removed"])
+    log.info("%d disparities triangulated: %d behind a camera and %d rays missing by more "
+             "than %.3g m dropped (median ray gap %.3g m), %d outliers removed",
+             report["disparities"], screen.behind, screen.rejected_gap, screen.max_gap,
+             report["ray_distance_median_m"], report["outliers_removed"])
     return _finish(measured, median_px, report)
 
 

@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from demtool.dem.inputs import read_disparity
+from demtool.dem.inputs import read_disparity, searched_range
 from demtool.stagerun import StageRun, sidecar_path
 from demtool.synth.folder import read_scene_description, scene_number
 
@@ -108,11 +108,15 @@ def _tiled_pair(disparity_path, rectify_path, cameras_path, target: str | None) 
         raise InputError(f"{disparity_path}: disparity is {shape[1]}×{shape[0]} px but "
                          f"{rectify_path} has a {width_rect}×{height_rect} rectified canvas")
     with dio._open_dataset(Path(disparity_path), "disparity") as dataset:
-        frame = dataset.tags().get("frame", "")
+        tags = dataset.tags()
+        frame = tags.get("frame", "")
     left_name, right_name, target_name, side = _pair_names(
         disparity_path, rectify_path, rectification, frame, target)
     cameras = _pair_cameras(cameras_path, rectify_path, rectification, left_name, right_name)
     low, high = (float(v) for v in rectification["disparity_range"])
+    searched = searched_range(tags)
+    if searched is not None:  # what sgm searched is accepted (see read_disparity)
+        low, high = min(low, searched[0]), max(high, searched[1])
     return TiledPair(str(disparity_path), str(rectify_path), str(cameras_path),
                      rectification["H_left"], rectification["H_right"], cameras[left_name],
                      cameras[right_name], side, target_name, (height_rect, width_rect),
@@ -122,8 +126,9 @@ def _tiled_pair(disparity_path, rectify_path, cameras_path, target: str | None) 
 def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.PathLike, *,
                      reference_path: str | os.PathLike | None,
                      cameras_path: str | os.PathLike | None, target: str | None,
-                     outliers: OutlierOptions, median_px: int,
-                     seed: int) -> tuple[Any, str, str, float, dict[str, Any]]:
+                     outliers: OutlierOptions, median_px: int, seed: int,
+                     max_ray_gap: float | None = None
+                     ) -> tuple[Any, str, str, float, dict[str, Any]]:
     """SIAM routes: (DemResult, target name, route tag, estimated GSD, extra summary)."""
 
     from demtool import dem as core
@@ -144,7 +149,7 @@ def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.P
                                 right_name)
         result = core.dem_from_disparity_calibrated(
             disparity.data, H_left, H_right, cameras[left_name], cameras[right_name],
-            target=side, outliers=outliers, median_px=median_px)
+            target=side, outliers=outliers, median_px=median_px, max_ray_gap=max_ray_gap)
         target_camera = cameras[target_name]
         estimated_gsd = result.report["median_depth_m"] * core.points.pixel_angle(target_camera)
         return result, target_name, "disparity-calibrated", estimated_gsd, {}
@@ -173,6 +178,7 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
             cameras_path: PathLike = None, scene_path: PathLike = None,
             mask_path: PathLike = None, error_path: PathLike = None,
             mapprojected: tuple[str | os.PathLike, str | os.PathLike] | None = None,
+            up: tuple[float, float, float] | None = None, points_out: PathLike = None,
             resolved: dict | None = None) -> dict:
     """Run the dem stage: read the inputs, build the DEM, write it with its sidecar.
 
@@ -180,10 +186,12 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
     one of ``reference_path`` (projective fit) or ``cameras_path`` (triangulation), or
     neither with a calibrated ``rectify_path`` (sensor models: a DEM on the body's map,
     :func:`demtool.dem.run_sensors.run_dem_sensors`; ``error_path`` writes its
-    triangulation-error raster), or ``disparity_path`` with ``mapprojected`` = (left
-    orthoimage, right orthoimage) from ``demtool mapproject`` (a DEM on the body's map,
-    :func:`demtool.dem.run_mapprojected.run_dem_mapprojected`).  ``mask_path`` also
-    writes the interpolation mask.
+    triangulation-error raster; models without a body give a DEM on a local metric grid,
+    heights along ``up`` (default the frame's +Z), and ``points_out`` writes the points
+    as PLY, :func:`demtool.dem.run_local.run_dem_local`), or ``disparity_path`` with
+    ``mapprojected`` = (left orthoimage, right orthoimage) from ``demtool mapproject``
+    (a DEM on the body's map, :func:`demtool.dem.run_mapprojected.run_dem_mapprojected`).
+    ``mask_path`` also writes the interpolation mask.
     Returns the sidecar summary.
     """
     import numpy as np
@@ -199,7 +207,8 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
                            "--mapprojected LEFT": mapprojected[0] if mapprojected else None,
                            "--mapprojected RIGHT": mapprojected[1] if mapprojected else None},
                    outputs={"--out": out, "--interpolated-mask": mask_path,
-                            "--error-out": error_path, "sidecar": sidecar_path(out)})
+                            "--error-out": error_path, "--points-out": points_out,
+                            "sidecar": sidecar_path(out)})
     log, prov = run.log, run.provenance
     for path in run.input_paths():
         dio.require_file(path, "input file")
@@ -209,6 +218,9 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
 
         if rectify_path or reference_path or cameras_path:
             raise ParameterError("--mapprojected takes no --rectify, --reference or --cameras")
+        if up is not None or points_out is not None:
+            raise ParameterError("--up and --points-out belong to the local-frame route, not "
+                                 "to --mapprojected")
         return run_dem_mapprojected(run, params, out, disparity_path=disparity_path,
                                     left_path=mapprojected[0], right_path=mapprojected[1],
                                     mask_path=mask_path, error_path=error_path)
@@ -224,13 +236,19 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
                                      "models): drop --reference/--cameras")
             return run_dem_sensors(run, params, out, disparity_path=disparity_path,
                                    rectify_path=rectify_path, rectification=rectification,
-                                   mask_path=mask_path, error_path=error_path)
+                                   mask_path=mask_path, error_path=error_path, up=up,
+                                   points_out=points_out)
         if reference_path is None and cameras_path is None:
             raise ParameterError(f"{rectify_path} is not calibrated: give --reference or "
                                  "--cameras (or rectify with --sensor-left/--sensor-right)")
         if error_path is not None:
             raise ParameterError("--error-out belongs to the sensor-model route (a calibrated "
                                  "rectify.npz)")
+    if up is not None or points_out is not None:
+        from demtool.errors import ParameterError
+
+        raise ParameterError("--up and --points-out belong to the local-frame route (--disparity "
+                             "with a calibrated rectify.npz of models without a body)")
     scene = read_scene_description(scene_path) if scene_path is not None else {}
     if _tile_options(params):  # large images: tiles over the output grid (docs/stages/scale.md)
         tiled = _dem_tiled(run, params, out, disparity_path=disparity_path,
@@ -248,7 +266,7 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
         result, target_name, route, estimated_gsd, extra = _disparity_route(
             disparity_path, rectify_path, reference_path=reference_path,
             cameras_path=cameras_path, target=target, outliers=outliers,
-            median_px=median_px, seed=params.seed)
+            median_px=median_px, seed=params.seed, max_ray_gap=params.max_ray_gap)
     if params.gsd is not None:
         gsd, gsd_source = float(params.gsd), "--gsd"
     elif "gsd_m" in scene:

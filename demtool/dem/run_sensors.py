@@ -25,26 +25,38 @@ PathLike = str | os.PathLike | None
 
 def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
                     rectify_path, rectification: dict, mask_path: PathLike = None,
-                    error_path: PathLike = None) -> dict[str, Any]:
+                    error_path: PathLike = None, up=None,
+                    points_out: PathLike = None) -> dict[str, Any]:
     """Triangulate every valid disparity through the models, grid on the map, write.
 
     Writes OUT (heights above the body's sphere, the body's projected CRS; with
     ``--mask-band`` a second band = filled cells), ``--interpolated-mask`` (1 = filled),
     ``--error-out`` (median ray gap per cell, metres) and the sidecar.  Returns the
     sidecar summary.  With the tile options on a canvas larger than one tile, in tiles
-    (:mod:`demtool.dem.tiled_map`).
+    (:mod:`demtool.dem.tiled_map`).  Models without a body (local frame) go to
+    :func:`demtool.dem.run_local.run_dem_local` (``up``, ``points_out``).
     """
     import numpy as np
 
     from demtool.dem.inputs import read_disparity
-    from demtool.errors import InputError, ProcessingError
+    from demtool.errors import ProcessingError
     from demtool.rectify.calibrated import rect_to_pixels, scene_distance
 
     log = run.log
     left, right = models_from_rectification(rectification, rectify_path)
-    if left.radii is None:
-        raise InputError(f"{rectify_path}: the sensor models have no body (local-frame "
-                         "pinholes): a DEM on the body's map needs body-fixed models")
+    if left.radii is None:  # local-frame models (rover, lander, rig): a local grid
+        from demtool.dem.run_local import run_dem_local
+
+        return run_dem_local(run, params, out, disparity_path=disparity_path,
+                             rectify_path=rectify_path, rectification=rectification,
+                             left=left, right=right, up=up, mask_path=mask_path,
+                             error_path=error_path, points_out=points_out)
+    if up is not None or points_out is not None:
+        from demtool.errors import ParameterError
+
+        raise ParameterError(f"{rectify_path}: --up and --points-out belong to local-frame "
+                         f"models; these are on a body ({left.radii[0]:.6g} m), whose DEM "
+                         "is on the body's map")
     geometry = geometry_from_rectification(rectification, left, right)
     if params.tile_size or params.scheduler or params.dry_run:  # docs/stages/scale.md
         tiled = _tiled(run, params, out, disparity_path, rectify_path, rectification,
@@ -196,6 +208,13 @@ def _tiled(run: StageRun, params: DemParams, out, disparity_path, rectify_path,
     if not tile_size:
         return None
     low, high = (float(v) for v in rectification["disparity_range"])
+    from demtool import io as dio
+    from demtool.dem.inputs import searched_range
+
+    with dio._open_dataset(Path(disparity_path), "disparity") as dataset:
+        searched = searched_range(dataset.tags())
+    if searched is not None:  # what sgm searched is accepted (see runs.dem.read_disparity)
+        low, high = min(low, searched[0]), max(high, searched[1])
     bounds = check_disparity_file(str(disparity_path), (height, width), (low, high),
                                   source=str(rectify_path), log=run.log)
     job = rectified_job(disparity_path, rectify_path, tile_size, bounds)

@@ -161,7 +161,10 @@ class DemTileJob:
         camera = self.left_camera if self.side == "left" else self.right_camera
         heights = heights_along_view(points, camera)
         pixels = corr.left if self.side == "left" else corr.right
-        ok = np.isfinite(heights) & np.isfinite(pixels).all(axis=1)
+        with np.errstate(invalid="ignore"):  # cheirality: in front of both cameras
+            front = ((self.left_camera.depth(points) > 0)
+                     & (self.right_camera.depth(points) > 0))
+        ok = np.isfinite(heights) & np.isfinite(pixels).all(axis=1) & front
         return {"pixels": pixels[ok], "heights": heights[ok],
                 "depth": camera.depth(points[ok])}
 

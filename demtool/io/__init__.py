@@ -25,7 +25,7 @@ import contextlib
 import json
 import os
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -505,3 +505,41 @@ def read_json(path: str | os.PathLike, what: str = "JSON file") -> Any:
         return json.loads(p.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"{p}: {what} is not valid JSON ({_first_line(exc)})") from None
+
+
+def write_ply(path: str | os.PathLike, xyz: np.ndarray,
+              properties: Mapping[str, np.ndarray] | None = None, *,
+              comments: Sequence[str] = ()) -> Path:
+    """Write a point cloud as binary little-endian PLY, atomically.
+
+    Parameters
+    ----------
+    path : path-like
+    xyz : (N, 3) float, metres: written as ``double x, y, z``
+    properties : mapping name → (N,) float, optional, written as ``float`` per vertex
+        (e.g. ``ray_gap``)
+    comments : lines written as PLY ``comment`` s (frame, units, provenance)
+
+    The format of Turk's PLY (Stanford, 1994) as read by CloudCompare, PDAL and ASP's
+    ``point2dem`` tools; one ``vertex`` element.
+    """
+    points = np.asarray(xyz, dtype="<f8").reshape(-1, 3)
+    extra = {name: np.asarray(values, dtype="<f4").ravel()
+             for name, values in (properties or {}).items()}
+    fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    fields += [(name, "<f4") for name in extra]
+    record = np.empty(len(points), dtype=fields)
+    record["x"], record["y"], record["z"] = points[:, 0], points[:, 1], points[:, 2]
+    for name, values in extra.items():
+        record[name] = values
+    header = ["ply", "format binary_little_endian 1.0"]
+    header += [f"comment {line}" for line in comments]
+    header.append(f"element vertex {len(points)}")
+    header += ["property double x", "property double y", "property double z"]
+    header += [f"property float {name}" for name in extra]
+    header.append("end_header")
+    with atomic_path(path, suffix=".ply") as temporary:
+        with open(temporary, "wb") as handle:
+            handle.write(("\n".join(header) + "\n").encode("ascii"))
+            handle.write(record.tobytes())
+    return Path(path)

@@ -335,7 +335,8 @@ def rectify_sensors(left: SensorModel, right: SensorModel, points_left: np.ndarr
     systematic_px : float
         Robust RMS vertical residual (px) above which a pointing correction is fitted.
     max_residual_px : float
-        Largest RMS vertical residual of the inliers accepted after the correction.
+        Largest RMS vertical residual of the inliers accepted after the correction
+        (``--max-vertical-residual``).
     max_pointing_mrad : float
         Largest correction accepted (mrad); more means the SPICE is off.
     disparity_margin : float
@@ -375,13 +376,22 @@ def rectify_sensors(left: SensorModel, right: SensorModel, points_left: np.ndarr
         rms_after = float(np.sqrt(np.mean(fit.residuals_after[fit.inliers] ** 2)))
         if (angle_mrad > max_pointing_mrad or rms_after > max_residual_px
                 or fit.inliers.mean() < 0.5):
+            measured = (f"the SIFT matches' rows disagree by {rms_before:.2f} px RMS under "
+                        f"the models, {rms_after:.2f} px after the best pointing correction "
+                        f"({angle_mrad:.2f} mrad, {100 * fit.inliers.mean():.0f} % inliers; "
+                        f"limits {max_residual_px:g} px --max-vertical-residual, "
+                        f"{max_pointing_mrad:g} mrad --max-pointing-correction)")
+            if left.radii is None:  # local-frame models: no SPICE, no body to bundle on
+                raise ProcessingError(
+                    f"{what}: the models' relative pose is off: {measured}; recalibrate the "
+                    "pair (a stereo calibration of the rig), or raise "
+                    "--max-vertical-residual / --max-pointing-correction if that residual "
+                    "is acceptable")
             raise ProcessingError(
-                f"{what}: the SPICE is off: the SIFT matches' rows disagree by {rms_before:.2f}"
-                f" px RMS under the models, {rms_after:.2f} px after the best pointing "
-                f"correction ({angle_mrad:.2f} mrad, {100 * fit.inliers.mean():.0f} % "
-                f"inliers; limits {max_residual_px:g} px, {max_pointing_mrad:g} mrad); run "
-                "`demtool bundle --sensors` with these models as priors and rectify with "
-                "the adjusted models")
+                f"{what}: the SPICE is off: {measured}; run `demtool bundle --sensors` with "
+                "these models as priors and rectify with the adjusted models (or raise "
+                "--max-vertical-residual / --max-pointing-correction if that residual is "
+                "acceptable)")
         right_model = rotate_pointing(right, fit.rotation)
         corrected = True
         xr, yr = pixels_to_rect(right_model, R, f, pr[:, 1] + 0.5, pr[:, 0] + 0.5)
@@ -399,7 +409,13 @@ def rectify_sensors(left: SensorModel, right: SensorModel, points_left: np.ndarr
     pl_rect = np.stack([xl, yl], axis=-1)[inliers] + shift_l
     pr_rect = np.stack([xr, yr], axis=-1)[inliers] + shift_r
     disparities = pl_rect[:, 0] - pr_rect[:, 0]
-    disparity_range = robust_disparity_range(disparities, margin=disparity_margin)
+    disparity_range = np.array(robust_disparity_range(disparities, margin=disparity_margin),
+                               dtype=np.float64)
+    # a point at infinity has d∞ = cx_left − cx_right (one orientation, one focal length),
+    # every point in front of both cameras more: no search below it
+    infinity = geometry.cx_left - geometry.cx_right
+    disparity_range[0] = max(disparity_range[0], infinity - 1.0)
+    disparity_range[1] = max(disparity_range[1], disparity_range[0])
     return CalibratedRectification(geometry, right_model, fit, corrected,
                                    np.asarray(disparity_range, dtype=np.float64),
                                    pl[inliers], pr[inliers], pl_rect, pr_rect)

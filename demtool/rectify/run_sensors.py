@@ -191,6 +191,7 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
         "median_ray_gap_m": round(gaps["corrected"], 3),
         "focal_rect_px": round(float(geometry.f_px), 3),
         "disparity_range_px": [round(float(v), 3) for v in result.disparity_range],
+        "disparity_infinity_px": round(float(geometry.cx_left - geometry.cx_right), 3),
         "size_left": [left_image.data.shape[1], left_image.data.shape[0]],
         "size_right": [right_image.data.shape[1], right_image.data.shape[0]],
         "size_rect": geometry.size_rect.tolist(),
@@ -214,6 +215,8 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
         "points_left_rect": result.points_left_rect,
         "points_right_rect": result.points_right_rect,
         "disparity_range": result.disparity_range,
+        # the disparity of a point at infinity: sgm never widens its range below it
+        "disparity_infinity": np.asarray(geometry.cx_left - geometry.cx_right),
         "left_name": np.asarray(left_name), "right_name": np.asarray(right_name),
         "vertical_residuals": residuals,
         "rms_vertical_residual": np.asarray(rms),

@@ -412,8 +412,7 @@ def refine_heights(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, 
     residual = (normalised - state.R)[lit]
     rms = float(np.sqrt(np.mean(residual.astype(np.float64) ** 2))) if residual.size else \
         float("nan")
-    log.info("%s after %d iterations; final %s; intensity residual RMS %.4f",
-             stop_reason, iteration, final, rms)
+    log.info("%s; final %s; intensity residual RMS %.4f", stop_reason, final, rms)
     return RefineResult(dem=solver.heights_metres(state.z), albedo=albedo, shadow=shadow,
                         energies=final, initial_energies=initial, history=tuple(history),
                         iterations=iteration, converged=converged, stop_reason=stop_reason,

@@ -95,11 +95,18 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
             raise ParameterError("give the disparity range: --rectify RECTIFY_NPZ, or both "
                                  "--min-disparity and --num-disparities (or two orthoimages "
                                  "from demtool mapproject)")
+    limits: tuple[int | None, int | None] = (None, None)
     if min_disparity is None or num_disparities is None:
+        from demtool.sgm.widen import limits_from_rectification
+
         from_file = disparity_range_from_rectify(rectify)
         min_disparity = from_file[0] if min_disparity is None else min_disparity
         num_disparities = from_file[1] if num_disparities is None else num_disparities
         source = f"{rectify} (disparity_range)"
+        limits = limits_from_rectification(dio.read_npz(rectify, "rectification"))
+        if limits[0] is not None:
+            log.info("calibrated pair: disparity at infinity %d px; the range is never "
+                     "widened below it", limits[0] + 1)
     shape = tiling.raster_shape(left_path, "left rectified image")
     right_shape = tiling.raster_shape(right_path, "right rectified image")
     if shape != right_shape:
@@ -132,7 +139,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
              params.cost, params.paths)
     result = sgm_widening(left.data, right.data, min_disparity=min_disparity,
                           num_disparities=num_disparities, widenings=params.widenings,
-                          **sgm_options)
+                          lower_limit=limits[0], upper_limit=limits[1], **sgm_options)
     min_disparity = result.parameters["min_disparity"]
     num_disparities = result.parameters["num_disparities"]
     disparity = result.disparity
@@ -157,7 +164,9 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
              else "none", result.timings["total"],
              ", ".join(f"{k} {v:.1f} s" for k, v in result.timings.items() if k != "total"))
     summary = {**stats, "min_disparity": min_disparity, "num_disparities": num_disparities,
+               "disparity_range_px": [min_disparity, min_disparity + num_disparities - 1],
                "disparity_range_source": source,
+               "widening_limits_px": list(limits),
                "range_widenings": result.parameters["range_widenings"],
                "resolved": result.parameters,
                **ortho_stats, "timings_s": result.timings, "passes": result.levels,

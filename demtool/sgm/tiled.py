@@ -94,6 +94,7 @@ class SgmTileJob:
     options: tuple[tuple[str, Any], ...]  # keywords of demtool.sgm.sgm (workers excluded)
     ranges: tuple[tuple[int, int], ...] = ()  # per tile (min, num); empty: the global one
     widenings: int = 0  # re-matches of a tile saturated at a bound (demtool.sgm.widen)
+    limits: tuple[int | None, int | None] = (None, None)  # widening limits (calibrated)
     stage: str = "sgm"
     bands: tuple[str, ...] = ("disparity", "confidence")
     preload: tuple[str, ...] = ("demtool.sgm",)  # imported once by the workers' forkserver
@@ -112,7 +113,9 @@ class SgmTileJob:
         # a widened range still fits the tile: matches beyond its window come out NaN,
         # and the core sits the overlap inside it
         result = sgm_widening(left, right, min_disparity=low, num_disparities=count,
-                              widenings=self.widenings, workers=threads, **dict(self.options))
+                              widenings=self.widenings, lower_limit=self.limits[0],
+                              upper_limit=self.limits[1], workers=threads,
+                              **dict(self.options))
         low = result.parameters["min_disparity"]
         count = result.parameters["num_disparities"]
         out[0] = result.disparity[rows, cols]
@@ -123,7 +126,7 @@ class SgmTileJob:
                      "min": float(np.nanmin(out[0])) if np.isfinite(out[0]).any() else None,
                      "max": float(np.nanmax(out[0])) if np.isfinite(out[0]).any() else None,
                      "input_valid": int(np.isfinite(left[rows, cols]).sum()),
-                     "range": [low, count],
+                     "range": [low, low + count - 1],
                      "widened": len(result.parameters["range_widenings"])}
 
     def memory_bytes(self, tile: Tile) -> int:
@@ -172,8 +175,12 @@ def sgm_tiled(run: Any, left_path: str | os.PathLike, right_path: str | os.PathL
     for name in ("workers", "tile_size", "tile_overlap", "scheduler", "dry_run"):
         options.pop(name, None)
     ranges: tuple[tuple[int, int], ...] = ()
+    limits: tuple[int | None, int | None] = (None, None)
     if rectify is not None and not params.range_given:
+        from demtool.sgm.widen import limits_from_rectification
+
         content = dio.read_npz(rectify, "rectification")
+        limits = limits_from_rectification(content)
         ranges = tile_ranges(tiling.tiles, np.asarray(content["points_left_rect"], float),
                              np.asarray(content["points_right_rect"], float), min_disparity,
                              num_disparities)
@@ -181,7 +188,8 @@ def sgm_tiled(run: Any, left_path: str | os.PathLike, right_path: str | os.PathL
         run.log.info("%d of %d tiles search the range of the matches inside them", own,
                      len(ranges))
     job = SgmTileJob(str(left_path), str(right_path), min_disparity, num_disparities,
-                     tuple(sorted(options.items())), ranges, widenings=params.widenings)
+                     tuple(sorted(options.items())), ranges, widenings=params.widenings,
+                     limits=limits)
     with dio._open_dataset(Path(left_path), "left rectified image") as dataset:
         transform, frame = dataset.transform, dataset.tags().get("frame")
     if transform.is_identity:

@@ -11,6 +11,16 @@ the bound is the matcher's own evidence that the range is too narrow, so
 :func:`sgm_widening` matches again with that side extended by half the range (at least
 :data:`MIN_STEP_PX`), up to ``widenings`` times — the answer ASP users give by hand with a
 wider ``corr-search``, needing no prior knowledge of the relief.
+
+On a calibrated pair (``rectify --sensor-left/--sensor-right``) the rectified cameras share
+one orientation, so a point at infinity has the disparity ``d∞ = cx_left − cx_right``
+(rectify.npz ``disparity_infinity``) and every point in front of both cameras a larger one
+(``d = d∞ + f B / Z``).  Pixels at a lower bound that already reaches ``d∞`` are sky or
+horizon, not terrain beyond the range: the lower side is never widened past
+``lower_limit`` (``⌊d∞⌋ − 1``), and a side stuck at its limit is not "saturated".  When
+the models also bound the scene's depth (``Z ≥ Z_min``), ``upper_limit`` caps the other
+side at ``d∞ + f B / Z_min``.  Ranges are written ``min … max`` (both searched) in the
+logs and ``[min, max]`` in the history.
 """
 
 from __future__ import annotations
@@ -29,6 +39,27 @@ MIN_SATURATED_PX = 32
 MIN_SATURATED_FRACTION = 1e-4
 #: smallest widening of a saturated side, pixels
 MIN_STEP_PX = 4
+
+
+def limits_from_rectification(rectification) -> tuple[int | None, int | None]:
+    """(lower_limit, upper_limit) of the widening from a rectify.npz's arrays.
+
+    ``disparity_infinity`` (calibrated pairs: the disparity of a point at infinity) gives
+    ``⌊d∞⌋ − 1``; ``disparity_nearest`` (the disparity of the scene's nearest depth,
+    when the models bound it) gives ``⌈d_near⌉ + 1``; None where the file has no such key
+    (uncalibrated pairs: nothing bounds the range but the image).
+    """
+    import math
+
+    def value(key):
+        if key not in rectification:
+            return None
+        v = float(np.asarray(rectification[key]))
+        return v if math.isfinite(v) else None
+
+    infinity, nearest = value("disparity_infinity"), value("disparity_nearest")
+    return (None if infinity is None else math.floor(infinity) - 1,
+            None if nearest is None else math.ceil(nearest) + 1)
 
 
 def saturated_bounds(disparity: np.ndarray, min_disparity: int, num_disparities: int
@@ -59,13 +90,20 @@ def is_saturated(count: int, valid: int) -> bool:
 
 
 def widened_range(min_disparity: int, num_disparities: int, low: bool, high: bool,
-                  width: int) -> tuple[int, int]:
+                  width: int, *, lower_limit: int | None = None,
+                  upper_limit: int | None = None) -> tuple[int, int]:
     """The range with each saturated side extended by half its span (≥ MIN_STEP_PX),
-    kept inside what an image ``width`` pixels wide allows (|d| < width, span < width)."""
+    kept inside what an image ``width`` pixels wide allows (|d| < width, span < width)
+    and inside ``lower_limit … upper_limit`` when given (the disparity at infinity and
+    at the scene's nearest depth of a calibrated pair); never narrower than given."""
     step = max(MIN_STEP_PX, num_disparities // 2)
     old_upper = min_disparity + num_disparities - 1
     lower = max(min_disparity - step if low else min_disparity, -(width - 1))
     upper = min(old_upper + step if high else old_upper, width - 1)
+    if lower_limit is not None:
+        lower = min(max(lower, int(lower_limit)), min_disparity)
+    if upper_limit is not None:
+        upper = max(min(upper, int(upper_limit)), old_upper)
     excess = upper - lower + 2 - width  # the span must stay below the width
     if excess > 0:  # give back the widening, upper side first
         cut = min(excess, upper - old_upper)
@@ -75,7 +113,8 @@ def widened_range(min_disparity: int, num_disparities: int, low: bool, high: boo
 
 
 def sgm_widening(left: np.ndarray, right: np.ndarray, *, min_disparity: int,
-                 num_disparities: int, widenings: int = 2, **options: Any):
+                 num_disparities: int, widenings: int = 2, lower_limit: int | None = None,
+                 upper_limit: int | None = None, **options: Any):
     """:func:`demtool.sgm.sgm`, matched again over a wider range while it saturates.
 
     Parameters
@@ -86,6 +125,10 @@ def sgm_widening(left: np.ndarray, right: np.ndarray, *, min_disparity: int,
         The estimated search range, pixels.
     widenings : int
         Largest number of re-matches (0: match once over the given range).
+    lower_limit, upper_limit : int, optional
+        Disparities no widening goes beyond (pixels): a calibrated pair's disparity at
+        infinity (minus one pixel) and at the scene's nearest depth.  A side already at
+        its limit is not widened.
     **options
         The other keywords of :func:`demtool.sgm.sgm`.
 
@@ -94,7 +137,8 @@ def sgm_widening(left: np.ndarray, right: np.ndarray, *, min_disparity: int,
     SGMResult
         The last match; ``parameters["min_disparity"]``/``["num_disparities"]`` are the
         range it searched and ``parameters["range_widenings"]`` lists each widening as
-        ``{"from": [min, num], "to": [min, num], "saturated_low": n, "saturated_high": n}``;
+        ``{"from": [min, max], "to": [min, max], "saturated_low": n, "saturated_high": n}``
+        (both ends searched, pixels; the convention of the logs);
         ``timings["total"]`` sums every match, the other timings are the last one's.
     """
     from demtool.sgm.matcher import sgm
@@ -109,6 +153,9 @@ def sgm_widening(left: np.ndarray, right: np.ndarray, *, min_disparity: int,
         valid = int(np.isfinite(result.disparity).sum())
         at_low, at_high = saturated_bounds(result.disparity, min_disparity, num_disparities)
         low, high = is_saturated(at_low, valid), is_saturated(at_high, valid)
+        upper = min_disparity + num_disparities - 1
+        low &= lower_limit is None or min_disparity > lower_limit
+        high &= upper_limit is None or upper < upper_limit
         if not (low or high) or len(history) >= widenings:
             if low or high:
                 log.warning("%d / %d pixels at the disparity range's lower / upper bound "
@@ -117,14 +164,16 @@ def sgm_widening(left: np.ndarray, right: np.ndarray, *, min_disparity: int,
                             at_high, min_disparity, min_disparity + num_disparities - 1,
                             f" after {len(history)} widening(s)" if history else "")
             break
-        wider = widened_range(min_disparity, num_disparities, low, high, width)
+        wider = widened_range(min_disparity, num_disparities, low, high, width,
+                              lower_limit=lower_limit, upper_limit=upper_limit)
         if wider == (min_disparity, num_disparities):
             break
         log.warning("%d / %d pixels at the disparity range's lower / upper bound %d … %d "
                     "(terrain beyond the matches' range): matching again over %d … %d",
                     at_low, at_high, min_disparity, min_disparity + num_disparities - 1,
                     wider[0], wider[0] + wider[1] - 1)
-        history.append({"from": [min_disparity, num_disparities], "to": list(wider),
+        history.append({"from": [min_disparity, upper],
+                        "to": [wider[0], wider[0] + wider[1] - 1],
                         "saturated_low": at_low, "saturated_high": at_high})
         min_disparity, num_disparities = wider
     result.parameters["range_widenings"] = history

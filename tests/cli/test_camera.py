@@ -147,3 +147,15 @@ def test_bad_inputs(pair_files, tmp_path):
     usage = invoke(pair_files[0], "--points-per-edge", "1")
     assert usage.exit_code == 2 and "--points-per-edge" in usage.output
     assert invoke().exit_code == 2
+
+
+def test_a_local_frame_tsai_is_not_put_inside_a_body(tmp_path):
+    """A rover's .tsai (centre 1.2 m from its frame's origin) given --body Earth would be a
+    camera inside the planet: one line saying so, exit 1, nothing on stdout."""
+    tsai = tmp_path / "rover.tsai"
+    tsai.write_text(TSAI.replace("C = 1837400 0 0", "C = 0.3 0 -1.2"))
+    result = invoke(tsai, "--body", "Earth")
+    assert result.exit_code == 1, result.output
+    assert "inside the body" in result.output and "local-frame" in result.output
+    assert "Traceback" not in result.output
+    assert invoke(tmp_path / "rover.tsai", "--body", "Moon").exit_code == 1

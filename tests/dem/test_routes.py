@@ -184,3 +184,35 @@ def test_disparity_route_rejects_nan_only_disparity():
     with pytest.raises(ProcessingError, match="no valid pixel"):
         core.dem_from_disparity_calibrated(np.full((10, 10), np.nan), np.eye(3), np.eye(3),
                                            nadir_camera(), nadir_camera(BASELINE))
+
+
+def test_calibrated_disparity_route_drops_points_behind_the_cameras():
+    """Negative disparities (rays diverging: the point lies behind both cameras) must not
+    become heights; they are counted and the hole is filled from the neighbours."""
+    left, right = nadir_camera(), nadir_camera(BASELINE)
+    disparity = synthetic_disparity(left, right)
+    block = (slice(30, 40), slice(50, 70))
+    bad = np.isfinite(disparity[block]).sum()
+    assert bad > 100
+    disparity[block] = -np.abs(disparity[block])
+    result = core.dem_from_disparity_calibrated(disparity, RECTIFY, RECTIFY, left, right)
+    assert result.report["behind_camera"] == bad
+    truth = truth_grid(left)
+    hole = (slice(28, 36), slice(47, 64))  # the block in the original image (RECTIFY⁻¹)
+    assert result.interpolated[hole].all()
+    assert np.abs(result.dem - truth)[hole].max() < 0.05
+
+
+def test_screen_triangulation_counts_behind_and_gap():
+    from demtool.dem.disparity import screen_triangulation
+
+    left, right = nadir_camera(), nadir_camera(BASELINE)
+    ahead = left.center + np.array([[0.0, 0.0, -100.0]]) * np.ones((10, 1))
+    behind = left.center + np.array([[0.0, 0.0, 50.0]]) * np.ones((3, 1))
+    points = np.vstack([ahead, behind])
+    gap = np.r_[np.full(9, 0.01), 5.0, np.zeros(3)]
+    depth = left.depth(points)
+    assert (depth[:10] > 0).all() and (depth[10:] < 0).all()
+    screened = screen_triangulation(points, gap, left, right, max_ray_gap=1.0)
+    assert screened.behind == 3 and screened.rejected_gap == 1
+    assert screened.keep.sum() == 9

@@ -132,3 +132,29 @@ def test_rectify_sensors_corrects_or_refuses(scene):
 
 def test_moon_radius_constant():
     assert MOON_RADIUS == 1737400.0
+
+
+def test_local_models_are_not_told_about_spice():
+    """Local-frame pinholes (a rover's) whose relative pose is off: the message names the
+    options that apply to them, not `bundle --sensors` and SPICE."""
+    from demtool.sensors.pinhole import look_at
+
+    left = look_at((-0.15, 0, 1), (-0.15, 3, 0), up=(0, 0, 1), focal_px=300, width=200,
+                   height=150)
+    right = look_at((0.15, 0, 1), (0.15, 3, 0), up=(0, 0, 1), focal_px=300, width=200,
+                    height=150)
+    rng = np.random.default_rng(0)
+    pixels = np.column_stack([rng.uniform(5, 195, 300), rng.uniform(40, 145, 300)])
+    rays = left.rays(pixels)
+    s = -left.center[2] / rays[:, 2]
+    ground = left.center + s[:, None] * rays  # on the plane Z = 0
+    pl = left.project(ground)
+    tilted = look_at((0.15, 0, 1), (0.15, 3, 0.5), up=(0, 0, 1), focal_px=300, width=200,
+                     height=150)  # 40 mrad off in pitch
+    pr = tilted.project(ground)
+    keep = np.isfinite(pr).all(axis=1) & (pr[:, 1] > 0) & (pr[:, 1] < 150)
+    with pytest.raises(ProcessingError) as info:
+        rectify_sensors(left, right, pl[keep], pr[keep])
+    message = str(info.value)
+    assert "--max-vertical-residual" in message and "relative pose" in message
+    assert "SPICE" not in message and "bundle" not in message

@@ -544,3 +544,19 @@ def test_prepare_dem_fills_gaps():
     prepared = prepare_dem(dem, median_size=0)
     assert prepared.filled.sum() == 30
     assert np.abs(prepared.dem - plane).max() < 0.05
+
+
+def test_the_stop_is_logged_once_without_repeating_the_count(caplog):
+    """One line per stop: "reached 3 iterations", never "... after 3 iterations"."""
+    import logging
+
+    rows, cols = np.mgrid[0:32, 0:40].astype(float)
+    plane = 3.0 + 0.1 * cols - 0.05 * rows
+    sun = sun_vector(200.0, 40.0)
+    image = render(plane + 0.3 * np.sin(cols / 4.0), 1.0, sun) * 1000.0
+    with caplog.at_level(logging.INFO, logger="demtool"):
+        result = refine_heights(image, plane, spacing=(1.0, 1.0),
+                                illumination=make_illumination(sun),
+                                parameters=SfsParameters(iterations=3, tolerance=0.0))
+    stops = [r.getMessage() for r in caplog.records if result.stop_reason in r.getMessage()]
+    assert len(stops) == 1 and "after" not in stops[0]

@@ -57,7 +57,8 @@ def test_a_narrow_range_saturates_and_widening_recovers_the_far_disparities(far_
     result = sgm_widening(left, right, min_disparity=-2, num_disparities=9, widenings=3,
                           cost="census")
     history = result.parameters["range_widenings"]
-    assert history and history[0]["from"] == [-2, 9] and history[0]["saturated_high"] == at_high
+    assert history and history[0]["from"] == [-2, 6] and history[0]["saturated_high"] == at_high
+    assert history[0]["to"][1] == 6 + MIN_STEP_PX  # min … max: the upper side widened
     low, count = result.parameters["min_disparity"], result.parameters["num_disparities"]
     assert low <= -2 and low + count - 1 >= 14  # the range now covers the truth (≤ 13.1)
     rates = error_rates(result.disparity, truth, visible(truth))
@@ -106,7 +107,7 @@ def test_cli_widens_an_estimated_range_and_says_so(far_pair_dir, tmp_path):
     low, count = raster.tag_json("min_disparity"), raster.tag_json("num_disparities")
     assert low <= -2 and low + count - 1 >= 14
     summary = json.loads((tmp_path / "d.tif.json").read_text())["summary"]
-    assert summary["range_widenings"][0]["from"] == [-2, 9]
+    assert summary["range_widenings"][0]["from"] == [-2, 6]  # min … max, as logged
     assert summary["num_disparities"] == raster.tag_json("num_disparities")
 
 
@@ -133,6 +134,37 @@ def test_tiled_sgm_widens_each_saturated_tile(far_pair_dir, tmp_path):
     assert result.exit_code == 0, result.output
     summary = json.loads((tmp_path / "d.tif.json").read_text())["summary"]
     assert summary["tiles_widened"] >= 1
-    assert max(low + count - 1 for low, count in summary["tile_ranges"]) >= 14
+    assert max(high for _, high in summary["tile_ranges"]) >= 14  # min … max per tile
     truth = np.load(far_pair_dir / "truth.npy")
     assert error_rates(dio.read_raster(out).data, truth, visible(truth))["bad2"] < 0.05
+
+
+def test_widening_stops_at_the_disparity_at_infinity():
+    """A calibrated pair's lower side never goes below its disparity at infinity, and a
+    side stuck at its limit does not trigger re-matches (sky, not terrain)."""
+    assert widened_range(-10, 21, True, False, 128, lower_limit=-13) == (-13, 24)
+    assert widened_range(-10, 21, True, True, 128, lower_limit=-10,
+                         upper_limit=15) == (-10, 26)
+    # never narrower than the range given
+    assert widened_range(-10, 21, True, False, 128, lower_limit=-5) == (-10, 21)
+
+
+def test_sgm_widening_respects_the_limits(far_pair):
+    left, right, _ = far_pair
+    result = sgm_widening(left, right, min_disparity=-2, num_disparities=9, widenings=3,
+                          lower_limit=-2, upper_limit=6, cost="census")
+    assert result.parameters["range_widenings"] == []  # both sides at their limits
+    result = sgm_widening(left, right, min_disparity=-2, num_disparities=9, widenings=3,
+                          lower_limit=-2, upper_limit=8, cost="census")
+    low, count = result.parameters["min_disparity"], result.parameters["num_disparities"]
+    assert low == -2 and low + count - 1 == 8
+    assert [h["to"] for h in result.parameters["range_widenings"]] == [[-2, 8]]
+
+
+def test_limits_from_rectification():
+    from demtool.sgm.widen import limits_from_rectification
+
+    assert limits_from_rectification({}) == (None, None)
+    assert limits_from_rectification({"disparity_infinity": np.asarray(-3.4)}) == (-5, None)
+    assert limits_from_rectification({"disparity_infinity": np.asarray(2.0),
+                                      "disparity_nearest": np.asarray(40.2)}) == (1, 42)

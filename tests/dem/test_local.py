@@ -1,0 +1,106 @@
+"""The local-frame DEM core (demtool.dem.local): axes, gridding, occlusion, PLY."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from demtool.dem.local import (
+    cells_behind_cameras,
+    dem_on_local_grid,
+    footprint_gsd,
+    local_frame,
+)
+from demtool.errors import ProcessingError
+from demtool.sensors.pinhole import look_at
+
+
+def test_local_frame_axes_right_handed_for_any_up():
+    for up in [(0, 0, 1), (0, 0, -1), (1, 0, 0), (0.2, -0.3, 0.9)]:
+        frame = local_frame(up)
+        axes = frame.axes
+        np.testing.assert_allclose(axes @ axes.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(axes) == pytest.approx(1.0)
+        np.testing.assert_allclose(frame.up, np.asarray(up) / np.linalg.norm(up))
+    # z-down frame: x stays the frame's X, y = up × x = −Y (the Z-up frame's Y)
+    np.testing.assert_allclose(local_frame((0, 0, -1)).axes[:2], [[1, 0, 0], [0, -1, 0]])
+    with pytest.raises(ValueError):
+        local_frame((0, 0, 0))
+
+
+def test_heights_along_up_recover_a_tilted_plane():
+    rng = np.random.default_rng(1)
+    up = np.array([0.1, -0.2, 1.0])
+    frame = local_frame(up)
+    xy = rng.uniform(-2, 2, (20000, 2))
+    h = 0.5 + 0.1 * xy[:, 0] - 0.05 * xy[:, 1]
+    xyz = frame.to_frame(np.column_stack([xy, h]))
+    result = dem_on_local_grid(xyz, np.zeros(len(xyz)), frame, gsd_m=0.05)
+    rows, cols = np.nonzero(np.isfinite(result.dem))
+    t = result.transform
+    x = t.c + (cols + 0.5) * t.a
+    y = t.f + (rows + 0.5) * t.e
+    truth = 0.5 + 0.1 * x - 0.05 * y
+    assert np.sqrt(np.mean((result.dem[rows, cols] - truth) ** 2)) < 0.01
+    assert result.report["measured_cells"] > 0.8 * rows.size
+    assert t.a == pytest.approx(0.05) and t.e == pytest.approx(-0.05)
+
+
+def test_far_mismatches_do_not_stretch_the_grid():
+    frame = local_frame()
+    rng = np.random.default_rng(2)
+    xyz = np.column_stack([rng.uniform(0, 1, (5000, 2)), np.zeros(5000)])
+    xyz[:5] = [1e4, 1e4, 3.0]  # five points "at infinity"
+    result = dem_on_local_grid(xyz, np.zeros(len(xyz)), frame, gsd_m=0.05)
+    assert max(result.dem.shape) < 30
+    assert result.report["points_outside_extent"] >= 5
+
+
+def test_too_few_points_and_huge_grids_are_refused():
+    frame = local_frame()
+    with pytest.raises(ProcessingError, match="only 2"):
+        dem_on_local_grid(np.zeros((2, 3)), np.zeros(2), frame, gsd_m=0.1)
+    xyz = np.column_stack([np.linspace(0, 1000, 1000), np.linspace(0, 1000, 1000),
+                           np.zeros(1000)])
+    with pytest.raises(ProcessingError, match="coarser --gsd"):
+        dem_on_local_grid(xyz, np.zeros(1000), frame, gsd_m=0.01)
+
+
+def test_fill_stays_where_both_cameras_see_and_nothing_behind_them():
+    # two cameras 1 m above flat ground looking forward and down; points on the ground
+    # seen by both, with a hole; plus the frame's grid behind the cameras must stay empty
+    left = look_at((-0.15, 0, 1), (-0.15, 3, 0), up=(0, 0, 1), focal_px=200, width=160,
+                   height=120)
+    right = look_at((0.15, 0, 1), (0.15, 3, 0), up=(0, 0, 1), focal_px=200, width=160,
+                    height=120)
+    rows, cols = np.mgrid[0:120:2, 0:160:2]
+    pixels = np.column_stack([cols.ravel(), rows.ravel()]).astype(float)
+    rays = left.rays(pixels)
+    s = -left.center[2] / rays[:, 2]
+    ground = left.center + s[:, None] * rays
+    ground = ground[(s > 0) & (np.hypot(ground[:, 0], ground[:, 1] - 2.5) > 0.3)]
+    frame = local_frame()
+    result = dem_on_local_grid(ground, np.zeros(len(ground)), frame, gsd_m=0.03,
+                               left=left, right=right)
+    assert result.report["filled_cells"] > 0
+    valid = np.isfinite(result.dem)
+    np.testing.assert_allclose(result.dem[valid], 0.0, atol=1e-6)
+    assert cells_behind_cameras(result.dem, result.transform, frame, (left, right)) == 0
+    gsd = footprint_gsd(ground, left.center, frame, 1 / 200)
+    assert 0.005 < gsd < 0.05
+
+
+def test_write_ply_round_trip(tmp_path):
+    from demtool import io as dio
+
+    xyz = np.array([[0.0, 1.0, 2.0], [3.5, -1.25, 1e3]])
+    dio.write_ply(tmp_path / "p.ply", xyz, {"ray_gap": np.array([0.1, 0.2])},
+                  comments=["frame test"])
+    raw = (tmp_path / "p.ply").read_bytes()
+    header, body = raw.split(b"end_header\n", 1)
+    assert b"element vertex 2" in header and b"comment frame test" in header
+    record = np.frombuffer(body, dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"),
+                                        ("ray_gap", "<f4")])
+    np.testing.assert_array_equal(np.column_stack([record["x"], record["y"], record["z"]]),
+                                  xyz)
+    np.testing.assert_allclose(record["ray_gap"], [0.1, 0.2], rtol=1e-6)

@@ -21,6 +21,8 @@ STAGE_PARAMETERS = {
     "mapproject": ("demtool.mapproject_params", "MapprojectParams"),
     "compare": ("demtool.compare.params", "CompareParams"),
     "camera": ("demtool.camera_params", "CameraParams"),
+    "pairs": ("demtool.pairs.params", "PairsParams"),
+    "fuse": ("demtool.fuse.params", "FuseParams"),
 }
 
 

@@ -63,8 +63,8 @@ class FuseResult(NamedTuple):
     error: np.ndarray
 
 
-def border_weights(valid: np.ndarray, *, blend_px: float, exponent: float = 2.0
-                   ) -> np.ndarray:
+def border_weights(valid: np.ndarray, *, blend_px: float, exponent: float = 2.0,
+                   gap_px: float = 0.0) -> np.ndarray:
     """Weights that fall off towards the border of a DEM's valid area.
 
     Parameters
@@ -72,19 +72,27 @@ def border_weights(valid: np.ndarray, *, blend_px: float, exponent: float = 2.0
     valid : (H, W) bool
         True where the DEM has a value.
     blend_px : float
-        Blending length, cells: a cell this far (or farther) from the nearest invalid
-        cell has weight 1.  0 turns blending off (weight 1 on every valid cell).
+        Blending length, cells: a cell this far (or farther) from the DEM's border has
+        weight 1.  0 turns blending off (weight 1 on every valid cell).
     exponent : float
         The capped distance ratio is raised to this power (ASP ``dem_mosaic``
         ``--weights-exponent``, default 2).
+    gap_px : float
+        Gaps (holes, unmatched patches) that a closing by a disk of this radius, cells,
+        bridges — about ``2 gap_px`` wide — are not borders: the weights fall off towards
+        the DEM's footprint, not around each small hole, which would otherwise take
+        most of the DEM's weight where matching leaves scattered holes.  0: every
+        invalid cell is a border.
 
     Returns
     -------
     (H, W) float64
         ``(min(d, blend_px) / blend_px) ** exponent`` with ``d`` the Euclidean distance
-        (cells) from the cell's centre to the nearest invalid cell's centre (scipy's exact
-        EDT); > 0 on valid cells, 0 elsewhere.  The array's own edge is not a border: a
-        DEM is only faded where its data ends (cells outside its extent are invalid).
+        (cells, scipy's exact EDT) from the cell's centre to the nearest cell outside the
+        DEM's footprint (its valid cells closed by ``gap_px``); a cell next to the border
+        has d = 1, so every valid cell weighs > 0; 0 on invalid cells.  The array's own
+        edge is not a border: a DEM is only faded where its data ends.  The value of a
+        cell depends only on cells within ``blend_px + 2 gap_px`` of it.
     """
     valid = np.asarray(valid, dtype=bool)
     if blend_px <= 0 or valid.all():
@@ -93,7 +101,15 @@ def border_weights(valid: np.ndarray, *, blend_px: float, exponent: float = 2.0
         return np.zeros(valid.shape)
     from scipy.ndimage import distance_transform_edt
 
-    distance = distance_transform_edt(valid)
+    footprint = valid
+    if gap_px > 0:  # closing by a disk of radius gap_px, through two distance transforms
+        grown = distance_transform_edt(~valid) <= gap_px
+        if grown.all():
+            return valid.astype(np.float64)
+        footprint = valid | (distance_transform_edt(grown) > gap_px)
+    if footprint.all():
+        return valid.astype(np.float64)
+    distance = distance_transform_edt(footprint)
     return np.where(valid, (np.minimum(distance, blend_px) / blend_px) ** exponent, 0.0)
 
 

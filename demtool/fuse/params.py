@@ -27,7 +27,7 @@ class FuseParams(Parameters):
         ``median`` (weighted median by the error rasters: needs one per DEM).
     align : str
         Co-registration of each DEM to the reference (compare's ``--align``).
-    outlier_k, blend, weights_exponent, min_error, max_nmad, coreg_size
+    outlier_k, blend, gap, weights_exponent, min_error, max_nmad, coreg_size
         See each field's help.
     workers, tile_size, tile_overlap, scheduler, dry_run
         Large mosaics in tiles on Dask (:mod:`demtool.fuse.tiled`).
@@ -44,6 +44,9 @@ class FuseParams(Parameters):
                                  "than this many NMADs.", minimum=1.0)
     blend: float = parameter(32.0, "Blending length, cells: a DEM's weight falls off over "
                              "this distance to its border (0 = no blending).", minimum=0.0)
+    gap: float = parameter(16.0, "Gaps in a DEM up to about twice this wide, cells, are not "
+                           "borders: its weights fall off towards its footprint's edge, not "
+                           "around each hole (0 = around every hole).", minimum=0.0)
     weights_exponent: float = parameter(2.0, "Exponent of the border weights (ASP dem_mosaic "
                                         "--weights-exponent).", minimum=0.0, min_open=True)
     min_error: float = parameter(0.01, "Floor of the error rasters, metres.", minimum=0.0,
@@ -58,6 +61,6 @@ class FuseParams(Parameters):
     workers: int = parameter(0, "Tiled: Dask worker processes (0 or 1: the tiles one after "
                              "the other in this process).", minimum=0)
     tile_size: int = tile_size_field()
-    tile_overlap: int | None = tile_overlap_field("--blend + 2")
+    tile_overlap: int | None = tile_overlap_field("--blend + 2 × --gap + 2")
     scheduler: str | None = scheduler_field()
     dry_run: bool = dry_run_field()

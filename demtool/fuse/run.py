@@ -109,7 +109,7 @@ def union_grid(specs: Sequence[Any], first: Any):
     else:
         r0 = math.floor((ymin - t.f) / t.e + 1e-6)
         r1 = math.ceil((ymax - t.f) / t.e - 1e-6)
-    transform = t * Affine.translation(c0, r0)
+    transform = t @ Affine.translation(c0, r0)
     return GridSpec((r1 - r0, c1 - c0), (transform.a, transform.b, transform.c, transform.d,
                                          transform.e, transform.f), first.crs_wkt)
 
@@ -118,7 +118,7 @@ def cells_of(spec, target) -> tuple[int, int, int, int] | None:
     """The window (row0, row1, col0, col1) of ``target`` that ``spec``'s extent covers."""
     xmin, ymin, xmax, ymax = _bounds_in(spec, target.crs())
     inverse = ~target.affine()
-    corners = np.array([inverse * (x, y) for x in (xmin, xmax) for y in (ymin, ymax)])
+    corners = np.array([inverse @ (x, y) for x in (xmin, xmax) for y in (ymin, ymax)])
     c0, r0 = np.floor(corners.min(axis=0) + 1e-6).astype(int)
     c1, r1 = np.ceil(corners.max(axis=0) - 1e-6).astype(int)
     r0, c0 = max(0, int(r0)), max(0, int(c0))
@@ -312,7 +312,8 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
                       grids=tuple(specs[i] for i in used),
                       shifts=tuple(tuple(float(v) for v in shifts[i]) for i in used),
                       target=target, method=params.method, outlier_k=params.outlier_k,
-                      blend=params.blend, weights_exponent=params.weights_exponent,
+                      blend=params.blend, gap=params.gap,
+                      weights_exponent=params.weights_exponent,
                       min_error=params.min_error)
     summary: dict[str, Any] = {"grid": {"shape": list(target.shape),
                                         "transform": list(target.transform)},

@@ -6,7 +6,7 @@ fall in, read with :func:`demtool.tiling.read_window` — shifted by that DEM's
 co-registration, computes the border weights there and combines the core
 (:func:`demtool.fuse.core.combine`).  Sampling and combination are cell-local; the
 border weights depend on the cells within ``--blend`` of a cell, so a margin of
-``--blend + 2`` cells makes a tile's core equal, to the last bit, to the same cells of
+``--blend + 2 × --gap + 2`` cells makes a tile's core equal, to the last bit, to the same cells of
 the untiled run (which is this job on one tile covering the grid).  Peak memory is one
 tile's outer window × (DEMs × ~8 float64 arrays) per worker, never the grid; 2 workers
 on two 8192² DEMs: bench/fuse_memory.py.
@@ -92,7 +92,7 @@ def sample_on_grid(path: str | os.PathLike, src: GridSpec, dst: GridSpec,
     from demtool.compare.grids import Grid, sample_bilinear, source_pixels
 
     dx, dy, dz = (float(v) for v in shift)
-    shifted = Grid(shape=dst.shape, transform=dst.affine() * Affine.translation(-dx, -dy),
+    shifted = Grid(shape=dst.shape, transform=dst.affine() @ Affine.translation(-dx, -dy),
                    crs=dst.crs())
     rows, cols = source_pixels(src.grid(), shifted, window)
     out = np.full(rows.shape, np.nan)
@@ -126,6 +126,7 @@ class FuseTileJob:
     method: str
     outlier_k: float
     blend: float
+    gap: float
     weights_exponent: float
     min_error: float
     stage: str = "fuse"
@@ -140,7 +141,8 @@ class FuseTileJob:
         for i, path in enumerate(self.dems):
             dem = sample_on_grid(path, self.grids[i], self.target, tile.outer, self.shifts[i])
             valid = np.isfinite(dem)
-            weight = border_weights(valid, blend_px=self.blend, exponent=self.weights_exponent)
+            weight = border_weights(valid, blend_px=self.blend, exponent=self.weights_exponent,
+                                    gap_px=self.gap)
             crop = tile.crop
             values.append(dem[crop])
             weights.append(weight[crop])
@@ -165,10 +167,11 @@ class FuseTileJob:
 
 
 def margin(params: Any) -> int:
-    """The margin of a fuse tile, cells: the border weights' reach plus one."""
+    """The margin of a fuse tile, cells: the border weights' reach (blending length plus
+    the gap closing's two passes) plus two."""
     if params.tile_overlap is not None:
         return int(params.tile_overlap)
-    return int(math.ceil(params.blend)) + 2
+    return int(math.ceil(params.blend + 2 * params.gap)) + 2
 
 
 def single_tile(shape: tuple[int, int]) -> Tile:

@@ -82,6 +82,41 @@ def boundary_band(masks: list[np.ndarray], inside: np.ndarray, width: int) -> np
     return binary_dilation(band, structure=disk)
 
 
+def interior_seams(work: Path, dems: list[Path], truth, inside: np.ndarray) -> dict:
+    """Seams where pair DEMs end inside the area: each pair DEM cut by a half-plane of its
+    own direction (2π i / n, a quarter of the grid past the centre), fused with the
+    default blending and without; the RMSE within ``SEAM_CELLS`` of a cut over the RMSE
+    elsewhere (cells within ``SEAM_CELLS + 2`` of the truth's edge left out of both)."""
+    from scipy.ndimage import binary_erosion
+
+    from demtool import io as dio
+
+    folder = work / "interior_seams"
+    folder.mkdir(exist_ok=True)
+    cut = []
+    for i, dem in enumerate(dems):
+        raster = dio.read_raster(dem, what="DEM")
+        h, w = raster.data.shape
+        rows, cols = np.mgrid[0:h, 0:w]
+        angle = 2 * np.pi * i / len(dems)
+        keep = ((cols - w / 2) * np.cos(angle) + (rows - h / 2) * np.sin(angle)) < 0.25 * w
+        path = folder / f"cut_{i}.tif"
+        dio.write_raster(path, np.where(keep, raster.data, np.nan), transform=raster.transform,
+                         crs=raster.crs, tags=raster.tags)
+        cut.append(path)
+    masks = [np.isfinite(on_truth(p, truth)) & inside for p in cut]
+    interior = binary_erosion(inside, iterations=SEAM_CELLS + 2)
+    band = boundary_band(masks, inside, SEAM_CELLS) & interior
+    out = {}
+    for name, blend in (("blend", []), ("none", ["--blend", "0"])):
+        fused = folder / f"fused_{name}.tif"
+        demtool("fuse", *map(str, cut), *blend, "--grid-like",
+                str(truth.path), "--out", str(fused))
+        diff = on_truth(fused, truth) - truth.data
+        out[name] = rmse(diff, band) / rmse(diff, ~band & interior)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--views", type=int, default=4)
@@ -150,8 +185,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"pair {left} / {right} left out: {why}")
     print(f"{'DEM':<22}{'RMSE m':>9}{'compl %':>9}{'seam RMSE':>11}{'else RMSE':>11}"
           f"{'ratio':>7}")
-    for name, value, compl in rows:
-        print(f"{name:<22}{value:>9.3f}{compl:>9.2f}")
+    for (name, value, compl), dem in zip(rows, dems, strict=True):
+        diff = on_truth(dem, truth) - truth.data
+        seam, rest = rmse(diff, band), rmse(diff, ~band & inside)
+        print(f"{name:<22}{value:>9.3f}{compl:>9.2f}{seam:>11.3f}{rest:>11.3f}"
+              f"{seam / rest:>7.2f}")
     checks = []
     for method, path in fused.items():
         values = on_truth(path, truth)
@@ -165,6 +203,14 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nunion of the pairs' completeness: {union_pct:.2f} %; best pair RMSE {best:.3f} m; "
           f"boundary band: {np.count_nonzero(band)} cells within {SEAM_CELLS} of a pair "
           "DEM's edge")
+    errors_on_truth = np.stack([on_truth(d, truth) - truth.data for d in dems])
+    common = np.all(np.isfinite(errors_on_truth), axis=0)
+    corr = np.corrcoef(errors_on_truth[:, common])
+    off = corr[~np.eye(len(corr), dtype=bool)]
+    print(f"correlation of the pairs' errors: mean {off.mean():.2f}, range {off.min():.2f} … "
+          f"{off.max():.2f}; RMSE of the plain mean of the pairs on the truth grid "
+          f"{rmse(errors_on_truth[:, common].mean(axis=0)):.3f} m (cells all pairs cover)")
+    seams = interior_seams(work, dems, truth, inside)
     print(f"{'check':<44}{'target':>10}" + "".join(f"{m:>10}" for m, *_ in checks))
     print(f"{'fused RMSE / best pair RMSE':<44}{'<= 0.80':>10}"
           + "".join(f"{c[1]:>10.3f}" for c in checks))
@@ -172,6 +218,8 @@ def main(argv: list[str] | None = None) -> int:
           + "".join(f"{c[2]:>10.2f}" for c in checks))
     print(f"{'seam RMSE / RMSE elsewhere':<44}{'<= 1.20':>10}"
           + "".join(f"{c[3]:>10.3f}" for c in checks))
+    print(f"{'interior seams: seam RMSE / elsewhere':<44}{'<= 1.20':>10}"
+          f"{seams['blend']:>10.3f}{'':>10}   (--blend 0: {seams['none']:.3f})")
     return 0
 
 

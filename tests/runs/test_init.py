@@ -105,8 +105,15 @@ def test_no_module_outside_the_cli_layer_imports_click():
     assert offenders == []
 
 
+def _runner_module(stage: str) -> str:
+    """``demtool.<stage>.run`` in the one-package-per-stage layout, else ``demtool.runs.<stage>``."""
+    if (PACKAGE / stage / "run.py").is_file():
+        return f"demtool.{stage}.run"
+    return f"demtool.runs.{stage}"
+
+
 def test_runners_and_parameters_load_without_click():
-    modules = [f"demtool.runs.{stage}" for stage in STAGES] + [
+    modules = [_runner_module(stage) for stage in STAGES] + [
         "demtool.runs.scene", "demtool.stages", "demtool.parameters"]
     code = ("import importlib, sys\n"
             f"for name in {modules!r}:\n"

@@ -150,8 +150,12 @@ def _check_frames(infos, paths) -> None:
         without = next(p for p, i in zip(paths, infos, strict=True) if i.crs is None)
         raise InputError(f"{without}: has no CRS but {with_crs[0]} has one; fuse DEMs of one "
                          "map (give every DEM its CRS)")
+    distinct: dict[str, Any] = {}  # one raster per CRS: finding a CRS's body is slow (PROJ)
+    for path, info in zip(paths, infos, strict=True):
+        if info.crs is not None:
+            distinct.setdefault(info.crs.to_wkt(), (path, info.crs))
     try:
-        check_bodies([(p, i.crs) for p, i in zip(paths, infos, strict=True)])
+        check_bodies(list(distinct.values()))
     except InputError as exc:
         raise InputError(str(exc).replace("compare DEMs of one body",
                                           "fuse DEMs of one body")) from None

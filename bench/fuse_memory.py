@@ -107,8 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'wall time, s':<40}{'':>12}{result['wall_s']:>12.1f}")
     print(f"{'CPU time of the tree, s':<40}{'':>12}{result['cpu_s']:>12.1f}")
     print(f"{'shift found dz, m (B is +0.7 m)':<40}{'-0.700':>12}{shift['dz']:>12.3f}")
-    print(f"{'shift found dx, dy, cells':<40}{'0, 0':>12}"
-          f"{shift['dx_px']:>6.3f},{shift['dy_px']:>5.3f}")
+    found = f"{shift['dx_px']:.3f}, {shift['dy_px']:.3f}"
+    print(f"{'shift found dx, dy, cells':<40}{'0, 0':>12}{found:>16}")
     rmse = math.sqrt(float(np.mean(diff**2)))
     print(f"{'RMSE vs the surface on 3 rows, m':<40}{'0.14-0.2':>12}{rmse:>12.3f}")
     return 0

@@ -106,7 +106,7 @@ def test_no_module_outside_the_cli_layer_imports_click():
 
 
 def _runner_module(stage: str) -> str:
-    """``demtool.<stage>.run`` in the one-package-per-stage layout, else ``demtool.runs.<stage>``."""
+    """``demtool.<stage>.run`` in the package-per-stage layout, else ``demtool.runs.<stage>``."""
     if (PACKAGE / stage / "run.py").is_file():
         return f"demtool.{stage}.run"
     return f"demtool.runs.{stage}"

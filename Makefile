@@ -197,6 +197,51 @@ $(WORK)/reports/dem_linescan_refined/report.json: $(WORK)/dem_linescan_refined.t
 	$(DT) compare $< $(LINESCAN_SCENE)/truth_dem_map.tif \
 	  --out $(WORK)/reports/dem_linescan_refined --label dem_linescan_refined
 
+# Multi-pair stereo of a block and fusion (issue 29): synth --sensor frame with three views
+# (frame cameras on the Moon, ISDs beside the images) → `pairs` chooses the stereo pairs
+# worth matching (overlap, convergence and B/H in range, sun; view_00/view_02 at B/H 0.1
+# is left out) and lists them as "LEFT RIGHT" lines → per pair (folder LEFT+RIGHT):
+# rectify with the sensor models → sgm → dem with its error raster → `fuse` co-registers
+# the pair DEMs to the first and combines them (weighted mean after per-cell outlier
+# rejection, weights fading towards each DEM's border) → compare with truth_dem_map.tif.
+# The scene is 256 px so the block stays a small part of the demo's time.
+BLOCK_SCENE := $(WORK)/scene_block
+BLOCK_STEREO := $(WORK)/stereo_block
+BLOCK_ARGS ?= --views 3 --size 256 --image-size 256
+PRODUCTS += dem_block_fused
+
+block_left = $(word 1,$(subst +, ,$(1)))
+block_right = $(word 2,$(subst +, ,$(1)))
+block_dems = $(foreach p,$(shell tr ' ' + < $(BLOCK_STEREO)/pairs.txt),$(BLOCK_STEREO)/$(p)/dem.tif)
+
+$(BLOCK_SCENE)/scene.json: | $(VENV)/.installed
+	$(DT) synth --sensor frame $(BLOCK_ARGS) --out $(BLOCK_SCENE) $(SYNTH_ARGS)
+
+$(BLOCK_STEREO)/pairs.txt: $(BLOCK_SCENE)/scene.json
+	$(DT) pairs $(BLOCK_SCENE)/view_*.json --out $@
+
+$(BLOCK_STEREO)/%/rectify.npz: $(BLOCK_SCENE)/scene.json
+	$(DT) rectify $(BLOCK_SCENE)/$(call block_left,$*).tif \
+	  $(BLOCK_SCENE)/$(call block_right,$*).tif \
+	  --sensor-left $(BLOCK_SCENE)/$(call block_left,$*).json \
+	  --sensor-right $(BLOCK_SCENE)/$(call block_right,$*).json --out $(@D)
+
+$(BLOCK_STEREO)/%/disparity_sgm.tif: $(BLOCK_STEREO)/%/rectify.npz
+	$(DT) sgm $(@D)/left_rect.tif $(@D)/right_rect.tif --rectify $< --out $@
+
+$(BLOCK_STEREO)/%/dem.tif: $(BLOCK_STEREO)/%/disparity_sgm.tif
+	$(DT) dem --disparity $< --rectify $(@D)/rectify.npz \
+	  --error-out $(@D)/dem_error.tif --out $@
+
+# the pairs are known once pairs.txt is made: a sub-make builds their DEMs
+$(WORK)/dem_block_fused.tif: $(BLOCK_STEREO)/pairs.txt
+	$(MAKE) --no-print-directory $(block_dems)
+	$(DT) fuse $(block_dems) --out $@
+
+$(WORK)/reports/dem_block_fused/report.json: $(WORK)/dem_block_fused.tif
+	$(DT) compare $< $(BLOCK_SCENE)/truth_dem_map.tif \
+	  --out $(WORK)/reports/dem_block_fused --label dem_block_fused
+
 # Comparison of every product with the synthetic truth
 $(WORK)/reports/%/report.json: $(WORK)/%.tif
 	$(DT) compare $< $(TRUTH) --out $(WORK)/reports/$* --label $*

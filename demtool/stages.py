@@ -19,6 +19,8 @@ STAGES: dict[str, str] = {
     "dem": "Dense DEM from bundle points or a disparity: in the target frame or on the body's map.",
     "refine": "Shape-from-shading refinement of a coarse DEM (lunar-Lambert).",
     "mapproject": "Resample an image onto the body's map through its sensor model (cam2map).",
+    "pairs": "Choose the stereo pairs of a block: overlap, convergence and B/H, sun.",
+    "fuse": "Fuse DEMs of one area: co-registration, robust weighted combination, blending.",
     "compare": "Measure a DEM against a reference: co-registration, statistics, plots.",
     "camera": "What sensor models see: footprint, GSD, sun and view angles, pair B/H, overlap.",
 }

@@ -21,6 +21,8 @@ STAGE_PARAMETERS = {
     "mapproject": ("demtool.mapproject.params", "MapprojectParams"),
     "compare": ("demtool.compare.params", "CompareParams"),
     "camera": ("demtool.camera.params", "CameraParams"),
+    "pairs": ("demtool.pairs.params", "PairsParams"),
+    "fuse": ("demtool.fuse.params", "FuseParams"),
 }
 
 

@@ -1,0 +1,357 @@
+"""Runner of ``demtool fuse``: several DEMs of one area → one DEM, count, spread, error.
+
+Files in, files out: read the DEMs' grids, refuse DEMs of different bodies, find each
+DEM's error raster (``--error``, or ``<stem>_error.tif`` beside it, as ``dem
+--error-out`` is named in the Makefile; logged), build the fused grid (the union of
+the DEMs' extents on the first DEM's CRS and spacing, or ``--grid-like``'s grid),
+co-register each DEM to the reference on a window of their overlap (compare's
+alignment; each shift logged), optionally leave out DEMs far from the others'
+consensus (``--max-nmad``), then combine cell by cell (:mod:`demtool.fuse.core`) in
+one tile or in many (:mod:`demtool.fuse.tiled`) and write the fused DEM and, beside it,
+``<stem>_count.tif``, ``<stem>_spread.tif`` and ``<stem>_error.tif``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from demtool.stagerun import StageRun, sidecar_path
+
+if TYPE_CHECKING:
+    from demtool.fuse.params import FuseParams
+
+PathLike = str | os.PathLike
+SUFFIXES = ("count", "spread", "error")
+
+
+def output_paths(out: PathLike) -> dict[str, Path]:
+    """The fused DEM and the rasters written beside it (``<stem>_count.tif`` ...)."""
+    out = Path(out)
+    paths = {"dem": out}
+    for name in SUFFIXES:
+        paths[name] = out.with_name(f"{out.stem}_{name}{out.suffix or '.tif'}")
+    return paths
+
+
+def _error_rasters(dems: Sequence[Path], errors: Sequence[PathLike] | None, method: str,
+                   log) -> list[Path | None]:
+    from demtool.errors import InputError, ParameterError
+
+    if errors:
+        if len(errors) != len(dems):
+            raise ParameterError(f"--error: {len(errors)} error raster(s) for {len(dems)} "
+                                 "DEMs; give one per DEM, in the DEMs' order")
+        return [Path(e) for e in errors]
+    found: list[Path | None] = []
+    for dem in dems:
+        beside = dem.with_name(f"{dem.stem}_error{dem.suffix}")
+        found.append(beside if beside.is_file() else None)
+        if beside.is_file():
+            log.info("%s: error raster %s (found beside it)", dem, beside)
+    if method == "median":
+        missing = [str(d) for d, e in zip(dems, found, strict=True) if e is None]
+        if missing:
+            raise InputError(f"{missing[0]}: no error raster, and --method median weighs "
+                             "each DEM by its error raster (give --error for every DEM, in "
+                             "order, e.g. dem --error-out's file, or use --method mean)"
+                             + (f"; also missing for {', '.join(missing[1:])}"
+                                if len(missing) > 1 else ""))
+    elif any(e is None for e in found):
+        if any(e is not None for e in found):
+            log.info("not every DEM has an error raster beside it: weighting by border "
+                     "distance only")
+        found = [None] * len(dems)
+    return found
+
+
+def _grid_of(info):
+    from demtool.fuse.tiled import GridSpec
+
+    return GridSpec.of((info.height, info.width), info.transform, info.crs)
+
+
+def _bounds_in(spec, crs) -> tuple[float, float, float, float]:
+    """(xmin, ymin, xmax, ymax) of a grid in ``crs``'s coordinates."""
+    grid = spec.grid()
+    bounds = grid.bounds()
+    if grid.crs is not None and crs is not None and grid.crs != crs:
+        from rasterio.warp import transform_bounds
+
+        return tuple(transform_bounds(grid.crs, crs, *bounds, densify_pts=21))
+    return bounds
+
+
+def union_grid(specs: Sequence[Any], first: Any):
+    """The grid covering every spec's extent, on ``first``'s CRS, spacing and lattice."""
+    from affine import Affine
+
+    from demtool.fuse.tiled import GridSpec
+
+    t = first.affine()
+    if t.b != 0 or t.d != 0:
+        return first
+    crs = first.crs()
+    boxes = np.array([_bounds_in(s, crs) for s in specs])
+    xmin, ymin = boxes[:, 0].min(), boxes[:, 1].min()
+    xmax, ymax = boxes[:, 2].max(), boxes[:, 3].max()
+    # snap to the first grid's lattice
+    c0 = math.floor((xmin - t.c) / t.a + 1e-6) if t.a > 0 else math.floor((xmax - t.c) / t.a)
+    c1 = math.ceil((xmax - t.c) / t.a - 1e-6) if t.a > 0 else math.ceil((xmin - t.c) / t.a)
+    if t.e < 0:
+        r0 = math.floor((ymax - t.f) / t.e + 1e-6)
+        r1 = math.ceil((ymin - t.f) / t.e - 1e-6)
+    else:
+        r0 = math.floor((ymin - t.f) / t.e + 1e-6)
+        r1 = math.ceil((ymax - t.f) / t.e - 1e-6)
+    transform = t @ Affine.translation(c0, r0)
+    return GridSpec((r1 - r0, c1 - c0), (transform.a, transform.b, transform.c, transform.d,
+                                         transform.e, transform.f), first.crs_wkt)
+
+
+def cells_of(spec, target) -> tuple[int, int, int, int] | None:
+    """The window (row0, row1, col0, col1) of ``target`` that ``spec``'s extent covers."""
+    xmin, ymin, xmax, ymax = _bounds_in(spec, target.crs())
+    inverse = ~target.affine()
+    corners = np.array([inverse @ (x, y) for x in (xmin, xmax) for y in (ymin, ymax)])
+    c0, r0 = np.floor(corners.min(axis=0) + 1e-6).astype(int)
+    c1, r1 = np.ceil(corners.max(axis=0) - 1e-6).astype(int)
+    r0, c0 = max(0, int(r0)), max(0, int(c0))
+    r1, c1 = min(target.shape[0], int(r1)), min(target.shape[1], int(c1))
+    if r0 >= r1 or c0 >= c1:
+        return None
+    return r0, r1, c0, c1
+
+
+def _centred(window: tuple[int, int, int, int], size: int) -> tuple[int, int, int, int]:
+    r0, r1, c0, c1 = window
+    h, w = min(size, r1 - r0), min(size, c1 - c0)
+    rs, cs = r0 + (r1 - r0 - h) // 2, c0 + (c1 - c0 - w) // 2
+    return rs, rs + h, cs, cs + w
+
+
+def _intersect(a, b):
+    r0, r1 = max(a[0], b[0]), min(a[1], b[1])
+    c0, c1 = max(a[2], b[2]), min(a[3], b[3])
+    return (r0, r1, c0, c1) if r0 < r1 and c0 < c1 else None
+
+
+def _check_frames(infos, paths) -> None:
+    from demtool.compare.planetary import check_bodies
+    from demtool.errors import InputError
+
+    with_crs = [p for p, i in zip(paths, infos, strict=True) if i.crs is not None]
+    if with_crs and len(with_crs) != len(paths):
+        without = next(p for p, i in zip(paths, infos, strict=True) if i.crs is None)
+        raise InputError(f"{without}: has no CRS but {with_crs[0]} has one; fuse DEMs of one "
+                         "map (give every DEM its CRS)")
+    distinct: dict[str, Any] = {}  # one raster per CRS: finding a CRS's body is slow (PROJ)
+    for path, info in zip(paths, infos, strict=True):
+        if info.crs is not None:
+            distinct.setdefault(info.crs.to_wkt(), (path, info.crs))
+    try:
+        check_bodies(list(distinct.values()))
+    except InputError as exc:
+        raise InputError(str(exc).replace("compare DEMs of one body",
+                                          "fuse DEMs of one body")) from None
+
+
+def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None = None, *,
+             errors: Sequence[PathLike] | None = None, reference: PathLike | None = None,
+             grid_like: PathLike | None = None, resolved: dict[str, Any] | None = None
+             ) -> dict[str, Any]:
+    """Fuse DEMs of one area into one (see the module docstring).
+
+    Parameters
+    ----------
+    dems : sequence of path-like
+        The DEMs (GeoTIFF heights, metres), the first one giving the CRS and spacing.
+    out : path-like
+        The fused DEM; ``<stem>_count.tif``, ``<stem>_spread.tif`` and
+        ``<stem>_error.tif`` are written beside it, and the sidecar ``<out>.json``.
+    params : FuseParams, optional
+    errors : sequence of path-like, optional
+        One error raster per DEM (metres), in order.
+    reference : path-like, optional
+        The DEM every DEM is co-registered to (default: the first DEM).
+    grid_like : path-like, optional
+        A raster whose grid the fused DEM is written on (default: the union of the DEMs'
+        extents on the first DEM's grid).
+
+    Returns
+    -------
+    dict
+        The summary written to the sidecar: ``grid``, ``dems`` (each with its shift,
+        consensus NMAD and whether it was used), ``cells``, ``rejected_fraction``.
+
+    Raises
+    ------
+    InputError
+        DEMs of different bodies, a DEM outside the fused grid or without common cells
+        with the reference, a missing error raster for ``--method median``, every DEM
+        left out by ``--max-nmad``.
+    """
+    from demtool import io as dio
+    from demtool.errors import InputError, ParameterError, ProcessingError
+    from demtool.fuse.core import consensus_nmad, estimate_shift
+    from demtool.fuse.params import FuseParams
+    from demtool.fuse.tiled import FuseTileJob, fuse_tiled, sample_on_grid, single_tile
+    from demtool.tiling import wants_tiles
+
+    params = params or FuseParams()
+    dem_paths = [Path(d) for d in dems]
+    paths = output_paths(out)
+    run = StageRun("fuse", params, resolved=resolved,
+                   inputs={"DEM": dem_paths, "--error": list(errors) if errors else None,
+                           "--reference": reference, "--grid-like": grid_like},
+                   outputs={"--out": paths["dem"], "count": paths["count"],
+                            "spread": paths["spread"], "error": paths["error"],
+                            "sidecar": sidecar_path(paths["dem"])})
+    log = run.log
+    if not dem_paths:
+        raise ParameterError("give at least one DEM")
+    infos = [dio.raster_info(p, what="DEM") for p in dem_paths]
+    extra = [dio.raster_info(p, what=what) for p, what in
+             ((reference, "reference DEM"), (grid_like, "--grid-like raster")) if p]
+    _check_frames(infos + extra, [*dem_paths, *(p for p in (reference, grid_like) if p)])
+    error_paths = _error_rasters(dem_paths, errors, params.method, log)
+    specs = [_grid_of(i) for i in infos]
+    error_specs = []
+    for dem, spec, path in zip(dem_paths, specs, error_paths, strict=True):
+        if path is None:
+            error_specs.append(None)
+            continue
+        info = dio.raster_info(path, what="error raster")
+        if (info.height, info.width) != spec.shape or \
+                not info.transform.almost_equals(spec.affine()):
+            raise InputError(f"{path}: the error raster is not on {dem}'s grid "
+                             f"({info.height}x{info.width} vs {spec.shape[0]}x{spec.shape[1]})"
+                             "; give the error raster the dem stage wrote with this DEM")
+        error_specs.append(spec)
+    target = _grid_of(extra[-1]) if grid_like else union_grid(specs, specs[0])
+    spacing = target.grid().spacing
+    log.info("fused grid: %d x %d cells of %.4g x %.4g (%s)", target.shape[1],
+             target.shape[0], spacing[0], spacing[1],
+             "from --grid-like" if grid_like else "union of the DEMs on the first's grid")
+    windows = []
+    for path, spec in zip(dem_paths, specs, strict=True):
+        window = cells_of(spec, target)
+        if window is None:
+            raise InputError(f"{path}: no common overlap with the fused grid; fuse DEMs of "
+                             "one area")
+        windows.append(window)
+
+    # Co-registration to the reference, on a window of their overlap.
+    ref_path = Path(reference) if reference else dem_paths[0]
+    ref_spec = _grid_of(extra[0]) if reference else specs[0]
+    ref_window = cells_of(ref_spec, target)
+    if ref_window is None:
+        raise InputError(f"{ref_path}: the reference has no common overlap with the fused "
+                         "grid; fuse DEMs of one area")
+    shifts, records = [], []
+    for i, path in enumerate(dem_paths):
+        record: dict[str, Any] = {"dem": str(path), "error": None if error_paths[i] is None
+                                  else str(error_paths[i])}
+        if path == ref_path and not reference:
+            record["alignment"] = {"method": "reference", "shift": {"dx_px": 0.0, "dy_px": 0.0,
+                                                                    "dz": 0.0}}
+            shifts.append((0.0, 0.0, 0.0))
+            records.append(record)
+            continue
+        common = _intersect(windows[i], ref_window)
+        if common is None:
+            raise InputError(f"{path}: no common overlap with the reference {ref_path}; "
+                             "fuse DEMs of one area")
+        window = _centred(common, params.coreg_size)
+        dem = sample_on_grid(path, specs[i], target, window)
+        ref = sample_on_grid(ref_path, ref_spec, target, window, what="reference DEM")
+        try:
+            alignment = estimate_shift(dem, ref, method=params.align, spacing=spacing,
+                                       label=str(path))
+        except ProcessingError as exc:
+            raise InputError(str(exc).replace("the reference",
+                                              f"the reference {ref_path}")) from None
+        s = alignment["shift"]
+        log.info("%s: shift to the reference dx %+.3f dy %+.3f cells, dz %+.3f m (%s, %d "
+                 "common cells)", path, s["dx_px"], s["dy_px"], s["dz"], params.align,
+                 alignment["common_cells"])
+        for warning in alignment.get("warnings", []):
+            log.warning("%s: %s", path, warning)
+        shifts.append((s["dx_px"], s["dy_px"], s["dz"]))
+        record["alignment"] = alignment
+        records.append(record)
+
+    # DEM-level outlier rejection against the consensus of the others.
+    used = list(range(len(dem_paths)))
+    if len(dem_paths) >= 2:
+        window = _centred(ref_window, params.coreg_size)
+        stack = np.stack([sample_on_grid(p, specs[i], target, window, shifts[i])
+                          for i, p in enumerate(dem_paths)])
+        nmads = consensus_nmad(stack)
+        for i, value in enumerate(nmads):
+            records[i]["consensus_nmad_m"] = None if not np.isfinite(value) else float(value)
+            log.info("%s: NMAD against the others' median %.3f m", dem_paths[i], value)
+        if params.max_nmad is not None:
+            used = [i for i, v in enumerate(nmads) if not (v > params.max_nmad)]
+            for i in set(range(len(dem_paths))) - set(used):
+                log.warning("%s: left out (NMAD against the others' median %.3f m > "
+                            "--max-nmad %g m)", dem_paths[i], nmads[i], params.max_nmad)
+            if not used:
+                listed = ", ".join(f"{p.name} {v:.3g} m" for p, v in
+                                   zip(dem_paths, nmads, strict=True))
+                raise InputError(f"every DEM was rejected as an outlier (NMAD against the "
+                                 f"others' median above --max-nmad {params.max_nmad:g} m: "
+                                 f"{listed}); raise --max-nmad or check the DEMs")
+    for i, record in enumerate(records):
+        record["used"] = i in used
+
+    job = FuseTileJob(dems=tuple(str(dem_paths[i]) for i in used),
+                      errors=tuple(None if error_paths[i] is None else str(error_paths[i])
+                                   for i in used),
+                      grids=tuple(specs[i] for i in used),
+                      shifts=tuple(tuple(float(v) for v in shifts[i]) for i in used),
+                      target=target, method=params.method, outlier_k=params.outlier_k,
+                      blend=params.blend, gap=params.gap,
+                      weights_exponent=params.weights_exponent,
+                      min_error=params.min_error)
+    summary: dict[str, Any] = {"grid": {"shape": list(target.shape),
+                                        "transform": list(target.transform)},
+                               "method": params.method, "dems": records}
+    prov = run.provenance
+    body_tags: dict[str, Any] = {}
+    if target.crs_wkt is not None:
+        from demtool.maps import body_from_crs
+
+        body_tags = body_from_crs(target.crs()).tags()
+    descriptions = {"dem": ("fused heights", "metres"),
+                    "count": ("number of DEMs combined in the cell", "DEMs"),
+                    "spread": ("NMAD of the combined heights (NaN: fewer than two)", "metres"),
+                    "error": ("combined one-sigma error", "metres")}
+    outputs = [(paths[name], band, name,
+                prov.tags(meaning=descriptions[name][0], units=descriptions[name][1],
+                          fuse_method=params.method, **body_tags))
+               for band, name in enumerate(("dem", "count", "spread", "error"))]
+    inputs = [*job.dems, *(e for e in job.errors if e)]
+    tile_size = wants_tiles(*target.shape, params)
+    if tile_size:
+        result = fuse_tiled(run, job, tile_size, params, outputs, inputs, summary)
+        return {**result.summary, "dry_run": result.dry_run}
+    bands, info = job.compute(single_tile(target.shape), 0)
+    if info["cells"] == 0:
+        raise ProcessingError("the fused DEM has no cell with a height")
+    summary["cells"] = info["cells"]
+    summary["rejected_fraction"] = float(1 - info["kept"] / info["offered"]) \
+        if info["offered"] else 0.0
+    log.info("fused %d DEM(s) into %d cells (%.2f %% of the values rejected as outliers)",
+             len(used), info["cells"], 100 * summary["rejected_fraction"])
+    with run.transaction():
+        for (path, band, name, tags) in outputs:
+            dio.write_raster(path, bands[band], transform=target.affine(), crs=target.crs(),
+                             tags=tags, band_names=[name])
+        prov.write_sidecar(paths["dem"], summary, outputs=[o[0] for o in outputs])
+    return summary

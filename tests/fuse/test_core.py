@@ -1,0 +1,114 @@
+"""The fuse core: border weights, weighted median / mean after outlier rejection, count,
+spread and combined error, consensus NMAD, co-registration shift."""
+
+import numpy as np
+import pytest
+
+from demtool.errors import ProcessingError
+from demtool.fuse.core import (
+    MEDIAN_EFFICIENCY,
+    border_weights,
+    combine,
+    consensus_nmad,
+    estimate_shift,
+)
+
+
+def test_border_weights_grow_with_distance_to_the_data_edge():
+    valid = np.zeros((40, 40), dtype=bool)
+    valid[5:35, 5:35] = True
+    w = border_weights(valid, blend_px=8, exponent=2)
+    assert w[~valid].max() == 0
+    assert w[5, 20] == pytest.approx((1 / 8) ** 2)  # next to the edge: distance 1 cell
+    assert w[9, 20] == pytest.approx((5 / 8) ** 2)
+    assert w[20, 20] == 1.0  # farther than the blending length
+    # the array's own edge is not a border; blend 0 = uniform
+    assert border_weights(np.ones((5, 5), bool), blend_px=8).min() == 1.0
+    np.testing.assert_array_equal(border_weights(valid, blend_px=0), valid.astype(float))
+
+
+def test_mean_rejects_an_outlier_and_reports_count_spread_error():
+    values = np.array([10.0, 10.2, 9.8, 60.0])[:, None, None] * np.ones((4, 2, 3))
+    weights = np.ones_like(values)
+    result = combine(values, weights, method="mean", outlier_k=3)
+    np.testing.assert_allclose(result.dem, 10.0, atol=1e-6)
+    np.testing.assert_array_equal(result.count, 3)
+    spread = 1.4826 * 0.2  # NMAD of 9.8, 10, 10.2
+    np.testing.assert_allclose(result.spread, spread, rtol=1e-5)
+    np.testing.assert_allclose(result.error, spread / np.sqrt(3), rtol=1e-5)
+
+
+def test_weighted_median_follows_the_error_rasters():
+    values = np.array([1.0, 2.0, 3.0])[:, None, None] * np.ones((3, 1, 1))
+    weights = np.ones_like(values)
+    errors = np.array([0.1, 1.0, 1.0])[:, None, None] * np.ones((3, 1, 1))
+    result = combine(values, weights, errors, method="median", outlier_k=10)
+    assert result.dem[0, 0] == 1.0  # weight 100 against 1 + 1
+    # equal weights: the ordinary median; two values: their mean
+    equal = combine(values, weights, np.ones_like(values), method="median", outlier_k=10)
+    assert equal.dem[0, 0] == 2.0
+    two = combine(values[:2], weights[:2], np.ones((2, 1, 1)), method="median")
+    assert two.dem[0, 0] == 1.5
+    # combined error: the weighted mean's standard error times sqrt(pi/2)
+    w = 1 / np.array([0.01, 1.0, 1.0])
+    expected = np.sqrt((w**2 * np.array([0.01, 1, 1])).sum()) / w.sum() * MEDIAN_EFFICIENCY
+    assert result.error[0, 0] == pytest.approx(expected, rel=1e-5)
+
+
+def test_weighted_mean_uses_border_and_error_weights():
+    values = np.array([0.0, 4.0])[:, None, None] * np.ones((2, 1, 1))
+    result = combine(values, np.array([1.0, 3.0])[:, None, None], method="mean")
+    assert result.dem[0, 0] == pytest.approx(3.0)
+    errors = np.array([1.0, 2.0])[:, None, None] * np.ones((2, 1, 1))
+    result = combine(values, np.ones((2, 1, 1)), errors, method="mean")
+    assert result.dem[0, 0] == pytest.approx(4.0 * 0.25 / 1.25)
+    assert result.error[0, 0] == pytest.approx(np.sqrt(1 + 0.25 ** 2 * 4) / 1.25)
+
+
+def test_cells_without_values_stay_empty_and_single_values_have_no_spread():
+    values = np.full((2, 1, 3), np.nan)
+    values[0, 0, 1] = 5.0
+    weights = np.where(np.isfinite(values), 1.0, 0.0)
+    for method, errors in (("mean", None), ("median", np.ones_like(values))):
+        result = combine(values, weights, errors, method=method)
+        assert np.isnan(result.dem[0, 0]) and result.dem[0, 1] == 5.0
+        np.testing.assert_array_equal(result.count[0], [0, 1, 0])
+        assert np.isnan(result.spread).all()
+
+
+def test_median_without_errors_and_bad_arguments_are_refused():
+    values = np.zeros((2, 1, 1))
+    with pytest.raises(ValueError, match="error raster"):
+        combine(values, np.ones_like(values), method="median")
+    with pytest.raises(ValueError, match="unknown method"):
+        combine(values, np.ones_like(values), method="mode")
+    with pytest.raises(ValueError, match="outlier_k"):
+        combine(values, np.ones_like(values), outlier_k=0.5)
+
+
+def test_consensus_nmad_singles_out_the_noisy_dem():
+    rng = np.random.default_rng(1)
+    base = rng.standard_normal((60, 60)) * 5
+    stack = np.stack([base + 0.05 * rng.standard_normal(base.shape) for _ in range(3)]
+                     + [base + 2.0 * rng.standard_normal(base.shape)])
+    nmad = consensus_nmad(stack)
+    assert nmad[3] == pytest.approx(2.0, rel=0.1)
+    assert nmad[:3].max() < 0.15
+
+
+def test_estimate_shift_recovers_a_known_shift_and_needs_overlap():
+    rows, cols = np.mgrid[0:120, 0:120].astype(float)
+
+    def relief(r, c):
+        return 8 * np.sin(c / 9.0) + 6 * np.cos(r / 7.0 + c / 23.0)
+
+    reference = relief(rows, cols)
+    dem = relief(rows - 1.5, cols + 0.75) + 2.0  # content moved by (dx, dy) = (-0.75, 1.5)
+    alignment = estimate_shift(dem, reference, method="nuth-kaab")
+    shift = alignment["shift"]
+    assert shift["dx_px"] == pytest.approx(0.75, abs=0.05)
+    assert shift["dy_px"] == pytest.approx(-1.5, abs=0.05)
+    assert shift["dz"] == pytest.approx(-2.0, abs=0.05)
+    empty = np.full_like(dem, np.nan)
+    with pytest.raises(ProcessingError, match="no common overlap"):
+        estimate_shift(empty, reference, label="a.tif")

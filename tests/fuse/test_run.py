@@ -1,0 +1,142 @@
+"""run_fuse on small lunar DEMs with known truth: shifts recovered, blunders rejected,
+tiled and untiled runs agree, bad inputs refused."""
+
+import numpy as np
+import pytest
+
+from demtool import io as dio
+from demtool.errors import InputError, ParameterError
+from demtool.fuse.params import FuseParams
+from demtool.fuse.run import output_paths, run_fuse
+from tests.helpers.fuse import truth_heights, write_dem, write_error
+
+# three overlapping DEMs of one area (rows, cols of the common lattice)
+WINDOWS = [(0, 80, 0, 90), (10, 100, 20, 110), (30, 110, 5, 100)]
+
+
+@pytest.fixture()
+def block(tmp_path):
+    paths = []
+    for i, window in enumerate(WINDOWS):
+        path = tmp_path / f"dem_{i}.tif"
+        shift = (0.0, 0.0, 0.0) if i == 0 else ((0.6, -0.4, 1.5) if i == 1 else (0, 0, -0.8))
+        write_dem(path, window, noise=0.1, seed=i, shift=shift, outliers=0.01 * (i == 2))
+        paths.append(path)
+    return tmp_path, paths
+
+
+def _truth_on(raster):
+    rows, cols = np.mgrid[0:raster.data.shape[0], 0:raster.data.shape[1]].astype(float)
+    inverse = ~raster.transform
+    # the fused grid's cell centres on the common lattice
+    c0, r0 = inverse @ (-200.0, 200.0)
+    return truth_heights(rows - r0, cols - c0)
+
+
+def test_fuse_aligns_rejects_blunders_and_beats_each_dem(block):
+    folder, paths = block
+    out = folder / "fused.tif"
+    summary = run_fuse(paths, out, FuseParams(blend=8))
+    fused = dio.read_raster(out)
+    assert fused.data.shape == (110, 110)  # the union of the extents
+    truth = _truth_on(fused)
+    diff = fused.data - truth
+    shifts = [d["alignment"]["shift"] for d in summary["dems"]]
+    assert shifts[1]["dx_px"] == pytest.approx(-0.6, abs=0.1)
+    assert shifts[1]["dy_px"] == pytest.approx(0.4, abs=0.1)
+    assert shifts[1]["dz"] == pytest.approx(-1.5, abs=0.1)
+    assert shifts[2]["dz"] == pytest.approx(0.8, abs=0.1)  # 1 % of +50 m blunders
+    count = dio.read_raster(output_paths(out)["count"]).data
+    assert set(np.unique(count)) == {0, 1, 2, 3}
+    assert np.isnan(fused.data[count == 0]).all()
+    three = count == 3  # only there can a third value out-vote a blunder of DEM 2
+    assert np.abs(diff[three]).max() < 0.4  # every 50 m blunder rejected
+    assert np.sqrt(np.mean(diff[three] ** 2)) < 0.09  # 0.1 m noise averaged, shifts removed
+    no_blunders = np.ones(count.shape, bool)
+    no_blunders[30:110, 5:100] = False  # DEM 2's extent
+    assert np.sqrt(np.nanmean(diff[no_blunders] ** 2)) < 0.12
+    spread = dio.read_raster(output_paths(out)["spread"]).data
+    assert np.nanmedian(spread[three]) == pytest.approx(0.1, rel=0.35)
+    assert np.isnan(spread[count == 1]).all()
+    error = dio.read_raster(output_paths(out)["error"]).data
+    assert np.isfinite(error[three]).all()
+
+
+@pytest.mark.slow
+def test_tiled_and_untiled_agree(block, tmp_path):
+    folder, paths = block
+    for i in (0, 1):  # holes, so that the gap closing and the border weights matter
+        dem = dio.read_raster(paths[i])
+        data = dem.data.copy()
+        data[20:24, 30:70] = np.nan
+        data[40:41, 10:13] = np.nan
+        dio.write_raster(paths[i], data, transform=dem.transform, crs=dem.crs, tags=dem.tags)
+    untiled = folder / "untiled.tif"
+    tiled = folder / "tiled.tif"
+    params = dict(blend=6, gap=2)  # margin 6 + 2 × 2 + 2 = 12 cells
+    run_fuse(paths, untiled, FuseParams(**params))
+    run_fuse(paths, tiled, FuseParams(**params, tile_size=40))
+    for name in ("dem", "count", "spread", "error"):
+        a = dio.read_raster(output_paths(untiled)[name]).data
+        b = dio.read_raster(output_paths(tiled)[name]).data
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+        np.testing.assert_allclose(b, a, atol=1e-4, equal_nan=True)
+
+
+def test_median_uses_error_rasters(tmp_path):
+    folder, paths, errors = tmp_path, [], []
+    for i, window in enumerate(WINDOWS):
+        paths.append(folder / f"dem_{i}.tif")
+        write_dem(paths[-1], window, noise=0.1, seed=i, shift=(0, 0, -0.8 * (i == 2)))
+        errors.append(folder / f"err_{i}.tif")
+        write_error(errors[-1], window, [0.1, 0.1, 5.0][i])
+    out = folder / "median.tif"
+    run_fuse(paths, out, FuseParams(method="median", align="none", outlier_k=50),
+             errors=errors)
+    fused = dio.read_raster(out)
+    diff = fused.data - _truth_on(fused)
+    count = dio.read_raster(output_paths(out)["count"]).data
+    # the imprecise DEM 2 (error 5 m, 0.8 m too low, not aligned) loses wherever another
+    # DEM is, also where it is one of two (an unweighted median would be 0.4 m low there)
+    assert np.abs(diff[count >= 2]).max() < 0.6
+    assert np.sqrt(np.mean(diff[count >= 2] ** 2)) < 0.12
+    alone = np.zeros(count.shape, bool)
+    alone[80:110, 5:100] = True  # DEM 2 only
+    assert np.nanmedian(diff[alone & (count == 1)]) == pytest.approx(-0.8, abs=0.05)
+
+
+def test_missing_error_raster_for_median_is_named(block):
+    folder, paths = block
+    write_error(folder / "dem_0_error.tif", WINDOWS[0], 0.1)  # found beside dem_0.tif only
+    with pytest.raises(InputError, match=r"dem_1\.tif: no error raster.*--method median"):
+        run_fuse(paths, folder / "m.tif", FuseParams(method="median"))
+    assert not (folder / "m.tif").exists()
+    with pytest.raises(ParameterError, match="one per DEM"):
+        run_fuse(paths, folder / "m.tif", FuseParams(), errors=[folder / "dem_0_error.tif"])
+
+
+def test_different_bodies_and_no_overlap_are_refused(tmp_path):
+    write_dem(tmp_path / "moon.tif", (0, 40, 0, 40))
+    write_dem(tmp_path / "mars.tif", (0, 40, 0, 40), body_id=499)
+    with pytest.raises(InputError, match="mars.tif: is on Mars.*fuse DEMs of one body"):
+        run_fuse([tmp_path / "moon.tif", tmp_path / "mars.tif"], tmp_path / "f.tif")
+    write_dem(tmp_path / "far.tif", (200, 240, 200, 240))
+    with pytest.raises(InputError, match="far.tif: no common overlap with the reference"):
+        run_fuse([tmp_path / "moon.tif", tmp_path / "far.tif"], tmp_path / "f.tif")
+    assert not (tmp_path / "f.tif").exists()
+
+
+def test_every_dem_rejected_as_outlier_is_refused(tmp_path):
+    for i in range(3):
+        write_dem(tmp_path / f"d{i}.tif", (0, 60, 0, 60), noise=1.0, seed=i)
+    paths = [tmp_path / f"d{i}.tif" for i in range(3)]
+    with pytest.raises(InputError, match="every DEM was rejected as an outlier"):
+        run_fuse(paths, tmp_path / "f.tif", FuseParams(align="none", max_nmad=0.5))
+    # one noisier DEM among precise ones is left out, the rest fused
+    write_dem(tmp_path / "d0.tif", (0, 60, 0, 60), noise=0.05, seed=0)
+    write_dem(tmp_path / "d1.tif", (0, 60, 0, 60), noise=0.05, seed=1)
+    write_dem(tmp_path / "d2.tif", (0, 60, 0, 60), noise=0.05, seed=2)
+    write_dem(tmp_path / "d3.tif", (0, 60, 0, 60), noise=3.0, seed=3)
+    summary = run_fuse([*paths, tmp_path / "d3.tif"], tmp_path / "f.tif",
+                       FuseParams(align="none", max_nmad=0.5))
+    assert [d["used"] for d in summary["dems"]] == [True, True, True, False]

@@ -1,6 +1,6 @@
 """Which pairs of a block to match: overlap, convergence and B/H within a range, sun.
 
-Every pair of images on one surface is measured by :func:`demtool.sensors.info.camera_info`
+Every pair of images on one surface is measured by :func:`demtool.camera.info.camera_info`
 (footprint overlap, convergence angle and base-to-height ratio at the overlap's centre,
 each image's sun azimuth and elevation).  A pair is kept when
 
@@ -32,7 +32,7 @@ def sun_difference_deg(first: Mapping[str, Any], second: Mapping[str, Any]) -> f
     Parameters
     ----------
     first, second : mapping
-        Camera entries of :func:`demtool.sensors.info.camera_info` (``sun_azimuth_deg``,
+        Camera entries of :func:`demtool.camera.info.camera_info` (``sun_azimuth_deg``,
         ``sun_elevation_deg``: local east-north-up at each image's centre).
     """
     try:

@@ -1,7 +1,7 @@
 """Runner of ``demtool pairs``: sensor models in, the stereo pairs worth matching out.
 
 Reads the models as ``demtool camera`` does (:func:`demtool.camera.run.read_models`),
-measures every pair (:func:`demtool.sensors.info.camera_info`), judges them
+measures every pair (:func:`demtool.camera.info.camera_info`), judges them
 (:func:`demtool.pairs.core.pair_verdicts`) and prints a table of every pair (kept or
 why not) on stdout, or the JSON report with ``as_json``.  ``out`` writes the kept pairs,
 one per line as ``LEFT RIGHT`` (the models' names: an ISD's file stem, the view names
@@ -62,11 +62,11 @@ def run_pairs(models: Sequence[str | os.PathLike], params: PairsParams | None = 
         Fewer than two models, or no pair passes (the table says why for each).
     """
     from demtool import io as dio
+    from demtool.camera.info import camera_info
     from demtool.camera.run import _named_body, read_models
     from demtool.errors import InputError
     from demtool.pairs.core import pair_verdicts, select_pairs
     from demtool.pairs.params import VERDICTS, PairsParams
-    from demtool.sensors.info import camera_info
 
     params = params or PairsParams()
     run = StageRun("pairs", params, resolved=resolved, inputs={"MODEL": list(models)},

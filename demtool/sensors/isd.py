@@ -198,10 +198,20 @@ def _distortion(keys: _Keys, isd: Mapping, focal_length: float) -> Distortion:
             [float(keys.get(params, "boresight_x", where))], keys.array(params, "x", where, (4,)),
             [float(keys.get(params, "boresight_y", where))], keys.array(params, "y", where, (4,))])
     elif model == "lunarorbiter":
+        # ALE writes the perspective factors and the point of symmetry as usgscsm reads
+        # them (perspective_x/_y, center_point_x/_y) and the radial terms k0, k1 (ISIS's
+        # INS<code>_OD_K) as 'odk' (older demtool ISDs: 'coefficients').
+        radial = next((k for k in ("odk", "coefficients") if k in params), None)
+        if radial is None:
+            raise InputError(f"{keys.source}: ISD lacks the key '{where}odk' (the radial "
+                             "distortion terms k0, k1 of the Lunar Orbiter camera)")
+        terms = list(keys.array(params, radial, where))
+        if len(terms) not in (1, 2):
+            raise InputError(f"{keys.source}: ISD key '{where}{radial}' has {len(terms)} "
+                             "values, expected 2 (k0, k1)")
         coefficients = np.array([float(keys.get(params, k, where)) for k in
                                  ("perspective_x", "perspective_y", "center_point_x",
-                                  "center_point_y")]
-                                + list(keys.array(params, "coefficients", where, (2,))))
+                                  "center_point_y")] + (terms + [0.0])[:2])
     elif model == "cahvor" and "x" in params:
         coefficients = np.concatenate([keys.array(params, "coefficients", where, (3,)),
                                        [float(params["x"]), float(params.get("y", 0.0))]])
@@ -361,7 +371,7 @@ def _distortion_block(distortion: Distortion) -> dict:
         return {model: {"boresight_x": c[0], "x": c[1:5], "boresight_y": c[5], "y": c[6:10]}}
     if model == "lunarorbiter":
         return {model: {"perspective_x": c[0], "perspective_y": c[1], "center_point_x": c[2],
-                        "center_point_y": c[3], "coefficients": c[4:6]}}
+                        "center_point_y": c[3], "odk": c[4:6]}}
     if model == "cahvor":
         return {model: {"coefficients": c[:3], "x": c[3], "y": c[4]}}
     return {model: {"coefficients": c}}

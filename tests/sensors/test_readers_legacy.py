@@ -60,3 +60,42 @@ def test_rectify_takes_a_tsai_size_from_the_image(tmp_path):
     path.write_text(LEGACY)
     model = read_frame_model(path, tmp_path / "left.png", (480, 640), "--sensor-left")
     assert model.image_size == (480, 640)
+
+
+def _lo_isd(block):
+    import json
+    from pathlib import Path
+
+    isd = json.loads((Path(__file__).parent / "data" / "orbitalFramer.json").read_text())
+    isd["optical_distortion"] = {"lunarorbiter": block}
+    return isd
+
+
+LO_KEYS = {"perspective_x": 1e-4, "perspective_y": -2e-4, "center_point_x": 0.1,
+           "center_point_y": -0.05}
+
+
+@pytest.mark.parametrize("radial_key", ["odk", "coefficients"])
+def test_lunarorbiter_isd_keys_as_ale_writes_them(radial_key):
+    from demtool.sensors.isd import sensor_from_isd
+
+    model = sensor_from_isd(_lo_isd({**LO_KEYS, radial_key: [-1e-5, 1e-8]}), "lo.json")
+    np.testing.assert_allclose(model.distortion.coefficients,
+                               [1e-4, -2e-4, 0.1, -0.05, -1e-5, 1e-8])
+    line, sample = np.meshgrid(np.linspace(0.5, model.lines - 0.5, 4),
+                               np.linspace(0.5, model.samples - 0.5, 4), indexing="ij")
+    back = model.ground_to_image(model.image_to_ground(line, sample))
+    np.testing.assert_allclose(back[0], line, atol=0.01)
+    np.testing.assert_allclose(back[1], sample, atol=0.01)
+
+
+def test_lunarorbiter_isd_without_radial_terms_is_refused_in_one_line():
+    from demtool.sensors.isd import sensor_from_isd
+
+    with pytest.raises(InputError, match=r"lo\.json: ISD lacks the key "
+                                         r"'optical_distortion\.lunarorbiter\.odk'"):
+        sensor_from_isd(_lo_isd(dict(LO_KEYS)), "lo.json")
+    with pytest.raises(InputError, match=r"lo\.json: ISD lacks the key "
+                                         r"'optical_distortion\.lunarorbiter\.center_point_y'"):
+        sensor_from_isd(_lo_isd({k: v for k, v in LO_KEYS.items() if k != "center_point_y"}
+                                | {"odk": [0, 0]}), "lo.json")

@@ -48,6 +48,7 @@ from demtool.sensors.linescan import LineScanSensor
 
 FRAME_MODEL = "USGS_ASTRO_FRAME_SENSOR_MODEL"
 LINESCAN_MODEL = "USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL"
+PUSHFRAME_MODEL = "USGS_ASTRO_PUSH_FRAME_SENSOR_MODEL"
 _UNITS = {"m": 1.0, "km": 1000.0}
 
 
@@ -247,9 +248,9 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
     """
     keys = _Keys(source)
     model = keys.get(isd, "name_model")
-    if model not in (FRAME_MODEL, LINESCAN_MODEL):
+    if model not in (FRAME_MODEL, LINESCAN_MODEL, PUSHFRAME_MODEL):
         raise InputError(f"{source}: ISD key 'name_model' is {model!r}; demtool reads "
-                         f"{FRAME_MODEL} and {LINESCAN_MODEL}")
+                         f"{FRAME_MODEL}, {LINESCAN_MODEL} and {PUSHFRAME_MODEL}")
     lines = int(keys.get(isd, "image_lines"))
     samples = int(keys.get(isd, "image_samples"))
     if lines <= 0 or samples <= 0:
@@ -280,8 +281,13 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
                            sun=_linear(sun_times, sun, center_time), name=name,
                            time=center_time)
 
-    rate = keys.array(isd, "line_scan_rate", shape=(-1, 3))
-    if np.any(rate[:, 2] == 0):
+    if model == PUSHFRAME_MODEL:
+        from demtool.sensors.pushframe import framelet_keys
+
+        rate, framelets = None, framelet_keys(keys, isd, center_time)
+    else:
+        rate, framelets = keys.array(isd, "line_scan_rate", shape=(-1, 3)), None
+    if rate is not None and np.any(rate[:, 2] == 0):
         raise InputError(f"{source}: ISD key 'line_scan_rate' has a zero line time")
     # usgscsm (constructStateFromIsd): the ephemeris is resampled on at least 25 equally
     # spaced nodes over the ISD's time span (ALE's Hermite / natural spline), rotated
@@ -311,13 +317,21 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
         dt_quat = 1.0
     sensor_to_body = body.matrices_at(quat_times) @ np.swapaxes(
         pointing.matrices_at(quat_times), -1, -2)
-    return LineScanSensor(
-        line_scan_rate=rate, positions=positions, velocities=velocities,
+    pose = dict(
+        positions=positions, velocities=velocities,
         t0_ephem=pos_times[0] - center_time, dt_ephem=dt_ephem,
         quaternions=matrix_to_quaternion(sensor_to_body), t0_quat=quat_times[0] - center_time,
         dt_quat=dt_quat, focal_length=focal, detector=detector, distortion=distortion,
         lines=lines, samples=samples, radii=radii, sun_positions=sun,
         sun_velocities=sun_velocities, name=name, center_time=center_time)
+    if framelets is not None:
+        from demtool.sensors.pushframe import PushFrameSensor
+
+        try:
+            return PushFrameSensor(**framelets, **pose)
+        except ValueError as exc:
+            raise InputError(f"{source}: {exc}") from None
+    return LineScanSensor(line_scan_rate=rate, **pose)
 
 
 def _linear(times: np.ndarray, values: np.ndarray, t: float) -> np.ndarray:

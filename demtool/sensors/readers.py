@@ -3,7 +3,8 @@
 =====================================  ==========================================
 content                                model
 =====================================  ==========================================
-JSON with ``name_model`` (ALE ISD)     :class:`FrameSensor` / :class:`LineScanSensor`
+JSON with ``name_model`` (ALE ISD)     :class:`FrameSensor` / :class:`LineScanSensor` /
+                                       :class:`PushFrameSensor`
 ISIS3 cube (``Object = IsisCube``)     :class:`FrameSensor` (SPICE must be attached)
 ASP ``.tsai`` (``VERSION_n``/``PINHOLE``)  :class:`TsaiCamera` (body-fixed pinhole)
 NPZ of kind ``cameras`` or ``bundle``  :class:`PinholeCamera` (one per image)

@@ -328,10 +328,17 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
         from demtool.sensors.pushframe import PushFrameSensor
 
         try:
-            return PushFrameSensor(**framelets, **pose)
+            sensor = PushFrameSensor(**framelets, **pose)
         except ValueError as exc:
             raise InputError(f"{source}: {exc}") from None
-    return LineScanSensor(line_scan_rate=rate, **pose)
+    else:
+        sensor = LineScanSensor(line_scan_rate=rate, **pose)
+    from demtool.sensors.coverage import attach_coverage
+
+    attach_coverage(sensor, source, {"instrument_position": pos_times - center_time,
+                                     "instrument_pointing": pointing.times - center_time,
+                                     "body_rotation": body.times - center_time})
+    return sensor
 
 
 def _linear(times: np.ndarray, values: np.ndarray, t: float) -> np.ndarray:

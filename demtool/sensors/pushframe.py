@@ -137,7 +137,7 @@ class PushFrameSensor(LineScanSensor):
         look = np.sum(self.rotation_at(time) * look_cam[..., None, :], axis=-1)
         sign = np.where(np.sum(look * origin, axis=-1) > 0, -1.0, 1.0)
         look *= (sign / np.linalg.norm(look, axis=-1))[..., None]
-        return Ray(origin, look)
+        return self._masked(line, Ray(origin, look))
 
     _image_to_ray_numpy = image_to_ray
 
@@ -228,6 +228,9 @@ class PushFrameSensor(LineScanSensor):
             det_line = self.summed_height - det_line
         line = det_line + best * self.summed_height
         bad = ~(depth > 0) | ~np.isfinite(line) | ~np.isfinite(det_sample)
+        uncovered = self._uncovered(best * self.summed_height + 0.5)
+        if uncovered is not None:
+            bad |= uncovered
         line = np.where(bad, np.nan, line)
         sample = np.where(bad, np.nan, det_sample)
         return line.reshape(shape), sample.reshape(shape)

@@ -20,7 +20,9 @@ FIGURES = ("difference.png", "dems.png", "profiles.png", "histogram.png", "compl
 
 def _read_dem(path: str | os.PathLike, what: str):
     from demtool import io as dio
+    from demtool.sensors.isis_map import refuse_image_as_dem
 
+    refuse_image_as_dem(path, what)  # an ISIS image cube holds I/F, not metres
     return dio.read_raster(path, what=what)
 
 

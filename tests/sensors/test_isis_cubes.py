@@ -103,6 +103,14 @@ def test_camera_names_a_body_proj_lacks(tmp_path):
     assert "Bennu" in crs.datum.name
 
 
+def test_mapproject_body_is_the_cube_body(tmp_path):
+    from demtool.mapproject import sensor_body
+
+    body = sensor_body(read_sensor(tagcams_cube(tmp_path / "ncm.cub")))
+    assert (body.name, body.naif_id, body.radius) == ("Bennu", 2101955, 283.065)
+    assert body.geographic_crs().ellipsoid.semi_major_metre == pytest.approx(283.065)
+
+
 def test_tagcams_with_another_detector_layout_is_refused(tmp_path):
     naif = dict(TAGCAMS, **{"INS-64081_ITRANSL": "(0.0, 0.0, 454.5454545454)"})
     with pytest.raises(InputError, match=r"bad\.cub: NaifKeywords 'INS-64081_ITRANSS'/"

@@ -446,6 +446,9 @@ def isd_from_sensor(model) -> dict:
     - :class:`FrameSensor`: one position, one attitude and one sun position at
       ``model.time`` (a ``z_direction`` of −1 is folded into the attitude: the frame
       ``(−x, −y, z)`` of the focal plane gives the same rays with usgscsm's +z look).
+    - :class:`PushFrameSensor`: as a line-scan model, with usgscsm's framelet keys
+      (``framelet_height``, ``exposure_duration``, ``interframe_delay``, the two flags,
+      ``starting_ephemeris_time``) instead of ``line_scan_rate``.
     - :class:`LineScanSensor`: positions on ``max(n, 25)`` equally spaced nodes over
       the model's ephemeris span (usgscsm's minimum, so reading does not resample;
       a model with fewer nodes is sampled by its own Lagrange interpolation), with
@@ -488,7 +491,7 @@ def isd_from_sensor(model) -> dict:
         return isd
     if not isinstance(model, LineScanSensor):
         raise ValueError(f"isd_from_sensor: cannot write a {type(model).__name__} as an ISD "
-                         "(frame and line-scan models only)")
+                         "(frame, line-scan and push-frame models only)")
     centre = model.center_time
     n_pos = len(model.positions)
     if n_pos >= MIN_EPHEMERIS_NODES or n_pos == 1:
@@ -524,6 +527,15 @@ def isd_from_sensor(model) -> dict:
         "body_rotation": _rotations_block(quat_times,
                                           [_IDENTITY_QUATERNION] * len(quat_times)),
     })
+    if getattr(model, "kind", "") == "pushframe":  # usgscsm's framelet keys instead
+        del isd["line_scan_rate"]
+        isd.update({"name_model": PUSHFRAME_MODEL,
+                    "starting_ephemeris_time": centre + model.starting_time,
+                    "framelet_height": int(model.framelet_height),
+                    "exposure_duration": float(model.exposure_duration),
+                    "interframe_delay": float(model.interframe_delay),
+                    "framelets_flipped": bool(model.framelets_flipped),
+                    "framelet_order_reversed": bool(model.framelet_order_reversed)})
     return isd
 
 

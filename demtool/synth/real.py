@@ -16,7 +16,8 @@ that a DEM made from the pair can be compared with the truth on the map.
   larger than both windows' reach on the sphere, plus the renderer's margin (logged);
   ``--gsd`` becomes the coarser window's GSD, the spacing of ``truth_dem_map.tif``.
 
-Push-frame and RPC models are refused (their ISDs cannot be rewritten for a window yet).
+Push-frame windows hold whole framelets (their line count rounded to the framelet
+height).  RPC models are refused (an RPC carries no sensor position for the renderer).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from demtool.errors import InputError
-from demtool.sensors import FrameSensor, LineScanSensor
+from demtool.sensors import FrameSensor, LineScanSensor, PushFrameSensor
 
 
 def window(model, line0: int, sample0: int, lines: int, samples: int):
@@ -50,6 +51,8 @@ def window(model, line0: int, sample0: int, lines: int, samples: int):
                            distortion=model.distortion, lines=lines, samples=samples,
                            radii=model.radii, sun=model.sun, name=model.name,
                            time=model.time, z_direction=model.z_direction)
+    if getattr(model, "kind", "") == "pushframe":
+        return _pushframe_window(model, line0, detector, lines, samples)
     if type(model) is LineScanSensor:
         rate = np.column_stack([model.int_lines - line0, model.int_start_times,
                                 model.int_times])
@@ -64,6 +67,34 @@ def window(model, line0: int, sample0: int, lines: int, samples: int):
         return out
     raise ValueError(f"a {model.kind or type(model).__name__} model cannot be cut to a window "
                      "(frame and line-scan models only)")
+
+
+def _pushframe_window(model, line0: int, detector, lines: int, samples: int):
+    """A push-frame window: whole framelets only (``line0`` and ``lines`` multiples of
+    the summed framelet height), the start time moved by the framelets skipped (counted
+    from the end when the framelet order is reversed)."""
+    from demtool.sensors.pushframe import PushFrameSensor
+
+    h = model.summed_height
+    if line0 % h or lines % h:
+        raise ValueError(f"a push-frame window must hold whole framelets: line {line0} and "
+                         f"{lines} lines are not multiples of {h}")
+    skipped = (model.n_framelets - line0 // h - lines // h if model.framelet_order_reversed
+               else line0 // h)
+    out = PushFrameSensor(
+        framelet_height=model.framelet_height, exposure_duration=model.exposure_duration,
+        interframe_delay=model.interframe_delay,
+        starting_time=model.starting_time + skipped * model.interframe_delay,
+        framelets_flipped=model.framelets_flipped,
+        framelet_order_reversed=model.framelet_order_reversed,
+        positions=model.positions, t0_ephem=model.t0_ephem, dt_ephem=model.dt_ephem,
+        quaternions=model.quaternions, t0_quat=model.t0_quat, dt_quat=model.dt_quat,
+        focal_length=model.focal_length, detector=detector, distortion=model.distortion,
+        lines=lines, samples=samples, radii=model.radii, sun_positions=model.sun_positions,
+        sun_velocities=model.sun_velocities, velocities=model.velocities, name=model.name,
+        center_time=model.center_time)
+    out.coverage = model.coverage
+    return out
 
 
 def real_pair(paths, params) -> tuple[Any, dict[str, Any], Any, dict[str, Any]]:
@@ -89,8 +120,11 @@ def real_pair(paths, params) -> tuple[Any, dict[str, Any], Any, dict[str, Any]]:
     models = []
     for path in paths:
         model = read_sensor(path)
-        if type(model) not in (FrameSensor, LineScanSensor) or model.radii is None:
-            raise InputError(f"{path}: --sensor-model takes frame or line-scan models on a "
+        if (model.kind not in ("frame", "linescan", "pushframe")
+                or type(model) not in (FrameSensor, LineScanSensor, PushFrameSensor)
+                or model.radii is None):
+            raise InputError(f"{path}: --sensor-model takes frame, line-scan or push-frame "
+                             f"models on a "
                              f"body, not a {model.kind or type(model).__name__} model")
         models.append(model)
     (a0, b0), (a1, b1) = models[0].radii, models[1].radii
@@ -112,14 +146,23 @@ def real_pair(paths, params) -> tuple[Any, dict[str, Any], Any, dict[str, Any]]:
             raise InputError(f"{path}: the scene centre ({lon:.5f}°E, {lat:.5f}°) does not "
                              "project into the image")
         line0 = int(round(line - 0.5 * size))
+        if model.kind == "pushframe":  # whole framelets
+            h = model.summed_height
+            line0 = int(round((line - 0.5 * size) / h)) * h
+            size_lines = max(h, int(round(size / h)) * h)
+        else:
+            size_lines = size
         sample0 = int(round(sample - 0.5 * size))
-        if (line0 < 0 or sample0 < 0 or line0 + size > model.lines
+        if (line0 < 0 or sample0 < 0 or line0 + size_lines > model.lines
                 or sample0 + size > model.samples):
             raise InputError(f"{path}: a {size} px window centred on the scene centre (line "
                              f"{line:.0f}, sample {sample:.0f}) leaves the {model.lines} x "
                              f"{model.samples} px image; give a smaller --image-size")
         name = f"view_{index:02d}"
-        cut = window(model, line0, sample0, size, size)
+        try:
+            cut = window(model, line0, sample0, size_lines, size)
+        except ValueError as exc:
+            raise InputError(f"{path}: {exc}") from None
         cut.name = name
         sensors[name] = cut
         gsd = _gsd(cut, body)

@@ -66,16 +66,15 @@ def test_synth_through_two_line_scan_models(tmp_path):
 
 
 def test_synth_refuses_models_it_cannot_window(tmp_path):
-    from pathlib import Path
-
     from demtool.runs.synth import run_synth
     from demtool.synth import SceneParams
+    from tests.sensors.test_rpc import rpc_dict, write_rpc_txt
 
-    pushframe = Path(__file__).parents[1] / "sensors" / "data" / "orbitalPushFrame.json"
+    rpc = write_rpc_txt(tmp_path / "scene_RPC.TXT", rpc_dict())
     left, _ = _pair(tmp_path)
-    with pytest.raises(InputError, match=r"orbitalPushFrame\.json: --sensor-model takes frame "
-                                         r"or line-scan models on a body, not a pushframe"):
-        run_synth(tmp_path / "o", SceneParams(image_size=64), sensor_models=(left, pushframe))
+    with pytest.raises(InputError, match=r"scene_RPC\.TXT: --sensor-model takes frame, "
+                                         r"line-scan or push-frame models on a body, not a rpc"):
+        run_synth(tmp_path / "o", SceneParams(image_size=64), sensor_models=(left, rpc))
     far = linescan_sensor(lines=600, samples=400, lon0=40.0, name="far")
     far_path = tmp_path / "far.json"
     far_path.write_text(json.dumps(isd_dict(far)))
@@ -84,3 +83,26 @@ def test_synth_refuses_models_it_cannot_window(tmp_path):
     with pytest.raises(InputError, match=r"left\.json: a 1000 px window .* leaves the 600 x 400"):
         run_synth(tmp_path / "o", SceneParams(image_size=1000), sensor_models=_pair(tmp_path))
     assert not (tmp_path / "o").exists()
+
+
+def test_push_frame_window_and_isd():
+    from pathlib import Path
+
+    from demtool.sensors.isd import sensor_from_isd
+
+    path = Path(__file__).parents[1] / "sensors" / "data" / "orbitalPushFrame.json"
+    for reversed_order in (False, True):
+        isd = json.loads(path.read_text())
+        isd["framelet_order_reversed"] = reversed_order
+        model = sensor_from_isd(isd, "pf.json")
+        cut = window(model, 48, 3, 36, 10)  # framelets 4-6 of 30, samples 3-12
+        ll, ss = np.meshgrid(np.arange(36) + 0.5, np.arange(10) + 0.5, indexing="ij")
+        a, b = cut.image_to_ray(ll, ss), model.image_to_ray(ll + 48, ss + 3)
+        np.testing.assert_allclose(a.origin, b.origin, atol=1e-6)
+        np.testing.assert_allclose(a.direction, b.direction, atol=1e-12)
+        again = sensor_from_isd(isd_from_sensor(cut), "cut.json")
+        assert again.kind == "pushframe" and again.framelet_order_reversed == reversed_order
+        np.testing.assert_allclose(again.image_to_ground(ll, ss), cut.image_to_ground(ll, ss),
+                                   atol=1e-3)
+    with pytest.raises(ValueError, match="whole framelets: line 5"):
+        window(model, 5, 0, 12, 16)

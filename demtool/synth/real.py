@@ -179,7 +179,8 @@ def real_pair(paths, params) -> tuple[Any, dict[str, Any], Any, dict[str, Any]]:
         raise InputError(f"the windows need a {dem_size} x {dem_size} DEM at {spacing:.3g} m "
                          "(half the finer GSD): give a smaller --image-size")
     params = dataclasses.replace(params, spacing_m=spacing, dem_size=dem_size,
-                                 gsd_m=max(gsds), sensor=models[0].kind,
+                                 gsd_m=max(gsds),
+                                 sensor="frame" if models[0].kind == "frame" else "linescan",
                                  center_lon_deg=lon, center_lat_deg=lat)
     description.update(center_lon_deg=lon, center_lat_deg=lat, dem_spacing_m=spacing,
                        dem_size=dem_size, convergence_deg=pair.get("convergence_deg"))

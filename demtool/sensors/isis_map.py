@@ -81,3 +81,28 @@ def refuse_image_as_dem(path: str | Path, what: str) -> None:
     where = f" ({mapping_summary(mapping)})" if mapping is not None else ""
     raise InputError(f"{path}: is an image cube of {camera}{where}: its pixels are image "
                      f"values (I/F or DN), not heights; give a DEM as the {what}")
+
+
+def refuse_cam2map_ortho(path: str | Path, what: str) -> None:
+    """InputError when ``path`` is an ISIS map-projected image cube given to the
+    map-projected stereo route (``sgm``/``dem --mapprojected``), which needs orthoimages
+    demtool's ``mapproject`` tagged with their raw camera.
+
+    A ``cam2map`` cube keeps its raw camera's tables, but for the line-scan cameras it is
+    mostly made from (HiRISE, CTX, LRO NAC) demtool reads the camera from ALE ISDs only,
+    so the message says what to do instead.
+    """
+    from demtool.errors import InputError
+
+    label = read_cube_label(path)
+    if label is None or "Mapping" not in label["IsisCube"]:
+        return
+    cube = label["IsisCube"]
+    instrument = cube.get("Instrument", {})
+    camera = str(instrument.get("InstrumentId", "")) or "an unnamed camera"
+    kind = "line-scan " if "LineExposureDuration" in instrument else ""
+    raise InputError(f"{path}: {what} is an ISIS map-projected cube of {camera} "
+                     f"({mapping_summary(cube['Mapping'])}) without demtool's mapproject "
+                     f"tags: the map-projected route needs its raw {kind}camera, which "
+                     "demtool reads from an ALE ISD, not from cube tables; map-project the "
+                     "raw images with demtool mapproject --sensor ISD instead")

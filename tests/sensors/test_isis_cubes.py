@@ -196,3 +196,18 @@ def test_shared_files_refused_in_one_true_line(name, match):
         pytest.skip("../shared/data/sensors is absent")
     with pytest.raises(InputError, match=match):
         read_sensor(path)
+
+
+def test_cam2map_cube_given_to_the_map_projected_route_says_what_it_lacks(tmp_path):
+    from demtool.runs.dem_mapprojected import read_ortho
+    from demtool.sensors.isis_map import refuse_cam2map_ortho
+
+    path = tagcams_cube(tmp_path / "map.cub", instrument=LINESCAN + MAPPING)
+    with pytest.raises(InputError, match=r"map\.cub: the left orthoimage is an ISIS "
+                                         r"map-projected cube of CTX \(ISIS Mapping group: "
+                                         r"Equirectangular on Mars, 0\.2526 m/px\) without "
+                                         r"demtool's mapproject tags: .* raw line-scan camera"):
+        refuse_cam2map_ortho(path, "the left orthoimage")
+    refuse_cam2map_ortho(tagcams_cube(tmp_path / "raw.cub"), "x")  # not map-projected: fine
+    with pytest.raises(InputError, match=r"map\.cub: left orthoimage is an ISIS map-projected"):
+        read_ortho(path, what="left orthoimage")

@@ -7,7 +7,9 @@ CK gap: e.g. a Mars Express HRSC ISD with a 111 s hole) or beyond the ends, the
 "interpolated" orbit is invented.  This module keeps, per model, the time intervals the
 samples cover, so that image lines exposed outside them are masked (their rays and
 projections are NaN) and said so in one note, and ``demtool camera`` reports the
-covered lines and the footprint of what is covered.
+covered lines and the footprint of what is covered.  Only lines of the image
+(``0 ≤ line ≤ lines``) are masked: points beyond the image ends are still extrapolated,
+as callers such as mapproject's interpolation lattice expect.
 
 Rules (times in seconds from the model's centre time):
 

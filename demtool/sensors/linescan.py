@@ -179,10 +179,12 @@ class LineScanSensor(SensorModel):
         return out if np.any(out) else None
 
     def _masked(self, line, ray: Ray) -> Ray:
-        """NaN rays for lines outside the ephemeris coverage."""
+        """NaN rays for image lines (0 ≤ line ≤ lines) outside the ephemeris coverage;
+        lines beyond the image are left to the caller, which extrapolates knowingly."""
         bad = self._uncovered(line)
         if bad is None:
             return ray
+        bad = bad & (line >= 0) & (line <= self.lines)
         return Ray(np.where(bad[..., None], np.nan, ray.origin),
                    np.where(bad[..., None], np.nan, ray.direction))
 
@@ -314,9 +316,11 @@ class LineScanSensor(SensorModel):
                 det_line[done], sample[done], depth[done] = f, smp, dep
             active = active[keep & np.isfinite(step)]
         bad = ~np.isfinite(line) | ~(depth > 0) | ~(np.abs(det_line) < 1e-3)
+        # a point seen by an image line outside the sampled ephemeris has no image; lines
+        # beyond the image stay (callers such as mapproject's lattice extrapolate them)
         uncovered = self._uncovered(np.where(bad, 0.5 * self.lines, line))
         if uncovered is not None:
-            bad |= uncovered
+            bad |= uncovered & (line >= 0) & (line <= self.lines)
         line = np.where(bad, np.nan, line)
         sample = np.where(bad, np.nan, sample)
         return line.reshape(shape), sample.reshape(shape)

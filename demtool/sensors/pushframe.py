@@ -229,8 +229,8 @@ class PushFrameSensor(LineScanSensor):
         line = det_line + best * self.summed_height
         bad = ~(depth > 0) | ~np.isfinite(line) | ~np.isfinite(det_sample)
         uncovered = self._uncovered(best * self.summed_height + 0.5)
-        if uncovered is not None:
-            bad |= uncovered
+        if uncovered is not None:  # inside the image only (see LineScanSensor)
+            bad |= uncovered & (line >= 0) & (line <= self.lines)
         line = np.where(bad, np.nan, line)
         sample = np.where(bad, np.nan, det_sample)
         return line.reshape(shape), sample.reshape(shape)

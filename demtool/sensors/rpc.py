@@ -374,7 +374,7 @@ def read_rpc(path: str | Path, *, radii: tuple[float, float] | None = None) -> R
         except rasterio.errors.RasterioIOError as exc:
             raise InputError(f"{p}: cannot read GeoTIFF ({exc})") from None
         if rpcs is None:
-            raise InputError(f"{p}: the GeoTIFF carries no RPC tags")
+            raise InputError(f"{p}: not a sensor model: the GeoTIFF carries no RPC tags")
         rpc = {k: getattr(rpcs, k) for k in list(SCALARS) + list(COEFFS)}
     else:
         try:

@@ -171,5 +171,6 @@ def test_geotiff_without_rpc_tags_is_refused(tmp_path):
     tif = tmp_path / "plain.tif"
     dio.write_raster(tif, np.zeros((4, 4), np.float32), crs="EPSG:4326",
                      transform=Affine(0.1, 0.0, 5.0, 0.0, -0.1, 45.0))
-    with pytest.raises(InputError, match=r"plain\.tif: the GeoTIFF carries no RPC tags"):
+    with pytest.raises(InputError, match=r"plain\.tif: not a sensor model: the GeoTIFF "
+                                         r"carries no RPC tags"):
         read_sensor(tif)

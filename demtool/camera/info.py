@@ -157,6 +157,9 @@ def footprint(model: SensorModel, body: Body | None, *, points_per_edge: int = 3
               center_lonlat: tuple[float, float] | None = None) -> Footprint | None:
     """The image's footprint: its boundary (:func:`image_boundary`) on the surface.
 
+    A model with lines outside its sampled ephemeris (:mod:`demtool.sensors.coverage`)
+    is outlined on its largest run of covered lines.
+
     Boundary points whose rays miss the body are moved along the segment towards the
     image centre to the limb (bisection to 2⁻⁴⁰ of the segment), so an image seeing
     the limb gets the limb as part of its outline.
@@ -177,9 +180,17 @@ def footprint(model: SensorModel, body: Body | None, *, points_per_edge: int = 3
     Footprint or None
         None when no boundary point and not the image centre sees the surface.
     """
-    line, sample = image_boundary(model.lines, model.samples, points_per_edge)
+    from demtool.sensors.coverage import covered_lines
+
+    # Lines exposed outside the sampled ephemeris are masked: outline the largest run
+    # of covered lines instead (demtool.sensors.coverage).
+    first, last = max(covered_lines(model) or [(0, -1)], key=lambda run: run[1] - run[0])
+    partial = (first, last) != (0, model.lines - 1)
+    line, sample = image_boundary(last + 1 - first - (1e-6 if partial else 0.0),
+                                  model.samples, points_per_edge)
+    line = line + first
     xyz, hit = surface_points(model, line, sample, body)
-    centre = (0.5 * model.lines, 0.5 * model.samples)
+    centre = (0.5 * (first + last + 1), 0.5 * model.samples)
     _, centre_hit = surface_points(model, *centre, body)
     missed = int((~hit).sum())
     if missed and bool(centre_hit):
@@ -398,6 +409,11 @@ def camera_info(models: Mapping[str, SensorModel], bodies: Mapping[str, Body | N
                          radii_m=list(body.radii), reference_radius_m=body.radius)
         entry.update(center_geometry(model, body))
         entry["notes"] = list(getattr(model, "notes", [])) + entry["notes"]
+        if getattr(model, "coverage", None) is not None:
+            from demtool.sensors.coverage import covered_lines
+
+            # [first, end) rows whose exposure the position and pointing samples cover
+            entry["covered_lines"] = [[a, b + 1] for a, b in covered_lines(model)]
         fp = footprint(model, body, points_per_edge=points_per_edge)
         if fp is None:
             entry["footprint"] = None

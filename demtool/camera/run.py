@@ -61,7 +61,9 @@ def _body_of(model, path: Path, named: Body | None) -> Body | None:
         body = body_from_radii(a, a, b, name=named.name, naif_id=named.naif_id)
     else:
         naif = _isd_naif_id(path) if path.suffix.lower() == ".json" else None
-        body = body_from_radii(a, a, b, naif_id=naif)
+        # a cube names its body (TargetName, BODY<code>_RADII): kept when PROJ lacks it
+        body = body_from_radii(a, a, b, naif_id=naif or getattr(model, "body_naif_id", None),
+                               name=getattr(model, "body_name", None))
     _check_outside(model, path, body, named is not None)
     return body
 

@@ -24,8 +24,15 @@ pair's common footprint; linescan renders two views and writes no cameras.npz.""
 @options.out_dir("Output folder for the scene (created if needed).")
 @options.parameter_options(SceneParams)
 @click.option("--no-craters", is_flag=True, default=False, help="Same as --craters 0.")
+@click.option("--sensor-model", "sensor_models", nargs=2, default=None,
+              type=click.Path(exists=True, dir_okay=False),
+              help="Two real frame or line-scan models (ISD, ISIS cube…): the terrain is "
+                   "placed under their common footprint and rendered through --image-size "
+                   "windows of them; the DEM spacing, size and --gsd are chosen from the "
+                   "windows' GSD.")
 @click.pass_context
-def command(ctx: click.Context, out: str, no_craters: bool, **values: Any) -> None:
+def command(ctx: click.Context, out: str, no_craters: bool, sensor_models, **values: Any
+            ) -> None:
     """Options → SceneParams → :func:`demtool.synth.run.run_synth`."""
     from demtool.synth.run import run_synth
 
@@ -34,4 +41,5 @@ def command(ctx: click.Context, out: str, no_craters: bool, **values: Any) -> No
             raise click.BadParameter("give either --craters N or --no-craters, not both",
                                      param_hint="'--no-craters'")
         values["craters"] = 0
-    run_synth(out, SceneParams.from_options(values), resolved=options.resolved_params(ctx))
+    run_synth(out, SceneParams.from_options(values), resolved=options.resolved_params(ctx),
+              sensor_models=tuple(sensor_models) if sensor_models else None)

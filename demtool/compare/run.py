@@ -24,7 +24,9 @@ if TYPE_CHECKING:
 
 def _read_dem(path: str | os.PathLike, what: str):
     from demtool import io as dio
+    from demtool.sensors.isis_map import refuse_image_as_dem
 
+    refuse_image_as_dem(path, what)  # an ISIS image cube holds I/F, not metres
     return dio.read_raster(path, what=what)
 
 
@@ -83,7 +85,11 @@ def _windowed(run, dem_path, reference_path, out_dir, params, mask_path, also):
         compare_windowed,
         windowed_tile_size,
     )
+    from demtool.sensors.isis_map import refuse_image_as_dem
 
+    for path, what in [(dem_path, "DEM"), (reference_path, "reference DEM")] + [
+            (path, "DEM (--also)") for path in also]:
+        refuse_image_as_dem(path, what)  # an ISIS image cube holds I/F, not metres
     infos = {"dem": dio.raster_info(dem_path, what="DEM"),
              "reference": dio.raster_info(reference_path, what="reference DEM")}
     target, degrees = metric_grid(_grid(infos[params.grid]))

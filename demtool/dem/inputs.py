@@ -138,7 +138,9 @@ def read_ortho(path, *, what: str) -> Ortho:
     )
     from demtool.maps import map_to_lonlat, to_pyproj_crs
     from demtool.sensors import read_sensor
+    from demtool.sensors.isis_map import refuse_cam2map_ortho
 
+    refuse_cam2map_ortho(path, what)  # an ISIS cam2map cube (never tagged): say what it lacks
     info = dio.raster_info(path, what=what)
     tags = info.tags
     if SENSOR_TAG not in tags or SURFACE_TAG not in tags:

@@ -82,7 +82,9 @@ def sensor_body(sensor: Any):
     if sensor.radii is None:
         raise ValueError("the sensor model is in a local frame, not on a body")
     a, b = sensor.radii
-    return body_from_radii(a, a, b)
+    # an ISIS cube names its body (Bennu: PROJ lacks it; the radii are the model's own)
+    return body_from_radii(a, a, b, name=getattr(sensor, "body_name", None),
+                           naif_id=getattr(sensor, "body_naif_id", None))
 
 
 def _border(lines: int, samples: int, per_edge: int) -> tuple[np.ndarray, np.ndarray]:

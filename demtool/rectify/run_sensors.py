@@ -27,11 +27,14 @@ def read_frame_model(path: str | os.PathLike, image_path: str | os.PathLike,
                      image_shape: tuple[int, int], option: str) -> SensorModel:
     """Read a frame sensor model for an image and check it fits the image.
 
-    Raises InputError (one line naming the model file) for a line-scan or other
-    non-frame model, or an image size that differs from the model's.
+    A ``.tsai`` pinhole carries no image size: it takes the image's.  Raises InputError
+    (one line naming the model file) for a line-scan or other non-frame model, or an
+    image size that differs from the model's.
     """
+    import dataclasses
+
     from demtool.errors import InputError
-    from demtool.sensors import read_sensor
+    from demtool.sensors import TsaiCamera, read_sensor
     from demtool.sensors.arrays import FRAME_TYPES, model_type
 
     p = Path(path)
@@ -44,6 +47,9 @@ def read_frame_model(path: str | os.PathLike, image_path: str | os.PathLike,
                          "`dem --mapprojected`) instead")
     if kind not in FRAME_TYPES:
         raise InputError(f"{p}: is a {kind} model ({option}); rectify takes frame cameras")
+    if isinstance(model, TsaiCamera) and model.lines == 0 and model.samples == 0:
+        # A .tsai file carries no image size: the image gives it.
+        model = dataclasses.replace(model, height=int(image_shape[0]), width=int(image_shape[1]))
     if (model.lines, model.samples) != tuple(image_shape):
         raise InputError(f"{p}: the model is for a {model.samples} x {model.lines} px image "
                          f"but {image_path} is {image_shape[1]} x {image_shape[0]} px")

@@ -17,9 +17,12 @@ from demtool.sensors.frame import FrameSensor
 from demtool.sensors.isd import read_isd, sensor_from_isd
 from demtool.sensors.linescan import LineScanSensor
 from demtool.sensors.pinhole import PinholeCamera
+from demtool.sensors.pushframe import PushFrameSensor
 from demtool.sensors.readers import read_sensor, read_sensors
+from demtool.sensors.rpc import RpcSensor, read_rpc
 from demtool.sensors.tsai import TsaiCamera, read_tsai
 
-__all__ = ["Detector", "Distortion", "FrameSensor", "LineScanSensor", "PinholeCamera", "Ray",
-           "SensorModel", "TsaiCamera", "lagrange_interp", "ray_ellipsoid_intersection",
-           "read_isd", "read_sensor", "read_sensors", "read_tsai", "sensor_from_isd"]
+__all__ = ["Detector", "Distortion", "FrameSensor", "LineScanSensor", "PinholeCamera",
+           "PushFrameSensor", "Ray", "RpcSensor", "SensorModel", "TsaiCamera", "lagrange_interp",
+           "ray_ellipsoid_intersection",
+           "read_isd", "read_rpc", "read_sensor", "read_sensors", "read_tsai", "sensor_from_isd"]

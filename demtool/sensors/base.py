@@ -51,6 +51,9 @@ class SensorModel(ABC):
     lines: int = 0
     samples: int = 0
     radii: tuple[float, float] | None = None
+    #: Times the position/pointing samples cover (:class:`demtool.sensors.coverage.Coverage`);
+    #: None: not checked (frame models, models built in code).
+    coverage = None
 
     @property
     def image_size(self) -> tuple[int, int]:

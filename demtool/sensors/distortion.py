@@ -31,6 +31,10 @@ model           coefficients
 ``photometrix``  ``[xp, yp, k1, k2, k3, p1, p2]`` (ASP / VisionWorkbench), likewise
 ``apollometric``  ``[xp, yp, k1, k2, k3, j1, j2, t0]`` (ISIS ``ApolloMetricDistortionMap``;
                 the NAIF IK's ``INS-91x240_PP``, ``_OD_K``, ``_DECENTER``), in mm
+``opencv``      ``[k1, k2, k3, k4, k5, k6, p1, p2, sx, sy, ox, oy]`` (ISIS
+                ``OsirisRexTagcamsDistortionMap``: OpenCV's rational radial and
+                tangential model on ``(u/f, −v/f)``; ``sx, sy`` the model's focal
+                lengths over the camera's, ``ox, oy`` the focal-plane mm of its centre)
 ==============  ===============================================================
 
 The two ASP models are defined from distorted to undistorted coordinates in the
@@ -45,13 +49,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 MODELS = ("none", "radial", "transverse", "radtan", "lrolrocnac", "dawnfc", "kaguyalism",
-          "cahvor", "lunarorbiter", "brown", "brownconrady", "photometrix", "apollometric")
+          "cahvor", "lunarorbiter", "brown", "brownconrady", "photometrix", "apollometric",
+          "opencv")
 NONE = "none"
 BROWN = "brown"
 _COUNTS = {"radial": (3,), "transverse": (20,), "radtan": (5,), "lrolrocnac": (1,),
            "dawnfc": (1,), "kaguyalism": (10,), "cahvor": (5,), "lunarorbiter": (6,),
            "brown": (4, 5, 8), "brownconrady": (8,), "photometrix": (7,), "apollometric": (8,),
-           "none": (0,)}
+           "opencv": (12,), "none": (0,)}
 
 
 @dataclass(frozen=True)
@@ -404,6 +409,43 @@ def _photometrix_remove(x, y, c, f, tol):
             y + iy * drr + p2 * (r2 + 2.0 * iy * iy) + 2.0 * p1 * ix * iy)
 
 
+# ---------------------------------------------------------------------------------------
+# OpenCV rational model as ISIS's OsirisRexTagcamsDistortionMap applies it (DOI-USGS/ISIS3
+# isis/src/osirisrex/objs/OsirisRexTagcamsCamera/OsirisRexTagcamsDistortionMap.cpp):
+# undistorted focal (u, v) mm → normalised (x', y') = (u/f, −v/f) (the detector line
+# runs along −y) → x'' = x' R + 2 p1 x'y' + p2 (r² + 2x'²), y'' = y' R + p1 (r² + 2y'²)
+# + 2 p2 x'y', R = (1 + k1 r² + k2 r⁴ + k3 r⁶) / (1 + k4 r² + k5 r⁴ + k6 r⁶) → distorted
+# detector pixels fx (1 + a T) x'' + cx: in focal mm (ox + f sx x'', oy − f sy y'').
+# ---------------------------------------------------------------------------------------
+
+def _opencv_forward(x, y, c):
+    k1, k2, k3, k4, k5, k6, p1, p2 = c[:8]
+    r2 = x * x + y * y
+    radial = (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    return (x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y)
+
+
+def _opencv_apply(x, y, c, f, tol):
+    sx, sy, ox, oy = c[8:12]
+    xpp, ypp = _opencv_forward(x / f, -y / f, c)
+    return ox + f * sx * xpp, oy - f * sy * ypp
+
+
+def _opencv_remove(x, y, c, f, tol):
+    sx, sy, ox, oy = c[8:12]
+    xpp, ypp = (x - ox) / (f * sx), -(y - oy) / (f * sy)
+
+    def jac(u, v, h=1e-8):
+        fx0, fy0 = _opencv_forward(u, v, c)
+        fx1, fy1 = _opencv_forward(u + h, v, c)
+        fx2, fy2 = _opencv_forward(u, v + h, c)
+        return (fx1 - fx0) / h, (fx2 - fx0) / h, (fy1 - fy0) / h, (fy2 - fy0) / h
+
+    xp, yp = _newton(xpp, ypp, lambda u, v: _opencv_forward(u, v, c), jac, 1e-13, 30)
+    return xp * f, -yp * f
+
+
 def _numeric_inverse(remove):
     """apply() of a model given by remove(): Newton–Raphson with a numerical Jacobian
     (as VisionWorkbench's ``LensDistortion::distorted_coordinates`` solver)."""
@@ -467,10 +509,11 @@ def _apollo_apply(x, y, c, f, tol):
 _APPLY = {"radial": _radial_apply, "transverse": _transverse_apply, "radtan": _radtan_apply,
           "lrolrocnac": _lroc_apply, "dawnfc": _dawn_apply, "kaguyalism": _kaguya_apply,
           "cahvor": _cahvor_apply, "lunarorbiter": _lo_apply, "brown": _brown_apply,
-          "brownconrady": _numeric_inverse(_brownconrady_remove),
+          "brownconrady": _numeric_inverse(_brownconrady_remove), "opencv": _opencv_apply,
           "photometrix": _numeric_inverse(_photometrix_remove), "apollometric": _apollo_apply}
 _REMOVE = {"radial": _radial_remove, "transverse": _transverse_remove,
            "radtan": _radtan_remove, "lrolrocnac": _lroc_remove, "dawnfc": _dawn_remove,
            "kaguyalism": _kaguya_remove, "cahvor": _cahvor_remove, "lunarorbiter": _lo_remove,
            "brown": _brown_remove, "brownconrady": _brownconrady_remove,
-           "photometrix": _photometrix_remove, "apollometric": _apollo_remove}
+           "photometrix": _photometrix_remove, "apollometric": _apollo_remove,
+           "opencv": _opencv_remove}

@@ -48,6 +48,7 @@ from demtool.sensors.linescan import LineScanSensor
 
 FRAME_MODEL = "USGS_ASTRO_FRAME_SENSOR_MODEL"
 LINESCAN_MODEL = "USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL"
+PUSHFRAME_MODEL = "USGS_ASTRO_PUSH_FRAME_SENSOR_MODEL"
 _UNITS = {"m": 1.0, "km": 1000.0}
 
 
@@ -198,10 +199,20 @@ def _distortion(keys: _Keys, isd: Mapping, focal_length: float) -> Distortion:
             [float(keys.get(params, "boresight_x", where))], keys.array(params, "x", where, (4,)),
             [float(keys.get(params, "boresight_y", where))], keys.array(params, "y", where, (4,))])
     elif model == "lunarorbiter":
+        # ALE writes the perspective factors and the point of symmetry as usgscsm reads
+        # them (perspective_x/_y, center_point_x/_y) and the radial terms k0, k1 (ISIS's
+        # INS<code>_OD_K) as 'odk' (older demtool ISDs: 'coefficients').
+        radial = next((k for k in ("odk", "coefficients") if k in params), None)
+        if radial is None:
+            raise InputError(f"{keys.source}: ISD lacks the key '{where}odk' (the radial "
+                             "distortion terms k0, k1 of the Lunar Orbiter camera)")
+        terms = list(keys.array(params, radial, where))
+        if len(terms) not in (1, 2):
+            raise InputError(f"{keys.source}: ISD key '{where}{radial}' has {len(terms)} "
+                             "values, expected 2 (k0, k1)")
         coefficients = np.array([float(keys.get(params, k, where)) for k in
                                  ("perspective_x", "perspective_y", "center_point_x",
-                                  "center_point_y")]
-                                + list(keys.array(params, "coefficients", where, (2,))))
+                                  "center_point_y")] + (terms + [0.0])[:2])
     elif model == "cahvor" and "x" in params:
         coefficients = np.concatenate([keys.array(params, "coefficients", where, (3,)),
                                        [float(params["x"]), float(params.get("y", 0.0))]])
@@ -237,9 +248,9 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
     """
     keys = _Keys(source)
     model = keys.get(isd, "name_model")
-    if model not in (FRAME_MODEL, LINESCAN_MODEL):
+    if model not in (FRAME_MODEL, LINESCAN_MODEL, PUSHFRAME_MODEL):
         raise InputError(f"{source}: ISD key 'name_model' is {model!r}; demtool reads "
-                         f"{FRAME_MODEL} and {LINESCAN_MODEL}")
+                         f"{FRAME_MODEL}, {LINESCAN_MODEL} and {PUSHFRAME_MODEL}")
     lines = int(keys.get(isd, "image_lines"))
     samples = int(keys.get(isd, "image_samples"))
     if lines <= 0 or samples <= 0:
@@ -270,8 +281,13 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
                            sun=_linear(sun_times, sun, center_time), name=name,
                            time=center_time)
 
-    rate = keys.array(isd, "line_scan_rate", shape=(-1, 3))
-    if np.any(rate[:, 2] == 0):
+    if model == PUSHFRAME_MODEL:
+        from demtool.sensors.pushframe import framelet_keys
+
+        rate, framelets = None, framelet_keys(keys, isd, center_time)
+    else:
+        rate, framelets = keys.array(isd, "line_scan_rate", shape=(-1, 3)), None
+    if rate is not None and np.any(rate[:, 2] == 0):
         raise InputError(f"{source}: ISD key 'line_scan_rate' has a zero line time")
     # usgscsm (constructStateFromIsd): the ephemeris is resampled on at least 25 equally
     # spaced nodes over the ISD's time span (ALE's Hermite / natural spline), rotated
@@ -301,13 +317,28 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
         dt_quat = 1.0
     sensor_to_body = body.matrices_at(quat_times) @ np.swapaxes(
         pointing.matrices_at(quat_times), -1, -2)
-    return LineScanSensor(
-        line_scan_rate=rate, positions=positions, velocities=velocities,
+    pose = dict(
+        positions=positions, velocities=velocities,
         t0_ephem=pos_times[0] - center_time, dt_ephem=dt_ephem,
         quaternions=matrix_to_quaternion(sensor_to_body), t0_quat=quat_times[0] - center_time,
         dt_quat=dt_quat, focal_length=focal, detector=detector, distortion=distortion,
         lines=lines, samples=samples, radii=radii, sun_positions=sun,
         sun_velocities=sun_velocities, name=name, center_time=center_time)
+    if framelets is not None:
+        from demtool.sensors.pushframe import PushFrameSensor
+
+        try:
+            sensor = PushFrameSensor(**framelets, **pose)
+        except ValueError as exc:
+            raise InputError(f"{source}: {exc}") from None
+    else:
+        sensor = LineScanSensor(line_scan_rate=rate, **pose)
+    from demtool.sensors.coverage import attach_coverage
+
+    attach_coverage(sensor, source, {"instrument_position": pos_times - center_time,
+                                     "instrument_pointing": pointing.times - center_time,
+                                     "body_rotation": body.times - center_time})
+    return sensor
 
 
 def _linear(times: np.ndarray, values: np.ndarray, t: float) -> np.ndarray:
@@ -361,7 +392,7 @@ def _distortion_block(distortion: Distortion) -> dict:
         return {model: {"boresight_x": c[0], "x": c[1:5], "boresight_y": c[5], "y": c[6:10]}}
     if model == "lunarorbiter":
         return {model: {"perspective_x": c[0], "perspective_y": c[1], "center_point_x": c[2],
-                        "center_point_y": c[3], "coefficients": c[4:6]}}
+                        "center_point_y": c[3], "odk": c[4:6]}}
     if model == "cahvor":
         return {model: {"coefficients": c[:3], "x": c[3], "y": c[4]}}
     return {model: {"coefficients": c}}
@@ -415,6 +446,9 @@ def isd_from_sensor(model) -> dict:
     - :class:`FrameSensor`: one position, one attitude and one sun position at
       ``model.time`` (a ``z_direction`` of −1 is folded into the attitude: the frame
       ``(−x, −y, z)`` of the focal plane gives the same rays with usgscsm's +z look).
+    - :class:`PushFrameSensor`: as a line-scan model, with usgscsm's framelet keys
+      (``framelet_height``, ``exposure_duration``, ``interframe_delay``, the two flags,
+      ``starting_ephemeris_time``) instead of ``line_scan_rate``.
     - :class:`LineScanSensor`: positions on ``max(n, 25)`` equally spaced nodes over
       the model's ephemeris span (usgscsm's minimum, so reading does not resample;
       a model with fewer nodes is sampled by its own Lagrange interpolation), with
@@ -457,7 +491,7 @@ def isd_from_sensor(model) -> dict:
         return isd
     if not isinstance(model, LineScanSensor):
         raise ValueError(f"isd_from_sensor: cannot write a {type(model).__name__} as an ISD "
-                         "(frame and line-scan models only)")
+                         "(frame, line-scan and push-frame models only)")
     centre = model.center_time
     n_pos = len(model.positions)
     if n_pos >= MIN_EPHEMERIS_NODES or n_pos == 1:
@@ -493,6 +527,15 @@ def isd_from_sensor(model) -> dict:
         "body_rotation": _rotations_block(quat_times,
                                           [_IDENTITY_QUATERNION] * len(quat_times)),
     })
+    if getattr(model, "kind", "") == "pushframe":  # usgscsm's framelet keys instead
+        del isd["line_scan_rate"]
+        isd.update({"name_model": PUSHFRAME_MODEL,
+                    "starting_ephemeris_time": centre + model.starting_time,
+                    "framelet_height": int(model.framelet_height),
+                    "exposure_duration": float(model.exposure_duration),
+                    "interframe_delay": float(model.interframe_delay),
+                    "framelets_flipped": bool(model.framelets_flipped),
+                    "framelet_order_reversed": bool(model.framelet_order_reversed)})
     return isd
 
 

@@ -17,9 +17,15 @@ pixels to the original detector: ``alpha = start + (end − start) / beta_size �
 
 Lens distortion: the Apollo Metric cameras (NAIF codes −915240, −916240, −917240) get
 ISIS's ``ApolloMetricDistortionMap`` (``INS<code>_PP``, ``_OD_K``, ``_DECENTER``; the
-``apollometric`` model of :mod:`demtool.sensors.distortion`).  Other instruments'
-ISIS distortion maps are not read yet; their models are built without distortion and
-say so in their ``notes``.
+``apollometric`` model of :mod:`demtool.sensors.distortion`), OSIRIS-REx TAGCAMS
+(−64081, −64082, −64071) ISIS's ``OsirisRexTagcamsDistortionMap`` (the ``opencv``
+model).  A camera without distortion keywords is ideal; another camera whose keywords
+describe a distortion is refused in one line (its ALE ISD carries the distortion).
+
+Refused in one line as well: map-projected cubes (a ``Mapping`` group, ISIS ``cam2map``)
+and line-scan cameras (``LineExposureDuration``: CTX, HiRISE, LRO NAC, MOC; read their
+ALE ISDs).  The body's name and NAIF id (``TargetName``, ``BODY<code>_RADII``) are kept
+as ``model.body_name`` / ``model.body_naif_id`` for bodies PROJ does not know.
 
 Reference: DOI-USGS/ISIS3 ``isis/src/apollo/objs/ApolloMetricCamera/`` (camera and
 distortion map), ``isis/src/base/objs/AlphaCube``.
@@ -37,38 +43,11 @@ from demtool.sensors.base import Detector
 from demtool.sensors.distortion import Distortion
 from demtool.sensors.frame import FrameSensor
 from demtool.sensors.isd import Orientations
+from demtool.sensors.isis_label import read_label
 
 _TYPES = {"Double": "f8", "Integer": "i4", "Real": "f4"}
 #: NAIF codes of the Apollo 15, 16 and 17 Metric (Mapping) Cameras (ISIS ApolloMetricCamera).
 APOLLO_METRIC_CODES = (-915240, -916240, -917240)
-
-
-def _read_label(path: Path) -> tuple[dict, bytes]:
-    import warnings
-
-    with warnings.catch_warnings():  # pvl notes the optional multidict package is absent
-        warnings.simplefilter("ignore", ImportWarning)
-        warnings.simplefilter("ignore", PendingDeprecationWarning)
-        import pvl
-
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read cube ({exc.strerror or exc})") from None
-    if not data.lstrip().startswith(b"Object = IsisCube") and b"IsisCube" not in data[:200]:
-        raise InputError(f"{path}: not an ISIS3 cube (no 'Object = IsisCube' label)")
-    end = data.find(b"\nEnd\n")
-    if end < 0:
-        end = data.find(b"\nEnd\r\n")
-    text = data[: end + 5 if end >= 0 else 65536].decode("latin-1")
-    try:
-        with warnings.catch_warnings():  # pvl's Units class (for '<meters>') is deprecated
-            warnings.simplefilter("ignore", PendingDeprecationWarning)
-            label = pvl.loads(text)
-    except Exception as exc:  # pvl raises several parser errors
-        raise InputError(f"{path}: cannot parse the ISIS label ({str(exc).splitlines()[0]})") \
-            from None
-    return label, data
 
 
 def _tables(label) -> dict:
@@ -134,7 +113,8 @@ def read_cube(path: str | Path) -> FrameSensor:
         ``_PP``, 2 values, when present); an empty table.
     """
     p = Path(path)
-    label, data = _read_label(p)
+    label, data = read_label(p)
+    _refuse_unread_kinds(p, label)
     tables = _tables(label)
     needed = ("InstrumentPointing", "InstrumentPosition", "BodyRotation", "SunPosition")
     absent = [t for t in needed if t not in tables]
@@ -154,6 +134,8 @@ def read_cube(path: str | Path) -> FrameSensor:
     naif = label["NaifKeywords"]
     ins = f"INS{code}"
     focal = float(_naif(p, naif, f"{ins}_FOCAL_LENGTH", 1)[0])
+    if code in TAGCAMS_CODES:  # ISIS OsirisRexTagcamsCamera: the IK gives metres
+        focal *= 1000.0
     itrans_s = _naif(p, naif, f"{ins}_ITRANSS", 3)
     itrans_l = _naif(p, naif, f"{ins}_ITRANSL", 3)
     if f"{ins}_BORESIGHT_SAMPLE" in naif:
@@ -161,6 +143,8 @@ def read_cube(path: str | Path) -> FrameSensor:
         center_l = float(_naif(p, naif, f"{ins}_BORESIGHT_LINE", 1)[0])
     elif f"{ins}_CCD_CENTER" in naif:
         center_s, center_l = _naif(p, naif, f"{ins}_CCD_CENTER", 2)
+        if code in TAGCAMS_CODES:  # OsirisRexTagcamsCamera: CCD_CENTER is 0-based
+            center_s, center_l = center_s + 1.0, center_l + 1.0
     else:  # Apollo Metric: ISIS sets the origin to (ParentSamples / 2, ParentLines / 2)
         alpha = label["IsisCube"].get("AlphaCube")
         full_s = float(alpha["AlphaSamples"]) if alpha is not None else samples
@@ -170,6 +154,10 @@ def read_cube(path: str | Path) -> FrameSensor:
     if not body_keys:
         raise InputError(f"{p}: NaifKeywords lacks the key 'BODY<code>_RADII'")
     radii = _naif(p, naif, body_keys[0], 3) * 1000.0
+    # What the label says the body is (PROJ may not know it: Bennu, 2101955); the radii
+    # above are the model's own either way.
+    body_naif = re.fullmatch(r"BODY(-?\d+)_RADII", body_keys[0])
+    instrument = label["IsisCube"].get("Instrument", {})
 
     # Cube pixel → original detector pixel (CSM convention: ISIS − 0.5).
     start_s = start_l = 0.0
@@ -203,24 +191,110 @@ def read_cube(path: str | Path) -> FrameSensor:
     sun_body = body.matrices_at(sun_times[:1])[0] @ sun[0] * 1000.0
     # ISIS's zDirection: the side of the focal plane the body is on (Apollo Metric: −z).
     z_direction = -1.0 if rotation[:, 2] @ position_body > 0 else 1.0
-    distortion, notes = _distortion(p, naif, code)
+    distortion = _distortion(p, naif, code, focal, instrument)
     model = FrameSensor(position=position_body, rotation=rotation, focal_length=focal,
                         detector=detector, distortion=distortion, lines=lines, samples=samples,
                         radii=(float(radii[0]), float(radii[2])), sun=sun_body, name=p.stem,
                         time=time, z_direction=z_direction)
-    model.notes = notes
+    model.notes = []
+    model.body_name = str(instrument.get("TargetName", "")) or None
+    model.body_naif_id = int(body_naif.group(1)) if body_naif else None
     return model
 
 
-def _distortion(path: Path, naif, code: int) -> tuple[Distortion | None, list[str]]:
-    """The lens distortion of an ISIS camera from its NAIF keywords, and notes."""
+#: NAIF codes of OSIRIS-REx's TAGCAMS cameras (NavCam, NFTCam, StowCam; ISIS
+#: OsirisRexTagcamsCamera).
+TAGCAMS_CODES = (-64081, -64082, -64071)
+#: NAIF keyword suffixes through which ISIS camera models describe lens distortion.
+_DISTORTION_KEYS = ("_OD_K", "_OD_T", "_DECENTER", "_DISTORTION", "_OPENCV", "_PP",
+                    "_TRANSX_DIST", "_CD_")
+
+
+def _distortion(path: Path, naif, code: int, focal: float, instrument) -> Distortion | None:
+    """The lens distortion of an ISIS frame camera from its NAIF keywords.
+
+    Applied: the Apollo Metric cameras (``ApolloMetricDistortionMap``) and OSIRIS-REx
+    TAGCAMS (``OsirisRexTagcamsDistortionMap``, the OpenCV model of ``_OPENCV_OD_*`` with
+    the camera-head temperature term ``_OD_A``).  Another camera with no distortion
+    keyword is ideal; one whose keywords describe a distortion ISIS models per mission
+    is refused (its ALE ISD carries the distortion in usgscsm's form).
+    """
     ins = f"INS{code}"
-    if code not in APOLLO_METRIC_CODES:
-        return None, ["lens distortion of the ISIS camera model not applied"]
-    pp = _naif(path, naif, f"{ins}_PP", 2) if f"{ins}_PP" in naif else np.zeros(2)
-    odk = _naif(path, naif, f"{ins}_OD_K", 3)
-    decenter = _naif(path, naif, f"{ins}_DECENTER", 3)
-    return Distortion("apollometric", np.concatenate([pp, odk, decenter])), []
+    if code in APOLLO_METRIC_CODES:
+        pp = _naif(path, naif, f"{ins}_PP", 2) if f"{ins}_PP" in naif else np.zeros(2)
+        odk = _naif(path, naif, f"{ins}_OD_K", 3)
+        decenter = _naif(path, naif, f"{ins}_DECENTER", 3)
+        return Distortion("apollometric", np.concatenate([pp, odk, decenter]))
+    model = str(naif.get(f"{ins}_DISTORTION_MODEL", "")).upper()
+    if code in TAGCAMS_CODES and model == "OPENCV":
+        return _tagcams(path, naif, ins, focal, instrument)
+    keys = sorted(k for k in naif.keys() if k.startswith(ins)
+                  and any(tag in k[len(ins):] for tag in _DISTORTION_KEYS))
+    if not keys:
+        return None
+    raise InputError(f"{path}: the ISIS camera of NAIF code {code} models lens distortion "
+                     f"({keys[0]}) in a way demtool does not apply; pass an ALE ISD of the "
+                     "image (isd_generate) instead")
+
+
+def _tagcams(path: Path, naif, ins: str, focal: float, instrument) -> Distortion:
+    """ISIS ``OsirisRexTagcamsDistortionMap`` as a :class:`Distortion` ``opencv`` model.
+
+    The distortion acts on detector pixels: normalised ``x' = (s − cx) p / f`` (pixel
+    pitch ``p`` mm, focal ``f`` mm, ``(cx, cy)`` = ``_OPENCV_OD_C``, 1-based like ISIS's
+    detector origin ``_CCD_CENTER + 1``), distorted pixels ``fx (1 + a T) x'' + cx`` with
+    ``(fx, fy)`` = ``_OD_F``, ``a`` = ``_OD_A`` and ``T`` the label's
+    ``CameraHeadTemperature`` (°C).  In focal-plane millimetres that is the ``opencv``
+    model with ``sx = fx (1 + a T) p / f`` and the distortion centre's offset from the
+    detector origin, ``(ox, oy) = ((cx − s0) p, −(cy − l0) p)``.
+    """
+    itrans_s = _naif(path, naif, f"{ins}_ITRANSS", 3)
+    itrans_l = _naif(path, naif, f"{ins}_ITRANSL", 3)
+    pitch = float(_naif(path, naif, f"{ins}_PIXEL_SIZE", 1)[0]) / 1000.0  # µm → mm
+    if not (np.allclose(itrans_s, [0.0, 1.0 / pitch, 0.0], rtol=1e-6)
+            and np.allclose(itrans_l, [0.0, 0.0, -1.0 / pitch], rtol=1e-6)):
+        raise InputError(f"{path}: NaifKeywords '{ins}_ITRANSS'/'_ITRANSL' are not the "
+                         "TAGCAMS detector layout (x along samples, y against lines) the "
+                         "OpenCV distortion map assumes")
+    k = _naif(path, naif, f"{ins}_OPENCV_OD_K", 6)
+    p = _naif(path, naif, f"{ins}_OPENCV_OD_P", 2)
+    fxy = _naif(path, naif, f"{ins}_OPENCV_OD_F", 2)
+    cxy = _naif(path, naif, f"{ins}_OPENCV_OD_C", 2)
+    a = float(_naif(path, naif, f"{ins}_OPENCV_OD_A", 1)[0])
+    origin = _naif(path, naif, f"{ins}_CCD_CENTER", 2) + 1.0
+    temperature = instrument.get("CameraHeadTemperature", 0.0)
+    temperature = float(getattr(temperature, "value", temperature))
+    scale = 1.0 + a * temperature
+    coefficients = np.concatenate([k, p, fxy * scale * pitch / focal,
+                                   [(cxy[0] - origin[0]) * pitch, -(cxy[1] - origin[1]) * pitch]])
+    return Distortion("opencv", coefficients, focal)
+
+
+def _refuse_unread_kinds(path: Path, label) -> None:
+    """One-line refusals of cubes that are not raw frame-camera images.
+
+    A map-projected cube (ISIS ``cam2map``: a ``Mapping`` group) has its pixels on the
+    map, not in the camera; a line-scan camera (``LineExposureDuration`` in the
+    ``Instrument`` group: CTX, HiRISE, LRO NAC, MOC) is not a frame model.
+    """
+    cube = label["IsisCube"]
+    mapping = cube.get("Mapping")
+    if mapping is not None:
+        from demtool.sensors.isis_map import mapping_summary
+
+        raise InputError(f"{path}: is a map-projected cube ({mapping_summary(mapping)}): its "
+                         "pixels lie on that map, not in the camera; use it as a map "
+                         "(its CRS from the Mapping group), or the raw image's cube or ISD "
+                         "for a camera model")
+    instrument = cube.get("Instrument", {})
+    if "LineExposureDuration" in instrument:
+        what = instrument.get("InstrumentId", "a line-scan camera")
+        duration = instrument["LineExposureDuration"]
+        duration = (f"{duration.value:g} {duration.units}" if hasattr(duration, "units")
+                    else str(duration))
+        raise InputError(f"{path}: is a line-scan camera cube ({what}, LineExposureDuration "
+                         f"{duration}); demtool reads ISIS frame "
+                         "cameras: pass an ALE ISD of it (isd_generate) instead")
 
 
 def read_footprint(path: str | Path) -> list[np.ndarray]:
@@ -243,7 +317,7 @@ def read_footprint(path: str | Path) -> list[np.ndarray]:
         Not a cube; no footprint (run ``footprintinit``); a polygon that is not WKT.
     """
     p = Path(path)
-    label, data = _read_label(p)
+    label, data = read_label(p)
     polygon = next((obj for key, obj in label.items()
                     if key == "Polygon" and str(obj.get("Name", "")) == "Footprint"), None)
     if polygon is None:

@@ -167,7 +167,26 @@ class LineScanSensor(SensorModel):
             self.int_lines, self.int_start_times, self.int_times, self.positions,
             self.t0_ephem, self.dt_ephem, self.quaternions, self.t0_quat, self.dt_quat,
             self._quat_order(), self.focal_length)
-        return Ray(origin.reshape(line.shape + (3,)), look.reshape(line.shape + (3,)))
+        return self._masked(line, Ray(origin.reshape(line.shape + (3,)),
+                                      look.reshape(line.shape + (3,))))
+
+    def _uncovered(self, line) -> np.ndarray | None:
+        """Where lines are exposed outside the sampled ephemeris (None: all covered or
+        coverage not known); see :mod:`demtool.sensors.coverage`."""
+        if self.coverage is None:
+            return None
+        out = ~self.coverage.covers(self.line_time(line))
+        return out if np.any(out) else None
+
+    def _masked(self, line, ray: Ray) -> Ray:
+        """NaN rays for image lines (0 ≤ line ≤ lines) outside the ephemeris coverage;
+        lines beyond the image are left to the caller, which extrapolates knowingly."""
+        bad = self._uncovered(line)
+        if bad is None:
+            return ray
+        bad = bad & (line >= 0) & (line <= self.lines)
+        return Ray(np.where(bad[..., None], np.nan, ray.origin),
+                   np.where(bad[..., None], np.nan, ray.direction))
 
     def _quat_order(self) -> int:
         """Highest Lagrange order of the quaternion interpolation (as :meth:`rotation_at`)."""
@@ -188,7 +207,7 @@ class LineScanSensor(SensorModel):
         # towards the body so that s > 0 is in front of the sensor.
         sign = np.where(np.sum(look * origin, axis=-1) > 0, -1.0, 1.0)
         look *= (sign / np.linalg.norm(look, axis=-1))[..., None]
-        return Ray(origin, look)
+        return self._masked(line, Ray(origin, look))
 
     def _detector_view(self, line, xyz):
         """Detector (line, sample) of points seen from the exposure of image ``line``."""
@@ -229,12 +248,19 @@ class LineScanSensor(SensorModel):
                                  np.linspace(0.5, self.samples - 0.5, 5), indexing="ij")
             pts = [self.image_to_ground(ll, ss, h).reshape(-1, 3) for h in (-1000.0, 1000.0)]
             xyz = np.concatenate(pts)
-            design = np.column_stack([xyz - xyz.mean(axis=0), np.ones(len(xyz))])
             target = np.column_stack([np.tile(ll.ravel(), 2), np.tile(ss.ravel(), 2)])
+            finite = np.all(np.isfinite(xyz), axis=1)  # lines outside the coverage: NaN
+            xyz, target = xyz[finite], target[finite]
+            if len(xyz) < 4:
+                raise ValueError(f"{self.name}: no image line lies within the sampled "
+                                 "ephemeris")
+            design = np.column_stack([xyz - xyz.mean(axis=0), np.ones(len(xyz))])
             coef, *_ = np.linalg.lstsq(design, target, rcond=None)
-            centre = self.image_to_ground(0.5 * self.lines, 0.5 * self.samples)[None]
-            ahead, _, _ = self._detector_view(np.array([0.5 * self.lines + 0.5]), centre)
-            behind, _, _ = self._detector_view(np.array([0.5 * self.lines - 0.5]), centre)
+            rows = target[:, 0]  # the covered grid line nearest the middle
+            mid = float(rows[np.argmin(np.abs(rows - np.median(rows)))])
+            centre = self.image_to_ground(mid, 0.5 * self.samples)[None]
+            ahead, _, _ = self._detector_view(np.array([mid + 0.5]), centre)
+            behind, _, _ = self._detector_view(np.array([mid - 0.5]), centre)
             slope = float(ahead[0] - behind[0])
             if not np.isfinite(slope) or slope == 0:
                 raise ValueError(f"{self.name}: the detector line does not move with the "
@@ -290,6 +316,11 @@ class LineScanSensor(SensorModel):
                 det_line[done], sample[done], depth[done] = f, smp, dep
             active = active[keep & np.isfinite(step)]
         bad = ~np.isfinite(line) | ~(depth > 0) | ~(np.abs(det_line) < 1e-3)
+        # a point seen by an image line outside the sampled ephemeris has no image; lines
+        # beyond the image stay (callers such as mapproject's lattice extrapolate them)
+        uncovered = self._uncovered(np.where(bad, 0.5 * self.lines, line))
+        if uncovered is not None:
+            bad |= uncovered & (line >= 0) & (line <= self.lines)
         line = np.where(bad, np.nan, line)
         sample = np.where(bad, np.nan, sample)
         return line.reshape(shape), sample.reshape(shape)

@@ -3,9 +3,11 @@
 =====================================  ==========================================
 content                                model
 =====================================  ==========================================
-JSON with ``name_model`` (ALE ISD)     :class:`FrameSensor` / :class:`LineScanSensor`
+JSON with ``name_model`` (ALE ISD)     :class:`FrameSensor` / :class:`LineScanSensor` /
+                                       :class:`PushFrameSensor`
 ISIS3 cube (``Object = IsisCube``)     :class:`FrameSensor` (SPICE must be attached)
 ASP ``.tsai`` (``VERSION_n``/``PINHOLE``)  :class:`TsaiCamera` (body-fixed pinhole)
+RPC: GeoTIFF tags, ``_RPC.TXT``, .RPB  :class:`RpcSensor` (WGS84 heights)
 NPZ of kind ``cameras`` or ``bundle``  :class:`PinholeCamera` (one per image)
 =====================================  ==========================================
 """
@@ -37,8 +39,12 @@ def _sniff(path: Path) -> str:
     first = text.split(None, 1)[0].upper() if text.strip() else b""
     if first.startswith(b"VERSION_") or first == b"PINHOLE" or text.startswith(b"fu"):
         return "tsai"
+    if head[:4] in (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+") or b"LINE_NUM_COEFF" in head \
+            or b"lineNumCoef" in head or text.startswith((b"LINE_OFF", b"satId", b"bandId")):
+        return "rpc"
     raise InputError(f"{path}: not a sensor model demtool reads (ALE ISD JSON, ISIS3 cube "
-                     "with SPICE, ASP .tsai, cameras.npz or bundle.npz)")
+                     "with SPICE, ASP .tsai, RPC GeoTIFF/_RPC.TXT/.RPB, cameras.npz or "
+                     "bundle.npz)")
 
 
 def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
@@ -62,6 +68,11 @@ def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
         from demtool.sensors.isis import read_cube
 
         model = read_cube(p)
+        return {model.name: model}
+    if kind == "rpc":
+        from demtool.sensors.rpc import read_rpc
+
+        model = read_rpc(p, radii=radii)
         return {model.name: model}
     return _read_npz(p)
 

@@ -17,6 +17,11 @@ to undistorted physical focal-plane coordinates relative to ``(cu, cv)``; their
 coefficients are rescaled to normalised coordinates (``fu = fv`` required).
 Fisheye, FOV, RPC and AdjustableTSAI lenses are refused in one line.
 
+The legacy VisionWorkbench layout (ASP's ``examples/K10/*.tsai``: no ``VERSION_n``,
+``PINHOLE`` or lens-name lines, no ``pitch``) is read too: ``k1 k2 p1 p2`` lines after
+``R`` imply a TSAI lens, as VisionWorkbench's ``PinholeModel::read`` does for files
+without a version line.
+
 References: ASP documentation "Pinhole models" (``docs/pinholemodels.rst``);
 VisionWorkbench ``src/vw/Camera/PinholeModel.cc`` (``read``) and
 ``LensDistortion.cc`` (``undistorted_coordinates``).
@@ -137,6 +142,8 @@ def parse_tsai(text: str, path: str | Path = "<tsai>") -> dict:
                                  "model demtool reads")
             raise InputError(f"{path}: line {number}: cannot parse {line!r}")
         key, _, value = (part.strip() for part in line.partition("="))
+        if lens is None and key in _LENSES["tsai"] and key not in _SIZES and "R" in fields:
+            lens = "tsai"  # VisionWorkbench's legacy layout: k1 k2 p1 p2 straight after R
         if lens is None:
             if key not in _SIZES:
                 raise InputError(f"{path}: line {number}: unknown key '{key}'")

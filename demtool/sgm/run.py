@@ -92,6 +92,10 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
             min_disparity = from_file[0] if min_disparity is None else min_disparity
             num_disparities = from_file[1] if num_disparities is None else num_disparities
         elif rectify is None:
+            from demtool.sensors.isis_map import refuse_cam2map_ortho
+
+            for path, what in ((left_path, "the left image"), (right_path, "the right image")):
+                refuse_cam2map_ortho(path, what)  # ISIS cam2map cubes: say what they lack
             raise ParameterError("give the disparity range: --rectify RECTIFY_NPZ, or both "
                                  "--min-disparity and --num-disparities (or two orthoimages "
                                  "from demtool mapproject)")

@@ -123,7 +123,7 @@ def write_scene(scene: Scene, out: str | os.PathLike, prov: Provenance) -> list[
 
 
 def run_synth(out: str | os.PathLike, params: SceneParams | None = None, *,
-              resolved: dict[str, Any] | None = None) -> Scene:
+              resolved: dict[str, Any] | None = None, sensor_models=None) -> Scene:
     """Render the scene of ``params`` and write it into ``out``.
 
     Parameters
@@ -135,6 +135,9 @@ def run_synth(out: str | os.PathLike, params: SceneParams | None = None, *,
     resolved : dict, optional
         The command's resolved options, for the provenance record (defaults to
         ``params.as_dict()``).
+    sensor_models : (path, path), optional
+        Render through windows of these two real models (``--sensor-model``,
+        :func:`demtool.synth.real.real_pair`; it chooses the DEM spacing, size and GSD).
 
     Raises
     ------
@@ -144,16 +147,33 @@ def run_synth(out: str | os.PathLike, params: SceneParams | None = None, *,
     from demtool.synth import SceneParams, make_scene
 
     params = params or SceneParams()
+    real = None
+    if sensor_models is not None:
+        from demtool.synth.real import real_pair
+
+        place, sensors, params, windows = real_pair(sensor_models, params)
+        real = (place, sensors)
     run = StageRun("synth", params, resolved=resolved, folders={"--out": out})
+    if real is not None:
+        run.log.info("scene at %.5f°E %.5f° under the pair's common footprint; DEM %d × %d "
+                     "at %.3g m (half the finer GSD); windows %s", windows["center_lon_deg"],
+                     windows["center_lat_deg"], params.dem_size, params.dem_size,
+                     params.spacing_m, ", ".join(
+                         f"{n}: {w['model']} from line {w['window_line0']}, sample "
+                         f"{w['window_sample0']} ({w['gsd_m']:.3g} m/px)"
+                         for n, w in windows.items() if n.startswith("view_")))
     run.log.info("rendering %d views of %d × %d px over a %d × %d DEM (%.2f m cells), "
-                 "seed %d", params.n_views, params.image_size, params.image_size,
-                 params.dem_size, params.dem_size, params.spacing_m, params.seed)
-    scene = make_scene(params)
+                 "seed %d", 2 if real else params.n_views, params.image_size,
+                 params.image_size, params.dem_size, params.dem_size, params.spacing_m,
+                 params.seed)
+    scene = make_scene(params, sensor_models=real)
     with run.transaction():
         written = write_scene(scene, out, run.provenance)
     run.log.info("scene rendered in %.1f s: heights %.1f … %.1f m, target %s, partner %s "
-                 "(B/H %.2f)", scene.render_time_s, float(scene.dem.min()),
-                 float(scene.dem.max()), scene.target, scene.partner, params.partner_bh)
+                 "(%s)", scene.render_time_s, float(scene.dem.min()),
+                 float(scene.dem.max()), scene.target, scene.partner,
+                 f"convergence {windows['convergence_deg']:.1f}°" if real
+                 else f"B/H {params.partner_bh:.2f}")
     run.log.info("wrote %d files into %s: %s", len(written), out,
                  ", ".join(p.name for p in written))
     return scene

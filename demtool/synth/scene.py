@@ -263,7 +263,7 @@ def make_terrain(params: SceneParams) -> tuple[np.ndarray, np.ndarray]:
 
 
 def make_scene(params: SceneParams | None = None, *, dem: np.ndarray | None = None,
-               albedo: np.ndarray | None = None) -> Scene:
+               albedo: np.ndarray | None = None, sensor_models=None) -> Scene:
     """Build and render a synthetic scene.
 
     Parameters
@@ -276,6 +276,9 @@ def make_scene(params: SceneParams | None = None, *, dem: np.ndarray | None = No
         (not re-centred).
     albedo : (N, N) float, optional
         Use this albedo map instead of generating one.
+    sensor_models : (Placement, dict), optional
+        Render through these body-fixed models at this placement instead of the
+        synthetic views (``synth --sensor-model``, :mod:`demtool.synth.real`).
 
     Returns
     -------
@@ -304,11 +307,14 @@ def make_scene(params: SceneParams | None = None, *, dem: np.ndarray | None = No
     timings["terrain"] = time.perf_counter() - started
     log.debug("terrain: %d × %d cells, heights %.1f … %.1f m", *shape, dem.min(), dem.max())
 
-    cameras = make_cameras(params) if params.sensor != "linescan" else {}
     sun = sun_vector(params.sun_incidence_deg, params.sun_azimuth_deg)
-    place, sensors = None, {}
-    if params.sensor != "pinhole":
-        place, sensors = make_sensors(params, cameras, sun)
+    if sensor_models is not None:  # real geometries (demtool.synth.real)
+        cameras, (place, sensors) = {}, sensor_models
+    else:
+        cameras = make_cameras(params) if params.sensor != "linescan" else {}
+        place, sensors = None, {}
+        if params.sensor != "pinhole":
+            place, sensors = make_sensors(params, cameras, sun)
     views = sensors or cameras
     check_footprints(params, views, field.z_min, field.z_max, placement=place)
     dn_scale = flat_dn_per_reflectance(params)

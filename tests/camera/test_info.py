@@ -371,7 +371,9 @@ def _sane(entry):
 def test_every_ale_isd_reports_sane_values():
     from demtool.camera.run import read_models
 
-    paths = sorted((DATA / "ale").glob("*.json"))
+    # (ALE's MOC fixture is refused: its pointing starts after its last line,
+    # tests/sensors/test_isis_cubes.py)
+    paths = [p for p in sorted((DATA / "ale").glob("*.json")) if p.name != "mgsmocna_isd.json"]
     models, bodies, _ = read_models(paths)
     report = camera_info(models, bodies)
     for entry in report["cameras"]:

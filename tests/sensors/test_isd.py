@@ -151,7 +151,10 @@ def grid_round_trip(model, n=9):
     ground, hit = ray_ellipsoid_intersection(ray.origin, ray.direction, *model.radii,
                                              return_hit=True)
     assert hit.sum() >= 20
-    line, sample = model.ground_to_image(ground)
+    if getattr(model, "kind", "") == "pushframe":  # framelets overlap: project into its own
+        line, sample = model.ground_to_image(ground, framelet=model.framelet(lines))
+    else:
+        line, sample = model.ground_to_image(ground)
     return np.max(np.hypot(line - lines, sample - samples)[hit])
 
 
@@ -164,7 +167,8 @@ def test_round_trip_on_fixtures(name):
 
 @pytest.mark.data
 @pytest.mark.parametrize("path", [p for p in sorted(SHARED.glob("*/*.json"))
-                                  if p.name != "simpleFramerISD.json"] or [None],
+                                  if p.name not in ("simpleFramerISD.json",
+                                                    "mgsmocna_isd.json")] or [None],
                          ids=lambda p: p.name if p else "absent")
 def test_round_trip_on_shared_isds(path):
     if path is None:

@@ -134,14 +134,21 @@ def test_apollo_cube_model_survives_an_isd_round_trip(tmp_path):
                                model.image_to_ground(line, sample), atol=1e-6)
 
 
-def test_other_instruments_keep_no_distortion(tmp_path):
+def test_other_instruments_with_distortion_keywords_are_refused(tmp_path):
     naif = {k.replace("915240", "123456"): v for k, v in NAIF.items()}
     path = write_cube(tmp_path / "other.cub", naif=naif)
     text = path.read_bytes().replace(b"NaifFrameCode = -915240", b"NaifFrameCode = -123456")
     path.write_bytes(text)
+    with pytest.raises(InputError, match=r"other\.cub: the ISIS camera of NAIF code -123456 "
+                                         r"models lens distortion \(INS-123456_DECENTER\)"):
+        read_cube(path)
+    # without distortion keywords the camera is ideal, and says nothing
+    naif = {k: v for k, v in naif.items() if not k.endswith(("_PP", "_OD_K", "_DECENTER"))}
+    path = write_cube(tmp_path / "ideal.cub", naif=naif)
+    path.write_bytes(path.read_bytes().replace(b"NaifFrameCode = -915240",
+                                               b"NaifFrameCode = -123456"))
     model = read_cube(path)
-    assert model.distortion.model == "none"
-    assert model.notes == ["lens distortion of the ISIS camera model not applied"]
+    assert model.distortion.model == "none" and model.notes == []
 
 
 @pytest.mark.parametrize(("key", "value", "message"), [

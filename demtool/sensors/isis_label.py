@@ -1,0 +1,36 @@
+"""The PVL label of an ISIS3 cube, read once for the camera reader
+(:mod:`demtool.sensors.isis`) and the map-projection reader (:mod:`demtool.sensors.isis_map`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from demtool.errors import InputError
+
+
+def read_label(path: Path) -> tuple[dict, bytes]:
+    import warnings
+
+    with warnings.catch_warnings():  # pvl notes the optional multidict package is absent
+        warnings.simplefilter("ignore", ImportWarning)
+        warnings.simplefilter("ignore", PendingDeprecationWarning)
+        import pvl
+
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read cube ({exc.strerror or exc})") from None
+    if not data.lstrip().startswith(b"Object = IsisCube") and b"IsisCube" not in data[:200]:
+        raise InputError(f"{path}: not an ISIS3 cube (no 'Object = IsisCube' label)")
+    end = data.find(b"\nEnd\n")
+    if end < 0:
+        end = data.find(b"\nEnd\r\n")
+    text = data[: end + 5 if end >= 0 else 65536].decode("latin-1")
+    try:
+        with warnings.catch_warnings():  # pvl's Units class (for '<meters>') is deprecated
+            warnings.simplefilter("ignore", PendingDeprecationWarning)
+            label = pvl.loads(text)
+    except Exception as exc:  # pvl raises several parser errors
+        raise InputError(f"{path}: cannot parse the ISIS label ({str(exc).splitlines()[0]})") \
+            from None
+    return label, data

@@ -31,6 +31,9 @@ from demtool.maps import enu_frame, lonlat_to_map, wrap_longitude, xyz_to_lonlat
 
 #: forward-difference step of the height residual's gradient, metres
 GRADIENT_STEP_M = 0.01
+#: a tie point's height error from a DEM's interpolation, in post spacings × local slope
+#: (the RMS distance to the nearest post of a square grid is 0.38 post)
+INTERPOLATION_FACTOR = 0.4
 
 
 @dataclass(frozen=True)
@@ -50,8 +53,12 @@ class ReferenceSurface:
         The body's reference sphere radius, metres (heights of points are measured
         radially above it).
     sigma : float
-        Standard deviation of the DEM's heights (and of its interpolation to a tie
-        point), metres.
+        Standard deviation of the DEM's heights (noise, and any interpolation error
+        not covered by ``post_m``), metres.
+    post_m : float
+        Post spacing of the DEM, metres (0: the interpolation error is left to
+        ``sigma``).  A tie point's height σ is then :meth:`point_sigmas`: ``sigma``
+        and :data:`INTERPOLATION_FACTOR` × post × local slope added in quadrature.
     """
 
     heights: np.ndarray
@@ -59,6 +66,7 @@ class ReferenceSurface:
     crs: Any
     radius: float
     sigma: float
+    post_m: float = 0.0
 
     def pixels(self, xyz) -> tuple[np.ndarray, np.ndarray]:
         """Fractional (row, col) of ``heights`` below body-fixed points (..., 3) metres
@@ -115,7 +123,38 @@ class ReferenceSurface:
             with np.errstate(invalid="ignore", divide="ignore"):
                 out[r0:r1] = np.where(count * 2 >= factor * factor, total / count, np.nan)
         return ReferenceSurface(out, self.transform @ Affine.scale(factor), self.crs,
-                                self.radius, self.sigma)
+                                self.radius, self.sigma, self.post_m * factor)
+
+    def point_sigmas(self, xyz, gradient=None) -> np.ndarray:
+        """Standard deviation (P,) metres of the DEM's height at body-fixed points (P, 3):
+        ``sqrt(sigma² + (INTERPOLATION_FACTOR · post_m · slope)²)``.
+
+        A gridded DEM (LOLA, MOLA) is a smoothed sample of the ground at its posts; what
+        it cannot show lies within a post and changes the height by about the local
+        slope times the distance to the nearest post (half a post at most, ~0.4 post
+        RMS), so a coarse DEM constrains a tie point on a slope far less than its
+        quoted vertical accuracy (cf. ASP ``bundle_adjust --heights-from-dem-uncertainty``,
+        which the user sets by hand).  The slope is the DEM's own, at its posts
+        (``gradient``: the height residuals' gradient of :meth:`residuals_and_gradient`,
+        whose horizontal part is minus the DEM's gradient).
+        """
+        xyz = np.asarray(xyz, dtype=np.float64)
+        if self.post_m <= 0:
+            return np.full(len(xyz), float(self.sigma))
+        if gradient is None:
+            _, gradient = self.residuals_and_gradient(xyz)
+        up = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+        horizontal = gradient - np.sum(gradient * up, axis=1, keepdims=True) * up
+        slope = np.linalg.norm(np.where(np.isfinite(horizontal), horizontal, 0.0), axis=1)
+        return np.sqrt(self.sigma ** 2 + (INTERPOLATION_FACTOR * self.post_m * slope) ** 2)
+
+    def normalised_residuals(self, xyz) -> np.ndarray:
+        """Height residuals of :meth:`residuals` in units of :meth:`point_sigmas`."""
+        xyz = np.asarray(xyz, dtype=np.float64)
+        if self.post_m <= 0:
+            return self.residuals(xyz) / self.sigma
+        r, gradient = self.residuals_and_gradient(xyz)
+        return r / self.point_sigmas(xyz, gradient)
 
     def residuals(self, xyz) -> np.ndarray:
         """``h(X) − h_DEM(X)`` of body-fixed points (P, 3), metres; NaN off the DEM."""
@@ -301,7 +340,8 @@ def surface_normal_equations(surface: ReferenceSurface, points: np.ndarray, *,
         Height residuals, metres (NaN off the DEM).
     """
     r, jac = surface.residuals_and_gradient(points)
-    w = huber_weights(r / surface.sigma, threshold) / surface.sigma ** 2
+    sigma = surface.point_sigmas(points, jac)
+    w = huber_weights(r / sigma, threshold) / sigma ** 2
     jac = np.where(np.isfinite(jac), jac, 0.0)
     rr = np.where(np.isfinite(r), r, 0.0)
     v = w[:, None, None] * jac[:, :, None] * jac[:, None, :]

@@ -148,8 +148,8 @@ def case(work: Path, frames, label: str, params, frame_model, surface) -> dict:
     dem_path = work / f"{label}_dem.tif"
     report = run_dem(dem_path, DemParams(target=TARGET, distance=distance, mask_band=True),
                      points_path=out)
-    raster = dio.read_raster(dem_path)
-    dem, interpolated = raster.data[0], raster.data[1]
+    dem = dio.read_raster(dem_path, band=1).data
+    interpolated = dio.read_raster(dem_path, band=2).data
     rows, cols = np.nonzero(interpolated == 0)
     z = lola_depths(frame_model, rows.astype(float), cols.astype(float), surface)
     ok = np.isfinite(z) & np.isfinite(dem[rows, cols])

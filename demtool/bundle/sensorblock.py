@@ -200,6 +200,7 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
         summary["reference_dem"] = {
             "sigma_m": surface.sigma,
             "post_spacing_m": surface.post_m,
+            "interpolation_factor": surface.slope_factor,
             "tie_point_sigma_median_m": float(np.median(tie_sigma)),
             "tie_point_sigma_p90_m": float(np.percentile(tie_sigma, 90)),
             "points_on_dem": int(on.sum()),

@@ -102,7 +102,10 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
                      axis=0)
     import dataclasses
 
-    return dataclasses.replace(surface, post_m=surface.post_spacing_m(centre))
+    from demtool.bundle.surface import interpolation_factor
+
+    return dataclasses.replace(surface, post_m=surface.post_spacing_m(centre),
+                               slope_factor=interpolation_factor(heights))
 
 
 def is_radius_map(values: np.ndarray, radius: float, path) -> bool:

@@ -18,8 +18,12 @@ LOLA point; LOLA's heights in the DEM's convention are the depths of those point
 along the camera's axis (eq. 2 with the same D).  Reported: the slope of DEM against
 LOLA heights over the measured cells (intercept and a tilt plane fitted beside it;
 then with a quadratic surface removed from both, i.e. the Moon's curvature and any
-bowl), their correlation, and how much of the DEM is measured.  Target (issue 27):
-with f given, the slope within 5 % of 1.
+bowl), their correlation, and how much of the DEM is measured.  LOLA's 22 km posts
+attenuate the relief between them only partly, which alone pushes a regression of the
+sharp DEM on them above 1 (cov(T, gT) / var(gT) > 1 for a gain 0 < g < 1), so the
+slope is also given with the DEM smoothed as LOLA is (averaged per LOLA post, then
+bilinear between posts): the like-for-like figure.  Target (issue 27): with f given,
+that slope within 5 % of 1.
 
 Usage: ``.venv/bin/python bench/bundle_apollo_scale.py``
 """
@@ -95,9 +99,9 @@ class FrameOfCube:
         return self.model.look_direction(*self._to_cube(line, sample))
 
 
-def lola_depths(frame_model, rows, cols, surface):
+def lola_depths(frame_model, rows, cols, surface, *, points: bool = False):
     """LOLA points under frame pixels (rows, cols; demtool convention) and their depths
-    along the camera axis (the ray of the frame centre), metres."""
+    along the camera axis (the ray of the frame centre), metres (and the points)."""
     line, sample = rows + 0.5, cols + 0.5
     xyz = frame_model.image_to_ground(line, sample, 0.0)
     for _ in range(6):
@@ -108,7 +112,26 @@ def lola_depths(frame_model, rows, cols, surface):
                                                  np.array([FRAME_PX / 2])),
                       dtype=np.float64).reshape(3)
     axis /= np.linalg.norm(axis)
-    return (xyz - centre) @ axis
+    depth = (xyz - centre) @ axis
+    return (depth, xyz) if points else depth
+
+
+def at_lola_resolution(values, xyz, surface):
+    """``values`` (at points ``xyz``) smoothed as LOLA is: averaged over each LOLA post's
+    cell, then interpolated bilinearly between the posts (NaN where a post is empty)."""
+    from demtool.mapproject import bilinear_heights
+
+    row, col = surface.pixels(xyz)
+    r, c = np.rint(row).astype(int), np.rint(col).astype(int)
+    shape = surface.heights.shape
+    inside = (r >= 0) & (r < shape[0]) & (c >= 0) & (c < shape[1])
+    total = np.zeros(shape)
+    count = np.zeros(shape)
+    np.add.at(total, (r[inside], c[inside]), values[inside])
+    np.add.at(count, (r[inside], c[inside]), 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        grid = np.where(count >= 10, total / count, np.nan)
+    return bilinear_heights(grid, row, col)
 
 
 def slope(h_dem, h_ref, rows, cols, *, quadratic: bool) -> tuple[float, float]:
@@ -151,16 +174,24 @@ def case(work: Path, frames, label: str, params, frame_model, surface) -> dict:
     dem = dio.read_raster(dem_path, band=1).data
     interpolated = dio.read_raster(dem_path, band=2).data
     rows, cols = np.nonzero(interpolated == 0)
-    z = lola_depths(frame_model, rows.astype(float), cols.astype(float), surface)
+    z, xyz = lola_depths(frame_model, rows.astype(float), cols.astype(float), surface,
+                         points=True)
     ok = np.isfinite(z) & np.isfinite(dem[rows, cols])
-    rows, cols, z = rows[ok], cols[ok], z[ok]
+    rows, cols, z, xyz = rows[ok], cols[ok], z[ok], xyz[ok]
     h_ref = -(z - z.mean())
     h_dem = dem[rows, cols].astype(np.float64)
     plane, r_plane = slope(h_dem, h_ref, rows, cols, quadratic=False)
     quad, r_quad = slope(h_dem, h_ref, rows, cols, quadratic=True)
+    # the DEM as LOLA's posts would show it: its difference to LOLA's (already smooth)
+    # heights averaged per post and interpolated bilinearly, LOLA's added back (the
+    # difference first, so the steep depth geometry does not meet the bins' centroids)
+    smooth = at_lola_resolution(h_dem - h_ref, xyz, surface) + h_ref
+    use = np.isfinite(smooth)
+    posts, r_posts = slope(smooth[use], h_ref[use], rows[use], cols[use], quadratic=False)
     return {"label": label, "f": f, "decision": decision, "distance_km": distance / 1e3,
             "cells": len(rows), "interpolated": report["interpolated_fraction"],
             "slope": plane, "r": r_plane, "slope_quad": quad, "r_quad": r_quad,
+            "slope_posts": posts, "r_posts": r_posts, "cells_posts": int(use.sum()),
             "mean_px": summary["mean_reprojection_error_px"]}
 
 
@@ -193,17 +224,18 @@ def main() -> None:
     print(f"\nBAM DEM of {TARGET} (bundle of the 4 frames, dem --points) against LOLA "
           f"(f = {FOCAL_MM} mm / {PIXEL_MM:.5f} mm = {FOCAL_MM / PIXEL_MM:.1f} px)")
     print("| case | f px | f decision | D km | mean px | measured cells | interpolated "
-          "| slope (plane) | r | slope (quadratic) | r |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| slope (plane) | r | slope (quadratic) | r | slope at LOLA's posts | r |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['label']} | {r['f']:.1f} | {r['decision']} | {r['distance_km']:.1f} | "
               f"{r['mean_px']:.3f} | {r['cells']} | {100 * r['interpolated']:.1f} % | "
               f"{r['slope']:.3f} | {r['r']:.3f} | {r['slope_quad']:.3f} | "
-              f"{r['r_quad']:.3f} |")
+              f"{r['r_quad']:.3f} | {r['slope_posts']:.3f} | {r['r_posts']:.3f} |")
     given = rows[0]
-    print(f"target: with f given, |slope − 1| ≤ 0.05: "
-          f"{'met' if abs(given['slope'] - 1) <= 0.05 else 'NOT met'} "
-          f"({given['slope'] - 1:+.1%}, quadratic removed {given['slope_quad'] - 1:+.1%})")
+    print(f"target: with f given, |slope − 1| ≤ 0.05 (at LOLA's posts): "
+          f"{'met' if abs(given['slope_posts'] - 1) <= 0.05 else 'NOT met'} "
+          f"({given['slope_posts'] - 1:+.1%}; at every measured cell {given['slope'] - 1:+.1%},"
+          f" quadratic removed {given['slope_quad'] - 1:+.1%})")
     print(json.dumps({r["label"]: r for r in rows}, default=float))
 
 

@@ -53,6 +53,10 @@ log = get_logger(__name__)
 
 #: Largest corner-displacement standard deviation (pixels) of a refined parameter.
 MAX_CORNER_SIGMA_PX = 3.0
+#: A principal point known to more than MAX_CORNER_SIGMA_PX is still kept when its offset
+#: from the image centre is significant (≥ SIGNIFICANCE σ) and σ is at most this (pixels):
+#: it then beats the image centre, which real cameras miss by 10-20 px.
+MAX_PP_SIGMA_PX = 10.0
 #: A distortion term is kept when |value| ≥ SIGNIFICANCE · σ.
 SIGNIFICANCE = 3.0
 #: Fewest registered images seeing a camera before its intrinsics are self-calibrated.
@@ -230,6 +234,19 @@ def _worst_failure(reconstruction, covariances, distortion, free_pp, sigma0_sq,
             ratio = corner_sigma / MAX_CORNER_SIGMA_PX
             reason = (f"σ moves the image corner by {corner_sigma:.3g} px "
                       f"(> {MAX_CORNER_SIGMA_PX} px)")
+            if name in ("cx", "cy") and ratio > 1.0 and corner_sigma <= MAX_PP_SIGMA_PX:
+                # the image centre is a guess too (real cameras miss it by 10-20 px): an
+                # estimate significantly away from it, known better than that, is kept
+                by_name = dict(zip(names, sigma, strict=True))
+                t = max(abs(camera.principal_point_x - 0.5 * camera.width)
+                        / max(by_name["cx"], 1e-300),
+                        abs(camera.principal_point_y - 0.5 * camera.height)
+                        / max(by_name["cy"], 1e-300))
+                if t >= SIGNIFICANCE:
+                    ratio = 0.0
+                else:
+                    reason += (f", and its offset from the image centre is not significant "
+                               f"(|offset|/σ = {t:.2f} < {SIGNIFICANCE:g})")
             if name in values and ratio <= 1.0:
                 t = abs(values[name]) / max(s, 1e-300)
                 correlation = det.row(name)["pose_correlation"] if det is not None else 0.0
@@ -292,7 +309,8 @@ def _determinability(reconstruction, cameras, names):
 
 
 def self_calibrate(reconstruction, *, workers: int = 0,
-                   focal_prior_px: float | None = None) -> dict[str, Any]:
+                   focal_prior_px: float | None = None,
+                   focal_known: bool = False) -> dict[str, Any]:
     """Refine the focal length, principal point and radial terms where the block
     determines them.
 
@@ -302,7 +320,9 @@ def self_calibrate(reconstruction, *, workers: int = 0,
     point) are fixed one at a time while one fails its test; then the focal length is
     tested (:func:`_focal_failure`) and, where the block does not determine it, set
     to ``focal_prior_px`` (default :func:`prior_focal_px`) and held there, with one
-    warning saying what the user can give instead.
+    warning saying what the user can give instead.  With ``focal_known`` the focal
+    length is the user's (``focal_prior_px``, or the camera's) and stays fixed; the
+    principal point and radial terms are still tested.
 
     Returns
     -------
@@ -330,7 +350,10 @@ def self_calibrate(reconstruction, *, workers: int = 0,
         return {"refined": ["f", "k1"], "reason": reason,
                 "decisions": {"f": {"status": "estimated, not tested", "reason": reason}}}
     distortion: tuple[str, ...] = ("k1", "k2")
-    free_pp = free_f = True
+    free_pp, free_f = True, not focal_known
+    if focal_known and focal_prior_px is None:
+        camera = reconstruction.camera(cameras[0])
+        focal_prior_px = float(np.mean(camera.params[camera.focal_length_idxs()]))
     fixed: dict[str, str] = {}
     focal_report: dict[str, Any] = {}
     determinability: dict = {}
@@ -402,6 +425,8 @@ def self_calibrate(reconstruction, *, workers: int = 0,
                    "corner_sigma_px": s * sensitivity[name]}
             if det is not None:
                 row["pose_correlation"] = det.row(name)["pose_correlation"]
+        elif name == "f" and focal_known:
+            row = {"status": "given", "value": values[name]}
         else:
             row = {"status": "prior", "value": values[name], "reason": fixed.get(name, "")}
             if name == "f":

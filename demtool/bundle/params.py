@@ -37,7 +37,8 @@ class BundleParams(Parameters):
         None, "COLMAP camera model (pinhole, optionally with radial distortion); default "
         "SIMPLE_RADIAL (f, k), or PINHOLE with known intrinsics.", choices=CAMERA_MODELS,
         what="camera model")
-    self_calibrate: bool = parameter(True, "With free intrinsics, refine the principal point "
+    self_calibrate: bool = parameter(True, "With free intrinsics (or a focal length alone), "
+                                     "refine the focal length, the principal point "
                                      "and radial terms k1, k2 where the block determines "
                                      "them.")
     matcher: str = parameter(CORE["matcher"], "Pair selection: all pairs, neighbours in "

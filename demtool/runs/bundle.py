@@ -146,11 +146,14 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
         seed=params.seed, workers=params.workers)
     adjusted = core.adjust_block(images(), options, target=block.target, intrinsics=intrinsics,
                                  self_calibration=params.self_calibrate,
+                                 focal_only=focal_px is not None,
                                  keep_model=colmap_dir is not None)
     result, summary = adjusted.result, adjusted.summary
     summary["source"] = block.source
-    if known:
+    if known and "decisions" not in summary["intrinsics"]:
         summary["intrinsics"]["decisions"] = known_decisions(params, cameras_path)
+    elif known:
+        summary["intrinsics"]["decisions"]["f"].update(known_decisions(params, None)["f"])
     if known_centres is not None:
         result, alignment = core.align_to_centres(result, known_centres)
         log.info("aligned to %d known camera centres: scale %.6g, centre RMS %.3g m",

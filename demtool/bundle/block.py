@@ -57,7 +57,7 @@ COLMAP_PERCENTILES = (0.1, 99.9)
 
 def adjust_block(images: Iterable[tuple[str, np.ndarray]], options: SfmOptions, *,
                  target: str | None = None, self_calibration: bool = True,
-                 keep_model: bool = False,
+                 keep_model: bool = False, focal_only: bool = False,
                  intrinsics: Callable[[dict[str, tuple[int, int]]],
                                       Mapping[str, KnownIntrinsics] | None] | None = None,
                  ) -> BlockAdjustment:
@@ -77,6 +77,10 @@ def adjust_block(images: Iterable[tuple[str, np.ndarray]], options: SfmOptions, 
         (free intrinsics only).
     keep_model : bool
         Return COLMAP's binary model files too.
+    focal_only : bool
+        The known intrinsics give only the focal length (principal point at the image
+        centre by default): with ``self_calibration``, the principal point and radial
+        terms are then tested with f held (:func:`calibration.self_calibrate`).
     intrinsics : callable, optional
         Known intrinsics from the image shapes ((height, width) by view name), once
         the images are read; replaces ``options.intrinsics`` unless it returns None.
@@ -120,7 +124,14 @@ def adjust_block(images: Iterable[tuple[str, np.ndarray]], options: SfmOptions, 
         known = options.intrinsics
         if known and mapping["free_fallback"]:
             impose_intrinsics(model, known, files, workers=options.workers)
-        if known:
+        if known and self_calibration and focal_only and not any(
+                k.refine for k in known.values()):
+            # a focal length alone (--focal-px, --focal-mm): the principal point and the
+            # lens distortion are still the block's to determine, f held
+            intrinsics = {"mode": "known focal length",
+                          **calibration.self_calibrate(model, workers=options.workers,
+                                                       focal_known=True)}
+        elif known:
             intrinsics = {"mode": "known, imposed after free mapping" if mapping["free_fallback"]
                           else "known", "refined": ["f"] if any(k.refine for k in
                                                                 known.values()) else []}

@@ -73,7 +73,7 @@ def _surface_cost(surface, points, threshold: float) -> float:
         return 0.0
     from demtool.bundle.surface import huber_cost
 
-    return huber_cost(surface.residuals(points) / surface.sigma, threshold)
+    return huber_cost(surface.normalised_residuals(points), threshold)
 
 
 @dataclass

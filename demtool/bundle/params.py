@@ -20,6 +20,13 @@ class BundleParams(Parameters):
 
     focal_px: float | None = parameter(None, "Known focal length, pixels (principal point at "
                                        "the image centre).", minimum=0.0, min_open=True)
+    focal_mm: float | None = parameter(None, "Known focal length, millimetres (with "
+                                       "--pixel-mm; a metric camera's calibration).",
+                                       minimum=0.0, min_open=True)
+    pixel_mm: float | None = parameter(None, "Pixel pitch of the images as given, "
+                                       "millimetres (the detector's or the scan's pitch "
+                                       "times any downsampling; with --focal-mm).",
+                                       minimum=0.0, min_open=True)
     refine_intrinsics: bool = parameter(False, "Let bundle adjustment refine known focal "
                                         "lengths (default: fixed).",
                                         flag="--refine-intrinsics")
@@ -30,7 +37,8 @@ class BundleParams(Parameters):
         None, "COLMAP camera model (pinhole, optionally with radial distortion); default "
         "SIMPLE_RADIAL (f, k), or PINHOLE with known intrinsics.", choices=CAMERA_MODELS,
         what="camera model")
-    self_calibrate: bool = parameter(True, "With free intrinsics, refine the principal point "
+    self_calibrate: bool = parameter(True, "With free intrinsics (or a focal length alone), "
+                                     "refine the focal length, the principal point "
                                      "and radial terms k1, k2 where the block determines "
                                      "them.")
     matcher: str = parameter(CORE["matcher"], "Pair selection: all pairs, neighbours in "
@@ -50,8 +58,9 @@ class BundleParams(Parameters):
                                       "prior pointing, milliradians.", minimum=0.0,
                                       min_open=True)
     reference_dem_sigma: float = parameter(10.0, "With --reference-dem: standard deviation "
-                                           "of its heights at the tie points (noise and "
-                                           "interpolation), metres.", minimum=0.0,
+                                           "of its heights (noise), metres; each tie point "
+                                           "adds the DEM's interpolation error, 0.4 x its "
+                                           "post spacing x the local slope.", minimum=0.0,
                                            min_open=True)
     refine_ties: bool = parameter(True, "With sensor models: re-measure the SIFT tie "
                                   "points by affine least-squares matching (removes "
@@ -64,3 +73,18 @@ class BundleParams(Parameters):
                                       flag="--register-to-dem/--no-register-to-dem")
     seed: int = seed_field()
     workers: int = workers_field()
+
+    def check(self) -> None:
+        super().check()
+        if (self.focal_mm is None) != (self.pixel_mm is None):
+            given, missing = (("focal_mm", "--pixel-mm") if self.pixel_mm is None
+                              else ("pixel_mm", "--focal-mm"))
+            self.fail(given, f"needs {missing} (the focal length in pixels is their ratio)")
+        if self.focal_mm is not None and self.focal_px is not None:
+            self.fail("focal_px", "and --focal-mm both give the focal length; give one")
+
+    def known_focal_px(self) -> float | None:
+        """The known focal length in pixels: --focal-px, or --focal-mm / --pixel-mm."""
+        if self.focal_mm is not None and self.pixel_mm is not None:
+            return self.focal_mm / self.pixel_mm
+        return self.focal_px

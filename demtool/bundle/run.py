@@ -71,6 +71,7 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
     from demtool.sensors.pinhole import cameras_from_arrays
 
     params = params or BundleParams()
+    params.check()
     started = time.perf_counter()
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
@@ -125,16 +126,18 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
                                      f"{data.shape[0]}")
             yield name, data
 
+    focal_px = params.known_focal_px()
+
     def intrinsics(shapes):
-        if params.focal_px is None and known_cameras is None:
+        if focal_px is None and known_cameras is None:
             return None
         return core.known_intrinsics(
-            shapes, focal_px=params.focal_px, refine=params.refine_intrinsics,
+            shapes, focal_px=focal_px, refine=params.refine_intrinsics,
             matrices=None if known_cameras is None else
             {n: known_cameras[n].K for n in block.names})
 
     core.set_colmap_verbosity(verbose)
-    known = params.focal_px is not None or known_cameras is not None
+    known = focal_px is not None or known_cameras is not None
     options = core.SfmOptions(
         shared_camera=params.shared_camera,
         camera_model=params.camera_model or ("PINHOLE" if known else "SIMPLE_RADIAL"),
@@ -143,9 +146,14 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
         seed=params.seed, workers=params.workers)
     adjusted = core.adjust_block(images(), options, target=block.target, intrinsics=intrinsics,
                                  self_calibration=params.self_calibrate,
+                                 focal_only=focal_px is not None,
                                  keep_model=colmap_dir is not None)
     result, summary = adjusted.result, adjusted.summary
     summary["source"] = block.source
+    if known and "decisions" not in summary["intrinsics"]:
+        summary["intrinsics"]["decisions"] = known_decisions(params, cameras_path)
+    elif known:
+        summary["intrinsics"]["decisions"]["f"].update(known_decisions(params, None)["f"])
     if known_centres is not None:
         result, alignment = core.align_to_centres(result, known_centres)
         log.info("aligned to %d known camera centres: scale %.6g, centre RMS %.3g m",
@@ -174,6 +182,49 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
         summary["time_s"] = round(time.perf_counter() - started, 2)
         prov.write_sidecar(out, summary, outputs=outputs)
     return summary
+
+
+#: a camera moved farther than this many σ of its priors gets a warning
+FAR_MOVE_SIGMAS = 3.0
+
+
+def warn_far_moves(summary: dict, params, log, *, reference: bool) -> None:
+    """One warning per image moved more than :data:`FAR_MOVE_SIGMAS` σ of its priors,
+    naming the σ to raise (the priors', or the reference DEM's that pulls the block)."""
+    for name, row in summary["images"].items():
+        far = []
+        if row["position_change_prior_sigmas"] > FAR_MOVE_SIGMAS:
+            far.append(f"position by {row['position_change_m']:.1f} m = "
+                       f"{row['position_change_prior_sigmas']:.1f} sigma "
+                       f"(--position-sigma {params.position_sigma:g} m)")
+        if row["pointing_change_prior_sigmas"] > FAR_MOVE_SIGMAS:
+            far.append(f"pointing by {row['pointing_change_mrad']:.3g} mrad = "
+                       f"{row['pointing_change_prior_sigmas']:.1f} sigma "
+                       f"(--pointing-sigma {params.pointing_sigma:g} mrad)")
+        if far:
+            options = " or ".join(o for o, moved in
+                                  (("--position-sigma", "position" in far[0]),
+                                   ("--pointing-sigma", "pointing" in far[-1])) if moved)
+            log.warning("%s moved %s, more than %g sigma of its priors: raise %s if the "
+                        "priors are that far off%s", name, " and ".join(far),
+                        FAR_MOVE_SIGMAS, options,
+                        ", or --reference-dem-sigma if the reference DEM pulls the block"
+                        if reference else "")
+
+
+def known_decisions(params, cameras_path) -> dict:
+    """The sidecar's per-parameter record of user-given intrinsics."""
+    if cameras_path is not None:
+        source = f"--cameras {cameras_path}"
+    elif params.focal_mm is not None:
+        source = f"--focal-mm {params.focal_mm:g} / --pixel-mm {params.pixel_mm:g}"
+    else:
+        source = f"--focal-px {params.focal_px:g}"
+    f_status = "given, refined" if params.refine_intrinsics else "given"
+    pp = "given" if cameras_path is not None else "image centre (given focal length only)"
+    return {"f": {"status": f_status, "source": source,
+                  **({"value": params.known_focal_px()} if cameras_path is None else {})},
+            "cx": {"status": pp}, "cy": {"status": pp}}
 
 
 def sensor_models_of(block: Block, sensors: Sequence[str | os.PathLike] | None
@@ -214,7 +265,8 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
     from demtool.sensors import read_sensor
     from demtool.sensors.readers import _sniff
 
-    for option, value in {**(other_options or {}), "--focal-px": params.focal_px}.items():
+    for option, value in {**(other_options or {}), "--focal-px": params.focal_px,
+                          "--focal-mm": params.focal_mm}.items():
         if value is not None:
             raise ParameterError(f"{option} does not apply with sensor models (--sensors or "
                                  "cubes)")
@@ -292,16 +344,22 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
              summary["observations"], summary["initial_rms_reprojection_error_px"],
              summary["mean_reprojection_error_px"])
     for name, row in summary["images"].items():
-        log.info("  %-20s %6d observations, residual mean %.3f px, position %+.2f m, "
-                 "pointing %.4f mrad", name, row["observations"],
+        log.info("  %-20s %6d observations, residual mean %.3f px, position %+.2f m "
+                 "(%.2f sigma), pointing %.4f mrad (%.2f sigma)", name, row["observations"],
                  row["mean_residual_px"] or float("nan"), row["position_change_m"],
-                 row["pointing_change_mrad"])
+                 row["position_change_prior_sigmas"], row["pointing_change_mrad"],
+                 row["pointing_change_prior_sigmas"])
+    warn_far_moves(summary, params, log, reference=reference_dem is not None)
     if "reference_dem" in summary:
         dem = summary["reference_dem"]
         log.info("reference DEM: %d tie points on it, height residual median %.2f m, "
-                 "RMS %.2f m (sigma %.2f m)", dem["points_on_dem"],
+                 "RMS %.2f m (sigma %.2f m and %.2f x its %.0f m posts x the local slope: "
+                 "median %.1f m, 90th percentile %.1f m)", dem["points_on_dem"],
                  dem["height_residual_median_m"] or float("nan"),
-                 dem["height_residual_rms_m"] or float("nan"), dem["sigma_m"])
+                 dem["height_residual_rms_m"] or float("nan"), dem["sigma_m"],
+                 dem["interpolation_factor"], dem["post_spacing_m"],
+                 dem["tie_point_sigma_median_m"],
+                 dem["tie_point_sigma_p90_m"])
         if not dem["points_on_dem"]:
             log.warning("no tie point lies on the reference DEM's data: the block's datum "
                         "is the priors' alone")

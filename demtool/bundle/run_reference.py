@@ -13,7 +13,8 @@ import numpy as np
 
 
 def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
-                           sensor_paths: Sequence[str | os.PathLike], *, sigma: float):
+                           sensor_paths: Sequence[str | os.PathLike], *, sigma: float,
+                           slope_sigma: bool = True):
     """The reference DEM under the images, heights above the models' body's sphere.
 
     Parameters
@@ -28,6 +29,9 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
         The models' files, for messages.
     sigma : float
         Standard deviation of the DEM's heights, metres.
+    slope_sigma : bool
+        Add each tie point's interpolation error, post spacing × local slope
+        (:meth:`demtool.bundle.surface.ReferenceSurface.point_sigmas`), to ``sigma``.
 
     Raises
     ------
@@ -83,8 +87,36 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
     if c1 <= c0 or r1 <= r0:
         raise InputError(f"{path}: reference DEM does not cover the images' footprints")
     heights = dio.read_window(path, (r0, r1, c0, c1), what="reference DEM")
-    heights = heights.astype(np.float64) + dem.offset_m
+    heights = heights.astype(np.float64)
     if not np.isfinite(heights).any():
         raise InputError(f"{path}: reference DEM has no data under the images' footprints")
-    return ReferenceSurface(heights=heights, transform=t @ Affine.translation(c0, r0),
-                            crs=crs, radius=body.radius, sigma=float(sigma))
+    if is_radius_map(heights, body.radius, path):
+        heights = heights - body.radius
+    else:
+        heights = heights + dem.offset_m
+    surface = ReferenceSurface(heights=heights, transform=t @ Affine.translation(c0, r0),
+                               crs=crs, radius=body.radius, sigma=float(sigma))
+    if not slope_sigma:
+        return surface
+    centre = np.nanmean(np.concatenate([ground_footprint(m, body.radius, 0.0) for m in models]),
+                     axis=0)
+    import dataclasses
+
+    from demtool.bundle.surface import interpolation_factor
+
+    return dataclasses.replace(surface, post_m=surface.post_spacing_m(centre),
+                               slope_factor=interpolation_factor(heights))
+
+
+def is_radius_map(values: np.ndarray, radius: float, path) -> bool:
+    """Whether a DEM's values (metres) are radii rather than heights: ISIS shape models
+    such as LOLA's ``ldem_*.cub`` store the distance from the body's centre, and their
+    median exceeds half the body's radius, which no height does (one log line)."""
+    median = float(np.nanmedian(values))
+    if abs(median) <= 0.5 * radius:
+        return False
+    from demtool.logs import get_logger
+
+    get_logger("demtool.bundle").info("reference DEM %s holds radii (median %.1f m): heights "
+                                      "are the radii minus %.1f m", path, median, radius)
+    return True

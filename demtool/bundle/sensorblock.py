@@ -165,7 +165,12 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
                           distortion=np.zeros((len(names), 2)), target_index=0, aligned=True)
     images_report = adjustment.image_report(names)
     for name, fit in zip(names, fits, strict=True):
-        images_report[name]["pinhole_fit_rms_px"] = fit
+        row = images_report[name]
+        row["pinhole_fit_rms_px"] = fit
+        # the move from the prior in units of the prior's σ (per axis; a 3-D move of
+        # 3σ along one axis reads 3)
+        row["position_change_prior_sigmas"] = row["position_change_m"] / position_sigma
+        row["pointing_change_prior_sigmas"] = row["pointing_change_mrad"] / pointing_sigma
     summary: dict[str, Any] = {
         "images_given": list(names),
         "registered": list(names),
@@ -191,8 +196,13 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
     if surface is not None:
         dh = adjustment.surface_residuals
         on = np.isfinite(dh)
+        tie_sigma = surface.point_sigmas(adjustment.points)
         summary["reference_dem"] = {
             "sigma_m": surface.sigma,
+            "post_spacing_m": surface.post_m,
+            "interpolation_factor": surface.slope_factor,
+            "tie_point_sigma_median_m": float(np.median(tie_sigma)),
+            "tie_point_sigma_p90_m": float(np.percentile(tie_sigma, 90)),
             "points_on_dem": int(on.sum()),
             "height_residual_median_m": float(np.median(dh[on])) if on.any() else None,
             "height_residual_rms_m": float(np.sqrt(np.mean(dh[on] ** 2)))

@@ -17,7 +17,7 @@ mean plane), and the LSM position of the template centre replaces the SIFT posit
 Observations whose LSM fails, correlates poorly, or moves more than ``max_move_px``
 from the SIFT prediction are dropped; tracks left with one view go.  On rendered
 orbital blocks this halves the observations' error against the truth and the block's
-offset (README, bundle, issue 14).
+offset (docs/stages/bundle.md, issue 14).
 
 References
 ----------
@@ -102,7 +102,7 @@ def refine_observations(images: Sequence[np.ndarray], obs: Observations, *,
     weighting : float
         Gaussian weighting of the template (σ, pixels; 0 = uniform, Grün's LSM).  On
         rendered orbital blocks 3 px left the block closer to the truth than uniform
-        weights (README, issue 14).
+        weights (docs/stages/bundle.md, issue 14).
     max_move_px : float
         Largest distance between an LSM position and its SIFT prediction (the SIFT
         observation moved by the reference's snap to its pixel centre), pixels.

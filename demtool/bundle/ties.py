@@ -45,7 +45,7 @@ def features_per_image(shape: tuple[int, ...]) -> int:
     (as ASP's ``--ip-per-tile`` densifies them): one keypoint per
     :data:`PIXELS_PER_FEATURE` pixels, at least :data:`MIN_FEATURES` (small images) and
     at most :data:`MAX_FEATURES` (matching time and memory).  On the rendered 2048 px
-    orbital blocks of issue 14 (README ``bundle``), 8192 → 65536 keypoints per image took
+    orbital blocks of issue 14 (docs/stages/bundle.md), 8192 → 65536 keypoints per image took
     the largest position error over four seeds from 5.3 m to 2.5 m.
     """
     pixels = int(shape[0]) * int(shape[1])

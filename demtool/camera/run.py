@@ -197,7 +197,7 @@ def run_camera(models: Sequence[str | os.PathLike], params: CameraParams | None 
     Returns
     -------
     dict
-        ``cameras`` and ``pairs`` (keys: README, section "camera"); each camera also
+        ``cameras`` and ``pairs`` (keys: docs/stages/camera.md); each camera also
         has ``file``.
     """
     from demtool import io as dio

@@ -19,8 +19,12 @@ exhaustive or sequential (strips: neighbours in input order) matching with geome
 verification, incremental mapping with bundle adjustment.  By default all images
 share one camera: COLMAP estimates its focal length and a radial term while
 mapping, then a self-calibration frees the principal point and a second radial term
-and keeps each only where the block determines it (docs/stages/bundle.md).  --focal-px or
---cameras give known intrinsics (fixed unless --refine-intrinsics; one mapping pass).
+and keeps each only where the block determines it (docs/stages/bundle.md); a focal length
+the block does not determine (a near-flat strip trades it for the flying height) is
+kept at the prior, 1.2 x the image size, with a warning.  --focal-px, --focal-mm with
+--pixel-mm (a metric camera: the pitch of the images as given, downsampling included)
+or --cameras give known intrinsics (fixed unless --refine-intrinsics; one mapping
+pass), and with them the relief's scale.
 The largest model is written to OUT (bundle.npz: points, intensities, track lengths,
 reprojection errors, cameras, target index) with the sidecar OUT.json (registered
 images, per-image observations and residuals, refined intrinsics and their standard
@@ -80,6 +84,7 @@ def command(ctx: click.Context, inputs: tuple[str, ...], images: str | None, out
     from demtool.cli import AppState
 
     options.exclusive({"--focal-px": values["focal_px"] is not None,
+                       "--focal-mm": values["focal_mm"] is not None,
                        "--cameras": cameras is not None})
     options.exclusive({"INPUTS": bool(inputs), "--images": images is not None},
                       exactly_one=True)

@@ -16,6 +16,10 @@ if TYPE_CHECKING:
     from demtool.dem.params import DemParams
 
 
+#: a points-route DEM measured on less than this share of its cells gets a warning
+SPARSE_MEASURED = 0.05
+
+
 def _points_route(points_path: str | os.PathLike, *, target: str | None,
                   distance_m: float | None, scene: dict[str, Any],
                   scene_path: str | os.PathLike | None, outliers: OutlierOptions,
@@ -285,6 +289,8 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
         "height_min_m": float(result.dem.min()),
         "height_max_m": float(result.dem.max()),
         "interpolated_fraction": float(interpolated.mean()),
+        "measured_cells": int(np.count_nonzero(interpolated == 0)),
+        "interpolated_cells": int(np.count_nonzero(interpolated)),
         **extra,
         **result.report,
     }
@@ -292,6 +298,12 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
              result.dem.shape[1], result.dem.shape[0], target_name, route, gsd,
              100 * result.report["measured_fraction"], summary["height_min_m"],
              summary["height_max_m"])
+    if points_path is not None and result.report["measured_fraction"] < SPARSE_MEASURED:
+        log.warning("%.1f %% of the DEM is interpolated: %d cells measured (%d bundle points "
+                    "in the target), the heights between them are the gap filling's; give "
+                    "dem --points a denser source for measured detail",
+                    100 * summary["interpolated_fraction"], summary["measured_cells"],
+                    result.report["points_in_target"])
     tags = prov.tags(frame=f"image:{target_name}", dem_route=route, gsd_m=gsd,
                      units="metres, positive toward the camera", target=target_name,
                      **({"distance_m": extra["distance_m"]} if extra.get("distance_m") else {}))

@@ -6,7 +6,7 @@
   (one task each at a time, so one tile's memory per process), the compiled kernels of a
   tile using ``cores // N`` threads.
 - ``--scheduler ADDRESS``: the tiles are submitted to a running scheduler (one started in
-  a batch job, or by ``dask-jobqueue``'s ``SLURMCluster``; README, "Scale"); the workers
+  a batch job, or by ``dask-jobqueue``'s ``SLURMCluster``; docs/stages/scale.md); the workers
   must see the input files and the work folder at the same paths (a shared file system).
 
 Every task computes one tile and saves its core in the :class:`demtool.tiling.TileCache`

@@ -59,6 +59,11 @@ def test_ring_free_intrinsics_recovers_principal_point(ring_dir, tmp_path):
         assert abs(camera.K[1, 2] - true_K[1, 2]) < 1.0
         assert camera.K[0, 0] == pytest.approx(true_K[0, 0], rel=0.005)
     assert intrinsics["sigma"]["cx"] > 0 and intrinsics["sigma"]["f"] > 0
+    # issue 27: the ring determines f (σ at the corners, on the relief, pose correlation)
+    f_decision = intrinsics["decisions"]["f"]
+    assert f_decision["status"] == "estimated" and f_decision["pose_correlation"] < 0.99
+    assert f_decision["sigma"] < 0.005 * f_decision["value"]
+    assert intrinsics["decisions"]["k2"]["status"] == "prior"
     np.testing.assert_array_less(np.abs(bundle["distortion"]), 1e-12)
     errors = rotation_errors_deg(cameras, truth)
     assert np.max(errors) < 0.05, errors

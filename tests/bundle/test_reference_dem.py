@@ -209,3 +209,32 @@ def test_reference_dem_sigma_must_be_positive(sensor_files, tmp_path):
     result = _run(tmp_path, *sensor_files, dem, "--reference-dem-sigma", "0")
     assert result.exit_code == 2 and "--reference-dem-sigma" in result.output
     assert not (tmp_path / "bundle.npz").exists()
+
+
+def test_radius_maps_are_read_as_heights():
+    """An ISIS shape model stores radii (LOLA's ldem): its values minus the radius."""
+    from demtool.bundle.run_reference import is_radius_map
+
+    radius = 1_737_400.0
+    assert is_radius_map(np.array([[radius + 3000.0, radius - 1500.0]]), radius, "ldem.cub")
+    assert not is_radius_map(np.array([[3000.0, -1500.0, np.nan]]), radius, "dem.tif")
+
+
+def test_a_camera_moved_beyond_three_sigma_gets_one_warning_naming_the_sigma(caplog):
+    import logging
+
+    from demtool.bundle.params import BundleParams
+    from demtool.bundle.run import warn_far_moves
+
+    summary = {"images": {
+        "near": {"position_change_m": 50.0, "position_change_prior_sigmas": 0.5,
+                 "pointing_change_mrad": 0.4, "pointing_change_prior_sigmas": 0.4},
+        "far": {"position_change_m": 720.0, "position_change_prior_sigmas": 7.2,
+                "pointing_change_mrad": 0.5, "pointing_change_prior_sigmas": 0.5}}}
+    log = logging.getLogger("test.far_moves")
+    with caplog.at_level(logging.WARNING, logger="test.far_moves"):
+        warn_far_moves(summary, BundleParams(), log, reference=True)
+    messages = [r.getMessage() for r in caplog.records]
+    assert len(messages) == 1 and messages[0].startswith("far moved position by 720.0 m")
+    assert "7.2 sigma" in messages[0] and "--position-sigma" in messages[0]
+    assert "--pointing-sigma" not in messages[0] and "--reference-dem-sigma" in messages[0]

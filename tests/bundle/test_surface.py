@@ -82,3 +82,38 @@ def test_coarsened_dem_is_the_block_mean():
     xyz = orbital.ground_points(200, half_width_m=30e3, seed=4)
     assert coarse.dem_heights(xyz) == pytest.approx(surface.dem_heights(xyz), abs=10.0)
     assert surface.coarsened(1) is surface
+
+
+def test_interpolation_factor_measures_what_bilinear_misses():
+    """A plane is interpolated exactly (factor 0); a random walk's relief between posts
+    is missed by a fixed share of post × slope, whatever its amplitude."""
+    from demtool.bundle.surface import interpolation_factor
+
+    rows, cols = np.mgrid[0:40, 0:40].astype(float)
+    assert interpolation_factor(30.0 * rows - 7.0 * cols) == pytest.approx(0.0, abs=1e-9)
+    rng = np.random.default_rng(1)
+    walk = np.cumsum(np.cumsum(rng.normal(size=(40, 40)), axis=0), axis=1)
+    factor = interpolation_factor(walk)
+    assert 0.05 < factor < 1.0
+    assert interpolation_factor(100.0 * walk) == pytest.approx(factor)
+    assert interpolation_factor(walk[:3, :3]) == 0.4  # too small to tell: the default
+
+
+def test_point_sigmas_grow_with_post_spacing_and_slope():
+    """σ² = sigma² + (factor · post · slope)²: flat ground keeps sigma, a 10 % slope under
+    2 km posts at factor 0.25 adds 50 m."""
+    import dataclasses
+
+    surface = _surface(spacing_m=500.0)
+    xyz = orbital.ground_points(200, half_width_m=30e3, seed=9)
+    assert surface.point_sigmas(xyz) == pytest.approx(5.0)  # no post spacing: sigma alone
+    coarse = dataclasses.replace(surface, post_m=2000.0, slope_factor=0.25)
+    _, gradient = surface.residuals_and_gradient(xyz)
+    up = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+    slope = np.linalg.norm(gradient - np.sum(gradient * up, axis=1, keepdims=True) * up, axis=1)
+    expected = np.sqrt(25.0 + (0.25 * 2000.0 * slope) ** 2)
+    assert coarse.point_sigmas(xyz) == pytest.approx(expected, rel=1e-6)
+    assert coarse.normalised_residuals(xyz) == pytest.approx(
+        surface.residuals(xyz) / expected, abs=1e-9)
+    # a coarse DEM on a slope weighs a tie point less than its quoted accuracy
+    assert np.median(coarse.point_sigmas(xyz)) > 2 * 5.0

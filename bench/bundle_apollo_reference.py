@@ -1,0 +1,143 @@
+"""Issue 27: the Apollo 15 cube pair adjusted with LOLA as ``--reference-dem``.
+
+Reads ``../shared/data/sensors/apollo15_cubes`` (AS15-M-0297_crop, 0298_crop: ISIS
+cubes with SPICE) and ``../shared/data/dems/ldem_4_reduced.cub`` (LOLA radii, 22 km
+posts); skipped with a message when absent (``DEMTOOL_SHARED_DATA`` points elsewhere).
+
+Three adjustments of the pair (``bundle --matcher spatial``, priors 100 m / 1 mrad):
+priors only; LOLA with one σ for every tie point (``--reference-dem-sigma`` 10 m, the
+tie-point σ before issue 27); LOLA with the defaults (10 m plus the DEM's
+interpolation error, post spacing × local slope × the factor measured on LOLA itself).
+Each row: the mean tie residual, each camera's move in units of its prior σ, the
+tie points' heights minus LOLA (median, NMAD) and, through the adjusted models,
+``rectify`` → ``sgm`` → ``dem`` (the calibrated sensor route) and that DEM minus LOLA
+(median, NMAD, over the DEM's cells).  Targets (issue 27, defaults): |median| < 100 m,
+NMAD ≤ 350 m, mean tie residual ≤ 0.15 px.
+
+Usage: ``.venv/bin/python bench/bundle_apollo_reference.py [--no-dem]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+DATA = Path(os.environ.get("DEMTOOL_SHARED_DATA", "")
+            or Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
+CUBES = DATA / "sensors" / "apollo15_cubes"
+LEFT, RIGHT = CUBES / "AS15-M-0297_crop.cub", CUBES / "AS15-M-0298_crop.cub"
+LOLA = DATA / "dems" / "ldem_4_reduced.cub"
+
+
+def nmad(values: np.ndarray) -> float:
+    values = values[np.isfinite(values)]
+    return float(1.4826 * np.median(np.abs(values - np.median(values))))
+
+
+def dem_minus_lola(work: Path, adjusted: Path, surface) -> np.ndarray:
+    """rectify → sgm → dem through the adjusted models; DEM − LOLA per valid cell."""
+    from demtool import io as dio
+    from demtool.dem.params import DemParams
+    from demtool.dem.run import run_dem
+    from demtool.maps import map_to_xyz, to_pyproj_crs
+    from demtool.rectify.params import RectifyParams
+    from demtool.rectify.run import run_rectify
+    from demtool.sgm.params import SgmParams
+    from demtool.sgm.run import run_sgm
+
+    rect = work / "rect"
+    run_rectify(LEFT, RIGHT, rect, RectifyParams(),
+                sensor_left=adjusted / f"{LEFT.stem}.json",
+                sensor_right=adjusted / f"{RIGHT.stem}.json")
+    run_sgm(rect / "left_rect.tif", rect / "right_rect.tif", work / "disparity.tif",
+            SgmParams(), rectify=rect / "rectify.npz")
+    run_dem(work / "dem.tif", DemParams(), disparity_path=work / "disparity.tif",
+            rectify_path=rect / "rectify.npz", mask_path=work / "filled.tif")
+    dem = dio.read_raster(work / "dem.tif")
+    filled = dio.read_raster(work / "filled.tif").data
+    heights = dem.data
+    rows, cols = np.nonzero(np.isfinite(heights) & (filled == 0))
+    t = dem.transform
+    x = t.c + (cols + 0.5) * t.a
+    y = t.f + (rows + 0.5) * t.e
+    xyz = map_to_xyz(to_pyproj_crs(dem.crs), x, y, heights[rows, cols].astype(np.float64))
+    return surface.residuals(xyz)
+
+
+def case(work: Path, label: str, params, *, reference: bool, flat_sigma: bool,
+         surface, with_dem: bool) -> dict:
+    import demtool.bundle.run_reference as reference_module
+    from demtool import io as dio
+    from demtool.bundle.run import run_bundle
+
+    original = reference_module.read_reference_surface
+    if flat_sigma:  # issue 27's "before": one σ for every tie point
+        def flat(*args, **kwargs):
+            return original(*args, **{**kwargs, "slope_sigma": False})
+        reference_module.read_reference_surface = flat
+    try:
+        folder = work / label.replace(" ", "_")
+        summary = run_bundle([LEFT, RIGHT], folder / "bundle.npz", params,
+                             adjusted_dir=folder / "adjusted",
+                             reference_dem=LOLA if reference else None)
+    finally:
+        reference_module.read_reference_surface = original
+    points = dio.read_npz(folder / "bundle.npz", "bundle")["points"]
+    tie = surface.residuals(points)
+    row = {"label": label, "mean_px": summary["mean_reprojection_error_px"],
+           "moves": [(r["position_change_m"], r["position_change_prior_sigmas"],
+                      r["pointing_change_mrad"], r["pointing_change_prior_sigmas"])
+                     for r in summary["images"].values()],
+           "tie_median": float(np.nanmedian(tie)), "tie_nmad": nmad(tie),
+           "tie_sigma": summary.get("reference_dem", {}).get("tie_point_sigma_median_m")}
+    if with_dem:
+        diff = dem_minus_lola(folder, folder / "adjusted", surface)
+        row.update(dem_median=float(np.nanmedian(diff)), dem_nmad=nmad(diff),
+                   dem_cells=int(np.isfinite(diff).sum()))
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--no-dem", action="store_true", help="skip rectify/sgm/dem")
+    args = parser.parse_args()
+    if not (LEFT.is_file() and RIGHT.is_file() and LOLA.is_file()):
+        print(f"skipped: needs {CUBES} and {LOLA}")
+        return
+    from demtool.bundle.params import BundleParams
+    from demtool.bundle.run_reference import read_reference_surface
+    from demtool.sensors import read_sensor
+
+    surface = read_reference_surface(LOLA, [read_sensor(LEFT), read_sensor(RIGHT)],
+                                     [LEFT, RIGHT], sigma=1.0, slope_sigma=False)
+    params = BundleParams(matcher="spatial")
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="demtool-apollo-ref-") as folder:
+        work = Path(folder)
+        for label, reference, flat in (("priors only", False, False),
+                                       ("LOLA, sigma 10 m flat", True, True),
+                                       ("LOLA, defaults", True, False)):
+            rows.append(case(work, label, params, reference=reference, flat_sigma=flat,
+                             surface=surface, with_dem=not args.no_dem))
+            print(rows[-1], flush=True)
+    print("\nApollo 15 cube pair, bundle --matcher spatial (priors 100 m / 1 mrad)")
+    print("| case | mean tie px | moves 0297 / 0298: m (σ), mrad (σ) | tie-point σ median m "
+          "| ties − LOLA median / NMAD m | DEM − LOLA median / NMAD m (cells) |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        moves = "; ".join(f"{p:.0f} m ({ps:.1f}), {w:.2f} mrad ({ws:.1f})"
+                          for p, ps, w, ws in r["moves"])
+        sigma = "–" if r["tie_sigma"] is None else f"{r['tie_sigma']:.0f}"
+        dem = (f"{r['dem_median']:+.0f} / {r['dem_nmad']:.0f} ({r['dem_cells']})"
+               if "dem_median" in r else "–")
+        print(f"| {r['label']} | {r['mean_px']:.3f} | {moves} | {sigma} | "
+              f"{r['tie_median']:+.0f} / {r['tie_nmad']:.0f} | {dem} |")
+    print("| target (defaults) | ≤ 0.15 | warning above 3 σ | | | |median| < 100 / ≤ 350 |")
+
+
+if __name__ == "__main__":
+    main()

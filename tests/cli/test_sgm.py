@@ -193,3 +193,12 @@ def test_cli_navcam_preset(pair_dir, tmp_path):
     resolved = json.loads((tmp_path / "d.tif.json").read_text())["summary"]["resolved"]
     assert resolved["cost"] == "mi" and resolved["paths"] == 16
     assert resolved["mi_iterations"] == 3
+
+
+def test_cli_classes_with_tiles_is_refused(pair_dir, tmp_path):
+    result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out",
+                    tmp_path / "d.tif", "--rectify", pair_dir / "rectify.npz", "--tile-size",
+                    "64", "--classes", tmp_path / "c.tif")
+    assert result.exit_code == 1
+    assert "--classes" in result.output and "untiled" in result.output
+    assert _no_outputs(tmp_path) and not (tmp_path / "c.tif").exists()

@@ -13,7 +13,9 @@ pixel their median.  Pandora treats the mismatches that touch an occlusion as oc
 here the occlusion is widened along the epipolar line instead (:func:`occluded_regions`):
 in every invalid region that holds an occluded pixel, the first d(foreground) −
 d(background) pixels of each row run after the visible background are occluded, which
-is how wide an occlusion is.  (Growing the whole region gave lower errors on the
+is how wide an occlusion is; matched pixels inside that band past the invalid run are the
+foreground fattened into the occlusion by the cost window and are filled as occluded
+too (:func:`_unfatten`).  (Growing the whole region gave lower errors on the
 Middlebury pairs but filled weakly textured foreground with background on the plank
 pairs; a check that the right view hides the chosen background made it worse on both.)
 """
@@ -113,6 +115,40 @@ def _epipolar_occlusions(disparity, occluded, touched, usable, out):
                     out[y, xx] = True
 
 
+@njit(nogil=True, cache=True)
+def _unfatten(disparity, occluded, usable, out, marked):
+    """Per row: after the last visible background pixel (disparity d_b) an occlusion is
+    d_f − d_b pixels wide, d_f the foreground's; matched pixels inside that band, past
+    an invalid run that holds an occluded pixel, are the foreground fattened into the
+    occlusion: NaN in ``out``, True in ``marked``."""
+    height, width = disparity.shape
+    for y in range(height):
+        x = 0
+        while x < width:
+            if not (usable[y, x] and not np.isfinite(disparity[y, x])):
+                x += 1
+                continue
+            start = x
+            any_occluded = False
+            while x < width and usable[y, x] and not np.isfinite(disparity[y, x]):
+                any_occluded = any_occluded or occluded[y, x]
+                x += 1
+            stop = x
+            if not any_occluded or start == 0 or stop >= width:
+                continue
+            left, right = disparity[y, start - 1], disparity[y, stop]
+            if not (np.isfinite(left) and np.isfinite(right)) or right <= left + 1.0:
+                continue
+            end = min(width, start + int(np.floor(right - left)))
+            for xx in range(stop, end):
+                if not usable[y, xx] or not np.isfinite(disparity[y, xx]):
+                    break
+                if disparity[y, xx] <= left + 1.0:  # background again: no fattening
+                    break
+                out[y, xx] = np.nan
+                marked[y, xx] = True
+
+
 def occluded_regions(disparity: np.ndarray, invalid: np.ndarray, occluded: np.ndarray
                      ) -> np.ndarray:
     """(H, W) bool: the invalid pixels to fill as occlusions.
@@ -150,11 +186,18 @@ def fill_classified(disparity: np.ndarray, occluded: np.ndarray, usable: np.ndar
     Returns
     -------
     disparity : (H, W) float32, the filled copy (pixels no search reached stay NaN)
-    classes : (H, W) uint8, :data:`MATCHED`, :data:`FILLED_OCCLUSION`,
+    classes : (H, W) uint8, :data:`MATCHED` (the fattened pixels :func:`_unfatten`
+        finds are filled occlusions), :data:`FILLED_OCCLUSION`,
         :data:`FILLED_MISMATCH` or :data:`INVALID` (range bounds are not marked here:
         :func:`classify`).
     """
     disparity = np.ascontiguousarray(disparity, dtype=np.float32)
+    thin = disparity.copy()  # the foreground fattened into occlusions: refilled
+    marked = np.zeros(disparity.shape, dtype=np.bool_)
+    _unfatten(disparity, np.ascontiguousarray(occluded & ~np.isfinite(disparity)),
+              np.ascontiguousarray(usable, dtype=np.bool_), thin, marked)
+    disparity = thin
+    occluded = occluded | marked
     matched = np.isfinite(disparity)
     invalid = usable & ~matched
     occluded_all = occluded_regions(disparity, invalid, occluded)

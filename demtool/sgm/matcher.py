@@ -26,7 +26,7 @@ from demtool.errors import InputError, ParameterError
 from demtool.logs import get_logger
 from demtool.sgm import cost as costs
 from demtool.sgm.disparity import OCCLUDED, median_filter, remove_speckles
-from demtool.sgm.fill import class_fractions, classify, fill_classified
+from demtool.sgm.fill import MATCHED, class_fractions, classify, fill_classified
 from demtool.sgm.noise import (  # noqa: F401  (re-exported: part of this module's API)
     P2_KAPPA,
     P2_KAPPA_NOISE,
@@ -76,10 +76,11 @@ UNMATCHED_FRACTION = 0.35  # cost of a match outside/NaN in the right image, of 
 MIN_LEVEL_SIZE = 24  # smallest image side of an HMI level, pixels
 # "auto": census replaces HMI where its left–right-consistent fraction is higher by more
 # than this (chosen by leave-one-out over the five Middlebury pairs, the six weak-texture
-# and five plank pairs of bench/: 0.048 in 14 of 16 folds; LOO mean bad-2 5.2 % against
-# 6.7 % for the better fixed cost, issue 26), or where HMI leaves this much more of the
-# image at a range bound than census does
-AUTO_LR_MARGIN = 0.05
+# and five plank pairs of bench/, range 0 … ndisp: 0.060–0.065 in 14 of 16 folds; LOO mean
+# bad-2 4.95 % against about 6.5 % for the better fixed cost, whose LOO fold on the plank
+# where HMI fails picks HMI, issue 26), or where HMI leaves this much more of the image at
+# a range bound than census does
+AUTO_LR_MARGIN = 0.06
 AUTO_BOUND_MARGIN = 0.05
 
 
@@ -152,7 +153,7 @@ def _fill(disparity: np.ndarray, confidence: np.ndarray, occluded: np.ndarray, *
         disparity, classes = fill_classified(disparity, occluded & ~before, fill_mask)
         disparity = _matchable(disparity, right_valid)
         confidence = np.where(np.isfinite(disparity),
-                              np.where(before, confidence, np.float32(0.0)),
+                              np.where(classes == MATCHED, confidence, np.float32(0.0)),
                               np.float32(np.nan))
     return disparity, confidence.astype(np.float32), classes
 

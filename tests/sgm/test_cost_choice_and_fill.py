@@ -88,6 +88,21 @@ def test_occluded_regions_widen_along_the_row_by_the_disparity_jump():
     assert not occluded_regions(disparity, invalid, np.zeros_like(invalid)).any()
 
 
+def test_foreground_fattened_into_an_occlusion_is_refilled_as_background():
+    disparity = np.full((1, 24), 4.0, dtype=np.float32)  # background 4, foreground 10
+    disparity[0, 7:] = 10.0
+    disparity[0, 5:7] = np.nan  # the check found 2 of the 6 occluded pixels
+    occluded = np.isnan(disparity)
+    out, classes = fill_classified(disparity, occluded, np.ones_like(occluded))
+    # the occlusion after the last background pixel (x = 4) is 10 − 4 = 6 px wide:
+    # x = 5 … 10, so x = 7 … 10 (matched at 10: fattened) become background too
+    assert np.allclose(out[0, 5:11], 4.0) and np.allclose(out[0, 11:], 10.0)
+    assert (classes[0, 5:11] == FILLED_OCCLUSION).all() and (classes[0, 11:] == MATCHED).all()
+    # without an occluded pixel in the gap nothing is taken for fattening
+    out, classes = fill_classified(disparity, np.zeros_like(occluded), np.ones_like(occluded))
+    assert np.allclose(out[0, 7:], 10.0) and (classes[0, 5:7] == FILLED_MISMATCH).all()
+
+
 def test_fill_classified_background_for_occlusions_median_for_mismatches():
     left, right, truth, occluded = occlusion_pair()  # background 4, box 14
     raw = sgm(left, right, min_disparity=0, num_disparities=20, cost="census", fill=False,
@@ -98,12 +113,16 @@ def test_fill_classified_background_for_occlusions_median_for_mismatches():
     assert np.mean(filled.classes[hole] == FILLED_OCCLUSION) > 0.9
     assert np.mean(np.abs(filled.disparity[hole] - 4.0) < 1.0) > 0.9
     matched = np.isfinite(raw.disparity)
-    assert np.isin(filled.classes[matched], (MATCHED, AT_BOUND)).all()
+    kept = np.isin(filled.classes, (MATCHED, AT_BOUND))
+    # every matched pixel stays matched, except foreground fattened into the occlusion
+    refilled = matched & ~kept
+    assert (filled.classes[refilled] == FILLED_OCCLUSION).all()
+    assert refilled.sum() < 0.01 * matched.sum()
     # fractions of the valid left image, one per class, adding up to 1
     fractions = filled.fractions
     assert abs(sum(fractions[k] for k in ("invalid", "matched", "filled_occlusion",
                                           "filled_mismatch", "at_range_bound")) - 1) < 1e-3
-    assert fractions["matched"] == pytest.approx(matched.mean(), abs=2e-3)
+    assert fractions["matched"] == pytest.approx((matched & kept).mean(), abs=2e-3)
     # a mismatch far from any occlusion takes the median of its neighbours
     disparity = np.full((9, 9), 3.0, dtype=np.float32)
     disparity[4, 4] = np.nan

@@ -159,13 +159,15 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     if fractions:
         stats.update({f"{k}_fraction": v for k, v in fractions.items()
                       if isinstance(v, float)})
+        stats["lr_consistent_fraction"] = round(fractions["matched"]
+                                                + fractions["at_range_bound"], 4)
         for key in ("cost_used", "cost_reason"):
             if key in fractions:
                 stats[key] = fractions[key]
         log.info("of the valid left pixels: %.1f %% left-right consistent (%.1f %% of them "
                  "at a bound of the range), %.1f %% filled as occlusions, %.1f %% filled as "
                  "mismatches, %.1f %% without a disparity",
-                 100 * (fractions["matched"] + fractions["at_range_bound"]),
+                 100 * stats["lr_consistent_fraction"],
                  100 * fractions["at_range_bound"], 100 * fractions["filled_occlusion"],
                  100 * fractions["filled_mismatch"], 100 * fractions["invalid"])
     log.info("%.1f %% of the pixels with a disparity (matched or filled); disparity %s; "

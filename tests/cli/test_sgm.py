@@ -76,6 +76,7 @@ def test_cli_default_auto_with_explicit_range(pair_dir, tmp_path):
                                                 "filled_occlusion", "filled_mismatch",
                                                 "invalid")]
     assert abs(sum(parts) - 1.0) < 2e-3 and summary["matched_fraction"] > 0.5
+    assert summary["lr_consistent_fraction"] == pytest.approx(sum(parts[:2]), abs=2e-4)
     kinds = dio.read_raster(classes).data
     disparity = dio.read_raster(out).data
     assert np.array_equal(np.isfinite(disparity), kinds > 0)

@@ -38,8 +38,23 @@ def test_auto_replaces_hmi_by_census_on_a_weak_texture_plank(caplog):
     assert bad_hmi > 0.2 and bad_auto < 0.5 * bad_hmi and bad_auto < 0.15, (bad_hmi, bad_auto)
 
 
-def test_auto_keeps_hmi_on_a_textured_pair():
+def test_auto_keeps_the_hmi_matches_census_confirms_on_a_textured_pair():
     left, right, truth = smooth_disparity_pair(offset=6.0, gain=1.3, bias=50.0)
+    auto = sgm(left, right, min_disparity=0, num_disparities=16, workers=1)
+    hmi = sgm(left, right, min_disparity=0, num_disparities=16, cost="hmi", workers=1)
+    assert auto.fractions["cost_used"] == "hmi+census"
+    kept = auto.classes == MATCHED
+    assert kept.mean() > 0.8 and np.array_equal(auto.disparity[kept], hmi.disparity[kept])
+    scored = np.zeros(truth.shape, dtype=bool)
+    scored[4:-4, 20:-4] = True
+    assert error_rates(auto.disparity, truth, scored)["bad2"] < 0.01
+
+
+def test_auto_keeps_hmi_alone_where_census_disagrees(monkeypatch):
+    import demtool.sgm.matcher as matcher
+
+    left, right, _ = smooth_disparity_pair(offset=6.0, gain=1.3, bias=50.0)
+    monkeypatch.setattr(matcher, "AUTO_AGREEMENT", 1.01)  # no agreement is enough
     auto = sgm(left, right, min_disparity=0, num_disparities=16, workers=1)
     hmi = sgm(left, right, min_disparity=0, num_disparities=16, cost="hmi", workers=1)
     assert auto.fractions["cost_used"] == "hmi"

@@ -267,13 +267,16 @@ def opencv_sgbm(left: np.ndarray, right: np.ndarray, min_disparity: int, num_dis
 # ------------------------------------------------------------------------- scoring
 
 
+SCORE_BORDER = 2  # px left out on every side (Pandora never answers there; issue 26)
+
+
 def scored_masks(pair: StereoPair) -> dict[str, np.ndarray]:
     """The pair's masks with truth ("all", "nonocc"), the left ``ndisp`` columns excluded.
 
     A left pixel in the first max(0, min_disparity + num_disparities) columns may have
-    its match outside the right image for part of the range; neither matcher is
-    scored there (the Middlebury evaluation's convention).  The synthetic pair's
-    "visible" mask serves as both.
+    its match outside the right image for part of the range; no matcher is scored
+    there (the Middlebury evaluation's convention), nor in a :data:`SCORE_BORDER`-pixel
+    border.  The synthetic pair's "visible" mask serves as both.
     """
     masks = dict(pair.masks)
     if "visible" in masks:
@@ -284,6 +287,8 @@ def scored_masks(pair: StereoPair) -> dict[str, np.ndarray]:
     for key in ("all", "nonocc"):
         mask = masks[key].copy()
         mask[:, :excluded] = False
+        mask[:SCORE_BORDER] = mask[-SCORE_BORDER:] = False
+        mask[:, :SCORE_BORDER] = mask[:, -SCORE_BORDER:] = False
         out[key] = mask
     return out
 

@@ -16,7 +16,9 @@ from demtool.stages import STAGES
 Reads the rectified pair LEFT_RECT and RIGHT_RECT (as written by demtool rectify; NaN
 outside the warped images never matches) and writes OUT, the float32 disparity in the
 left rectified image's frame (x_right = x_left - d, NaN = invalid), and OUT.json.  The
-default cost is hierarchical mutual information (HMI, 1/16 → 1).
+default cost "auto" is hierarchical mutual information (HMI, 1/16 → 1), replaced by census
+where HMI fails on weak texture; the log and OUT.json say which pixels passed the
+left-right check and which were filled.
 
 Two orthoimages of demtool mapproject on one grid (map-projected stereo, line
 scanners) are matched along map x instead, the range from their SIFT matches; OUT is
@@ -27,14 +29,17 @@ then on the left ortho's grid and CRS, for dem --mapprojected.""")
 @options.path_option("--rectify", "rectify.npz whose disparity_range sets the search range.")
 @options.parameter_options(SgmParams)
 @options.path_option("--confidence", "Also write a confidence raster (0..1) here.")
+@options.path_option("--classes", "Also write the class of each pixel here (uint8: 0 "
+                     "invalid, 1 matched, 2 filled occlusion, 3 filled mismatch, 4 matched "
+                     "at a range bound; untiled runs).")
 @click.pass_context
 def command(ctx: click.Context, left_rect: str, right_rect: str, out: str, rectify: str | None,
-            confidence: str | None, **values: Any) -> None:
+            confidence: str | None, classes: str | None, **values: Any) -> None:
     """Options → SgmParams → :func:`demtool.sgm.run.run_sgm`."""
     from demtool.sgm.run import run_sgm
 
     result = run_sgm(left_rect, right_rect, out, SgmParams.from_options(values),
-                     rectify=rectify, confidence=confidence,
+                     rectify=rectify, confidence=confidence, classes=classes,
                      resolved=options.resolved_params(ctx))
     if getattr(result, "dry_run", None):  # --dry-run: the plan on stdout
         click.echo(result.dry_run)

@@ -107,6 +107,15 @@ def select_row(srow, y, min_disparity, mode, lr_threshold, left_valid, right_val
             if not valid and offset != 0.0 and xr2 >= 0 and xr2 < width:
                 other = np.int64(right_best[xr2])
                 valid = other >= 0 and abs(other - best) <= lr_threshold
+            if not valid and occluded:
+                # occluded only when the epipolar line meets no right disparity that
+                # points back to x (Hirschmüller 2008 §3.4): else a mismatch, which a
+                # weak texture with a consistent match elsewhere on the line is
+                for k in range(n_disp):
+                    xk = x - (min_disparity + k)
+                    if xk >= 0 and xk < width and right_best[xk] == k:
+                        occluded = False
+                        break
             if not valid:
                 disparity[x] = np.nan
                 confidence[x] = OCCLUDED if occluded else np.nan

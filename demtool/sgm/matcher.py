@@ -25,7 +25,8 @@ from numba import njit
 from demtool.errors import InputError, ParameterError
 from demtool.logs import get_logger
 from demtool.sgm import cost as costs
-from demtool.sgm.disparity import OCCLUDED, fill_invalid, median_filter, remove_speckles
+from demtool.sgm.disparity import OCCLUDED, median_filter, remove_speckles
+from demtool.sgm.fill import MATCHED, class_fractions, classify, fill_classified
 from demtool.sgm.noise import (  # noqa: F401  (re-exported: part of this module's API)
     P2_KAPPA,
     P2_KAPPA_NOISE,
@@ -41,7 +42,7 @@ from demtool.sgm.strips import (  # noqa: F401  (plan_strips: part of this modul
 
 log = get_logger(__name__)
 
-COSTS = ("hmi", "mi", "census", "ad")
+COSTS = ("auto", "hmi", "mi", "census", "ad")
 CENSUS_WINDOWS = {"5x5": (5, 5), "9x7": (7, 9)}  # (rows, columns): 9 wide, 7 high
 
 
@@ -73,6 +74,21 @@ MI_SIGMA = 1.0  # Parzen window, grey levels
 AD_TRUNCATION = 24  # grey levels (of 256)
 UNMATCHED_FRACTION = 0.35  # cost of a match outside/NaN in the right image, of the maximum
 MIN_LEVEL_SIZE = 24  # smallest image side of an HMI level, pixels
+# "auto": census replaces HMI where its left–right-consistent fraction is higher by more
+# than this (chosen by leave-one-out over the five Middlebury pairs, the six weak-texture
+# and five plank pairs of bench/, range 0 … ndisp: 0.060–0.065 in 14 of 16 folds; LOO mean
+# bad-2 4.95 % against about 6.5 % for the better fixed cost, whose LOO fold on the plank
+# where HMI fails picks HMI, issue 26), or where HMI leaves this much more of the image at
+# a range bound than census does
+AUTO_LR_MARGIN = 0.06
+AUTO_BOUND_MARGIN = 0.05
+# "auto" where HMI is kept: when census agrees (within 1 px) on at least this share of
+# HMI's left–right-consistent pixels, only the HMI disparities both costs agree on are
+# kept and the rest is filled (bad-2 mean over the 16 pairs, weak ones at half size,
+# 4.22 % against 4.35 % with HMI alone there, census 4.74 %); below it (one pair, plank5:
+# 74 %, census failing there) HMI alone.  Chosen on the same 16 pairs (any value in
+# 0.74 … 0.84 separates them alike; not leave-one-out: plank5 is the only pair below).
+AUTO_AGREEMENT = 0.80
 
 
 @dataclass(frozen=True)
@@ -93,6 +109,13 @@ class SGMResult:
     levels : list of dict
         One entry per SGM pass (MI iteration or HMI level): scale, disparity range,
         valid fraction, number of pixel pairs in the MI histogram.
+    classes : (H, W) uint8 or None
+        What each pixel is (:mod:`demtool.sgm.fill`): 0 invalid, 1 matched (passed the
+        left–right check and the filters), 2 filled occlusion, 3 filled mismatch, 4
+        matched at a bound of the disparity range.
+    fractions : dict of str to float
+        The fraction of the valid left pixels in each class (``matched`` …), and
+        ``cost_used``/``cost_reason`` when "auto" chose.
     """
 
     disparity: np.ndarray
@@ -100,17 +123,15 @@ class SGMResult:
     parameters: dict[str, Any]
     timings: dict[str, float] = field(default_factory=dict)
     levels: list[dict[str, Any]] = field(default_factory=list)
+    classes: np.ndarray | None = None
+    fractions: dict[str, Any] = field(default_factory=dict)
 
 
-def _postprocess(disparity: np.ndarray, confidence: np.ndarray, *, speckle_size: int,
-                 speckle_range: float, median: int, timer: PhaseTimer, uniqueness: float = 0.0,
-                 fill_mask: np.ndarray | None = None, right_valid: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Uniqueness, speckles, median, then (with ``fill_mask``) the invalid-pixel fill.
-
-    Filled pixels get confidence 0; those whose match falls outside the right image or
-    on one of its invalid pixels stay NaN.
-    """
+def _filter(disparity: np.ndarray, confidence: np.ndarray, *, speckle_size: int,
+            speckle_range: float, median: int, timer: PhaseTimer, uniqueness: float = 0.0
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Uniqueness, speckles and median; returns the disparity, the confidence (NaN where
+    invalid) and the mask of the pixels the left–right check found occluded."""
     with timer.measure("postprocess"):
         occluded = confidence == OCCLUDED
         if uniqueness > 0:
@@ -121,14 +142,40 @@ def _postprocess(disparity: np.ndarray, confidence: np.ndarray, *, speckle_size:
         if median > 1:
             disparity = median_filter(disparity, median)
         confidence = np.where(np.isfinite(disparity), confidence, np.float32(np.nan))
-        if fill_mask is not None:
-            before = np.isfinite(disparity)
-            disparity = fill_invalid(disparity, occluded & ~before, fill_mask)
-            disparity = _matchable(disparity, right_valid)
-            confidence = np.where(np.isfinite(disparity),
-                                  np.where(before, confidence, np.float32(0.0)),
-                                  np.float32(np.nan))
-    return disparity, confidence.astype(np.float32)
+    return disparity, confidence.astype(np.float32), occluded
+
+
+def _fill(disparity: np.ndarray, confidence: np.ndarray, occluded: np.ndarray, *,
+          fill_mask: np.ndarray | None, right_valid: np.ndarray, timer: PhaseTimer
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The invalid-pixel fill (with ``fill_mask``) and the classes of the pixels.
+
+    Filled pixels get confidence 0; those whose match falls outside the right image or
+    on one of its invalid pixels stay NaN.
+    """
+    if fill_mask is None:
+        return disparity, confidence, None
+    with timer.measure("postprocess"):
+        before = np.isfinite(disparity)
+        disparity, classes = fill_classified(disparity, occluded & ~before, fill_mask)
+        disparity = _matchable(disparity, right_valid)
+        confidence = np.where(np.isfinite(disparity),
+                              np.where(classes == MATCHED, confidence, np.float32(0.0)),
+                              np.float32(np.nan))
+    return disparity, confidence.astype(np.float32), classes
+
+
+def _postprocess(disparity: np.ndarray, confidence: np.ndarray, *, speckle_size: int,
+                 speckle_range: float, median: int, timer: PhaseTimer, uniqueness: float = 0.0,
+                 fill_mask: np.ndarray | None = None, right_valid: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Uniqueness, speckles, median, then (with ``fill_mask``) the invalid-pixel fill."""
+    disparity, confidence, occluded = _filter(
+        disparity, confidence, speckle_size=speckle_size, speckle_range=speckle_range,
+        median=median, timer=timer, uniqueness=uniqueness)
+    disparity, confidence, _ = _fill(disparity, confidence, occluded, fill_mask=fill_mask,
+                                     right_valid=right_valid, timer=timer)
+    return disparity, confidence
 
 
 @njit(cache=True, nogil=True)
@@ -202,7 +249,7 @@ def _check_inputs(left: np.ndarray, right: np.ndarray, min_disparity: int,
 
 
 def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparities: int,
-        cost: str = "hmi", census_window: str = "5x5", cost_window: int | None = None,
+        cost: str = "auto", census_window: str = "5x5", cost_window: int | None = None,
         paths: int = 8, p1: int | None = None, p2: int | None = None,
         adaptive_p2: bool = True, mi_iterations: int = 3, subpixel: str = "equiangular",
         lr_check: bool = True, lr_threshold: float = 1.0, speckle_size: int = 100,
@@ -219,10 +266,17 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
     min_disparity, num_disparities : int
         Search range d = min_disparity .. min_disparity + num_disparities − 1 pixels,
         ``x_right = x_left − d``.
-    cost : {"hmi", "mi", "census", "ad"}
-        "hmi": mutual information with the hierarchical schedule (1/16 → 1, the
-        coarsest level iterated ``mi_iterations`` times from a random disparity,
-        every finer level once from the coarser result; Hirschmüller 2008 §3.1.4);
+    cost : {"auto", "hmi", "mi", "census", "ad"}
+        "auto" (the default): "hmi", checked against "census" on the same pair; census
+        replaces it where HMI fails on weak texture (:func:`_prefer_census`: census
+        left–right consistent on markedly more pixels, or HMI pinned at a range bound);
+        else, where the two agree on most pixels (:data:`AUTO_AGREEMENT`), only the
+        pixels they agree on are kept ("hmi+census") and the others filled; the choice
+        is logged and returned in ``fractions["cost_used"]``.  Any MI
+        cost whose histogram finds no valid pixel pair falls back to census with a
+        warning instead of failing.  "hmi": mutual information with the hierarchical
+        schedule (1/16 → 1, the coarsest level iterated ``mi_iterations`` times from a
+        random disparity, every finer level once from the coarser result; Hirschmüller 2008 §3.1.4);
         "mi": mutual information iterated ``mi_iterations`` times at full
         resolution from a zero disparity; "census": Hamming distance of census
         codes; "ad": truncated absolute difference.  Every cost is summed over a
@@ -254,10 +308,10 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         0.1 is OpenCV's ``uniquenessRatio=10``).
     fill : bool
         Fill the pixels left invalid (LR check, speckles, uniqueness) from the nearest
-        valid disparities in 8 directions: occluded ones from the background, the
-        others by the median (Hirschmüller 2008 §3.1.5,
-        :func:`demtool.sgm.disparity.fill_invalid`); they get confidence 0.  Pixels
-        invalid in the left image stay NaN.
+        valid disparities in 8 directions: occluded ones from the background that the
+        right view hides, the others by the median (Hirschmüller 2008 §3.4,
+        :func:`demtool.sgm.fill.fill_classified`); they get confidence 0 and their
+        class in ``classes``.  Pixels invalid in the left image stay NaN.
     workers : int
         Threads (0 = all cores): two run the down and up sweeps of a strip; more match
         ``workers // 2`` strips at once.
@@ -286,7 +340,8 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
     if census_window not in CENSUS_WINDOWS:
         raise ParameterError(f"unknown census window {census_window!r}: should be one of "
                              + ", ".join(CENSUS_WINDOWS))
-    defaults = COST_DEFAULTS["mi" if cost == "hmi" else cost]
+    defaults = COST_DEFAULTS["mi" if cost in ("hmi", "auto") else cost]
+    given = (p1, p2)  # the caller's penalties (None: per cost)
     window = defaults.window if cost_window is None else int(cost_window)
     p1 = defaults.p1 if p1 is None else int(p1)
     p2 = defaults.p2 if p2 is None else int(p2)
@@ -316,7 +371,123 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
                   unmatched_fraction=UNMATCHED_FRACTION, timer=timer)
     final = dict(subpixel=subpixel, lr_threshold=lr_threshold if lr_check else None)
     levels: list[dict[str, Any]] = []
+    filters = dict(speckle_size=speckle_size, speckle_range=speckle_range, median=median,
+                   timer=timer, uniqueness=uniqueness)
+    match = dict(left=left, right=right, left_valid=left_valid, right_valid=right_valid,
+                 guide=guide, left_range=left_range, min_disparity=min_disparity,
+                 num_disparities=num_disparities, census_window=census_window,
+                 mi_iterations=mi_iterations, seed=seed, common=common, final=final,
+                 speckle=(speckle_size, speckle_range), levels=levels, workers=workers)
+    fractions: dict[str, Any] = {}
+    first = "hmi" if cost == "auto" else cost
+    try:
+        disparity, confidence = _match_cost(first, window=window, **match)
+    except _NoMutualInformation as error:  # census can still match: fall back, say so
+        log.warning("%s; matching with the census cost instead", error)
+        fractions.update(cost_used="census", cost_reason=str(error))
+        disparity, confidence = _census_fallback(cost_window, *given, match)
+        first = "census"
+    disparity, confidence, occluded = _filter(disparity, confidence, **filters)
+    if cost == "auto" and first == "hmi":
+        other = _census_fallback(cost_window, *given, match)
+        other = _filter(*other, **filters)
+        reason = _prefer_census(disparity, other[0], left_valid, min_disparity,
+                                num_disparities)
+        fractions["cost_used"] = "census" if reason else "hmi"
+        if reason:
+            log.info("cost auto: census instead of HMI (%s)", reason)
+            fractions["cost_reason"] = reason
+            disparity, confidence, occluded = other
+        else:
+            agreed, share = _agreement(disparity, other[0])
+            if share >= AUTO_AGREEMENT:
+                log.info("cost auto: HMI and census agree on %.1f %% of HMI's matches; "
+                         "keeping those, the rest is filled", 100 * share)
+                fractions["cost_used"] = "hmi+census"
+                disparity = np.where(agreed, disparity, np.float32(np.nan))
+                confidence = np.where(agreed, np.minimum(confidence, other[1]),
+                                      np.float32(np.nan)).astype(np.float32)
+                occluded = occluded | other[2]
+            else:
+                log.info("cost auto: HMI kept (census agrees on only %.1f %% of its "
+                         "matches)", 100 * share)
+    disparity, confidence, classes = _fill(disparity, confidence, occluded,
+                                           fill_mask=left_valid if fill else None,
+                                           right_valid=right_valid, timer=timer)
+    classes = classify(disparity, classes, min_disparity, num_disparities)
+    fractions.update(class_fractions(classes, left_valid))
+    timings = {k: round(v, 3) for k, v in timer.seconds.items()}
+    timings["total"] = round(time.perf_counter() - start, 3)
+    parameters = dict(cost=cost, census_window=census_window, cost_window=window,
+                      paths=paths, p1=p1, p2=p2, adaptive_p2=adaptive_p2,
+                      p2_kappa=kappa, mi_iterations=mi_iterations,
+                      mi_levels=MI_LEVELS, mi_sigma=MI_SIGMA, subpixel=subpixel,
+                      lr_check=lr_check, lr_threshold=lr_threshold,
+                      speckle_size=speckle_size, speckle_range=speckle_range, median=median,
+                      uniqueness=uniqueness, fill=fill,
+                      min_disparity=min_disparity, num_disparities=num_disparities,
+                      workers=workers, max_memory_mb=max_memory_mb, seed=seed)
+    return SGMResult(disparity, confidence, parameters, timings, levels, classes, fractions)
 
+
+class _NoMutualInformation(InputError):
+    """The MI histogram has no valid pixel pairs (the census fallback takes over)."""
+
+
+def _census_fallback(cost_window, p1, p2, match):
+    """Census matching with its own defaults where the caller gave none."""
+    defaults = COST_DEFAULTS["census"]
+    common = dict(match["common"], p1=defaults.p1 if p1 is None else p1,
+                  p2=defaults.p2 if p2 is None else p2)
+    if common["p1"] > common["p2"]:
+        common["p2"] = common["p1"]
+    window = defaults.window if cost_window is None else int(cost_window)
+    return _match_cost("census", window=window, **dict(match, common=common))
+
+
+def _bound_fraction(disparity, valid, min_disparity, num_disparities):
+    """Fraction of the valid pixels whose disparity is within 0.5 px of a range bound."""
+    high = min_disparity + num_disparities - 1
+    with np.errstate(invalid="ignore"):
+        at = (disparity < min_disparity + 0.5) | (disparity > high - 0.5)
+    return float(np.count_nonzero(at & valid)) / max(int(valid.sum()), 1)
+
+
+def _prefer_census(hmi, census, valid, min_disparity, num_disparities) -> str:
+    """Why census should replace HMI ("" when it should not).
+
+    HMI fails on weak texture by settling on a wrong disparity over large areas (a
+    joint histogram that never sharpens), which the left–right check partly exposes:
+    census then passes it on markedly more pixels (:data:`AUTO_LR_MARGIN`), or HMI
+    leaves markedly more pixels at a range bound (:data:`AUTO_BOUND_MARGIN`).
+    """
+    total = max(int(valid.sum()), 1)
+    lr_hmi = np.count_nonzero(np.isfinite(hmi) & valid) / total
+    lr_census = np.count_nonzero(np.isfinite(census) & valid) / total
+    if lr_census - lr_hmi > AUTO_LR_MARGIN:
+        return (f"left-right consistent {100 * lr_census:.1f} % of the pixels against "
+                f"{100 * lr_hmi:.1f} % with HMI")
+    bound_hmi = _bound_fraction(hmi, valid, min_disparity, num_disparities)
+    bound_census = _bound_fraction(census, valid, min_disparity, num_disparities)
+    if bound_hmi - bound_census > AUTO_BOUND_MARGIN:
+        return (f"HMI leaves {100 * bound_hmi:.1f} % of the pixels at a bound of the "
+                f"range, census {100 * bound_census:.1f} %")
+    return ""
+
+
+def _agreement(hmi, census):
+    """Pixels where both costs matched within 1 px, and their share of HMI's matches."""
+    both = np.isfinite(hmi) & np.isfinite(census)
+    with np.errstate(invalid="ignore"):
+        agreed = both & (np.abs(hmi - census) <= 1.0)
+    return agreed, float(agreed.sum()) / max(int(np.isfinite(hmi).sum()), 1)
+
+
+def _match_cost(cost, *, left, right, left_valid, right_valid, guide, left_range,
+                min_disparity, num_disparities, window, census_window, mi_iterations, seed,
+                common, final, speckle, levels, workers):
+    """The raw disparity and confidence of one cost (before filters and fill)."""
+    timer: PhaseTimer = common["timer"]
     if cost in ("census", "ad"):
         with timer.measure("prepare"):
             if cost == "census":
@@ -333,33 +504,15 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         disparity, confidence = match_pass(
             pixel_cost, left_valid, right_valid, guide, min_disparity=min_disparity,
             num_disparities=num_disparities, window=window, **common, **final)
-        levels.append({"scale": 1, "min_disparity": min_disparity,
+        levels.append({"scale": 1, "cost": cost, "min_disparity": min_disparity,
                        "num_disparities": num_disparities,
                        "valid_fraction": float(np.isfinite(disparity).mean())})
-    else:
-        disparity, confidence = _mutual_information_sgm(
-            left, right, left_valid, right_valid, guide, cost=cost,
-            min_disparity=min_disparity, num_disparities=num_disparities, window=window,
-            mi_iterations=mi_iterations, seed=seed, common=common, final=final,
-            speckle=(speckle_size, speckle_range), levels=levels, left_range=left_range)
-
-    disparity, confidence = _postprocess(disparity, confidence, speckle_size=speckle_size,
-                                         speckle_range=speckle_range, median=median,
-                                         timer=timer, uniqueness=uniqueness,
-                                         fill_mask=left_valid if fill else None,
-                                         right_valid=right_valid)
-    timings = {k: round(v, 3) for k, v in timer.seconds.items()}
-    timings["total"] = round(time.perf_counter() - start, 3)
-    parameters = dict(cost=cost, census_window=census_window, cost_window=window,
-                      paths=paths, p1=p1, p2=p2, adaptive_p2=adaptive_p2,
-                      p2_kappa=kappa, mi_iterations=mi_iterations,
-                      mi_levels=MI_LEVELS, mi_sigma=MI_SIGMA, subpixel=subpixel,
-                      lr_check=lr_check, lr_threshold=lr_threshold,
-                      speckle_size=speckle_size, speckle_range=speckle_range, median=median,
-                      uniqueness=uniqueness, fill=fill,
-                      min_disparity=min_disparity, num_disparities=num_disparities,
-                      workers=workers, max_memory_mb=max_memory_mb, seed=seed)
-    return SGMResult(disparity, confidence, parameters, timings, levels)
+        return disparity, confidence
+    return _mutual_information_sgm(
+        left, right, left_valid, right_valid, guide, cost=cost,
+        min_disparity=min_disparity, num_disparities=num_disparities, window=window,
+        mi_iterations=mi_iterations, seed=seed, common=common, final=final,
+        speckle=speckle, levels=levels, left_range=left_range)
 
 
 def _mutual_information_sgm(left, right, left_valid, right_valid, guide, *, cost, min_disparity,
@@ -414,8 +567,9 @@ def _mutual_information_sgm(left, right, left_valid, right_valid, guide, *, cost
                                                            estimate, levels=n_levels,
                                                            sigma=MI_SIGMA)
                 if pairs == 0:
-                    raise InputError("no valid corresponding pixels for the MI histogram; "
-                                     "check the disparity range and the NaN masks")
+                    raise _NoMutualInformation(
+                        "no valid corresponding pixels for the MI histogram at 1/"
+                        f"{scale} scale (disparities {lo} … {hi})")
                 pixel_cost = costs.table_pixel_cost("mi", levels_l, levels_r,
                                                     costs.mi_cost_table(mi))
             final_pass = last_level and iteration == iterations - 1

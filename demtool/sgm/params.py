@@ -37,7 +37,8 @@ class SgmParams(Parameters):
         None, "Smallest disparity searched, px (overrides --rectify).")
     num_disparities: int | None = parameter(
         None, "Number of disparities searched (overrides --rectify).", minimum=1)
-    cost: str = parameter(CORE["cost"], "hmi: hierarchical mutual information; mi: MI "
+    cost: str = parameter(CORE["cost"], "auto: hmi, replaced by census where HMI fails on "
+                          "weak texture; hmi: hierarchical mutual information; mi: MI "
                           "iterated at full resolution from zero disparity; census; ad: "
                           "absolute difference.", choices=COSTS, what="cost")
     census_window: str = parameter(CORE["census_window"], "Census window (width x "

@@ -40,6 +40,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
             out: str | os.PathLike, params: SgmParams | None = None, *,
             rectify: str | os.PathLike | None = None,
             confidence: str | os.PathLike | None = None,
+            classes: str | os.PathLike | None = None,
             resolved: dict[str, Any] | None = None):
     """Match LEFT_RECT and RIGHT_RECT; write the disparity GeoTIFF (and confidence).
 
@@ -68,7 +69,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     run = StageRun("sgm", params, resolved=resolved,
                    inputs={"LEFT_RECT": left_path, "RIGHT_RECT": right_path,
                            "--rectify": rectify},
-                   outputs={"--out": out, "--confidence": confidence,
+                   outputs={"--out": out, "--confidence": confidence, "--classes": classes,
                             "sidecar": sidecar_path(out)})
     log, provenance = run.log, run.provenance
     out_path = Path(out)
@@ -124,6 +125,9 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
         raise ParameterError(f"disparity range {min_disparity} … {max_disparity} from {source} "
                              f"is wider than the images ({width} px)")
     if tiling.wants_tiles(*shape, params):  # large images: tiles, Dask (docs/stages/scale.md)
+        if classes is not None:
+            raise ParameterError(f"--classes {classes}: the class raster is written by "
+                                 "untiled runs only (give a larger --tile-size)")
         from demtool.imaging.checks import check_rectification_matches
         from demtool.sgm.tiled import sgm_tiled
 
@@ -162,8 +166,23 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
                      confidence_mean=float(np.nanmean(result.confidence)))
     else:
         log.warning("no valid disparity: check the disparity range and the image pair")
-    log.info("%.1f %% of the pixels valid; disparity %s; %.1f s (%s)",
-             100 * stats["valid_fraction"],
+    fractions = result.fractions
+    if fractions:
+        stats.update({f"{k}_fraction": v for k, v in fractions.items()
+                      if isinstance(v, float)})
+        stats["lr_consistent_fraction"] = round(fractions["matched"]
+                                                + fractions["at_range_bound"], 4)
+        for key in ("cost_used", "cost_reason"):
+            if key in fractions:
+                stats[key] = fractions[key]
+        log.info("of the valid left pixels: %.1f %% left-right consistent (%.1f %% of them "
+                 "at a bound of the range), %.1f %% filled as occlusions, %.1f %% filled as "
+                 "mismatches, %.1f %% without a disparity",
+                 100 * stats["lr_consistent_fraction"],
+                 100 * fractions["at_range_bound"], 100 * fractions["filled_occlusion"],
+                 100 * fractions["filled_mismatch"], 100 * fractions["invalid"])
+    log.info("%.1f %% of the pixels with a disparity (matched or filled); disparity %s; "
+             "%.1f s (%s)", 100 * stats["valid_fraction"],
              f"{stats['disparity_min']:.1f} … {stats['disparity_max']:.1f}" if values.size
              else "none", result.timings["total"],
              ", ".join(f"{k} {v:.1f} s" for k, v in result.timings.items() if k != "total"))
@@ -189,5 +208,12 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
                              tags={**tags, "quantity": "sgm confidence (S2 - S1) / S2"},
                              band_names=["confidence"])
             outputs.append(confidence)
+        if classes is not None:
+            dio.write_raster(classes, result.classes, transform=left.transform, crs=left.crs,
+                             tags={**tags, "quantity": "sgm pixel class: 0 invalid, 1 matched, "
+                                   "2 filled occlusion, 3 filled mismatch, 4 matched at a "
+                                   "range bound"},
+                             band_names=["class"])
+            outputs.append(classes)
         provenance.write_sidecar(out_path, summary, outputs=outputs)
     return result

@@ -38,8 +38,8 @@ def default_overlap(params: Any) -> int:
     """The margin of an sgm tile, px: paths + cost / census / median windows + speckles."""
     from demtool.sgm.matcher import CENSUS_WINDOWS, COST_DEFAULTS
 
-    defaults = COST_DEFAULTS["mi" if params.cost == "hmi" else params.cost]
-    window = params.cost_window or defaults.window
+    names = {"hmi": ("mi",), "auto": ("mi", "census")}.get(params.cost, (params.cost,))
+    window = params.cost_window or max(COST_DEFAULTS[name].window for name in names)
     census = max(CENSUS_WINDOWS[params.census_window])
     speckle = int(math.ceil(math.sqrt(params.speckle_size)))
     return BASE_MARGIN + window + census + params.median + speckle

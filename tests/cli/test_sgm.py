@@ -61,14 +61,28 @@ def test_cli_writes_disparity_confidence_and_sidecar(pair_dir, tmp_path):
     assert sorted(sidecar["outputs"]) == sorted([str(out), str(confidence)])
 
 
-def test_cli_default_hmi_with_explicit_range(pair_dir, tmp_path):
-    out = tmp_path / "d.tif"
+def test_cli_default_auto_with_explicit_range(pair_dir, tmp_path):
+    out, classes = tmp_path / "d.tif", tmp_path / "classes.tif"
     result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out", out,
-                    "--min-disparity", "-12", "--num-disparities", "24")
+                    "--min-disparity", "-12", "--num-disparities", "24", "--classes", classes)
     assert result.exit_code == 0, result.output
     sidecar = json.loads((tmp_path / "d.tif.json").read_text())
-    assert sidecar["summary"]["resolved"]["cost"] == "hmi"
-    assert [p["scale"] for p in sidecar["summary"]["passes"]][-1] == 1
+    summary = sidecar["summary"]
+    assert summary["resolved"]["cost"] == "auto"
+    assert summary["cost_used"] in ("hmi", "census")
+    assert [p["scale"] for p in summary["passes"]][-1] == 1
+    # what was matched, filled and left, separately; they add up to the valid input
+    parts = [summary[f"{k}_fraction"] for k in ("matched", "at_range_bound",
+                                                "filled_occlusion", "filled_mismatch",
+                                                "invalid")]
+    assert abs(sum(parts) - 1.0) < 2e-3 and summary["matched_fraction"] > 0.5
+    assert summary["lr_consistent_fraction"] == pytest.approx(sum(parts[:2]), abs=2e-4)
+    kinds = dio.read_raster(classes).data
+    disparity = dio.read_raster(out).data
+    assert np.array_equal(np.isfinite(disparity), kinds > 0)
+    valid_input = np.isfinite(dio.read_raster(pair_dir / "left_rect.tif").data)
+    matched = np.count_nonzero((kinds == 1) & valid_input) / valid_input.sum()
+    assert abs(matched - summary["matched_fraction"]) < 2e-3
     truth = np.load(pair_dir / "truth.npy")
     columns = np.arange(truth.shape[1])[None, :]
     rates = error_rates(dio.read_raster(out).data, truth, (columns - truth >= 1) & (columns >= 4))
@@ -180,3 +194,12 @@ def test_cli_navcam_preset(pair_dir, tmp_path):
     resolved = json.loads((tmp_path / "d.tif.json").read_text())["summary"]["resolved"]
     assert resolved["cost"] == "mi" and resolved["paths"] == 16
     assert resolved["mi_iterations"] == 3
+
+
+def test_cli_classes_with_tiles_is_refused(pair_dir, tmp_path):
+    result = invoke(pair_dir / "left_rect.tif", pair_dir / "right_rect.tif", "--out",
+                    tmp_path / "d.tif", "--rectify", pair_dir / "rectify.npz", "--tile-size",
+                    "64", "--classes", tmp_path / "c.tif")
+    assert result.exit_code == 1
+    assert "--classes" in result.output and "untiled" in result.output
+    assert _no_outputs(tmp_path) and not (tmp_path / "c.tif").exists()

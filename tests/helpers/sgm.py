@@ -138,3 +138,48 @@ def write_rectified_pair(folder, left: np.ndarray, right: np.ndarray, truth: np.
         "points_left_rect": points, "points_right_rect": points,
         "disparity_range": np.array(disparity_range, dtype=float),
         "left_name": np.asarray("view_00"), "right_name": np.asarray("view_01")})
+
+
+def plank_pair(height: int = 90, width: int = 120, *, seed: int = 21, plank: float = 1.0,
+               background: float = 20.0, noise: float = 1.0, disparity: tuple = (22.0, 28.0),
+               back_disparity: float = 4.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A faint-texture slanted plank in front of a textured background, 8-bit levels.
+
+    The plank (columns 30–85 %, rows 15–85 % of the left image) is a plane whose
+    disparity runs from ``disparity[0]`` to ``[1]`` across it, with albedo σ ``plank``
+    grey levels against noise σ ``noise`` (weak texture: where mutual information
+    fails); the background has σ ``background`` and the constant ``back_disparity``.
+    Rendered in layers (the plank in front), so the truth is exact; a smaller copy of
+    ``bench/_plank_pairs.py``.
+
+    Returns
+    -------
+    left, right : (H, W) float32 grey levels (rounded to integers)
+    truth : (H, W) float32 disparity of the left pixels, px
+    """
+    rng = np.random.default_rng(seed)
+    margin = int(max(disparity)) + 8
+    back = texture(rng, (height, width + 2 * margin), blur=1.0, sigma=background, mean=0.0)
+    face = texture(rng, (height, width + 2 * margin), blur=2.0, sigma=plank, mean=0.0)
+    x0, x1 = int(0.3 * width), int(0.85 * width)
+    y0, y1 = int(0.15 * height), int(0.85 * height)
+    cols = np.arange(width, dtype=np.float64)
+    slope = (disparity[1] - disparity[0]) / (x1 - x0)
+    d_plank = disparity[0] + slope * (cols - x0)
+    grid = np.arange(width + 2 * margin, dtype=np.float64) - margin
+    left = np.empty((height, width))
+    right = np.empty((height, width))
+    truth = np.full((height, width), back_disparity)
+    for row in range(height):
+        left[row] = np.interp(cols, grid, back[row])
+        right[row] = np.interp(cols + back_disparity, grid, back[row])
+        if y0 <= row < y1:
+            left[row, x0:x1] = np.interp(cols[x0:x1], grid, face[row])
+            truth[row, x0:x1] = d_plank[x0:x1]
+            # the right pixel xr shows the plank point x with x − d_plank(x) = xr
+            xp = (cols + disparity[0] - slope * x0) / (1.0 - slope)
+            on = (xp >= x0) & (xp < x1)
+            right[row, on] = np.interp(xp[on], grid, face[row])
+    left = np.clip(np.rint(110.0 + left + rng.normal(0.0, noise, left.shape)), 0, 255)
+    right = np.clip(np.rint(110.0 + right + rng.normal(0.0, noise, right.shape)), 0, 255)
+    return left.astype(np.float32), right.astype(np.float32), truth.astype(np.float32)

@@ -65,7 +65,8 @@ def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
         from demtool.sensors.isis import read_cube
 
         validate.check_cube_label(p)
-        model = read_cube(p)
+        with np.errstate(invalid="ignore", divide="ignore"):  # zero quaternions: checked next
+            model = read_cube(p)
         return {model.name: validate.check_model(model, p, "cube")}
     return {name: validate.check_model(model, f"{p} ({name})", "npz")
             for name, model in _read_npz(p).items()}

@@ -422,9 +422,9 @@ def check_cube_label(path: str | Path) -> None:
         try:
             label = pvl.loads(text)
         except Exception as exc:  # pvl raises several parser errors
-            raise InputError(f"{p}: cannot parse the ISIS label "
-                             f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})"
-                             ) from None
+            detail = str(exc).splitlines()[0] if str(exc) else "it ends early"
+            raise InputError(f"{p}: cannot parse the ISIS label ({detail}): a truncated label "
+                             "or not an ISIS3 cube") from None
     cube = label.get("IsisCube") if hasattr(label, "get") else None
     if not hasattr(cube, "get") or not hasattr(cube.get("Core"), "get"):
         raise InputError(f"{p}: the label's 'Object = IsisCube' has no 'Core' object: not an "
@@ -457,7 +457,7 @@ def check_cube_label(path: str | Path) -> None:
         s = _numbers(p, f"NaifKeywords/{ins}_ITRANSS", _listed(naif[f"{ins}_ITRANSS"]), 3)
         ln = _numbers(p, f"NaifKeywords/{ins}_ITRANSL", _listed(naif[f"{ins}_ITRANSL"]), 3)
         check_focal_plane_map(s, ln, p, f"NaifKeywords/{ins}_ITRANSS/_ITRANSL")
-    for key in naif:
+    for key in list(naif.keys()):
         m = re.fullmatch(r"BODY(-?\d+)_RADII", str(key))
         if m is None:
             continue
@@ -597,14 +597,16 @@ def _check_on_body(model, source, keys) -> None:
             raise _fail(source, keys["radii"], np.array([a, b]),
                         f"the {name} axis must be a positive finite length (metres)")
     lines, samples = int(getattr(model, "lines", 0) or 0), int(getattr(model, "samples", 0) or 0)
-    if lines <= 0 or samples <= 0:
-        return  # a .tsai pinhole without an image size: nothing to trace
-    line_edge = np.array([0.5, 0.5 * lines, lines - 0.5])
-    sample_edge = np.array([0.5, 0.5 * samples, samples - 0.5])
-    ll, ss = np.meshgrid(line_edge, sample_edge, indexing="ij")
-    with np.errstate(all="ignore"):
-        ray = model.image_to_ray(ll, ss)
-    origin = np.asarray(ray.origin, dtype=np.float64)
+    if lines <= 0 or samples <= 0:  # a .tsai pinhole without an image size: its centre only
+        origin = np.asarray(model.camera_center(np.zeros(1)), dtype=np.float64)
+        ray = None
+    else:
+        line_edge = np.array([0.5, 0.5 * lines, lines - 0.5])
+        sample_edge = np.array([0.5, 0.5 * samples, samples - 0.5])
+        ll, ss = np.meshgrid(line_edge, sample_edge, indexing="ij")
+        with np.errstate(all="ignore"):
+            ray = model.image_to_ray(ll, ss)
+        origin = np.asarray(ray.origin, dtype=np.float64)
     _finite(origin, source, keys["position"])
     level = _ellipsoid_level(origin, a, b)
     if np.any(level <= 1.0):
@@ -614,6 +616,8 @@ def _check_on_body(model, source, keys) -> None:
         raise _fail(source, keys["position"], centre,
                     f"puts the camera inside the body ({distance / 1e3:.6g} km from its "
                     f"centre, radius {a / 1e3:.6g} km): positions in km labelled metres?")
+    if ray is None:
+        return
     direction = np.asarray(ray.direction, dtype=np.float64)
     if not np.all(np.isfinite(direction)):
         raise _fail(source, keys["rotation"], direction.reshape(-1, 3)[0],

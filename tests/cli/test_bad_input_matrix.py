@@ -112,10 +112,52 @@ def work(tmp_path, monkeypatch):
         {"target": {"name": "left", "path": "left.tif"},
          "selected": [{"name": "left", "path": "left.tif"},
                       {"name": "gone", "path": "gone.tif"}]}))
+    _write_bad_sensors()
     Path("list.toml").write_text("[dem]\nmedian = [1, 2]\n")
     Path("inf.toml").write_text("[sgm]\nlr-threshold = inf\n")
     Path("string.toml").write_text("[synth]\nsize = \"big\"\n")
     return tmp_path
+
+
+def _write_bad_sensors():
+    """A frame ISD over (10°E, 5°N) for the 48 x 64 px images, and broken copies of it
+    (issue 31: values checked, not only keys)."""
+    from tests.helpers.camera_isd import nadir_isd
+    from tests.helpers.linescan import isd_dict, linescan_sensor
+
+    good = nadir_isd(10.0, 5.0, 50_000.0, focal_mm=50.0, pitch_mm=0.01, lines=48, samples=64)
+    Path("cam.json").write_text(json.dumps(good))
+
+    def bad(name, edit):
+        isd = json.loads(json.dumps(good))
+        edit(isd)
+        Path(name).write_text(json.dumps(isd))
+
+    bad("cam_focal_nan.json", lambda d: d["focal_length_model"].update(focal_length=float("nan")))
+    bad("cam_focal_zero.json", lambda d: d["focal_length_model"].update(focal_length=0.0))
+    bad("cam_singular.json", lambda d: d.update(focal2pixel_lines=[0.0, 0.0, 0.0]))
+    bad("cam_zero_quaternion.json",
+        lambda d: d["instrument_pointing"].update(quaternions=[[0.0, 0.0, 0.0, 0.0]]))
+    bad("cam_mirror.json", lambda d: d["instrument_pointing"].update(
+        constant_rotation=[1.0, 0, 0, 0, 1.0, 0, 0, 0, -1.0]))
+    bad("cam_sheared.json", lambda d: d["instrument_pointing"].update(
+        constant_rotation=[1.0, 0.3, 0, 0, 1.0, 0, 0, 0, 1.0]))
+    bad("cam_km_as_m.json", lambda d: d["instrument_position"].update(
+        positions=[[v / 1000.0 for v in d["instrument_position"]["positions"][0]]]))
+    bad("cam_radii_null.json", lambda d: d["radii"].update(semimajor=None))
+    bad("cam_radii_string.json", lambda d: d["radii"].update(semiminor="1737.4"))
+    bad("cam_lines_nan.json", lambda d: d.update(image_lines=float("nan")))
+    bad("cam_lines_zero.json", lambda d: d.update(image_lines=0))
+    bad("cam_lines_string.json", lambda d: d.update(image_lines="48"))
+    bad("cam_mars_radii.json", lambda d: d.update(naif_keywords={"BODY_CODE": 499}))
+    scan = isd_dict(linescan_sensor(lines=48, samples=64))
+    scan["line_scan_rate"] = [[r[0], r[1], -r[2]] for r in scan["line_scan_rate"]]
+    Path("ls_backwards.json").write_text(json.dumps(scan))
+    scan = isd_dict(linescan_sensor(lines=48, samples=64))
+    scan["instrument_position"] = {"ephemeris_times": [1000.0], "unit": "m",
+                                   "positions": [scan["instrument_position"]["positions"][20]]}
+    Path("ls_one_state.json").write_text(json.dumps(scan))
+    Path("only_label.cub").write_text("Object = IsisCube\n")
 
 
 def _snapshot(folder: Path) -> dict[str, bytes | None]:
@@ -379,6 +421,45 @@ CASES = [
          "--profile"),
     case("compare-mask-of-another-grid", [*COMPARE, "--mask", "small_mask.tif", "--out",
                                           "cmp"], 1, "they must share one grid"),
+    # ---------------------------------------------------------------- sensor models (issue 31)
+    case("camera-focal-nan", ["camera", "cam_focal_nan.json"], 1,
+         "cam_focal_nan.json: key 'focal_length_model.focal_length' = nan: not a finite number"),
+    case("camera-focal-zero", ["camera", "cam_focal_zero.json"], 1,
+         "cam_focal_zero.json: key 'focal_length_model.focal_length' = 0: must be positive"),
+    case("camera-singular-focal2pixel", ["camera", "cam_singular.json"], 1,
+         "cam_singular.json: keys 'focal2pixel_samples/focal2pixel_lines'"),
+    case("camera-zero-quaternion", ["camera", "cam_zero_quaternion.json"], 1,
+         "key 'instrument_pointing.quaternions' = [0., 0., 0., 0.]: row 0 is all zero"),
+    case("camera-sheared-rotation", ["camera", "cam_sheared.json"], 1,
+         "key 'instrument_pointing.constant_rotation'"),
+    case("camera-km-labelled-m", ["camera", "cam_km_as_m.json"], 1,
+         "cam_km_as_m.json: key 'instrument_position.positions'"),
+    case("camera-radii-null", ["camera", "cam_radii_null.json"], 1,
+         "key 'radii.semimajor' = None: not a number"),
+    case("camera-radii-string", ["camera", "cam_radii_string.json"], 1,
+         "key 'radii.semiminor' = '1737.4': not a number"),
+    case("camera-lines-nan", ["camera", "cam_lines_nan.json"], 1,
+         "key 'image_lines' = nan: not a finite number"),
+    case("camera-lines-zero", ["camera", "cam_lines_zero.json"], 1,
+         "key 'image_lines' = 0: must be positive"),
+    case("camera-lines-string", ["camera", "cam_lines_string.json"], 1,
+         "key 'image_lines' = '48': not a number"),
+    case("camera-moon-radii-on-mars", ["camera", "cam_mars_radii.json"], 1,
+         "but the file is of Mars (NAIF 499)"),
+    case("camera-body-mars-on-moon", ["camera", "cam.json", "--body", "Mars"], 1,
+         "cam.json: its radii (1737.4 km) are not those of --body Mars"),
+    case("camera-lines-backwards", ["camera", "ls_backwards.json"], 1,
+         "ls_backwards.json: key 'line_scan_rate'"),
+    case("camera-one-state-no-velocity", ["camera", "ls_one_state.json"], 1,
+         "ls_one_state.json: key 'instrument_position' has one state and no velocity"),
+    case("camera-label-only-cube", ["camera", "only_label.cub"], 1,
+         "only_label.cub: cannot parse the ISIS label"),
+    case("mapproject-mirrored-camera", ["mapproject", "left.tif", "--sensor", "cam_mirror.json",
+                                        "--height", "0", "--out", "o.tif"], 1,
+         "cam_mirror.json: key 'instrument_pointing.constant_rotation'"),
+    case("mapproject-nan-focal", ["mapproject", "left.tif", "--sensor", "cam_focal_nan.json",
+                                  "--height", "0", "--out", "o.tif"], 1,
+         "cam_focal_nan.json: key 'focal_length_model.focal_length'"),
     case("compare-reference-1e27", ["compare", "ref.tif", "ref_1e27.tif", "--out", "cmp",
                                     "--no-plots"], 1,
          "ref_1e27.tif: reference DEM has 3072 value(s) beyond"),

@@ -193,7 +193,7 @@ def _run_on_client(job: TileJob, todo: Sequence[Tile], cache: TileCache, progres
         if scheduler:
             try:
                 client = stack.enter_context(Client(scheduler, timeout=CONNECT_TIMEOUT))
-            except (OSError, TimeoutError) as exc:
+            except (OSError, TimeoutError, ValueError) as exc:  # ValueError: not an address
                 raise ProcessingError(f"--scheduler {scheduler}: cannot connect to the Dask "
                                       f"scheduler ({exc})") from None
             threads = 0  # the worker's own cores (start workers with --nthreads 1)

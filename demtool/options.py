@@ -135,6 +135,16 @@ def _odd_callback(ctx: click.Context, param: click.Parameter, value: Any) -> Any
     return value
 
 
+def _check_callback(check: Callable[[Any], str | None]) -> Callable:
+    """A click callback refusing a value a field's ``check`` finds a problem with."""
+    def callback(ctx: click.Context, param: click.Parameter, value: Any) -> Any:
+        if value is not None and (problem := check(value)):
+            raise click.BadParameter(problem)
+        return value
+
+    return callback
+
+
 def field_option(cls: type, field: dataclasses.Field) -> Callable:
     """The click option of one parameter field (default, range, choices and help from it)."""
     meta = field.metadata
@@ -152,6 +162,8 @@ def field_option(cls: type, field: dataclasses.Field) -> Callable:
         kwargs["metavar"] = meta["metavar"]
     if meta.get("odd"):
         kwargs["callback"] = _odd_callback
+    if meta.get("check") is not None:
+        kwargs["callback"] = _check_callback(meta["check"])
     return click.option(flag, name, type=option_type_for(field, kind), **kwargs)
 
 

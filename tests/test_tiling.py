@@ -439,3 +439,51 @@ def test_an_output_over_an_input_is_refused_before_any_tile(pair, tmp_path):
     assert "would overwrite the input" in result.output, result.output
     assert (tmp_path / "left.tif").read_bytes() == before
     assert not tiling.work_folder(tmp_path / "left.tif").exists()
+
+
+@pytest.mark.parametrize("damage", ["truncated", "empty", "flipped"])
+def test_a_damaged_cached_tile_is_recomputed(tmp_path, caplog, damage):
+    """Issue 31: a cached tile truncated, emptied or altered since it was written is not
+    reused (it would give a traceback or a wrong tile): it is recomputed, with a warning."""
+    import logging
+
+    from demtool.distributed import run_tiles
+
+    plan = tiling.plan_tiles(40, 40, 20, overlap=0)
+    cache = tiling.TileCache(tmp_path / "c")
+    run_tiles(_FailingJob(bad=-1), plan.tiles, cache)
+    path = cache.path(plan.tiles[1])
+    data = path.read_bytes()
+    path.write_bytes({"truncated": data[:100], "empty": b"",
+                      "flipped": data[:-4] + np.float32(7.0).tobytes()}[damage])
+    fresh = tiling.TileCache(tmp_path / "c")
+    with caplog.at_level(logging.WARNING, logger="demtool.tiling"):
+        assert [fresh.done(t) for t in plan.tiles] == [True, False, True, True]
+    assert "cached tile" in caplog.text and "recomputing it" in caplog.text
+    infos = run_tiles(_FailingJob(bad=-1), plan.tiles, fresh)
+    assert [i["index"] for i in infos] == [0, 1, 2, 3]
+    assert "_cache_sha256" not in infos[1]
+    np.testing.assert_array_equal(fresh.load(plan.tiles[1]), np.full((1, 20, 20), 1.0))
+
+
+@pytest.mark.parametrize("address, ok", [
+    ("tcp://127.0.0.1:8786", True), ("localhost:8786", True), ("tls://[::1]:8786", True),
+    ("not an address", False), ("tcp://", False), ("localhost:99999", False),
+    ("127.0.0.1", False)])
+def test_scheduler_address_is_checked_before_any_work(address, ok):
+    assert (tiling.scheduler_address_problem(address) is None) == ok
+
+
+def test_scheduler_not_an_address_is_a_usage_error(pair, tmp_path):
+    result = sgm(pair[0], tmp_path / "d.tif", "--tile-size", "64", "--scheduler", "nowhere")
+    assert result.exit_code == 2
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and "'--scheduler': 'nowhere' is not a scheduler address" in errors[0]
+    assert "Traceback" not in result.output and not (tmp_path / "d.tif").exists()
+
+
+def test_parameters_check_refuses_a_scheduler_that_is_not_an_address():
+    from demtool.dem.params import DemParams
+
+    with pytest.raises(ParameterError, match="--scheduler 'x' is not a scheduler address"):
+        DemParams(scheduler="x").check()

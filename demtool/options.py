@@ -19,15 +19,15 @@ from demtool.parameters import option_name, value_kind
 
 
 def out_file(help_text: str = "Output file.") -> click.decorators.FC:
-    """``--out PATH`` (required): the stage's main output file."""
-    return click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
-                        help=help_text)
+    """``--out PATH`` (required): the stage's main output file.  A folder given here is a
+    file problem (exit 1), refused by the runner's ``StageRun`` in one line."""
+    return click.option("--out", "out", required=True, type=click.Path(), help=help_text)
 
 
 def out_dir(help_text: str = "Output folder (created if needed).") -> click.decorators.FC:
-    """``--out DIR`` (required): the folder the stage writes into."""
-    return click.option("--out", "out", required=True, type=click.Path(file_okay=False),
-                        help=help_text)
+    """``--out DIR`` (required): the folder the stage writes into (a file given here is
+    refused by the runner's ``StageRun``, exit 1)."""
+    return click.option("--out", "out", required=True, type=click.Path(), help=help_text)
 
 
 def input_file(name: str, **kwargs) -> click.decorators.FC:

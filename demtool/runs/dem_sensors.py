@@ -153,6 +153,7 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     a, b = left.radii
     body = body_from_radii(a, a, b)
     use_crs = crs if params.projection == "auto" else None
+    _check_map_size(tri.xyz[keep], body, gsd, gsd_source, params, use_crs, source, log)
     result = dem_on_map(tri.xyz[keep], tri.gap[keep], body, gsd_m=gsd, crs=use_crs,
                         projection=params.projection, left=left, right=right,
                         median_px=params.median)
@@ -242,3 +243,27 @@ def _tiled(run: StageRun, params: DemParams, out, disparity_path, rectify_path,
                            summary={"route": "disparity-sensors"}, mask_path=mask_path,
                            error_path=error_path)
     return {"dry_run": result.dry_run} if result.dry_run is not None else result.summary
+
+
+#: peak bytes per map cell of :func:`demtool.dem.sensors.dem_on_map` (gridding moments,
+#: 9 float64; the DEM, weights, masks and filling work arrays)
+DEM_BYTES_PER_CELL = 160
+
+
+def _check_map_size(xyz, body, gsd: float, gsd_source: str, params, crs, source, log) -> None:
+    """State the map DEM's size before gridding; refuse one beyond the memory budget,
+    naming --gsd when it was given, else the disparity whose points spread so far."""
+    from demtool import sizes
+    from demtool.maps.grids import grid_from_xyz
+
+    grid = grid_from_xyz(body, xyz, gsd, projection=params.projection, crs=crs)
+    height, width = grid.shape
+    if gsd_source == "--gsd":
+        option, hint = "--gsd", None
+    else:
+        option = str(source)
+        hint = (f"its triangulated points span {width * gsd / 1e3:.4g} x {height * gsd / 1e3:.4g}"
+                f" km at the {gsd_source} GSD of {gsd:.4g} m: is it a disparity of this pair? "
+                "(or give a coarser --gsd)")
+    sizes.check_grid(grid.shape, bytes_per_cell=DEM_BYTES_PER_CELL, what="map DEM",
+                     option=option, log=log, hint=hint)

@@ -236,6 +236,10 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     surface = read_dem_surface(dem_path, sensor_path, body) if dem_path is not None else None
     grid = (_grid_like(grid_like, sensor_path, body, params) if grid_like is not None
             else _grid(sensor, body, surface, params, log))
+    from demtool.mapproject_checks import check_mapproject_grid
+
+    check_mapproject_grid(sensor, body, grid, params, dem_path=dem_path, out_path=out_path,
+                          bands=1 + (3 if angles_out is not None else 0), log=log)
     same_crs = surface is not None and not surface.geographic and \
         to_pyproj_crs(surface.info.crs) == grid.crs
     gsd = grid.gsd[0]

@@ -1,0 +1,103 @@
+"""Checks of a map-projection grid before any work (issue 31, class 3): its size against
+the memory budget and the free disk, its oversampling of the image, and ``--bounds``
+against the image's footprint (longitudes compared modulo 360°, so 0…360 and −180…180
+bounds name the same ground)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from demtool.errors import ParameterError
+
+#: map cells per image pixel beyond which a grid is refused: a GSD 100 × finer than the
+#: image's own (nothing to gain, hours and terabytes to lose)
+MAX_CELLS_PER_PIXEL = 1e4
+#: bytes per map cell the in-process loop holds at once is bounded by its tiles; the file
+#: holds 4 bytes per cell and band
+FILE_BYTES_PER_CELL = 4
+
+
+def wrap_longitude(lon, centre: float) -> np.ndarray:
+    """Longitudes (degrees) shifted by multiples of 360° into ``centre ± 180``."""
+    return (np.asarray(lon, dtype=np.float64) - centre + 180.0) % 360.0 - 180.0 + centre
+
+
+def footprint_box(lon, lat) -> tuple[float, float, float, float]:
+    """``(lon_min, lat_min, lon_max, lat_max)`` of points, longitudes unwrapped about their
+    circular mean (a footprint across the antimeridian stays one box)."""
+    lon = np.asarray(lon, dtype=np.float64)
+    lat = np.asarray(lat, dtype=np.float64)
+    rad = np.radians(lon)
+    centre = float(np.degrees(np.arctan2(np.sin(rad).mean(), np.cos(rad).mean())))
+    unwrapped = wrap_longitude(lon, centre)
+    return (float(unwrapped.min()), float(lat.min()), float(unwrapped.max()), float(lat.max()))
+
+
+def bounds_overlap(bounds, box) -> bool:
+    """Whether ``--bounds`` and a footprint box (both lon/lat degrees) share ground."""
+    lon0, lat0, lon1, lat1 = (float(v) for v in bounds)
+    f_lon0, f_lat0, f_lon1, f_lat1 = box
+    if lat1 < f_lat0 or lat0 > f_lat1:
+        return False
+    if lon1 - lon0 >= 360.0:
+        return True
+    centre = 0.5 * (f_lon0 + f_lon1)
+    shift = float(wrap_longitude(0.5 * (lon0 + lon1), centre)) - 0.5 * (lon0 + lon1)
+    lon0, lon1 = lon0 + shift, lon1 + shift
+    return not (lon1 < f_lon0 or lon0 > f_lon1)
+
+
+def grid_option(params: Any, dem_path: Any) -> str:
+    """The option that set the grid's spacing and extent (named in the errors)."""
+    if params.gsd is not None:
+        return "--gsd"
+    if params.bounds is not None:
+        return "--bounds"
+    if dem_path is not None:
+        return "--dem"
+    return "the image's own GSD (--gsd)"
+
+
+def check_mapproject_grid(sensor: Any, body: Any, grid: Any, params: Any, *, dem_path: Any,
+                          out_path: Any, bands: int, log=None) -> None:
+    """Refuse, before any work, a grid that is too big or that does not see the image.
+
+    Raises
+    ------
+    ParameterError
+        ``--bounds`` away from the footprint (lon/lat of both in the message); more than
+        :data:`MAX_CELLS_PER_PIXEL` map cells per image pixel; an output larger than the
+        free disk — each naming the option that made the grid so.
+    """
+    from demtool import sizes
+    from demtool.mapproject import ground_footprint
+    from demtool.maps import xyz_to_lonlat_height
+
+    option = grid_option(params, dem_path)
+    height = params.height if params.height is not None else 0.0
+    nbytes = int(grid.height) * int(grid.width) * FILE_BYTES_PER_CELL * bands
+    if log is not None:
+        log.info("orthoimage grid: %d x %d cells (%s on disk)", grid.width, grid.height,
+                 sizes.human_bytes(nbytes))
+    if params.bounds is not None:
+        xyz = ground_footprint(sensor, body.radius, height)
+        seen = np.isfinite(xyz).all(axis=1)
+        if seen.any():
+            lon, lat, _ = xyz_to_lonlat_height(xyz[seen], radii=body.radius)
+            box = footprint_box(lon, lat)
+            if not bounds_overlap(params.bounds, box):
+                raise ParameterError(
+                    "--bounds: lon {:g}…{:g}, lat {:g}…{:g} does not overlap the image's "
+                    "footprint (lon {:.4g}…{:.4g}, lat {:.4g}…{:.4g}): nothing of the image "
+                    "would be on the map".format(*np.asarray(params.bounds)[[0, 2, 1, 3]],
+                                                 box[0], box[2], box[1], box[3]))
+    pixels = max(1, int(sensor.lines) * int(sensor.samples))
+    ratio = grid.height * grid.width / pixels
+    if ratio > MAX_CELLS_PER_PIXEL:
+        raise ParameterError(f"{option}: the orthoimage would be {grid.width} x {grid.height} "
+                             f"cells ({sizes.human_bytes(nbytes)}), {ratio:.3g} cells per "
+                             f"pixel of the {sensor.samples} x {sensor.lines} image; choose a "
+                             f"coarser {option} or a smaller area")
+    sizes.check_disk(out_path, nbytes, what="orthoimage", option=option)

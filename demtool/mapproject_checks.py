@@ -101,3 +101,54 @@ def check_mapproject_grid(sensor: Any, body: Any, grid: Any, params: Any, *, dem
                              f"pixel of the {sensor.samples} x {sensor.lines} image; choose a "
                              f"coarser {option} or a smaller area")
     sizes.check_disk(out_path, nbytes, what="orthoimage", option=option)
+
+
+#: |height| above the reference sphere a DEM may hold: this fraction of the body's radius
+#: (Vesta's relief is 15 % of its radius, small bodies' more), at least 30 km (Olympus Mons
+#: is 22 km high)
+MAX_HEIGHT_FRACTION, MIN_HEIGHT_LIMIT_M = 0.5, 30e3
+
+
+def height_limit(body: Any) -> float:
+    """Largest plausible |height| (metres) above ``body``'s reference sphere."""
+    return max(MIN_HEIGHT_LIMIT_M, MAX_HEIGHT_FRACTION * float(body.radius))
+
+
+def check_surface_heights(found, dem_path: Any, body: Any) -> None:
+    """Refuse a DEM whose heights under the image's footprint cannot be heights above the
+    body's sphere: none valid (all NaN, nodata, or the DEM elsewhere), or beyond
+    :func:`height_limit` (radii written as heights, 1e27 fill values) — naming the DEM,
+    not the image."""
+    from demtool.errors import InputError
+
+    found = np.asarray(found, dtype=np.float64)
+    finite = found[np.isfinite(found)]
+    if finite.size == 0:
+        raise InputError(f"{dem_path}: DEM has no valid height under the image's footprint "
+                         "(all NaN or nodata there, or it covers other ground)")
+    limit = height_limit(body)
+    worst = float(np.max(np.abs(finite)))
+    if worst > limit:
+        raise InputError(f"{dem_path}: DEM heights reach {worst:.4g} m under the image's "
+                         f"footprint, beyond ±{limit:.4g} m of {body.name}'s reference sphere "
+                         f"(radius {body.radius:.7g} m): radii instead of heights above the "
+                         "sphere, or a fill value?")
+
+
+def check_height(sensor: Any, body: Any, height: float) -> None:
+    """Refuse a ``--height`` no surface can have: beyond :func:`height_limit`, or above
+    the camera."""
+    limit = height_limit(body)
+    if abs(height) > limit:
+        raise ParameterError(f"--height {height:g}: beyond ±{limit:.4g} m of {body.name}'s "
+                             f"reference sphere (radius {body.radius:.7g} m); heights are "
+                             "metres above the sphere")
+    try:
+        centre = np.asarray(sensor.camera_center(np.array([0.5 * sensor.lines])),
+                            dtype=np.float64).reshape(-1, 3)[0]
+    except (AttributeError, ValueError):
+        return
+    altitude = float(np.linalg.norm(centre)) - float(body.radius)
+    if np.isfinite(altitude) and height >= altitude:
+        raise ParameterError(f"--height {height:g}: at or above the camera ({altitude:.6g} m "
+                             "above the sphere)")

@@ -116,6 +116,10 @@ def _footprint_heights(surface: DemSurface | None, height: float, sensor, body):
         xyz = ground_footprint(sensor, body.radius, h)
         lon, lat, _ = xyz_to_lonlat_height(xyz, radii=body.radius)
         found = surface.heights_lonlat(lon, lat)
+        if not isinstance(h, np.ndarray):  # the first pass: the DEM under the footprint
+            from demtool.mapproject_checks import check_surface_heights
+
+            check_surface_heights(found, surface.info.path, body)
         fallback = float(np.nanmedian(found)) if np.isfinite(found).any() else 0.0
         h = np.where(np.isfinite(found), found, fallback)
     return h
@@ -233,6 +237,10 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
                          f"sensor model {sensor_path} describes {sensor.samples} x "
                          f"{sensor.lines}")
     body = sensor_body(sensor)
+    if params.height is not None:
+        from demtool.mapproject_checks import check_height
+
+        check_height(sensor, body, float(params.height))
     surface = read_dem_surface(dem_path, sensor_path, body) if dem_path is not None else None
     grid = (_grid_like(grid_like, sensor_path, body, params) if grid_like is not None
             else _grid(sensor, body, surface, params, log))

@@ -158,6 +158,15 @@ def _write_bad_sensors():
                                    "positions": [scan["instrument_position"]["positions"][20]]}
     Path("ls_one_state.json").write_text(json.dumps(scan))
     Path("only_label.cub").write_text("Object = IsisCube\n")
+    from demtool.maps import body_by_name, grid_from_lonlat
+
+    moon = body_by_name("Moon")
+    grid = grid_from_lonlat(moon, np.array([9.95, 10.05]), np.array([4.95, 5.05]), 20.0)
+    shape = (grid.height, grid.width)
+    for name, values in (("map_dem_nan.tif", np.full(shape, np.nan)),
+                         ("map_dem_1e27.tif", np.full(shape, 1e27)),
+                         ("map_dem_radius.tif", np.full(shape, moon.radius))):
+        dio.write_raster(name, values, transform=grid.transform, crs=grid.crs)
 
 
 def _snapshot(folder: Path) -> dict[str, bytes | None]:
@@ -481,6 +490,23 @@ CASES = [
     case("mapproject-nan-focal", ["mapproject", "left.tif", "--sensor", "cam_focal_nan.json",
                                   "--height", "0", "--out", "o.tif"], 1,
          "cam_focal_nan.json: key 'focal_length_model.focal_length'"),
+    case("mapproject-all-nan-dem", ["mapproject", "left.tif", "--sensor", "cam.json",
+                                    "--dem", "map_dem_nan.tif", "--out", "o.tif"], 1,
+         "map_dem_nan.tif: DEM has no valid height under the image's footprint"),
+    case("mapproject-1e27-dem", ["mapproject", "left.tif", "--sensor", "cam.json",
+                                 "--dem", "map_dem_1e27.tif", "--out", "o.tif"], 1,
+         "map_dem_1e27.tif: DEM heights reach 1e+27 m"),
+    case("mapproject-radius-valued-dem", ["mapproject", "left.tif", "--sensor", "cam.json",
+                                          "--dem", "map_dem_radius.tif", "--out", "o.tif"], 1,
+         "map_dem_radius.tif: DEM heights reach 1.737e+06 m"),
+    case("mapproject-height-below-the-centre", ["mapproject", "left.tif", "--sensor",
+                                                "cam.json", "--height", "-2e6", "--out",
+                                                "o.tif"], 1,
+         "--height -2e+06: beyond"),
+    case("mapproject-height-above-the-camera", ["mapproject", "left.tif", "--sensor",
+                                                "cam.json", "--height", "60000", "--out",
+                                                "o.tif"], 1,
+         "--height 60000: at or above the camera"),
     case("compare-reference-1e27", ["compare", "ref.tif", "ref_1e27.tif", "--out", "cmp",
                                     "--no-plots"], 1,
          "ref_1e27.tif: reference DEM has 3072 value(s) beyond"),

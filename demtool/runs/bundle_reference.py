@@ -86,5 +86,8 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
     heights = heights.astype(np.float64) + dem.offset_m
     if not np.isfinite(heights).any():
         raise InputError(f"{path}: reference DEM has no data under the images' footprints")
+    from demtool.mapproject_checks import check_surface_heights
+
+    check_surface_heights(heights, path, body)
     return ReferenceSurface(heights=heights, transform=t @ Affine.translation(c0, r0),
                             crs=crs, radius=body.radius, sigma=float(sigma))

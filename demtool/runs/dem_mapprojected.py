@@ -67,6 +67,9 @@ def read_ortho(path, *, what: str) -> Ortho:
                          "missing")
     if info.crs is None or not to_pyproj_crs(info.crs).is_projected:
         raise InputError(f"{path}: {what} is not on a projected map of the body")
+    from demtool.mapproject_hashes import check_hashes
+
+    check_hashes(path, tags)
     sensor = read_sensor(sensor_path)
     crs = to_pyproj_crs(info.crs)
     if tags[SURFACE_TAG] == "height" and HEIGHT_TAG in tags:
@@ -117,6 +120,9 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     left = read_ortho(left_path, what="left orthoimage")
     right = read_ortho(right_path, what="right orthoimage")
     li, ri = left.info, right.info
+    from demtool.mapproject_hashes import check_distinct
+
+    check_distinct(left_path, li.tags, right_path, ri.tags)
     if (li.transform != ri.transform or (li.width, li.height) != (ri.width, ri.height)
             or to_pyproj_crs(li.crs) != to_pyproj_crs(ri.crs)):
         raise InputError(f"{left_path} and {right_path}: the orthoimages are on different "

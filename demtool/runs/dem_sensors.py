@@ -150,6 +150,11 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     log.info("%d correspondences: %d behind a camera, %d rays missing by more than %.3g m "
              "(median gap %.3g m, GSD %.3g m)", finite.size, int((finite & ~tri.in_front).sum()),
              int((in_front & ~keep).sum()), max_gap, median_gap, gsd)
+    dropped = int((in_front & ~keep).sum())
+    if dropped > 0.5 * int(in_front.sum()):  # issue 31: a filter that drops most points says so
+        log.warning("--max-ray-gap %.3g m drops %d of %d points (%.1f %%): the models may not "
+                    "fit this disparity (or give a larger --max-ray-gap)", max_gap, dropped,
+                    int(in_front.sum()), 100.0 * dropped / max(1, int(in_front.sum())))
     a, b = left.radii
     body = body_from_radii(a, a, b)
     use_crs = crs if params.projection == "auto" else None

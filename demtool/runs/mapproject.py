@@ -245,6 +245,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     grid = (_grid_like(grid_like, sensor_path, body, params) if grid_like is not None
             else _grid(sensor, body, surface, params, log))
     from demtool.mapproject_checks import check_mapproject_grid
+    from demtool.mapproject_hashes import hash_tags
 
     check_mapproject_grid(sensor, body, grid, params, dem_path=dem_path, out_path=out_path,
                           bands=1 + (3 if angles_out is not None else 0), log=log)
@@ -259,6 +260,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     tags = run.provenance.tags(
         frame="map", **body.tags(), **surface_tags,
         **{SENSOR_TAG: str(Path(sensor_path).resolve())},
+        **hash_tags(image_path, sensor_path, dem_path),
         mapproject_image=str(Path(image_path).resolve()), sensor_name=sensor.name,
         sensor_kind=sensor.kind, image_size=[sensor.lines, sensor.samples])
     try:

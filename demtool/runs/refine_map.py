@@ -96,6 +96,9 @@ def image_on_map(image_path, sensor_path, dem, params, log):
     if not path.is_file():
         raise InputError(f"{image_path}: its sensor model {path} (tag {SENSOR_TAG}) is not "
                          "found; give --sensor")
+    from demtool.mapproject_hashes import check_hashes
+
+    check_hashes(image_path, image.tags, log=log)
     sensor = read_sensor(path)
     require_same_body(dem.path, dem.crs, sensor_body(sensor), path, "a DEM")
     values, note = image_on_dem_grid(image, dem)

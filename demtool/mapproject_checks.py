@@ -152,3 +152,39 @@ def check_height(sensor: Any, body: Any, height: float) -> None:
     if np.isfinite(altitude) and height >= altitude:
         raise ParameterError(f"--height {height:g}: at or above the camera ({altitude:.6g} m "
                              "above the sphere)")
+
+
+def model_footprint_box(sensor: Any, radius: float) -> tuple[float, float, float, float] | None:
+    """Lon/lat box (degrees) of a model's footprint on the sphere of ``radius`` (None when
+    no edge point sees it)."""
+    from demtool.mapproject import ground_footprint
+    from demtool.maps import xyz_to_lonlat_height
+
+    xyz = ground_footprint(sensor, radius, 0.0)
+    seen = np.isfinite(xyz).all(axis=1)
+    if not seen.any():
+        return None
+    lon, lat, _ = xyz_to_lonlat_height(xyz[seen], radii=radius)
+    return footprint_box(lon, lat)
+
+
+def check_pair_overlaps(left: Any, right: Any, left_path: Any, right_path: Any) -> None:
+    """Refuse a stereo pair of body-fixed models whose footprints share no ground (a pair
+    1 800 km apart is not a pointing error for ``bundle`` to fix)."""
+    from demtool.errors import InputError
+
+    if left.radii is None or right.radii is None:
+        return
+    radius = float(left.radii[0])
+    boxes = model_footprint_box(left, radius), model_footprint_box(right, radius)
+    if boxes[0] is None or boxes[1] is None or bounds_overlap(boxes[1], boxes[0]):
+        return
+    with np.errstate(all="ignore"):
+        centres = [m.image_to_ground(0.5 * m.lines, 0.5 * m.samples) for m in (left, right)]
+    distance = float(np.linalg.norm(np.asarray(centres[0]) - np.asarray(centres[1])))
+    def box(b):
+        return f"lon {b[0]:.4g}…{b[2]:.4g}, lat {b[1]:.4g}…{b[3]:.4g}"
+
+    raise InputError(f"{right_path}: its footprint ({box(boxes[1])}) does not overlap that of "
+                     f"{left_path} ({box(boxes[0])}; centres {distance / 1e3:.4g} km apart): "
+                     "not a stereo pair")

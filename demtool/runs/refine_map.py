@@ -178,6 +178,9 @@ def resolve_map_route(image_path: str | os.PathLike, dem, params, log, *,
                          f"{SENSOR_TAG} tag; a mosaic?) has no single sun and view "
                          "geometry: map-project the raw image (demtool mapproject), give "
                          "--sensor, or give the sun")
+    if values is not None and not np.isfinite(values).any():  # before any sun or view
+        raise InputError(f"{dem.path}: the DEM lies outside the footprint of {image_path} "
+                         f"(through {path}): no DEM cell is in the image")
     windows, pairs, report = map_illumination(sensor, dem, params, log)
     report["sensor"] = str(path)
     return MapGeometry(dem, np.asarray(values, dtype=np.float32), windows, pairs, report)

@@ -42,6 +42,10 @@ def models_from_rectification(rectification: dict, rectify_path
                              f"{exc.args[0]!r}") from None
         except (ValueError, TypeError) as exc:
             raise InputError(f"{rectify_path}: bad {side} sensor model ({exc})") from None
+    from demtool.sensors.validate import check_model
+
+    for side, model in zip(("left", "right"), models, strict=True):  # issue 31: the file
+        check_model(model, rectify_path, f"rectify_{side}")  # is blamed, not the disparity
     return models[0], models[1]
 
 

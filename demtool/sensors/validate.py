@@ -501,6 +501,12 @@ KEYS = {
     "npz": {"focal": "K", "detector": "K", "rotation": "R", "position": "t", "radii": "radii",
             "sun": "sun"},
 }
+for _side in ("left", "right"):  # the models a calibrated rectify.npz stores
+    _p = f"sensor_{_side}_"
+    KEYS[f"rectify_{_side}"] = {
+        "focal": _p + "focal_length", "detector": _p + "itrans_sample/" + _p + "itrans_line",
+        "rotation": _p + "rotation", "position": _p + "position", "radii": _p + "radii",
+        "sun": _p + "sun"}
 
 
 def check_model(model, source: Any, reader: str = "isd"):
@@ -513,7 +519,7 @@ def check_model(model, source: Any, reader: str = "isd"):
         radii, camera outside the body, boresight).
     source : path-like or str
         The file, for the messages.
-    reader : {"isd", "cube", "tsai", "npz"}
+    reader : {"isd", "cube", "tsai", "npz", "rectify_left", "rectify_right"}
         Which file keys to name (:data:`KEYS`).
 
     Raises

@@ -197,3 +197,24 @@ def test_a_pair_1800_km_apart_is_not_blamed_on_the_spice(frame_scene, tmp_path):
     assert "far.json: its footprint" in errors[0] and "does not overlap" in errors[0]
     assert "SPICE" not in run.output
     assert not out.exists() or not any(out.iterdir())
+
+
+@pytest.mark.slow
+def test_dem_blames_a_nan_model_in_rectify_npz_not_the_disparity(frame_scene, tmp_path):
+    scene, paths = frame_scene
+    rect = tmp_path / "rect"
+    assert _rectify(paths, rect).exit_code == 0
+    data = dio.read_npz(rect / "rectify.npz", "rectification")
+    width, height = (int(v) for v in data["size_rect"])
+    disparity = tmp_path / "d.tif"
+    dio.write_raster(disparity, np.zeros((height, width), np.float32))
+    broken = {k: v for k, v in data.items() if k not in ("kind", "format_version")}
+    broken["sensor_right_position"] = np.full(3, np.nan)
+    dio.write_npz(tmp_path / "nan.npz", "rectification", broken)
+    out = tmp_path / "dem.tif"
+    run = _invoke("dem", "--disparity", disparity, "--rectify", tmp_path / "nan.npz",
+                  "--out", out)
+    errors = [line for line in run.output.splitlines() if line.startswith("Error:")]
+    assert run.exit_code == 1 and len(errors) == 1, run.output
+    assert f"{tmp_path / 'nan.npz'}: key 'sensor_right_position'" in errors[0]
+    assert "non-finite" in errors[0] and not out.exists()

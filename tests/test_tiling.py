@@ -195,9 +195,21 @@ def test_changed_parameters_do_not_reuse_the_cache(pair, tmp_path, monkeypatch):
     monkeypatch.setattr(tiled_sgm.SgmTileJob, "compute", _fail_on(3))
     assert sgm(folder, out, "--tile-size", "64").exit_code == 1
     monkeypatch.undo()
-    result = sgm(folder, out, "--tile-size", "64", "--median", "5")
+    assert len(list(tiling.work_folder(out).glob("*/tile_*.npy"))) == 3
+    from demtool.tiled import sgm as tiled_sgm_again
+
+    calls: list[int] = []
+    original = tiled_sgm_again.SgmTileJob.compute
+    monkeypatch.setattr(tiled_sgm_again.SgmTileJob, "compute", lambda self, tile, threads: (
+        calls.append(tile.index), original(self, tile, threads))[1])
+    result = CliRunner().invoke(cli, ["sgm", str(folder / "left.tif"),
+                                      str(folder / "right.tif"), "--out", str(out), *SGM,
+                                      "--tile-size", "64", "--median", "5"])
     assert result.exit_code == 0, result.output
-    assert len(list(tiling.work_folder(out).glob("*/tile_*.npy"))) == 3  # the old key's
+    assert len(calls) == 12  # nothing reused from the other parameters' cache
+    # ... which is removed once the run is done (issue 31: no cache of other inputs stays)
+    assert "removing 1 tile cache(s) of other inputs or parameters" in result.output
+    assert not tiling.work_folder(out).exists()
 
 
 def _fail_on(index: int):

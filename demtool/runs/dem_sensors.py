@@ -133,6 +133,7 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     from demtool.maps import body_from_radii
 
     log = run.log
+    _check_baseline(left, right, source)
     tri = triangulate_sensors(left, right, *left_pixels, *right_pixels)
     finite = np.isfinite(tri.xyz).all(axis=1)
     in_front = finite & tri.in_front
@@ -276,3 +277,32 @@ def _check_map_size(xyz, body, gsd: float, gsd_source: str, params, crs, source,
                 "(or give a coarser --gsd)")
     sizes.check_grid(grid.shape, bytes_per_cell=DEM_BYTES_PER_CELL, what="map DEM",
                      option=option, log=log, hint=hint)
+
+
+#: baseline / range below which a pair has no usable parallax (B/H 1e-4: 0.1 px of
+#: parallax over 1000 px of image width at best)
+MIN_BASE_TO_RANGE = 1e-4
+
+
+def _check_baseline(left, right, source) -> None:
+    """Refuse a pair whose two models stand at one place (a zero baseline: one image's
+    model given twice, the same orthoimage twice)."""
+    import numpy as np
+
+    from demtool.errors import ProcessingError
+
+    try:
+        with np.errstate(all="ignore"):
+            centres = [np.asarray(m.camera_center(np.array([0.5 * m.lines])),
+                                  dtype=np.float64).reshape(-1, 3)[0] for m in (left, right)]
+            ground = np.asarray(left.image_to_ground(0.5 * left.lines, 0.5 * left.samples),
+                                dtype=np.float64).reshape(3)
+    except (AttributeError, ValueError, TypeError):
+        return
+    base = float(np.linalg.norm(centres[1] - centres[0]))
+    distance = float(np.linalg.norm(ground - centres[0]))
+    if np.isfinite(base) and np.isfinite(distance) and distance > 0 and \
+            base < MIN_BASE_TO_RANGE * distance:
+        raise ProcessingError(f"{source}: the two sensor models stand at one place (baseline "
+                              f"{base:.3g} m for a range of {distance / 1e3:.4g} km): no "
+                              "parallax to triangulate; is one model given twice?")

@@ -78,3 +78,26 @@ def check_distinct(left_path: Any, left_tags: dict[str, Any], right_path: Any,
         raise InputError(f"{right_path}: is the same image as {left_path}"
                          f"{'' if same_file else ' (one raw image and sensor model)'}: a "
                          "stereo pair needs two views")
+
+
+def check_pair_order(disparity_path: Any, left_path: Any, right_path: Any) -> None:
+    """Refuse orthoimages given in the other order than the disparity was matched in.
+
+    The disparity's provenance sidecar (``<disparity>.json``, written by ``sgm``/``match``)
+    lists its inputs, left first; given right as left, every parallax changes sign and the
+    DEM is wrong everywhere (RMSE 3.55 m instead of 0.15 m).  Without a sidecar, or when
+    it names other files, nothing is checked.
+    """
+    import json
+
+    sidecar = Path(f"{disparity_path}.json")
+    try:
+        record = json.loads(sidecar.read_text())
+        paths = [Path(str(entry["path"])).resolve() for entry in record.get("inputs", [])]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return
+    left, right = Path(left_path).resolve(), Path(right_path).resolve()
+    if left in paths and right in paths and paths.index(left) > paths.index(right):
+        raise InputError(f"{disparity_path}: was matched with {right_path} as the left "
+                         f"orthoimage and {left_path} as the right (its sidecar {sidecar}); "
+                         "give them in that order")

@@ -204,3 +204,12 @@ def test_dem_refuses_one_ortho_twice(route, tmp_path):
     result = invoke("dem", "--disparity", route["disparity"], "--mapprojected",
                     route["left"], copy, "--out", out)
     assert_refused(result, out, f"{copy}: is the same image as", "one raw image and sensor")
+
+
+@pytest.mark.slow
+def test_dem_refuses_orthos_swapped_against_the_disparity(route, tmp_path):
+    out = tmp_path / "dem.tif"
+    result = invoke("dem", "--disparity", route["disparity"], "--mapprojected",
+                    route["right"], route["left"], "--out", out)
+    assert_refused(result, out, f"{route['disparity']}: was matched with {route['left']} as "
+                   "the left orthoimage")

@@ -30,7 +30,7 @@ def parameter(default: Any, help: str, *, option: str | None = None,  # noqa: A0
               min_open: bool = False, max_open: bool = False,
               choices: Sequence[str] | None = None, odd: bool = False,
               what: str = "value", flag: str | None = None, metavar: str | None = None,
-              cli: bool = True) -> Any:
+              cli: bool = True, check: Any = None) -> Any:
     """A dataclass field describing one stage parameter.
 
     Parameters
@@ -57,11 +57,15 @@ def parameter(default: Any, help: str, *, option: str | None = None,  # noqa: A0
         Metavariable shown in ``--help``.
     cli : bool
         False for parameters that are not command-line options.
+    check : callable, optional
+        ``check(value) -> str | None``: the problem with a value that has no range or
+        choices to say it (a scheduler address), or None; the option refuses it (exit 2)
+        and :meth:`Parameters.check` too.
     """
     metadata = {"help": help, "option": option, "minimum": minimum, "maximum": maximum,
                 "min_open": min_open, "max_open": max_open, "what": what, "odd": odd,
                 "choices": tuple(choices) if choices is not None else None,
-                "flag": flag, "metavar": metavar, "cli": cli}
+                "flag": flag, "metavar": metavar, "cli": cli, "check": check}
     return dataclasses.field(default=default, metadata=metadata)
 
 
@@ -157,6 +161,8 @@ class Parameters:
                                          f"{value!r}: should be one of "
                                          + ", ".join(meta["choices"]))
                 continue
+            if meta.get("check") is not None and (problem := meta["check"](value)):
+                self.fail(field.name, problem)
             if not isinstance(value, (int, float)):
                 continue
             if not math.isfinite(value):

@@ -300,6 +300,9 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
                    folders={"--adjusted-dir": adjusted_dir})
     log, prov = run.log, run.provenance
     models = [read_sensor(p) for p in sensor_paths]
+    from demtool.bundle.block_checks import check_block
+
+    check_block(models, sensor_paths, list(block.names), list(block.paths))
     radii = next((m.radii for m in models if m.radii is not None), None)
     for k, (path, kind) in enumerate(zip(sensor_paths, kinds, strict=True)):
         if kind == "tsai":

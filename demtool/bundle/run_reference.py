@@ -94,6 +94,9 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
         heights = heights - body.radius
     else:
         heights = heights + dem.offset_m
+    from demtool.mapproject.checks import check_surface_heights
+
+    check_surface_heights(heights, path, body)
     surface = ReferenceSurface(heights=heights, transform=t @ Affine.translation(c0, r0),
                                crs=crs, radius=body.radius, sigma=float(sigma))
     if not slope_sigma:

@@ -58,6 +58,9 @@ def _body_of(model, path: Path, named: Body | None) -> Body | None:
         return None
     a, b = model.radii
     if named is not None:
+        from demtool.sensors.validate import check_named_body
+
+        check_named_body(model, named, path)
         body = body_from_radii(a, a, b, name=named.name, naif_id=named.naif_id)
     else:
         naif = _isd_naif_id(path) if path.suffix.lower() == ".json" else None

@@ -12,6 +12,15 @@ from demtool.mapproject.params import MapprojectParams
 from demtool.stages import STAGES
 
 
+def _bounds(ctx: click.Context, param: click.Parameter, value: Any) -> Any:
+    from demtool.mapproject.params import bounds_problem
+
+    problem = bounds_problem(value)
+    if problem is not None:
+        raise click.BadParameter(problem)
+    return value
+
+
 @click.command(name="mapproject", help=STAGES["mapproject"] + """
 
 Every cell of the map grid is a ground point (map x, y -> lon, lat -> body-fixed XYZ
@@ -32,7 +41,7 @@ later stages (dem --mapprojected, refine) can undo the projection.""")
 @options.path_option("--angles-out", "Also write incidence, emission and phase angles "
                      "(degrees, 3 bands) on the same grid.")
 @options.parameter_options(MapprojectParams)
-@click.option("--bounds", type=(option_types.FLOAT,) * 4, default=None,
+@click.option("--bounds", type=(option_types.FLOAT,) * 4, default=None, callback=_bounds,
               metavar="LON_MIN LAT_MIN LON_MAX LAT_MAX",
               help="Area to cover, degrees (default: the image's footprint).")
 @click.pass_context

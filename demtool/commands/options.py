@@ -19,15 +19,15 @@ from demtool.parameters import option_name, value_kind
 
 
 def out_file(help_text: str = "Output file.") -> click.decorators.FC:
-    """``--out PATH`` (required): the stage's main output file."""
-    return click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
-                        help=help_text)
+    """``--out PATH`` (required): the stage's main output file.  A folder given here is a
+    file problem (exit 1), refused by the runner's ``StageRun`` in one line."""
+    return click.option("--out", "out", required=True, type=click.Path(), help=help_text)
 
 
 def out_dir(help_text: str = "Output folder (created if needed).") -> click.decorators.FC:
-    """``--out DIR`` (required): the folder the stage writes into."""
-    return click.option("--out", "out", required=True, type=click.Path(file_okay=False),
-                        help=help_text)
+    """``--out DIR`` (required): the folder the stage writes into (a file given here is
+    refused by the runner's ``StageRun``, exit 1)."""
+    return click.option("--out", "out", required=True, type=click.Path(), help=help_text)
 
 
 def input_file(name: str, **kwargs) -> click.decorators.FC:
@@ -138,6 +138,16 @@ def _odd_callback(ctx: click.Context, param: click.Parameter, value: Any) -> Any
     return value
 
 
+def _check_callback(check: Callable[[Any], str | None]) -> Callable:
+    """A click callback refusing a value a field's ``check`` finds a problem with."""
+    def callback(ctx: click.Context, param: click.Parameter, value: Any) -> Any:
+        if value is not None and (problem := check(value)):
+            raise click.BadParameter(problem)
+        return value
+
+    return callback
+
+
 def field_option(cls: type, field: dataclasses.Field) -> Callable:
     """The click option of one parameter field (default, range, choices and help from it)."""
     meta = field.metadata
@@ -155,6 +165,8 @@ def field_option(cls: type, field: dataclasses.Field) -> Callable:
         kwargs["metavar"] = meta["metavar"]
     if meta.get("odd"):
         kwargs["callback"] = _odd_callback
+    if meta.get("check") is not None:
+        kwargs["callback"] = _check_callback(meta["check"])
     return click.option(flag, name, type=option_type_for(field, kind), **kwargs)
 
 

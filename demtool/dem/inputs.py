@@ -89,6 +89,10 @@ def models_from_rectification(rectification: dict, rectify_path
                              f"{exc.args[0]!r}") from None
         except (ValueError, TypeError) as exc:
             raise InputError(f"{rectify_path}: bad {side} sensor model ({exc})") from None
+    from demtool.sensors.validate import check_model
+
+    for side, model in zip(("left", "right"), models, strict=True):  # issue 31: the file
+        check_model(model, rectify_path, f"rectify_{side}")  # is blamed, not the disparity
     return models[0], models[1]
 
 
@@ -152,6 +156,9 @@ def read_ortho(path, *, what: str) -> Ortho:
                          "missing")
     if info.crs is None or not to_pyproj_crs(info.crs).is_projected:
         raise InputError(f"{path}: {what} is not on a projected map of the body")
+    from demtool.mapproject.hashes import check_hashes
+
+    check_hashes(path, tags)
     sensor = read_sensor(sensor_path)
     crs = to_pyproj_crs(info.crs)
     if tags[SURFACE_TAG] == "height" and HEIGHT_TAG in tags:

@@ -47,6 +47,10 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     left = read_ortho(left_path, what="left orthoimage")
     right = read_ortho(right_path, what="right orthoimage")
     li, ri = left.info, right.info
+    from demtool.mapproject.hashes import check_distinct, check_pair_order
+
+    check_distinct(left_path, li.tags, right_path, ri.tags)
+    check_pair_order(disparity_path, left_path, right_path)
     if (li.transform != ri.transform or (li.width, li.height) != (ri.width, ri.height)
             or to_pyproj_crs(li.crs) != to_pyproj_crs(ri.crs)):
         raise InputError(f"{left_path} and {right_path}: the orthoimages are on different "

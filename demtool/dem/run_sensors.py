@@ -104,6 +104,7 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     from demtool.maps import body_from_radii
 
     log = run.log
+    _check_baseline(left, right, source)
     tri = triangulate_sensors(left, right, *left_pixels, *right_pixels)
     finite = np.isfinite(tri.xyz).all(axis=1)
     in_front = finite & tri.in_front
@@ -125,9 +126,15 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     log.info("%d correspondences: %d behind a camera, %d rays missing by more than %.3g m "
              "(median gap %.3g m, GSD %.3g m)", finite.size, int((finite & ~tri.in_front).sum()),
              int((in_front & ~keep).sum()), max_gap, median_gap, gsd)
+    dropped = int((in_front & ~keep).sum())
+    if dropped > 0.5 * int(in_front.sum()):  # issue 31: a filter that drops most points says so
+        log.warning("--max-ray-gap %.3g m drops %d of %d points (%.1f %%): the models may not "
+                    "fit this disparity (or give a larger --max-ray-gap)", max_gap, dropped,
+                    int(in_front.sum()), 100.0 * dropped / max(1, int(in_front.sum())))
     a, b = left.radii
     body = body_from_radii(a, a, b)
     use_crs = crs if params.projection == "auto" else None
+    _check_map_size(tri.xyz[keep], body, gsd, gsd_source, params, use_crs, source, log)
     result = dem_on_map(tri.xyz[keep], tri.gap[keep], body, gsd_m=gsd, crs=use_crs,
                         projection=params.projection, left=left, right=right,
                         median_px=params.median)
@@ -224,3 +231,56 @@ def _tiled(run: StageRun, params: DemParams, out, disparity_path, rectify_path,
                            summary={"route": "disparity-sensors"}, mask_path=mask_path,
                            error_path=error_path)
     return {"dry_run": result.dry_run} if result.dry_run is not None else result.summary
+
+
+#: peak bytes per map cell of :func:`demtool.dem.sensors.dem_on_map` (gridding moments,
+#: 9 float64; the DEM, weights, masks and filling work arrays)
+DEM_BYTES_PER_CELL = 160
+
+
+def _check_map_size(xyz, body, gsd: float, gsd_source: str, params, crs, source, log) -> None:
+    """State the map DEM's size before gridding; refuse one beyond the memory budget,
+    naming --gsd when it was given, else the disparity whose points spread so far."""
+    from demtool import sizes
+    from demtool.maps.grids import grid_from_xyz
+
+    grid = grid_from_xyz(body, xyz, gsd, projection=params.projection, crs=crs)
+    height, width = grid.shape
+    if gsd_source == "--gsd":
+        option, hint = "--gsd", None
+    else:
+        option = str(source)
+        hint = (f"its triangulated points span {width * gsd / 1e3:.4g} x {height * gsd / 1e3:.4g}"
+                f" km at the {gsd_source} GSD of {gsd:.4g} m: is it a disparity of this pair? "
+                "(or give a coarser --gsd)")
+    sizes.check_grid(grid.shape, bytes_per_cell=DEM_BYTES_PER_CELL, what="map DEM",
+                     option=option, log=log, hint=hint)
+
+
+#: baseline / range below which a pair has no usable parallax (B/H 1e-4: 0.1 px of
+#: parallax over 1000 px of image width at best)
+MIN_BASE_TO_RANGE = 1e-4
+
+
+def _check_baseline(left, right, source) -> None:
+    """Refuse a pair whose two models stand at one place (a zero baseline: one image's
+    model given twice, the same orthoimage twice)."""
+    import numpy as np
+
+    from demtool.errors import ProcessingError
+
+    try:
+        with np.errstate(all="ignore"):
+            centres = [np.asarray(m.camera_center(np.array([0.5 * m.lines])),
+                                  dtype=np.float64).reshape(-1, 3)[0] for m in (left, right)]
+            ground = np.asarray(left.image_to_ground(0.5 * left.lines, 0.5 * left.samples),
+                                dtype=np.float64).reshape(3)
+    except (AttributeError, ValueError, TypeError):
+        return
+    base = float(np.linalg.norm(centres[1] - centres[0]))
+    distance = float(np.linalg.norm(ground - centres[0]))
+    if np.isfinite(base) and np.isfinite(distance) and distance > 0 and \
+            base < MIN_BASE_TO_RANGE * distance:
+        raise ProcessingError(f"{source}: the two sensor models stand at one place (baseline "
+                              f"{base:.3g} m for a range of {distance / 1e3:.4g} km): no "
+                              "parallax to triangulate; is one model given twice?")

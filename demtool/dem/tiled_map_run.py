@@ -211,6 +211,16 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     a, b = left.radii
     body = body_from_radii(a, a, b)
     grid, boxes = _grid(params, points, points_tiles, body, gsd, max_gap, crs)
+    from demtool import sizes
+
+    # tiled: memory is the tiles'; the file (DEM, mask, error: 4 bytes a cell each) must fit
+    run.log.info("map DEM grid: %d x %d cells", grid.shape[1], grid.shape[0])
+    try:
+        sizes.check_disk(out, 12 * grid.shape[0] * grid.shape[1], what="map DEM",
+                         option=gsd_source if gsd_source == "--gsd" else f"{source}'s points")
+    except Exception:
+        points.remove()
+        raise
     # 3-4. the output grid in tiles
     shape = grid.shape
     factor = coarse_factor(*shape)

@@ -47,11 +47,23 @@ class MapprojectParams(Parameters):
 
     def check(self) -> None:
         super().check()
-        bounds = self.bounds
-        if bounds is not None:
-            if len(bounds) != 4:
-                self.fail("bounds", f"must be 4 numbers, got {len(bounds)}")
-            lon0, lat0, lon1, lat1 = bounds
-            if not (lon0 < lon1 and lat0 < lat1 and -90 <= lat0 and lat1 <= 90):
-                self.fail("bounds", "must be LON_MIN LAT_MIN LON_MAX LAT_MAX with MIN < MAX "
-                          f"and latitudes within +-90, got {' '.join(f'{v:g}' for v in bounds)}")
+        problem = bounds_problem(self.bounds)
+        if problem is not None:
+            self.fail("bounds", problem)
+
+
+def bounds_problem(bounds) -> str | None:
+    """What is wrong with ``--bounds LON_MIN LAT_MIN LON_MAX LAT_MAX`` (None: nothing).
+
+    Shared by :meth:`MapprojectParams.check` (exit 1) and the option's callback (a usage
+    error, exit 2).
+    """
+    if bounds is None:
+        return None
+    if len(bounds) != 4:
+        return f"must be 4 numbers, got {len(bounds)}"
+    lon0, lat0, lon1, lat1 = bounds
+    if not (lon0 < lon1 and lat0 < lat1 and -90 <= lat0 and lat1 <= 90):
+        return ("must be LON_MIN LAT_MIN LON_MAX LAT_MAX with MIN < MAX and latitudes within "
+                f"+-90, got {' '.join(f'{v:g}' for v in bounds)}")
+    return None

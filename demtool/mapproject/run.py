@@ -40,6 +40,10 @@ def _footprint_heights(surface: DemSurface | None, height: float, sensor, body):
         xyz = ground_footprint(sensor, body.radius, h)
         lon, lat, _ = xyz_to_lonlat_height(xyz, radii=body.radius)
         found = surface.heights_lonlat(lon, lat)
+        if not isinstance(h, np.ndarray):  # the first pass: the DEM under the footprint
+            from demtool.mapproject.checks import check_surface_heights
+
+            check_surface_heights(found, surface.info.path, body)
         fallback = float(np.nanmedian(found)) if np.isfinite(found).any() else 0.0
         h = np.where(np.isfinite(found), found, fallback)
     return h
@@ -157,9 +161,18 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
                          f"sensor model {sensor_path} describes {sensor.samples} x "
                          f"{sensor.lines}")
     body = sensor_body(sensor)
+    if params.height is not None:
+        from demtool.mapproject.checks import check_height
+
+        check_height(sensor, body, float(params.height))
     surface = read_dem_surface(dem_path, sensor_path, body) if dem_path is not None else None
     grid = (_grid_like(grid_like, sensor_path, body, params) if grid_like is not None
             else _grid(sensor, body, surface, params, log))
+    from demtool.mapproject.checks import check_mapproject_grid
+    from demtool.mapproject.hashes import hash_tags
+
+    check_mapproject_grid(sensor, body, grid, params, dem_path=dem_path, out_path=out_path,
+                          bands=1 + (3 if angles_out is not None else 0), log=log)
     same_crs = surface is not None and not surface.geographic and \
         to_pyproj_crs(surface.info.crs) == grid.crs
     gsd = grid.gsd[0]
@@ -171,6 +184,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     tags = run.provenance.tags(
         frame="map", **body.tags(), **surface_tags,
         **{SENSOR_TAG: str(Path(sensor_path).resolve())},
+        **hash_tags(image_path, sensor_path, dem_path),
         mapproject_image=str(Path(image_path).resolve()), sensor_name=sensor.name,
         sensor_kind=sensor.kind, image_size=[sensor.lines, sensor.samples])
     try:

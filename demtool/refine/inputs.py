@@ -103,6 +103,9 @@ def image_on_map(image_path, sensor_path, dem, params, log):
     if not path.is_file():
         raise InputError(f"{image_path}: its sensor model {path} (tag {SENSOR_TAG}) is not "
                          "found; give --sensor")
+    from demtool.mapproject.hashes import check_hashes
+
+    check_hashes(image_path, image.tags, log=log)
     sensor = read_sensor(path)
     require_same_body(dem.path, dem.crs, sensor_body(sensor), path, "a DEM")
     values, note = image_on_dem_grid(image, dem)
@@ -182,6 +185,9 @@ def resolve_map_route(image_path: str | os.PathLike, dem, params, log, *,
                          f"{SENSOR_TAG} tag; a mosaic?) has no single sun and view "
                          "geometry: map-project the raw image (demtool mapproject), give "
                          "--sensor, or give the sun")
+    if values is not None and not np.isfinite(values).any():  # before any sun or view
+        raise InputError(f"{dem.path}: the DEM lies outside the footprint of {image_path} "
+                         f"(through {path}): no DEM cell is in the image")
     windows, pairs, report = map_illumination(sensor, dem, params, log)
     report["sensor"] = str(path)
     return MapGeometry(dem, np.asarray(values, dtype=np.float32), windows, pairs, report)

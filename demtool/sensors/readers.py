@@ -51,30 +51,36 @@ def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
                  ) -> dict[str, SensorModel]:
     """All sensor models of a file, by image name (one entry for an ISD, a cube or a
     ``.tsai``); ``radii`` (metres) is the body of a ``.tsai`` pinhole, which the file
-    does not carry."""
+    does not carry.  Every model is validated as it is read
+    (:mod:`demtool.sensors.validate`: values, not only keys)."""
+    from demtool.sensors import validate, validate_raw
+
     p = Path(path)
     kind = _sniff(p)
     if kind == "tsai":
         from demtool.sensors.tsai import read_tsai
 
         model = read_tsai(p, radii=radii)
-        return {model.name: model}
+        return {model.name: validate.check_model(model, p, "tsai")}
     if kind == "isd":
-        from demtool.sensors.isd import read_isd
+        from demtool.sensors.isd import sensor_from_isd
 
-        model = read_isd(p)
-        return {model.name or p.stem: model}
+        model = sensor_from_isd(validate_raw.check_isd(validate_raw.load_isd(p), p), str(p))
+        return {model.name or p.stem: validate.check_model(model, p, "isd")}
     if kind == "cube":
         from demtool.sensors.isis import read_cube
 
-        model = read_cube(p)
-        return {model.name: model}
-    if kind == "rpc":
+        validate_raw.check_cube_label(p)
+        with np.errstate(invalid="ignore", divide="ignore"):  # zero quaternions: checked next
+            model = read_cube(p)
+        return {model.name: validate.check_model(model, p, "cube")}
+    if kind == "rpc":  # an RPC has no camera position or focal plane: its reader checks it
         from demtool.sensors.rpc import read_rpc
 
         model = read_rpc(p, radii=radii)
         return {model.name: model}
-    return _read_npz(p)
+    return {name: validate.check_model(model, f"{p} ({name})", "npz")
+            for name, model in _read_npz(p).items()}
 
 
 def read_sensor(path: str | Path, *, name: str | None = None,

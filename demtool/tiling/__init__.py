@@ -59,10 +59,28 @@ def tile_overlap_field(default_text: str) -> Any:
                      f"[default: {default_text}].", minimum=0)
 
 
+def scheduler_address_problem(address: Any) -> str | None:
+    """What is wrong with a ``--scheduler`` address (None when it is one).
+
+    An address is ``[protocol://]host:port`` with a port 1 … 65535 (Dask's
+    ``parse_address``; ``tcp://`` when no protocol is given).
+    """
+    import re
+
+    text = str(address).strip()
+    match = re.fullmatch(r"(?:(tcp|tls|inproc|ucx|ws|wss)://)?(\[[0-9a-fA-F:]+\]|[^\s/:]+)"
+                         r":(\d+)", text)
+    if match is None or not 0 < int(match.group(3)) < 65536:
+        return (f"{text!r} is not a scheduler address: expected [tcp://]host:port "
+                "(e.g. tcp://127.0.0.1:8786)")
+    return None
+
+
 def scheduler_field() -> Any:
     """``--scheduler``: address of a running dask.distributed scheduler."""
     return parameter(None, "Address of a running dask.distributed scheduler "
-                     "(tcp://host:8786) to run the tiles on.", metavar="ADDRESS")
+                     "(tcp://host:8786) to run the tiles on.", metavar="ADDRESS",
+                     check=scheduler_address_problem)
 
 
 def dry_run_field() -> Any:
@@ -246,12 +264,18 @@ def cache_key(inputs: Sequence[str | os.PathLike], parameters: Mapping[str, Any]
 class TileCache:
     """A work folder holding each finished tile's core as ``tile_<index>.npy``.
 
-    A file appears only complete (written beside, then renamed), so a tile whose file
-    exists is done, whatever killed the run that wrote it.
+    A file appears only complete (written beside, then renamed), and its info
+    (``tile_<index>.json``) records its size and SHA-256, so a tile counts as done only
+    when its file is the one written: a cached tile truncated or emptied since (a full
+    disk, a copy cut short) is removed and recomputed, with a warning.
     """
+
+    #: info keys of the cache's own bookkeeping (not returned by :meth:`info`)
+    _SIZE, _SHA = "_cache_bytes", "_cache_sha256"
 
     def __init__(self, folder: str | os.PathLike) -> None:
         self.folder = Path(folder)
+        self._verified: dict[Path, tuple[int, int]] = {}
 
     def path(self, tile: Tile) -> Path:
         return self.folder / f"tile_{tile.index:06d}.npy"
@@ -260,18 +284,60 @@ class TileCache:
         return self.folder / f"tile_{tile.index:06d}.json"
 
     def done(self, tile: Tile) -> bool:
-        return self.path(tile).is_file()
+        """True when the tile's file is there and is the one written (size, SHA-256)."""
+        path = self.path(tile)
+        try:
+            stat = path.stat()
+        except OSError:
+            return False
+        if self._verified.get(path) == (stat.st_size, stat.st_mtime_ns):
+            return True
+        problem = self._problem(tile, stat.st_size)
+        if problem is None:
+            self._verified[path] = (stat.st_size, stat.st_mtime_ns)
+            return True
+        from demtool.logs import get_logger
+
+        get_logger(__name__).warning("%s: cached tile %s; recomputing it", path, problem)
+        for stale in (path, self.info_path(tile)):
+            with contextlib.suppress(OSError):
+                stale.unlink()
+        return False
+
+    def _problem(self, tile: Tile, size: int) -> str | None:
+        try:
+            info = json.loads(self.info_path(tile).read_text())
+        except (OSError, ValueError):
+            info = {}
+        if not isinstance(info, dict):
+            info = {}
+        if self._SIZE in info:
+            if size != info[self._SIZE]:
+                return f"has {size} bytes, {info[self._SIZE]} were written"
+            digest = hashlib.sha256(self.path(tile).read_bytes()).hexdigest()
+            return None if digest == info.get(self._SHA) else "differs from the one written"
+        try:  # a cache written before checksums: readable and complete
+            np.load(self.path(tile), mmap_mode="r", allow_pickle=False)
+        except (OSError, ValueError, EOFError) as exc:
+            return f"is unreadable ({exc})"
+        return None
 
     def store(self, tile: Tile, values: np.ndarray, info: Mapping[str, Any]) -> None:
         """Save a tile's core ``(B, h, w)`` float32 and its info, atomically."""
+        import io
+
         self.folder.mkdir(parents=True, exist_ok=True)
+        buffer = io.BytesIO()
+        np.save(buffer, np.ascontiguousarray(values, dtype=np.float32))
+        data = buffer.getvalue()
+        info = {**dict(info), self._SIZE: len(data), self._SHA: hashlib.sha256(data).hexdigest()}
         suffix = f".{os.getpid()}.{socket.gethostname()}.part"
         info_tmp = self.info_path(tile).with_name(self.info_path(tile).name + suffix)
-        info_tmp.write_text(json.dumps(dict(info), default=float))
+        info_tmp.write_text(json.dumps(info, default=float))
         os.replace(info_tmp, self.info_path(tile))
         tmp = self.path(tile).with_name(self.path(tile).name + suffix)
         with open(tmp, "wb") as handle:
-            np.save(handle, np.ascontiguousarray(values, dtype=np.float32))
+            handle.write(data)
         os.replace(tmp, self.path(tile))
 
     def load(self, tile: Tile) -> np.ndarray:
@@ -279,9 +345,12 @@ class TileCache:
 
     def info(self, tile: Tile) -> dict[str, Any]:
         try:
-            return json.loads(self.info_path(tile).read_text())
+            info = json.loads(self.info_path(tile).read_text())
         except (OSError, ValueError):
             return {}
+        if not isinstance(info, dict):
+            return {}
+        return {k: v for k, v in info.items() if k not in (self._SIZE, self._SHA)}
 
     def remove(self) -> None:
         shutil.rmtree(self.folder, ignore_errors=True)

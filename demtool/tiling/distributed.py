@@ -31,9 +31,13 @@ from demtool.tiling import Tile, TileCache, TileJob
 CONNECT_TIMEOUT = "20s"  # waiting for a --scheduler that does not answer
 # No dashboard; the scheduler's HTTP routes on a free port (not 8787, which another
 # cluster on the machine may hold).
+# Workers ignore Ctrl-C (demtool's process handles it) and Dask logs only what is fatal:
+# an interrupt or a failed tile is reported by demtool in one line (issue 31).
 LOCAL_CLUSTER_OPTIONS = {"dashboard_address": None, "processes": True,
                          "threads_per_worker": 1,
-                         "scheduler_kwargs": {"dashboard_address": ":0"}}
+                         "scheduler_kwargs": {"dashboard_address": ":0"},
+                         "preload": ["demtool.tiling.worker_signals"],
+                         "silence_logs": logging.CRITICAL}
 
 
 def available_cores() -> int:
@@ -193,7 +197,7 @@ def _run_on_client(job: TileJob, todo: Sequence[Tile], cache: TileCache, progres
         if scheduler:
             try:
                 client = stack.enter_context(Client(scheduler, timeout=CONNECT_TIMEOUT))
-            except (OSError, TimeoutError) as exc:
+            except (OSError, TimeoutError, ValueError) as exc:  # ValueError: not an address
                 raise ProcessingError(f"--scheduler {scheduler}: cannot connect to the Dask "
                                       f"scheduler ({exc})") from None
             threads = 0  # the worker's own cores (start workers with --nthreads 1)

@@ -147,4 +147,20 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
                                    band_name=output.band_name)
             run.provenance.write_sidecar(main, summary, outputs=[o.path for o in outputs])
         cache.remove()
+        _remove_stale_caches(work_folder(main), run.log)
     return TiledResult(tiling, infos, summary)
+
+
+def _remove_stale_caches(folder: Path, log: Any) -> None:
+    """After a finished run: the tile caches left in the output's work folder by runs of
+    other inputs or parameters (they can only be reused by rerunning those), removed
+    with a log line (issue 31: no cache of other inputs stays behind)."""
+    import shutil
+
+    if not folder.is_dir():
+        return
+    stale = sorted(p.name for p in folder.iterdir())
+    if stale:
+        log.info("removing %d tile cache(s) of other inputs or parameters from %s: %s",
+                 len(stale), folder, ", ".join(stale))
+    shutil.rmtree(folder, ignore_errors=True)

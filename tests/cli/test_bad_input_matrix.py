@@ -112,10 +112,61 @@ def work(tmp_path, monkeypatch):
         {"target": {"name": "left", "path": "left.tif"},
          "selected": [{"name": "left", "path": "left.tif"},
                       {"name": "gone", "path": "gone.tif"}]}))
+    _write_bad_sensors()
     Path("list.toml").write_text("[dem]\nmedian = [1, 2]\n")
     Path("inf.toml").write_text("[sgm]\nlr-threshold = inf\n")
     Path("string.toml").write_text("[synth]\nsize = \"big\"\n")
     return tmp_path
+
+
+def _write_bad_sensors():
+    """A frame ISD over (10°E, 5°N) for the 48 x 64 px images, and broken copies of it
+    (issue 31: values checked, not only keys)."""
+    from tests.helpers.camera_isd import nadir_isd
+    from tests.helpers.linescan import isd_dict, linescan_sensor
+
+    good = nadir_isd(10.0, 5.0, 50_000.0, focal_mm=50.0, pitch_mm=0.01, lines=48, samples=64)
+    Path("cam.json").write_text(json.dumps(good))
+
+    def bad(name, edit):
+        isd = json.loads(json.dumps(good))
+        edit(isd)
+        Path(name).write_text(json.dumps(isd))
+
+    bad("cam_focal_nan.json", lambda d: d["focal_length_model"].update(focal_length=float("nan")))
+    bad("cam_focal_zero.json", lambda d: d["focal_length_model"].update(focal_length=0.0))
+    bad("cam_singular.json", lambda d: d.update(focal2pixel_lines=[0.0, 0.0, 0.0]))
+    bad("cam_zero_quaternion.json",
+        lambda d: d["instrument_pointing"].update(quaternions=[[0.0, 0.0, 0.0, 0.0]]))
+    bad("cam_mirror.json", lambda d: d["instrument_pointing"].update(
+        constant_rotation=[1.0, 0, 0, 0, 1.0, 0, 0, 0, -1.0]))
+    bad("cam_sheared.json", lambda d: d["instrument_pointing"].update(
+        constant_rotation=[1.0, 0.3, 0, 0, 1.0, 0, 0, 0, 1.0]))
+    bad("cam_km_as_m.json", lambda d: d["instrument_position"].update(
+        positions=[[v / 1000.0 for v in d["instrument_position"]["positions"][0]]]))
+    bad("cam_radii_null.json", lambda d: d["radii"].update(semimajor=None))
+    bad("cam_radii_string.json", lambda d: d["radii"].update(semiminor="1737.4"))
+    bad("cam_lines_nan.json", lambda d: d.update(image_lines=float("nan")))
+    bad("cam_lines_zero.json", lambda d: d.update(image_lines=0))
+    bad("cam_lines_string.json", lambda d: d.update(image_lines="48"))
+    bad("cam_mars_radii.json", lambda d: d.update(naif_keywords={"BODY_CODE": 499}))
+    scan = isd_dict(linescan_sensor(lines=48, samples=64))
+    scan["line_scan_rate"] = [[r[0], r[1], -r[2]] for r in scan["line_scan_rate"]]
+    Path("ls_backwards.json").write_text(json.dumps(scan))
+    scan = isd_dict(linescan_sensor(lines=48, samples=64))
+    scan["instrument_position"] = {"ephemeris_times": [1000.0], "unit": "m",
+                                   "positions": [scan["instrument_position"]["positions"][20]]}
+    Path("ls_one_state.json").write_text(json.dumps(scan))
+    Path("only_label.cub").write_text("Object = IsisCube\n")
+    from demtool.maps import body_by_name, grid_from_lonlat
+
+    moon = body_by_name("Moon")
+    grid = grid_from_lonlat(moon, np.array([9.95, 10.05]), np.array([4.95, 5.05]), 20.0)
+    shape = (grid.height, grid.width)
+    for name, values in (("map_dem_nan.tif", np.full(shape, np.nan)),
+                         ("map_dem_1e27.tif", np.full(shape, 1e27)),
+                         ("map_dem_radius.tif", np.full(shape, moon.radius))):
+        dio.write_raster(name, values, transform=grid.transform, crs=grid.crs)
 
 
 def _snapshot(folder: Path) -> dict[str, bytes | None]:
@@ -142,8 +193,8 @@ CASES = [
     # ---------------------------------------------------------------- synth (no input files)
     case("synth-out-under-a-file", ["synth", "--out", "a_file/scene", *SYNTH_TINY], 1,
          "cannot create the folder a_file/scene: a_file is a file"),
-    case("synth-out-is-a-file", ["synth", "--out", "a_file", *SYNTH_TINY], 2,
-         "is a file"),
+    case("synth-out-is-a-file", ["synth", "--out", "a_file", *SYNTH_TINY], 1,
+         "a_file: --out is a file, expected a folder"),
     case("synth-out-in-proc", ["synth", "--out", "/proc/scene", *SYNTH_TINY], 1,
          "/proc/scene: cannot create /proc/scene in the folder /proc"),
     case("synth-sun-azimuth-nan", ["synth", "--out", "s", "--sun-azimuth", "nan"], 2,
@@ -207,8 +258,8 @@ CASES = [
          "notes.tif"),
     case("rectify-out-over-input", ["rectify", "pair/left_rect.tif", "right.tif", "--out",
                                     "pair"], 1, "would overwrite the input LEFT"),
-    case("rectify-out-is-a-file", ["rectify", "left.tif", "right.tif", "--out", "a_file"], 2,
-         "is a file"),
+    case("rectify-out-is-a-file", ["rectify", "left.tif", "right.tif", "--out", "a_file"], 1,
+         "a_file: --out is a file, expected a folder"),
     case("rectify-out-in-proc", ["rectify", "left.tif", "right.tif", "--out", "/proc/r"], 1,
          "cannot create /proc/r in the folder /proc"),
     case("rectify-ratio-nan", ["rectify", "left.tif", "right.tif", "--out", "r", "--ratio",
@@ -372,13 +423,94 @@ CASES = [
          "rect.npz"),
     case("compare-out-over-input", ["compare", "cmp_in/difference.tif", "dem.tif", "--out",
                                     "cmp_in"], 1, "would overwrite the input DEM"),
-    case("compare-out-is-the-dem", [*COMPARE, "--out", "dem.tif"], 2, "is a file"),
+    case("compare-out-is-the-dem", [*COMPARE, "--out", "dem.tif"], 1,
+         "would overwrite the input"),
+    case("sgm-out-is-a-folder", [*SGM, "--out", "scene", *SGM_RANGE], 1,
+         "scene: --out is a folder, expected a file name"),
+    case("mapproject-out-is-a-folder", ["mapproject", "left.tif", "--sensor", "cam.json",
+                                        "--height", "0", "--out", "scene"], 1,
+         "scene: --out is a folder, expected a file name"),
+    case("mapproject-gsd-1e-5", ["mapproject", "left.tif", "--sensor", "cam.json",
+                                 "--height", "0", "--gsd", "1e-5", "--out", "o.tif"], 1,
+         "--gsd: the orthoimage would be"),
+    case("mapproject-bounds-far-away", ["mapproject", "left.tif", "--sensor", "cam.json",
+                                        "--height", "0", "--bounds", "100", "10", "101", "11",
+                                        "--out", "o.tif"], 1,
+         "--bounds: lon 100…101, lat 10…11 does not overlap the image's footprint"),
+    case("mapproject-bounds-latitude-100", ["mapproject", "left.tif", "--sensor", "cam.json",
+                                            "--height", "0", "--bounds", "10", "-100", "11",
+                                            "10", "--out", "o.tif"], 2,
+         "latitudes within +-90"),
+    case("mapproject-scheduler-not-an-address", ["mapproject", "left.tif", "--sensor",
+                                                 "cam.json", "--height", "0", "--scheduler",
+                                                 "nowhere", "--out", "o.tif"], 2,
+         "'--scheduler': 'nowhere' is not a scheduler address"),
     case("compare-out-in-proc", [*COMPARE, "--out", "/proc/cmp"], 1,
          "cannot create /proc/cmp in the folder /proc"),
     case("compare-profile-nan", [*COMPARE, "--out", "cmp", "--profile", "0,0,nan,10"], 2,
          "--profile"),
     case("compare-mask-of-another-grid", [*COMPARE, "--mask", "small_mask.tif", "--out",
                                           "cmp"], 1, "they must share one grid"),
+    # ---------------------------------------------------------------- sensor models (issue 31)
+    case("camera-focal-nan", ["camera", "cam_focal_nan.json"], 1,
+         "cam_focal_nan.json: key 'focal_length_model.focal_length' = nan: not a finite number"),
+    case("camera-focal-zero", ["camera", "cam_focal_zero.json"], 1,
+         "cam_focal_zero.json: key 'focal_length_model.focal_length' = 0: must be positive"),
+    case("camera-singular-focal2pixel", ["camera", "cam_singular.json"], 1,
+         "cam_singular.json: keys 'focal2pixel_samples/focal2pixel_lines'"),
+    case("camera-zero-quaternion", ["camera", "cam_zero_quaternion.json"], 1,
+         "key 'instrument_pointing.quaternions' = [0., 0., 0., 0.]: row 0 is all zero"),
+    case("camera-sheared-rotation", ["camera", "cam_sheared.json"], 1,
+         "key 'instrument_pointing.constant_rotation'"),
+    case("camera-km-labelled-m", ["camera", "cam_km_as_m.json"], 1,
+         "cam_km_as_m.json: key 'instrument_position.positions'"),
+    case("camera-radii-null", ["camera", "cam_radii_null.json"], 1,
+         "key 'radii.semimajor' = None: not a number"),
+    case("camera-radii-string", ["camera", "cam_radii_string.json"], 1,
+         "key 'radii.semiminor' = '1737.4': not a number"),
+    case("camera-lines-nan", ["camera", "cam_lines_nan.json"], 1,
+         "key 'image_lines' = nan: not a finite number"),
+    case("camera-lines-zero", ["camera", "cam_lines_zero.json"], 1,
+         "key 'image_lines' = 0: must be positive"),
+    case("camera-lines-string", ["camera", "cam_lines_string.json"], 1,
+         "key 'image_lines' = '48': not a number"),
+    case("camera-moon-radii-on-mars", ["camera", "cam_mars_radii.json"], 1,
+         "but the file is of Mars (NAIF 499)"),
+    case("camera-body-mars-on-moon", ["camera", "cam.json", "--body", "Mars"], 1,
+         "cam.json: its radii (1737.4 km) are not those of --body Mars"),
+    case("camera-lines-backwards", ["camera", "ls_backwards.json"], 1,
+         "ls_backwards.json: key 'line_scan_rate'"),
+    case("camera-one-state-no-velocity", ["camera", "ls_one_state.json"], 1,
+         "ls_one_state.json: key 'instrument_position' has one state and no velocity"),
+    case("camera-label-only-cube", ["camera", "only_label.cub"], 1,
+         "only_label.cub: cannot parse the ISIS label"),
+    case("mapproject-mirrored-camera", ["mapproject", "left.tif", "--sensor", "cam_mirror.json",
+                                        "--height", "0", "--out", "o.tif"], 1,
+         "cam_mirror.json: key 'instrument_pointing.constant_rotation'"),
+    case("mapproject-nan-focal", ["mapproject", "left.tif", "--sensor", "cam_focal_nan.json",
+                                  "--height", "0", "--out", "o.tif"], 1,
+         "cam_focal_nan.json: key 'focal_length_model.focal_length'"),
+    case("mapproject-all-nan-dem", ["mapproject", "left.tif", "--sensor", "cam.json",
+                                    "--dem", "map_dem_nan.tif", "--out", "o.tif"], 1,
+         "map_dem_nan.tif: DEM has no valid height under the image's footprint"),
+    case("mapproject-1e27-dem", ["mapproject", "left.tif", "--sensor", "cam.json",
+                                 "--dem", "map_dem_1e27.tif", "--out", "o.tif"], 1,
+         "map_dem_1e27.tif: DEM heights reach 1e+27 m"),
+    case("mapproject-radius-valued-dem", ["mapproject", "left.tif", "--sensor", "cam.json",
+                                          "--dem", "map_dem_radius.tif", "--out", "o.tif"], 1,
+         "map_dem_radius.tif: DEM heights reach 1.737e+06 m"),
+    case("mapproject-height-below-the-centre", ["mapproject", "left.tif", "--sensor",
+                                                "cam.json", "--height", "-2e6", "--out",
+                                                "o.tif"], 1,
+         "--height -2e+06: beyond"),
+    case("mapproject-height-above-the-camera", ["mapproject", "left.tif", "--sensor",
+                                                "cam.json", "--height", "60000", "--out",
+                                                "o.tif"], 1,
+         "--height 60000: at or above the camera"),
+    case("bundle-sensor-focal-nan", ["bundle", "left.tif", "right.tif", "--sensors",
+                                     "cam_focal_nan.json", "--sensors", "cam.json", "--out",
+                                     "b.npz"], 1,
+         "cam_focal_nan.json: key 'focal_length_model.focal_length' = nan"),
     case("compare-reference-1e27", ["compare", "ref.tif", "ref_1e27.tif", "--out", "cmp",
                                     "--no-plots"], 1,
          "ref_1e27.tif: reference DEM has 3072 value(s) beyond"),

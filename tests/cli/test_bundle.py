@@ -275,6 +275,7 @@ def test_bundle_spatial_needs_sensors_and_overlap(frame_block, tmp_path):
     assert result.exit_code == 1 and "--matcher spatial needs sensor models" in result.output
     far = frames.true_models(size=320)[0]
     far.position = far.position + np.array([0.0, 0.0, 200_000.0])
+    far.name = "frame_01"  # given for image frame_01 (models are matched by name)
     moved = tmp_path / "far.json"
     frames.write_isd(far, moved)
     result = CliRunner().invoke(cli, ["bundle", *_sensor_args(images[:2], [isds[0], moved]),
@@ -335,3 +336,88 @@ def test_bundle_sensor_options_that_do_not_apply(frame_block, tmp_path):
                                       "--adjusted-dir", str(tmp_path / "adj")])
     assert result.exit_code == 1 and "--adjusted-dir needs sensor models" in result.output
     assert not out.exists() and not (tmp_path / "adj").exists()
+
+
+def _bundle_refused(args, tmp_path, *parts):
+    """Issue 31, class 5: one Error line naming the file, exit 1, nothing written."""
+    out = tmp_path / "bundle.npz"
+    result = CliRunner().invoke(cli, ["-q", "bundle", *args, "--out", str(out),
+                                      "--adjusted-dir", str(tmp_path / "adj")])
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert result.exit_code == 1, result.output
+    assert len(errors) == 1 and "Traceback" not in result.output, result.output
+    for part in parts:
+        assert part in errors[0], errors[0]
+    assert not out.exists() and not (tmp_path / "adj").exists()
+
+
+def test_bundle_models_in_another_order_than_the_images(frame_block, tmp_path):
+    _, images, isds = frame_block
+    _bundle_refused(_sensor_args(images[:3], [isds[1], isds[0], isds[2]]), tmp_path,
+                    f"{isds[1]}: is the model of image frame_01", "given for image frame_00")
+
+
+def test_bundle_model_of_another_body_in_the_block(frame_block, tmp_path):
+    _, images, isds = frame_block
+    mars = tmp_path / "frame_01.json"
+    isd = json.loads(isds[1].read_text())
+    scale = 3396190.0 / (isd["radii"]["semimajor"] * 1000.0)
+    isd["radii"] = {"semimajor": 3396.19, "semiminor": 3376.2, "unit": "km"}
+    block = isd["instrument_position"]
+    block["positions"] = (np.asarray(block["positions"]) * scale).tolist()  # above Mars
+    mars.write_text(json.dumps(isd))
+    _bundle_refused(_sensor_args(images[:2], [isds[0], mars]), tmp_path,
+                    f"{mars}: a model of a body of radius 3396.19 km", "one body")
+
+
+def test_bundle_cameras_far_beyond_the_body(frame_block, tmp_path):
+    _, images, isds = frame_block
+    far = []
+    for k in range(2):
+        isd = json.loads(isds[k].read_text())
+        block = isd["instrument_position"]  # metres written where km are read: 1000 x
+        block["positions"] = (np.asarray(block["positions"]) * 1000.0).tolist()
+        path = tmp_path / f"frame_{k:02d}.json"
+        path.write_text(json.dumps(isd))
+        far.append(path)
+    # 1000 x farther along the same pointing, the cameras look past the Moon: refused as
+    # each model is read
+    _bundle_refused(_sensor_args(images[:2], far), tmp_path, f"{far[0]}: key "
+                    "'instrument_pointing", "the camera looks away from the body")
+
+
+def test_block_refuses_a_camera_a_thousand_radii_out(tmp_path):
+    """A nadir camera 1000 lunar radii out still sees the Moon; the block refuses it."""
+    from demtool.bundle.block_checks import check_camera_distances
+    from demtool.errors import InputError
+    from demtool.sensors import read_sensor
+    from tests.helpers.camera_isd import MOON_RADIUS, nadir_isd, write_isd
+
+    camera = dict(focal_mm=50.0, pitch_mm=0.01, lines=64, samples=64)
+    near = read_sensor(write_isd(tmp_path / "near.json",
+                                 nadir_isd(10.0, 5.0, 50e3, **camera)))
+    far_path = write_isd(tmp_path / "far.json",
+                         nadir_isd(10.0, 5.0, 1000 * MOON_RADIUS, **camera))
+    far = read_sensor(far_path)
+    check_camera_distances([near], ["near.json"])
+    with pytest.raises(InputError, match=r"far\.json: the camera is .* 1001 radii .*metres "
+                                         "labelled km"):
+        check_camera_distances([near, far], ["near.json", far_path])
+
+
+def test_bundle_reference_dem_of_1e27(frame_block, tmp_path):
+    from demtool.maps import body_by_name, grid_from_lonlat, xyz_to_lonlat_height
+    from demtool.sensors import read_sensor
+
+    _, images, isds = frame_block
+    model = read_sensor(isds[0])
+    centre = model.image_to_ground(0.5 * model.lines, 0.5 * model.samples)
+    lon, lat, _ = xyz_to_lonlat_height(centre, radii=model.radii[0])
+    moon = body_by_name("Moon")
+    grid = grid_from_lonlat(moon, np.array([lon - 2, lon + 2]), np.array([lat - 2, lat + 2]),
+                            2000.0)
+    dem = tmp_path / "ref.tif"
+    dio.write_raster(dem, np.full((grid.height, grid.width), 1e27), transform=grid.transform,
+                     crs=grid.crs)
+    _bundle_refused([*_sensor_args(images[:2], isds[:2]), "--reference-dem", str(dem)],
+                    tmp_path, f"{dem}: DEM heights reach 1e+27 m")

@@ -161,3 +161,56 @@ def test_dems_of_different_bodies_are_refused_in_one_line(moon, tmp_path, case):
         assert text in lines[0]
     assert "one body" in lines[0]
     assert not out.exists() or not any(out.iterdir())
+
+
+def _write_wrapped_projected(path, body, lon0, lat0, half_m):
+    """The surface on an equirectangular map centred at lon0 (longitudes wrapped)."""
+    crs = maps.make_projection(body, "equirectangular", lon0, lat0)
+    x0, y0 = maps.lonlat_to_map(crs, lon0, lat0)
+    grid = maps.snap_grid(crs, x0 - half_m, y0 - half_m, x0 + half_m, y0 + half_m, GSD)
+    lon, lat = maps.grid_lonlat(grid)
+    lon = (lon - lon0 + 180.0) % 360.0 - 180.0 + lon0
+    dio.write_raster(path, surface(lon, lat, lon0, lat0, body.radius), transform=grid.transform,
+                     crs=grid.crs, tags=body.tags())
+
+
+def test_degree_dem_across_the_antimeridian_is_compared_whole(moon, tmp_path):
+    """Issue 31, class 6: a degree reference on 179.93…180.07 °E (0…360 style) against a
+    map DEM: every cell compared (was 49.9 %: PROJ's −180…180 missed half the grid)."""
+    write_geographic(tmp_path / "ref.tif", moon, 180.0, 10.0, 2000.0)
+    _write_wrapped_projected(tmp_path / "dem.tif", moon, 180.0, 10.0, 2600.0)
+    out = tmp_path / "report"
+    result = _invoke(tmp_path / "dem.tif", tmp_path / "ref.tif", "--out", out, "--no-plots",
+                     "--align", "none")
+    assert result.exit_code == 0, result.output
+    report = dio.read_json(out / "report.json")
+    assert report["completeness"] > 99.0
+    assert report["rmse"] < 0.05
+
+
+def test_same_ground_written_360_degrees_apart_overlaps(moon, tmp_path):
+    """The same surface as a degree grid on −180.07…−179.93 and on 179.93…180.07."""
+    write_geographic(tmp_path / "ref.tif", moon, 180.0, 10.0, 2000.0)
+
+    def heights(lon, lat):
+        return surface(lon + 360.0, lat, 180.0, 10.0, moon.radius)
+
+    write_geographic(tmp_path / "dem.tif", moon, -180.0, 10.0, 2000.0, heights_of=heights)
+    out = tmp_path / "report"
+    result = _invoke(tmp_path / "dem.tif", tmp_path / "ref.tif", "--out", out, "--no-plots",
+                     "--align", "none")
+    assert result.exit_code == 0, result.output
+    report = dio.read_json(out / "report.json")
+    assert report["completeness"] > 99.0 and report["rmse"] < 0.05
+
+
+def test_image_frame_dem_against_a_map_dem_is_refused(moon, tmp_path):
+    write_geographic(tmp_path / "ref.tif", moon, 10.0, 10.0, 2000.0)
+    dio.write_raster(tmp_path / "dem.tif", np.zeros((64, 64)),
+                     transform=dio.image_frame_transform(25.0), tags={"frame": "image:left"})
+    out = tmp_path / "report"
+    result = _invoke(tmp_path / "dem.tif", tmp_path / "ref.tif", "--out", out)
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert result.exit_code == 1 and len(errors) == 1, result.output
+    assert f"{tmp_path / 'dem.tif'}: is in the frame 'image:left' (no map CRS)" in errors[0]
+    assert not out.exists()

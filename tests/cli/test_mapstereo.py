@@ -4,6 +4,7 @@ matches) → `dem --disparity --mapprojected` → compared with truth_dem_map.ti
 `refine` on the map; every bad input of the route (one line, exit 1, nothing written)."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -174,3 +175,41 @@ def test_stereo_refuses_orthos_of_different_grids(route, tmp_path, stage):
     out = tmp_path / "d.tif"
     result = invoke(stage, route["left"], own, "--out", out)
     assert_refused(result, out, str(own), "different map grids", "--grid-like")
+
+
+@pytest.mark.slow
+def test_dem_refuses_an_ortho_whose_sensor_changed_since(route, tmp_path):
+    """Issue 31, class 4: the ortho records its sensor model's SHA-256; a model edited
+    after mapproject (here re-written, one space more) is refused, naming it."""
+    tags = dio.read_raster(route["right"]).tags
+    assert len(tags["mapproject_sensor_sha256"]) == 64
+    edited = tmp_path / "edited.json"
+    edited.write_text(json.dumps(json.loads(Path(tags[SENSOR_TAG]).read_text()), indent=1))
+    moved = copy_raster(route["right"], tmp_path / "moved.tif",
+                        tags={**tags, SENSOR_TAG: str(edited)})
+    out = tmp_path / "dem.tif"
+    result = invoke("dem", "--disparity", route["disparity"], "--mapprojected",
+                    route["left"], moved, "--out", out)
+    assert_refused(result, out, f"{moved}: its sensor model {edited} has changed since it "
+                   "was map-projected")
+
+
+@pytest.mark.slow
+def test_dem_refuses_one_ortho_twice(route, tmp_path):
+    out = tmp_path / "dem.tif"
+    result = invoke("dem", "--disparity", route["disparity"], "--mapprojected",
+                    route["left"], route["left"], "--out", out)
+    assert_refused(result, out, "is the same image as")
+    copy = copy_raster(route["left"], tmp_path / "copy.tif")
+    result = invoke("dem", "--disparity", route["disparity"], "--mapprojected",
+                    route["left"], copy, "--out", out)
+    assert_refused(result, out, f"{copy}: is the same image as", "one raw image and sensor")
+
+
+@pytest.mark.slow
+def test_dem_refuses_orthos_swapped_against_the_disparity(route, tmp_path):
+    out = tmp_path / "dem.tif"
+    result = invoke("dem", "--disparity", route["disparity"], "--mapprojected",
+                    route["right"], route["left"], "--out", out)
+    assert_refused(result, out, f"{route['disparity']}: was matched with {route['left']} as "
+                   "the left orthoimage")

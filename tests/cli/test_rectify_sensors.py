@@ -133,7 +133,9 @@ def test_bad_inputs_one_line_exit_1_no_output(frame_scene, tmp_path):
     assert "mapproject" in run.output
     # models of different bodies
     mars = frame_isd(scene.right)
-    mars["radii"] = {"semimajor": 3396190.0, "semiminor": 3376200.0, "unit": "m"}
+    # (radii 0.1 % larger: another body, with the camera still above it; Mars' radii put
+    # it inside, which the reader refuses first, naming instrument_position)
+    mars["radii"] = {"semimajor": 1739137.4, "semiminor": 1739137.4, "unit": "m"}
     isd = tmp_path / "mars.json"
     isd.write_text(json.dumps(mars))
     run = _rectify(paths, out, isd)
@@ -172,3 +174,47 @@ def test_dem_refuses_bad_calibrated_files(frame_scene, tmp_path):
                   "--cameras", paths["left_isd"], "--out", out)
     assert run.exit_code == 1 and "is calibrated" in run.output
     assert not out.exists()
+
+
+def test_a_pair_1800_km_apart_is_not_blamed_on_the_spice(frame_scene, tmp_path):
+    """Issue 31, class 7: the right camera turned 60° about the pole (≈1 800 km away): the
+    footprints are compared before any matching, and the message says so."""
+    import copy
+
+    scene, paths = frame_scene
+    far = copy.copy(scene.right)
+    turn = np.radians(60.0)
+    spin = np.array([[np.cos(turn), -np.sin(turn), 0.0], [np.sin(turn), np.cos(turn), 0.0],
+                     [0.0, 0.0, 1.0]])
+    far.position = spin @ scene.right.position
+    far.rotation = spin @ scene.right.rotation
+    isd = tmp_path / "far.json"
+    isd.write_text(json.dumps(frame_isd(far)))
+    out = tmp_path / "out"
+    run = _rectify(paths, out, isd)
+    errors = [line for line in run.output.splitlines() if line.startswith("Error:")]
+    assert run.exit_code == 1 and len(errors) == 1, run.output
+    assert "far.json: its footprint" in errors[0] and "does not overlap" in errors[0]
+    assert "SPICE" not in run.output
+    assert not out.exists() or not any(out.iterdir())
+
+
+@pytest.mark.slow
+def test_dem_blames_a_nan_model_in_rectify_npz_not_the_disparity(frame_scene, tmp_path):
+    scene, paths = frame_scene
+    rect = tmp_path / "rect"
+    assert _rectify(paths, rect).exit_code == 0
+    data = dio.read_npz(rect / "rectify.npz", "rectification")
+    width, height = (int(v) for v in data["size_rect"])
+    disparity = tmp_path / "d.tif"
+    dio.write_raster(disparity, np.zeros((height, width), np.float32))
+    broken = {k: v for k, v in data.items() if k not in ("kind", "format_version")}
+    broken["sensor_right_position"] = np.full(3, np.nan)
+    dio.write_npz(tmp_path / "nan.npz", "rectification", broken)
+    out = tmp_path / "dem.tif"
+    run = _invoke("dem", "--disparity", disparity, "--rectify", tmp_path / "nan.npz",
+                  "--out", out)
+    errors = [line for line in run.output.splitlines() if line.startswith("Error:")]
+    assert run.exit_code == 1 and len(errors) == 1, run.output
+    assert f"{tmp_path / 'nan.npz'}: key 'sensor_right_position'" in errors[0]
+    assert "non-finite" in errors[0] and not out.exists()

@@ -186,3 +186,20 @@ def test_refine_raw_image_with_sensor(map_scene, tmp_path):
     refined = dio.read_raster(out).data
     before = rmse(map_scene["coarse"], map_scene["truth"])
     assert rmse(refined, map_scene["truth"]) < 0.6 * before
+
+
+def test_dem_far_from_the_footprint_is_blamed_on_the_dem(map_scene, tmp_path):
+    """Issue 31, class 7: a DEM 100 km east of what the raw image sees is refused naming
+    the DEM and the footprint (was: 'the sun is below the horizon')."""
+    grid = map_scene["grid"]
+    raw = tmp_path / "raw.tif"
+    rng = np.random.default_rng(0)
+    dio.write_raster(raw, rng.uniform(0.2, 0.4, (180, 180)))
+    t = grid.transform
+    far = tmp_path / "far_dem.tif"
+    dio.write_raster(far, map_scene["coarse"], crs=grid.crs, tags=MOON.tags(),
+                     transform=Affine(t.a, 0, t.c + 100e3, 0, t.e, t.f))
+    out = tmp_path / "r.tif"
+    result = invoke(raw, far, "--sensor", map_scene["isd"], "--out", out)
+    assert_refused(result, out, f"{far}: the DEM lies outside the footprint of {raw}")
+    assert "horizon" not in result.output

@@ -160,13 +160,22 @@ def test_a_locked_output_is_refused(scene, tmp_path):
     assert not out.exists()
 
 
+def tiling_work_folder(out):
+    from demtool.tiling import work_folder
+
+    return work_folder(out)
+
+
 def test_no_cell_seeing_the_image_is_refused_on_the_engine(scene, tmp_path):
-    """Bounds far from the footprint: every tile misses the image; nothing is written."""
+    """Bounds far from the footprint: refused before any tile (issue 31: the grid is checked
+    against the image's footprint first, naming --bounds); nothing is written."""
     out = tmp_path / "ortho.tif"
     result = invoke(scene["image"], "--sensor", scene["isd"], "--height", 0, "--out", out,
                     "--gsd", 2.0, "--bounds", 40, 40, 40.01, 40.01, "--tile-size", 64,
                     "--workers", 1)
     assert result.exit_code == 1
     lines = [ln for ln in result.output.splitlines() if ln.startswith("Error")]
-    assert len(lines) == 1 and "no map cell sees the image" in lines[0], result.output
+    assert len(lines) == 1 and "--bounds: lon 40…40.01, lat 40…40.01 does not overlap the " \
+        "image's footprint" in lines[0], result.output
+    assert not tiling_work_folder(out).exists()
     assert not out.exists() and not Path(f"{out}.json").exists()

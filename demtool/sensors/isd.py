@@ -353,15 +353,7 @@ def _linear(times: np.ndarray, values: np.ndarray, t: float) -> np.ndarray:
 def read_isd(path: str | Path):
     """Read an ALE ISD JSON file into a sensor model (see :func:`sensor_from_isd`)."""
     p = Path(path)
-    try:
-        with open(p, encoding="utf-8") as handle:
-            isd = json.load(handle)
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read ISD ({exc.strerror or exc})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{p}: not valid JSON ({exc})") from None
-    if not isinstance(isd, Mapping):
-        raise InputError(f"{p}: ISD is not a JSON object")
+    isd = load_isd(p)
     return sensor_from_isd(isd, str(p))
 
 
@@ -544,3 +536,21 @@ def write_isd(path: str | Path, model) -> Path:
     from demtool import io
 
     return io.write_json(path, isd_from_sensor(model))
+
+
+def load_isd(path: str | Path) -> dict:
+    """Parse an ISD JSON file (one line naming the file when it cannot be read)."""
+
+    p = Path(path)
+    try:
+        with open(p, encoding="utf-8") as handle:
+            isd = json.load(handle)
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read ISD ({exc.strerror or exc})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{p}: not valid JSON ({exc})") from None
+    except (ValueError, RecursionError) as exc:
+        raise InputError(f"{p}: not a readable ISD ({exc})") from None
+    if not isinstance(isd, Mapping):
+        raise InputError(f"{p}: ISD is not a JSON object")
+    return isd

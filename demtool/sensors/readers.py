@@ -63,9 +63,9 @@ def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
         model = read_tsai(p, radii=radii)
         return {model.name: validate.check_model(model, p, "tsai")}
     if kind == "isd":
-        from demtool.sensors.isd import sensor_from_isd
+        from demtool.sensors.isd import load_isd, sensor_from_isd
 
-        model = sensor_from_isd(validate_raw.check_isd(validate_raw.load_isd(p), p), str(p))
+        model = sensor_from_isd(validate_raw.check_isd(load_isd(p), p), str(p))
         return {model.name or p.stem: validate.check_model(model, p, "isd")}
     if kind == "cube":
         from demtool.sensors.isis import read_cube

@@ -31,25 +31,6 @@ from demtool.sensors.validate import (
 )
 
 
-def load_isd(path: str | Path) -> dict:
-    """Parse an ISD JSON file (one line naming the file when it cannot be read)."""
-    import json
-
-    p = Path(path)
-    try:
-        with open(p, encoding="utf-8") as handle:
-            isd = json.load(handle)
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read ISD ({exc.strerror or exc})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{p}: not valid JSON ({exc})") from None
-    except (ValueError, RecursionError) as exc:
-        raise InputError(f"{p}: not a readable ISD ({exc})") from None
-    if not isinstance(isd, Mapping):
-        raise InputError(f"{p}: ISD is not a JSON object")
-    return isd
-
-
 def _block(isd: Mapping, key: str) -> Mapping | None:
     block = isd.get(key)
     return block if isinstance(block, Mapping) else None

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 from scipy import ndimage
 
-from demtool.sgm.disparity import _nearest_along
+from demtool.sgm.disparity import _DIRECTIONS, _fill
 
 INVALID = 0  # no disparity (NaN in the output)
 MATCHED = 1  # passed the left–right check and the filters
@@ -36,51 +36,6 @@ AT_BOUND = 4  # matched, but at the lowest or highest disparity searched
 
 CLASS_NAMES = {INVALID: "invalid", MATCHED: "matched", FILLED_OCCLUSION: "filled_occlusion",
                FILLED_MISMATCH: "filled_mismatch", AT_BOUND: "at_range_bound"}
-
-_DIRECTIONS = np.array([[0, 1], [0, -1], [1, 0], [-1, 0], [1, 1], [1, -1], [-1, 1], [-1, -1]],
-                       dtype=np.int64)
-
-
-@njit(nogil=True, cache=True)
-def _fill_pixels(disparity, occluded, usable, directions, out):
-    height, width = disparity.shape
-    index = np.full((height, width), -1, dtype=np.int64)
-    count = 0
-    for y in range(height):
-        for x in range(width):
-            if usable[y, x] and not np.isfinite(disparity[y, x]):
-                index[y, x] = count
-                count += 1
-    n_dir = directions.shape[0]
-    found = np.empty((n_dir, count), dtype=np.float32)
-    for k in range(n_dir):  # the nearest matched value per direction, O(H W) each
-        _nearest_along(disparity, usable, index, directions[k, 0], directions[k, 1], found, k)
-    values = np.empty(n_dir, dtype=np.float32)
-    for y in range(height):
-        for x in range(width):
-            i = index[y, x]
-            if i < 0:
-                continue
-            n = 0
-            for k in range(n_dir):
-                value = found[k, i]
-                if np.isfinite(value):  # insertion sort
-                    j = n
-                    while j > 0 and values[j - 1] > value:
-                        values[j] = values[j - 1]
-                        j -= 1
-                    values[j] = value
-                    n += 1
-            if n == 0:
-                continue
-            if occluded[y, x]:  # the background: the second lowest (one outlier allowed)
-                out[y, x] = values[1] if n > 2 else values[0]
-            elif n % 2 == 1:
-                out[y, x] = values[n // 2]
-            else:
-                out[y, x] = 0.5 * (values[n // 2 - 1] + values[n // 2])
-
-
 
 
 @njit(nogil=True, cache=True)
@@ -202,8 +157,8 @@ def fill_classified(disparity: np.ndarray, occluded: np.ndarray, usable: np.ndar
     invalid = usable & ~matched
     occluded_all = occluded_regions(disparity, invalid, occluded)
     out = disparity.copy()
-    _fill_pixels(disparity, occluded_all, np.ascontiguousarray(usable, dtype=np.bool_),
-                 _DIRECTIONS, out)
+    _fill(disparity, occluded_all, np.ascontiguousarray(usable, dtype=np.bool_), _DIRECTIONS,
+          out)
     classes = np.full(disparity.shape, INVALID, dtype=np.uint8)
     filled = invalid & np.isfinite(out)
     classes[matched] = MATCHED

@@ -192,13 +192,18 @@ class LineScanSensor(SensorModel):
         """Highest Lagrange order of the quaternion interpolation (as :meth:`rotation_at`)."""
         return 4 if len(self.quaternions) * 4 < 6 else 8
 
+    def _detector_line(self, line) -> np.ndarray:
+        """The detector line an image line is exposed on: 0 for a line scanner (one
+        detector line); a push-frame sensor's line within its framelet."""
+        return np.zeros_like(np.asarray(line, dtype=np.float64))
+
     def _image_to_ray_numpy(self, line, sample) -> Ray:
         """:meth:`image_to_ray` in numpy (the reference the compiled kernel must match)."""
         line, sample = np.broadcast_arrays(np.asarray(line, dtype=np.float64),
                                            np.asarray(sample, dtype=np.float64))
         time = self.line_time(line)
         origin = self.position_at(time)
-        x, y = self.detector.to_focal_plane(np.zeros_like(sample), sample)
+        x, y = self.detector.to_focal_plane(self._detector_line(line), sample)
         u, v = self.distortion.remove(x, y)
         look_cam = np.stack([-u, -v, np.full(u.shape, -self.focal_length)], axis=-1)
         look = np.sum(self.rotation_at(time) * look_cam[..., None, :], axis=-1)

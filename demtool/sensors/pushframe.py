@@ -116,30 +116,17 @@ class PushFrameSensor(LineScanSensor):
         return (k + 0.5) * self.summed_height
 
     # -- image → ground --------------------------------------------------------------
-    def _framelet_line(self, line) -> np.ndarray:
+    def _detector_line(self, line) -> np.ndarray:
         within = np.fmod(np.asarray(line, dtype=np.float64), self.summed_height)
         return self.summed_height - within if self.framelets_flipped else within
 
     def image_to_ray(self, line, sample) -> Ray:
-        """Imaging rays (CSM convention: the first pixel's centre at ``(0.5, 0.5)``).
-
-        Origins are the sensor positions at the framelets' exposure times and
-        directions unit look vectors, both ``broadcast(line, sample).shape + (3,)``,
-        body-fixed metres; rays point towards the body, as :class:`LineScanSensor`'s.
-        """
-        line, sample = np.broadcast_arrays(np.asarray(line, dtype=np.float64),
-                                           np.asarray(sample, dtype=np.float64))
-        time = self.line_time(line)
-        origin = self.position_at(time)
-        x, y = self.detector.to_focal_plane(self._framelet_line(line), sample)
-        u, v = self.distortion.remove(x, y)
-        look_cam = np.stack([-u, -v, np.full(u.shape, -self.focal_length)], axis=-1)
-        look = np.sum(self.rotation_at(time) * look_cam[..., None, :], axis=-1)
-        sign = np.where(np.sum(look * origin, axis=-1) > 0, -1.0, 1.0)
-        look *= (sign / np.linalg.norm(look, axis=-1))[..., None]
-        return self._masked(line, Ray(origin, look))
-
-    _image_to_ray_numpy = image_to_ray
+        """Imaging rays (CSM convention: the first pixel's centre at ``(0.5, 0.5)``), each
+        from the sensor position at its framelet's exposure time (:meth:`line_time`) and
+        the line within its framelet (:meth:`_detector_line`): the numpy form of
+        :meth:`LineScanSensor.image_to_ray` (whose compiled kernel times one detector
+        line); body-fixed metres, rays towards the body."""
+        return self._image_to_ray_numpy(line, sample)
 
     # -- ground → image --------------------------------------------------------------
     def _view(self, framelet, xyz):

@@ -517,7 +517,7 @@ def test_interrupting_two_dask_workers_gives_one_line_and_exit_130(pair, tmp_pat
     argv = [sys.executable, "-m", "demtool", "sgm", str(folder / "left.tif"),
             str(folder / "right.tif"), "--out", str(out), *SGM, "--tile-size", "48",
             "--workers", "2"]
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
     process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                env=env, start_new_session=True)
     deadline = time.time() + 240

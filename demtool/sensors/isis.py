@@ -22,9 +22,9 @@ ISIS's ``ApolloMetricDistortionMap`` (``INS<code>_PP``, ``_OD_K``, ``_DECENTER``
 model).  A camera without distortion keywords is ideal; another camera whose keywords
 describe a distortion is refused in one line (its ALE ISD carries the distortion).
 
-Refused in one line as well: map-projected cubes (a ``Mapping`` group, ISIS ``cam2map``)
-and line-scan cameras (``LineExposureDuration``: CTX, HiRISE, LRO NAC, MOC; read their
-ALE ISDs).  The body's name and NAIF id (``TargetName``, ``BODY<code>_RADII``) are kept
+Line-scan cubes (``LineExposureDuration``: LRO NAC, CTX, HiRISE) are read by
+:mod:`demtool.sensors.isis_linescan`.  Refused in one line: map-projected cubes (a
+``Mapping`` group, ISIS ``cam2map``) and line-scan cameras that module does not read.  The body's name and NAIF id (``TargetName``, ``BODY<code>_RADII``) are kept
 as ``model.body_name`` / ``model.body_naif_id`` for bodies PROJ does not know.
 
 Reference: DOI-USGS/ISIS3 ``isis/src/apollo/objs/ApolloMetricCamera/`` (camera and
@@ -101,8 +101,9 @@ def _naif(path: Path, naif, key: str, size: int | None = None):
     return value
 
 
-def read_cube(path: str | Path) -> FrameSensor:
-    """Read an ISIS3 cube with attached SPICE into a :class:`FrameSensor`.
+def read_cube(path: str | Path):
+    """Read an ISIS3 cube with attached SPICE into a :class:`FrameSensor` (a
+    :class:`LineScanSensor` for the line-scan cameras of :mod:`~demtool.sensors.isis_linescan`).
 
     Raises
     ------
@@ -114,6 +115,11 @@ def read_cube(path: str | Path) -> FrameSensor:
     """
     p = Path(path)
     label, data = read_label(p)
+    if "Mapping" not in label["IsisCube"]:
+        from demtool.sensors.isis_linescan import is_linescan_label, read_linescan_cube
+
+        if is_linescan_label(label):  # LRO NAC, CTX, HiRISE: a LineScanSensor
+            return read_linescan_cube(p, label, data)
     _refuse_unread_kinds(p, label)
     tables = _tables(label)
     needed = ("InstrumentPointing", "InstrumentPosition", "BodyRotation", "SunPosition")

@@ -1,0 +1,381 @@
+"""ISIS3 line-scan cubes with SPICE attached (LRO NAC, MRO CTX, MRO HiRISE) as
+:class:`~demtool.sensors.linescan.LineScanSensor` models.
+
+The cube carries what ALE's ``IsisSpice`` drivers read (DOI-USGS/ale
+``ale/base/data_isis.py``, ``ale/drivers/lro_drivers.py``, ``mro_drivers.py``): the
+ephemerides and attitude as binary tables (``InstrumentPosition``/``SunPosition``: J2000
+km and km/s with ``ET``; ``InstrumentPointing``/``BodyRotation``: J2000 → frame
+quaternions, scalar first, with the label's ``ConstantRotation`` from the table's first
+time-dependent frame to the instrument frame), and the instrument kernel's keys in the
+``NaifKeywords`` object.  :func:`cube_isd` turns them into the ALE image support data
+(ISD) of the cube, and :func:`read_linescan_cube` builds the model from that ISD with
+:func:`demtool.sensors.isd.sensor_from_isd` (usgscsm's resampling, the ephemeris
+coverage of :mod:`demtool.sensors.coverage`).
+
+Line times.  ISIS tables are in ephemeris time (TDB seconds past J2000).  The image
+start comes from ``spiceinit``'s own conversion of the label's spacecraft clock count,
+stored as ``CLOCK_ET_<sc>_<count>_COMPUTED`` (the IEEE double's bytes in hexadecimal,
+as ALE's ``IsisSpice.ephemeris_start_time`` reads it): exact, no kernel needed.  Then,
+per camera, as ISIS's camera models and ALE's drivers do:
+
+==========  ==================================================================
+camera      start ET, line time (s)
+==========  ==================================================================
+LRO NAC     ``clock(SpacecraftClockPrerollCount) + CONSTANT_TIME_OFFSET +
+            ADDITIONAL_PREROLL · r``, ``r = LineExposureDuration · (1 +
+            MULTIPLI_LINE_ERROR) + ADDITIVE_LINE_ERROR`` (ISIS LroNarrowAngleCamera)
+CTX         ``clock(SpacecraftClockCount)``, ``r = LineExposureDuration``
+            (ISIS MroCtxCamera)
+HiRISE      ``clock(SpacecraftClockStartCount) − u (Tdi/2 − 0.5) + u (Summing/2 −
+            0.5)``, ``r = u · Summing``, ``u = (74 + DeltaLineTimerCount/16) µs``
+            (ISIS HiriseCamera)
+==========  ==================================================================
+
+ISIS's ``LineScanCameraDetectorMap`` exposes parent line ``L`` (1-based) at ``start +
+(L − 0.5) r``; an ``AlphaCube`` crop or rescale maps cube line ``c`` (CSM, 0 = top edge)
+to parent line ``AlphaStartingLine + c k`` (``k`` the line ratio), so the cube's
+line-scan rate is ``[[0.5, start + (AlphaStartingLine − 0.5) r − centre, k r]]``.  The
+uncertainty of these times is that of ISIS's own camera model (the clock conversion is
+ISIS's double); the reader checks that the first cube line lies within the pointing
+table's span and :func:`time_check` reports the offset of the tables' start from it
+(the ``bench/sensor_files.py`` table): 0.0 lines for CTX, one line (0.36 ms) for the
+LRO NAC crop, whose cache ISIS built for a window one line earlier.
+
+Interior orientation (ISIS → CSM: 1-based detector pixels become 0-based by −0.5, as
+ALE does): LRO NAC and CTX ``detector_center = (BORESIGHT_LINE, BORESIGHT_SAMPLE −
+0.5)``, first detector sample ``SampleFirstPixel`` (ISIS ``SetStartingDetectorSample(
+SampleFirstPixel + 1)``), sample summing ``SpatialSumming``; HiRISE the CCD's own affine
+``INS-746nn_ITRANSS/L`` (CCD ``nn`` from ``CpmmNumber``, ALE's ``hirise_ccd_lookup``)
+about detector (0, 0), first sample 1024 for channel 0, sample summing ``Summing``.
+Distortion: LRO NAC ``lrolrocnac`` (``_OD_K``, ISIS LroNarrowAngleDistortionMap), CTX and
+HiRISE ``radial`` (``_OD_K``, ISIS CameraDistortionMap; HiRISE's from ``INS-74699``).
+
+Not read (refused in one line): cameras other than these three (e.g. MGS MOC cubes of the
+old layout, without ``NaifKeywords``: their focal length, pixel pitch and boresight are in
+no file demtool has), polynomial (jigsaw ``J2000SVX``/``J2000Ang1``) tables, and cubes
+without the computed clock key.
+"""
+
+from __future__ import annotations
+
+import re
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from demtool.errors import InputError
+
+#: NAIF codes of the line-scan cameras read here: LRO NAC left/right, CTX, HiRISE.
+LRO_NAC_CODES = (-85600, -85610)
+CTX_CODE = -74021
+HIRISE_CODE = -74699
+#: ALE's ``hirise_ccd_lookup``: CpmmNumber → CCD number (NAIF code −74600 − CCD).
+HIRISE_CCD = {0: 0, 1: 1, 2: 2, 3: 3, 4: 12, 5: 4, 6: 10, 7: 11, 8: 5, 9: 13, 10: 6,
+              11: 7, 12: 8, 13: 9}
+_SECONDS = {"ms": 1e-3, "msec": 1e-3, "milliseconds": 1e-3, "millisecond": 1e-3,
+            "microseconds": 1e-6, "microsecond": 1e-6, "us": 1e-6, "usec": 1e-6,
+            "s": 1.0, "sec": 1.0, "seconds": 1.0}
+
+
+def is_linescan_label(label) -> bool:
+    """True when the cube's ``Instrument`` group has a ``LineExposureDuration``."""
+    return "LineExposureDuration" in label["IsisCube"].get("Instrument", {})
+
+
+class _Cube:
+    """Lookups in one cube's label that fail with one line naming the file and key."""
+
+    def __init__(self, path: Path, label, data: bytes):
+        self.path, self.label, self.data = path, label, data
+        self.cube = label["IsisCube"]
+        self.instrument = self.cube.get("Instrument", {})
+        self.naif = label.get("NaifKeywords")
+
+    def inst(self, key: str):
+        if key not in self.instrument:
+            raise InputError(f"{self.path}: the Instrument group lacks the key '{key}'")
+        return self.instrument[key]
+
+    def number(self, key: str) -> float:
+        value = self.inst(key)
+        return float(getattr(value, "value", value))
+
+    def seconds(self, key: str, default_unit: str) -> float:
+        """A duration of the Instrument group in seconds (its unit, or ``default_unit``)."""
+        value = self.inst(key)
+        unit = str(getattr(value, "units", "") or default_unit).strip().lower()
+        if unit not in _SECONDS:
+            raise InputError(f"{self.path}: the Instrument key '{key}' has the unit "
+                             f"{unit!r}, expected milliseconds or microseconds")
+        return float(getattr(value, "value", value)) * _SECONDS[unit]
+
+    def key(self, key: str, size: int | None = None) -> np.ndarray:
+        if self.naif is None:
+            raise InputError(f"{self.path}: the cube has no NaifKeywords object (needed: "
+                             f"'{key}'); an old ISIS label layout, re-run spiceinit in "
+                             "ISIS 3.6 or later, or pass an ALE ISD (isd_generate)")
+        if key not in self.naif:
+            raise InputError(f"{self.path}: NaifKeywords lacks the key '{key}'")
+        value = np.atleast_1d(np.asarray(self.naif[key], dtype=np.float64))
+        if size is not None and value.size != size:
+            raise InputError(f"{self.path}: NaifKeywords '{key}' has {value.size} values, "
+                             f"expected {size}")
+        return value
+
+    def scalar(self, key: str) -> float:
+        return float(self.key(key, 1)[0])
+
+    def clock_et(self, count_key: str) -> float:
+        """spiceinit's ET of the label's clock count ``count_key`` (module docstring)."""
+        count = str(self.inst(count_key)).strip()
+        end = self.data.find(b"\nEnd\n")
+        text = self.data[: end if end > 0 else 65536].decode("latin-1")
+        pattern = r"CLOCK_ET_(-?\d+)_" + re.escape(count) + r"_COMPUTED\s*=\s*([0-9A-Fa-f]+)"
+        match = re.search(pattern, text)
+        if match is None:
+            raise InputError(f"{self.path}: NaifKeywords lacks the key 'CLOCK_ET_<sc>_{count}"
+                             f"_COMPUTED' (spiceinit's ephemeris time of {count_key}); "
+                             "re-run spiceinit, or pass an ALE ISD (isd_generate)")
+        return struct.unpack("<d", bytes.fromhex(match.group(2).zfill(16)))[0]
+
+
+def _alpha(cube: _Cube) -> tuple[float, float, float, float, int, int]:
+    """(start_sample, start_line, k_sample, k_line, samples, lines) of the cube in its
+    parent image: ISIS ``AlphaCube`` (starts 1-based, in parent pixels), or the identity.
+    For a map-projected cube the size is the camera image's (``BetaSamples/Lines``)."""
+    alpha = cube.cube.get("AlphaCube")
+    dims = cube.cube.get("Core", {}).get("Dimensions", {})
+    if alpha is None:
+        if "Mapping" in cube.cube:
+            raise InputError(f"{cube.path}: the map-projected cube has no AlphaCube group; "
+                             "the camera image's size is unknown")
+        try:
+            return 0.5, 0.5, 1.0, 1.0, int(dims["Samples"]), int(dims["Lines"])
+        except KeyError as exc:
+            raise InputError(f"{cube.path}: the cube label lacks the key {exc}") from None
+    try:
+        samples, lines = int(alpha["BetaSamples"]), int(alpha["BetaLines"])
+        k_s = (float(alpha["AlphaEndingSample"]) - float(alpha["AlphaStartingSample"])) / samples
+        k_l = (float(alpha["AlphaEndingLine"]) - float(alpha["AlphaStartingLine"])) / lines
+        return (float(alpha["AlphaStartingSample"]), float(alpha["AlphaStartingLine"]),
+                k_s, k_l, samples, lines)
+    except KeyError as exc:
+        raise InputError(f"{cube.path}: the AlphaCube group lacks the key {exc}") from None
+
+
+def _camera(cube: _Cube, code: int) -> dict:
+    """Timing (start ET of parent line 0.5, seconds per parent line) and interior
+    orientation of the three cameras (module docstring's table)."""
+    ins = f"INS{code}"
+    if code in LRO_NAC_CODES:
+        rate = cube.seconds("LineExposureDuration", "ms") \
+            * (1.0 + cube.scalar(f"{ins}_MULTIPLI_LINE_ERROR")) \
+            + cube.scalar(f"{ins}_ADDITIVE_LINE_ERROR")
+        start = (cube.clock_et("SpacecraftClockPrerollCount")
+                 + cube.scalar(f"{ins}_CONSTANT_TIME_OFFSET")
+                 + cube.scalar(f"{ins}_ADDITIONAL_PREROLL") * rate)
+        return dict(start=start, rate=rate, ccd=ins, focal=cube.scalar(f"{ins}_FOCAL_LENGTH"),
+                    center=(cube.scalar(f"{ins}_BORESIGHT_LINE"),
+                            cube.scalar(f"{ins}_BORESIGHT_SAMPLE") - 0.5),
+                    first_sample=cube.number("SampleFirstPixel"),
+                    summing=cube.number("SpatialSumming"),
+                    distortion={"lrolrocnac": {"coefficients":
+                                               cube.key(f"{ins}_OD_K", 1).tolist()}})
+    if code == CTX_CODE:
+        return dict(start=cube.clock_et("SpacecraftClockCount"),
+                    rate=cube.seconds("LineExposureDuration", "ms"), ccd=ins,
+                    focal=cube.scalar(f"{ins}_FOCAL_LENGTH"),
+                    center=(cube.scalar(f"{ins}_BORESIGHT_LINE"),
+                            cube.scalar(f"{ins}_BORESIGHT_SAMPLE") - 0.5),
+                    first_sample=cube.number("SampleFirstPixel"),
+                    summing=cube.number("SpatialSumming"),
+                    distortion={"radial": {"coefficients": cube.key(f"{ins}_OD_K", 3).tolist()}})
+    if code == HIRISE_CODE:
+        unbinned = (74.0 + cube.number("DeltaLineTimerCount") / 16.0) / 1e6
+        tdi, summing = cube.number("Tdi"), cube.number("Summing")
+        start = (cube.clock_et("SpacecraftClockStartCount") - unbinned * (tdi / 2.0 - 0.5)
+                 + unbinned * (summing / 2.0 - 0.5))
+        cpmm = int(cube.number("CpmmNumber"))
+        if cpmm not in HIRISE_CCD:
+            raise InputError(f"{cube.path}: the Instrument key 'CpmmNumber' is {cpmm}, "
+                             "not a HiRISE CCD (0-13)")
+        ccd = f"INS{-74600 - HIRISE_CCD[cpmm]}"
+        channel = int(cube.number("ChannelNumber"))
+        return dict(start=start, rate=unbinned * summing, ccd=ccd,
+                    focal=cube.scalar(f"{ins}_FOCAL_LENGTH"), center=(0.0, 0.0),
+                    first_sample=1024.0 if channel == 0 else 0.0, summing=summing,
+                    distortion={"radial": {"coefficients": cube.key(f"{ins}_OD_K", 3).tolist()}})
+    what = str(cube.instrument.get("InstrumentId", "")) or "an unnamed camera"
+    raise InputError(f"{cube.path}: is a line-scan cube of {what} (NAIF code {code}); "
+                     "demtool reads the ISIS line-scan models of LRO NAC, MRO CTX and MRO "
+                     "HiRISE from cubes: pass an ALE ISD of this image (isd_generate)")
+
+
+def _table(cube: _Cube, name: str, tables: dict) -> tuple[dict, dict]:
+    from demtool.sensors.isis import _read_table
+
+    if name not in tables:
+        raise InputError(f"{cube.path}: the cube has no {name} table (no attached SPICE); "
+                         "run 'spiceinit attach=true' in ISIS, or pass an ALE ISD")
+    values = _read_table(cube.path, cube.data, tables[name])
+    poly = [k for k in ("J2000SVX", "J2000Ang1") if k in values]
+    if poly:
+        raise InputError(f"{cube.path}: table {name} holds polynomial coefficients "
+                         f"('{poly[0]}', as jigsaw writes them); demtool reads sampled "
+                         "tables: run 'spiceinit' again or pass an ALE ISD")
+    return tables[name], values
+
+
+def _states_block(cube: _Cube, name: str, tables: dict) -> dict:
+    from demtool.sensors.isis import _columns
+
+    _, table = _table(cube, name, tables)
+    block = {"ephemeris_times": _columns(cube.path, table, name, ["ET"])[:, 0].tolist(),
+             "positions": _columns(cube.path, table, name,
+                                   ["J2000X", "J2000Y", "J2000Z"]).tolist(), "unit": "km"}
+    if all(k in table for k in ("J2000XV", "J2000YV", "J2000ZV")):
+        block["velocities"] = _columns(cube.path, table, name,
+                                       ["J2000XV", "J2000YV", "J2000ZV"]).tolist()
+    return block
+
+
+def _rotations_block(cube: _Cube, name: str, tables: dict) -> dict:
+    from demtool.sensors.isis import _columns
+
+    label_table, table = _table(cube, name, tables)
+    block = {"ephemeris_times": _columns(cube.path, table, name, ["ET"])[:, 0].tolist(),
+             "quaternions": _columns(cube.path, table, name,
+                                     ["J2000Q0", "J2000Q1", "J2000Q2", "J2000Q3"]).tolist()}
+    if "ConstantRotation" in label_table:
+        values = np.asarray(label_table["ConstantRotation"], dtype=np.float64).ravel()
+        if values.size != 9:
+            raise InputError(f"{cube.path}: table {name} has a ConstantRotation of "
+                             f"{values.size} values, expected 9")
+        block["constant_rotation"] = values.tolist()
+    return block
+
+
+def cube_isd(path: str | Path, label=None, data: bytes | None = None, *,
+             mapped: bool = False) -> dict:
+    """The ALE image support data (a ``USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL`` ISD dict)
+    of an ISIS line-scan cube with attached SPICE (module docstring).
+
+    Parameters
+    ----------
+    path : path-like
+        The cube.
+    label, data : optional
+        Its parsed label and bytes, when already read.
+    mapped : bool
+        Accept a map-projected cube (``cam2map``: ``Mapping`` group): the ISD is then its
+        camera image's (size from ``AlphaCube``'s ``BetaSamples/Lines``).
+
+    Raises
+    ------
+    InputError
+        One line naming the file and the missing key, table or field; a camera other
+        than LRO NAC, CTX or HiRISE; a map-projected cube when ``mapped`` is False.
+    """
+    from demtool.sensors.isis import _tables
+    from demtool.sensors.isis_label import read_label
+
+    p = Path(path)
+    if label is None or data is None:
+        label, data = read_label(p)
+    cube = _Cube(p, label, data)
+    if "Mapping" in cube.cube and not mapped:
+        raise InputError(f"{p}: is a map-projected cube: its pixels lie on the map, not in "
+                         "the camera")
+    if not is_linescan_label(label):
+        raise InputError(f"{p}: the Instrument group lacks the key 'LineExposureDuration' "
+                         "(not a line-scan camera cube)")
+    kernels = cube.cube.get("Kernels", {})
+    code_key = next((k for k in ("NaifIkCode", "NaifFrameCode") if k in kernels), None)
+    if code_key is None:
+        raise InputError(f"{p}: the Kernels group lacks the key 'NaifFrameCode'")
+    code = int(kernels[code_key])
+    if cube.naif is None:
+        cube.key(f"INS{code}_FOCAL_LENGTH")  # raises: no NaifKeywords (old layout)
+    camera = _camera(cube, code)
+    start_s, start_l, k_s, k_l, samples, lines = _alpha(cube)
+    ccd = camera["ccd"]
+    tables = _tables(label)
+    pointing = _rotations_block(cube, "InstrumentPointing", tables)
+    rate = k_l * camera["rate"]
+    first = camera["start"] + (start_l - 0.5) * camera["rate"]  # ET of cube line 0 (top)
+    centre = first + 0.5 * lines * rate
+    radii_key = next((k for k in cube.naif.keys() if re.fullmatch(r"BODY-?\d+_RADII", k)),
+                     None)
+    if radii_key is None:
+        raise InputError(f"{p}: NaifKeywords lacks the key 'BODY<code>_RADII'")
+    radii = cube.key(radii_key, 3)
+    summing = camera["summing"]
+    isd = {
+        "name_model": "USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL", "image_identifier": p.stem,
+        "name_sensor": str(cube.instrument.get("InstrumentId", "")),
+        "image_lines": lines, "image_samples": samples,
+        "radii": {"semimajor": float(radii[0]), "semiminor": float(radii[2]), "unit": "km"},
+        "focal_length_model": {"focal_length": camera["focal"]},
+        "focal2pixel_samples": cube.key(f"{ccd}_ITRANSS", 3).tolist(),
+        "focal2pixel_lines": cube.key(f"{ccd}_ITRANSL", 3).tolist(),
+        "detector_center": {"line": camera["center"][0], "sample": camera["center"][1]},
+        "starting_detector_line": 0.0,
+        "starting_detector_sample": (start_s - 0.5) * summing + camera["first_sample"],
+        "detector_sample_summing": k_s * summing, "detector_line_summing": 1.0,
+        "optical_distortion": camera["distortion"],
+        "center_ephemeris_time": centre, "starting_ephemeris_time": first,
+        "line_scan_rate": [[0.5, first - centre, rate]],
+        "instrument_position": _states_block(cube, "InstrumentPosition", tables),
+        "sun_position": _states_block(cube, "SunPosition", tables),
+        "instrument_pointing": pointing,
+        "body_rotation": _rotations_block(cube, "BodyRotation", tables),
+    }
+    times = np.asarray(pointing["ephemeris_times"])
+    spacing = float(np.median(np.diff(times))) if len(times) > 1 else 0.0
+    if not times[0] - spacing - rate <= first <= times[-1] + spacing:
+        raise InputError(f"{p}: the image's first line (ET {first:.6f} s, from the clock "
+                         f"count and the camera's timing) lies outside the InstrumentPointing "
+                         f"table ({times[0]:.6f}…{times[-1]:.6f} s)")
+    return isd
+
+
+def time_check(isd: dict, label) -> dict:
+    """Offsets (in image lines) of the pointing table's first and last times from the
+    cube's first and last line times, and the ``CkTableStartTime``'s, for reports."""
+    t = np.asarray(isd["instrument_pointing"]["ephemeris_times"])
+    first = isd["starting_ephemeris_time"]
+    rate = isd["line_scan_rate"][0][2]
+    last = first + rate * isd["image_lines"]
+    return {"table_start_lines": (t[0] - first) / rate, "table_end_lines": (t[-1] - last) / rate}
+
+
+def read_linescan_cube(path: str | Path, label=None, data: bytes | None = None, *,
+                       mapped: bool = False):
+    """Read an ISIS line-scan cube with attached SPICE into a :class:`LineScanSensor`
+    (the ISD of :func:`cube_isd` through :func:`~demtool.sensors.isd.sensor_from_isd`).
+
+    The model keeps ``notes``, ``body_name`` (the label's ``TargetName``) and
+    ``body_naif_id`` like the frame reader's; ``mapped=True`` reads the camera of a
+    ``cam2map`` cube.
+
+    Raises
+    ------
+    InputError
+        See :func:`cube_isd`.
+    """
+    from demtool.sensors.isd import sensor_from_isd
+    from demtool.sensors.isis_label import read_label
+
+    p = Path(path)
+    if label is None or data is None:
+        label, data = read_label(p)
+    isd = cube_isd(p, label, data, mapped=mapped)
+    model = sensor_from_isd(isd, str(p))
+    model.notes = list(getattr(model, "notes", []))
+    instrument = label["IsisCube"].get("Instrument", {})
+    model.body_name = str(instrument.get("TargetName", "")) or None
+    radii_key = next(k for k in label["NaifKeywords"].keys()
+                     if re.fullmatch(r"BODY-?\d+_RADII", k))
+    model.body_naif_id = int(radii_key[4:-6])
+    return model

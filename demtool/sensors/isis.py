@@ -24,7 +24,8 @@ describe a distortion is refused in one line (its ALE ISD carries the distortion
 
 Line-scan cubes (``LineExposureDuration``: LRO NAC, CTX, HiRISE) are read by
 :mod:`demtool.sensors.isis_linescan`.  Refused in one line: map-projected cubes (a
-``Mapping`` group, ISIS ``cam2map``) and line-scan cameras that module does not read.  The body's name and NAIF id (``TargetName``, ``BODY<code>_RADII``) are kept
+``Mapping`` group, ISIS ``cam2map``) and line-scan cameras that module does not read.
+The body's name and NAIF id (``TargetName``, ``BODY<code>_RADII``) are kept
 as ``model.body_name`` / ``model.body_naif_id`` for bodies PROJ does not know.
 
 Reference: DOI-USGS/ISIS3 ``isis/src/apollo/objs/ApolloMetricCamera/`` (camera and
@@ -277,12 +278,9 @@ def _tagcams(path: Path, naif, ins: str, focal: float, instrument) -> Distortion
 
 
 def _refuse_unread_kinds(path: Path, label) -> None:
-    """One-line refusals of cubes that are not raw frame-camera images.
-
-    A map-projected cube (ISIS ``cam2map``: a ``Mapping`` group) has its pixels on the
-    map, not in the camera; a line-scan camera (``LineExposureDuration`` in the
-    ``Instrument`` group: CTX, HiRISE, LRO NAC, MOC) is not a frame model.
-    """
+    """One-line refusal of a map-projected cube (ISIS ``cam2map``: a ``Mapping``
+    group): its pixels lie on the map, not in the camera (line-scan cubes are read by
+    :mod:`demtool.sensors.isis_linescan` before this check)."""
     cube = label["IsisCube"]
     mapping = cube.get("Mapping")
     if mapping is not None:
@@ -292,15 +290,6 @@ def _refuse_unread_kinds(path: Path, label) -> None:
                          "pixels lie on that map, not in the camera; use it as a map "
                          "(its CRS from the Mapping group), or the raw image's cube or ISD "
                          "for a camera model")
-    instrument = cube.get("Instrument", {})
-    if "LineExposureDuration" in instrument:
-        what = instrument.get("InstrumentId", "a line-scan camera")
-        duration = instrument["LineExposureDuration"]
-        duration = (f"{duration.value:g} {duration.units}" if hasattr(duration, "units")
-                    else str(duration))
-        raise InputError(f"{path}: is a line-scan camera cube ({what}, LineExposureDuration "
-                         f"{duration}); demtool reads ISIS frame "
-                         "cameras: pass an ALE ISD of it (isd_generate) instead")
 
 
 def read_footprint(path: str | Path) -> list[np.ndarray]:

@@ -37,9 +37,10 @@ to parent line ``AlphaStartingLine + c k`` (``k`` the line ratio), so the cube's
 line-scan rate is ``[[0.5, start + (AlphaStartingLine − 0.5) r − centre, k r]]``.  The
 uncertainty of these times is that of ISIS's own camera model (the clock conversion is
 ISIS's double); the reader checks that the first cube line lies within the pointing
-table's span and :func:`time_check` reports the offset of the tables' start from it
-(the ``bench/sensor_files.py`` table): 0.0 lines for CTX, one line (0.36 ms) for the
-LRO NAC crop, whose cache ISIS built for a window one line earlier.
+table's span, and :func:`time_check` reports where ``spiceinit``'s tables start against
+the derived start of the parent image (``bench/sensor_files.py``): the label's
+``CkTableStartTime`` is the derived start to 0.00 lines for the shared LRO NAC, CTX and
+HiRISE "before" cubes and 0.06 lines (4.7 µs) for the HiRISE "after" cube.
 
 Interior orientation (ISIS → CSM: 1-based detector pixels become 0-based by −0.5, as
 ALE does): LRO NAC and CTX ``detector_center = (BORESIGHT_LINE, BORESIGHT_SAMPLE −
@@ -341,13 +342,26 @@ def cube_isd(path: str | Path, label=None, data: bytes | None = None, *,
 
 
 def time_check(isd: dict, label) -> dict:
-    """Offsets (in image lines) of the pointing table's first and last times from the
-    cube's first and last line times, and the ``CkTableStartTime``'s, for reports."""
+    """Where the pointing table starts, against the image's start time derived from the
+    clock (module docstring), in lines of the parent image (the uncropped camera image,
+    for which ``spiceinit`` built the tables): ``table_start_lines`` from the first
+    record's ET, ``ck_start_lines`` from the label's ``CkTableStartTime``,
+    ``cube_start_lines`` the cube's first line (its ``AlphaCube`` crop); a table that
+    starts at one of these two is ISIS's cache of the parent or of the cropped image.
+    For reports, not a check."""
+    from demtool.sensors.isis import _tables
+
+    alpha = label["IsisCube"].get("AlphaCube")
+    start_l, k_l = 0.5, 1.0
+    if alpha is not None:
+        start_l = float(alpha["AlphaStartingLine"])
+        k_l = (float(alpha["AlphaEndingLine"]) - start_l) / float(alpha["BetaLines"])
+    rate = isd["line_scan_rate"][0][2] / k_l  # seconds per parent line
+    parent_first = isd["starting_ephemeris_time"] - (start_l - 0.5) * rate
     t = np.asarray(isd["instrument_pointing"]["ephemeris_times"])
-    first = isd["starting_ephemeris_time"]
-    rate = isd["line_scan_rate"][0][2]
-    last = first + rate * isd["image_lines"]
-    return {"table_start_lines": (t[0] - first) / rate, "table_end_lines": (t[-1] - last) / rate}
+    ck = _tables(label)["InstrumentPointing"].get("CkTableStartTime")
+    return {"cube_start_lines": start_l - 0.5, "table_start_lines": (t[0] - parent_first) / rate,
+            "ck_start_lines": (float(ck) - parent_first) / rate if ck is not None else np.nan}
 
 
 def read_linescan_cube(path: str | Path, label=None, data: bytes | None = None, *,

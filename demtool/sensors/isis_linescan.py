@@ -47,7 +47,12 @@ ALE does): LRO NAC and CTX ``detector_center = (BORESIGHT_LINE, BORESIGHT_SAMPLE
 0.5)``, first detector sample ``SampleFirstPixel`` (ISIS ``SetStartingDetectorSample(
 SampleFirstPixel + 1)``), sample summing ``SpatialSumming``; HiRISE the CCD's own affine
 ``INS-746nn_ITRANSS/L`` (CCD ``nn`` from ``CpmmNumber``, ALE's ``hirise_ccd_lookup``)
-about detector (0, 0), first sample 1024 for channel 0, sample summing ``Summing``.
+about ISIS's detector origin (sample 1024.5, ISIS 1-based), at the detector line of the
+TDI block's centre (``−64 + Tdi/2``), first sample 1024 for channel 0, sample summing
+``Summing`` (ISIS ``HiriseCamera``: ``SetDetectorOrigin(1024.5, 0)``,
+``SetDetectorOffset(0, ccdLine_c)``).  ALE's HiRISE driver puts the origin at detector
+(0, 0) instead, 1024 samples away: on the shared ``cam2map`` pair ISIS's origin is the
+one under which both cameras see the map (below).
 Distortion: LRO NAC ``lrolrocnac`` (``_OD_K``, ISIS LroNarrowAngleDistortionMap), CTX and
 HiRISE ``radial`` (``_OD_K``, ISIS CameraDistortionMap; HiRISE's from ``INS-74699``).
 
@@ -203,8 +208,11 @@ def _camera(cube: _Cube, code: int) -> dict:
                              "not a HiRISE CCD (0-13)")
         ccd = f"INS{-74600 - HIRISE_CCD[cpmm]}"
         channel = int(cube.number("ChannelNumber"))
+        # ISIS HiriseCamera: detector origin (1024.5, 0) (ISIS 1-based: CSM 1024), and the
+        # line of the TDI block's centre, ccdLine_c = −64 + Tdi / 2, as the detector line
         return dict(start=start, rate=unbinned * summing, ccd=ccd,
-                    focal=cube.scalar(f"{ins}_FOCAL_LENGTH"), center=(0.0, 0.0),
+                    focal=cube.scalar(f"{ins}_FOCAL_LENGTH"),
+                    center=(64.0 - tdi / 2.0, 1024.0),
                     first_sample=1024.0 if channel == 0 else 0.0, summing=summing,
                     distortion={"radial": {"coefficients": cube.key(f"{ins}_OD_K", 3).tolist()}})
     what = str(cube.instrument.get("InstrumentId", "")) or "an unnamed camera"

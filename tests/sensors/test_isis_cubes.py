@@ -208,8 +208,12 @@ def test_cam2map_cube_given_to_the_map_projected_route_says_what_it_lacks(tmp_pa
     with pytest.raises(InputError, match=r"map\.cub: the left orthoimage is an ISIS "
                                          r"map-projected cube of CTX \(ISIS Mapping group: "
                                          r"Equirectangular on Mars, 0\.2526 m/px\) without "
-                                         r"demtool's mapproject tags: .* raw line-scan camera"):
+                                         r"demtool's mapproject tags: the map-projected route "
+                                         r"takes two ISIS cam2map cubes .* raw line-scan "
+                                         r"images"):
         refuse_cam2map_ortho(path, "the left orthoimage")
     refuse_cam2map_ortho(tagcams_cube(tmp_path / "raw.cub"), "x")  # not map-projected: fine
-    with pytest.raises(InputError, match=r"map\.cub: left orthoimage is an ISIS map-projected"):
+    # read as a cam2map ortho, its camera (a frame camera's NAIF code) is refused
+    with pytest.raises(InputError, match=r"map\.cub: is a line-scan cube of CTX \(NAIF code "
+                                         r"-64081\); demtool reads the ISIS line-scan models"):
         read_ortho(path, what="left orthoimage")

@@ -55,14 +55,15 @@ CAMERAS = {
                    pitch=1 / 142.857, boresight=400.0, focal=699.62),
     # ISIS HiriseCamera: u = (74 + DeltaLineTimerCount / 16) µs, r = u · Summing,
     # start = clock(SpacecraftClockStartCount) − u (Tdi/2 − 0.5) + u (Summing/2 − 0.5);
-    # the CCD's affine (CpmmNumber 5 → CCD 4 → INS-74604) about detector (0, 0).
+    # the CCD's affine (CpmmNumber 5 → CCD 4 → INS-74604) about ISIS's detector origin,
+    # sample 1024.5 (1-based): y = 0 at centred sample −624, detector sample CSM 400.
     "hirise": dict(code=-74699, code_key="NaifIkCode", clock="SpacecraftClockStartCount",
                    instrument={"InstrumentId": "HIRISE", "LineExposureDuration": "1 <ms>",
                                "SpacecraftClockStartCount": "932977222:01951",
                                "DeltaLineTimerCount": 69, "Tdi": 128, "Summing": 1,
                                "CpmmNumber": 5, "ChannelNumber": 1},
                    naif={"INS-74699_FOCAL_LENGTH": 11994.9988,
-                         "INS-74604_ITRANSS": "(400.0, 0.0, 83.3333)",
+                         "INS-74604_ITRANSS": "(-624.0, 0.0, 83.3333)",
                          "INS-74604_ITRANSL": "(0.0, 83.3333, 0.0)",
                          "INS-74699_OD_K": "(-0.0048509, 2.41312e-07, -1.62369e-13)"},
                    rate=78.3125e-6, start=ET0 - 78.3125e-6 * 63.5, pitch=1 / 83.3333,

@@ -268,3 +268,131 @@ def test_shared_line_scan_cubes_round_trip(name):
                          np.linspace(0.5, model.samples - 0.5, 5), indexing="ij")
     back = model.ground_to_image(model.image_to_ground(ll, ss))
     assert np.max(np.hypot(back[0] - ll, back[1] - ss)) < 0.01
+
+
+# -- cam2map cubes: the map-projected route (demtool.sensors.isis_cam2map) ------------------
+
+MAPPING = ("  Group = Mapping\n    ProjectionName = Equirectangular\n"
+           "    CenterLongitude = 224.0\n    TargetName = Mars\n"
+           "    EquatorialRadius = 3396190.0 <meters>\n    PolarRadius = 3376200.0 <meters>\n"
+           "    LatitudeType = Planetocentric\n    CenterLatitude = -38.0\n"
+           "    PixelResolution = 0.25 <meters/pixel>\n  End_Group\n")
+
+
+def cam2map_cube(path, camera="ctx"):
+    """A label-only cube as cam2map leaves it: the camera's tables and a Mapping group."""
+    path = write_linescan_cube(path, camera)
+    path.write_bytes(_insert_mapping(path.read_bytes()))
+    return path
+
+
+def _insert_mapping(data: bytes) -> bytes:
+    head = 16384
+    label = data[:head].rstrip(b"\0").replace(b"  Group = AlphaCube",
+                                               MAPPING.encode() + b"  Group = AlphaCube", 1)
+    return label.ljust(head, b"\0") + data[head:]
+
+
+def test_cam2map_cube_camera_is_the_raw_image_of_its_alpha_cube(tmp_path):
+    from demtool.sensors.isis_cam2map import cam2map_camera, is_cam2map_cube
+
+    path = cam2map_cube(tmp_path / "map.cub")
+    assert is_cam2map_cube(path) and not is_cam2map_cube(write_linescan_cube(
+        tmp_path / "raw.cub"))
+    with pytest.raises(InputError, match=r"map\.cub: is a map-projected cube \(ISIS Mapping "
+                                         r"group: Equirectangular on Mars, 0\.25 m/px\)"):
+        read_sensor(path)
+    model = cam2map_camera(path)
+    raw = read_sensor(tmp_path / "raw.cub")
+    assert (model.lines, model.samples) == (100, 200)  # BetaLines, BetaSamples
+    np.testing.assert_allclose(model.image_to_ground(37.5, 20.5), raw.image_to_ground(37.5, 20.5))
+
+
+def test_cam2map_pair_is_an_ortho_pair(tmp_path):
+    from types import SimpleNamespace
+
+    from demtool.mapproject.stereo import is_ortho_pair
+
+    left = SimpleNamespace(tags={}, path=cam2map_cube(tmp_path / "a.cub"))
+    right = SimpleNamespace(tags={}, path=cam2map_cube(tmp_path / "b.cub"))
+    raw = SimpleNamespace(tags={}, path=write_linescan_cube(tmp_path / "raw.cub"))
+    assert is_ortho_pair(left, right)
+    assert not is_ortho_pair(left, raw) and not is_ortho_pair(raw, right)
+
+
+def test_cam2map_surface_is_the_label_ellipsoid_above_the_crs_sphere(tmp_path):
+    from pyproj import CRS
+
+    from demtool.sensors.isis_cam2map import cam2map_surface
+
+    a, b, radius = 3396190.0, 3376200.0, 3388546.86869391  # GDAL's local radius at −38.07°
+    crs = CRS.from_proj4(f"+proj=eqc +lat_ts=-38.0 +lon_0=224 +R={radius} +units=m +type=crs")
+    path = cam2map_cube(tmp_path / "map.cub")
+    heights, surface = cam2map_surface(path, crs)
+    assert surface == "isis-ellipsoid: cam2map's ellipsoid (3396190.0, 3376200.0 m)"
+    data = path.read_bytes()  # cam2map on a DEM: the DEM is named, not carried
+    shape = b"    ShapeModel = $base/dems/molaMarsPlanetaryRadius0005.cub\n"
+    path.write_bytes(data[:16384].rstrip(b"\0").replace(
+        b"  Group = Kernels\n", b"  Group = Kernels\n" + shape, 1).ljust(16384, b"\0")
+        + data[16384:])
+    assert cam2map_surface(path, crs)[1] == (
+        "isis-ellipsoid: the Mapping group's ellipsoid (3396190.0, 3376200.0 m); cam2map's "
+        "shape model molaMarsPlanetaryRadius0005.cub is not in the cube, heights are "
+        "relative to the ellipsoid")
+    for lat in (-38.0, 0.0, 60.0):
+        y = np.radians(lat) * radius  # eqc: y = R φ
+        phi = np.radians(lat)
+        r = a * b / np.hypot(b * np.cos(phi), a * np.sin(phi))
+        assert float(heights(np.array([0.0]), np.array([y]))[0]) == pytest.approx(r - radius,
+                                                                                abs=1e-6)
+    assert heights(np.array([0.0]), np.array([0.0]))[0] == pytest.approx(a - radius)
+
+
+class _Pinhole:
+    """A duck-typed model: camera centre fixed, any point is seen (for the precision)."""
+
+    def __init__(self, centre):
+        self.centre = np.asarray(centre, dtype=np.float64)
+
+    def ground_to_image(self, xyz):
+        return np.zeros(len(xyz)), np.zeros(len(xyz))
+
+    def camera_center(self, line):
+        return np.broadcast_to(self.centre, np.shape(line) + (3,))
+
+
+def test_parallax_precision_is_height_over_base():
+    from demtool.sensors.isis_cam2map import parallax_precision
+
+    base, height = 20e3, 280e3  # a symmetric pair over the point: B/H = 1/14
+    found = parallax_precision(_Pinhole([-base / 2, 0, height]), _Pinhole([base / 2, 0, height]),
+                               np.zeros(3))
+    assert found["convergence_deg"] == pytest.approx(np.degrees(2 * np.arctan(base / 2 / height)))
+    assert found["height_per_px_parallax_factor"] == pytest.approx(height / base)
+
+
+HIRISE = SHARED / "hirise_mapprojected"
+
+
+@pytest.mark.data
+@pytest.mark.skipif(not HIRISE.exists(), reason="../shared/data/sensors is absent")
+def test_hirise_pair_cameras_see_their_common_map():
+    """cam2map filled both maps, so some surface height puts the map's centre inside both
+    raw images; ISIS HiriseCamera's detector origin (sample 1024.5) gives one (from about
+    −1.3 km up), ALE's origin (0, 0) none (the samples move by 1024)."""
+    from demtool.dem.inputs import read_ortho
+    from demtool.maps import map_to_xyz, to_pyproj_crs
+
+    left = read_ortho(HIRISE / "ESP_014038_1415_RED0.30421_33069.boulder_shift.before.cub",
+                      what="left")
+    right = read_ortho(HIRISE / "ESP_031022_1415_RED1.34517_37165.boulder_shift.after.cub",
+                       what="right")
+    crs, t = to_pyproj_crs(left.info.crs), left.info.transform
+    x, y = np.array([t.c + 306 * t.a]), np.array([t.f + 342 * t.e])
+    both = []
+    for h in np.arange(-8000.0, 8001.0, 250.0):
+        xyz = map_to_xyz(crs, x, y, left.heights(x, y) + h)
+        inside = [(0 <= ln[0] <= m.lines) and (0 <= sm[0] <= m.samples)
+                  for m in (left.sensor, right.sensor) for ln, sm in [m.ground_to_image(xyz)]]
+        both.append(all(inside))
+    assert any(both)

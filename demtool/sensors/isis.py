@@ -22,9 +22,9 @@ ISIS's ``ApolloMetricDistortionMap`` (``INS<code>_PP``, ``_OD_K``, ``_DECENTER``
 model).  A camera without distortion keywords is ideal; another camera whose keywords
 describe a distortion is refused in one line (its ALE ISD carries the distortion).
 
-Line-scan cubes (``LineExposureDuration``: LRO NAC, CTX, HiRISE) are read by
-:mod:`demtool.sensors.isis_linescan`.  Refused in one line: map-projected cubes (a
-``Mapping`` group, ISIS ``cam2map``) and line-scan cameras that module does not read.
+Refused in one line as well: map-projected cubes (a ``Mapping`` group, ISIS ``cam2map``)
+and line-scan cameras (``LineExposureDuration``), which
+:mod:`demtool.sensors.isis_linescan` reads (``read_sensor`` sends them there).
 The body's name and NAIF id (``TargetName``, ``BODY<code>_RADII``) are kept
 as ``model.body_name`` / ``model.body_naif_id`` for bodies PROJ does not know.
 
@@ -102,9 +102,9 @@ def _naif(path: Path, naif, key: str, size: int | None = None):
     return value
 
 
-def read_cube(path: str | Path):
-    """Read an ISIS3 cube with attached SPICE into a :class:`FrameSensor` (a
-    :class:`LineScanSensor` for the line-scan cameras of :mod:`~demtool.sensors.isis_linescan`).
+def read_cube(path: str | Path) -> FrameSensor:
+    """Read an ISIS3 cube with attached SPICE into a :class:`FrameSensor` (line-scan
+    cubes: :func:`demtool.sensors.isis_linescan.read_isis_cube`).
 
     Raises
     ------
@@ -116,11 +116,6 @@ def read_cube(path: str | Path):
     """
     p = Path(path)
     label, data = read_label(p)
-    if "Mapping" not in label["IsisCube"]:
-        from demtool.sensors.isis_linescan import is_linescan_label, read_linescan_cube
-
-        if is_linescan_label(label):  # LRO NAC, CTX, HiRISE: a LineScanSensor
-            return read_linescan_cube(p, label, data)
     _refuse_unread_kinds(p, label)
     tables = _tables(label)
     needed = ("InstrumentPointing", "InstrumentPosition", "BodyRotation", "SunPosition")
@@ -278,9 +273,12 @@ def _tagcams(path: Path, naif, ins: str, focal: float, instrument) -> Distortion
 
 
 def _refuse_unread_kinds(path: Path, label) -> None:
-    """One-line refusal of a map-projected cube (ISIS ``cam2map``: a ``Mapping``
-    group): its pixels lie on the map, not in the camera (line-scan cubes are read by
-    :mod:`demtool.sensors.isis_linescan` before this check)."""
+    """One-line refusals of cubes that are not raw frame-camera images.
+
+    A map-projected cube (ISIS ``cam2map``: a ``Mapping`` group) has its pixels on the
+    map, not in the camera; a line-scan camera (``LineExposureDuration`` in the
+    ``Instrument`` group: CTX, HiRISE, LRO NAC, MOC) is not a frame model.
+    """
     cube = label["IsisCube"]
     mapping = cube.get("Mapping")
     if mapping is not None:
@@ -290,6 +288,15 @@ def _refuse_unread_kinds(path: Path, label) -> None:
                          "pixels lie on that map, not in the camera; use it as a map "
                          "(its CRS from the Mapping group), or the raw image's cube or ISD "
                          "for a camera model")
+    instrument = cube.get("Instrument", {})
+    if "LineExposureDuration" in instrument:
+        what = instrument.get("InstrumentId", "a line-scan camera")
+        duration = instrument["LineExposureDuration"]
+        duration = (f"{duration.value:g} {duration.units}" if hasattr(duration, "units")
+                    else str(duration))
+        raise InputError(f"{path}: is a line-scan camera cube ({what}, LineExposureDuration "
+                         f"{duration}), not a frame camera: read it with "
+                         "demtool.sensors.read_sensor (a LineScanSensor)")
 
 
 def read_footprint(path: str | Path) -> list[np.ndarray]:

@@ -401,3 +401,17 @@ def read_linescan_cube(path: str | Path, label=None, data: bytes | None = None, 
                      if re.fullmatch(r"BODY-?\d+_RADII", k))
     model.body_naif_id = int(radii_key[4:-6])
     return model
+
+
+def read_isis_cube(path: str | Path):
+    """Any ISIS3 camera cube with attached SPICE: a line-scan cube (not map-projected) as
+    :func:`read_linescan_cube`, every other cube through
+    :func:`demtool.sensors.isis.read_cube` (frame cameras; refusals)."""
+    from demtool.sensors.isis import read_cube
+    from demtool.sensors.isis_label import read_label
+
+    p = Path(path)
+    label, data = read_label(p)
+    if "Mapping" not in label["IsisCube"] and is_linescan_label(label):
+        return read_linescan_cube(p, label, data)
+    return read_cube(p)

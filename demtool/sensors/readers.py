@@ -5,7 +5,8 @@ content                                model
 =====================================  ==========================================
 JSON with ``name_model`` (ALE ISD)     :class:`FrameSensor` / :class:`LineScanSensor` /
                                        :class:`PushFrameSensor`
-ISIS3 cube (``Object = IsisCube``)     :class:`FrameSensor` (SPICE must be attached)
+ISIS3 cube (``Object = IsisCube``)     :class:`FrameSensor`, :class:`LineScanSensor` (LRO
+                                       NAC, CTX, HiRISE; SPICE must be attached)
 ASP ``.tsai`` (``VERSION_n``/``PINHOLE``)  :class:`TsaiCamera` (body-fixed pinhole)
 RPC: GeoTIFF tags, ``_RPC.TXT``, .RPB  :class:`RpcSensor` (WGS84 heights)
 NPZ of kind ``cameras`` or ``bundle``  :class:`PinholeCamera` (one per image)
@@ -65,9 +66,9 @@ def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
         model = read_isd(p)
         return {model.name or p.stem: model}
     if kind == "cube":
-        from demtool.sensors.isis import read_cube
+        from demtool.sensors.isis_linescan import read_isis_cube
 
-        model = read_cube(p)
+        model = read_isis_cube(p)
         return {model.name: model}
     if kind == "rpc":
         from demtool.sensors.rpc import read_rpc

@@ -396,3 +396,12 @@ def test_hirise_pair_cameras_see_their_common_map():
                   for m in (left.sensor, right.sensor) for ln, sm in [m.ground_to_image(xyz)]]
         both.append(all(inside))
     assert any(both)
+
+
+def test_frame_reader_refuses_a_line_scan_cube_naming_the_reader(tmp_path):
+    from demtool.sensors.isis import read_cube
+
+    with pytest.raises(InputError, match=r"ctx\.cub: is a line-scan camera cube \(CTX, "
+                                         r"LineExposureDuration 1\.88 MSEC\), not a frame "
+                                         r"camera: read it with demtool\.sensors\.read_sensor"):
+        read_cube(write_linescan_cube(tmp_path / "ctx.cub"))

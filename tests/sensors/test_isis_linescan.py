@@ -27,7 +27,7 @@ CAMERAS = {
     "ctx": dict(code=-74021, code_key="NaifFrameCode", clock="SpacecraftClockCount",
                 instrument={"InstrumentId": "CTX", "LineExposureDuration": "1.880 <MSEC>",
                             "SpacecraftClockCount": "0912345678:123",
-                            "SampleFirstPixel": 10, "SpatialSumming": 1},
+                            "SampleFirstPixel": 10, "SpatialSumming": 2},
                 naif={"INS-74021_FOCAL_LENGTH": 352.9271664,
                       "INS-74021_ITRANSS": "(0.0, 0.0, 142.85714285714)",
                       "INS-74021_ITRANSL": "(0.0, 142.85714285714, 0.0)",
@@ -153,10 +153,12 @@ def test_cube_lines_and_samples_are_isis_timing_and_detector(tmp_path, camera):
     # ISIS: parent (alpha) line L = AlphaStartingLine + 2 c (1-based, c the CSM cube line),
     # exposed at start + (L − 0.5) r.
     times = cam["start"] + (100.5 + 2.0 * line - 0.5) * cam["rate"]
-    # Parent sample 200.5 + 2 s; ISIS detector sample = parent + first − 1 (1-based), so
-    # the CSM detector sample is 200 + 2 s + first; the boresight sample is CSM 400.
+    # Parent sample p = 200.5 + 2 s; ISIS CameraDetectorMap: detector sample = (p − 1) m +
+    # m/2 + 0.5 + first (1-based, m the summing), so the CSM detector sample is
+    # (200 + 2 s) m + first; the boresight sample is CSM 400.
     first = {"ctx": 10.0, "lronac": 10.0, "hirise": 0.0}[camera]
-    bore = (cam["boresight"] - 200.0 - first) / 2.0
+    m = {"ctx": 2.0, "lronac": 1.0, "hirise": 1.0}[camera]
+    bore = ((cam["boresight"] - first) / m - 200.0) / 2.0
     position = _pose(times)[0] * 1000.0
     nadir = position / np.linalg.norm(position, axis=-1)[:, None] * R_KM * 1000.0
     ground = model.image_to_ground(line, np.full(line.shape, bore))
@@ -167,7 +169,7 @@ def test_cube_lines_and_samples_are_isis_timing_and_detector(tmp_path, camera):
     ray = model.image_to_ray(np.full(sample.shape, 37.25), sample)
     down = -_pose(cam["start"] + (100.5 + 74.5 - 0.5) * cam["rate"])[0]
     down /= np.linalg.norm(down)
-    y = (200.0 + 2.0 * sample + first - cam["boresight"]) * cam["pitch"]
+    y = ((200.0 + 2.0 * sample) * m + first - cam["boresight"]) * cam["pitch"]
     want = np.degrees(np.arctan(np.abs(_undistorted(camera, y)) / cam["focal"]))
     got = np.degrees(np.arccos(np.clip(ray.direction @ down, -1, 1)))
     np.testing.assert_allclose(got, want, atol=1e-8)

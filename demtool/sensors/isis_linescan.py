@@ -56,10 +56,11 @@ one under which both cameras see the map (below).
 Distortion: LRO NAC ``lrolrocnac`` (``_OD_K``, ISIS LroNarrowAngleDistortionMap), CTX and
 HiRISE ``radial`` (``_OD_K``, ISIS CameraDistortionMap; HiRISE's from ``INS-74699``).
 
-Not read (refused in one line): cameras other than these three (e.g. MGS MOC cubes of the
-old layout, without ``NaifKeywords``: their focal length, pixel pitch and boresight are in
-no file demtool has), polynomial (jigsaw ``J2000SVX``/``J2000Ang1``) tables, and cubes
-without the computed clock key.
+MGS MOC-NA cubes of the old ISIS label layout (no ``NaifKeywords``, per-line tables
+without ``TimeDependentFrames``: the pointing is J2000 → instrument) are read with the
+constants of the MOC-NA IK and the timing of their per-line tables (:func:`_moc_na`).
+Not read (refused in one line): other cameras, polynomial (jigsaw
+``J2000SVX``/``J2000Ang1``) tables, and cubes without the computed clock key.
 """
 
 from __future__ import annotations
@@ -174,6 +175,10 @@ def _camera(cube: _Cube, code: int) -> dict:
     """Timing (start ET of parent line 0.5, seconds per parent line) and interior
     orientation of the three cameras (module docstring's table)."""
     ins = f"INS{code}"
+    if code == MOC_NA_CODE and cube.naif is None:
+        return _moc_na(cube)
+    if cube.naif is None:
+        cube.key(f"{ins}_FOCAL_LENGTH")  # raises: no NaifKeywords (old layout)
     if code in LRO_NAC_CODES:
         rate = cube.seconds("LineExposureDuration", "ms") \
             * (1.0 + cube.scalar(f"{ins}_MULTIPLI_LINE_ERROR")) \
@@ -181,7 +186,8 @@ def _camera(cube: _Cube, code: int) -> dict:
         start = (cube.clock_et("SpacecraftClockPrerollCount")
                  + cube.scalar(f"{ins}_CONSTANT_TIME_OFFSET")
                  + cube.scalar(f"{ins}_ADDITIONAL_PREROLL") * rate)
-        return dict(start=start, rate=rate, ccd=ins, focal=cube.scalar(f"{ins}_FOCAL_LENGTH"),
+        return dict(start=start, rate=rate, itrans=_itrans(cube, ins),
+                    focal=cube.scalar(f"{ins}_FOCAL_LENGTH"),
                     center=(cube.scalar(f"{ins}_BORESIGHT_LINE"),
                             cube.scalar(f"{ins}_BORESIGHT_SAMPLE") - 0.5),
                     first_sample=cube.number("SampleFirstPixel"),
@@ -190,7 +196,7 @@ def _camera(cube: _Cube, code: int) -> dict:
                                                cube.key(f"{ins}_OD_K", 1).tolist()}})
     if code == CTX_CODE:
         return dict(start=cube.clock_et("SpacecraftClockCount"),
-                    rate=cube.seconds("LineExposureDuration", "ms"), ccd=ins,
+                    rate=cube.seconds("LineExposureDuration", "ms"), itrans=_itrans(cube, ins),
                     focal=cube.scalar(f"{ins}_FOCAL_LENGTH"),
                     center=(cube.scalar(f"{ins}_BORESIGHT_LINE"),
                             cube.scalar(f"{ins}_BORESIGHT_SAMPLE") - 0.5),
@@ -210,7 +216,7 @@ def _camera(cube: _Cube, code: int) -> dict:
         channel = int(cube.number("ChannelNumber"))
         # ISIS HiriseCamera: detector origin (1024.5, 0) (ISIS 1-based: CSM 1024), and the
         # line of the TDI block's centre, ccdLine_c = −64 + Tdi / 2, as the detector line
-        return dict(start=start, rate=unbinned * summing, ccd=ccd,
+        return dict(start=start, rate=unbinned * summing, itrans=_itrans(cube, ccd),
                     focal=cube.scalar(f"{ins}_FOCAL_LENGTH"),
                     center=(64.0 - tdi / 2.0, 1024.0),
                     first_sample=1024.0 if channel == 0 else 0.0, summing=summing,
@@ -219,6 +225,75 @@ def _camera(cube: _Cube, code: int) -> dict:
     raise InputError(f"{cube.path}: is a line-scan cube of {what} (NAIF code {code}); "
                      "demtool reads the ISIS line-scan models of LRO NAC, MRO CTX and MRO "
                      "HiRISE from cubes: pass an ALE ISD of this image (isd_generate)")
+
+
+def _itrans(cube: _Cube, ins: str) -> tuple[list, list]:
+    return cube.key(f"{ins}_ITRANSS", 3).tolist(), cube.key(f"{ins}_ITRANSL", 3).tolist()
+
+
+#: MGS MOC narrow angle (NAIF −94031), the constants of its IK (``moc20.ti``, as ALE's
+#: test ISD ``mgsmocna_isd.json`` carries them in its ``naif_keywords``): the old ISIS
+#: label layout has no NaifKeywords object.
+MOC_NA_CODE = -94031
+MOC_NA_IK = {"focal": 3500.0, "pitch": 0.0131240578522949, "boresight_sample": 1024.5}
+
+
+def _moc_na(cube: _Cube) -> dict:
+    """The MGS MOC-NA camera of an old-layout cube (no NaifKeywords), ISIS
+    ``MocNarrowAngleCamera``: the IK's constants (:data:`MOC_NA_IK`), detector origin
+    sample 1024.5, no distortion, sample summing ``CrosstrackSumming`` from detector
+    sample ``FirstLineSample``; no computed clock either, so the timing is that of the
+    per-line tables ``spiceinit`` wrote for the parent image, which must hold one record
+    per parent line edge (``AlphaLines + 1`` records, evenly spaced by
+    ``LineExposureDuration × DowntrackSumming`` to 1e-4): start = the first record's ET,
+    line time = the records' span over the lines."""
+    from demtool.sensors.isis import _columns, _tables
+
+    _, table = _table(cube, "InstrumentPointing", _tables(cube.label))
+    times = _columns(cube.path, table, "InstrumentPointing", ["ET"])[:, 0]
+    alpha = cube.cube.get("AlphaCube", {})
+    dims = cube.cube.get("Core", {}).get("Dimensions", {})
+    parent_lines = int(alpha.get("AlphaLines", dims.get("Lines", 0)))
+    label_rate = cube.seconds("LineExposureDuration", "ms") * cube.number("DowntrackSumming")
+    steps = np.diff(times)
+    spacing = float(np.median(steps)) if len(steps) else 0.0
+    if (len(times) != parent_lines + 1 or len(steps) == 0
+            or not np.allclose(steps, label_rate, rtol=1e-4, atol=0.0)):
+        raise InputError(f"{cube.path}: the old-layout MOC cube's InstrumentPointing table "
+                         f"({len(times)} records, spacing {spacing:.7g} s) is not one record "
+                         f"per edge of its {parent_lines} lines at {label_rate:.7g} s: the "
+                         "image start time cannot be derived (no NaifKeywords clock); pass "
+                         "an ALE ISD (isd_generate)")
+    rate = (times[-1] - times[0]) / parent_lines  # the cache's own line time
+    inverse = 1.0 / MOC_NA_IK["pitch"]
+    return dict(start=float(times[0]), rate=rate, focal=MOC_NA_IK["focal"],
+                itrans=([0.0, 0.0, inverse], [0.0, inverse, 0.0]),
+                center=(0.0, MOC_NA_IK["boresight_sample"] - 0.5),
+                first_sample=cube.number("FirstLineSample") - 1.0,
+                summing=cube.number("CrosstrackSumming"),
+                distortion={"radial": {"coefficients": [0.0, 0.0, 0.0]}},
+                note="MGS MOC-NA constants from its IK (moc20.ti; the cube's old label "
+                     "layout has none), start time from the per-line tables")
+
+
+def _radii(cube: _Cube) -> tuple[np.ndarray, str | None]:
+    """Body radii (km) from NaifKeywords, or (old layout) from PROJ's body of the
+    Instrument group's ``TargetName`` with a note."""
+    if cube.naif is not None:
+        key = next((k for k in cube.naif.keys() if re.fullmatch(r"BODY-?\d+_RADII", k)), None)
+        if key is None:
+            raise InputError(f"{cube.path}: NaifKeywords lacks the key 'BODY<code>_RADII'")
+        return cube.key(key, 3), None
+    from demtool.maps.bodies import body_by_name
+
+    target = str(cube.instrument.get("TargetName", ""))
+    try:
+        body = body_by_name(target)
+    except (InputError, KeyError, ValueError):
+        raise InputError(f"{cube.path}: the cube has no NaifKeywords (BODY<code>_RADII) and "
+                         f"its TargetName {target!r} is not a body PROJ knows") from None
+    return (np.array(body.radii) / 1000.0,
+            f"radii of {body.name} from PROJ (the cube has no NaifKeywords)")
 
 
 def _table(cube: _Cube, name: str, tables: dict) -> tuple[dict, dict]:
@@ -304,21 +379,14 @@ def cube_isd(path: str | Path, label=None, data: bytes | None = None, *,
     if code_key is None:
         raise InputError(f"{p}: the Kernels group lacks the key 'NaifFrameCode'")
     code = int(kernels[code_key])
-    if cube.naif is None:
-        cube.key(f"INS{code}_FOCAL_LENGTH")  # raises: no NaifKeywords (old layout)
     camera = _camera(cube, code)
     start_s, start_l, k_s, k_l, samples, lines = _alpha(cube)
-    ccd = camera["ccd"]
     tables = _tables(label)
     pointing = _rotations_block(cube, "InstrumentPointing", tables)
     rate = k_l * camera["rate"]
     first = camera["start"] + (start_l - 0.5) * camera["rate"]  # ET of cube line 0 (top)
     centre = first + 0.5 * lines * rate
-    radii_key = next((k for k in cube.naif.keys() if re.fullmatch(r"BODY-?\d+_RADII", k)),
-                     None)
-    if radii_key is None:
-        raise InputError(f"{p}: NaifKeywords lacks the key 'BODY<code>_RADII'")
-    radii = cube.key(radii_key, 3)
+    radii, radii_note = _radii(cube)
     summing = camera["summing"]
     isd = {
         "name_model": "USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL", "image_identifier": p.stem,
@@ -326,8 +394,8 @@ def cube_isd(path: str | Path, label=None, data: bytes | None = None, *,
         "image_lines": lines, "image_samples": samples,
         "radii": {"semimajor": float(radii[0]), "semiminor": float(radii[2]), "unit": "km"},
         "focal_length_model": {"focal_length": camera["focal"]},
-        "focal2pixel_samples": cube.key(f"{ccd}_ITRANSS", 3).tolist(),
-        "focal2pixel_lines": cube.key(f"{ccd}_ITRANSL", 3).tolist(),
+        "focal2pixel_samples": list(camera["itrans"][0]),
+        "focal2pixel_lines": list(camera["itrans"][1]),
         "detector_center": {"line": camera["center"][0], "sample": camera["center"][1]},
         "starting_detector_line": 0.0,
         "starting_detector_sample": (start_s - 0.5) * summing + camera["first_sample"],
@@ -339,6 +407,7 @@ def cube_isd(path: str | Path, label=None, data: bytes | None = None, *,
         "sun_position": _states_block(cube, "SunPosition", tables),
         "instrument_pointing": pointing,
         "body_rotation": _rotations_block(cube, "BodyRotation", tables),
+        "notes": [n for n in (camera.get("note"), radii_note) if n],
     }
     times = np.asarray(pointing["ephemeris_times"])
     spacing = float(np.median(np.diff(times))) if len(times) > 1 else 0.0
@@ -394,12 +463,12 @@ def read_linescan_cube(path: str | Path, label=None, data: bytes | None = None, 
         label, data = read_label(p)
     isd = cube_isd(p, label, data, mapped=mapped)
     model = sensor_from_isd(isd, str(p))
-    model.notes = list(getattr(model, "notes", []))
+    model.notes = list(getattr(model, "notes", [])) + list(isd["notes"])
     instrument = label["IsisCube"].get("Instrument", {})
     model.body_name = str(instrument.get("TargetName", "")) or None
-    radii_key = next(k for k in label["NaifKeywords"].keys()
-                     if re.fullmatch(r"BODY-?\d+_RADII", k))
-    model.body_naif_id = int(radii_key[4:-6])
+    naif = label.get("NaifKeywords") or {}
+    radii_key = next((k for k in naif.keys() if re.fullmatch(r"BODY-?\d+_RADII", k)), None)
+    model.body_naif_id = int(radii_key[4:-6]) if radii_key else None
     return model
 
 

@@ -68,6 +68,16 @@ CAMERAS = {
                          "INS-74699_OD_K": "(-0.0048509, 2.41312e-07, -1.62369e-13)"},
                    rate=78.3125e-6, start=ET0 - 78.3125e-6 * 63.5, pitch=1 / 83.3333,
                    boresight=400.0, focal=11994.9988),
+    # MGS MOC-NA, the old label layout (ASP's E1701676.reduce.cub): no NaifKeywords, no
+    # computed clock, per-line tables (one record per parent line edge) without frames;
+    # the IK's constants (f 3500 mm, 0.013124 mm pixels, origin sample 1024.5) in the reader.
+    "moc": dict(code=-94031, code_key="NaifFrameCode", clock=None, old_layout=True,
+                instrument={"InstrumentId": "MOC-NA", "LineExposureDuration":
+                            "0.723100 <milliseconds>", "SpacecraftClockCount": "709668740:79",
+                            "CrosstrackSumming": 2, "DowntrackSumming": 2,
+                            "FirstLineSample": 1},
+                naif={}, rate=0.7231e-3 * 2, start=ET0, pitch=0.0131240578522949,
+                boresight=1024.0, focal=3500.0),
 }
 
 
@@ -96,25 +106,28 @@ def write_linescan_cube(path, camera="ctx", *, drop_naif=(), tables=None, naif=T
     """A label-only ISIS line-scan cube of ``camera`` (``CAMERAS``) with SPICE attached."""
     cam = CAMERAS[camera]
     t = cam["start"] + np.linspace(-1.0, 0.5 + 250 * cam["rate"] * 2, 301)
-    quat = matrix_to_quaternion(_pose(t)[2])[:, [3, 0, 1, 2]]
     pos_t = t[[0, 150, 300]]
+    if cam.get("old_layout"):  # one record per parent line edge, all tables
+        t = pos_t = cam["start"] + cam["rate"] * np.arange(ALPHA["AlphaLines"] + 1)
+        naif, clock = False, False
+    quat = matrix_to_quaternion(_pose(t)[2])[:, [3, 0, 1, 2]]
     pos, vel, _ = _pose(pos_t)
     quat_fields = ["J2000Q0", "J2000Q1", "J2000Q2", "J2000Q3", "ET"]
     xyz = ["J2000X", "J2000Y", "J2000Z", "J2000XV", "J2000YV", "J2000ZV", "ET"]
     specs = {"InstrumentPointing": (quat_fields, np.column_stack([quat, t]),
+                                    "" if cam.get("old_layout") else
                                     "  TimeDependentFrames = (-74000, 1)\n"
                                     "  ConstantRotation = (1, 0, 0, 0, 1, 0, 0, 0, 1)\n"),
              "InstrumentPosition": (xyz, np.column_stack([pos, vel, pos_t]), ""),
-             "BodyRotation": (quat_fields, [[1, 0, 0, 0, t[0]], [1, 0, 0, 0, t[-1]]], ""),
-             "SunPosition": (xyz, [[2.2e8, 0, 1e7, 0, 0, 0, t[0]],
-                                   [2.2e8, 0, 1e7, 0, 0, 0, t[-1]]], "")}
+             "BodyRotation": (quat_fields, [[1, 0, 0, 0, v] for v in t[[0, -1]]], ""),
+             "SunPosition": (xyz, [[2.2e8, 0, 1e7, 0, 0, 0, v] for v in t[[0, -1]]], "")}
     head, objects, blobs = 16384, [], b""
     for name in (tables if tables is not None else specs):
         text, blob = _table(name, *specs[name][:2], head + 1 + len(blobs), specs[name][2])
         objects.append(text)
         blobs += blob
     keys = {"BODY499_RADII": f"({R_KM}, {R_KM}, {R_KM})", **cam["naif"]}
-    if clock:
+    if clock and cam["clock"]:
         count = cam["instrument"][cam["clock"]]
         keys[f"CLOCK_ET_-74_{count}_COMPUTED"] = struct.pack("<d", ET0).hex()
     keys = {k: v for k, v in keys.items() if k not in drop_naif}
@@ -137,6 +150,8 @@ def _undistorted(camera, y):
     """ISIS's distortion maps: distorted → undistorted cross-track focal-plane mm."""
     if camera == "lronac":  # LroNarrowAngleDistortionMap
         return y / (1.0 + 1.81e-05 * y * y)
+    if camera == "moc":  # CameraDistortionMap without coefficients
+        return y
     k = [float(v) for v in CAMERAS[camera]["naif"][
         "INS-74021_OD_K" if camera == "ctx" else "INS-74699_OD_K"].strip("()").split(",")]
     r2 = y * y  # CameraDistortionMap: u = d (1 − (k0 + k1 r² + k2 r⁴)), here x = 0
@@ -148,7 +163,8 @@ def test_cube_lines_and_samples_are_isis_timing_and_detector(tmp_path, camera):
     cam = CAMERAS[camera]
     model = read_sensor(write_linescan_cube(tmp_path / f"{camera}.cub", camera))
     assert model.kind == "linescan" and (model.lines, model.samples) == (100, 200)
-    assert model.body_name == "Mars" and model.body_naif_id == 499
+    assert model.body_name == "Mars"
+    assert model.body_naif_id == (None if camera == "moc" else 499)  # MOC: no NaifKeywords
     line = np.array([0.0, 0.5, 37.25, 99.5, 100.0])
     # ISIS: parent (alpha) line L = AlphaStartingLine + 2 c (1-based, c the CSM cube line),
     # exposed at start + (L − 0.5) r.
@@ -156,8 +172,8 @@ def test_cube_lines_and_samples_are_isis_timing_and_detector(tmp_path, camera):
     # Parent sample p = 200.5 + 2 s; ISIS CameraDetectorMap: detector sample = (p − 1) m +
     # m/2 + 0.5 + first (1-based, m the summing), so the CSM detector sample is
     # (200 + 2 s) m + first; the boresight sample is CSM 400.
-    first = {"ctx": 10.0, "lronac": 10.0, "hirise": 0.0}[camera]
-    m = {"ctx": 2.0, "lronac": 1.0, "hirise": 1.0}[camera]
+    first = {"ctx": 10.0, "lronac": 10.0, "hirise": 0.0, "moc": 0.0}[camera]
+    m = {"ctx": 2.0, "lronac": 1.0, "hirise": 1.0, "moc": 2.0}[camera]
     bore = ((cam["boresight"] - first) / m - 200.0) / 2.0
     position = _pose(times)[0] * 1000.0
     nadir = position / np.linalg.norm(position, axis=-1)[:, None] * R_KM * 1000.0
@@ -202,6 +218,17 @@ def test_line_scan_camera_not_modelled_is_refused_naming_it(tmp_path):
     path.write_bytes(data.replace(b"InstrumentId = CTX", b"InstrumentId = MOC-NA"))
     with pytest.raises(InputError, match=r"moc\.cub: is a line-scan cube of MOC-NA \(NAIF "
                                          r"code -94031\).*ALE ISD"):
+        read_sensor(path)
+
+
+def test_old_layout_moc_cube_with_tables_not_per_line_is_refused(tmp_path):
+    path = write_linescan_cube(tmp_path / "moc.cub", "moc")
+    data = path.read_bytes()  # say the parent image has one line more than the tables
+    path.write_bytes(data.replace(b"AlphaLines = 4000", b"AlphaLines = 4001"))
+    with pytest.raises(InputError, match=r"moc\.cub: the old-layout MOC cube's "
+                                         r"InstrumentPointing table \(4001 records, spacing "
+                                         r"0\.00144\d* s\) is not one record per edge of its "
+                                         r"4001 lines"):
         read_sensor(path)
 
 
@@ -254,8 +281,28 @@ def test_lro_nac_cube_matches_isis_photometry_expectation():
     assert (lat, lon) == pytest.approx((35.98, 102.60), abs=0.01)  # data README: 36.0 N 102.6 E
 
 
+MOC = SHARED / "isis_cubes" / "E1701676.reduce.cub"
+
+
+@pytest.mark.data
+@pytest.mark.skipif(not MOC.exists(), reason="../shared/data/sensors is absent")
+def test_old_layout_moc_cube_sees_north_meridiani():
+    """The label's RationaleDesc: "Crater and ejecta with light-toned layer outcrops north
+    Meridiani"; MOC-NA's 1.4 m pixels, summed 2 × 2 and reduced 3 ×, from ~390 km."""
+    model = read_sensor(MOC)
+    assert any("moc20.ti" in note for note in model.notes)
+    ground = model.image_to_ground(np.array([462.0]), np.array([171.0]))[0]
+    lat = np.degrees(np.arcsin(ground[2] / np.linalg.norm(ground)))
+    lon = np.degrees(np.arctan2(ground[1], ground[0]))
+    assert -1.0 < lat < 5.0 and 0.0 < lon < 6.0  # Meridiani Planum, north of its centre
+    across = np.linalg.norm(model.image_to_ground(462.0, 172.0) - model.image_to_ground(
+        462.0, 171.0))
+    assert 8.0 < across < 10.0  # ≈ 1.43 m · 2 · 3 at 18° emission
+
+
 @pytest.mark.data
 @pytest.mark.parametrize("name", ["isis_cubes/M143947267L.cal.echo.crop.cub",
+                                  "isis_cubes/E1701676.reduce.cub",
                                   "isis_cubes/ctxTestImage.cub",
                                   "hirise_mapprojected/ESP_014038_1415_RED0.30421_33069."
                                   "boulder_shift.before.cub",

@@ -7,6 +7,12 @@ body (push frames: each point projected into the framelet it came from, since
 overlapping framelets see a ground point twice).  Files that are refused print the
 reason.  ``simpleFramerISD.json`` does not close: its "transverse" coefficients map both
 distorted x and y to the undistorted x (singular; usgscsm's tests only run it forwards).
+ISIS line-scan cubes (LRO NAC, CTX, HiRISE) are read from their own tables; for the
+HiRISE ``cam2map`` cubes (refused as cameras: their pixels are on the map) a second row
+reads the raw camera their tables keep (``read_linescan_cube(mapped=True)``), and every
+line-scan cube's row says where the pointing table (its first record, and the label's
+``CkTableStartTime``) starts against the start time derived from the clock, in lines of
+the uncropped image (0: its first line), and where the cube's first line is.
 Skips cleanly when ``../shared/data/sensors`` is absent.
 
     python bench/sensor_files.py
@@ -60,7 +66,11 @@ def main() -> None:
         except InputError as exc:
             reason = str(exc).split(": ", 1)[1]
             print(f"{name[:58]:58s} refused: {reason[:150]}")
-            continue
+            raw = _raw_camera(path)
+            if raw is None:
+                continue
+            model, name = raw, f"{name[:48]} (camera)"
+            start = time.perf_counter()
         if model.lines == 0 or model.radii is None:
             print(f"{name[:58]:58s} {model.kind:10s} (no image size or body)")
             continue
@@ -71,7 +81,38 @@ def main() -> None:
         err, hits = round_trip(model)
         print(f"{name[:58]:58s} {model.kind:10s} {model.lines:>5d}x{model.samples:<6d} "
               f"{covered:>9s} {hits:>5d} {err:>18.2e} "
-              f"{time.perf_counter() - start:>6.2f}")
+              f"{time.perf_counter() - start:>6.2f}{_table_span(path)}")
+
+
+def _raw_camera(path: Path):
+    """The raw line-scan camera an ISIS map-projected cube's tables keep, or None."""
+    from demtool.errors import InputError
+    from demtool.sensors.isis_linescan import read_linescan_cube
+
+    if path.suffix.lower() != ".cub":
+        return None
+    try:
+        return read_linescan_cube(path, mapped=True)
+    except InputError:
+        return None
+
+
+def _table_span(path: Path) -> str:
+    """For an ISIS line-scan cube: the pointing table's first and last times against the
+    first and last image lines, in lines (negative: the table starts before the image)."""
+    from demtool.errors import InputError
+    from demtool.sensors.isis_label import read_label
+    from demtool.sensors.isis_linescan import cube_isd, time_check
+
+    if path.suffix.lower() != ".cub":
+        return ""
+    try:
+        label, data = read_label(path)
+        check = time_check(cube_isd(path, label, data, mapped=True), label)
+    except InputError:
+        return ""
+    return (f"  pointing table {check['table_start_lines']:+.2f}, CkTableStartTime "
+            f"{check['ck_start_lines']:+.2f}, cube {check['cube_start_lines']:+.2f} lines")
 
 
 if __name__ == "__main__":

@@ -58,7 +58,9 @@ sensor-model and map-projected routes write it on the body's map.
                      "triangulation.")
 @click.option("--mapprojected", nargs=2, type=click.Path(dir_okay=False), default=None,
               metavar="LEFT_ORTHO RIGHT_ORTHO",
-              help="The two orthoimages (demtool mapproject) the disparity was matched on.")
+              help="The two orthoimages (demtool mapproject, or ISIS cam2map cubes of a "
+                   "line-scan camera: its camera from the cube's tables, the surface its "
+                   "Mapping ellipsoid) the disparity was matched on.")
 @options.path_option("--scene", "scene.json with distance_m and gsd_m (metadata from synth).")
 @options.parameter_options(DemParams)
 @options.path_option("--interpolated-mask", "Also write a raster: 1 where interpolated, 0 "

@@ -21,8 +21,9 @@ where HMI fails on weak texture; the log and OUT.json say which pixels passed th
 left-right check and which were filled.
 
 Two orthoimages of demtool mapproject on one grid (map-projected stereo, line
-scanners) are matched along map x instead, the range from their SIFT matches; OUT is
-then on the left ortho's grid and CRS, for dem --mapprojected.""")
+scanners), or two ISIS cam2map cubes of LRO NAC, CTX or HiRISE on one grid, are matched
+along map x instead, the range from their SIFT matches; OUT is then on the left ortho's
+grid and CRS, for dem --mapprojected.""")
 @options.input_file("left_rect")
 @options.input_file("right_rect")
 @options.out_file("Output disparity GeoTIFF.")

@@ -142,9 +142,12 @@ def read_ortho(path, *, what: str) -> Ortho:
     )
     from demtool.maps import map_to_lonlat, to_pyproj_crs
     from demtool.sensors import read_sensor
+    from demtool.sensors.isis_cam2map import is_cam2map_cube
     from demtool.sensors.isis_map import refuse_cam2map_ortho
 
-    refuse_cam2map_ortho(path, what)  # an ISIS cam2map cube (never tagged): say what it lacks
+    if is_cam2map_cube(path):  # an ISIS cam2map cube: its camera and map from the cube
+        return _cam2map_ortho(path, what)
+    refuse_cam2map_ortho(path, what)  # an ISIS cube of another kind: say what it lacks
     info = dio.raster_info(path, what=what)
     tags = info.tags
     if SENSOR_TAG not in tags or SURFACE_TAG not in tags:
@@ -186,3 +189,19 @@ def read_ortho(path, *, what: str) -> Ortho:
         raise InputError(f"{path}: tag {SURFACE_TAG}={tags[SURFACE_TAG]!r} without its "
                          f"{DEM_TAG} or {HEIGHT_TAG}")
     return Ortho(info, sensor, heights, tags[SURFACE_TAG])
+
+
+def _cam2map_ortho(path, what: str) -> Ortho:
+    """An ISIS ``cam2map`` cube as an :class:`Ortho`: the raw camera from the cube's own
+    tables, the surface the label's ellipsoid (:mod:`demtool.sensors.isis_cam2map`)."""
+    from demtool import io as dio
+    from demtool.errors import InputError
+    from demtool.maps import to_pyproj_crs
+    from demtool.sensors.isis_cam2map import cam2map_camera, cam2map_surface
+
+    sensor = cam2map_camera(path)  # first: a camera demtool cannot read says so
+    info = dio.raster_info(path, what=what)
+    if info.crs is None or not to_pyproj_crs(info.crs).is_projected:
+        raise InputError(f"{path}: {what} is not on a projected map of the body")
+    heights, surface = cam2map_surface(path, to_pyproj_crs(info.crs))
+    return Ortho(info, sensor, heights, surface)

@@ -90,6 +90,7 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     summary = {"route": "disparity-mapprojected", **summary,
                "valid_disparities": int(rows.size), "unseen_disparities": int((~seen).sum()),
                "surfaces": [left.surface, right.surface]}
+    summary.update(_pair_precision(run, left, right, crs, li, gsd))
     write_map_dem(run, params, out, result, summary, body, route="disparity-mapprojected",
                   mask_path=mask_path, error_path=error_path)
     return summary
@@ -135,3 +136,25 @@ def _tiled(run: StageRun, params: DemParams, out, disparity_path, left_path, rig
                 (left_path, "left orthoimage"), (right_path, "right orthoimage"))]},
         mask_path=mask_path, error_path=error_path)
     return {"dry_run": result.dry_run} if result.dry_run is not None else result.summary
+
+
+def _pair_precision(run: StageRun, left, right, crs, li, gsd: float) -> dict[str, Any]:
+    """The pair's convergence at the map's centre and the height one map pixel of
+    parallax stands for (:func:`demtool.sensors.isis_cam2map.parallax_precision`),
+    logged and returned for the sidecar."""
+    import numpy as np
+
+    from demtool.mapproject.stereo import map_cells_xy
+    from demtool.maps import map_to_xyz
+    from demtool.sensors.isis_cam2map import parallax_precision
+
+    x, y = map_cells_xy(li.transform, np.array([li.height / 2.0]), np.array([li.width / 2.0]))
+    xyz = map_to_xyz(crs, x, y, left.heights(x, y)).reshape(3)
+    try:
+        found = parallax_precision(left.sensor, right.sensor, xyz)
+    except (ValueError, FloatingPointError):
+        return {}
+    per_px = found["height_per_px_parallax_factor"] * gsd
+    run.log.info("convergence %.2f° at the map centre: one pixel (%.3g m) of parallax is "
+                 "%.3g m of height", found["convergence_deg"], gsd, per_px)
+    return {"convergence_deg": found["convergence_deg"], "height_per_px_parallax_m": per_px}

@@ -125,10 +125,15 @@ def ortho_disparity_range(left: np.ndarray, right: np.ndarray, *, margin: float 
 
 def is_ortho_pair(left, right) -> bool:
     """True when both rasters (``demtool.io.Raster`` or ``RasterInfo``) are orthoimages
-    written by ``demtool mapproject`` (they carry its sensor tag)."""
+    written by ``demtool mapproject`` (they carry its sensor tag), or both are ISIS
+    ``cam2map`` cubes of a line-scan camera (:mod:`demtool.sensors.isis_cam2map`)."""
     from demtool.mapproject.surface import SENSOR_TAG
+    from demtool.sensors.isis_cam2map import is_cam2map_cube
 
-    return SENSOR_TAG in left.tags and SENSOR_TAG in right.tags
+    if SENSOR_TAG in left.tags and SENSOR_TAG in right.tags:
+        return True
+    return is_cam2map_cube(getattr(left, "path", None)) and \
+        is_cam2map_cube(getattr(right, "path", None))
 
 
 def ortho_pair_matches(left, right, *, stage: str) -> tuple[OrthoRange, str, dict]:

@@ -23,8 +23,9 @@ model).  A camera without distortion keywords is ideal; another camera whose key
 describe a distortion is refused in one line (its ALE ISD carries the distortion).
 
 Refused in one line as well: map-projected cubes (a ``Mapping`` group, ISIS ``cam2map``)
-and line-scan cameras (``LineExposureDuration``: CTX, HiRISE, LRO NAC, MOC; read their
-ALE ISDs).  The body's name and NAIF id (``TargetName``, ``BODY<code>_RADII``) are kept
+and line-scan cameras (``LineExposureDuration``), which
+:mod:`demtool.sensors.isis_linescan` reads (``read_sensor`` sends them there).
+The body's name and NAIF id (``TargetName``, ``BODY<code>_RADII``) are kept
 as ``model.body_name`` / ``model.body_naif_id`` for bodies PROJ does not know.
 
 Reference: DOI-USGS/ISIS3 ``isis/src/apollo/objs/ApolloMetricCamera/`` (camera and
@@ -102,7 +103,8 @@ def _naif(path: Path, naif, key: str, size: int | None = None):
 
 
 def read_cube(path: str | Path) -> FrameSensor:
-    """Read an ISIS3 cube with attached SPICE into a :class:`FrameSensor`.
+    """Read an ISIS3 cube with attached SPICE into a :class:`FrameSensor` (line-scan
+    cubes: :func:`demtool.sensors.isis_linescan.read_isis_cube`).
 
     Raises
     ------
@@ -293,8 +295,8 @@ def _refuse_unread_kinds(path: Path, label) -> None:
         duration = (f"{duration.value:g} {duration.units}" if hasattr(duration, "units")
                     else str(duration))
         raise InputError(f"{path}: is a line-scan camera cube ({what}, LineExposureDuration "
-                         f"{duration}); demtool reads ISIS frame "
-                         "cameras: pass an ALE ISD of it (isd_generate) instead")
+                         f"{duration}), not a frame camera: read it with "
+                         "demtool.sensors.read_sensor (a LineScanSensor)")
 
 
 def read_footprint(path: str | Path) -> list[np.ndarray]:

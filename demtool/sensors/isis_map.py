@@ -88,9 +88,10 @@ def refuse_cam2map_ortho(path: str | Path, what: str) -> None:
     map-projected stereo route (``sgm``/``dem --mapprojected``), which needs orthoimages
     demtool's ``mapproject`` tagged with their raw camera.
 
-    A ``cam2map`` cube keeps its raw camera's tables, but for the line-scan cameras it is
-    mostly made from (HiRISE, CTX, LRO NAC) demtool reads the camera from ALE ISDs only,
-    so the message says what to do instead.
+    Two ``cam2map`` cubes of line-scan cameras are read as such a pair
+    (:mod:`demtool.sensors.isis_cam2map`: the raw camera from the cube's own tables);
+    this refuses one given with an orthoimage of another kind, or a map-projected cube
+    whose camera is not a line scanner, saying what to do instead.
     """
     from demtool.errors import InputError
 
@@ -103,6 +104,7 @@ def refuse_cam2map_ortho(path: str | Path, what: str) -> None:
     kind = "line-scan " if "LineExposureDuration" in instrument else ""
     raise InputError(f"{path}: {what} is an ISIS map-projected cube of {camera} "
                      f"({mapping_summary(cube['Mapping'])}) without demtool's mapproject "
-                     f"tags: the map-projected route needs its raw {kind}camera, which "
-                     "demtool reads from an ALE ISD, not from cube tables; map-project the "
-                     "raw images with demtool mapproject --sensor ISD instead")
+                     f"tags: the map-projected route takes two ISIS cam2map cubes of "
+                     f"line-scan cameras on one grid, or two orthoimages of demtool "
+                     "mapproject; give the other image as such a cube, or map-project "
+                     f"both raw {kind}images with demtool mapproject --sensor instead")

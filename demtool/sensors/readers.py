@@ -5,7 +5,8 @@ content                                model
 =====================================  ==========================================
 JSON with ``name_model`` (ALE ISD)     :class:`FrameSensor` / :class:`LineScanSensor` /
                                        :class:`PushFrameSensor`
-ISIS3 cube (``Object = IsisCube``)     :class:`FrameSensor` (SPICE must be attached)
+ISIS3 cube (``Object = IsisCube``)     :class:`FrameSensor`, :class:`LineScanSensor` (LRO
+                                       NAC, CTX, HiRISE; SPICE must be attached)
 ASP ``.tsai`` (``VERSION_n``/``PINHOLE``)  :class:`TsaiCamera` (body-fixed pinhole)
 RPC: GeoTIFF tags, ``_RPC.TXT``, .RPB  :class:`RpcSensor` (WGS84 heights)
 NPZ of kind ``cameras`` or ``bundle``  :class:`PinholeCamera` (one per image)
@@ -68,11 +69,11 @@ def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
         model = sensor_from_isd(validate_raw.check_isd(load_isd(p), p), str(p))
         return {model.name or p.stem: validate.check_model(model, p, "isd")}
     if kind == "cube":
-        from demtool.sensors.isis import read_cube
+        from demtool.sensors.isis_linescan import read_isis_cube
 
         validate_raw.check_cube_label(p)
         with np.errstate(invalid="ignore", divide="ignore"):  # zero quaternions: checked next
-            model = read_cube(p)
+            model = read_isis_cube(p)
         return {model.name: validate.check_model(model, p, "cube")}
     if kind == "rpc":  # an RPC has no camera position or focal plane: its reader checks it
         from demtool.sensors.rpc import read_rpc

@@ -19,7 +19,8 @@ Per stage (summed over its steps) the table prints wall and CPU seconds (user + 
 the child: on a shared machine CPU time is the load-independent number) and the excess of
 a first run over the warm one, against the target of issue 28: ≤ 3 s.
 
-Usage: ``.venv/bin/python bench/cold_start.py [--read-only] [--skip-cold]``; about
+Usage: ``.venv/bin/python bench/cold_start.py [--read-only] [--skip-cold] [--cache DIR]``;
+about
 3 × 1.5 min of CPU plus one ``demtool warm`` (about 1.5 min of CPU) per scenario that
 needs one.
 """
@@ -102,6 +103,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="also measure a read-only install run by another user")
     parser.add_argument("--skip-cold", action="store_true",
                         help="skip the empty-cache run (the 'before' column)")
+    parser.add_argument("--cache", type=Path, default=None,
+                        help="a NUMBA_CACHE_DIR `demtool warm` has filled for this source "
+                             "tree: the 'installed' run uses it instead of warming a new one")
     args = parser.parse_args(argv)
     base_env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     base_env["PYTHONPATH"] = str(ROOT)
@@ -113,8 +117,11 @@ def main(argv: list[str] | None = None) -> int:
         if not args.skip_cold:
             env = {**base_env, "NUMBA_CACHE_DIR": str(fresh_cache(base, "cache_cold"))}
             results["cold"] = run_chain(base / "work", env)
-        env = {**base_env, "NUMBA_CACHE_DIR": str(fresh_cache(base, "cache_installed"))}
-        warm_cost["installed"] = run(["warm"], env)[1]
+        if args.cache is not None:
+            env = {**base_env, "NUMBA_CACHE_DIR": str(args.cache)}
+        else:
+            env = {**base_env, "NUMBA_CACHE_DIR": str(fresh_cache(base, "cache_installed"))}
+            warm_cost["installed"] = run(["warm"], env)[1]
         results["installed"] = run_chain(base / "work", env)
         results["warm"] = run_chain(base / "work", env)
         if args.read_only:

@@ -48,7 +48,8 @@ def user_cache_dir(environ: dict[str, str] | None = None) -> Path:
     return Path(base) / "demtool" / "numba"
 
 
-def _usable(folder: Path) -> bool:
+def usable(folder: Path) -> bool:
+    """True when ``folder`` exists or can be created, and is writable."""
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError:
@@ -80,7 +81,7 @@ def choose_cache_dir(environ: dict[str, str] | None = None,
     if writable(PACKAGE_DIR if package_dir is None else package_dir):
         return None
     folder = user_cache_dir(environ)
-    if _usable(folder):
+    if usable(folder):
         return folder
     uid = os.getuid() if hasattr(os, "getuid") else 0
     return Path(tempfile.gettempdir()) / f"demtool-{uid}" / "numba"

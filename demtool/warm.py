@@ -23,7 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from demtool import jitcache
-from demtool.errors import ProcessingError
+from demtool.errors import InputError, ProcessingError
 from demtool.logs import get_logger
 
 log = get_logger(__name__)
@@ -148,9 +148,17 @@ def warm(*, work: Path | None = None,
 
     Raises
     ------
+    InputError
+        ``NUMBA_CACHE_DIR`` names a folder that cannot be written (numba would ignore
+        it and the users' runs would not find the kernels).
     ProcessingError
         A step failed (its command and the last line of its error output).
     """
+    folder = jitcache.choose_cache_dir()
+    if folder is not None and not jitcache.usable(folder):
+        raise InputError(f"{jitcache.ENV}={folder}: cannot create or write that folder, so "
+                         "numba would not use it; make it writable or point "
+                         f"{jitcache.ENV} elsewhere")
     if work is None:
         with tempfile.TemporaryDirectory(prefix="demtool_warm_") as tmp:
             return warm(work=Path(tmp), report=report)

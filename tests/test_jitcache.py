@@ -75,6 +75,18 @@ def test_warm_covers_every_stage_and_sgm_cost(tmp_path):
     assert all(str(tmp_path) in " ".join(step) for step in steps if "--out" in step)
 
 
+def test_warm_refuses_a_cache_it_cannot_write(tmp_path, monkeypatch):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(blocker / "cache"))
+    result = CliRunner().invoke(cli, ["warm"])
+    assert result.exit_code == 1
+    lines = result.output.strip().splitlines()
+    assert lines[-1].startswith("Error: demtool warm: NUMBA_CACHE_DIR=")
+    assert "cannot create or write" in lines[-1]
+    assert not (blocker.parent / "cache").exists()
+
+
 def test_warm_is_a_listed_tool():
     result = CliRunner().invoke(cli, ["--help"])
     assert result.exit_code == 0

@@ -72,8 +72,8 @@ def choose_cache_dir(environ: dict[str, str] | None = None,
     -------
     Path or None
         ``NUMBA_CACHE_DIR``; None when ``package_dir`` is writable (numba's in-tree
-        ``__pycache__``); else :func:`user_cache_dir` (created), or where that cannot be
-    created ``<tmp>/demtool-<uid>/numba``.
+        ``__pycache__``); else :func:`user_cache_dir` (created), or where that cannot
+        be created ``<tmp>/demtool-<uid>/numba``.
     """
     environ = os.environ if environ is None else environ
     if environ.get(ENV):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 
-import pytest
 from click.testing import CliRunner
 
 from demtool import jitcache
@@ -95,7 +94,6 @@ def test_warm_is_a_listed_tool():
     assert result.exit_code == 0 and "NUMBA_CACHE_DIR" in result.output
 
 
-@pytest.mark.slow
 def test_warm_check_reports_the_cache():
     result = CliRunner().invoke(cli, ["warm", "--check"])
     assert result.exit_code == 0, result.output

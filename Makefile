@@ -48,7 +48,9 @@ $(VENV)/.installed-bench: $(VENV)/.installed
 	$(BIN)/python -m pip install -q -e '.[bench]'
 	touch $@
 
+# compile every numba kernel once into the cache (demtool warm; NUMBA_CACHE_DIR if set)
 install: $(VENV)/.installed
+	$(DEMTOOL) warm
 install-test: $(VENV)/.installed-test
 install-bench: $(VENV)/.installed-bench
 

@@ -2,6 +2,10 @@
 
 from importlib.metadata import PackageNotFoundError, version
 
+from demtool import jitcache
+
+jitcache.configure()  # before any demtool module imports numba: the compiled kernels' cache
+
 try:
     __version__ = version("demtool")
 except PackageNotFoundError:  # running from a source tree that is not installed

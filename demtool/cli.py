@@ -19,6 +19,11 @@ from demtool import __version__
 from demtool.errors import DemtoolError
 from demtool.stages import STAGES
 
+# Commands that are not pipeline stages: name -> one-line description (demtool/commands/<name>.py)
+TOOLS: dict[str, str] = {
+    "warm": "Compile every numba kernel into the cache now (run once after installing).",
+}
+
 
 @dataclass
 class AppState:
@@ -47,16 +52,18 @@ class DemtoolGroup(click.Group):
     """Lazy subcommands; DemtoolError becomes one line on stderr and exit status 1."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
-        return list(STAGES)
+        return [*STAGES, *TOOLS]
 
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
-        if cmd_name not in STAGES:
+        if cmd_name not in STAGES and cmd_name not in TOOLS:
             return None
         return load_command(cmd_name)
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         with formatter.section("Stages"):
             formatter.write_dl(list(STAGES.items()))
+        with formatter.section("Tools"):
+            formatter.write_dl(list(TOOLS.items()))
 
     def invoke(self, ctx: click.Context):
         try:

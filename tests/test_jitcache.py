@@ -1,0 +1,101 @@
+"""Where numba's cache goes (demtool.jitcache) and what `demtool warm` runs."""
+
+from __future__ import annotations
+
+import os
+
+from click.testing import CliRunner
+
+from demtool import jitcache
+from demtool.cli import TOOLS, cli
+from demtool.stages import STAGES
+from demtool.warm import SGM_VARIANTS, warm_steps
+
+
+def test_numba_cache_dir_is_honoured(tmp_path):
+    chosen = jitcache.choose_cache_dir({"NUMBA_CACHE_DIR": str(tmp_path / "shared")},
+                                       package_dir=tmp_path / "missing")
+    assert chosen == tmp_path / "shared"
+
+
+def test_writable_package_keeps_numbas_in_tree_cache(tmp_path):
+    assert jitcache.choose_cache_dir({}, package_dir=tmp_path) is None
+
+
+def test_read_only_package_uses_the_user_cache(tmp_path):
+    """A package folder nobody can write in (here: one that does not exist) → XDG cache."""
+    environ = {"XDG_CACHE_HOME": str(tmp_path / "xdg")}
+    chosen = jitcache.choose_cache_dir(environ, package_dir=tmp_path / "read_only")
+    assert chosen == tmp_path / "xdg" / "demtool" / "numba"
+    assert chosen.is_dir()
+
+
+def test_no_home_falls_back_to_the_temporary_directory(tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    environ = {"XDG_CACHE_HOME": str(blocker / "below")}  # cannot be created
+    chosen = jitcache.choose_cache_dir(environ, package_dir=tmp_path / "read_only")
+    assert chosen.name == "numba" and chosen.parent.name.startswith("demtool-")
+
+
+def test_configure_sets_the_variable_for_children(tmp_path, monkeypatch):
+    import numba.core.config
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", "placeholder")
+    monkeypatch.delenv("NUMBA_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setattr(jitcache, "PACKAGE_DIR", tmp_path / "read_only")
+    monkeypatch.setattr(numba.core.config, "CACHE_DIR", numba.core.config.CACHE_DIR)
+    folder = jitcache.configure()
+    assert folder == tmp_path / "demtool" / "numba"
+    assert os.environ["NUMBA_CACHE_DIR"] == str(folder)
+    assert numba.core.config.CACHE_DIR == str(folder)
+    assert str(folder) in jitcache.describe()
+
+
+def test_cached_kernels_lists_called_kernels_and_skips_inlined_ones():
+    import demtool.refine.filters  # noqa: F401  (defines inline="always" helpers)
+    import demtool.sgm.aggregate  # noqa: F401
+
+    names = [name for name, _ in jitcache.cached_kernels()]
+    assert "demtool.sgm.aggregate.sweep_rows" in names
+    assert "demtool.refine.filters._popcount" not in names  # inline="always"
+    assert len(names) == len(set(names))
+
+
+def test_warm_covers_every_stage_and_sgm_cost(tmp_path):
+    """A new stage must get a step in demtool.warm (or its kernels compile in users' runs)."""
+    steps = warm_steps(tmp_path)
+    assert {step[0] for step in steps} == set(STAGES)
+    costs = {step[step.index("--cost") + 1] for step in steps if "--cost" in step}
+    assert costs == {cost for cost, _ in SGM_VARIANTS}
+    from demtool.sgm.matcher import COSTS
+    assert set(COSTS) == costs
+    assert all(str(tmp_path) in " ".join(step) for step in steps if "--out" in step)
+
+
+def test_warm_refuses_a_cache_it_cannot_write(tmp_path, monkeypatch):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(blocker / "cache"))
+    result = CliRunner().invoke(cli, ["warm"])
+    assert result.exit_code == 1
+    lines = result.output.strip().splitlines()
+    assert lines[-1].startswith("Error: demtool warm: NUMBA_CACHE_DIR=")
+    assert "cannot create or write" in lines[-1]
+    assert not (blocker.parent / "cache").exists()
+
+
+def test_warm_is_a_listed_tool():
+    result = CliRunner().invoke(cli, ["--help"])
+    assert result.exit_code == 0
+    assert "warm" in result.output and TOOLS["warm"].split()[0] in result.output
+    result = CliRunner().invoke(cli, ["warm", "--help"])
+    assert result.exit_code == 0 and "NUMBA_CACHE_DIR" in result.output
+
+
+def test_warm_check_reports_the_cache():
+    result = CliRunner().invoke(cli, ["warm", "--check"])
+    assert result.exit_code == 0, result.output
+    assert result.output.startswith("numba cache:")
+    assert "kernels cached" in result.output

@@ -74,8 +74,11 @@ $(WORK)/selection.json: $(SCENE)/scene.json
 	$(DT) select $(SCENE)/view_*.tif --target $(SCENE)/$(TARGET).tif \
 	  --cameras $(SCENE)/cameras.npz --scene $(SCENE)/scene.json --out $@
 
+# NavCam is a calibrated camera: its intrinsics are given (--cameras: K of each view), since
+# a narrow-field block cannot determine the focal length (bundle would keep its prior).
 $(WORK)/bundle.npz: $(WORK)/selection.json
-	$(DT) bundle $< --align-cameras $(SCENE)/cameras.npz --out $@
+	$(DT) bundle $< --cameras $(SCENE)/cameras.npz --align-cameras $(SCENE)/cameras.npz \
+	  --out $@
 
 $(WORK)/dem_bam.tif: $(WORK)/bundle.npz
 	$(DT) dem --points $< --scene $(SCENE)/scene.json --out $@

@@ -171,6 +171,14 @@ def _pinhole_names(scene: Path) -> dict:
             "cameras.npz": str(scene / "cameras.npz")}
 
 
+def _focal_px(scene: Path, view: str) -> float:
+    """The synthetic camera's focal length (pixels): the stand-in for NavCam's calibration."""
+    from demtool import io as dio
+    from demtool.sensors.pinhole import cameras_from_arrays
+
+    return float(cameras_from_arrays(dio.read_npz(scene / "cameras.npz", "cameras"))[view].K[0, 0])
+
+
 @pytest.mark.slow
 def test_comet_tutorial(small_scene_dir, tmp_path, monkeypatch):
     scene = small_scene_dir
@@ -180,7 +188,8 @@ def test_comet_tutorial(small_scene_dir, tmp_path, monkeypatch):
              "images/target.tif": str(scene / f"{left}.tif"),
              "images/partner.tif": str(scene / f"{right}.tif"),
              "configs/navcam.toml": str(ROOT / "configs" / "navcam.toml"),
-             "28000": f"{meta['distance_m']:.3f}", "2.4": f"{meta['gsd_m']:.4f}"}
+             "28000": f"{meta['distance_m']:.3f}", "2.4": f"{meta['gsd_m']:.4f}",
+             "11731": f"{_focal_px(scene, left):.4f}"}
     run_tutorial("comet-no-spice.md", names, tmp_path, monkeypatch)
     assert _report(tmp_path / "report")["rmse"] < 4 * meta["gsd_m"]
 

@@ -110,28 +110,3 @@ def metric_grid(grid: Grid) -> tuple[Grid, dict[str, Any] | None]:
     log.info("the comparison grid is in degrees (%.6g x %.6g deg): measuring on %s at "
              "%.4g m", grid.spacing[0], grid.spacing[1], metric.crs.name, metric.gsd[0])
     return out, note
-
-
-def check_map_and_frame(raster: Any, reference: Any) -> None:
-    """Refuse comparing a map raster (with a CRS) with one in an image or local frame.
-
-    A raster without a CRS whose ``frame`` tag says it is in an image's frame
-    (``image:<name>``) or in the synthetic local map (``map:local``) has coordinates
-    that mean nothing on the body's map: comparing the two gives statistics of
-    unrelated cells.  (A raster without CRS or frame tag is still taken to share the
-    other's coordinates, with resample_to_grid's warning.)
-
-    Raises
-    ------
-    InputError
-        Naming the raster without a map and its frame.
-    """
-    if (raster.crs is None) == (reference.crs is None):
-        return
-    plain, mapped = (raster, reference) if raster.crs is None else (reference, raster)
-    frame = str(plain.tags.get("frame") or "")
-    if frame.startswith("image:") or frame == "map:local":
-        raise InputError(f"{plain.path}: is in the frame '{frame}' (no map CRS), but "
-                         f"{mapped.path} is on a map: compare two DEMs on the body's map "
-                         "(dem --rectify with sensor models, or mapproject), or two in one "
-                         "frame")

@@ -343,9 +343,12 @@ def _check_on_body(model, source, keys) -> None:
         worst = np.unravel_index(int(np.argmin(level)), level.shape)
         centre = origin[worst]
         distance = float(np.linalg.norm(centre))
+        hint = ("a local-frame camera (rover, lander, lab rig)? --body and body radii only "
+                "apply to models in the body's body-fixed frame" if distance < 1e-3 * a
+                else "positions in km labelled metres?")
         raise _fail(source, keys["position"], centre,
                     f"puts the camera inside the body ({distance / 1e3:.6g} km from its "
-                    f"centre, radius {a / 1e3:.6g} km): positions in km labelled metres?")
+                    f"centre, radius {a / 1e3:.6g} km): {hint}")
     if ray is None:
         return
     direction = np.asarray(ray.direction, dtype=np.float64)

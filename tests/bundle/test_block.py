@@ -82,7 +82,8 @@ def test_ring_known_intrinsics_register_in_one_pass(ring_dir, tmp_path):
     summary = json.loads((tmp_path / "bundle.npz.json").read_text())["summary"]
     assert summary["registered_count"] == summary["image_count"] == 12
     assert summary["mapping"] == {"mapping_passes": 1, "retried": [], "free_fallback": False}
-    assert summary["intrinsics"] == {"mode": "known", "refined": []}
+    assert summary["intrinsics"]["mode"] == "known" and summary["intrinsics"]["refined"] == []
+    assert {d["status"] for d in summary["intrinsics"]["decisions"].values()} == {"given"}
     truth = cameras_from_arrays(dio.read_npz(ring_dir / "cameras.npz", "cameras"))
     cameras = cameras_from_arrays(dio.read_npz(out, "bundle"))
     for name, camera in cameras.items():

@@ -212,5 +212,6 @@ def test_image_frame_dem_against_a_map_dem_is_refused(moon, tmp_path):
     result = _invoke(tmp_path / "dem.tif", tmp_path / "ref.tif", "--out", out)
     errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
     assert result.exit_code == 1 and len(errors) == 1, result.output
-    assert f"{tmp_path / 'dem.tif'}: is in the frame 'image:left' (no map CRS)" in errors[0]
+    assert (f"{tmp_path / 'dem.tif'}: is in an image's pixel frame (image:left, no CRS) but "
+            f"the reference {tmp_path / 'ref.tif'} is on a map") in errors[0]
     assert not out.exists()

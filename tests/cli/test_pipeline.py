@@ -40,8 +40,8 @@ def chain(small_scene_dir, tmp_path_factory):
 
     _run("select", *views, "--target", str(target), "--cameras", str(scene / "cameras.npz"),
          "--scene", str(scene / "scene.json"), "--out", str(work / "selection.json"))
-    _run("bundle", str(work / "selection.json"), "--align-cameras", str(scene / "cameras.npz"),
-         "--out", str(work / "bundle.npz"))
+    _run("bundle", str(work / "selection.json"), "--cameras", str(scene / "cameras.npz"),
+         "--align-cameras", str(scene / "cameras.npz"), "--out", str(work / "bundle.npz"))
     _run("dem", "--points", str(work / "bundle.npz"), "--scene", str(scene / "scene.json"),
          "--out", str(work / "dem_bam.tif"))
     _run("rectify", str(target), str(partner), "--out", str(stereo))

@@ -37,14 +37,16 @@ def _table(name, fields, row, start):
     return "".join(text) + "End_Object\n", np.asarray(row, dtype="<f8").tobytes()
 
 
-def write_cube(path, *, size=22900, alpha=None, naif=None, footprint=FOOTPRINT):
-    """A label-only cube with SPICE attached: the camera above (lat 0, lon 0), nadir."""
+def write_cube(path, *, size=22900, alpha=None, naif=None, footprint=FOOTPRINT,
+               distance_km=RADIUS_KM + ALTITUDE_KM):
+    """A label-only cube with SPICE attached: the camera above (lat 0, lon 0), nadir,
+    ``distance_km`` from the body's centre."""
     naif = dict(NAIF if naif is None else naif)
     quat = ["J2000Q0", "J2000Q1", "J2000Q2", "J2000Q3", "ET"]
     xyz = ["J2000X", "J2000Y", "J2000Z", "ET"]
     rows = [("InstrumentPointing", quat, [0.5, -0.5, -0.5, -0.5, 0.0]),
             ("BodyRotation", quat, [1.0, 0.0, 0.0, 0.0, 0.0]),
-            ("InstrumentPosition", xyz, [RADIUS_KM + ALTITUDE_KM, 0.0, 0.0, 0.0]),
+            ("InstrumentPosition", xyz, [distance_km, 0.0, 0.0, 0.0]),
             ("SunPosition", xyz, [1.5e8, 0.0, 0.0, 0.0])]
     head = 8192
     objects, blobs, start = [], b"", head + 1

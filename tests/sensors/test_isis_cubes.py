@@ -62,7 +62,7 @@ INSTRUMENT = (b"  Group = Instrument\n    InstrumentId = NAVCam\n    TargetName 
 
 def tagcams_cube(path, naif=None, instrument=INSTRUMENT):
     """A label-only NavCam cube 1 km from a Bennu-sized body's centre, looking at it."""
-    path = write_cube(path, size=2592, naif=TAGCAMS if naif is None else naif)
+    path = write_cube(path, size=2592, naif=TAGCAMS if naif is None else naif, distance_km=1.0)
     data = path.read_bytes()
     label = data[:8192].rstrip(b"\0")  # the tables stay where the label says they are
     label = label.replace(b"NaifFrameCode = -915240", b"NaifFrameCode = -64081")
@@ -81,8 +81,8 @@ def test_tagcams_cube_reads_with_its_distortion_and_body(tmp_path):
     assert model.radii == pytest.approx((283.065, 249.72))
     line, sample = np.meshgrid(np.linspace(0.5, model.lines - 0.5, 7),
                                np.linspace(0.5, model.samples - 0.5, 7), indexing="ij")
-    ray = model.image_to_ray(line, sample)  # (write_cube's camera is far from the body)
-    back = model.ground_to_image(ray.origin + 1e5 * ray.direction)
+    ray = model.image_to_ray(line, sample)
+    back = model.ground_to_image(ray.origin + 1e3 * ray.direction)
     np.testing.assert_allclose(back[0], line, atol=0.01)
     np.testing.assert_allclose(back[1], sample, atol=0.01)
     # the NavCam lens bends the corner rays by hundreds of pixels: not an ideal camera

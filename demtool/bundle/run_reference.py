@@ -107,8 +107,25 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
 
     from demtool.bundle.surface import interpolation_factor
 
-    return dataclasses.replace(surface, post_m=surface.post_spacing_m(centre),
-                               slope_factor=interpolation_factor(heights))
+    post_m, factor = surface.post_spacing_m(centre), interpolation_factor(heights)
+    with np.errstate(invalid="ignore"):
+        rows, cols = np.gradient(heights, post_m)
+        typical = factor * post_m * float(np.nanmedian(np.hypot(rows, cols)))
+    from demtool.logs import get_logger
+
+    log = get_logger("demtool.bundle")
+    if not typical > sigma:
+        # a DEM fine enough that its interpolation error at a typical slope is within its
+        # stated sigma: sigma covers it (weighting steep tie points down would only
+        # loosen the datum's tie where the DEM resolves the ground)
+        log.info("reference DEM %s: interpolation error %.3g m at the median slope (%.3g x "
+                 "%.4g m posts) is within --reference-dem-sigma %.3g m: sigma alone", path,
+                 typical, factor, post_m, sigma)
+        return surface
+    log.info("reference DEM %s: %.4g m posts, interpolation error %.3g x post x slope "
+             "(%.3g m at the median slope) added to --reference-dem-sigma %.3g m per tie "
+             "point", path, post_m, factor, typical, sigma)
+    return dataclasses.replace(surface, post_m=post_m, slope_factor=factor)
 
 
 def is_radius_map(values: np.ndarray, radius: float, path) -> bool:

@@ -168,6 +168,10 @@ def model_footprint_box(sensor: Any, radius: float) -> tuple[float, float, float
     return footprint_box(lon, lat)
 
 
+#: footprints farther apart than this many footprint diagonals are not one stereo pair
+NOT_A_PAIR_SIZES = 3.0
+
+
 def check_pair_overlaps(left: Any, right: Any, left_path: Any, right_path: Any) -> None:
     """Refuse a stereo pair of body-fixed models whose footprints share no ground (a pair
     1 800 km apart is not a pointing error for ``bundle`` to fix)."""
@@ -182,6 +186,13 @@ def check_pair_overlaps(left: Any, right: Any, left_path: Any, right_path: Any) 
     with np.errstate(all="ignore"):
         centres = [m.image_to_ground(0.5 * m.lines, 0.5 * m.samples) for m in (left, right)]
     distance = float(np.linalg.norm(np.asarray(centres[0]) - np.asarray(centres[1])))
+    # footprints a few of their own sizes apart may still be one pair whose SPICE is off
+    # (the matches then say so, and bundle fixes it); farther apart they are not a pair
+    size = max(np.hypot((b[2] - b[0]) * np.cos(np.radians(0.5 * (b[1] + b[3]))), b[3] - b[1])
+               for b in boxes) * np.pi / 180.0 * radius
+    if not np.isfinite(distance) or distance < NOT_A_PAIR_SIZES * size:
+        return
+
     def box(b):
         return f"lon {b[0]:.4g}…{b[2]:.4g}, lat {b[1]:.4g}…{b[3]:.4g}"
 

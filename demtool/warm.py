@@ -43,8 +43,8 @@ def warm_steps(work: Path) -> list[list[str]]:
         ["select", *(scene / f"view_{i:02d}.tif" for i in range(4)),
          "--target", scene / "view_00.tif", "--cameras", scene / "cameras.npz",
          "--scene", scene / "scene.json", "--out", w / "selection.json"],
-        ["bundle", w / "selection.json", "--align-cameras", scene / "cameras.npz",
-         "--out", w / "bundle.npz"],
+        ["bundle", w / "selection.json", "--cameras", scene / "cameras.npz",
+         "--align-cameras", scene / "cameras.npz", "--out", w / "bundle.npz"],
         ["dem", "--points", w / "bundle.npz", "--scene", scene / "scene.json",
          "--out", w / "dem_bam.tif"],
         ["rectify", scene / "view_00.tif", scene / "view_01.tif", "--out", stereo],
@@ -95,6 +95,10 @@ def warm_steps(work: Path) -> list[list[str]]:
          frs / "rectify.npz", "--out", frs / "disparity_sgm.tif"],
         ["dem", "--disparity", frs / "disparity_sgm.tif", "--rectify", frs / "rectify.npz",
          "--error-out", w / "dem_frame_error.tif", "--out", w / "dem_frame.tif"],
+        # a block's pairs and the fusion of DEMs (issue 29; the pair's DEM twice)
+        ["pairs", fr / "view_00.json", fr / "view_01.json", "--min-bh", "0.01", "--max-bh",
+         "10", "--min-convergence", "0", "--out", frs / "pairs.txt"],
+        ["fuse", w / "dem_frame.tif", w / "dem_frame.tif", "--out", w / "dem_fused.tif"],
     ]
     return [[str(a) for a in step] for step in steps]
 

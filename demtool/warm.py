@@ -32,7 +32,7 @@ log = get_logger(__name__)
 SMALL_SCENE = ["--seed", "0", "--size", "256", "--views", "4", "--image-size", "192",
                "--craters", "20", "--crater-max", "50", "--boulders", "100"]
 SENSOR_SCENE = ["--size", "128", "--image-size", "128"]
-SGM_VARIANTS = (("mi", 16), ("hmi", 8), ("census", 8), ("ad", 8))
+SGM_VARIANTS = (("mi", 16), ("hmi", 8), ("census", 8), ("ad", 8), ("auto", 8))
 
 
 def warm_steps(work: Path) -> list[list[str]]:

@@ -37,7 +37,7 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
     from demtool import io as dio
     from demtool.dem.inputs import geometry_from_rectification, read_disparity
     from demtool.dem.local import dem_on_local_grid, footprint_gsd, local_frame
-    from demtool.dem.sensors import default_max_ray_gap, triangulate_sensors
+    from demtool.dem.sensors import screen_ray_gaps, triangulate_sensors
     from demtool.errors import ParameterError, ProcessingError
     from demtool.rectify.calibrated import rect_to_pixels, scene_distance
 
@@ -77,11 +77,7 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
     else:
         gsd = footprint_gsd(tri.xyz[in_front], center, frame, 1.0 / geometry.f_px)
         gsd_source = "estimated (median pixel footprint on the plane normal to up)"
-    gaps = tri.gap[in_front]
-    max_gap = (float(params.max_ray_gap) if params.max_ray_gap is not None
-               else default_max_ray_gap(gaps, gsd))
-    keep = in_front & (tri.gap <= max_gap)
-    median_gap = float(np.median(gaps))
+    keep, max_gap, median_gap = screen_ray_gaps(tri.gap, in_front, params.max_ray_gap, gsd)
     log.info("%d disparities: %d behind a camera (dropped), %d rays missing by more than "
              "%.3g m (dropped; median gap %.3g m)", finite.size, behind,
              int((in_front & ~keep).sum()), max_gap, median_gap)

@@ -90,7 +90,7 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
                        crs: Any = None) -> tuple[dict[str, Any], Any, Any]:
     """Triangulate correspondences (CSM ``(line, sample)`` arrays of each side) through
     the two models, drop points behind a camera or whose rays miss by more than
-    ``--max-ray-gap`` (default :func:`demtool.dem.sensors.default_max_ray_gap`), grid
+    ``--max-ray-gap`` (:func:`demtool.dem.sensors.screen_ray_gaps`), grid
     them on the body's map (:func:`demtool.dem.sensors.dem_on_map`).
 
     The GSD is ``--gsd``, else ``gsd_default``, else the median left range times
@@ -99,7 +99,7 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     """
     import numpy as np
 
-    from demtool.dem.sensors import default_max_ray_gap, dem_on_map, triangulate_sensors
+    from demtool.dem.sensors import dem_on_map, screen_ray_gaps, triangulate_sensors
     from demtool.errors import ProcessingError
     from demtool.maps import body_from_radii
 
@@ -118,19 +118,10 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     else:
         gsd = float(np.median(tri.range_left[in_front]) * range_to_gsd)
         gsd_source = "estimated"
-    gaps = tri.gap[in_front]
-    max_gap = (float(params.max_ray_gap) if params.max_ray_gap is not None
-               else default_max_ray_gap(gaps, gsd))
-    keep = in_front & (tri.gap <= max_gap)
-    median_gap = float(np.median(gaps))
+    keep, max_gap, median_gap = screen_ray_gaps(tri.gap, in_front, params.max_ray_gap, gsd)
     log.info("%d correspondences: %d behind a camera, %d rays missing by more than %.3g m "
              "(median gap %.3g m, GSD %.3g m)", finite.size, int((finite & ~tri.in_front).sum()),
              int((in_front & ~keep).sum()), max_gap, median_gap, gsd)
-    dropped = int((in_front & ~keep).sum())
-    if dropped > 0.5 * int(in_front.sum()):  # issue 31: a filter that drops most points says so
-        log.warning("--max-ray-gap %.3g m drops %d of %d points (%.1f %%): the models may not "
-                    "fit this disparity (or give a larger --max-ray-gap)", max_gap, dropped,
-                    int(in_front.sum()), 100.0 * dropped / max(1, int(in_front.sum())))
     a, b = left.radii
     body = body_from_radii(a, a, b)
     use_crs = crs if params.projection == "auto" else None

@@ -24,7 +24,10 @@ import numpy as np
 
 from demtool.dem.grid import splat_median
 from demtool.errors import ProcessingError
+from demtool.logs import get_logger
 from demtool.sensors.base import SensorModel
+
+log = get_logger(__name__)
 
 # Default gap limit: median gap + max(GAP_NMADS * NMAD, GAP_GSDS * GSD).
 GAP_NMADS = 4.0
@@ -97,6 +100,42 @@ def triangulate_sensors(left: SensorModel, right: SensorModel, left_line, left_s
     ray_r = right.image_to_ray(np.asarray(right_line, float).ravel(),
                                np.asarray(right_sample, float).ravel())
     return intersect_rays(ray_l.origin, ray_l.direction, ray_r.origin, ray_r.direction)
+
+
+def screen_ray_gaps(gap: np.ndarray, in_front: np.ndarray, max_ray_gap: float | None,
+                    gsd_m: float) -> tuple[np.ndarray, float, float]:
+    """Which triangulated points to keep: in front of both cameras and with rays that
+    miss each other by at most ``max_ray_gap`` (default :func:`default_max_ray_gap`).
+
+    Parameters
+    ----------
+    gap : (N,) float64
+        Gap between the two rays of each point, metres.
+    in_front : (N,) bool
+        Points in front of both cameras (and finite).
+    max_ray_gap : float or None
+        The user's ``--max-ray-gap``, metres.
+    gsd_m : float
+        Ground sample distance, metres.
+
+    Returns
+    -------
+    keep : (N,) bool
+    max_gap, median_gap : float
+        The threshold used and the median gap of the points in front, metres.
+
+    A threshold that drops most points is logged as a warning (issue 31).
+    """
+    gaps = gap[in_front]
+    max_gap = float(max_ray_gap) if max_ray_gap is not None else default_max_ray_gap(gaps,
+                                                                                     gsd_m)
+    keep = in_front & (gap <= max_gap)
+    dropped, front = int((in_front & ~keep).sum()), int(in_front.sum())
+    if dropped > 0.5 * front:
+        log.warning("--max-ray-gap %.3g m drops %d of %d points (%.1f %%): the models may not "
+                    "fit this disparity (or give a larger --max-ray-gap)", max_gap, dropped,
+                    front, 100.0 * dropped / max(1, front))
+    return keep, max_gap, float(np.median(gaps))
 
 
 def default_max_ray_gap(gap: np.ndarray, gsd_m: float) -> float:

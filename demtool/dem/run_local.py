@@ -116,26 +116,13 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
              summary["range_min_m"], summary["range_max_m"])
     tags = prov.tags(frame="map:local", dem_route="disparity-local", gsd_m=gsd,
                      units="metres along local_up", **frame.tags())
-    filled = result.filled.astype(np.float32)
-    filled[np.isnan(result.dem)] = np.nan
-    data = np.stack([result.dem, filled]) if params.mask_band else result.dem
-    band_names = ["height", "interpolated"] if params.mask_band else ["height"]
-    outputs = [Path(out)]
+    from demtool.dem.output import write_dem_rasters
+
     with run.transaction():
-        dio.write_raster(out, data, transform=result.transform, tags=tags,
-                         band_names=band_names)
-        if mask_path is not None:
-            dio.write_raster(mask_path, filled, transform=result.transform,
-                             tags=prov.tags(frame="map:local",
-                                            meaning="1 = interpolated, 0 = measured",
-                                            **frame.tags()), band_names=["interpolated"])
-            outputs.append(Path(mask_path))
-        if error_path is not None:
-            dio.write_raster(error_path, result.error, transform=result.transform,
-                             tags=prov.tags(frame="map:local", units="metres",
-                                            meaning="median ray gap of the cell's points",
-                                            **frame.tags()), band_names=["ray_gap"])
-            outputs.append(Path(error_path))
+        outputs = write_dem_rasters(run, params, out, result, transform=result.transform,
+                                    crs=None, tags=tags, mask_path=mask_path,
+                                    error_path=error_path,
+                                    side_tags={"frame": "map:local", **frame.tags()})
         if points_out is not None:
             dio.write_ply(points_out, tri.xyz[keep], {"ray_gap": tri.gap[keep]},
                           comments=["demtool dem: triangulated points, metres, in the "

@@ -153,9 +153,7 @@ def write_map_dem(run: StageRun, params: DemParams, out, result, summary: dict[s
                   error_path: PathLike = None) -> None:
     """Write a DEM on the body's map (OUT, ``--interpolated-mask``, ``--error-out``, the
     sidecar) in one transaction."""
-    import numpy as np
 
-    from demtool import io as dio
 
     log, prov = run.log, run.provenance
     grid = result.grid
@@ -166,25 +164,12 @@ def write_map_dem(run: StageRun, params: DemParams, out, result, summary: dict[s
              summary["height_max_m"], body.radius / 1e3)
     tags = prov.tags(dem_route=route, gsd_m=gsd,
                      units="metres above the reference sphere", **body.tags())
-    filled = result.filled.astype(np.float32)
-    filled[np.isnan(result.dem)] = np.nan
-    data = np.stack([result.dem, filled]) if params.mask_band else result.dem
-    band_names = ["height", "interpolated"] if params.mask_band else ["height"]
-    outputs = [Path(out)]
+    from demtool.dem.output import write_dem_rasters
+
     with run.transaction():
-        dio.write_raster(out, data, transform=grid.transform, crs=grid.crs, tags=tags,
-                         band_names=band_names)
-        if mask_path is not None:
-            dio.write_raster(mask_path, filled, transform=grid.transform, crs=grid.crs,
-                             tags=prov.tags(meaning="1 = interpolated, 0 = measured",
-                                            **body.tags()), band_names=["interpolated"])
-            outputs.append(Path(mask_path))
-        if error_path is not None:
-            dio.write_raster(error_path, result.error, transform=grid.transform, crs=grid.crs,
-                             tags=prov.tags(meaning="median ray gap of the cell's points",
-                                            units="metres", **body.tags()),
-                             band_names=["ray_gap"])
-            outputs.append(Path(error_path))
+        outputs = write_dem_rasters(run, params, out, result, transform=grid.transform,
+                                    crs=grid.crs, tags=tags, mask_path=mask_path,
+                                    error_path=error_path, side_tags=body.tags())
         prov.write_sidecar(out, summary, outputs=outputs)
 
 

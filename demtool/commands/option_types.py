@@ -58,6 +58,17 @@ class _Checks:
         except (TypeError, ValueError, OverflowError):
             self._fail(value, f"{value!r} is not a {self.kind}.", param, ctx)
 
+    def _in_range(self, base, number, value: Any, param, ctx):
+        """``base.convert`` (click's range check) of ``number``; a refusal of a preset value
+        names the preset and its section (see :func:`_preset_prefix`)."""
+        try:
+            return base.convert(self, number, param, ctx)
+        except click.BadParameter as exc:
+            prefix = _preset_prefix(value, param, ctx)
+            if not prefix:
+                raise
+            self.fail(prefix + exc.message, param, ctx)
+
     def _fail(self, value: Any, message: str, param, ctx):
         self.fail(_preset_prefix(value, param, ctx) + message, param, ctx)
 
@@ -102,13 +113,7 @@ class FloatRange(_Checks, click.FloatRange):
             self._fail(value, f"{value!r} is not a finite number.", param, ctx)
         if math.isnan(number):
             return number
-        try:
-            return click.FloatRange.convert(self, number, param, ctx)
-        except click.BadParameter as exc:
-            prefix = _preset_prefix(value, param, ctx)
-            if not prefix:
-                raise
-            self.fail(prefix + exc.message, param, ctx)
+        return self._in_range(click.FloatRange, number, value, param, ctx)
 
     def _has_range(self) -> bool:
         return self.min is not None or self.max is not None
@@ -131,13 +136,7 @@ class IntRange(_Checks, click.IntRange):
                 self._fail(value, f"{value!r} is not a valid integer.", param, ctx)
             value = int(value)
         number = self._number(value, param, ctx, int)
-        try:
-            return click.IntRange.convert(self, number, param, ctx)
-        except click.BadParameter as exc:
-            prefix = _preset_prefix(value, param, ctx)
-            if not prefix:
-                raise
-            self.fail(prefix + exc.message, param, ctx)
+        return self._in_range(click.IntRange, number, value, param, ctx)
 
 
 #: Any finite float.

@@ -101,3 +101,39 @@ def check_pair_order(disparity_path: Any, left_path: Any, right_path: Any) -> No
         raise InputError(f"{disparity_path}: was matched with {right_path} as the left "
                          f"orthoimage and {left_path} as the right (its sidecar {sidecar}); "
                          "give them in that order")
+
+
+def check_own_sensor(image_path: Any, tags: dict[str, Any], sensor_path: Any) -> bool:
+    """Whether ``sensor_path`` is the model an orthoimage was map-projected through.
+
+    ``refine IMAGE --sensor MODEL`` takes IMAGE as a raw image to map-project; given an
+    orthoimage instead, MODEL must be the one it was made with (its SHA-256 tag, else the
+    path it names): the sun and view of another image's model shade the DEM wrongly.
+
+    Returns
+    -------
+    bool
+        True when the orthoimage records this model (use the orthoimage as it is); False
+        when it records none (a map image of unknown origin: the model is taken as given).
+
+    Raises
+    ------
+    InputError
+        The orthoimage records another model: one line naming both files.
+    """
+    from demtool.provenance import file_sha256
+
+    recorded_hash = tags.get(SENSOR_HASH_TAG)
+    recorded_path = tags.get(NAMED_BY[SENSOR_HASH_TAG])
+    if not recorded_hash and not recorded_path:
+        return False
+    if recorded_hash:
+        same = file_sha256(sensor_path) == recorded_hash
+    else:
+        same = Path(str(recorded_path)).resolve() == Path(sensor_path).resolve()
+    if not same:
+        raise InputError(f"{image_path}: is an orthoimage map-projected through "
+                         f"{recorded_path or 'another sensor model'}, not through --sensor "
+                         f"{sensor_path}: give the orthoimage's own model (or none), or the raw "
+                         "image with this model")
+    return True

@@ -79,33 +79,49 @@ def _sensor_path(image, sensor_path) -> Path | None:
     return Path(tagged) if tagged else None
 
 
+def _is_map_image(image_path) -> bool:
+    """Whether an image lies on a map (a CRS): an orthoimage, never a raw image."""
+    from demtool import io as dio
+
+    return dio.raster_info(image_path, what="image").crs is not None
+
+
 def image_on_map(image_path, sensor_path, dem, params, log):
     """The image's values on the DEM grid and its sensor model.
 
     A raw image with ``sensor_path`` is map-projected onto the DEM; an orthoimage is
-    resampled onto the DEM grid when its grid differs.
+    resampled onto the DEM grid when its grid differs, its sensor model the one its tags
+    name (or ``sensor_path``, which must then be that model:
+    :func:`demtool.mapproject.hashes.check_own_sensor`).
     """
     from demtool import io as dio
     from demtool.mapproject.core import sensor_body
+    from demtool.mapproject.hashes import check_hashes, check_own_sensor
     from demtool.mapproject.surface import orthoimage_on_grid, require_same_body
     from demtool.sensors import read_sensor
 
-    if sensor_path is not None:
+    if sensor_path is not None and not _is_map_image(image_path):
         sensor = read_sensor(sensor_path)
         require_same_body(dem.path, dem.crs, sensor_body(sensor), sensor_path, "a DEM")
         values = orthoimage_on_grid(image_path, sensor, dem)
         log.info("%s map-projected through %s onto the DEM grid", image_path, sensor_path)
         return values, sensor, Path(sensor_path)
     image = dio.read_image(image_path, what="image")
-    path = _sensor_path(image, None)
-    if path is None:
-        return None, None, None
-    if not path.is_file():
-        raise InputError(f"{image_path}: its sensor model {path} (tag {SENSOR_TAG}) is not "
-                         "found; give --sensor")
-    from demtool.mapproject.hashes import check_hashes
-
-    check_hashes(image_path, image.tags, log=log)
+    if sensor_path is not None:
+        path = Path(sensor_path)
+        if check_own_sensor(image_path, image.tags, path):
+            check_hashes(image_path, image.tags, log=log)
+        else:
+            log.info("%s: a map image recording no sensor model: its sun and view are taken "
+                     "from --sensor %s", image_path, path)
+    else:
+        path = _sensor_path(image, None)
+        if path is None:
+            return None, None, None
+        if not path.is_file():
+            raise InputError(f"{image_path}: its sensor model {path} (tag {SENSOR_TAG}) is "
+                             "not found; give --sensor")
+        check_hashes(image_path, image.tags, log=log)
     sensor = read_sensor(path)
     require_same_body(dem.path, dem.crs, sensor_body(sensor), path, "a DEM")
     values, note = image_on_dem_grid(image, dem)

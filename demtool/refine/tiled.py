@@ -266,6 +266,7 @@ def _map_geometry(image_info, dem_info, shape, params, log, albedo_out):
     sensor path for per-tile geometry), from a decimated DEM."""
     from demtool.errors import InputError, ParameterError
     from demtool.mapproject.core import sensor_body
+    from demtool.mapproject.hashes import check_hashes
     from demtool.mapproject.surface import require_same_body
     from demtool.refine.inputs import SENSOR_TAG, _sensor_path, map_illumination
     from demtool.sensors import read_sensor
@@ -278,6 +279,7 @@ def _map_geometry(image_info, dem_info, shape, params, log, albedo_out):
     if not path.is_file():
         raise InputError(f"{image_info.path}: its sensor model {path} (tag {SENSOR_TAG}) is "
                          "not found")
+    check_hashes(image_info.path, image_info.tags, log=log)
     sensor = read_sensor(path)
     require_same_body(dem_info.path, dem_info.crs, sensor_body(sensor), path, "a DEM")
     coarse = read_decimated(dem_info.path, shape, DECIMATED_CELLS)

@@ -203,3 +203,59 @@ def test_dem_far_from_the_footprint_is_blamed_on_the_dem(map_scene, tmp_path):
     result = invoke(raw, far, "--sensor", map_scene["isd"], "--out", out)
     assert_refused(result, out, f"{far}: the DEM lies outside the footprint of {raw}")
     assert "horizon" not in result.output
+
+
+def _hashed_ortho(map_scene, folder, sensor_path):
+    """The scene's orthoimage tagged, as ``mapproject`` tags it, with the SHA-256 of the
+    sensor model it was made through."""
+    from demtool.mapproject.hashes import SENSOR_HASH_TAG
+    from demtool.provenance import file_sha256
+
+    grid = map_scene["grid"]
+    ortho = folder / "hashed_ortho.tif"
+    dio.write_raster(ortho, map_scene["image"], transform=grid.transform, crs=grid.crs,
+                     tags={**MOON.tags(), "frame": "map", "mapproject_sensor": str(sensor_path),
+                           SENSOR_HASH_TAG: file_sha256(sensor_path)})
+    return ortho
+
+
+@pytest.mark.parametrize("tile_size", [0, 64])
+def test_refuses_ortho_whose_sensor_changed_since(map_scene, tmp_path, tile_size):
+    """Issue 31, class 4 (the sun turned after mapproject made refine 6× worse): the
+    orthoimage's sensor model edited afterwards is refused, untiled and in tiles."""
+    isd = tmp_path / "own.json"
+    isd.write_text(map_scene["isd"].read_text())
+    ortho = _hashed_ortho(map_scene, tmp_path, isd)
+    isd.write_text(json.dumps(json.loads(isd.read_text()), indent=1))
+    out = tmp_path / "r.tif"
+    result = invoke(ortho, map_scene["dem"], "--out", out, "--tile-size", tile_size)
+    assert_refused(result, out, f"{ortho}: its sensor model {isd} has changed since it was "
+                   "map-projected")
+
+
+def test_refuses_ortho_with_another_images_sensor(map_scene, tmp_path):
+    """An orthoimage given with ``--sensor`` of another image (a swapped pair of models):
+    refused naming both, not shaded with the other image's sun and view."""
+    ortho = _hashed_ortho(map_scene, tmp_path, map_scene["isd"])
+    other = linescan_sensor(lines=180, samples=180, roll_deg=-8.0, sun_azimuth_deg=250.0,
+                            sun_elevation_deg=20.0, name="ls_other")
+    other_isd = tmp_path / "other.json"
+    other_isd.write_text(json.dumps(isd_dict(other)))
+    out = tmp_path / "r.tif"
+    result = invoke(ortho, map_scene["dem"], "--out", out, "--sensor", other_isd)
+    assert_refused(result, out, f"{ortho}: is an orthoimage map-projected through "
+                   f"{map_scene['isd']}, not through --sensor {other_isd}")
+
+
+def test_ortho_with_its_own_sensor_given_is_used_as_is(map_scene, tmp_path):
+    """The orthoimage's own model given as ``--sensor``: taken as an orthoimage (not
+    map-projected a second time), the sun from that model."""
+    ortho = _hashed_ortho(map_scene, tmp_path, map_scene["isd"])
+    out = tmp_path / "r.tif"
+    result = invoke(ortho, map_scene["dem"], "--out", out, "--sensor", map_scene["isd"],
+                    "--iterations", 3, "--median", 0)
+    assert result.exit_code == 0, result.output
+    sidecar = json.loads((tmp_path / "r.tif.json").read_text())
+    assert str(map_scene["isd"]) in sidecar["summary"]["sun_source"]
+    refined = dio.read_raster(out).data
+    assert rmse(refined, map_scene["truth"]) < rmse(map_scene["coarse"], map_scene["truth"])

@@ -219,12 +219,18 @@ def _run_on_client(job: TileJob, todo: Sequence[Tile], cache: TileCache, progres
             by_key[future.key] = tile
             futures.append(future)
         finished = progress.done
-        for future in as_completed(futures):
-            tile = by_key[future.key]
-            if future.status != "finished":
-                exc = future.exception()
-                for other in futures:
-                    other.cancel()
-                raise tile_failure(job, tile, exc, cache, finished) from None
-            finished += 1
-            progress.advance()
+        try:
+            for future in as_completed(futures):
+                tile = by_key[future.key]
+                if future.status != "finished":
+                    exc = future.exception()
+                    client.cancel(futures)
+                    raise tile_failure(job, tile, exc, cache, finished) from None
+                finished += 1
+                progress.advance()
+        except KeyboardInterrupt:
+            # Ctrl-C / SIGTERM: a shared scheduler must not go on with this run's queued
+            # tiles (the ones running finish and land in the cache, written atomically)
+            with contextlib.suppress(Exception):
+                client.cancel(futures)
+            raise

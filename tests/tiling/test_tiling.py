@@ -545,3 +545,74 @@ def test_interrupting_two_dask_workers_gives_one_line_and_exit_130(pair, tmp_pat
     assert result.exit_code == 0, result.output
     assert f"{cached} of" in result.output and "tiles found" in result.output, result.output
     assert out.exists() and not tiling.work_folder(out).exists()
+
+
+CLUSTER_SCRIPT = """
+import sys, time
+from distributed import LocalCluster
+
+if __name__ == "__main__":
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, memory_limit=0,
+                      dashboard_address=":0") as cluster:
+        print(cluster.scheduler_address, flush=True)
+        while True:
+            time.sleep(1)
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_interrupting_a_run_on_an_external_scheduler(pair, tmp_path, signame):
+    """Issue 31: Ctrl-C / SIGTERM to a tiled run submitted to a running scheduler (another
+    process, as in a batch job): exit 130, one line, no Dask traceback or warning, no
+    output; the scheduler and its workers go on serving; the rerun on the same scheduler
+    resumes from the cached tiles to the in-process tiled result, byte for byte."""
+    import signal
+    import time
+
+    folder, _ = pair
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    script = tmp_path / "cluster.py"
+    script.write_text(CLUSTER_SCRIPT)
+    cluster = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE,
+                               stderr=subprocess.DEVNULL, text=True, env=env,
+                               start_new_session=True)
+    try:
+        address = cluster.stdout.readline().strip()
+        assert address.startswith("tcp://"), address
+        out = tmp_path / "d.tif"
+        argv = [sys.executable, "-m", "demtool", "sgm", str(folder / "left.tif"),
+                str(folder / "right.tif"), "--out", str(out), *SGM, "--tile-size", "48",
+                "--scheduler", address]
+        process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                   text=True, env=env, start_new_session=True)
+        deadline = time.time() + 240
+        while time.time() < deadline and process.poll() is None and not list(
+                tiling.work_folder(out).glob("*/tile_*.npy")):
+            time.sleep(0.2)
+        assert process.poll() is None, process.communicate()[0]
+        sent = time.time()
+        os.killpg(process.pid, getattr(signal, signame))
+        output, _ = process.communicate(timeout=120)
+        assert process.returncode == 130, output
+        assert time.time() - sent < 30, output
+        assert "Traceback" not in output and "distributed" not in output.lower(), output
+        errors = [line for line in output.splitlines() if line.startswith("Error:")]
+        assert errors == ["Error: demtool sgm: interrupted; no output written"], output
+        assert not out.exists() and not Path(f"{out}.json").exists()
+        assert cluster.poll() is None
+        cached = len(list(tiling.work_folder(out).glob("*/tile_*.npy")))
+        result = CliRunner().invoke(cli, ["sgm", str(folder / "left.tif"),
+                                          str(folder / "right.tif"), "--out", str(out), *SGM,
+                                          "--tile-size", "48", "--scheduler", address])
+        assert result.exit_code == 0, result.output
+        assert f"{cached} of" in result.output and "tiles found" in result.output, result.output
+        reference = tmp_path / "in_process.tif"
+        assert sgm(folder, reference, "--tile-size", "48").exit_code == 0
+        np.testing.assert_array_equal(dio.read_raster(out).data,
+                                      dio.read_raster(reference).data)
+        assert not tiling.work_folder(out).exists()
+    finally:
+        os.killpg(cluster.pid, signal.SIGTERM)
+        cluster.wait(timeout=60)
+        cluster.stdout.close()

@@ -287,7 +287,9 @@ def center_geometry(model: SensorModel, body: Body | None) -> dict[str, Any]:
     else:
         east, north, _ = enu_frame(out["center_lon_deg"], out["center_lat_deg"])
         out["subsolar_lon_deg"], out["subsolar_lat_deg"] = _lonlat(sun)
-    out["sun_azimuth_deg"] = float(np.degrees(np.arctan2(to_sun @ east, to_sun @ north))
+    # rounded to 1e-9° before the modulo: a sun due north is 0°, not 359.9999999999
+    out["sun_azimuth_deg"] = float(round(float(np.degrees(np.arctan2(to_sun @ east,
+                                                                     to_sun @ north))), 9)
                                    % 360.0)
     out["sun_elevation_deg"] = 90.0 - out["incidence_deg"]
     return out

@@ -43,7 +43,8 @@ later stages (dem --mapprojected, refine) can undo the projection.""")
 @options.parameter_options(MapprojectParams)
 @click.option("--bounds", type=(option_types.FLOAT,) * 4, default=None, callback=_bounds,
               metavar="LON_MIN LAT_MIN LON_MAX LAT_MAX",
-              help="Area to cover, degrees (default: the image's footprint).")
+              help="Area to cover, degrees, in −180…180 or 0…360 (LON_MAX < LON_MIN: a box "
+                   "across the antimeridian; default: the image's footprint).")
 @click.pass_context
 def command(ctx: click.Context, image: str, sensor: str, dem: str | None, grid_like: str | None,
             out: str, angles_out: str | None, **values: Any) -> None:

@@ -17,6 +17,7 @@ from numba import njit, prange
 
 from demtool.errors import ProcessingError
 from demtool.logs import get_logger
+from demtool.maps.frames import wrap_longitude
 
 __all__ = [
     "Grid",
@@ -416,12 +417,6 @@ def _lon_centre(grid: Grid) -> float:
     return float(t.a * 0.5 * cols + t.b * 0.5 * rows + t.c)
 
 
-def wrap_lon(lon, centre: float):
-    """Longitudes (degrees) moved by multiples of 360° into ``centre ± 180``: the one rule
-    by which grids in −180…180, in 0…360 and across the antimeridian meet."""
-    return (np.asarray(lon, dtype=np.float64) - centre + 180.0) % 360.0 - 180.0 + centre
-
-
 def _check_overlap(src: Grid, dst: Grid) -> None:
     if src.crs is not None and dst.crs is not None and src.crs != dst.crs:
         _check_same_body(src, dst)
@@ -435,7 +430,7 @@ def _check_overlap(src: Grid, dst: Grid) -> None:
         if sx1 < sx0:  # transform_bounds across the antimeridian: xmin > xmax
             sx1 += 360.0
         middle = 0.5 * (sx0 + sx1)  # the same ground written 360° apart overlaps
-        shift = float(wrap_lon(middle, 0.5 * (dx0 + dx1))) - middle
+        shift = float(wrap_longitude(middle, 0.5 * (dx0 + dx1))) - middle
         sx0, sx1 = sx0 + shift, sx1 + shift
     if not (sx0 < dx1 and dx0 < sx1 and sy0 < dy1 and dy0 < sy1):
         def text(bounds):
@@ -485,13 +480,13 @@ def source_pixels(src: Grid, dst: Grid, window: tuple[int, int, int, int]
         x, y = transformer.transform(t.a * cc + t.b * rr + t.c, t.d * cc + t.e * rr + t.f)
         x, y = np.asarray(x), np.asarray(y)
         if src.is_geographic:  # PROJ answers −180…180; the source may be 0…360
-            x = wrap_lon(x, _lon_centre(src))
+            x = wrap_longitude(x, _lon_centre(src))
         inverse = ~src.transform
         return (inverse.d * x + inverse.e * y + inverse.f - 0.5,
                 inverse.a * x + inverse.b * y + inverse.c - 0.5)
     if src.is_geographic and dst.is_geographic:  # one CRS, longitudes maybe 360° apart
         t, inverse = dst.transform, ~src.transform
-        x = wrap_lon(t.a * cc + t.b * rr + t.c, _lon_centre(src))
+        x = wrap_longitude(t.a * cc + t.b * rr + t.c, _lon_centre(src))
         y = t.d * cc + t.e * rr + t.f
         return (inverse.d * x + inverse.e * y + inverse.f - 0.5,
                 inverse.a * x + inverse.b * y + inverse.c - 0.5)

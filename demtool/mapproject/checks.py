@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from demtool.errors import ParameterError
+from demtool.maps.frames import longitude_span, wrap_longitude
 
 #: map cells per image pixel beyond which a grid is refused: a GSD 100 × finer than the
 #: image's own (nothing to gain, hours and terabytes to lose)
@@ -17,11 +18,6 @@ MAX_CELLS_PER_PIXEL = 1e4
 #: bytes per map cell the in-process loop holds at once is bounded by its tiles; the file
 #: holds 4 bytes per cell and band
 FILE_BYTES_PER_CELL = 4
-
-
-def wrap_longitude(lon, centre: float) -> np.ndarray:
-    """Longitudes (degrees) shifted by multiples of 360° into ``centre ± 180``."""
-    return (np.asarray(lon, dtype=np.float64) - centre + 180.0) % 360.0 - 180.0 + centre
 
 
 def footprint_box(lon, lat) -> tuple[float, float, float, float]:
@@ -38,6 +34,7 @@ def footprint_box(lon, lat) -> tuple[float, float, float, float]:
 def bounds_overlap(bounds, box) -> bool:
     """Whether ``--bounds`` and a footprint box (both lon/lat degrees) share ground."""
     lon0, lat0, lon1, lat1 = (float(v) for v in bounds)
+    lon0, lon1 = longitude_span(lon0, lon1)
     f_lon0, f_lat0, f_lon1, f_lat1 = box
     if lat1 < f_lat0 or lat0 > f_lat1:
         return False

@@ -181,12 +181,13 @@ def ortho_grid(sensor: Any, body: Any, *, height: float = 0.0, gsd: float | None
     ValueError
         When the footprint misses the body.
     """
-    from demtool.maps import grid_from_lonlat, xyz_to_lonlat_height
+    from demtool.maps import grid_from_lonlat, longitude_span, xyz_to_lonlat_height
 
     if gsd is None:
         gsd = native_gsd(sensor, body.radius, height)
     if bounds is not None:
         lon_min, lat_min, lon_max, lat_max = (float(v) for v in bounds)
+        lon_min, lon_max = longitude_span(lon_min, lon_max)
         lon = np.array([lon_min, lon_max, lon_max, lon_min])
         lat = np.array([lat_min, lat_min, lat_max, lat_max])
     else:

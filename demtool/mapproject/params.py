@@ -28,8 +28,9 @@ class MapprojectParams(Parameters):
                                 "stereographic poleward of 70 degrees, else "
                                 "equirectangular).", choices=PROJECTIONS, what="projection")
     bounds: tuple[float, float, float, float] | None = parameter(
-        None, "Area to cover, degrees: LON_MIN LAT_MIN LON_MAX LAT_MAX (default: the "
-        "image's footprint).", metavar="LON_MIN LAT_MIN LON_MAX LAT_MAX", cli=False)
+        None, "Area to cover, degrees: LON_MIN LAT_MIN LON_MAX LAT_MAX, in −180…180 or "
+        "0…360 (LON_MAX < LON_MIN: across the antimeridian; default: the image's "
+        "footprint).", metavar="LON_MIN LAT_MIN LON_MAX LAT_MAX", cli=False)
     tile_size: int = parameter(1024, "Map cells per tile side (memory: about 60 bytes a "
                                "cell), in this process or on the tile engine.", minimum=16)
     step: int = parameter(CORE["step"], "First lattice spacing of the exact projection, "
@@ -62,8 +63,12 @@ def bounds_problem(bounds) -> str | None:
         return None
     if len(bounds) != 4:
         return f"must be 4 numbers, got {len(bounds)}"
+    from demtool.maps.frames import longitude_span
+
     lon0, lat0, lon1, lat1 = bounds
-    if not (lon0 < lon1 and lat0 < lat1 and -90 <= lat0 and lat1 <= 90):
-        return ("must be LON_MIN LAT_MIN LON_MAX LAT_MAX with MIN < MAX and latitudes within "
-                f"+-90, got {' '.join(f'{v:g}' for v in bounds)}")
+    lon0, lon1 = longitude_span(lon0, lon1)  # LON_MAX < LON_MIN: across the antimeridian
+    if not (lon0 < lon1 <= lon0 + 360.0 and lat0 < lat1 and -90 <= lat0 and lat1 <= 90):
+        return ("must be LON_MIN LAT_MIN LON_MAX LAT_MAX with LAT_MIN < LAT_MAX within +-90 "
+                "and LON_MIN != LON_MAX (LON_MAX < LON_MIN: a box across the antimeridian), "
+                f"got {' '.join(f'{v:g}' for v in bounds)}")
     return None

@@ -32,6 +32,7 @@ from demtool.maps.bodies import (
 from demtool.maps.frames import (
     enu_frame,
     local_radius,
+    longitude_span,
     lonlat_height_to_xyz,
     unit_vector,
     wrap_longitude,
@@ -87,6 +88,7 @@ __all__ = [
     "lonlat_height_to_xyz",
     "lonlat_to_map",
     "make_projection",
+    "longitude_span",
     "map_to_lonlat",
     "map_to_xyz",
     "metric_grid_for",

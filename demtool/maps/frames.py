@@ -24,15 +24,35 @@ __all__ = [
     "local_radius",
     "lonlat_height_to_xyz",
     "unit_vector",
+    "longitude_span",
     "wrap_longitude",
     "xyz_to_lonlat_height",
 ]
 
 
 def wrap_longitude(lon_deg: np.ndarray | float, center: float = 0.0) -> np.ndarray:
-    """Longitudes wrapped into [center − 180, center + 180), degrees."""
+    """Longitudes wrapped into [center − 180, center + 180), degrees.
+
+    The one longitude rule of demtool: grids and points in −180…180, in 0…360 and across
+    the antimeridian meet by moving longitudes by multiples of 360° next to a centre
+    (``compare``'s overlap and resampling, ``mapproject``'s bounds and DEM lookups, the
+    body-map DEM's projection centre).
+    """
     lon = np.asarray(lon_deg, dtype=np.float64)
     return (lon - center + 180.0) % 360.0 - 180.0 + center
+
+
+def longitude_span(lon_min: float, lon_max: float) -> tuple[float, float]:
+    """A longitude interval, east from ``lon_min`` to ``lon_max``, degrees.
+
+    ``lon_max < lon_min`` names a box across the antimeridian (as GDAL's and PROJ's
+    bounding boxes do: 179.9 … −179.9 is 0.2° wide), returned with ``lon_max + 360`` so
+    that ``lon_min < lon_max`` always.
+    """
+    lon_min, lon_max = float(lon_min), float(lon_max)
+    if lon_max < lon_min:
+        lon_max += 360.0
+    return lon_min, lon_max
 
 
 def unit_vector(lon_deg: np.ndarray | float, lat_deg: np.ndarray | float) -> np.ndarray:

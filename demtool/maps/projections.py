@@ -27,7 +27,12 @@ from typing import Any
 import numpy as np
 
 from demtool.maps.bodies import Body, to_pyproj_crs
-from demtool.maps.frames import lonlat_height_to_xyz, unit_vector, xyz_to_lonlat_height
+from demtool.maps.frames import (
+    lonlat_height_to_xyz,
+    unit_vector,
+    wrap_longitude,
+    xyz_to_lonlat_height,
+)
 
 __all__ = [
     "POLAR_LATITUDE",
@@ -100,6 +105,9 @@ def projection_on(geodetic_crs: Any, kind: str, center_lon: float, center_lat: f
     base = to_pyproj_crs(geodetic_crs)
     base = base.geodetic_crs or base
     label = base.name.split(" / ")[0]
+    # one centre for one meridian: 180 and −180 (or 190 and −170) make one CRS, so grids of
+    # the same ground given in 0…360 and in −180…180 compare as the same grid
+    center_lon = float(wrap_longitude(center_lon))
     if kind == "equirectangular":
         conversion = EquidistantCylindricalConversion(
             latitude_first_parallel=float(center_lat), latitude_natural_origin=0.0,

@@ -59,6 +59,7 @@ def test_memory_budget_from_the_environment(monkeypatch):
     ((-181.0, -1.0, -179.0, 1.0), True),    # the same ground written 360° lower
     ((170.0, -1.0, 178.0, 1.0), False),
     ((179.5, 2.0, 180.5, 3.0), False),      # right longitudes, other latitudes
+    ((179.9, -1.0, -179.9, 1.0), True),     # a box across 180 as LON_MAX < LON_MIN
     ((0.0, -90.0, 360.0, 90.0), True)])
 def test_bounds_against_a_footprint_across_the_antimeridian(bounds, overlap):
     box = footprint_box([179.8, -179.8, -179.8, 179.8], [-0.5, -0.5, 0.5, 0.5])
@@ -77,7 +78,7 @@ def frame_files(tmp_path_factory):
     (["--bounds", "100", "10", "101", "11"], 1,
      ["--bounds: lon 100…101, lat 10…11 does not overlap the image's footprint"]),
     (["--bounds", "10", "-100", "11", "10"], 2,
-     ["'--bounds'", "latitudes within +-90"])])
+     ["'--bounds'", "LAT_MIN < LAT_MAX within +-90"])])
 def test_mapproject_grid_checked_first(frame_files, tmp_path, args, status, parts):
     out = tmp_path / "ortho.tif"
     result = _invoke("mapproject", frame_files["left"], "--sensor", frame_files["left_isd"],

@@ -93,8 +93,10 @@ class SGMResult:
         left–right check and the filters), 2 filled occlusion, 3 filled mismatch, 4
         matched at a bound of the disparity range.
     fractions : dict of str to float
-        The fraction of the valid left pixels in each class (``matched`` …), and
-        ``cost_used``/``cost_reason`` when "auto" chose.
+        The fraction of the valid left pixels in each class (``matched`` …) and of
+        those whose disparity was moved back onto an image edge (``edge_moved``);
+        ``cost_used``/``cost_reason`` and the guide image's ``noise_sigma`` (grey levels
+        of its 0 … 255 stretch) when "auto" chose.
     """
 
     disparity: np.ndarray
@@ -382,6 +384,8 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
                                         occluded & ~np.isfinite(disparity), min_step=edge)
             occluded = occluded | (moved & ~np.isfinite(snapped))
             disparity = snapped
+            fractions["edge_moved"] = round(float(np.count_nonzero(moved & left_valid))
+                                            / max(int(left_valid.sum()), 1), 4)
     disparity, confidence, classes = _fill(disparity, confidence, occluded,
                                            fill_mask=left_valid if fill else None,
                                            right_valid=right_valid, timer=timer)

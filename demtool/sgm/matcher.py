@@ -36,6 +36,13 @@ from demtool.sgm.noise import (  # noqa: F401  (re-exported: part of this module
     noise_sigma,
     p2_kappa,
 )
+from demtool.sgm.pyramid import (  # noqa: F401  (mi_levels: part of this module's API)
+    MI_LEVELS,
+    MIN_LEVEL_SIZE,
+    downsample,
+    mi_levels,
+    upsample_disparity,
+)
 from demtool.sgm.strips import (  # noqa: F401  (plan_strips: part of this module's API)
     PhaseTimer,
     available_cores,
@@ -62,12 +69,9 @@ COST_DEFAULTS: dict[str, CostDefaults] = {
     "mi": CostDefaults(window=3, p1=50, p2=700),
     "ad": CostDefaults(window=5, p1=60, p2=600),
 }
-MI_LEVELS = 128  # most grey levels of the MI histogram (fewer on small images)
-MI_PAIRS_PER_CELL = 8  # the MI histogram has at least this many pixels per cell
 MI_SIGMA = 1.0  # Parzen window, grey levels
 AD_TRUNCATION = 24  # grey levels (of 256)
 UNMATCHED_FRACTION = 0.35  # cost of a match outside/NaN in the right image, of the maximum
-MIN_LEVEL_SIZE = 24  # smallest image side of an HMI level, pixels
 
 
 @dataclass(frozen=True)
@@ -177,35 +181,6 @@ def _matchable(disparity: np.ndarray, right_valid: np.ndarray) -> np.ndarray:
     """NaN where the match x − d (rounded) is outside the right image or invalid there."""
     out = np.empty_like(disparity)
     _unmatchable(disparity, np.ascontiguousarray(right_valid), out)
-    return out
-
-
-def mi_levels(valid_pixels: int, most: int = MI_LEVELS) -> int:
-    """Grey levels of the MI histogram for an image of ``valid_pixels`` pixels.
-
-    A power of two between 16 and ``most`` with about ``MI_PAIRS_PER_CELL`` pixels
-    per histogram cell, so that a small image (or a coarse HMI level) does not
-    over-fit its own pixel pairs: each pixel's pair raises its own cell by 1/n, a
-    bias that favours the current disparity estimate when cells hold few pairs.
-    """
-    wanted = math.sqrt(max(valid_pixels, 1) / MI_PAIRS_PER_CELL)
-    return int(min(most, max(16, 2 ** math.floor(math.log2(max(wanted, 1.0))))))
-
-
-def _downsample(image: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Halve an image by 2×2 block means; a block is valid only if all four pixels are."""
-    height, width = image.shape[0] // 2 * 2, image.shape[1] // 2 * 2
-    blocks = np.where(valid, image, 0.0)[:height, :width].reshape(height // 2, 2, width // 2, 2)
-    block_valid = valid[:height, :width].reshape(height // 2, 2, width // 2, 2).all(axis=(1, 3))
-    return blocks.mean(axis=(1, 3)).astype(np.float32), block_valid
-
-
-def _upsample_disparity(disparity: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Double a coarse disparity map (values and size, nearest neighbour) to ``shape``."""
-    fine = np.repeat(np.repeat(disparity * 2.0, 2, axis=0), 2, axis=1)
-    out = np.full(shape, np.nan, dtype=np.float32)
-    rows, cols = min(shape[0], fine.shape[0]), min(shape[1], fine.shape[1])
-    out[:rows, :cols] = fine[:rows, :cols]
     return out
 
 
@@ -456,9 +431,48 @@ def _auto(hmi, *, window, given, cost_window, match, filters, fractions):
         log.info("cost auto: no pixel census (%s)", why_not)
         fractions["cost_reason"] = why_not
     other = _filter(*_census_fallback(cost_window, *given, match), **filters)
+    gradient = _filter(*_gradient_pass(cost_window, given, match), **filters)
+    reason = choice.prefer_gradient(gradient[0], hmi[0], other[0], choice.full_range(
+        valid, match["min_disparity"], match["num_disparities"]))
+    if reason:
+        log.info("cost auto: horizontal-gradient difference instead of HMI and census (%s)",
+                 reason)
+        fractions.update(cost_used="gradient", cost_reason=reason)
+        gradient_window = COST_DEFAULTS["ad"].window if cost_window is None else cost_window
+        return gradient, _support_radius("ad", int(gradient_window), census_window)
+    return _windowed_choice(hmi, other, window=window, cost_window=cost_window,
+                            match=match, fractions=fractions)
+
+
+def _gradient_pass(cost_window, given, match):
+    """Absolute difference of the images' horizontal Sobel gradients, with the "ad"
+    defaults (OpenCV StereoSGBM's prefilter; an offset cancels, a gain scales)."""
+    from scipy import ndimage  # only here: its import costs about a second
+
+    images = {}
+    for side in ("left", "right"):
+        valid = match[f"{side}_valid"]
+        filled = costs.fill_invalid(match[side], valid).astype(np.float64)
+        images[side] = np.where(valid, ndimage.sobel(filled, axis=1),
+                                np.nan).astype(np.float32)
+    defaults = COST_DEFAULTS["ad"]
+    p1, p2 = (d if g is None else g for g, d in zip(given, (defaults.p1, defaults.p2),
+                                                     strict=True))
+    guide = costs.quantize(images["left"], match["left_valid"], 256)
+    common = dict(match["common"], p1=p1, p2=max(p1, p2))
+    if common["p2_kappa"]:
+        common["p2_kappa"] = p2_kappa(guide, match["left_valid"])
+    window = defaults.window if cost_window is None else int(cost_window)
+    return _match_cost("ad", window=window, **dict(match, common=common, guide=guide,
+                                                    **images))
+
+
+def _windowed_choice(hmi, other, *, window, cost_window, match, fractions):
+    """HMI, census summed over a window, or the HMI pixels census confirms."""
+    valid, census_window = match["left_valid"], match["census_window"]
     hmi_radius = _support_radius("hmi", window, census_window)
     reason = choice.prefer_census(hmi[0], other[0], valid, match["min_disparity"],
-                           match["num_disparities"])
+                                  match["num_disparities"])
     fractions["cost_used"] = "census" if reason else "hmi"
     if reason:
         log.info("cost auto: census instead of HMI (%s)", reason)
@@ -528,8 +542,8 @@ def _mutual_information_sgm(left, right, left_valid, right_valid, guide, *, cost
             _, image_l, image_r, valid_l, valid_r, _ = pyramid[0]
             if min(image_l.shape) // 2 < MIN_LEVEL_SIZE:
                 break
-            image_l, valid_l = _downsample(image_l, valid_l)
-            image_r, valid_r = _downsample(image_r, valid_r)
+            image_l, valid_l = downsample(image_l, valid_l)
+            image_r, valid_r = downsample(image_r, valid_r)
             if not (valid_l.any() and valid_r.any()):
                 break
             scale *= 2
@@ -554,7 +568,7 @@ def _mutual_information_sgm(left, right, left_valid, right_valid, guide, *, cost
                 else:
                     estimate = np.full(image_l.shape, float(np.clip(0, lo, hi)), dtype=np.float32)
             else:
-                estimate = _upsample_disparity(previous, image_l.shape)
+                estimate = upsample_disparity(previous, image_l.shape)
         iterations = mi_iterations if (cost == "mi" or index == 0) else 1
         last_level = scale == 1
         for iteration in range(iterations):

@@ -37,6 +37,11 @@ def test_auto_replaces_hmi_by_census_on_a_weak_texture_plank(caplog, monkeypatch
     bad_pixel = error_rates(pixel.disparity, truth, scored)["bad2"]
     assert bad_pixel < 0.5 * bad_hmi and bad_pixel < 0.15, (bad_hmi, bad_pixel)
     monkeypatch.setattr(rules, "FINE_NOISE_MAX", -1.0)  # as if the image were noisier
+    gradient = sgm(left, right, min_disparity=0, num_disparities=48, workers=1)
+    assert gradient.fractions["cost_used"] == "gradient"  # the most consistent here
+    bad_gradient = error_rates(gradient.disparity, truth, scored)["bad2"]
+    assert bad_gradient < 0.5 * bad_hmi and bad_gradient < 0.15, (bad_hmi, bad_gradient)
+    monkeypatch.setattr(rules, "prefer_gradient", lambda *args: "")  # without it: census
     with caplog.at_level(logging.INFO, logger="demtool"):
         windowed = sgm(left, right, min_disparity=0, num_disparities=48, workers=1)
     assert windowed.parameters["cost"] == "auto"

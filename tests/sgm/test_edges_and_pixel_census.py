@@ -6,8 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 import demtool.sgm.matcher as matcher
+from demtool.sgm import auto as rules
 from demtool.sgm import sgm
-from demtool.sgm.auto import blend, prefer_fine
+from demtool.sgm.auto import blend, full_range, prefer_fine, prefer_gradient
 from demtool.sgm.edges import snap_edges
 from tests.helpers.sgm import error_rates, occlusion_pair, smooth_disparity_pair
 
@@ -101,3 +102,31 @@ def test_auto_uses_the_pixel_census_on_a_clean_textured_pair():
     scored = np.zeros(truth.shape, dtype=bool)
     scored[4:-4, 20:-4] = True
     assert error_rates(auto.disparity, truth, scored)["bad2"] < 0.01
+
+
+def test_prefer_gradient_only_when_more_consistent_than_both():
+    valid = np.ones((10, 10), dtype=bool)
+    good = np.full((10, 10), 5.0, dtype=np.float32)
+    holes = good.copy()
+    holes[:3] = np.nan
+    assert "100.0 %" in prefer_gradient(good, holes, holes, valid)
+    assert prefer_gradient(good, good, holes, valid) == ""  # not more than HMI's
+    assert prefer_gradient(holes, good, holes, valid) == ""
+
+
+def test_full_range_leaves_out_the_columns_where_the_range_leaves_the_image():
+    valid = np.ones((2, 10), dtype=bool)
+    assert np.flatnonzero(full_range(valid, 0, 4)[0]).tolist() == list(range(3, 10))
+    assert np.flatnonzero(full_range(valid, -2, 4)[0]).tolist() == list(range(1, 8))
+
+
+def test_the_gradient_cost_ignores_gain_and_offset(monkeypatch):
+    left, right, truth = smooth_disparity_pair(offset=6.0, gain=1.3, bias=50.0)
+    monkeypatch.setattr(rules, "FINE_NOISE_MAX", -1.0)  # the noisy branch
+    monkeypatch.setattr(rules, "prefer_gradient", lambda *args: "as if more consistent")
+    auto = sgm(left, right, min_disparity=0, num_disparities=16, workers=1)
+    assert auto.fractions["cost_used"] == "gradient"
+    assert auto.fractions["cost_reason"] == "as if more consistent"
+    scored = np.zeros(truth.shape, dtype=bool)
+    scored[4:-4, 20:-4] = True
+    assert error_rates(auto.disparity, truth, scored)["bad2"] < 0.02

@@ -409,8 +409,8 @@ def _auto(hmi, *, window, given, cost_window, match, filters, fractions):
     """The choices of cost "auto" after HMI (:mod:`demtool.sgm.auto`).
 
     ``hmi``: HMI's filtered (disparity, confidence, occluded), ``window`` its cost
-    window.  Returns the chosen
-    triple and the support radius of its cost; the choice goes to ``fractions``.
+    window.  Returns the chosen triple and the support radius of its cost (for
+    :func:`demtool.sgm.edges.snap_edges`); the choice goes to ``fractions``.
     """
     valid, guide = match["left_valid"], match["guide"]
     census_window = match["census_window"]

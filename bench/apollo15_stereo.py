@@ -5,7 +5,11 @@ and ``dem`` (triangulation through the models onto the Moon's map) on
 ``../shared/data/sensors/apollo15_cubes/AS15-M-0297_crop.cub`` / ``0298``, and prints
 the vertical residual under the SPICE, the fitted pointing correction, the median ray
 gap, the share of the stereo overlap measured (target ≥ 50 %) and the DEM's height
-range above the 1737.4 km sphere.  Skips cleanly when the data are absent.
+range above the 1737.4 km sphere; then ``sgm`` again with ``--cost census`` on the same
+rectified pair, and what each matched (issue 26: the default must match wherever census
+does): the cost "auto" chose, the left–right-consistent fraction of the valid canvas,
+the filled fractions and the pixels without a disparity.  Skips cleanly when the data
+are absent.
 
     python bench/apollo15_stereo.py [--keep DIR]
 """
@@ -47,7 +51,23 @@ def run(folder: Path) -> dict:
                   rectify_path=rect / "rectify.npz", error_path=folder / "ray_gap.tif",
                   mask_path=folder / "filled.tif")
     times["dem"] = time.perf_counter() - start
-    return {"rectify": rectify, "dem": dem, "seconds": times}
+    run_sgm(rect / "left_rect.tif", rect / "right_rect.tif", folder / "disparity_census.tif",
+            SgmParams(cost="census"), rectify=rect / "rectify.npz")
+    matched = {label: json.loads((folder / f"{name}.tif.json").read_text())["summary"]
+               for label, name in (("default", "disparity"), ("census", "disparity_census"))}
+    return {"rectify": rectify, "dem": dem, "seconds": times, "sgm": matched}
+
+
+def print_matched(sgm: dict) -> None:
+    """What the default and ``--cost census`` matched (fractions of the valid canvas)."""
+    print("\nsgm on the rectified pair: fractions of the valid left pixels")
+    print(f"  {'cost':<8} {'used':<11} {'LR-consistent':>13} {'filled occ':>10} "
+          f"{'filled mis':>10} {'none':>6}")
+    for label, s in sgm.items():
+        print(f"  {label:<8} {s.get('cost_used', label):<11} "
+              f"{100 * s['lr_consistent_fraction']:12.1f}% "
+              f"{100 * s['filled_occlusion_fraction']:9.1f}% "
+              f"{100 * s['filled_mismatch_fraction']:9.1f}% {100 * s['invalid_fraction']:5.1f}%")
 
 
 def main() -> int:
@@ -95,8 +115,14 @@ def main() -> int:
     print("Apollo 15 Metric AS15-M-0297 / 0298 (cubes, SPICE attached), calibrated route")
     for name, value, target in rows:
         print(f"{name:<{width}}  {value:<52} {target}")
+    print_matched(result["sgm"])
     ok = d["measured_fraction_of_overlap"] >= 0.5
+    default, census = result["sgm"]["default"], result["sgm"]["census"]
+    matches = default["lr_consistent_fraction"] >= census["lr_consistent_fraction"] - 0.02
     print("PASS" if ok else "FAIL: less than half of the overlap measured")
+    print("PASS: the default matches what census matches (within 2 points)" if matches
+          else "FAIL: the default matches markedly less than --cost census")
+    ok = ok and matches
     return 0 if ok else 1
 
 

@@ -16,9 +16,11 @@ from demtool.stages import STAGES
 Reads the rectified pair LEFT_RECT and RIGHT_RECT (as written by demtool rectify; NaN
 outside the warped images never matches) and writes OUT, the float32 disparity in the
 left rectified image's frame (x_right = x_left - d, NaN = invalid), and OUT.json.  The
-default cost "auto" is hierarchical mutual information (HMI, 1/16 → 1), replaced by census
-where HMI fails on weak texture; the log and OUT.json say which pixels passed the
-left-right check and which were filled.
+default cost "auto" starts with hierarchical mutual information (HMI, 1/16 → 1); on images
+of little noise it uses census compared pixel by pixel, averaged with HMI where the two
+agree; on noisy or weakly textured ones census summed over a window or the difference of
+horizontal gradients where HMI fails; the log and OUT.json say which cost, which pixels
+passed the left-right check and which were filled.
 
 Two orthoimages of demtool mapproject on one grid (map-projected stereo, line
 scanners), or two ISIS cam2map cubes of LRO NAC, CTX or HiRISE on one grid, are matched

@@ -24,14 +24,24 @@ from numba import njit
 
 from demtool.errors import InputError, ParameterError
 from demtool.logs import get_logger
+from demtool.sgm import auto as choice
 from demtool.sgm import cost as costs
+from demtool.sgm.auto import CostDefaults
 from demtool.sgm.disparity import OCCLUDED, median_filter, remove_speckles
+from demtool.sgm.edges import snap_edges
 from demtool.sgm.fill import MATCHED, class_fractions, classify, fill_classified
 from demtool.sgm.noise import (  # noqa: F401  (re-exported: part of this module's API)
     P2_KAPPA,
     P2_KAPPA_NOISE,
     noise_sigma,
     p2_kappa,
+)
+from demtool.sgm.pyramid import (  # noqa: F401  (mi_levels: part of this module's API)
+    MI_LEVELS,
+    MIN_LEVEL_SIZE,
+    downsample,
+    mi_levels,
+    upsample_disparity,
 )
 from demtool.sgm.strips import (  # noqa: F401  (plan_strips: part of this module's API)
     PhaseTimer,
@@ -44,15 +54,6 @@ log = get_logger(__name__)
 
 COSTS = ("auto", "hmi", "mi", "census", "ad")
 CENSUS_WINDOWS = {"5x5": (5, 5), "9x7": (7, 9)}  # (rows, columns): 9 wide, 7 high
-
-
-@dataclass(frozen=True)
-class CostDefaults:
-    """Tuned defaults of one cost: window side and penalties (cost units)."""
-
-    window: int
-    p1: int
-    p2: int
 
 
 # Tuned with bench/stereo_accuracy.py (the synthetic scene, the weak-texture "hard" pair
@@ -68,27 +69,9 @@ COST_DEFAULTS: dict[str, CostDefaults] = {
     "mi": CostDefaults(window=3, p1=50, p2=700),
     "ad": CostDefaults(window=5, p1=60, p2=600),
 }
-MI_LEVELS = 128  # most grey levels of the MI histogram (fewer on small images)
-MI_PAIRS_PER_CELL = 8  # the MI histogram has at least this many pixels per cell
 MI_SIGMA = 1.0  # Parzen window, grey levels
 AD_TRUNCATION = 24  # grey levels (of 256)
 UNMATCHED_FRACTION = 0.35  # cost of a match outside/NaN in the right image, of the maximum
-MIN_LEVEL_SIZE = 24  # smallest image side of an HMI level, pixels
-# "auto": census replaces HMI where its left–right-consistent fraction is higher by more
-# than this (chosen by leave-one-out over the five Middlebury pairs, the six weak-texture
-# and five plank pairs of bench/, range 0 … ndisp: 0.060–0.065 in 14 of 16 folds; LOO mean
-# bad-2 4.95 % against about 6.5 % for the better fixed cost, whose LOO fold on the plank
-# where HMI fails picks HMI, issue 26), or where HMI leaves this much more of the image at
-# a range bound than census does
-AUTO_LR_MARGIN = 0.06
-AUTO_BOUND_MARGIN = 0.05
-# "auto" where HMI is kept: when census agrees (within 1 px) on at least this share of
-# HMI's left–right-consistent pixels, only the HMI disparities both costs agree on are
-# kept and the rest is filled (bad-2 mean over the 16 pairs, weak ones at half size,
-# 4.22 % against 4.35 % with HMI alone there, census 4.74 %); below it (one pair, plank5:
-# 74 %, census failing there) HMI alone.  Chosen on the same 16 pairs (any value in
-# 0.74 … 0.84 separates them alike; not leave-one-out: plank5 is the only pair below).
-AUTO_AGREEMENT = 0.80
 
 
 @dataclass(frozen=True)
@@ -114,8 +97,10 @@ class SGMResult:
         left–right check and the filters), 2 filled occlusion, 3 filled mismatch, 4
         matched at a bound of the disparity range.
     fractions : dict of str to float
-        The fraction of the valid left pixels in each class (``matched`` …), and
-        ``cost_used``/``cost_reason`` when "auto" chose.
+        The fraction of the valid left pixels in each class (``matched`` …) and of
+        those whose disparity was moved back onto an image edge (``edge_moved``);
+        ``cost_used``/``cost_reason`` and the guide image's ``noise_sigma`` (grey levels
+        of its 0 … 255 stretch) when "auto" chose.
     """
 
     disparity: np.ndarray
@@ -199,35 +184,6 @@ def _matchable(disparity: np.ndarray, right_valid: np.ndarray) -> np.ndarray:
     return out
 
 
-def mi_levels(valid_pixels: int, most: int = MI_LEVELS) -> int:
-    """Grey levels of the MI histogram for an image of ``valid_pixels`` pixels.
-
-    A power of two between 16 and ``most`` with about ``MI_PAIRS_PER_CELL`` pixels
-    per histogram cell, so that a small image (or a coarse HMI level) does not
-    over-fit its own pixel pairs: each pixel's pair raises its own cell by 1/n, a
-    bias that favours the current disparity estimate when cells hold few pairs.
-    """
-    wanted = math.sqrt(max(valid_pixels, 1) / MI_PAIRS_PER_CELL)
-    return int(min(most, max(16, 2 ** math.floor(math.log2(max(wanted, 1.0))))))
-
-
-def _downsample(image: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Halve an image by 2×2 block means; a block is valid only if all four pixels are."""
-    height, width = image.shape[0] // 2 * 2, image.shape[1] // 2 * 2
-    blocks = np.where(valid, image, 0.0)[:height, :width].reshape(height // 2, 2, width // 2, 2)
-    block_valid = valid[:height, :width].reshape(height // 2, 2, width // 2, 2).all(axis=(1, 3))
-    return blocks.mean(axis=(1, 3)).astype(np.float32), block_valid
-
-
-def _upsample_disparity(disparity: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Double a coarse disparity map (values and size, nearest neighbour) to ``shape``."""
-    fine = np.repeat(np.repeat(disparity * 2.0, 2, axis=0), 2, axis=1)
-    out = np.full(shape, np.nan, dtype=np.float32)
-    rows, cols = min(shape[0], fine.shape[0]), min(shape[1], fine.shape[1])
-    out[:rows, :cols] = fine[:rows, :cols]
-    return out
-
-
 def _check_inputs(left: np.ndarray, right: np.ndarray, min_disparity: int,
                   num_disparities: int) -> None:
     if left.ndim != 2 or right.ndim != 2:
@@ -267,11 +223,12 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         Search range d = min_disparity .. min_disparity + num_disparities − 1 pixels,
         ``x_right = x_left − d``.
     cost : {"auto", "hmi", "mi", "census", "ad"}
-        "auto" (the default): "hmi", checked against "census" on the same pair; census
-        replaces it where HMI fails on weak texture (:func:`_prefer_census`: census
-        left–right consistent on markedly more pixels, or HMI pinned at a range bound);
-        else, where the two agree on most pixels (:data:`AUTO_AGREEMENT`), only the
-        pixels they agree on are kept ("hmi+census") and the others filled; the choice
+        "auto" (the default): "hmi", then (:mod:`demtool.sgm.auto`) on images of
+        little pixel noise census codes compared pixel by pixel, averaged with HMI
+        where the two agree ("census+hmi"); on noisy or weakly textured images census
+        summed over a window, which replaces HMI where HMI fails (census left–right
+        consistent on markedly more pixels, or HMI pinned at a range bound), or else
+        keeps the HMI pixels it agrees with ("hmi+census", the others filled); the choice
         is logged and returned in ``fractions["cost_used"]``.  Any MI
         cost whose histogram finds no valid pixel pair falls back to census with a
         warning instead of failing.  "hmi": mutual information with the hierarchical
@@ -280,7 +237,8 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         "mi": mutual information iterated ``mi_iterations`` times at full
         resolution from a zero disparity; "census": Hamming distance of census
         codes; "ad": truncated absolute difference.  Every cost is summed over a
-        ``cost_window`` square.
+        ``cost_window`` square.  With ``fill`` and ``lr_check``, depth edges are moved
+        back onto the image's edges (:func:`demtool.sgm.edges.snap_edges`).
     census_window : {"5x5", "9x7"}
         Census window (width × height).
     cost_window : int, optional
@@ -388,29 +346,21 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         disparity, confidence = _census_fallback(cost_window, *given, match)
         first = "census"
     disparity, confidence, occluded = _filter(disparity, confidence, **filters)
+    radius = _support_radius(first, window, census_window)
     if cost == "auto" and first == "hmi":
-        other = _census_fallback(cost_window, *given, match)
-        other = _filter(*other, **filters)
-        reason = _prefer_census(disparity, other[0], left_valid, min_disparity,
-                                num_disparities)
-        fractions["cost_used"] = "census" if reason else "hmi"
-        if reason:
-            log.info("cost auto: census instead of HMI (%s)", reason)
-            fractions["cost_reason"] = reason
-            disparity, confidence, occluded = other
-        else:
-            agreed, share = _agreement(disparity, other[0])
-            if share >= AUTO_AGREEMENT:
-                log.info("cost auto: HMI and census agree on %.1f %% of HMI's matches; "
-                         "keeping those, the rest is filled", 100 * share)
-                fractions["cost_used"] = "hmi+census"
-                disparity = np.where(agreed, disparity, np.float32(np.nan))
-                confidence = np.where(agreed, np.minimum(confidence, other[1]),
-                                      np.float32(np.nan)).astype(np.float32)
-                occluded = occluded | other[2]
-            else:
-                log.info("cost auto: HMI kept (census agrees on only %.1f %% of its "
-                         "matches)", 100 * share)
+        (disparity, confidence, occluded), radius = _auto(
+            (disparity, confidence, occluded), window=window, given=given,
+            cost_window=cost_window,
+            match=match, filters=filters, fractions=fractions)
+    if fill and lr_check:  # foreground fattened across depth edges: back onto the edges
+        with timer.measure("postprocess"):
+            edge = kappa if adaptive_p2 else p2_kappa(guide, left_valid)
+            snapped, moved = snap_edges(disparity, guide, radius,
+                                        occluded & ~np.isfinite(disparity), min_step=edge)
+            occluded = occluded | (moved & ~np.isfinite(snapped))
+            disparity = snapped
+            fractions["edge_moved"] = round(float(np.count_nonzero(moved & left_valid))
+                                            / max(int(left_valid.sum()), 1), 4)
     disparity, confidence, classes = _fill(disparity, confidence, occluded,
                                            fill_mask=left_valid if fill else None,
                                            right_valid=right_valid, timer=timer)
@@ -434,9 +384,10 @@ class _NoMutualInformation(InputError):
     """The MI histogram has no valid pixel pairs (the census fallback takes over)."""
 
 
-def _census_fallback(cost_window, p1, p2, match):
-    """Census matching with its own defaults where the caller gave none."""
-    defaults = COST_DEFAULTS["census"]
+def _census_fallback(cost_window, p1, p2, match, defaults=None):
+    """Census matching with its own defaults (``defaults``, else :data:`COST_DEFAULTS`)
+    where the caller gave none."""
+    defaults = COST_DEFAULTS["census"] if defaults is None else defaults
     common = dict(match["common"], p1=defaults.p1 if p1 is None else p1,
                   p2=defaults.p2 if p2 is None else p2)
     if common["p1"] > common["p2"]:
@@ -445,42 +396,101 @@ def _census_fallback(cost_window, p1, p2, match):
     return _match_cost("census", window=window, **dict(match, common=common))
 
 
-def _bound_fraction(disparity, valid, min_disparity, num_disparities):
-    """Fraction of the valid pixels whose disparity is within 0.5 px of a range bound."""
-    high = min_disparity + num_disparities - 1
-    with np.errstate(invalid="ignore"):
-        at = (disparity < min_disparity + 0.5) | (disparity > high - 0.5)
-    return float(np.count_nonzero(at & valid)) / max(int(valid.sum()), 1)
+def _support_radius(cost: str, window: int, census_window: str) -> int:
+    """Half-width (px, along a row) of the image patch one pixel's cost sees: how far a
+    textured foreground can fatten into its neighbour (:mod:`demtool.sgm.edges`)."""
+    radius = (window - 1) // 2
+    if cost == "census":
+        radius += CENSUS_WINDOWS[census_window][1] // 2
+    return max(radius, 1)
 
 
-def _prefer_census(hmi, census, valid, min_disparity, num_disparities) -> str:
-    """Why census should replace HMI ("" when it should not).
+def _auto(hmi, *, window, given, cost_window, match, filters, fractions):
+    """The choices of cost "auto" after HMI (:mod:`demtool.sgm.auto`).
 
-    HMI fails on weak texture by settling on a wrong disparity over large areas (a
-    joint histogram that never sharpens), which the left–right check partly exposes:
-    census then passes it on markedly more pixels (:data:`AUTO_LR_MARGIN`), or HMI
-    leaves markedly more pixels at a range bound (:data:`AUTO_BOUND_MARGIN`).
+    ``hmi``: HMI's filtered (disparity, confidence, occluded), ``window`` its cost
+    window.  Returns the chosen triple and the support radius of its cost (for
+    :func:`demtool.sgm.edges.snap_edges`); the choice goes to ``fractions``.
     """
-    total = max(int(valid.sum()), 1)
-    lr_hmi = np.count_nonzero(np.isfinite(hmi) & valid) / total
-    lr_census = np.count_nonzero(np.isfinite(census) & valid) / total
-    if lr_census - lr_hmi > AUTO_LR_MARGIN:
-        return (f"left-right consistent {100 * lr_census:.1f} % of the pixels against "
-                f"{100 * lr_hmi:.1f} % with HMI")
-    bound_hmi = _bound_fraction(hmi, valid, min_disparity, num_disparities)
-    bound_census = _bound_fraction(census, valid, min_disparity, num_disparities)
-    if bound_hmi - bound_census > AUTO_BOUND_MARGIN:
-        return (f"HMI leaves {100 * bound_hmi:.1f} % of the pixels at a bound of the "
-                f"range, census {100 * bound_census:.1f} %")
-    return ""
+    valid, guide = match["left_valid"], match["guide"]
+    census_window = match["census_window"]
+    noise = noise_sigma(guide, valid)
+    fractions["noise_sigma"] = round(noise, 2)
+    if noise <= choice.FINE_NOISE_MAX:
+        fine = _filter(*_census_fallback(cost_window, *given, match, choice.FINE_CENSUS),
+                       **filters)
+        why_not = choice.prefer_fine(fine[0], hmi[0], valid)
+        if not why_not:
+            log.info("cost auto: census compared pixel by pixel (image noise σ %.1f grey "
+                     "levels ≤ %.1f), averaged with HMI where they agree", noise,
+                     choice.FINE_NOISE_MAX)
+            fractions["cost_used"] = "census+hmi"
+            window = choice.FINE_CENSUS.window if cost_window is None else int(cost_window)
+            return ((choice.blend(fine[0], hmi[0]), fine[1], fine[2]),
+                    _support_radius("census", window, census_window))
+        log.info("cost auto: no pixel census (%s)", why_not)
+        fractions["cost_reason"] = why_not
+    other = _filter(*_census_fallback(cost_window, *given, match), **filters)
+    gradient = _filter(*_gradient_pass(cost_window, given, match), **filters)
+    reason = choice.prefer_gradient(gradient[0], hmi[0], other[0], choice.full_range(
+        valid, match["min_disparity"], match["num_disparities"]))
+    if reason:
+        log.info("cost auto: horizontal-gradient difference instead of HMI and census (%s)",
+                 reason)
+        fractions.update(cost_used="gradient", cost_reason=reason)
+        gradient_window = COST_DEFAULTS["ad"].window if cost_window is None else cost_window
+        return gradient, _support_radius("ad", int(gradient_window), census_window)
+    return _windowed_choice(hmi, other, window=window, cost_window=cost_window,
+                            match=match, fractions=fractions)
 
 
-def _agreement(hmi, census):
-    """Pixels where both costs matched within 1 px, and their share of HMI's matches."""
-    both = np.isfinite(hmi) & np.isfinite(census)
-    with np.errstate(invalid="ignore"):
-        agreed = both & (np.abs(hmi - census) <= 1.0)
-    return agreed, float(agreed.sum()) / max(int(np.isfinite(hmi).sum()), 1)
+def _gradient_pass(cost_window, given, match):
+    """Absolute difference of the images' horizontal Sobel gradients, with the "ad"
+    defaults (OpenCV StereoSGBM's prefilter; an offset cancels, a gain scales)."""
+    from scipy import ndimage  # only here: its import costs about a second
+
+    images = {}
+    for side in ("left", "right"):
+        valid = match[f"{side}_valid"]
+        filled = costs.fill_invalid(match[side], valid).astype(np.float64)
+        images[side] = np.where(valid, ndimage.sobel(filled, axis=1),
+                                np.nan).astype(np.float32)
+    defaults = COST_DEFAULTS["ad"]
+    p1, p2 = (d if g is None else g for g, d in zip(given, (defaults.p1, defaults.p2),
+                                                     strict=True))
+    guide = costs.quantize(images["left"], match["left_valid"], 256)
+    common = dict(match["common"], p1=p1, p2=max(p1, p2))
+    if common["p2_kappa"]:
+        common["p2_kappa"] = p2_kappa(guide, match["left_valid"])
+    window = defaults.window if cost_window is None else int(cost_window)
+    return _match_cost("ad", window=window, **dict(match, common=common, guide=guide,
+                                                    **images))
+
+
+def _windowed_choice(hmi, other, *, window, cost_window, match, fractions):
+    """HMI, census summed over a window, or the HMI pixels census confirms."""
+    valid, census_window = match["left_valid"], match["census_window"]
+    hmi_radius = _support_radius("hmi", window, census_window)
+    reason = choice.prefer_census(hmi[0], other[0], valid, match["min_disparity"],
+                                  match["num_disparities"])
+    fractions["cost_used"] = "census" if reason else "hmi"
+    if reason:
+        log.info("cost auto: census instead of HMI (%s)", reason)
+        fractions["cost_reason"] = reason
+        window = COST_DEFAULTS["census"].window if cost_window is None else int(cost_window)
+        return other, _support_radius("census", window, census_window)
+    agreed, share = choice.agreement(hmi[0], other[0])
+    if share < choice.AUTO_AGREEMENT:
+        log.info("cost auto: HMI kept (census agrees on only %.1f %% of its matches)",
+                 100 * share)
+        return hmi, hmi_radius
+    log.info("cost auto: HMI and census agree on %.1f %% of HMI's matches; keeping those, "
+             "the rest is filled", 100 * share)
+    fractions["cost_used"] = "hmi+census"
+    disparity = np.where(agreed, hmi[0], np.float32(np.nan))
+    confidence = np.where(agreed, np.minimum(hmi[1], other[1]),
+                          np.float32(np.nan)).astype(np.float32)
+    return (disparity, confidence, hmi[2] | other[2]), hmi_radius
 
 
 def _match_cost(cost, *, left, right, left_valid, right_valid, guide, left_range,
@@ -532,8 +542,8 @@ def _mutual_information_sgm(left, right, left_valid, right_valid, guide, *, cost
             _, image_l, image_r, valid_l, valid_r, _ = pyramid[0]
             if min(image_l.shape) // 2 < MIN_LEVEL_SIZE:
                 break
-            image_l, valid_l = _downsample(image_l, valid_l)
-            image_r, valid_r = _downsample(image_r, valid_r)
+            image_l, valid_l = downsample(image_l, valid_l)
+            image_r, valid_r = downsample(image_r, valid_r)
             if not (valid_l.any() and valid_r.any()):
                 break
             scale *= 2
@@ -558,7 +568,7 @@ def _mutual_information_sgm(left, right, left_valid, right_valid, guide, *, cost
                 else:
                     estimate = np.full(image_l.shape, float(np.clip(0, lo, hi)), dtype=np.float32)
             else:
-                estimate = _upsample_disparity(previous, image_l.shape)
+                estimate = upsample_disparity(previous, image_l.shape)
         iterations = mi_iterations if (cost == "mi" or index == 0) else 1
         last_level = scale == 1
         for iteration in range(iterations):

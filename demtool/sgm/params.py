@@ -37,8 +37,10 @@ class SgmParams(Parameters):
         None, "Smallest disparity searched, px (overrides --rectify).")
     num_disparities: int | None = parameter(
         None, "Number of disparities searched (overrides --rectify).", minimum=1)
-    cost: str = parameter(CORE["cost"], "auto: hmi, replaced by census where HMI fails on "
-                          "weak texture; hmi: hierarchical mutual information; mi: MI "
+    cost: str = parameter(CORE["cost"], "auto: hmi, then census compared pixel by pixel "
+                          "on low-noise images, else census over a window or the "
+                          "horizontal-gradient difference where HMI fails on weak texture "
+                          "(sgm.auto); hmi: hierarchical mutual information; mi: MI "
                           "iterated at full resolution from zero disparity; census; ad: "
                           "absolute difference.", choices=COSTS, what="cost")
     census_window: str = parameter(CORE["census_window"], "Census window (width x "

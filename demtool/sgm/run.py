@@ -169,10 +169,10 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     fractions = result.fractions
     if fractions:
         stats.update({f"{k}_fraction": v for k, v in fractions.items()
-                      if isinstance(v, float)})
+                      if isinstance(v, float) and k != "noise_sigma"})
         stats["lr_consistent_fraction"] = round(fractions["matched"]
                                                 + fractions["at_range_bound"], 4)
-        for key in ("cost_used", "cost_reason"):
+        for key in ("cost_used", "cost_reason", "noise_sigma"):
             if key in fractions:
                 stats[key] = fractions[key]
         log.info("of the valid left pixels: %.1f %% left-right consistent (%.1f %% of them "

@@ -8,7 +8,9 @@ import logging
 import numpy as np
 import pytest
 
+from demtool.sgm import auto as rules
 from demtool.sgm import sgm
+from demtool.sgm.auto import prefer_census as _prefer_census
 from demtool.sgm.fill import (
     AT_BOUND,
     FILLED_MISMATCH,
@@ -20,26 +22,38 @@ from demtool.sgm.fill import (
     fill_classified,
     occluded_regions,
 )
-from demtool.sgm.matcher import _prefer_census
 from tests.helpers.sgm import error_rates, occlusion_pair, plank_pair, smooth_disparity_pair
 
 
-def test_auto_replaces_hmi_by_census_on_a_weak_texture_plank(caplog):
+def test_auto_replaces_hmi_by_census_on_a_weak_texture_plank(caplog, monkeypatch):
     left, right, truth = plank_pair()  # plank texture σ 1 grey level, range 0 … 47
     scored = np.zeros(truth.shape, dtype=bool)
     scored[:, 48:] = True  # every disparity of the range lands inside the right image
     hmi = sgm(left, right, min_disparity=0, num_disparities=48, cost="hmi", workers=1)
-    with caplog.at_level(logging.INFO, logger="demtool"):
-        auto = sgm(left, right, min_disparity=0, num_disparities=48, workers=1)
-    assert auto.parameters["cost"] == "auto" and auto.fractions["cost_used"] == "census"
-    assert any("census instead of HMI" in r.getMessage() for r in caplog.records)
     bad_hmi = error_rates(hmi.disparity, truth, scored)["bad2"]
-    bad_auto = error_rates(auto.disparity, truth, scored)["bad2"]
-    assert bad_hmi > 0.2 and bad_auto < 0.5 * bad_hmi and bad_auto < 0.15, (bad_hmi, bad_auto)
+    # the image's noise (σ ≈ 4 grey levels of the stretch) lets the pixel census try
+    pixel = sgm(left, right, min_disparity=0, num_disparities=48, workers=1)
+    assert pixel.fractions["cost_used"] == "census+hmi"
+    bad_pixel = error_rates(pixel.disparity, truth, scored)["bad2"]
+    assert bad_pixel < 0.5 * bad_hmi and bad_pixel < 0.15, (bad_hmi, bad_pixel)
+    monkeypatch.setattr(rules, "FINE_NOISE_MAX", -1.0)  # as if the image were noisier
+    gradient = sgm(left, right, min_disparity=0, num_disparities=48, workers=1)
+    assert gradient.fractions["cost_used"] == "gradient"  # the most consistent here
+    bad_gradient = error_rates(gradient.disparity, truth, scored)["bad2"]
+    assert bad_gradient < 0.5 * bad_hmi and bad_gradient < 0.15, (bad_hmi, bad_gradient)
+    monkeypatch.setattr(rules, "prefer_gradient", lambda *args: "")  # without it: census
+    with caplog.at_level(logging.INFO, logger="demtool"):
+        windowed = sgm(left, right, min_disparity=0, num_disparities=48, workers=1)
+    assert windowed.parameters["cost"] == "auto"
+    assert windowed.fractions["cost_used"] == "census"
+    assert any("census instead of HMI" in r.getMessage() for r in caplog.records)
+    bad_windowed = error_rates(windowed.disparity, truth, scored)["bad2"]
+    assert bad_windowed < 0.5 * bad_hmi and bad_windowed < 0.15, (bad_hmi, bad_windowed)
 
 
-def test_auto_keeps_the_hmi_matches_census_confirms_on_a_textured_pair():
+def test_auto_keeps_the_hmi_matches_census_confirms_on_a_noisy_pair(monkeypatch):
     left, right, truth = smooth_disparity_pair(offset=6.0, gain=1.3, bias=50.0)
+    monkeypatch.setattr(rules, "FINE_NOISE_MAX", -1.0)  # as if the image were noisy
     auto = sgm(left, right, min_disparity=0, num_disparities=16, workers=1)
     hmi = sgm(left, right, min_disparity=0, num_disparities=16, cost="hmi", workers=1)
     assert auto.fractions["cost_used"] == "hmi+census"
@@ -51,10 +65,9 @@ def test_auto_keeps_the_hmi_matches_census_confirms_on_a_textured_pair():
 
 
 def test_auto_keeps_hmi_alone_where_census_disagrees(monkeypatch):
-    import demtool.sgm.matcher as matcher
-
     left, right, _ = smooth_disparity_pair(offset=6.0, gain=1.3, bias=50.0)
-    monkeypatch.setattr(matcher, "AUTO_AGREEMENT", 1.01)  # no agreement is enough
+    monkeypatch.setattr(rules, "FINE_NOISE_MAX", -1.0)
+    monkeypatch.setattr(rules, "AUTO_AGREEMENT", 1.01)  # no agreement is enough
     auto = sgm(left, right, min_disparity=0, num_disparities=16, workers=1)
     hmi = sgm(left, right, min_disparity=0, num_disparities=16, cost="hmi", workers=1)
     assert auto.fractions["cost_used"] == "hmi"

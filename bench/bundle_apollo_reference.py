@@ -38,26 +38,33 @@ def nmad(values: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(values - np.median(values))))
 
 
-def dem_minus_lola(work: Path, adjusted: Path, surface) -> np.ndarray:
-    """rectify → sgm → dem through the adjusted models; DEM − LOLA per valid cell."""
-    from demtool import io as dio
+def pair_dem(work: Path, sensor_left: Path, sensor_right: Path) -> Path:
+    """rectify → sgm → dem (defaults) of the cube pair through the given sensor models;
+    writes ``work/dem.tif`` and its measured/filled mask ``work/filled.tif``."""
     from demtool.dem.params import DemParams
     from demtool.dem.run import run_dem
-    from demtool.maps import map_to_xyz, to_pyproj_crs
     from demtool.rectify.params import RectifyParams
     from demtool.rectify.run import run_rectify
     from demtool.sgm.params import SgmParams
     from demtool.sgm.run import run_sgm
 
     rect = work / "rect"
-    run_rectify(LEFT, RIGHT, rect, RectifyParams(),
-                sensor_left=adjusted / f"{LEFT.stem}.json",
-                sensor_right=adjusted / f"{RIGHT.stem}.json")
+    run_rectify(LEFT, RIGHT, rect, RectifyParams(), sensor_left=sensor_left,
+                sensor_right=sensor_right)
     run_sgm(rect / "left_rect.tif", rect / "right_rect.tif", work / "disparity.tif",
             SgmParams(), rectify=rect / "rectify.npz")
     run_dem(work / "dem.tif", DemParams(), disparity_path=work / "disparity.tif",
             rectify_path=rect / "rectify.npz", mask_path=work / "filled.tif")
-    dem = dio.read_raster(work / "dem.tif")
+    return work / "dem.tif"
+
+
+def dem_minus_lola(work: Path, adjusted: Path, surface) -> np.ndarray:
+    """rectify → sgm → dem through the adjusted models; DEM − LOLA per valid cell."""
+    from demtool import io as dio
+    from demtool.maps import map_to_xyz, to_pyproj_crs
+
+    dem = dio.read_raster(pair_dem(work, adjusted / f"{LEFT.stem}.json",
+                                   adjusted / f"{RIGHT.stem}.json"))
     filled = dio.read_raster(work / "filled.tif").data
     heights = dem.data
     rows, cols = np.nonzero(np.isfinite(heights) & (filled == 0))

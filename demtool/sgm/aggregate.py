@@ -48,7 +48,7 @@ SENTINEL = 16383
 MAX_P1 = 16383
 # zero columns on each side of the path buffers (the 16-path knight moves reach two columns)
 PAD = 2
-MODE_STORE, MODE_ADD, MODE_FINISH = 0, 1, 2
+MODE_STORE, MODE_ADD, MODE_FINISH, MODE_DISCARD = 0, 1, 2, 3
 
 # Path directions (dy, dx), dy ≥ 0, in groups of four updated together; the down sweep
 # runs them as given, the up sweep their opposites.
@@ -150,9 +150,9 @@ def callee_sources_digest() -> str:
 def _define_sweep_rows(callee_digest: str):
     @njit(nogil=True, cache=True, fastmath=True)
     def sweep_rows(source, radius, guide, groups, p1, p2_table, sign, first, stop, lo, hi,
-                   buf, mins, ring, running, pixel, window_state, mode, total, scratch,
-                   subpixel, lr_threshold, out_start, disparity, confidence, right_best,
-                   right_key):
+                   buf, mins, ring, running, pixel, window_state, mode, total, total_base,
+                   scratch, subpixel, lr_threshold, out_start, disparity, confidence,
+                   right_best, right_key):
         """Aggregate image rows ``first, first + sign, ...`` (up to ``stop``, exclusive).
 
         One sweep (``sign`` = +1 down, −1 up) of the path directions ``groups`` (see
@@ -164,10 +164,12 @@ def _define_sweep_rows(callee_digest: str):
         (``buf``, ``mins``, ``ring``, ``running``, ``window_state``; see
         :func:`new_sweep_state`) carries over between calls, so a sweep may be split into
         consecutive calls.  What happens to each row's sum of path costs ``mode``:
-        MODE_STORE writes it to ``total[y − lo]``, MODE_ADD adds it there, MODE_FINISH
-        adds the stored sum and, for rows ``out_start .. out_start + len(disparity)``,
-        selects the disparity into ``disparity`` and ``confidence`` (see
-        :func:`demtool.sgm.disparity.select_row`).
+        MODE_STORE writes it to ``total[y − total_base]``, MODE_ADD adds it there,
+        MODE_FINISH adds the stored sum and, for rows ``out_start .. out_start +
+        len(disparity)``, selects the disparity into ``disparity`` and ``confidence`` (see
+        :func:`demtool.sgm.disparity.select_row`); MODE_DISCARD drops it (a sweep that
+        only carries its paths through rows whose sums are formed later by a restarted
+        sweep, see :func:`demtool.sgm.strips.match_strip`).
         """
         if callee_digest == "":  # never: it puts the digest into numba's cache key
             return
@@ -206,7 +208,7 @@ def _define_sweep_rows(callee_digest: str):
                         penalty[j, x] = p2_table[grey_step]
                     else:
                         penalty[j, x] = p2_table[0]
-            out = total[y - lo] if mode == MODE_STORE else scratch
+            out = total[y - total_base] if mode == MODE_STORE else scratch
             for i in range(width):
                 x = i if sign > 0 else width - 1 - i
                 col = x + PAD
@@ -231,12 +233,12 @@ def _define_sweep_rows(callee_digest: str):
                                     penalty[j + 3, x],
                                     running, x, p1s, out, True)
             if mode == MODE_ADD:
-                stored = total[y - lo]
+                stored = total[y - total_base]
                 for x in range(width):
                     for k in range(scratch.shape[1]):
                         stored[x, k] = np.uint16(stored[x, k] + scratch[x, k])
             elif mode == MODE_FINISH:
-                stored = total[y - lo]
+                stored = total[y - total_base]
                 for x in range(width):
                     for k in range(scratch.shape[1]):
                         scratch[x, k] = np.uint16(scratch[x, k] + stored[x, k])
@@ -361,6 +363,6 @@ def aggregate_costs(cost: np.ndarray, *, p1: int, p2: int, paths: int = 8,
         first, stop = (0, height) if sign > 0 else (height - 1, -1)
         sweep_rows(source, 0, guide, groups, int(p1), adapted_p2_table(p1, p2, p2_kappa), sign,
                    first, stop, 0, height, state.buf, state.mins, state.ring, state.running,
-                   state.pixel, state.window_state, mode, total, state.scratch, 0, -1, 0,
+                   state.pixel, state.window_state, mode, total, 0, state.scratch, 0, -1, 0,
                    no_rows, no_rows, state.right_best, state.right_key)
     return total

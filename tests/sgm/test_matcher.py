@@ -19,6 +19,7 @@ from demtool.sgm.cost import (
 )
 from demtool.sgm.disparity import median_filter, remove_speckles, select_disparities
 from demtool.sgm.matcher import P2_KAPPA, P2_KAPPA_NOISE, noise_sigma, p2_kappa
+from demtool.sgm.strips import sweep_state_bytes
 from tests.helpers.sgm import (
     error_rates,
     fractional_shift_pair,
@@ -162,7 +163,8 @@ def test_nan_pixels_never_match_and_come_out_nan(smooth_pair):
 
 def test_strips_match_the_whole_image():
     left, right, truth = smooth_disparity_pair(height=200, width=96, offset=0.0)
-    assert len(plan_strips(200, 96, 24, workers=1, max_memory_mb=0.6)) > 2
+    fixed = 2 * sweep_state_bytes(96, 24, 8, 5)  # the two sweeps' row buffers (census)
+    assert len(plan_strips(200, 96, 24, workers=1, max_memory_mb=0.6, fixed_bytes=fixed)) > 2
     whole = sgm(left, right, min_disparity=-12, num_disparities=24, cost="census", workers=1)
     # strips one after the other, and two strips at once (0.6 MiB each)
     for workers, budget in ((1, 0.6), (4, 1.2)):

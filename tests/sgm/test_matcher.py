@@ -401,19 +401,20 @@ def test_adapted_p2_table():
 
 
 def test_sweep_kernel_cache_key_covers_the_kernels_it_inlines():
-    # numba's cache keys a function on its own file and closure only: sweep_rows closes
-    # over a digest of cost.py and disparity.py, so editing them recompiles it
+    # numba's cache keys a function on its own file and closure only: sweep_rows and the
+    # path kernel close over a digest of cost.py, disparity.py and simd.py, so editing
+    # them recompiles both
     import hashlib
     from pathlib import Path
 
     from demtool.sgm import aggregate
 
     folder = Path(aggregate.__file__).parent
-    expected = hashlib.sha256((folder / "cost.py").read_bytes()
-                              + (folder / "disparity.py").read_bytes()).hexdigest()
+    expected = hashlib.sha256(b"".join((folder / name).read_bytes() for name in
+                                       ("cost.py", "disparity.py", "simd.py"))).hexdigest()
     assert callee_sources_digest() == expected
-    cells = [c.cell_contents for c in aggregate.sweep_rows.py_func.__closure__]
-    assert expected in cells
+    for kernel in (aggregate.sweep_rows, aggregate._four_paths):
+        assert expected in [c.cell_contents for c in kernel.py_func.__closure__]
 
 
 def test_fill_invalid_matches_a_brute_force_search():

@@ -237,27 +237,43 @@ def _define_sweep_rows(callee_digest: str):
                         penalty[j, x] = p2_table[grey_step]
                     else:
                         penalty[j, x] = p2_table[0]
-            # the sums go straight into the stored row (MODE_ADD and MODE_FINISH add
-            # to it), or nowhere (MODE_DISCARD: the scratch row)
-            onto_stored = mode == MODE_ADD or mode == MODE_FINISH
-            out = scratch if mode == MODE_DISCARD else total[y - total_base]
+            # group 0 writes (a literal flag: no load of out), the others add
+            out = total[y - total_base] if mode == MODE_STORE else scratch
             for i in range(width):
                 x = i if sign > 0 else width - 1 - i
                 col = x + PAD
                 for g in range(n_groups):
                     j = 4 * g
-                    _four_paths(buf, mins, j, slot, col,
-                                previous_slot[j], col + column_step[j], penalty[j, x],
-                                previous_slot[j + 1], col + column_step[j + 1],
-                                penalty[j + 1, x],
-                                previous_slot[j + 2], col + column_step[j + 2],
-                                penalty[j + 2, x],
-                                previous_slot[j + 3], col + column_step[j + 3],
-                                penalty[j + 3, x],
-                                running, x, p1s, out, onto_stored or g > 0)
-            if mode == MODE_FINISH:
+                    # literal flags: two specialisations, the first without the load of out
+                    if g == 0:
+                        _four_paths(buf, mins, 0, slot, col,
+                                    previous_slot[0], col + column_step[0], penalty[0, x],
+                                    previous_slot[1], col + column_step[1], penalty[1, x],
+                                    previous_slot[2], col + column_step[2], penalty[2, x],
+                                    previous_slot[3], col + column_step[3], penalty[3, x],
+                                    running, x, p1s, out, False)
+                    else:
+                        _four_paths(buf, mins, j, slot, col,
+                                    previous_slot[j], col + column_step[j], penalty[j, x],
+                                    previous_slot[j + 1], col + column_step[j + 1],
+                                    penalty[j + 1, x],
+                                    previous_slot[j + 2], col + column_step[j + 2],
+                                    penalty[j + 2, x],
+                                    previous_slot[j + 3], col + column_step[j + 3],
+                                    penalty[j + 3, x],
+                                    running, x, p1s, out, True)
+            if mode == MODE_ADD:
+                stored = total[y - total_base]
+                for x in range(width):
+                    for k in range(scratch.shape[1]):
+                        stored[x, k] = np.uint16(stored[x, k] + scratch[x, k])
+            elif mode == MODE_FINISH:
+                stored = total[y - total_base]
+                for x in range(width):
+                    for k in range(scratch.shape[1]):
+                        scratch[x, k] = np.uint16(scratch[x, k] + stored[x, k])
                 if out_start <= y < out_start + n_out:
-                    select_row(out, y, source[9], subpixel, lr_threshold, source[7],
+                    select_row(scratch, y, source[9], subpixel, lr_threshold, source[7],
                                source[8], right_best, right_key, disparity[y - out_start],
                                confidence[y - out_start])
             y += sign

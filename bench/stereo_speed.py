@@ -8,8 +8,9 @@ cost ``auto``) and an OpenCV script that does the same job (reads the same GeoTI
 StereoSGBM MODE_HH with disp12MaxDiff=1, writes the disparity GeoTIFF).  Each command
 runs as a child process; wall time, CPU time (user + system, all threads) and peak
 resident memory (``getrusage(RUSAGE_CHILDREN)``, measured by a small wrapper process per
-command) are printed beside the targets of issue 28: census CPU seconds ≤ 0.5× OpenCV's
-(wall ≤ 0.3× on two quiet cores), the default cost ≤ 1.2× census, peak memory ≤ 1 GB
+command; each command runs twice, in turn, and its run of least CPU time counts) are
+printed beside the targets of issue 28: census CPU seconds ≤ 0.5× OpenCV's (wall ≤ 0.3×
+on two quiet cores), the default cost ≤ 1.2× census, peak memory ≤ 1 GB
 (1000 MiB).  bad-2 of every row against the pair's known disparity field (pixels whose
 match stays inside the right image; invalid counts as wrong) checks that a faster kernel
 gives the same result (the field is slanted, up to 0.12 px/px at 2048², which square
@@ -177,8 +178,14 @@ def main(argv: list[str] | None = None) -> int:
         }
         results, phases = {}, {}
         truth = left_disparity(size, count)
-        for label, (command, name) in runs.items():
-            results[label] = timed(command)
+        # each command twice, in turn, keeping its run of least CPU time: the first big
+        # allocation after another process's may pay the kernel's memory compaction
+        for _ in range(2):
+            for label, (command, _) in runs.items():
+                run = timed(command)
+                if label not in results or run["cpu_s"] < results[label]["cpu_s"]:
+                    results[label] = run
+        for label, (_, name) in runs.items():
             results[label]["bad2"] = bad2(folder / f"{name}.tif", truth)
             sidecar = folder / f"{name}.tif.json"
             if sidecar.exists():

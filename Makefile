@@ -29,7 +29,7 @@ TRUTH := $(SCENE)/truth_dem_target.tif
 # Every DEM the demo makes, compared with the truth at the end.
 PRODUCTS := dem_bam dem_siam dem_siam_projective dem_match dem_refined
 
-.PHONY: all demo test bench install install-test install-bench clean lint
+.PHONY: all demo demo-reports test bench install install-test install-bench clean lint
 
 all: demo
 
@@ -238,9 +238,11 @@ $(BLOCK_STEREO)/%/dem.tif: $(BLOCK_STEREO)/%/disparity_sgm.tif
 	$(DT) dem --disparity $< --rectify $(@D)/rectify.npz \
 	  --error-out $(@D)/dem_error.tif --out $@
 
-# the pairs are known once pairs.txt is made: a sub-make builds their DEMs
+# the pairs are known once pairs.txt is made: a sub-make builds their DEMs (pairs.txt
+# itself where the list is empty, as under `make -n`: a sub-make without a goal would
+# build `all` again, recursively)
 $(WORK)/dem_block_fused.tif: $(BLOCK_STEREO)/pairs.txt
-	$(MAKE) --no-print-directory $(block_dems)
+	$(MAKE) --no-print-directory $(or $(block_dems),$<)
 	$(DT) fuse $(block_dems) --out $@
 
 $(WORK)/reports/dem_block_fused/report.json: $(WORK)/dem_block_fused.tif
@@ -251,8 +253,17 @@ $(WORK)/reports/dem_block_fused/report.json: $(WORK)/dem_block_fused.tif
 $(WORK)/reports/%/report.json: $(WORK)/%.tif
 	$(DT) compare $< $(TRUTH) --out $(WORK)/reports/$* --label $*
 
-demo: $(foreach p,$(PRODUCTS),$(WORK)/reports/$(p)/report.json)
-	@$(BIN)/python -m demtool.compare.summary $(foreach p,$(PRODUCTS),$(WORK)/reports/$(p)/report.json)
+# The products are independent chains (one scene each, or one product of a shared one):
+# a sub-make builds DEMO_JOBS of them at once (two cores: -j2 halves the wait; the
+# numba cache takes concurrent writers).  DEMO_JOBS=1 for one at a time.
+DEMO_JOBS ?= 2
+DEMO_REPORTS := $(foreach p,$(PRODUCTS),$(WORK)/reports/$(p)/report.json)
+
+demo: | $(VENV)/.installed
+	$(MAKE) --no-print-directory -j$(DEMO_JOBS) demo-reports
+	@$(BIN)/python -m demtool.compare.summary $(DEMO_REPORTS)
+
+demo-reports: $(DEMO_REPORTS)
 
 clean:
 	rm -rf $(WORK)

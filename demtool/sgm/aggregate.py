@@ -42,13 +42,14 @@ from numba import njit
 
 from demtool.sgm.cost import advance_window, volume_source
 from demtool.sgm.disparity import select_row
+from demtool.sgm.simd import LANES, paths_chunks, paths_chunks_add
 
 # int16 sentinel for the path cost beyond the disparity range; SENTINEL + P1 must fit int16
 SENTINEL = 16383
 MAX_P1 = 16383
 # zero columns on each side of the path buffers (the 16-path knight moves reach two columns)
 PAD = 2
-MODE_STORE, MODE_ADD, MODE_FINISH = 0, 1, 2
+MODE_STORE, MODE_ADD, MODE_FINISH, MODE_DISCARD = 0, 1, 2, 3
 
 # Path directions (dy, dx), dy ≥ 0, in groups of four updated together; the down sweep
 # runs them as given, the up sweep their opposites.
@@ -68,52 +69,77 @@ def path_groups(paths: int) -> np.ndarray:
     raise ValueError(f"paths must be 8 or 16, got {paths}")
 
 
-@njit(nogil=True, cache=True, fastmath=True)
-def _four_paths(buf, mins, j0, slot, col, s0, c0, e0, s1, c1, e1, s2, c2, e2, s3, c3, e3, cost,
-                x, p1, out, accumulate):
-    """Eq. 13 for four path directions j0 .. j0 + 3 at pixel x, all disparities.
+def _define_four_paths(callee_digest: str):
+    @njit(nogil=True, cache=True, fastmath=True)
+    def _four_paths(buf, mins, j0, slot, col, s0, c0, e0, s1, c1, e1, s2, c2, e2, s3, c3, e3,
+                    cost, x, p1, out, accumulate):
+        """Eq. 13 for four path directions j0 .. j0 + 3 at pixel x, all disparities.
 
-    ``buf[s, j, c, 1:D+1]`` holds L_r of direction j in ring slot s at buffer column c,
-    with sentinels at both ends of the disparity axis; path t reads L_r(p − r) at
-    slot ``s<t>``, column ``c<t>`` (its minimum over d at ``mins[s<t>, j, c<t>]``) and
-    uses P2 = ``e<t>``.  The new L_r go to column ``col`` of ``slot``, their minima to
-    ``mins``; their sum is written to (or, with ``accumulate``, added to) ``out[x]``.
-    Everything is indexed on the full arrays and passed as scalars (no views or small
-    arrays in the hot loop), so the loop over d vectorises.
-    """
-    n_disp = cost.shape[1]
-    j1, j2, j3 = j0 + 1, j0 + 2, j0 + 3
-    m0, m1 = mins[s0, j0, c0], mins[s1, j1, c1]
-    m2, m3 = mins[s2, j2, c2], mins[s3, j3, c3]
-    a0, a1 = np.int16(m0 + e0), np.int16(m1 + e1)
-    a2, a3 = np.int16(m2 + e2), np.int16(m3 + e3)
-    # branch-free accumulation (a conditional load in the loop would stop vectorisation)
-    keep = np.uint16(0xFFFF) if accumulate else np.uint16(0)
-    low0 = low1 = low2 = low3 = np.int16(32767)
-    for k in range(1, n_disp + 1):
-        c = np.int16(cost[x, k - 1])
-        v0 = np.int16(c + np.int16(min(min(buf[s0, j0, c0, k], np.int16(
-            min(buf[s0, j0, c0, k - 1], buf[s0, j0, c0, k + 1]) + p1)), a0) - m0))
-        v1 = np.int16(c + np.int16(min(min(buf[s1, j1, c1, k], np.int16(
-            min(buf[s1, j1, c1, k - 1], buf[s1, j1, c1, k + 1]) + p1)), a1) - m1))
-        v2 = np.int16(c + np.int16(min(min(buf[s2, j2, c2, k], np.int16(
-            min(buf[s2, j2, c2, k - 1], buf[s2, j2, c2, k + 1]) + p1)), a2) - m2))
-        v3 = np.int16(c + np.int16(min(min(buf[s3, j3, c3, k], np.int16(
-            min(buf[s3, j3, c3, k - 1], buf[s3, j3, c3, k + 1]) + p1)), a3) - m3))
-        buf[slot, j0, col, k] = v0
-        buf[slot, j1, col, k] = v1
-        buf[slot, j2, col, k] = v2
-        buf[slot, j3, col, k] = v3
-        total = np.uint16(np.uint16(v0) + np.uint16(v1) + np.uint16(v2) + np.uint16(v3))
-        out[x, k - 1] = np.uint16(np.uint16(out[x, k - 1] & keep) + total)
-        low0 = min(low0, v0)
-        low1 = min(low1, v1)
-        low2 = min(low2, v2)
-        low3 = min(low3, v3)
-    mins[slot, j0, col] = low0
-    mins[slot, j1, col] = low1
-    mins[slot, j2, col] = low2
-    mins[slot, j3, col] = low3
+        ``buf[s, j, c, 1:D+1]`` holds L_r of direction j in ring slot s at buffer column c,
+        with sentinels at both ends of the disparity axis; path t reads L_r(p − r) at
+        slot ``s<t>``, column ``c<t>`` (its minimum over d at ``mins[s<t>, j, c<t>]``) and
+        uses P2 = ``e<t>``.  The new L_r go to column ``col`` of ``slot``, their minima to
+        ``mins``; their sum is written to (or, with ``accumulate``, added to) ``out[x]``.
+        Whole groups of 16 disparities go through :func:`demtool.sgm.simd.paths_chunks`
+        (explicit vectors); the remaining D mod 16 through the same recursion here.
+        """
+        if callee_digest == "":  # never: it puts the digest into numba's cache key
+            return
+        n_disp = cost.shape[1]
+        j1, j2, j3 = j0 + 1, j0 + 2, j0 + 3
+        m0, m1 = mins[s0, j0, c0], mins[s1, j1, c1]
+        m2, m3 = mins[s2, j2, c2], mins[s3, j3, c3]
+        n_chunks = n_disp // LANES
+        low0 = low1 = low2 = low3 = np.int16(32767)
+        if n_chunks > 0:
+            n_dirs, columns, padded = buf.shape[1], buf.shape[2], buf.shape[3]
+            here = ((slot * n_dirs + j0) * columns + col) * padded + 1
+            step = columns * padded  # one direction further
+            cur = (here, here + step, here + 2 * step, here + 3 * step)
+            prev = (((s0 * n_dirs + j0) * columns + c0) * padded + 1,
+                    ((s1 * n_dirs + j1) * columns + c1) * padded + 1,
+                    ((s2 * n_dirs + j2) * columns + c2) * padded + 1,
+                    ((s3 * n_dirs + j3) * columns + c3) * padded + 1)
+            above = (np.int64(m0) + e0, np.int64(m1) + e1, np.int64(m2) + e2, np.int64(m3) + e3)
+            low = (np.int64(m0), np.int64(m1), np.int64(m2), np.int64(m3))
+            if accumulate:
+                found = paths_chunks_add(buf, cur, prev, (cost, x * n_disp), (out, x * n_disp),
+                                         n_chunks, np.int64(p1), above, low)
+            else:
+                found = paths_chunks(buf, cur, prev, (cost, x * n_disp), (out, x * n_disp),
+                                     n_chunks, np.int64(p1), above, low)
+            low0, low1 = np.int16(found[0]), np.int16(found[1])
+            low2, low3 = np.int16(found[2]), np.int16(found[3])
+        a0, a1 = np.int16(m0 + e0), np.int16(m1 + e1)
+        a2, a3 = np.int16(m2 + e2), np.int16(m3 + e3)
+        # branch-free accumulation (a conditional load in the loop would stop vectorisation)
+        keep = np.uint16(0xFFFF) if accumulate else np.uint16(0)
+        for k in range(n_chunks * LANES + 1, n_disp + 1):
+            c = np.int16(cost[x, k - 1])
+            v0 = np.int16(c + np.int16(min(min(buf[s0, j0, c0, k], np.int16(
+                min(buf[s0, j0, c0, k - 1], buf[s0, j0, c0, k + 1]) + p1)), a0) - m0))
+            v1 = np.int16(c + np.int16(min(min(buf[s1, j1, c1, k], np.int16(
+                min(buf[s1, j1, c1, k - 1], buf[s1, j1, c1, k + 1]) + p1)), a1) - m1))
+            v2 = np.int16(c + np.int16(min(min(buf[s2, j2, c2, k], np.int16(
+                min(buf[s2, j2, c2, k - 1], buf[s2, j2, c2, k + 1]) + p1)), a2) - m2))
+            v3 = np.int16(c + np.int16(min(min(buf[s3, j3, c3, k], np.int16(
+                min(buf[s3, j3, c3, k - 1], buf[s3, j3, c3, k + 1]) + p1)), a3) - m3))
+            buf[slot, j0, col, k] = v0
+            buf[slot, j1, col, k] = v1
+            buf[slot, j2, col, k] = v2
+            buf[slot, j3, col, k] = v3
+            total = np.uint16(np.uint16(v0) + np.uint16(v1) + np.uint16(v2) + np.uint16(v3))
+            out[x, k - 1] = np.uint16(np.uint16(out[x, k - 1] & keep) + total)
+            low0 = min(low0, v0)
+            low1 = min(low1, v1)
+            low2 = min(low2, v2)
+            low3 = min(low3, v3)
+        mins[slot, j0, col] = low0
+        mins[slot, j1, col] = low1
+        mins[slot, j2, col] = low2
+        mins[slot, j3, col] = low3
+
+    return _four_paths
 
 
 def adapted_p2_table(p1: int, p2: int, kappa: int) -> np.ndarray:
@@ -134,25 +160,28 @@ def adapted_p2_table(p1: int, p2: int, kappa: int) -> np.ndarray:
 
 
 def callee_sources_digest() -> str:
-    """SHA-256 of :mod:`demtool.sgm.cost` and :mod:`demtool.sgm.disparity`, whose
-    kernels :func:`sweep_rows` inlines.
+    """SHA-256 of :mod:`demtool.sgm.cost`, :mod:`demtool.sgm.disparity` and
+    :mod:`demtool.sgm.simd`, whose kernels :func:`sweep_rows` and ``_four_paths`` inline.
 
     numba's on-disk cache knows only the compiled function's own file and bytecode (and
     its closure variables), so :func:`sweep_rows` closes over this digest: an edit of
     those modules then recompiles it instead of running stale machine code.
     """
     digest = hashlib.sha256()
-    for name in ("cost.py", "disparity.py"):
+    for name in ("cost.py", "disparity.py", "simd.py"):
         digest.update((Path(__file__).with_name(name)).read_bytes())
     return digest.hexdigest()
+
+
+_four_paths = _define_four_paths(callee_sources_digest())
 
 
 def _define_sweep_rows(callee_digest: str):
     @njit(nogil=True, cache=True, fastmath=True)
     def sweep_rows(source, radius, guide, groups, p1, p2_table, sign, first, stop, lo, hi,
-                   buf, mins, ring, running, pixel, window_state, mode, total, scratch,
-                   subpixel, lr_threshold, out_start, disparity, confidence, right_best,
-                   right_key):
+                   buf, mins, ring, running, pixel, window_state, mode, total, total_base,
+                   scratch, subpixel, lr_threshold, out_start, disparity, confidence,
+                   right_best, right_key):
         """Aggregate image rows ``first, first + sign, ...`` (up to ``stop``, exclusive).
 
         One sweep (``sign`` = +1 down, −1 up) of the path directions ``groups`` (see
@@ -164,10 +193,12 @@ def _define_sweep_rows(callee_digest: str):
         (``buf``, ``mins``, ``ring``, ``running``, ``window_state``; see
         :func:`new_sweep_state`) carries over between calls, so a sweep may be split into
         consecutive calls.  What happens to each row's sum of path costs ``mode``:
-        MODE_STORE writes it to ``total[y − lo]``, MODE_ADD adds it there, MODE_FINISH
-        adds the stored sum and, for rows ``out_start .. out_start + len(disparity)``,
-        selects the disparity into ``disparity`` and ``confidence`` (see
-        :func:`demtool.sgm.disparity.select_row`).
+        MODE_STORE writes it to ``total[y − total_base]``, MODE_ADD adds it there,
+        MODE_FINISH adds the stored sum and, for rows ``out_start .. out_start +
+        len(disparity)``, selects the disparity into ``disparity`` and ``confidence`` (see
+        :func:`demtool.sgm.disparity.select_row`); MODE_DISCARD drops it (a sweep that
+        only carries its paths through rows whose sums are formed later by a restarted
+        sweep, see :func:`demtool.sgm.strips.match_strip`).
         """
         if callee_digest == "":  # never: it puts the digest into numba's cache key
             return
@@ -206,7 +237,8 @@ def _define_sweep_rows(callee_digest: str):
                         penalty[j, x] = p2_table[grey_step]
                     else:
                         penalty[j, x] = p2_table[0]
-            out = total[y - lo] if mode == MODE_STORE else scratch
+            # group 0 writes (a literal flag: no load of out), the others add
+            out = total[y - total_base] if mode == MODE_STORE else scratch
             for i in range(width):
                 x = i if sign > 0 else width - 1 - i
                 col = x + PAD
@@ -231,12 +263,12 @@ def _define_sweep_rows(callee_digest: str):
                                     penalty[j + 3, x],
                                     running, x, p1s, out, True)
             if mode == MODE_ADD:
-                stored = total[y - lo]
+                stored = total[y - total_base]
                 for x in range(width):
                     for k in range(scratch.shape[1]):
                         stored[x, k] = np.uint16(stored[x, k] + scratch[x, k])
             elif mode == MODE_FINISH:
-                stored = total[y - lo]
+                stored = total[y - total_base]
                 for x in range(width):
                     for k in range(scratch.shape[1]):
                         scratch[x, k] = np.uint16(scratch[x, k] + stored[x, k])
@@ -361,6 +393,6 @@ def aggregate_costs(cost: np.ndarray, *, p1: int, p2: int, paths: int = 8,
         first, stop = (0, height) if sign > 0 else (height - 1, -1)
         sweep_rows(source, 0, guide, groups, int(p1), adapted_p2_table(p1, p2, p2_kappa), sign,
                    first, stop, 0, height, state.buf, state.mins, state.ring, state.running,
-                   state.pixel, state.window_state, mode, total, state.scratch, 0, -1, 0,
+                   state.pixel, state.window_state, mode, total, 0, state.scratch, 0, -1, 0,
                    no_rows, no_rows, state.right_best, state.right_key)
     return total

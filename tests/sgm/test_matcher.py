@@ -19,6 +19,7 @@ from demtool.sgm.cost import (
 )
 from demtool.sgm.disparity import median_filter, remove_speckles, select_disparities
 from demtool.sgm.matcher import P2_KAPPA, P2_KAPPA_NOISE, noise_sigma, p2_kappa
+from demtool.sgm.strips import sweep_state_bytes
 from tests.helpers.sgm import (
     error_rates,
     fractional_shift_pair,
@@ -162,7 +163,8 @@ def test_nan_pixels_never_match_and_come_out_nan(smooth_pair):
 
 def test_strips_match_the_whole_image():
     left, right, truth = smooth_disparity_pair(height=200, width=96, offset=0.0)
-    assert len(plan_strips(200, 96, 24, workers=1, max_memory_mb=0.6)) > 2
+    fixed = 2 * sweep_state_bytes(96, 24, 8, 5)  # the two sweeps' row buffers (census)
+    assert len(plan_strips(200, 96, 24, workers=1, max_memory_mb=0.6, fixed_bytes=fixed)) > 2
     whole = sgm(left, right, min_disparity=-12, num_disparities=24, cost="census", workers=1)
     # strips one after the other, and two strips at once (0.6 MiB each)
     for workers, budget in ((1, 0.6), (4, 1.2)):
@@ -399,19 +401,20 @@ def test_adapted_p2_table():
 
 
 def test_sweep_kernel_cache_key_covers_the_kernels_it_inlines():
-    # numba's cache keys a function on its own file and closure only: sweep_rows closes
-    # over a digest of cost.py and disparity.py, so editing them recompiles it
+    # numba's cache keys a function on its own file and closure only: sweep_rows and the
+    # path kernel close over a digest of cost.py, disparity.py and simd.py, so editing
+    # them recompiles both
     import hashlib
     from pathlib import Path
 
     from demtool.sgm import aggregate
 
     folder = Path(aggregate.__file__).parent
-    expected = hashlib.sha256((folder / "cost.py").read_bytes()
-                              + (folder / "disparity.py").read_bytes()).hexdigest()
+    expected = hashlib.sha256(b"".join((folder / name).read_bytes() for name in
+                                       ("cost.py", "disparity.py", "simd.py"))).hexdigest()
     assert callee_sources_digest() == expected
-    cells = [c.cell_contents for c in aggregate.sweep_rows.py_func.__closure__]
-    assert expected in cells
+    for kernel in (aggregate.sweep_rows, aggregate._four_paths):
+        assert expected in [c.cell_contents for c in kernel.py_func.__closure__]
 
 
 def test_fill_invalid_matches_a_brute_force_search():

@@ -66,9 +66,14 @@ def bounds_problem(bounds) -> str | None:
     from demtool.maps.frames import longitude_span
 
     lon0, lat0, lon1, lat1 = bounds
-    lon0, lon1 = longitude_span(lon0, lon1)  # LON_MAX < LON_MIN: across the antimeridian
-    if not (lon0 < lon1 <= lon0 + 360.0 and lat0 < lat1 and -90 <= lat0 and lat1 <= 90):
-        return ("must be LON_MIN LAT_MIN LON_MAX LAT_MAX with LAT_MIN < LAT_MAX within +-90 "
-                "and LON_MIN != LON_MAX (LON_MAX < LON_MIN: a box across the antimeridian), "
-                f"got {' '.join(f'{v:g}' for v in bounds)}")
+    # LON_MAX < LON_MIN: a box across the antimeridian (179.9 … −179.9) or across 0°E in
+    # 0…360 (359.9 … 0.1) — read so only when that box is at most 180° wide; a wider one
+    # is more likely LON_MIN and LON_MAX swapped
+    wraps = lon1 < lon0
+    lon0, lon1 = longitude_span(lon0, lon1)
+    if not (lon0 < lon1 <= lon0 + (180.0 if wraps else 360.0) and lat0 < lat1
+            and -90 <= lat0 and lat1 <= 90):
+        return ("must be LON_MIN LAT_MIN LON_MAX LAT_MAX with MIN < MAX and latitudes within "
+                "+-90 (LON_MAX < LON_MIN only for a box across the antimeridian, at most "
+                f"180° wide), got {' '.join(f'{v:g}' for v in bounds)}")
     return None

@@ -37,7 +37,9 @@ def test_longitude_span_reads_a_box_across_the_antimeridian():
     assert longitude_span(179.9, -179.9) == pytest.approx((179.9, 180.1))
     assert longitude_span(-10.0, 20.0) == (-10.0, 20.0)
     assert bounds_problem((179.98, 4.98, -179.98, 5.02)) is None
-    assert "LON_MIN != LON_MAX" in bounds_problem((10.0, 4.0, 10.0, 5.0))
+    assert "MIN < MAX" in bounds_problem((10.0, 4.0, 10.0, 5.0))
+    assert "at most 180° wide" in bounds_problem((11.0, 4.0, 10.0, 5.0))  # swapped
+    assert bounds_problem((359.9, 4.0, 0.1, 5.0)) is None  # across 0°E in 0…360
 
 
 def test_camera_pair_on_the_antimeridian_is_the_pair_at_10_east(scenes):

@@ -440,7 +440,7 @@ CASES = [
     case("mapproject-bounds-latitude-100", ["mapproject", "left.tif", "--sensor", "cam.json",
                                             "--height", "0", "--bounds", "10", "-100", "11",
                                             "10", "--out", "o.tif"], 2,
-         "LAT_MIN < LAT_MAX within +-90"),
+         "latitudes within +-90"),
     case("mapproject-scheduler-not-an-address", ["mapproject", "left.tif", "--sensor",
                                                  "cam.json", "--height", "0", "--scheduler",
                                                  "nowhere", "--out", "o.tif"], 2,

@@ -78,7 +78,7 @@ def frame_files(tmp_path_factory):
     (["--bounds", "100", "10", "101", "11"], 1,
      ["--bounds: lon 100…101, lat 10…11 does not overlap the image's footprint"]),
     (["--bounds", "10", "-100", "11", "10"], 2,
-     ["'--bounds'", "LAT_MIN < LAT_MAX within +-90"])])
+     ["'--bounds'", "latitudes within +-90"])])
 def test_mapproject_grid_checked_first(frame_files, tmp_path, args, status, parts):
     out = tmp_path / "ortho.tif"
     result = _invoke("mapproject", frame_files["left"], "--sensor", frame_files["left_isd"],

@@ -445,3 +445,24 @@ def median_filter(disparity: np.ndarray, size: int) -> np.ndarray:
     out = np.empty(disparity.shape, dtype=np.float32)
     _median(np.ascontiguousarray(disparity, dtype=np.float32), size // 2, out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _unmatchable(disparity: np.ndarray, right_valid: np.ndarray, out: np.ndarray) -> None:
+    """Copy ``disparity`` to ``out`` with NaN where x − d (rounded) misses valid right data."""
+    height, width = disparity.shape
+    for y in range(height):
+        for x in range(width):
+            d = disparity[y, x]
+            out[y, x] = d
+            if np.isfinite(d):
+                matched = np.rint(x - d)
+                if matched < 0 or matched >= width or not right_valid[y, int(matched)]:
+                    out[y, x] = np.nan
+
+
+def matchable(disparity: np.ndarray, right_valid: np.ndarray) -> np.ndarray:
+    """NaN where the match x − d (rounded) is outside the right image or invalid there."""
+    out = np.empty_like(disparity)
+    _unmatchable(disparity, np.ascontiguousarray(right_valid), out)
+    return out

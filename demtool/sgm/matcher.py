@@ -20,14 +20,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numba import njit
 
 from demtool.errors import InputError, ParameterError
 from demtool.logs import get_logger
 from demtool.sgm import auto as choice
 from demtool.sgm import cost as costs
 from demtool.sgm.auto import CostDefaults
-from demtool.sgm.disparity import OCCLUDED, median_filter, remove_speckles
+from demtool.sgm.disparity import OCCLUDED, matchable, median_filter, remove_speckles
 from demtool.sgm.edges import snap_edges
 from demtool.sgm.fill import MATCHED, class_fractions, classify, fill_classified
 from demtool.sgm.noise import (  # noqa: F401  (re-exported: part of this module's API)
@@ -143,7 +142,7 @@ def _fill(disparity: np.ndarray, confidence: np.ndarray, occluded: np.ndarray, *
     with timer.measure("postprocess"):
         before = np.isfinite(disparity)
         disparity, classes = fill_classified(disparity, occluded & ~before, fill_mask)
-        disparity = _matchable(disparity, right_valid)
+        disparity = matchable(disparity, right_valid)
         confidence = np.where(np.isfinite(disparity),
                               np.where(classes == MATCHED, confidence, np.float32(0.0)),
                               np.float32(np.nan))
@@ -161,27 +160,6 @@ def _postprocess(disparity: np.ndarray, confidence: np.ndarray, *, speckle_size:
     disparity, confidence, _ = _fill(disparity, confidence, occluded, fill_mask=fill_mask,
                                      right_valid=right_valid, timer=timer)
     return disparity, confidence
-
-
-@njit(cache=True, nogil=True)
-def _unmatchable(disparity: np.ndarray, right_valid: np.ndarray, out: np.ndarray) -> None:
-    """Copy ``disparity`` to ``out`` with NaN where x − d (rounded) misses valid right data."""
-    height, width = disparity.shape
-    for y in range(height):
-        for x in range(width):
-            d = disparity[y, x]
-            out[y, x] = d
-            if np.isfinite(d):
-                matched = np.rint(x - d)
-                if matched < 0 or matched >= width or not right_valid[y, int(matched)]:
-                    out[y, x] = np.nan
-
-
-def _matchable(disparity: np.ndarray, right_valid: np.ndarray) -> np.ndarray:
-    """NaN where the match x − d (rounded) is outside the right image or invalid there."""
-    out = np.empty_like(disparity)
-    _unmatchable(disparity, np.ascontiguousarray(right_valid), out)
-    return out
 
 
 def _check_inputs(left: np.ndarray, right: np.ndarray, min_disparity: int,
@@ -228,12 +206,14 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         where the two agree ("census+hmi"); on noisy or weakly textured images census
         summed over a window, which replaces HMI where HMI fails (census left–right
         consistent on markedly more pixels, or HMI pinned at a range bound), or else
-        keeps the HMI pixels it agrees with ("hmi+census", the others filled); the choice
-        is logged and returned in ``fractions["cost_used"]``.  Any MI
-        cost whose histogram finds no valid pixel pair falls back to census with a
-        warning instead of failing.  "hmi": mutual information with the hierarchical
+        keeps the HMI pixels it agrees with ("hmi+census", the others filled), near whose
+        depth edges a pixel census cross-checked against a matching from the right image
+        replaces them; the choice is logged and returned in ``fractions["cost_used"]``.
+        Any MI cost whose histogram finds no valid pixel pair falls back to census with
+        a warning instead of failing.  "hmi": mutual information with the hierarchical
         schedule (1/16 → 1, the coarsest level iterated ``mi_iterations`` times from a
-        random disparity, every finer level once from the coarser result; Hirschmüller 2008 §3.1.4);
+        random disparity, every finer level once from the coarser result;
+        Hirschmüller 2008 §3.1.4);
         "mi": mutual information iterated ``mi_iterations`` times at full
         resolution from a zero disparity; "census": Hamming distance of census
         codes; "ad": truncated absolute difference.  Every cost is summed over a
@@ -361,8 +341,7 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
                                         occluded & ~np.isfinite(disparity), min_step=edge)
             occluded = occluded | (moved & ~np.isfinite(snapped))
             disparity = snapped
-            fractions["edge_moved"] = round(float(np.count_nonzero(moved & left_valid))
-                                            / max(int(left_valid.sum()), 1), 4)
+            fractions["edge_moved"] = choice.share(moved, left_valid)
     disparity, confidence, classes = _fill(disparity, confidence, occluded,
                                            fill_mask=left_valid if fill else None,
                                            right_valid=right_valid, timer=timer)
@@ -443,7 +422,7 @@ def _auto(hmi, *, window, given, cost_window, match, filters, fractions):
         gradient_window = COST_DEFAULTS["ad"].window if cost_window is None else cost_window
         return gradient, _support_radius("ad", int(gradient_window), census_window)
     return _windowed_choice(hmi, other, window=window, cost_window=cost_window,
-                            match=match, fractions=fractions)
+                            match=match, fractions=fractions, filters=filters)
 
 
 def _gradient_pass(cost_window, given, match):
@@ -469,8 +448,9 @@ def _gradient_pass(cost_window, given, match):
                                                     **images))
 
 
-def _windowed_choice(hmi, other, *, window, cost_window, match, fractions):
-    """HMI, census summed over a window, or the HMI pixels census confirms."""
+def _windowed_choice(hmi, other, *, window, cost_window, match, fractions, filters):
+    """HMI, census summed over a window, or the HMI pixels census confirms (near depth
+    edges the pixel census, :func:`_edge_census`)."""
     valid, census_window = match["left_valid"], match["census_window"]
     hmi_radius = _support_radius("hmi", window, census_window)
     reason = choice.prefer_census(hmi[0], other[0], valid, match["min_disparity"],
@@ -489,10 +469,30 @@ def _windowed_choice(hmi, other, *, window, cost_window, match, fractions):
     log.info("cost auto: HMI and census agree on %.1f %% of HMI's matches; keeping those, "
              "the rest is filled", 100 * share)
     fractions["cost_used"] = "hmi+census"
-    disparity = np.where(agreed, hmi[0], np.float32(np.nan))
-    confidence = np.where(agreed, np.minimum(hmi[1], other[1]),
-                          np.float32(np.nan)).astype(np.float32)
-    return (disparity, confidence, hmi[2] | other[2]), hmi_radius
+    disparity, confidence = (np.where(agreed, a, np.float32(np.nan)).astype(np.float32)
+                             for a in (hmi[0], np.minimum(hmi[1], other[1])))
+    result, zone = (disparity, confidence, hmi[2] | other[2]), choice.depth_edge_zone(disparity)
+    if zone.any():  # where the windowed costs fatten a foreground
+        fractions["edge_census"] = choice.share(zone, valid)
+        log.info("cost auto: pixel census near depth edges (%.1f %% of the pixels)",
+                 100 * fractions["edge_census"])
+        result = choice.at_depth_edges(zone, result, _edge_census(match, filters))
+    return result, hmi_radius
+
+
+def _edge_census(match, filters):
+    """:data:`choice.EDGE_CENSUS` from the left and the right image, cross-checked
+    (:func:`choice.cross_check`; not with ``lr_check`` off).  P2 constant: no guide."""
+    census = choice.EDGE_CENSUS
+    options = dict(window=census.window, common=dict(match["common"], p1=census.p1,
+                   p2=census.p2, p2_kappa=0), final=dict(match["final"], lr_threshold=None))
+    left = _filter(*_match_cost("census", **dict(match, **options)), **filters)
+    if match["final"]["lr_threshold"] is None:
+        return left
+    right = _filter(*_match_cost("census", **dict(match, **options, **choice.mirrored(match))),
+                    **filters)
+    return choice.cross_check(left[0], left[1], right[0][:, ::-1],
+                              match["final"]["lr_threshold"])
 
 
 def _match_cost(cost, *, left, right, left_valid, right_valid, guide, left_range,

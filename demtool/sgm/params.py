@@ -39,8 +39,9 @@ class SgmParams(Parameters):
         None, "Number of disparities searched (overrides --rectify).", minimum=1)
     cost: str = parameter(CORE["cost"], "auto: hmi, then census compared pixel by pixel "
                           "on low-noise images, else census over a window or the "
-                          "horizontal-gradient difference where HMI fails on weak texture "
-                          "(sgm.auto); hmi: hierarchical mutual information; mi: MI "
+                          "horizontal-gradient difference where HMI fails on weak texture, "
+                          "a cross-checked pixel census near depth edges where HMI and "
+                          "census agree (sgm.auto); hmi: hierarchical mutual information; mi: MI "
                           "iterated at full resolution from zero disparity; census; ad: "
                           "absolute difference.", choices=COSTS, what="cost")
     census_window: str = parameter(CORE["census_window"], "Census window (width x "

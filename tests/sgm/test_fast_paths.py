@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from demtool.sgm.matcher import _matchable, noise_sigma
+from demtool.sgm.disparity import matchable
+from demtool.sgm.matcher import noise_sigma
 
 
 @pytest.mark.parametrize("shape", [(3, 3), (57, 83), (120, 95)])
@@ -27,7 +28,7 @@ def test_noise_of_white_noise_is_its_sigma():
 def test_matchable_drops_matches_outside_or_on_invalid_right_pixels():
     disparity = np.array([[0.0, 1.4, 2.6, np.nan, 5.0]], dtype=np.float32)
     right_valid = np.array([[True, False, True, True, True]])
-    out = _matchable(disparity, right_valid)
+    out = matchable(disparity, right_valid)
     # x - d: 0 -> 0 ok; 1 - 1.4 -> -0.4 rounds to 0 ok (-0 valid); 2 - 2.6 -> -1 outside;
     # NaN stays NaN; 4 - 5 -> -1 outside
     np.testing.assert_array_equal(out, np.array([[0.0, 1.4, np.nan, np.nan, np.nan]],

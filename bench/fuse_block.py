@@ -152,8 +152,30 @@ def _smooth(values: np.ndarray, sigma: float) -> np.ndarray:
     return num / np.maximum(den, 1e-9)
 
 
+def shadow_cells(scene: Path, truth) -> np.ndarray:
+    """Truth cells in cast shadow: their ground point, seen by the scene's target view
+    (nadir), is darker than a quarter of that image's median (noise only: nothing to
+    match, for every pair alike, as the sun is the same in every image)."""
+    import json
+
+    from scipy.ndimage import map_coordinates
+
+    from demtool import io as dio
+    from demtool.maps import MapGrid, grid_xyz
+    from demtool.sensors.readers import read_sensor
+
+    target = json.loads((scene / "scene.json").read_text())["target"]
+    grid = MapGrid(crs=truth.crs, transform=truth.transform, width=truth.data.shape[1],
+                   height=truth.data.shape[0])
+    line, sample = read_sensor(scene / f"{target}.json").ground_to_image(
+        grid_xyz(grid, np.nan_to_num(truth.data)))
+    image = dio.read_raster(scene / f"{target}.tif", what="image").data.astype(float)
+    dn = map_coordinates(image, [line - 0.5, sample - 0.5], order=1, cval=np.nan)
+    return dn < 0.25 * np.nanmedian(dn)
+
+
 def error_structure(errors: np.ndarray, pairs: list[tuple[str, str]], truth: np.ndarray,
-                    spacing_m: float) -> list[str]:
+                    spacing_m: float, shadow: np.ndarray) -> list[str]:
     """Why the pairs' errors correlate, and the bound it puts on any fusion (uses the
     truth: a diagnosis, not a method).  On the cells every pair covers:
 
@@ -168,7 +190,8 @@ def error_structure(errors: np.ndarray, pairs: list[tuple[str, str]], truth: np.
       leave-one-out mean of the others, iterated (an M-estimator over the stack: what the
       data gives);
     * the share of the mean error that is the terrain low-passed (``a (G_σ * truth −
-      truth)``, Gaussian σ in metres): the matching windows' smoothing, common to all.
+      truth)``, Gaussian σ in metres): the matching windows' smoothing, common to all;
+      and the share of its squares in cast shadow (``shadow``, (H, W) bool).
     """
     n = len(errors)
     common = np.all(np.isfinite(errors), axis=0)
@@ -224,6 +247,11 @@ def error_structure(errors: np.ndarray, pairs: list[tuple[str, str]], truth: np.
     r2, sigma_m, a = max(fits)
     lines.append(f"mean error of the pairs = {a:.2f} x (G_{sigma_m:g}m * truth - truth) + rest: "
                  f"R^2 {r2:.2f} (terrain smoothed by the matching windows, common to all)")
+    dark = shadow[common]
+    lines.append(f"cast shadow: {100 * dark.mean():.1f} % of the cells, "
+                 f"{100 * np.sum(mean_error[dark] ** 2) / np.sum(mean_error ** 2):.0f} % of the "
+                 f"mean error's squares (correlation there "
+                 f"{np.corrcoef(e[:, dark])[~np.eye(n, dtype=bool)].mean():.2f})")
     return lines
 
 
@@ -321,8 +349,8 @@ def main(argv: list[str] | None = None) -> int:
           f"% of them within {SEAM_CELLS + 2} cells of the truth area's edge (where every "
           "image ends too)")
     errors_on_truth = np.stack([on_truth(d, truth) - truth.data for d in dems])
-    for line in error_structure(errors_on_truth, pairs, truth.data,
-                                abs(truth.transform.a)):
+    for line in error_structure(errors_on_truth, pairs, truth.data, abs(truth.transform.a),
+                                shadow_cells(scene, truth)):
         print(line)
     unaligned = work / "fused_align_none.tif"
     demtool("fuse", *map(str, dems), "--align", "none", "--grid-like", str(truth.path),

@@ -4,10 +4,10 @@ A block of ``--views`` (≥ 4) frame cameras on the Moon (``synth --sensor frame
 truth ``truth_dem_map.tif``) goes through the chain the Makefile's block product runs:
 ``demtool pairs`` chooses the pairs (overlap, convergence / B/H, sun), each pair is
 rectified from its sensor models, matched by ``sgm`` and triangulated by ``dem``
-(``--error-out``), and ``demtool fuse`` combines the pair DEMs (``--method mean``, and
-``--method median`` with the error rasters).  Every DEM is resampled onto the truth's
-grid (bilinear, exact map transformation) and measured there, without alignment (the
-models are exact, so a shift would hide nothing):
+(``--error-out``), and ``demtool fuse`` combines the pair DEMs (``--method mean``,
+``--method median`` with the error rasters, and ``--method huber``).  Every DEM is
+resampled onto the truth's grid (bilinear, exact map transformation) and measured
+there, without alignment (the models are exact, so a shift would hide nothing):
 
 * RMSE of each pair's DEM and of the fused DEM (target: fused ≤ 0.8 × the best pair's);
 * completeness on the truth grid (target: fused ≥ the union of the pairs' − 1 %);
@@ -296,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
         errors.append(error)
     pairs = kept
     fused = {}
-    for method in ("mean", "median"):
+    for method in ("mean", "median", "huber"):
         out = work / f"fused_{method}.tif"
         extra = [a for e in errors for a in ("--error", str(e))] if method == "median" else []
         demtool("fuse", *map(str, dems), "--method", method, *extra, "--grid-like",

@@ -23,8 +23,10 @@ class FuseParams(Parameters):
     Attributes
     ----------
     method : str
-        ``mean`` (weighted mean after outlier rejection; error rasters optional) or
-        ``median`` (weighted median by the error rasters: needs one per DEM).
+        ``huber`` (Huber's M-estimate, no rejection; the default: below the mean's RMSE
+        on every synthetic block of ``bench/fuse_block.py``), ``mean`` (weighted mean
+        after outlier rejection; error rasters optional) or ``median`` (weighted median
+        by the error rasters: needs one per DEM).
     align : str
         Co-registration of each DEM to the reference (compare's ``--align``).
     outlier_k, blend, gap, weights_exponent, min_error, max_nmad, coreg_size
@@ -33,7 +35,7 @@ class FuseParams(Parameters):
         Large mosaics in tiles on Dask (:mod:`demtool.fuse.tiled`).
     """
 
-    method: str = parameter("mean", "Per-cell combination: weighted mean of the values kept "
+    method: str = parameter("huber", "Per-cell combination: weighted mean of the values kept "
                             "by the outlier rejection, weighted median by the DEMs' error "
                             "rasters (needs --error for every DEM), or huber: Huber's "
                             "M-estimate of every value, its scale the larger of the cell's "

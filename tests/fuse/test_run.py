@@ -56,7 +56,10 @@ def test_fuse_aligns_rejects_blunders_and_beats_each_dem(block):
     no_blunders[30:110, 5:100] = False  # DEM 2's extent
     assert np.sqrt(np.nanmean(diff[no_blunders] ** 2)) < 0.12
     spread = dio.read_raster(output_paths(out)["spread"]).data
-    assert np.nanmedian(spread[three]) == pytest.approx(0.1, rel=0.35)
+    # NMAD of three heights with 0.1 m noise: 1.4826 × the smaller distance to their
+    # median, 0.054 m in the median (0.1 m is what three NMADs' rejection left, by
+    # dropping the farthest of three good heights whenever it was 4.4 × the nearest)
+    assert np.nanmedian(spread[three]) == pytest.approx(0.054, rel=0.25)
     assert np.isnan(spread[count == 1]).all()
     error = dio.read_raster(output_paths(out)["error"]).data
     assert np.isfinite(error[three]).all()

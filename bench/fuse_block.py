@@ -4,19 +4,32 @@ A block of ``--views`` (≥ 4) frame cameras on the Moon (``synth --sensor frame
 truth ``truth_dem_map.tif``) goes through the chain the Makefile's block product runs:
 ``demtool pairs`` chooses the pairs (overlap, convergence / B/H, sun), each pair is
 rectified from its sensor models, matched by ``sgm`` and triangulated by ``dem``
-(``--error-out``), and ``demtool fuse`` combines the pair DEMs (``--method mean``, and
-``--method median`` with the error rasters).  Every DEM is resampled onto the truth's
-grid (bilinear, exact map transformation) and measured there, without alignment (the
-models are exact, so a shift would hide nothing):
+(``--error-out``), and ``demtool fuse`` combines the pair DEMs (``--method mean``,
+``--method median`` with the error rasters, and ``--method huber``).  Every DEM is
+resampled onto the truth's grid (bilinear, exact map transformation) and measured
+there, without alignment (the models are exact, so a shift would hide nothing):
 
 * RMSE of each pair's DEM and of the fused DEM (target: fused ≤ 0.8 × the best pair's);
 * completeness on the truth grid (target: fused ≥ the union of the pairs' − 1 %);
 * seams: RMSE of the fused DEM within 10 cells of a pair DEM's boundary over the RMSE
   elsewhere (target ≤ 1.2).  A boundary cell is a cell of the truth grid inside one pair
-  DEM next to a cell outside it (where that pair stops contributing).
+  DEM next to a cell outside it (where that pair stops contributing).  The pairs' own
+  rows show their error on the same band (all pairs' boundaries), for comparison.  Most
+  of the band lies along the truth area's edge, where the images end too; ``interior
+  seams`` cuts each pair DEM by a half-plane inside the area to test boundaries away
+  from that edge.
+
+Then why the fused DEM does not gain more (:func:`error_structure`, uses the truth): the
+pairs' error correlation with and without a shared image, the floor that the error
+common to all pairs puts on any average, the best constant and local weights chosen
+with the truth beside the weights the data gives, the part of the common error that is
+the terrain low-passed by the matching windows, and the fused RMSE without
+co-registration.  ``--no-noise`` renders the images without noise: the pairs' errors
+that remain are the matcher's deterministic response to terrain and geometry.
+The 6-view block of issue 29's seam check is ``--views 6``.
 
 Usage: ``.venv/bin/python bench/fuse_block.py [--views 4] [--size 256] [--seed 0]
-[--max-pairs 0] [--keep DIR]`` (about 40 s of CPU per pair at 256 px on 2 cores).
+[--max-pairs 0] [--no-noise] [--keep DIR]`` (about 15 s of CPU per pair at 256 px).
 """
 
 from __future__ import annotations
@@ -82,11 +95,14 @@ def boundary_band(masks: list[np.ndarray], inside: np.ndarray, width: int) -> np
     return binary_dilation(band, structure=disk)
 
 
-def interior_seams(work: Path, dems: list[Path], truth, inside: np.ndarray) -> dict:
+def interior_seams(work: Path, dems: list[Path], truth, inside: np.ndarray, uncut: Path
+                   ) -> dict:
     """Seams where pair DEMs end inside the area: each pair DEM cut by a half-plane of its
     own direction (2π i / n, a quarter of the grid past the centre), fused with the
     default blending and without; the RMSE within ``SEAM_CELLS`` of a cut over the RMSE
-    elsewhere (cells within ``SEAM_CELLS + 2`` of the truth's edge left out of both)."""
+    elsewhere (cells within ``SEAM_CELLS + 2`` of the truth's edge left out of both); and
+    the same ratio for ``uncut`` (the pairs' fused DEM, no cut): where the band crosses
+    worse ground (cast shadow), both are high, and only their difference is a seam."""
     from scipy.ndimage import binary_erosion
 
     from demtool import io as dio
@@ -114,7 +130,134 @@ def interior_seams(work: Path, dems: list[Path], truth, inside: np.ndarray) -> d
                 str(truth.path), "--out", str(fused))
         diff = on_truth(fused, truth) - truth.data
         out[name] = rmse(diff, band) / rmse(diff, ~band & interior)
+    diff = on_truth(uncut, truth) - truth.data  # the same band where nothing ends
+    out["uncut"] = rmse(diff, band) / rmse(diff, ~band & interior)
     return out
+
+
+def _min_variance_weights(second_moments: np.ndarray) -> np.ndarray:
+    """The non-negative weights summing to 1 that minimise ``w @ S @ w`` (SLSQP)."""
+    from scipy.optimize import minimize
+
+    n = len(second_moments)
+    result = minimize(lambda w: w @ second_moments @ w, np.full(n, 1.0 / n),
+                      jac=lambda w: 2 * second_moments @ w, bounds=[(0.0, 1.0)] * n,
+                      constraints=[{"type": "eq", "fun": lambda w: w.sum() - 1.0}],
+                      method="SLSQP")
+    return result.x
+
+
+def _smooth(values: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian mean of the finite values (NaN-aware normalised convolution)."""
+    from scipy.ndimage import gaussian_filter
+
+    ok = np.isfinite(values)
+    num = gaussian_filter(np.where(ok, values, 0.0), sigma)
+    den = gaussian_filter(ok.astype(float), sigma)
+    return num / np.maximum(den, 1e-9)
+
+
+def shadow_cells(scene: Path, truth) -> np.ndarray:
+    """Truth cells in cast shadow: their ground point, seen by the scene's target view
+    (nadir), is darker than a quarter of that image's median (noise only: nothing to
+    match, for every pair alike, as the sun is the same in every image)."""
+    import json
+
+    from scipy.ndimage import map_coordinates
+
+    from demtool import io as dio
+    from demtool.maps import MapGrid, grid_xyz
+    from demtool.sensors.readers import read_sensor
+
+    target = json.loads((scene / "scene.json").read_text())["target"]
+    grid = MapGrid(crs=truth.crs, transform=truth.transform, width=truth.data.shape[1],
+                   height=truth.data.shape[0])
+    line, sample = read_sensor(scene / f"{target}.json").ground_to_image(
+        grid_xyz(grid, np.nan_to_num(truth.data)))
+    image = dio.read_raster(scene / f"{target}.tif", what="image").data.astype(float)
+    dn = map_coordinates(image, [line - 0.5, sample - 0.5], order=1, cval=np.nan)
+    return dn < 0.25 * np.nanmedian(dn)
+
+
+def error_structure(errors: np.ndarray, pairs: list[tuple[str, str]], truth: np.ndarray,
+                    spacing_m: float, shadow: np.ndarray) -> list[str]:
+    """Why the pairs' errors correlate, and the bound it puts on any fusion (uses the
+    truth: a diagnosis, not a method).  On the cells every pair covers:
+
+    * the error correlation of pairs sharing an image against pairs sharing none;
+    * the shared-error floor ``sqrt(mean_{i≠j} mean(e_i e_j))``: if each error is a part
+      common to all pairs plus independent noise, no average removes the common part;
+    * the best non-negative constant weights, chosen with the truth (minimum of
+      ``w S w`` on the simplex, ``S`` the pairs' error second moments): no weighting by
+      one number per DEM — B/H, a global variance — can do better;
+    * local inverse-variance weights, the variance smoothed over 8 cells, from the truth
+      (what local weights could give) and from each DEM's residual against the
+      leave-one-out mean of the others, iterated (an M-estimator over the stack: what the
+      data gives);
+    * the share of the mean error that is the terrain low-passed (``a (G_σ * truth −
+      truth)``, Gaussian σ in metres): the matching windows' smoothing, common to all;
+      and the share of its squares in cast shadow (``shadow``, (H, W) bool).
+    """
+    n = len(errors)
+    common = np.all(np.isfinite(errors), axis=0)
+    e = errors[:, common]
+    second = e @ e.T / e.shape[1]
+    rms = np.sqrt(np.diag(second))
+    best = rms.min()
+    corr = np.corrcoef(e)
+    sharing, disjoint = [], []
+    for i in range(n):
+        for j in range(i + 1, n):
+            (sharing if set(pairs[i]) & set(pairs[j]) else disjoint).append(corr[i, j])
+    lines = [f"error correlation: pairs sharing an image {np.mean(sharing):.2f} (n={len(sharing)})"
+             + (f", pairs sharing none {np.mean(disjoint):.2f} (n={len(disjoint)})"
+                if disjoint else ", no two pairs without a common image")]
+    off = second[~np.eye(n, dtype=bool)]
+    floor = np.sqrt(max(off.mean(), 0.0))
+    lines.append(f"on the {e.shape[1]} cells every pair covers: best pair {best:.3f} m; plain "
+                 f"mean {np.sqrt(np.mean(e.mean(0) ** 2)) / best:.3f}x; shared-error floor "
+                 f"{floor:.3f} m = {floor / best:.3f}x")
+    w = _min_variance_weights(second)
+    lines.append(f"best non-negative constant weights (chosen with the truth): "
+                 f"{np.sqrt(w @ second @ w) / best:.3f}x (weights "
+                 + " ".join(f"{v:.2f}" for v in w) + ")")
+    values = np.where(np.isfinite(errors), errors, np.nan)
+    ok = np.isfinite(values)
+    zero = np.where(ok, values, 0.0)
+
+    def local_weighted(variances):
+        weights = np.where(ok, 1.0 / np.maximum(variances, 1e-6), 0.0)
+        return (weights * zero).sum(0) / np.maximum(weights.sum(0), 1e-12)
+
+    oracle = local_weighted(np.stack([_smooth(v**2, 8.0) for v in values]))
+    weights = ok.astype(float)
+    for _ in range(5):
+        total = (weights * zero).sum(0)
+        norm = weights.sum(0)
+        residual = [values[i] - (total - weights[i] * zero[i]) / np.maximum(norm - weights[i],
+                                                                            1e-12)
+                    for i in range(n)]
+        weights = np.where(ok, 1.0 / np.maximum(
+            np.stack([_smooth(r**2, 8.0) for r in residual]), 1e-6), 0.0)
+    irls = (weights * zero).sum(0) / np.maximum(weights.sum(0), 1e-12)
+    lines.append(f"local inverse-variance weights (8 cells): variance from the truth "
+                 f"{rmse(oracle, common) / best:.3f}x, from the residual to the others' mean "
+                 f"(iterated) {rmse(irls, common) / best:.3f}x")
+    mean_error = e.mean(0)
+    fits = []
+    for sigma_m in (0.5, 1.0, 1.5, 2.0):
+        low = (_smooth(truth, sigma_m / spacing_m) - truth)[common]
+        a = (low @ mean_error) / (low @ low)
+        fits.append((1 - np.var(mean_error - a * low) / np.var(mean_error), sigma_m, a))
+    r2, sigma_m, a = max(fits)
+    lines.append(f"mean error of the pairs = {a:.2f} x (G_{sigma_m:g}m * truth - truth) + rest: "
+                 f"R^2 {r2:.2f} (terrain smoothed by the matching windows, common to all)")
+    dark = shadow[common]
+    lines.append(f"cast shadow: {100 * dark.mean():.1f} % of the cells, "
+                 f"{100 * np.sum(mean_error[dark] ** 2) / np.sum(mean_error ** 2):.0f} % of the "
+                 f"mean error's squares (correlation there "
+                 f"{np.corrcoef(e[:, dark])[~np.eye(n, dtype=bool)].mean():.2f})")
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -124,6 +267,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--max-pairs", type=int, default=0)
     parser.add_argument("--keep", type=Path, help="work folder to keep (and resume from)")
+    parser.add_argument("--no-noise", action="store_true",
+                        help="images without photon and read noise (synth --no-noise)")
     args = parser.parse_args(argv)
     work = args.keep or Path(tempfile.mkdtemp(prefix="fuse_block_"))
     scene = work / "scene"
@@ -131,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     if not (scene / "scene.json").is_file():
         demtool("synth", "--sensor", "frame", "--views", str(args.views), "--seed",
                 str(args.seed), "--size", str(args.size), "--image-size", str(args.size),
-                "--out", str(scene))
+                *(["--no-noise"] if args.no_noise else []), "--out", str(scene))
     models = sorted(str(p) for p in scene.glob("view_*.json"))
     demtool("pairs", *models, "--max-pairs", str(args.max_pairs), "--out",
             str(work / "pairs.txt"))
@@ -156,13 +301,15 @@ def main(argv: list[str] | None = None) -> int:
         errors.append(error)
     pairs = kept
     fused = {}
-    for method in ("mean", "median"):
+    for method in ("mean", "median", "huber"):
         out = work / f"fused_{method}.tif"
         extra = [a for e in errors for a in ("--error", str(e))] if method == "median" else []
         demtool("fuse", *map(str, dems), "--method", method, *extra, "--grid-like",
                 str(scene / "truth_dem_map.tif"), "--out", str(out))
         fused[method] = out
     wall = time.perf_counter() - start
+
+    from scipy.ndimage import binary_erosion
 
     from demtool import io as dio
 
@@ -178,6 +325,7 @@ def main(argv: list[str] | None = None) -> int:
     union = np.logical_or.reduce(masks)
     union_pct = 100 * np.count_nonzero(union) / np.count_nonzero(inside)
     band = boundary_band(masks, inside, SEAM_CELLS) & inside
+    interior = binary_erosion(inside, iterations=SEAM_CELLS + 2)
     best = min(r[1] for r in rows)
     print(f"synthetic block: {args.views} frame views on the Moon, {args.size} px, seed "
           f"{args.seed}; {len(pairs)} pairs chosen by `demtool pairs`; {wall:.0f} s")
@@ -202,15 +350,20 @@ def main(argv: list[str] | None = None) -> int:
         checks.append((method, total / best, compl - union_pct, seam / rest))
     print(f"\nunion of the pairs' completeness: {union_pct:.2f} %; best pair RMSE {best:.3f} m; "
           f"boundary band: {np.count_nonzero(band)} cells within {SEAM_CELLS} of a pair "
-          "DEM's edge")
+          f"DEM's edge, {100 * np.count_nonzero(band & ~interior) / np.count_nonzero(band):.0f} "
+          f"% of them within {SEAM_CELLS + 2} cells of the truth area's edge (where every "
+          "image ends too)")
     errors_on_truth = np.stack([on_truth(d, truth) - truth.data for d in dems])
-    common = np.all(np.isfinite(errors_on_truth), axis=0)
-    corr = np.corrcoef(errors_on_truth[:, common])
-    off = corr[~np.eye(len(corr), dtype=bool)]
-    print(f"correlation of the pairs' errors: mean {off.mean():.2f}, range {off.min():.2f} … "
-          f"{off.max():.2f}; RMSE of the plain mean of the pairs on the truth grid "
-          f"{rmse(errors_on_truth[:, common].mean(axis=0)):.3f} m (cells all pairs cover)")
-    seams = interior_seams(work, dems, truth, inside)
+    for line in error_structure(errors_on_truth, pairs, truth.data, abs(truth.transform.a),
+                                shadow_cells(scene, truth)):
+        print(line)
+    unaligned = work / "fused_align_none.tif"
+    demtool("fuse", *map(str, dems), "--align", "none", "--grid-like", str(truth.path),
+            "--out", str(unaligned))
+    aligned_rmse = rmse(on_truth(fused["huber"], truth) - truth.data)
+    print(f"co-registration: fused RMSE (huber, the default) {aligned_rmse:.3f} m aligned "
+          f"(nuth-kaab), {rmse(on_truth(unaligned, truth) - truth.data):.3f} m with --align none")
+    seams = interior_seams(work, dems, truth, inside, fused["huber"])
     print(f"{'check':<44}{'target':>10}" + "".join(f"{m:>10}" for m, *_ in checks))
     print(f"{'fused RMSE / best pair RMSE':<44}{'<= 0.80':>10}"
           + "".join(f"{c[1]:>10.3f}" for c in checks))
@@ -219,7 +372,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'seam RMSE / RMSE elsewhere':<44}{'<= 1.20':>10}"
           + "".join(f"{c[3]:>10.3f}" for c in checks))
     print(f"{'interior seams: seam RMSE / elsewhere':<44}{'<= 1.20':>10}"
-          f"{seams['blend']:>10.3f}{'':>10}   (--blend 0: {seams['none']:.3f})")
+          f"{seams['blend']:>10.3f}{'':>10}   (--blend 0: {seams['none']:.3f}; the uncut "
+          f"pairs' fused DEM on the same band: {seams['uncut']:.3f})")
     return 0
 
 

@@ -16,7 +16,8 @@ from demtool.stages import STAGES
 DEM...: DEMs of one area (pairs, routes or dates) on one body.  Each is put on the
 fused grid (the union of their extents on the first DEM's CRS and spacing, or
 --grid-like's), co-registered to the reference (the first DEM or --reference; compare's
---align, each shift logged) and combined cell by cell: the weighted mean after per-cell
+--align, each shift logged) and combined cell by cell: Huber's M-estimate, a blunder's
+influence bounded (--method huber, the default), the weighted mean after per-cell
 outlier rejection (--method mean), or the weighted median by each DEM's error raster
 (--method median), with weights falling off towards each DEM's border (--blend, as ASP
 dem_mosaic).  Error rasters: --error, one per DEM in order, or <stem>_error.tif beside

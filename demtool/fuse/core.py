@@ -15,8 +15,14 @@ outputs and as s2p fuses the pairwise DSMs of a triplet:
    that some DEM covers is never emptied;
 3. the **combination** of the kept values with weights ``w = border / σ²`` (σ the DEM's
    error raster, e.g. ``dem --error-out``'s median ray gap; without error rasters
-   ``w = border``): the weighted **median** (``method="median"``) or the weighted
-   **mean** (``method="mean"``);
+   ``w = border``): the weighted **median** (``method="median"``), the weighted
+   **mean** (``method="mean"``), or (``method="huber"``, no rejection in step 2) Huber's
+   M-estimate of location (Huber 1964; IRLS with c = 1.345, 95 % efficiency under
+   Gaussian errors: Holland & Welsch 1977), each value weighted ``w`` times
+   ``min(1, c s / |h − μ|)``, with the scale ``s`` the larger of the cell's NMAD and the
+   stack's (:func:`stack_nmad`: the spread of values against their cell's median over
+   the whole overlap, so that a cell whose few values agree by chance does not treat a
+   normal one as an outlier) — the influence of a blunder is bounded instead of cut;
 4. the **count** of kept values, the **spread** (their NMAD, NaN where fewer than two)
    and the **combined error**: with error rasters the standard error of the weighted
    mean, ``sqrt(Σ w² σ²) / Σ w`` (independent errors), times √(π/2) = 1.2533 for the
@@ -38,9 +44,11 @@ import numpy as np
 from demtool.errors import ProcessingError
 
 __all__ = ["METHODS", "NMAD_SCALE", "FuseResult", "border_weights", "combine",
-           "consensus_nmad", "estimate_shift"]
+           "consensus_nmad", "estimate_shift", "stack_nmad"]
 
-METHODS = ("median", "mean")
+METHODS = ("median", "mean", "huber")
+HUBER_C = 1.345  # Huber's tuning constant: 95 % efficiency for Gaussian errors
+HUBER_ITERATIONS = 10
 NMAD_SCALE = 1.4826  # MAD → σ of a normal distribution
 MEDIAN_EFFICIENCY = math.sqrt(math.pi / 2.0)  # σ(median) / σ(mean), Gaussian errors
 MIN_COMMON_CELLS = 50  # common cells a co-registration needs, at least
@@ -148,9 +156,30 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return np.where(total > 0, out, np.nan)
 
 
+def _huber(values: np.ndarray, weights: np.ndarray, start: np.ndarray, scale: np.ndarray
+           ) -> np.ndarray:
+    """Per-cell Huber M-estimate by iteratively reweighted least squares.
+
+    ``values`` (N, H, W) with ``weights`` (N, H, W, 0 = absent), starting from ``start``
+    (H, W) with the scale ``scale`` (H, W, > 0).  Returns the final weights (prior
+    weights times Huber's ``min(1, c s / |r|)``); the estimate is their weighted mean.
+    """
+    present = weights > 0
+    filled = np.where(present, values, 0.0)
+    mu = np.where(np.isfinite(start), start, 0.0)
+    w = weights
+    for _ in range(HUBER_ITERATIONS):
+        u = np.abs(filled - mu) / scale
+        w = np.where(present, weights * np.minimum(1.0, HUBER_C / np.maximum(u, 1e-12)), 0.0)
+        total = w.sum(axis=0)
+        mu = np.where(total > 0, (w * filled).sum(axis=0) / np.where(total > 0, total, 1.0),
+                      mu)
+    return w
+
+
 def combine(values: np.ndarray, weights: np.ndarray, errors: np.ndarray | None = None, *,
-            method: str = "mean", outlier_k: float = 3.0, min_error: float = 0.01
-            ) -> FuseResult:
+            method: str = "mean", outlier_k: float = 3.0, min_error: float = 0.01,
+            scale_floor: float = 0.0) -> FuseResult:
     """Combine co-registered DEMs on one grid, cell by cell (see the module docstring).
 
     Parameters
@@ -162,12 +191,16 @@ def combine(values: np.ndarray, weights: np.ndarray, errors: np.ndarray | None =
     errors : (N, H, W) float array, metres, optional
         Each DEM's one-sigma error (e.g. the triangulation's ray gap); NaN or
         non-positive entries are raised to ``min_error``.  Needed by ``method="median"``.
-    method : {"median", "mean"}
-        Weighted median, or weighted mean of the values kept by the outlier rejection.
+    method : {"median", "mean", "huber"}
+        Weighted median, or weighted mean of the values kept by the outlier rejection,
+        or Huber's M-estimate of every value (no rejection).
     outlier_k : float
-        Rejection threshold in NMADs of the cell's values (>= 1).
+        Rejection threshold in NMADs of the cell's values (>= 1; not used by huber).
     min_error : float
         Floor of the error rasters, metres (a zero ray gap is not infinite precision).
+    scale_floor : float
+        Huber: the smallest scale, metres (:func:`stack_nmad` of the whole stack; 0: the
+        cell's NMAD alone, floored at 1 mm).
 
     Returns
     -------
@@ -194,6 +227,8 @@ def combine(values: np.ndarray, weights: np.ndarray, errors: np.ndarray | None =
     residual = np.abs(values - median)
     mad = _nan_median(residual, valid)
     keep = valid & (residual <= outlier_k * NMAD_SCALE * mad + 1e-9)
+    if method == "huber":
+        keep = valid
     count = keep.sum(axis=0)
     w = np.where(keep, weights, 0.0)
     sigma = None
@@ -207,6 +242,12 @@ def combine(values: np.ndarray, weights: np.ndarray, errors: np.ndarray | None =
     total = w.sum(axis=0)
     has = total > 0
     safe_total = np.where(has, total, 1.0)
+    if method == "huber":
+        scale = np.maximum(np.maximum(NMAD_SCALE * np.nan_to_num(mad), scale_floor), 1e-3)
+        w = _huber(values, w, median, scale)
+        total = w.sum(axis=0)
+        has = total > 0
+        safe_total = np.where(has, total, 1.0)
     if method == "median":
         dem = _weighted_median(np.where(keep, values, 0.0), w)
     else:
@@ -269,6 +310,29 @@ def estimate_shift(dem: np.ndarray, reference: np.ndarray, *, method: str = "nut
         out = alignment.as_dict()
     out["common_cells"] = common
     return out
+
+
+def stack_nmad(values: np.ndarray) -> float:
+    """The spread of a stack: NMAD of every value's residual to its cell's median.
+
+    Parameters
+    ----------
+    values : (N, H, W) float array, metres, NaN = no value
+
+    Returns
+    -------
+    float
+        ``1.4826 median |h_i − median_j h_j|`` over the cells with two values or more
+        (metres); 0 where there is no such cell.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    valid = np.isfinite(values)
+    shared = valid.sum(axis=0) >= 2
+    if not shared.any():
+        return 0.0
+    median = _nan_median(values[:, shared], valid[:, shared])
+    residual = np.abs(values[:, shared] - median)[valid[:, shared]]
+    return float(NMAD_SCALE * np.median(residual))
 
 
 def consensus_nmad(values: np.ndarray) -> np.ndarray:

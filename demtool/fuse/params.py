@@ -23,8 +23,10 @@ class FuseParams(Parameters):
     Attributes
     ----------
     method : str
-        ``mean`` (weighted mean after outlier rejection; error rasters optional) or
-        ``median`` (weighted median by the error rasters: needs one per DEM).
+        ``huber`` (Huber's M-estimate, no rejection; the default: below the mean's RMSE
+        on every synthetic block of ``bench/fuse_block.py``), ``mean`` (weighted mean
+        after outlier rejection; error rasters optional) or ``median`` (weighted median
+        by the error rasters: needs one per DEM).
     align : str
         Co-registration of each DEM to the reference (compare's ``--align``).
     outlier_k, blend, gap, weights_exponent, min_error, max_nmad, coreg_size
@@ -33,15 +35,17 @@ class FuseParams(Parameters):
         Large mosaics in tiles on Dask (:mod:`demtool.fuse.tiled`).
     """
 
-    method: str = parameter("mean", "Per-cell combination: weighted mean of the values kept "
-                            "by the outlier rejection, or weighted median by the DEMs' error "
-                            "rasters (needs --error for every DEM).", choices=METHODS,
-                            what="method")
+    method: str = parameter("huber", "Per-cell combination: weighted mean of the values kept "
+                            "by the outlier rejection, weighted median by the DEMs' error "
+                            "rasters (needs --error for every DEM), or huber: Huber's "
+                            "M-estimate of every value, its scale the larger of the cell's "
+                            "and the whole stack's NMAD (no rejection: a blunder's influence "
+                            "is bounded).", choices=METHODS, what="method")
     align: str = parameter("nuth-kaab", "Co-registration of each DEM to the reference "
                            "(as compare --align); its shift is logged and applied.",
                            choices=ALIGN_METHODS, what="alignment method")
     outlier_k: float = parameter(3.0, "Per cell, drop heights farther from the cell's median "
-                                 "than this many NMADs.", minimum=1.0)
+                                 "than this many NMADs (mean and median).", minimum=1.0)
     blend: float = parameter(32.0, "Blending length, cells: a DEM's weight falls off over "
                              "this distance to its border (0 = no blending).", minimum=0.0)
     gap: float = parameter(16.0, "Gaps in a DEM up to about twice this wide, cells, are not "

@@ -198,7 +198,7 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
     """
     from demtool import io as dio
     from demtool.errors import InputError, ParameterError, ProcessingError
-    from demtool.fuse.core import consensus_nmad, estimate_shift
+    from demtool.fuse.core import consensus_nmad, estimate_shift, stack_nmad
     from demtool.fuse.params import FuseParams
     from demtool.fuse.tiled import FuseTileJob, fuse_tiled, sample_on_grid, single_tile
     from demtool.tiling import wants_tiles
@@ -288,11 +288,16 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
 
     # DEM-level outlier rejection against the consensus of the others.
     used = list(range(len(dem_paths)))
+    scale_floor = 0.0
     if len(dem_paths) >= 2:
         window = _centred(ref_window, params.coreg_size)
         stack = np.stack([sample_on_grid(p, specs[i], target, window, shifts[i])
                           for i, p in enumerate(dem_paths)])
         nmads = consensus_nmad(stack)
+        if params.method == "huber":
+            scale_floor = stack_nmad(stack)
+            log.info("Huber scale: at least %.3f m (NMAD of the heights against their "
+                     "cell's median over the reference's window)", scale_floor)
         for i, value in enumerate(nmads):
             records[i]["consensus_nmad_m"] = None if not np.isfinite(value) else float(value)
             log.info("%s: NMAD against the others' median %.3f m", dem_paths[i], value)
@@ -318,10 +323,12 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
                       target=target, method=params.method, outlier_k=params.outlier_k,
                       blend=params.blend, gap=params.gap,
                       weights_exponent=params.weights_exponent,
-                      min_error=params.min_error)
+                      min_error=params.min_error, scale_floor=scale_floor)
     summary: dict[str, Any] = {"grid": {"shape": list(target.shape),
                                         "transform": list(target.transform)},
                                "method": params.method, "dems": records}
+    if params.method == "huber":
+        summary["huber_scale_floor_m"] = scale_floor
     prov = run.provenance
     body_tags: dict[str, Any] = {}
     if target.crs_wkt is not None:

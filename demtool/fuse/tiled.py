@@ -129,6 +129,7 @@ class FuseTileJob:
     gap: float
     weights_exponent: float
     min_error: float
+    scale_floor: float = 0.0
     stage: str = "fuse"
     bands: tuple[str, ...] = ("dem", "count", "spread", "error")
 
@@ -152,7 +153,8 @@ class FuseTileJob:
                                              tile.core, (dx, dy, 0.0), what="error raster"))
         result = combine(np.stack(values), np.stack(weights),
                          np.stack(errors) if use_errors else None, method=self.method,
-                         outlier_k=self.outlier_k, min_error=self.min_error)
+                         outlier_k=self.outlier_k, min_error=self.min_error,
+                         scale_floor=self.scale_floor)
         count = result.count
         info = {"seconds": time.perf_counter() - start,
                 "cpu_seconds": time.process_time() - cpu,

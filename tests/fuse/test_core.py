@@ -11,6 +11,7 @@ from demtool.fuse.core import (
     combine,
     consensus_nmad,
     estimate_shift,
+    stack_nmad,
 )
 
 
@@ -65,11 +66,41 @@ def test_weighted_mean_uses_border_and_error_weights():
     assert result.error[0, 0] == pytest.approx(np.sqrt(1 + 0.25 ** 2 * 4) / 1.25)
 
 
+def test_huber_is_the_weighted_mean_of_agreeing_values_and_bounds_a_blunder():
+    ones = np.ones((4, 2, 3))
+    values = np.array([10.0, 10.2, 9.8, 10.4])[:, None, None] * ones
+    weights = np.array([1.0, 2.0, 1.0, 1.0])[:, None, None] * ones
+    # every residual within c × scale: Huber's weights are all 1, the weighted mean
+    result = combine(values, weights, method="huber", scale_floor=1.0)
+    np.testing.assert_allclose(result.dem, (10 + 20.4 + 9.8 + 10.4) / 5, rtol=1e-6)
+    np.testing.assert_array_equal(result.count, 4)
+    # a 50 m blunder is kept but its influence bounded: weight c s / 50 against 1
+    values = np.array([10.0, 10.2, 9.8, 60.0])[:, None, None] * ones
+    result = combine(values, np.ones_like(values), method="huber", scale_floor=0.1)
+    scale = 1.4826 * 0.2  # the cell's NMAD (residuals 0.1, 0.1, 0.3, 49.9 to 10.1)
+    bound = 1.345 * scale / 3  # at most c s of weighted residual over the other three
+    assert np.all(np.abs(result.dem - 10.0) <= bound)
+    assert np.all(np.abs(result.dem - 10.0) > 0.0)
+    np.testing.assert_array_equal(result.count, 4)
+    assert combine(values, np.ones_like(values), method="mean").dem[0, 0] == \
+        pytest.approx(10.0, abs=1e-6)  # the rejection of mean cuts it instead
+
+
+def test_stack_nmad_is_the_spread_against_the_cell_medians():
+    offsets = np.array([0.0, 0.1, 0.3])[:, None, None]
+    stack = offsets + np.zeros((3, 4, 5))
+    stack[2, 0, 0] = np.nan  # a cell with two values: residuals ±0.05 to their median
+    # residuals to the median: 0.1, 0, 0.2 in 19 cells; 0.05, 0.05 in one
+    assert stack_nmad(stack) == pytest.approx(1.4826 * 0.1)
+    assert stack_nmad(np.full((2, 3, 3), np.nan)) == 0.0
+
+
 def test_cells_without_values_stay_empty_and_single_values_have_no_spread():
     values = np.full((2, 1, 3), np.nan)
     values[0, 0, 1] = 5.0
     weights = np.where(np.isfinite(values), 1.0, 0.0)
-    for method, errors in (("mean", None), ("median", np.ones_like(values))):
+    for method, errors in (("mean", None), ("median", np.ones_like(values)),
+                           ("huber", None)):
         result = combine(values, weights, errors, method=method)
         assert np.isnan(result.dem[0, 0]) and result.dem[0, 1] == 5.0
         np.testing.assert_array_equal(result.count[0], [0, 1, 0])

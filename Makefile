@@ -204,11 +204,11 @@ $(WORK)/reports/dem_linescan_refined/report.json: $(WORK)/dem_linescan_refined.t
 
 # Multi-pair stereo of a block and fusion (issue 29): synth --sensor frame with three views
 # (frame cameras on the Moon, ISDs beside the images) → `pairs` chooses the stereo pairs
-# worth matching (overlap, convergence and B/H in range, sun; view_00/view_02 at B/H 0.1
-# is left out) and lists them as "LEFT RIGHT" lines → per pair (folder LEFT+RIGHT):
-# rectify with the sensor models → sgm → dem with its error raster → `fuse` co-registers
-# the pair DEMs to the first and combines them (weighted mean after per-cell outlier
-# rejection, weights fading towards each DEM's border) → compare with truth_dem_map.tif.
+# worth matching (overlap, convergence and B/H in range, sun) and lists them as
+# "LEFT RIGHT" lines → per pair (folder LEFT+RIGHT): rectify with the sensor models →
+# sgm → dem with its error raster → `fuse` co-registers the pair DEMs to the first and
+# combines them (per-cell Huber M-estimate, weights fading towards each DEM's border) →
+# compare with truth_dem_map.tif.
 # The scene is 256 px so the block stays a small part of the demo's time.
 BLOCK_SCENE := $(WORK)/scene_block
 BLOCK_STEREO := $(WORK)/stereo_block

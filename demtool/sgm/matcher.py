@@ -254,10 +254,8 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         Threads (0 = all cores): two run the down and up sweeps of a strip; more match
         ``workers // 2`` strips at once.
     max_memory_mb : float
-        Budget of the aggregated-cost volumes S and row buffers of the strips matched
-        at once, MiB (one strip, exact, when S fits; when it does not, the sweeps
-        recompute their end rows instead of storing them: the same result, ~13 % more
-        CPU).  640 MiB keeps a 2048² × 128 pair's peak under 1 GB (issue 28).
+        Budget of S and the row buffers of the strips matched at once, MiB (beyond it
+        the sweeps recompute their end rows: same result, ~13 % more CPU; issue 28).
     seed : int
         Seed of the random initial disparity of "hmi".
 

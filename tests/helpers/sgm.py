@@ -183,3 +183,39 @@ def plank_pair(height: int = 90, width: int = 120, *, seed: int = 21, plank: flo
     left = np.clip(np.rint(110.0 + left + rng.normal(0.0, noise, left.shape)), 0, 255)
     right = np.clip(np.rint(110.0 + right + rng.normal(0.0, noise, right.shape)), 0, 255)
     return left.astype(np.float32), right.astype(np.float32), truth.astype(np.float32)
+
+
+def reference_aggregation(cost, guide, paths: int, kappa: float, p1: int, p2: int):
+    """S = Σ_r L_r (Hirschmüller 2008 eq. 13–14) over the 8 or 16 directions, by plain
+    loops (int64, no sentinels, P2 adapted to the guide's steps as
+    :func:`demtool.sgm.aggregate.adapted_p2_table`): the reference of the vectorised
+    kernel's tests."""
+    from demtool.sgm.aggregate import adapted_p2_table
+
+    p2_of_step = adapted_p2_table(p1, p2, kappa)
+    height, width, count = cost.shape
+
+    def path(dy, dx):
+        out = np.zeros(cost.shape, dtype=np.int64)
+        rows = range(height) if dy >= 0 else range(height - 1, -1, -1)
+        cols = list(range(width)) if dx >= 0 else list(range(width - 1, -1, -1))
+        for y in rows:
+            for x in cols:
+                yp, xp = y - dy, x - dx
+                if not (0 <= yp < height and 0 <= xp < width):
+                    out[y, x] = cost[y, x]  # the path starts here
+                    continue
+                prev = out[yp, xp]
+                low = prev.min()
+                penalty = p2_of_step[abs(int(guide[y, x]) - int(guide[yp, xp]))]
+                for k in range(count):
+                    step = min(prev[k - 1] if k > 0 else 10**9,
+                               prev[k + 1] if k + 1 < count else 10**9) + p1
+                    out[y, x, k] = cost[y, x, k] + min(prev[k], step, low + penalty) - low
+        return out
+
+    directions = [(0, 1), (1, 0), (1, 1), (1, -1)]
+    if paths == 16:
+        directions += [(1, 2), (1, -2), (2, 1), (2, -1)]
+    directions += [(-dy, -dx) for dy, dx in directions]
+    return sum(path(dy, dx) for dy, dx in directions)

@@ -24,6 +24,7 @@ from tests.helpers.sgm import (
     error_rates,
     fractional_shift_pair,
     occlusion_pair,
+    reference_aggregation,
     smooth_disparity_pair,
 )
 
@@ -259,31 +260,7 @@ def test_aggregation_follows_the_recursion(paths, kappa):
     cost = rng.integers(0, 50, size=(6, 9, 6)).astype(np.uint16)
     guide = rng.integers(0, 40, size=(6, 9)).astype(np.uint8)
     total = aggregate_costs(cost, p1=3, p2=20, paths=paths, guide=guide, p2_kappa=kappa)
-    p2_of_step = adapted_p2_table(3, 20, kappa)
-
-    def path(dy, dx):
-        out = np.zeros(cost.shape, dtype=np.int64)
-        h, w, _ = cost.shape
-        ys = range(h) if dy >= 0 else range(h - 1, -1, -1)
-        xs = list(range(w)) if dx >= 0 else list(range(w - 1, -1, -1))
-        for y in ys:
-            for x in xs:
-                yp, xp = y - dy, x - dx
-                if not (0 <= yp < h and 0 <= xp < w):
-                    out[y, x] = cost[y, x]
-                    continue
-                prev = out[yp, xp]
-                low = prev.min()
-                shifted = np.minimum(np.r_[prev[1:], 10**6], np.r_[10**6, prev[:-1]]) + 3
-                p2 = p2_of_step[abs(int(guide[y, x]) - int(guide[yp, xp]))]
-                out[y, x] = cost[y, x] + np.minimum(np.minimum(prev, shifted), low + p2) - low
-        return out
-
-    directions = [(0, 1), (1, 0), (1, 1), (1, -1)]
-    if paths == 16:
-        directions += [(1, 2), (1, -2), (2, 1), (2, -1)]
-    directions += [(-dy, -dx) for dy, dx in directions]
-    expected = sum(path(dy, dx) for dy, dx in directions)
+    expected = reference_aggregation(cost, guide, paths, kappa, 3, 20)
     assert np.array_equal(total, expected)
 
 

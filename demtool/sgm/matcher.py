@@ -400,12 +400,12 @@ def _auto(hmi, *, window, given, cost_window, match, filters, fractions):
                        **filters)
         why_not = choice.prefer_fine(fine[0], hmi[0], valid)
         if not why_not:
-            log.info("cost auto: census compared pixel by pixel (image noise σ %.1f grey "
-                     "levels ≤ %.1f), averaged with HMI where they agree", noise,
-                     choice.FINE_NOISE_MAX)
-            fractions["cost_used"] = "census+hmi"
+            log.info("cost auto: census compared pixel by pixel (image noise σ %.1f ≤ %.1f), "
+                     "averaged with HMI where they agree", noise, choice.FINE_NOISE_MAX)
+            zone = choice.discontinuity_zone(hmi[0])
+            fractions.update(cost_used="census+hmi", edge_census=choice.share(zone, valid))
             window = choice.FINE_CENSUS.window if cost_window is None else int(cost_window)
-            return ((choice.blend(fine[0], hmi[0]), fine[1], fine[2]),
+            return (choice.blend_fine(fine, hmi, zone),
                     _support_radius("census", window, census_window))
         log.info("cost auto: no pixel census (%s)", why_not)
         fractions["cost_reason"] = why_not

@@ -2,12 +2,14 @@
 
 "auto" matches with HMI first (Hirschmüller 2008), then:
 
-* on images whose pixel noise is small (:data:`FINE_NOISE_MAX`), with census codes
-  compared pixel by pixel (no window sum, :data:`FINE_CENSUS`: CNES Pandora's sample
-  pipeline, census 5×5 and P1 = 8) — the sharpest depth edges, so the fewest
-  foreground-fattened pixels in occlusions — averaged with HMI where the two agree
-  within a pixel (:func:`blend`), unless it is left–right consistent on markedly fewer
-  pixels than HMI (:func:`prefer_fine`);
+* on images whose pixel noise is small (:data:`FINE_NOISE_MAX`), near depth
+  discontinuities (:func:`discontinuity_zone`), with census codes compared pixel by
+  pixel (no window sum, :data:`FINE_CENSUS`: CNES Pandora's sample pipeline, census 5×5
+  and P1 = 8) — the sharpest depth edges, so the fewest foreground-fattened pixels in
+  occlusions — averaged with HMI where the two agree within a pixel (:func:`blend`),
+  unless it is left–right consistent on markedly fewer pixels than HMI
+  (:func:`prefer_fine`); elsewhere (and on images without discontinuities) the choice
+  below;
 * else (noisy or weakly textured images, where single census bits flip with the noise)
   with census summed over a window, which replaces HMI where HMI fails
   (:func:`prefer_census`) or confirms the HMI pixels it agrees with (:func:`agreement`);
@@ -85,15 +87,16 @@ EDGE_CENSUS = CostDefaults(window=1, p1=8, p2=32)
 # 0.30 with 12 / 2), a jump of 10 misses the pairs' 5 … 10 px steps.
 EDGE_ZONE_RADIUS = 12  # px
 EDGE_ZONE_JUMP = 6.0  # px
-# The low-noise choice (:func:`blend_fine`) takes the pixel census where it disagrees
-# with HMI only near depth discontinuities (:func:`discontinuity_zone`: a jump of more
-# than this between pixels at most 4 px apart); elsewhere those pixels are filled.  On
-# `synth --sensor frame` scenes (smooth terrain, band-limited albedo, low noise) the
-# census deciding everywhere made the DEM of seed 0 27 % worse than the previous default
-# (RMSE 0.558 m against 0.439 m); chosen on that scene and the five Middlebury pairs
-# (jump 2: Middlebury met, the scene 0.484 m; 3: Middlebury met, 0.458 m; a 3 × 3 jump
-# zone lost teddy's occluded pixels to Pandora); held out, seeds 3 and 7: 0.753 / 0.331
-# m against the previous default's 0.800 / 0.443 m.
+# The low-noise choice (:func:`blend_fine`) takes the pixel census only near depth
+# discontinuities (:func:`discontinuity_zone`: a jump of more than this between pixels
+# at most 4 px apart) and the windowed choice elsewhere; an image without discontinuities
+# (orbital terrain) keeps the windowed choice.  The census deciding everywhere made
+# `synth --sensor frame` DEMs worse than the previous default (seed 0: RMSE 0.558 m
+# against 0.439 m; a 4-view block's pairs up to 43 % worse); with the zone, seeds 0 / 3
+# / 7 0.474 / 0.759 / 0.466 m against 0.439 / 0.800 / 0.443, the block fused 0.241 m
+# against 0.239 m.  Chosen on seed 0 and the five Middlebury pairs (jump 2: Middlebury
+# met, seed 0 0.484 m; 3: met, 0.458 m with filling elsewhere; a 3 × 3 jump lost teddy's
+# occluded pixels to Pandora).
 FINE_EDGE_JUMP = 3.0  # px
 
 
@@ -214,17 +217,16 @@ def discontinuity_zone(disparity: np.ndarray, radius: int = EDGE_ZONE_RADIUS,
     return ndimage.maximum_filter(edge, size=2 * radius + 1)
 
 
-def blend_fine(fine: tuple, hmi: tuple, zone: np.ndarray) -> tuple:
-    """(disparity, confidence, occluded) of the low-noise choice: the pixel census and
-    HMI averaged where they agree within 1 px (:func:`blend`); where they disagree, the
-    pixel census near depth discontinuities (``zone``: HMI's window fattens a foreground
-    there), and elsewhere neither — left to the fill as a mismatch (on smooth ground the
-    single-pixel costs are the noisier, on a weak plank HMI is the one that fails)."""
+def blend_fine(fine: tuple, hmi: tuple, zone: np.ndarray, base: tuple) -> tuple:
+    """(disparity, confidence, occluded) of the low-noise choice: near depth
+    discontinuities (``zone``, where a window cost fattens a foreground) the pixel census,
+    averaged with HMI where the two agree within 1 px (:func:`blend`); elsewhere ``base``,
+    the windowed costs' choice (on smooth ground the single-pixel costs are the noisier,
+    and on a weak plank HMI fails: the windowed choice handles both)."""
     agreed, _ = agreement(fine[0], hmi[0])
     mean = (0.5 * (fine[0] + hmi[0])).astype(np.float32)
-    left_out = (np.float32(np.nan), np.float32(0.0), False)
-    return tuple(np.where(agreed, m, np.where(zone, f, out)).astype(f.dtype)
-                 for m, f, out in zip((mean, fine[1], fine[2]), fine, left_out, strict=True))
+    return tuple(np.where(zone, np.where(agreed, m, f), b).astype(f.dtype)
+                 for m, f, b in zip((mean, fine[1], fine[2]), fine, base, strict=True))
 
 
 def depth_edge_zone(disparity: np.ndarray, radius: int = EDGE_ZONE_RADIUS,

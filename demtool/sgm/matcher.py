@@ -384,7 +384,7 @@ def _support_radius(cost: str, window: int, census_window: str) -> int:
     return max(radius, 1)
 
 
-def _auto(hmi, *, window, given, cost_window, match, filters, fractions):
+def _auto(hmi, *, window, given, cost_window, match, filters, fractions, fine=True):
     """The choices of cost "auto" after HMI (:mod:`demtool.sgm.auto`).
 
     ``hmi``: HMI's filtered (disparity, confidence, occluded), ``window`` its cost
@@ -393,20 +393,20 @@ def _auto(hmi, *, window, given, cost_window, match, filters, fractions):
     """
     valid, guide = match["left_valid"], match["guide"]
     census_window = match["census_window"]
-    noise = noise_sigma(guide, valid)
-    fractions["noise_sigma"] = round(noise, 2)
-    if noise <= choice.FINE_NOISE_MAX:
+    fractions["noise_sigma"] = round(noise := noise_sigma(guide, valid), 2)
+    zone = choice.discontinuity_zone(hmi[0]) if fine and noise <= choice.FINE_NOISE_MAX else None
+    if zone is not None and zone.any():  # no discontinuity (terrain): nothing to sharpen
         fine = _filter(*_census_fallback(cost_window, *given, match, choice.FINE_CENSUS),
                        **filters)
-        why_not = choice.prefer_fine(fine[0], hmi[0], valid)
-        if not why_not:
-            log.info("cost auto: census compared pixel by pixel (image noise σ %.1f ≤ %.1f), "
-                     "averaged with HMI where they agree", noise, choice.FINE_NOISE_MAX)
-            zone = choice.discontinuity_zone(hmi[0])
-            fractions.update(cost_used="census+hmi", edge_census=choice.share(zone, valid))
+        if not (why_not := choice.prefer_fine(fine[0], hmi[0], valid)):
+            log.info("cost auto: pixel census near depth discontinuities (noise σ %.1f)", noise)
+            base, radius = _auto(hmi, window=window, given=given, cost_window=cost_window,
+                                 match=match, filters=filters, fractions=fractions, fine=False)
+            fractions.update(cost_used=f"census+{fractions.get('cost_used', 'hmi')}",
+                             edge_census=choice.share(zone, valid))
             window = choice.FINE_CENSUS.window if cost_window is None else int(cost_window)
-            return (choice.blend_fine(fine, hmi, zone),
-                    _support_radius("census", window, census_window))
+            return (choice.blend_fine(fine, hmi, zone, base),
+                    max(radius, _support_radius("census", window, census_window)))
         log.info("cost auto: no pixel census (%s)", why_not)
         fractions["cost_reason"] = why_not
     other = _filter(*_census_fallback(cost_window, *given, match), **filters)

@@ -33,12 +33,10 @@ def test_auto_replaces_hmi_by_census_on_a_weak_texture_plank(caplog, monkeypatch
     bad_hmi = error_rates(hmi.disparity, truth, scored)["bad2"]
     # the image's noise (σ ≈ 4 grey levels of the stretch) lets the pixel census try
     pixel = sgm(left, right, min_disparity=0, num_disparities=48, workers=1)
-    assert pixel.fractions["cost_used"] == "census+hmi"
+    # near its depth discontinuities (the plank's borders): the windowed choice elsewhere
+    assert pixel.fractions["cost_used"].startswith("census+")
     bad_pixel = error_rates(pixel.disparity, truth, scored)["bad2"]
-    # away from depth discontinuities the pixels where the two disagree are filled, not
-    # taken from the census (auto.blend_fine: the census deciding everywhere made a
-    # synthetic planetary DEM 27 % worse): 0.148 here, 0.119 with the census deciding
-    assert bad_pixel < 0.55 * bad_hmi and bad_pixel < 0.15, (bad_hmi, bad_pixel)
+    assert bad_pixel < 0.5 * bad_hmi and bad_pixel < 0.15, (bad_hmi, bad_pixel)
     monkeypatch.setattr(rules, "FINE_NOISE_MAX", -1.0)  # as if the image were noisier
     gradient = sgm(left, right, min_disparity=0, num_disparities=48, workers=1)
     assert gradient.fractions["cost_used"] == "gradient"  # the most consistent here

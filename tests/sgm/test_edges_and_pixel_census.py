@@ -94,14 +94,27 @@ def test_prefer_fine_refuses_a_pixel_census_that_is_much_less_consistent():
     assert prefer_fine(good[:, :], good, valid) == ""
 
 
-def test_auto_uses_the_pixel_census_on_a_clean_textured_pair():
+def test_auto_keeps_the_windowed_choice_without_depth_discontinuities():
+    """A clean pair of smooth disparities (terrain-like): no discontinuity, so no pixel
+    census — on smooth ground its single-pixel costs are the noisier (issue 26)."""
     left, right, truth = smooth_disparity_pair(offset=6.0, gain=1.3, bias=50.0)
     auto = sgm(left, right, min_disparity=0, num_disparities=16, workers=1)
-    assert auto.fractions["cost_used"] == "census+hmi"
+    assert not auto.fractions["cost_used"].startswith("census+")
     assert auto.fractions["noise_sigma"] <= 5.0
     scored = np.zeros(truth.shape, dtype=bool)
     scored[4:-4, 20:-4] = True
     assert error_rates(auto.disparity, truth, scored)["bad2"] < 0.01
+
+
+def test_auto_uses_the_pixel_census_near_a_clean_pairs_depth_discontinuity():
+    left, right, truth, occluded = occlusion_pair(noise=0.5)
+    auto = sgm(left, right, min_disparity=0, num_disparities=24, workers=1)
+    assert auto.fractions["noise_sigma"] <= 5.0
+    assert auto.fractions["cost_used"].startswith("census+")
+    assert 0.0 < auto.fractions["edge_census"] < 1.0
+    scored = np.zeros(truth.shape, dtype=bool)
+    scored[2:-2, 24:-2] = True
+    assert error_rates(auto.disparity, truth, scored & ~occluded)["bad2"] < 0.02
 
 
 def test_prefer_gradient_only_when_more_consistent_than_both():

@@ -384,24 +384,24 @@ def _support_radius(cost: str, window: int, census_window: str) -> int:
     return max(radius, 1)
 
 
-def _auto(hmi, *, window, given, cost_window, match, filters, fractions, fine=True):
-    """The choices of cost "auto" after HMI (:mod:`demtool.sgm.auto`).
-
-    ``hmi``: HMI's filtered (disparity, confidence, occluded), ``window`` its cost
-    window.  Returns the chosen triple and the support radius of its cost (for
-    :func:`demtool.sgm.edges.snap_edges`); the choice goes to ``fractions``.
-    """
+def _auto(hmi, *, window, given, cost_window, match, filters, fractions, pixel_census=True):
+    """The choices of cost "auto" after HMI (:mod:`demtool.sgm.auto`; ``pixel_census``
+    False: the windowed choice alone).  ``hmi``: HMI's filtered (disparity, confidence,
+    occluded), ``window`` its cost window.  Returns the chosen triple and its cost's
+    support radius (:func:`demtool.sgm.edges.snap_edges`); the choice goes to ``fractions``."""
     valid, guide = match["left_valid"], match["guide"]
     census_window = match["census_window"]
     fractions["noise_sigma"] = round(noise := noise_sigma(guide, valid), 2)
-    zone = choice.discontinuity_zone(hmi[0]) if fine and noise <= choice.FINE_NOISE_MAX else None
+    zone = (choice.discontinuity_zone(hmi[0])
+            if pixel_census and noise <= choice.FINE_NOISE_MAX else None)
     if zone is not None and zone.any():  # no discontinuity (terrain): nothing to sharpen
         fine = _filter(*_census_fallback(cost_window, *given, match, choice.FINE_CENSUS),
                        **filters)
         if not (why_not := choice.prefer_fine(fine[0], hmi[0], valid)):
             log.info("cost auto: pixel census near depth discontinuities (noise σ %.1f)", noise)
             base, radius = _auto(hmi, window=window, given=given, cost_window=cost_window,
-                                 match=match, filters=filters, fractions=fractions, fine=False)
+                                 match=match, filters=filters, fractions=fractions,
+                                 pixel_census=False)
             fractions.update(cost_used=f"census+{fractions.get('cost_used', 'hmi')}",
                              edge_census=choice.share(zone, valid))
             window = choice.FINE_CENSUS.window if cost_window is None else int(cost_window)

@@ -169,7 +169,7 @@ def _write_wrapped_projected(path, body, lon0, lat0, half_m):
     x0, y0 = maps.lonlat_to_map(crs, lon0, lat0)
     grid = maps.snap_grid(crs, x0 - half_m, y0 - half_m, x0 + half_m, y0 + half_m, GSD)
     lon, lat = maps.grid_lonlat(grid)
-    lon = (lon - lon0 + 180.0) % 360.0 - 180.0 + lon0
+    lon = maps.wrap_longitude(lon, lon0)
     dio.write_raster(path, surface(lon, lat, lon0, lat0, body.radius), transform=grid.transform,
                      crs=grid.crs, tags=body.tags())
 

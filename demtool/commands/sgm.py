@@ -30,6 +30,10 @@ grid and CRS, for dem --mapprojected.""")
 @options.input_file("right_rect")
 @options.out_file("Output disparity GeoTIFF.")
 @options.path_option("--rectify", "rectify.npz whose disparity_range sets the search range.")
+@options.path_option("--prior-dem", "DEM on the body's map (e.g. demtool fuse of the block's "
+                     "pairs) to match around: the right image is warped by the disparity it "
+                     "predicts and only the residual is searched (--prior-search); needs a "
+                     "calibrated --rectify.")
 @options.parameter_options(SgmParams)
 @options.path_option("--confidence", "Also write a confidence raster (0..1) here.")
 @options.path_option("--classes", "Also write the class of each pixel here (uint8: 0 "
@@ -37,12 +41,14 @@ grid and CRS, for dem --mapprojected.""")
                      "at a range bound; untiled runs).")
 @click.pass_context
 def command(ctx: click.Context, left_rect: str, right_rect: str, out: str, rectify: str | None,
-            confidence: str | None, classes: str | None, **values: Any) -> None:
+            confidence: str | None, classes: str | None, prior_dem: str | None,
+            **values: Any) -> None:
     """Options → SgmParams → :func:`demtool.sgm.run.run_sgm`."""
     from demtool.sgm.run import run_sgm
 
     result = run_sgm(left_rect, right_rect, out, SgmParams.from_options(values),
                      rectify=rectify, confidence=confidence, classes=classes,
+                     prior_dem=prior_dem,
                      resolved=options.resolved_params(ctx))
     if getattr(result, "dry_run", None):  # --dry-run: the plan on stdout
         click.echo(result.dry_run)

@@ -88,8 +88,8 @@ def read_dem_surface(dem_path, sensor_path, body) -> DemSurface:
 
     info = dio.raster_info(dem_path, what="DEM")
     if info.crs is None:
-        raise InputError(f"{dem_path}: DEM has no CRS; mapproject needs a DEM on the body's "
-                         "map (a planetary CRS)")
+        raise InputError(f"{dem_path}: DEM has no CRS; a DEM on the body's map (a "
+                         "planetary CRS) is needed")
     crs = to_pyproj_crs(info.crs)
     require_same_body(dem_path, crs, body, sensor_path, "a DEM")
     try:

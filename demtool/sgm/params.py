@@ -82,6 +82,10 @@ class SgmParams(Parameters):
         "exactly at a bound of a range estimated from matches (terrain beyond the "
         "matches' range; 0 = off; a range given with --min-disparity/--num-disparities "
         "is never widened).", minimum=0)
+    prior_search: int = parameter(
+        4, "With --prior-dem: the residual disparity searched on each side of the prior's "
+        "prediction, px (widened like any estimated range while pixels sit at its bound).",
+        minimum=1)
     max_memory_mb: float = parameter(
         CORE["max_memory_mb"], "Budget of the aggregated-cost volumes (and row buffers) "
         "of the strips matched at once, MiB; the image is cut into strips beyond it.",
@@ -111,6 +115,7 @@ class SgmParams(Parameters):
         """Keywords of :func:`demtool.sgm.sgm` besides the images and the range."""
         values = self.as_dict()
         del values["min_disparity"], values["num_disparities"], values["widen_range"]
+        del values["prior_search"]
         for name in TILE_FIELDS:
             del values[name]
         return values

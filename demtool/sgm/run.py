@@ -41,6 +41,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
             rectify: str | os.PathLike | None = None,
             confidence: str | os.PathLike | None = None,
             classes: str | os.PathLike | None = None,
+            prior_dem: str | os.PathLike | None = None,
             resolved: dict[str, Any] | None = None):
     """Match LEFT_RECT and RIGHT_RECT; write the disparity GeoTIFF (and confidence).
 
@@ -51,6 +52,11 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
 
     Large pairs run in tiles (``--tile-size``, ``--workers``, ``--scheduler``,
     ``--dry-run``; :mod:`demtool.sgm.tiled`), written window by window.
+
+    With ``prior_dem`` (a DEM on the body's map, e.g. a fused DEM of the block) and a
+    calibrated ``rectify``, the right image is warped by the disparity the DEM predicts
+    and only the residual is searched, ± ``params.prior_search`` px
+    (:mod:`demtool.sgm.prior`); OUT is the total disparity.
 
     Returns
     -------
@@ -68,7 +74,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     params = params or SgmParams()
     run = StageRun("sgm", params, resolved=resolved,
                    inputs={"LEFT_RECT": left_path, "RIGHT_RECT": right_path,
-                           "--rectify": rectify},
+                           "--rectify": rectify, "--prior-dem": prior_dem},
                    outputs={"--out": out, "--confidence": confidence, "--classes": classes,
                             "sidecar": sidecar_path(out)})
     log, provenance = run.log, run.provenance
@@ -85,6 +91,13 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     left = right = None
     source = "--min-disparity/--num-disparities"
     ortho_stats: dict[str, Any] = {}
+    if prior_dem is not None:
+        if min_disparity is not None or num_disparities is not None or ortho:
+            raise ParameterError(f"--prior-dem {prior_dem}: the search follows the prior DEM "
+                                 "around a rectified pair; --min-disparity/--num-disparities "
+                                 "and orthoimage pairs do not go with it")
+        min_disparity, num_disparities = -params.prior_search, 2 * params.prior_search + 1
+        source = f"--prior-dem {prior_dem} ± {params.prior_search} px"
     if min_disparity is None or num_disparities is None:
         if rectify is None and ortho:  # the range from the orthoimages' matches
             left = dio.read_raster(left_path, what="left rectified image")
@@ -125,6 +138,9 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
         raise ParameterError(f"disparity range {min_disparity} … {max_disparity} from {source} "
                              f"is wider than the images ({width} px)")
     if tiling.wants_tiles(*shape, params):  # large images: tiles, Dask (docs/stages/scale.md)
+        if prior_dem is not None:
+            raise ParameterError(f"--prior-dem {prior_dem}: runs untiled (give a larger "
+                                 "--tile-size)")
         if classes is not None:
             raise ParameterError(f"--classes {classes}: the class raster is written by "
                                  "untiled runs only (give a larger --tile-size)")
@@ -142,15 +158,29 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
         left = dio.read_raster(left_path, what="left rectified image")
         right = dio.read_raster(right_path, what="right rectified image")
     check_stereo_pair(left, right, rectify)
+    right_data, prior = right.data, None
+    if prior_dem is not None:
+        from demtool.sgm.prior import warp_right
+        from demtool.sgm.run_prior import read_prior
+
+        prior = read_prior(prior_dem, rectify, np.isfinite(left.data), params.prior_search,
+                           log)
+        right_data = warp_right(right.data, prior.disparity)
     log.info("matching %s / %s: %d×%d px, disparities %d … %d, cost %s, %d paths",
              left_path, right_path, width, left.data.shape[0], min_disparity, max_disparity,
              params.cost, params.paths)
-    result = sgm_widening(left.data, right.data, min_disparity=min_disparity,
+    result = sgm_widening(left.data, right_data, min_disparity=min_disparity,
                           num_disparities=num_disparities, widenings=params.widenings,
                           lower_limit=limits[0], upper_limit=limits[1], **sgm_options)
     min_disparity = result.parameters["min_disparity"]
     num_disparities = result.parameters["num_disparities"]
     disparity = result.disparity
+    if prior is not None:  # the residual around the prediction → the total disparity
+        summary_prior = {**prior.summary, "residual_median_px": float(np.nanmedian(disparity))
+                         if np.isfinite(disparity).any() else None}
+        disparity = disparity + prior.disparity
+        min_disparity = min(prior.searched[0], min_disparity)
+        num_disparities = prior.searched[1]
     valid = np.isfinite(disparity)
     input_valid = np.isfinite(left.data)
     values = disparity[valid]
@@ -192,7 +222,8 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
                "widening_limits_px": list(limits),
                "range_widenings": result.parameters["range_widenings"],
                "resolved": result.parameters,
-               **ortho_stats, "timings_s": result.timings, "passes": result.levels,
+               **ortho_stats, **(summary_prior if prior is not None else {}),
+               "timings_s": result.timings, "passes": result.levels,
                "convention": "x_right = x_left - d, pixels, NaN = invalid"}
     frame = left.tags.get("frame", f"image:{Path(left_path).stem}")
     tags = provenance.tags(frame=frame, disparity_convention="x_right = x_left - d",

@@ -1,0 +1,81 @@
+"""``sgm --prior-dem``: the checks and reading around :mod:`demtool.sgm.prior`."""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any, NamedTuple
+
+import numpy as np
+
+
+class Prior(NamedTuple):
+    """The disparity a prior DEM predicts on the left rectified canvas, and its range."""
+
+    disparity: np.ndarray  # (H, W) float64 pixels, NaN outside the left image
+    searched: tuple[int, int]  # (min_disparity, num_disparities) the total disparity spans
+    summary: dict[str, Any]
+
+
+def read_prior(prior_dem: str | os.PathLike, rectify: str | os.PathLike | None,
+               left_valid: np.ndarray, search_px: int, log) -> Prior:
+    """The prior's disparity for the pair of ``rectify`` (a calibrated rectify.npz).
+
+    Refuses (ParameterError / InputError naming the file) a pair without sensor models, one
+    in a local frame, a DEM of another body or not on the body's map, and a DEM that covers
+    none of the left image.  Where the DEM stops short of the image, the nearest predicted
+    disparity is used (logged with the share it covers).
+    """
+    from demtool import io as dio
+    from demtool.dem.inputs import (
+        geometry_from_rectification,
+        is_calibrated,
+        models_from_rectification,
+    )
+    from demtool.errors import InputError, ParameterError
+    from demtool.mapproject.core import sensor_body
+    from demtool.mapproject.surface import read_dem_surface
+    from demtool.maps import xyz_to_lonlat_height
+    from demtool.sgm.prior import extend_nearest, prior_disparity
+
+    if rectify is None:
+        raise ParameterError(f"--prior-dem {prior_dem}: give the pair's --rectify RECTIFY_NPZ "
+                             "(calibrated: rectify --sensor-left/--sensor-right)")
+    rectification = dio.read_npz(rectify, "rectification")
+    if not is_calibrated(rectification):
+        raise ParameterError(f"--prior-dem {prior_dem}: {rectify} has no sensor models "
+                             "(rectified from matches); a prior DEM needs a pair rectified "
+                             "with rectify --sensor-left/--sensor-right")
+    left, right = models_from_rectification(rectification, rectify)
+    if left.radii is None:
+        raise ParameterError(f"--prior-dem {prior_dem}: the models in {rectify} are in a local "
+                             "frame, not on a body's map")
+    body = sensor_body(left)
+    surface = read_dem_surface(prior_dem, rectify, body)
+    geometry = geometry_from_rectification(rectification, left, right)
+    radius = float(body.radius)
+
+    def heights_at(xyz: np.ndarray) -> np.ndarray:
+        lon, lat, _ = xyz_to_lonlat_height(xyz, radii=radius)
+        return surface.heights_lonlat(lon, lat)
+
+    predicted = prior_disparity(geometry, left_valid.shape, radius, heights_at)
+    covered = np.isfinite(predicted) & left_valid
+    coverage = float(covered.sum() / max(int(left_valid.sum()), 1))
+    if not covered.any():
+        raise InputError(f"{prior_dem}: the prior DEM covers none of the left image of "
+                         f"{rectify}")
+    if coverage < 0.999:
+        log.warning("%s covers %.1f %% of the left image; the nearest predicted disparity "
+                    "centres the search elsewhere", prior_dem, 100 * coverage)
+    disparity = extend_nearest(predicted, left_valid)
+    disparity[~left_valid] = np.nan
+    low = math.floor(float(np.nanmin(disparity))) - search_px
+    high = math.ceil(float(np.nanmax(disparity))) + search_px
+    summary = {"prior_dem": str(prior_dem), "prior_coverage_fraction": round(coverage, 4),
+               "prior_search_px": search_px,
+               "prior_disparity_range_px": [float(np.nanmin(disparity)),
+                                            float(np.nanmax(disparity))]}
+    log.info("prior DEM %s: predicted disparity %.1f … %.1f px; residual searched within "
+             "± %d px", prior_dem, *summary["prior_disparity_range_px"], search_px)
+    return Prior(disparity=disparity, searched=(low, high - low + 1), summary=summary)

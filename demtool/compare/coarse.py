@@ -31,7 +31,7 @@ from demtool.errors import ProcessingError
 from demtool.logs import get_logger
 
 __all__ = ["BlockMean", "block_average", "block_mean", "compare_at_reference_resolution",
-           "reference_at_blocks", "MIN_FILLED", "MIN_RATIO"]
+           "reference_at_blocks", "resolution_ratio", "MIN_FILLED", "MIN_RATIO"]
 
 log = get_logger(__name__)
 
@@ -182,6 +182,18 @@ def block_average(values: np.ndarray, fine: Grid, coarse: Grid, *,
     return _finish(*sums, cells, min_filled)
 
 
+def resolution_ratio(dem_grid: Grid, reference_grid: Grid) -> tuple[float, float]:
+    """How many times coarser the reference's posts are than the DEM's cells, and the
+    posts' spacing (metres; geometric mean of the two axes; a grid in degrees measured
+    on its metric grid, :func:`demtool.compare.planetary.metric_grid`)."""
+    from demtool.compare.planetary import metric_grid
+
+    dem_metric, _ = metric_grid(dem_grid)
+    coarse, _ = metric_grid(reference_grid)
+    post = float(np.sqrt(np.prod(coarse.spacing)))
+    return post / float(np.sqrt(np.prod(dem_metric.spacing))), post
+
+
 def reference_at_blocks(reference: np.ndarray, block: BlockMean) -> np.ndarray:
     """The reference where each block mean is to be compared, metres.
 
@@ -247,13 +259,10 @@ def compare_at_reference_resolution(dem: np.ndarray, dem_grid: Grid, reference: 
     from demtool.compare.core import DEFAULT_SLOPE_BINS, compare_dems
     from demtool.compare.planetary import metric_grid
 
-    dem_metric, _ = metric_grid(dem_grid)
-    coarse, degrees = metric_grid(reference_grid)
-    dem_cell = float(np.sqrt(np.prod(dem_metric.spacing)))
-    post = float(np.sqrt(np.prod(coarse.spacing)))
-    ratio = post / dem_cell
+    ratio, post = resolution_ratio(dem_grid, reference_grid)
     if not ratio >= min_ratio:
         return None
+    coarse, degrees = metric_grid(reference_grid)
     values = np.asarray(reference, dtype=np.float64)
     if degrees is not None:
         values = resample_to_grid(values, reference_grid, coarse)

@@ -186,3 +186,20 @@ def test_a_reference_in_degrees_is_compared_at_its_posts_in_metres(tmp_path):
     assert coarse["dem_cells_per_post"] == pytest.approx(100.0, rel=0.02)
     assert coarse["posts"] >= 400  # the 6 km DEM covers about 24 x 24 posts
     assert abs(coarse["median"]) < 0.1 and coarse["rmse"] < 0.5
+
+
+def test_the_windowed_compare_says_it_leaves_the_reference_resolution_out(
+        dem_and_reference, tmp_path):
+    from demtool.compare.params import CompareParams
+    from demtool.compare.run import run_compare
+
+    fine, fine_grid, coarse, coarse_grid = dem_and_reference
+    dio.write_raster(tmp_path / "dem.tif", fine, transform=fine_grid.transform,
+                     crs="EPSG:32633")
+    dio.write_raster(tmp_path / "ref.tif", coarse, transform=coarse_grid.transform,
+                     crs="EPSG:32633")
+    report = run_compare(tmp_path / "dem.tif", tmp_path / "ref.tif", tmp_path / "out",
+                         CompareParams(grid="dem", align="offset", plots=False,
+                                       tile_size=64))
+    assert "--max-memory-mb" in report["at_reference_resolution"]["error"]
+    assert any("--max-memory-mb" in w for w in report["warnings"])

@@ -58,10 +58,12 @@ class BundleParams(Parameters):
                                       "prior pointing, milliradians.", minimum=0.0,
                                       min_open=True)
     reference_dem_sigma: float = parameter(10.0, "With --reference-dem: standard deviation "
-                                           "of its heights (noise), metres; each tie point "
-                                           "adds the DEM's interpolation error, 0.4 x its "
-                                           "post spacing x the local slope.", minimum=0.0,
-                                           min_open=True)
+                                           "of its heights (noise), metres; where the DEM's "
+                                           "interpolation error exceeds it, each tie point "
+                                           "adds that error: post^2/8 x the local "
+                                           "curvature (bilinear's bound) and the share of "
+                                           "post x local slope it leaves, both measured on "
+                                           "the DEM.", minimum=0.0, min_open=True)
     refine_ties: bool = parameter(True, "With sensor models: re-measure the SIFT tie "
                                   "points by affine least-squares matching (removes "
                                   "SIFT's perspective-dependent bias).",

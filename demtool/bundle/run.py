@@ -356,9 +356,9 @@ def run_bundle_with_sensors(block: Block, sensor_paths: Sequence[Path], out, par
     if "reference_dem" in summary:
         dem = summary["reference_dem"]
         log.info("reference DEM: %d tie points on it, height residual median %.2f m, "
-                 "RMS %.2f m (sigma %.2f m and %.2f x its %.0f m posts x the local slope: "
-                 "median %.1f m, 90th percentile %.1f m)", dem["points_on_dem"],
-                 dem["height_residual_median_m"] or float("nan"),
+                 "RMS %.2f m (sigma %.2f m, post^2/8 x curvature and %.2f x its %.0f m "
+                 "posts x the local slope: median %.1f m, 90th percentile %.1f m)",
+                 dem["points_on_dem"], dem["height_residual_median_m"] or float("nan"),
                  dem["height_residual_rms_m"] or float("nan"), dem["sigma_m"],
                  dem["interpolation_factor"], dem["post_spacing_m"],
                  dem["tie_point_sigma_median_m"],

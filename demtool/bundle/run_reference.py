@@ -30,8 +30,10 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
     sigma : float
         Standard deviation of the DEM's heights, metres.
     slope_sigma : bool
-        Add each tie point's interpolation error, post spacing × local slope
-        (:meth:`demtool.bundle.surface.ReferenceSurface.point_sigmas`), to ``sigma``.
+        Add each tie point's interpolation error, bilinear interpolation's bound
+        post² / 8 × local curvature and the measured share of post spacing × local
+        slope it leaves (:meth:`demtool.bundle.surface.ReferenceSurface.point_sigmas`),
+        to ``sigma``.
 
     Raises
     ------
@@ -86,14 +88,20 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
     r1 = min(math.ceil(row[good].max()) + 2, info.height)
     if c1 <= c0 or r1 <= r0:
         raise InputError(f"{path}: reference DEM does not cover the images' footprints")
-    heights = dio.read_window(path, (r0, r1, c0, c1), what="reference DEM")
-    heights = heights.astype(np.float64)
-    if not np.isfinite(heights).any():
+    from demtool.bundle.surface import measuring_window
+
+    # the window the interpolation factor is measured on: the footprints' or, where they
+    # cover fewer posts, the FACTOR_POSTS around them
+    wide = measuring_window((r0, r1, c0, c1), (info.height, info.width))
+    values = dio.read_window(path, wide, what="reference DEM").astype(np.float64)
+    inner = np.s_[r0 - wide[0]:r1 - wide[0], c0 - wide[2]:c1 - wide[2]]
+    if not np.isfinite(values[inner]).any():
         raise InputError(f"{path}: reference DEM has no data under the images' footprints")
-    if is_radius_map(heights, body.radius, path):
-        heights = heights - body.radius
+    if is_radius_map(values[inner], body.radius, path):
+        values = values - body.radius
     else:
-        heights = heights + dem.offset_m
+        values = values + dem.offset_m
+    heights = values[inner]
     from demtool.mapproject.checks import check_surface_heights
 
     check_surface_heights(heights, path, body)
@@ -105,27 +113,32 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
                      axis=0)
     import dataclasses
 
-    from demtool.bundle.surface import interpolation_factor
+    from demtool.bundle.surface import curvature_error, interpolation_factor
 
-    post_m, factor = surface.post_spacing_m(centre), interpolation_factor(heights)
+    post_m, factor = surface.post_spacing_m(centre), interpolation_factor(values)
+    curvature = curvature_error(heights)
     with np.errstate(invalid="ignore"):
         rows, cols = np.gradient(heights, post_m)
-        typical = factor * post_m * float(np.nanmedian(np.hypot(rows, cols)))
+        slope_m = factor * post_m * np.hypot(rows, cols)
+        typical = float(np.nanmedian(np.hypot(slope_m, curvature)))
     from demtool.logs import get_logger
 
     log = get_logger("demtool.bundle")
     if not typical > sigma:
-        # a DEM fine enough that its interpolation error at a typical slope is within its
-        # stated sigma: sigma covers it (weighting steep tie points down would only
-        # loosen the datum's tie where the DEM resolves the ground)
-        log.info("reference DEM %s: interpolation error %.3g m at the median slope (%.3g x "
-                 "%.4g m posts) is within --reference-dem-sigma %.3g m: sigma alone", path,
-                 typical, factor, post_m, sigma)
+        # a DEM fine enough that its interpolation error at a typical post is within its
+        # stated sigma: sigma covers it (weighting curved or steep tie points down would
+        # only loosen the datum's tie where the DEM resolves the ground)
+        log.info("reference DEM %s: interpolation error %.3g m at the median post (%.4g m "
+                 "posts) is within --reference-dem-sigma %.3g m: sigma alone", path,
+                 typical, post_m, sigma)
         return surface
-    log.info("reference DEM %s: %.4g m posts, interpolation error %.3g x post x slope "
-             "(%.3g m at the median slope) added to --reference-dem-sigma %.3g m per tie "
-             "point", path, post_m, factor, typical, sigma)
-    return dataclasses.replace(surface, post_m=post_m, slope_factor=factor)
+    log.info("reference DEM %s: %.4g m posts, interpolation error (bilinear bound post^2/8 "
+             "x curvature, median %.3g m, and %.3g x post x slope, median %.3g m; together "
+             "%.3g m at the median post) added to --reference-dem-sigma %.3g m per tie "
+             "point", path, post_m, float(np.nanmedian(curvature)), factor,
+             float(np.nanmedian(slope_m)), typical, sigma)
+    return dataclasses.replace(surface, post_m=post_m, slope_factor=factor,
+                               curvature=curvature)
 
 
 def is_radius_map(values: np.ndarray, radius: float, path) -> bool:

@@ -201,6 +201,8 @@ def adjust_sensor_block(names: Sequence[str], images: Sequence[np.ndarray],
             "sigma_m": surface.sigma,
             "post_spacing_m": surface.post_m,
             "interpolation_factor": surface.slope_factor,
+            "curvature_bound_median_m": None if surface.curvature is None
+            else float(np.nanmedian(surface.curvature)),
             "tie_point_sigma_median_m": float(np.median(tie_sigma)),
             "tie_point_sigma_p90_m": float(np.percentile(tie_sigma, 90)),
             "points_on_dem": int(on.sum()),

@@ -33,10 +33,15 @@ from demtool.maps import enu_frame, lonlat_to_map, wrap_longitude, xyz_to_lonlat
 GRADIENT_STEP_M = 0.01
 #: a tie point's height error from a DEM's interpolation, in post spacings × local slope,
 #: where the DEM is too small to measure it (:func:`interpolation_factor`): the RMS
-#: distance to the nearest post of a square grid is 0.38 post
+#: distance to the nearest post of a square grid is 0.38 post (an upper value: it leaves
+#: nothing to the curvature term)
 INTERPOLATION_FACTOR = 0.4
 #: fewest held-out posts for :func:`interpolation_factor`
 MIN_HELD_OUT = 16
+#: posts a side of the window :func:`interpolation_factor` is measured on, at least
+#: (:func:`measuring_window`): 41 x 41 posts hold 1240 out, which fixes an RMS ratio to
+#: about 1 / sqrt(2 · 1240) = 2 %; LOLA's 22 km posts under a 63 km footprint hold 56 out
+FACTOR_POSTS = 41
 
 
 @dataclass(frozen=True)
@@ -63,8 +68,12 @@ class ReferenceSurface:
         ``sigma``).  A tie point's height σ is then :meth:`point_sigmas`: ``sigma``
         and ``slope_factor`` × post × local slope added in quadrature.
     slope_factor : float
-        The DEM's interpolation error in post spacings × local slope
-        (:func:`interpolation_factor` measures it on the DEM itself).
+        The DEM's interpolation error in post spacings × local slope beyond what its
+        curvature explains (:func:`interpolation_factor` measures it on the DEM itself).
+    curvature : (H, W) float64 or None
+        Bilinear interpolation's error bound at each post, metres
+        (:func:`curvature_error`: post² / 8 × the local second derivative, per axis);
+        None: no curvature term.
     """
 
     heights: np.ndarray
@@ -74,6 +83,7 @@ class ReferenceSurface:
     sigma: float
     post_m: float = 0.0
     slope_factor: float = 0.4
+    curvature: np.ndarray | None = None
 
     def pixels(self, xyz) -> tuple[np.ndarray, np.ndarray]:
         """Fractional (row, col) of ``heights`` below body-fixed points (..., 3) metres
@@ -131,36 +141,55 @@ class ReferenceSurface:
                 out[r0:r1] = np.where(count * 2 >= factor * factor, total / count, np.nan)
         return ReferenceSurface(out, self.transform @ Affine.scale(factor), self.crs,
                                 self.radius, self.sigma, self.post_m * factor,
-                                self.slope_factor)
+                                self.slope_factor,
+                                None if self.curvature is None else curvature_error(out))
 
     def point_sigmas(self, xyz, gradient=None) -> np.ndarray:
         """Standard deviation (P,) metres of the DEM's height at body-fixed points (P, 3):
-        ``sqrt(sigma² + (slope_factor · post_m · slope)²)``.
+        ``sqrt(sigma² + (slope_factor · post_m · slope)² + curvature²)``.
 
-        A gridded DEM (LOLA, MOLA) is a smoothed sample of the ground at its posts; what
-        it cannot show lies within a post and changes the height by up to about the
-        local slope times the distance to the nearest post, so a coarse DEM constrains
-        a tie point on a slope far less than its quoted vertical accuracy (cf. ASP
+        A gridded DEM (LOLA, MOLA) is a smoothed sample of the ground at its posts, and
+        a tie point between posts is compared with the DEM's bilinear interpolation.
+        Where the ground the DEM resolves is curved, that interpolation errs by up to
+        ``h²/8 · |f''|`` per axis (linear interpolation's error bound, ``|f − p| ≤
+        h²/8 · max|f''|`` over a post interval ``h``; Burden & Faires, Numerical
+        Analysis, Thm 3.3; for the tensor-product bilinear interpolant the two axes'
+        bounds add, de Boor, A Practical Guide to Splines, ch. XVII), the curvature
+        term: large on crater floors and rims, where the interpolant lies above or below
+        the ground, and nil on planar slopes, which bilinear interpolation reproduces.
+        What the DEM cannot show lies within a post and changes the height by a share of
+        the local slope times the post spacing, the slope term (cf. ASP
         ``bundle_adjust --heights-from-dem-uncertainty``, which the user sets by hand);
-        ``slope_factor`` says how much of that the DEM's interpolation misses
-        (:func:`interpolation_factor`).  The slope is the DEM's own, at its posts
-        (``gradient``: the height residuals' gradient of :meth:`residuals_and_gradient`,
-        whose horizontal part is minus the DEM's gradient).
+        ``slope_factor`` is the share the curvature term leaves unexplained, measured on
+        the DEM itself (:func:`interpolation_factor`).  Slope and curvature are the
+        DEM's own, at its posts (``gradient``: the height residuals' gradient of
+        :meth:`residuals_and_gradient`, whose horizontal part is minus the DEM's
+        gradient; the curvature bound interpolated bilinearly between posts).
         """
         xyz = np.asarray(xyz, dtype=np.float64)
-        if self.post_m <= 0:
+        if self.post_m <= 0 and self.curvature is None:
             return np.full(len(xyz), float(self.sigma))
-        if gradient is None:
-            _, gradient = self.residuals_and_gradient(xyz)
-        up = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
-        horizontal = gradient - np.sum(gradient * up, axis=1, keepdims=True) * up
-        slope = np.linalg.norm(np.where(np.isfinite(horizontal), horizontal, 0.0), axis=1)
-        return np.sqrt(self.sigma ** 2 + (self.slope_factor * self.post_m * slope) ** 2)
+        variance = np.full(len(xyz), float(self.sigma) ** 2)
+        if self.post_m > 0:
+            if gradient is None:
+                _, gradient = self.residuals_and_gradient(xyz)
+            up = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+            horizontal = gradient - np.sum(gradient * up, axis=1, keepdims=True) * up
+            slope = np.linalg.norm(np.where(np.isfinite(horizontal), horizontal, 0.0), axis=1)
+            variance += (self.slope_factor * self.post_m * slope) ** 2
+        if self.curvature is not None:
+            row, col = self.pixels(xyz)
+            good = np.isfinite(row) & np.isfinite(col)
+            bound = np.zeros(len(xyz))
+            if np.any(good):
+                bound[good] = bilinear_heights(self.curvature, row[good], col[good])
+            variance += np.where(np.isfinite(bound), bound, 0.0) ** 2
+        return np.sqrt(variance)
 
     def normalised_residuals(self, xyz) -> np.ndarray:
         """Height residuals of :meth:`residuals` in units of :meth:`point_sigmas`."""
         xyz = np.asarray(xyz, dtype=np.float64)
-        if self.post_m <= 0:
+        if self.post_m <= 0 and self.curvature is None:
             return self.residuals(xyz) / self.sigma
         r, gradient = self.residuals_and_gradient(xyz)
         return r / self.point_sigmas(xyz, gradient)
@@ -184,17 +213,67 @@ class ReferenceSurface:
         return base, gradient
 
 
+def curvature_error(heights: np.ndarray) -> np.ndarray:
+    """Bilinear interpolation's error bound at each post of a DEM, metres.
+
+    Linear interpolation over an interval ``h`` errs by at most ``h²/8 · max|f''|``
+    (Burden & Faires, Numerical Analysis, Thm 3.3); bilinear interpolation, the tensor
+    product of two, by at most the sum of the bounds along its two axes.  With the
+    second derivative taken as the DEM's second difference over its posts,
+    ``f'' ≈ Δ²h / h²``, each axis's bound is ``|Δ²h| / 8`` whatever the spacing (so
+    a geographic grid's unequal axes need none either).
+
+    Parameters
+    ----------
+    heights : (H, W) float64
+        The DEM, metres (NaN = no data).
+
+    Returns
+    -------
+    (H, W) float64
+        ``(|h[r, c−1] − 2 h[r, c] + h[r, c+1]| + |h[r−1, c] − 2 h[r, c] + h[r+1, c]|) / 8``;
+        a border post takes its inner neighbour's second difference, an axis shorter than
+        3 posts adds nothing, NaN next to no data.
+    """
+    h = np.asarray(heights, dtype=np.float64)
+    total = np.zeros(h.shape)
+    for axis in (0, 1):
+        if h.shape[axis] < 3:
+            continue
+        moved = np.moveaxis(h, axis, 0)
+        second = np.empty(moved.shape)
+        second[1:-1] = moved[2:] - 2.0 * moved[1:-1] + moved[:-2]
+        second[0], second[-1] = second[1], second[-2]
+        total += np.abs(np.moveaxis(second, 0, axis))
+    return total / 8.0
+
+
+def _held_out(values: np.ndarray) -> np.ndarray:
+    """Bilinear prediction of the odd-row or odd-column posts of ``values`` from its
+    even rows and columns (NaN at the even posts themselves)."""
+    pred = np.full(values.shape, np.nan)
+    v = values
+    pred[1::2, 1::2] = 0.25 * (v[:-1:2, :-1:2] + v[2::2, :-1:2] + v[:-1:2, 2::2] + v[2::2, 2::2])
+    pred[1::2, ::2] = 0.5 * (v[:-1:2, ::2] + v[2::2, ::2])
+    pred[::2, 1::2] = 0.5 * (v[::2, :-1:2] + v[::2, 2::2])
+    return pred
+
+
 def interpolation_factor(heights: np.ndarray) -> float:
-    """A DEM's interpolation error in post spacings × local slope, measured on itself.
+    """A DEM's interpolation error in post spacings × local slope beyond its curvature
+    term, measured on itself.
 
     The posts of odd rows or columns are held out and predicted (bilinearly: the mean
     of their two or four neighbours) from the grid of even rows and columns, twice as
-    coarse; the RMS error over RMS (2 posts × local slope) is the factor at that
-    spacing, taken for the DEM's own (a terrain whose relief grows with the scale in
-    proportion, self-similar; Mandelbrot 1982, and the fractal lunar topography of
-    Rosenburg et al. 2011, JGR 116, E02001, Hurst exponents 0.76–0.95 at 0.1–10 km,
-    where it is close to proportional).  :data:`INTERPOLATION_FACTOR` where fewer than
-    :data:`MIN_HELD_OUT` posts can be held out.
+    coarse.  The coarse grid's own curvature bound (:func:`curvature_error`, interpolated
+    to the held-out posts as the heights are) accounts for part of the error; the rest,
+    RMS over RMS (2 posts × local slope), is the factor at that spacing (0 where the
+    curvature accounts for all of it), taken for the DEM's own (a terrain whose relief
+    grows with the scale in proportion, self-similar; Mandelbrot 1982, and the fractal
+    lunar topography of Rosenburg et al. 2011, JGR 116, E02001, Hurst exponents
+    0.76–0.95 at 0.1–10 km, where it is close to proportional).
+    :data:`INTERPOLATION_FACTOR` where fewer than :data:`MIN_HELD_OUT` posts can be held
+    out.
 
     Parameters
     ----------
@@ -209,15 +288,29 @@ def interpolation_factor(heights: np.ndarray) -> float:
     h = h[:rows + 1, :cols + 1]
     gy, gx = np.gradient(h)
     slope = np.hypot(gx, gy)  # metres per post
-    pred = np.full(h.shape, np.nan)
-    pred[1::2, 1::2] = 0.25 * (h[:-1:2, :-1:2] + h[2::2, :-1:2] + h[:-1:2, 2::2] + h[2::2, 2::2])
-    pred[1::2, ::2] = 0.5 * (h[:-1:2, ::2] + h[2::2, ::2])
-    pred[::2, 1::2] = 0.5 * (h[::2, :-1:2] + h[::2, 2::2])
-    error = h - pred
-    use = np.isfinite(error) & np.isfinite(slope)
+    error = h - _held_out(h)
+    coarse = np.full(h.shape, np.nan)
+    coarse[::2, ::2] = curvature_error(h[::2, ::2])
+    curved = _held_out(coarse)
+    use = np.isfinite(error) & np.isfinite(slope) & np.isfinite(curved)
     if use.sum() < MIN_HELD_OUT or not np.any(slope[use] > 0):
         return INTERPOLATION_FACTOR
-    return float(np.sqrt(np.sum(error[use] ** 2) / np.sum((2.0 * slope[use]) ** 2)))
+    unexplained = max(float(np.sum(error[use] ** 2) - np.sum(curved[use] ** 2)), 0.0)
+    return float(np.sqrt(unexplained / np.sum((2.0 * slope[use]) ** 2)))
+
+
+def measuring_window(window: tuple[int, int, int, int], shape: tuple[int, int],
+                     posts: int = FACTOR_POSTS) -> tuple[int, int, int, int]:
+    """``window`` (row0, row1, col0, col1, half-open) of a DEM of ``shape`` grown about
+    its centre to at least ``posts`` a side where the DEM allows (a window already
+    larger stays as it is): the posts :func:`interpolation_factor` is measured on."""
+    out = []
+    for (start, stop), size in zip((window[:2], window[2:]), shape, strict=True):
+        if stop - start < posts:
+            start = max(0, min((start + stop - posts) // 2, size - posts))
+            stop = min(size, start + posts)
+        out += [start, stop]
+    return tuple(out)
 
 
 def local_axes(xyz) -> np.ndarray:

@@ -44,8 +44,10 @@ residual, observations, change of position (m) and pointing (mrad) and their sta
 deviations.  Tie points fix the block's shape, not its datum (a shift, turn or scale of
 the whole block), which the priors alone only place as well as their mean:
 --reference-dem DEM (LOLA, MOLA: a DEM on the models' body) ties every tie point's
-height to the DEM's (bilinear, Huber loss, --reference-dem-sigma metres), as ASP's
-bundle_adjust --heights-from-dem does, so the block follows the ground; the prior block
+height to the DEM's (bilinear, Huber loss; sigma: --reference-dem-sigma metres plus
+the DEM's interpolation error at the point, post^2/8 x its curvature and a measured share
+of post x slope), as ASP's bundle_adjust --heights-from-dem does, so the block follows
+the ground; the prior block
 is first registered to the DEM by a search of shifts within 3 sigmas of the priors (as
 ASP's pc_align before bundle_adjust), and the adjustment from there is kept where it
 costs less than the one from the priors.

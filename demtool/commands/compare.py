@@ -38,7 +38,12 @@ DEMs of different bodies are refused), co-registers it (--align), and writes int
 shift {dx_px, dy_px, dz} added to the DEM — x right, y down in grid pixels, dz in
 metres — with its uncertainty, per-slope-class statistics, effective resolution from
 the spectral coherence, provenance), difference.tif, and the figures difference.png,
-dems.png, profiles.png, histogram.png, completeness.png, coherence.png.""")
+dems.png, profiles.png, histogram.png, completeness.png, coherence.png.  A reference
+whose posts are at least twice the DEM's cells (LOLA, MOLA against a stereo DEM) is
+also compared at its own resolution, beside those figures: the DEM averaged over each
+reference cell minus the reference at its posts (report.json at_reference_resolution),
+since sampling a coarse reference at fine cells charges the DEM with the relief the
+reference cannot show.""")
 @options.input_file("dem")
 @options.input_file("reference")
 @options.out_dir("Report folder (created if needed).")

@@ -119,8 +119,11 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     Reads the rasters, puts them on one grid (the reference's, or the DEM's with
     ``params.grid="dem"``; reprojected when both have a different CRS), calls
     :func:`demtool.compare.compare_dems` for each DEM, and writes into ``out_dir`` —
-    in one output transaction — ``report.json`` (figures, transform, the ``also`` DEMs
-    and the provenance under ``provenance``), ``difference.tif`` (aligned DEM −
+    in one output transaction — ``report.json`` (figures, transform, the ``also`` DEMs,
+    ``at_reference_resolution`` when the reference's posts are at least twice the DEM's
+    cells: the DEM block-averaged over them, beside the comparison grid's figures, see
+    :func:`demtool.compare.coarse.compare_at_reference_resolution`, and the provenance
+    under ``provenance``), ``difference.tif`` (aligned DEM −
     reference, with provenance tags), the PNG figures and the standard provenance
     sidecar ``report.json.json``.
 
@@ -202,6 +205,20 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
                              dem_path=dem_path, reference_path=reference_path, also=also,
                              grid=grid, target=target, frame=frame, degrees=degrees,
                              body_warnings=body_warnings, lines=lines, log=log)
+    from demtool.compare.coarse import compare_at_reference_resolution
+
+    dem_cells = dem.data.astype(np.float64)
+    if mask_raster is not None:
+        dem_cells = np.where(_read_mask(mask_raster, _grid_of(dem)), dem_cells, np.nan)
+    coarse = compare_at_reference_resolution(
+        dem_cells, _grid_of(dem), reference.data, _grid_of(reference), align=align,
+        slope_bins=params.slope_bins, seed=params.seed)
+    if coarse is not None:
+        report["at_reference_resolution"] = coarse
+        log.info("at the reference's resolution (%s): %s", coarse["what"],
+                 coarse.get("error") or f"median {coarse['median']:.3f} m, NMAD "
+                 f"{coarse['nmad']:.3f} m, RMSE {coarse['rmse']:.3f} m over "
+                 f"{coarse['count']} posts")
     main = comparisons[0][1]
 
     figures = make_figures(comparisons, reference_values, lines, (sx, sy), label) \

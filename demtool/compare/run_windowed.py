@@ -369,6 +369,17 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
                                  grid=params.grid, target=target, frame=frame,
                                  degrees=degrees, body_warnings=body_warnings, lines=lines,
                                  log=log)
+        from demtool.compare.coarse import MIN_RATIO, resolution_ratio
+
+        ratio, _ = resolution_ratio(_grid(infos["dem"]), _grid(infos["reference"]))
+        if ratio >= MIN_RATIO:
+            message = (f"the reference's posts are {ratio:.3g} x the DEM's cells, but the "
+                       "comparison at the reference's resolution (the DEM averaged over "
+                       "each reference cell) is made in memory only: raise --max-memory-mb "
+                       "to get it")
+            report["at_reference_resolution"] = {"error": message}
+            report["warnings"].append(message)
+            log.warning("%s: %s", label, message)
         figures = {}
         if params.plots:
             decimated = [tuple(v / factor for v in line) for line in lines]

@@ -238,3 +238,35 @@ def test_a_camera_moved_beyond_three_sigma_gets_one_warning_naming_the_sigma(cap
     assert len(messages) == 1 and messages[0].startswith("far moved position by 720.0 m")
     assert "7.2 sigma" in messages[0] and "--position-sigma" in messages[0]
     assert "--pointing-sigma" not in messages[0] and "--reference-dem-sigma" in messages[0]
+
+
+def test_a_coarse_dem_measures_its_interpolation_error_on_enough_posts(sensor_files,
+                                                                       tmp_path):
+    """A 6 km-post DEM under a 30 km block: the tie points' window holds a few posts, so
+    the slope share is measured on the FACTOR_POSTS around it; each tie point's σ adds
+    the curvature bound of the window's own posts."""
+    from affine import Affine
+
+    from demtool import io as dio
+    from demtool.bundle.run_reference import read_reference_surface
+    from demtool.bundle.surface import curvature_error, interpolation_factor, measuring_window
+    from demtool.maps import body_by_name
+    from demtool.sensors import read_sensor
+
+    rng = np.random.default_rng(3)
+    walk = 40.0 * (np.cumsum(rng.normal(size=(100, 100)), axis=0)
+                   + np.cumsum(rng.normal(size=(100, 100)), axis=1))
+    path = tmp_path / "coarse.tif"
+    dio.write_raster(path, walk, crs=body_by_name("Moon").geographic_crs(),
+                     transform=Affine(0.2, 0, 10.0, 0, -0.2, 20.0))
+    _, isds = sensor_files
+    surface = read_reference_surface(path, [read_sensor(p) for p in isds], isds, sigma=10.0)
+    r0 = round((surface.transform.f - 20.0) / -0.2)
+    c0 = round((surface.transform.c - 10.0) / 0.2)
+    rows, cols = surface.heights.shape
+    assert rows < 20 and cols < 20  # the footprints' window
+    wide = measuring_window((r0, r0 + rows, c0, c0 + cols), walk.shape)
+    assert surface.slope_factor == pytest.approx(
+        interpolation_factor(walk[wide[0]:wide[1], wide[2]:wide[3]]))
+    assert 0.05 < surface.slope_factor < 1.0
+    assert surface.curvature == pytest.approx(curvature_error(surface.heights))

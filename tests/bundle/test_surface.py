@@ -117,3 +117,87 @@ def test_point_sigmas_grow_with_post_spacing_and_slope():
         surface.residuals(xyz) / expected, abs=1e-9)
     # a coarse DEM on a slope weighs a tie point less than its quoted accuracy
     assert np.median(coarse.point_sigmas(xyz)) > 2 * 5.0
+
+
+def test_curvature_error_is_bilinears_error_at_the_cell_centres():
+    """On a quadratic, bilinear interpolation errs at a cell's centre by exactly
+    h²/8 · (f_xx + f_yy) (second order is all there is); a plane and a saddle's xy term
+    are reproduced exactly, and the bound holds where the curvatures differ in sign."""
+    from demtool.bundle.surface import curvature_error
+    from demtool.mapproject.core import bilinear_heights
+
+    rows, cols = np.mgrid[0:12, 0:14].astype(float)
+
+    def bowl(r, c):
+        return 3.0 * r ** 2 + 1.5 * c ** 2 + 0.7 * r * c - 4.0 * r + 2.0 * c + 9.0
+
+    centre_r, centre_c = rows[:-1, :-1] + 0.5, cols[:-1, :-1] + 0.5
+    error = bowl(centre_r, centre_c) - bilinear_heights(bowl(rows, cols), centre_r, centre_c)
+    bound = curvature_error(bowl(rows, cols))
+    assert bound == pytest.approx(np.full(rows.shape, (6.0 + 3.0) / 8.0))
+    assert np.abs(error) == pytest.approx(bound[:-1, :-1], abs=1e-9)
+    assert curvature_error(5.0 * rows - 2.0 * cols + 0.3 * rows * cols) == pytest.approx(
+        0.0, abs=1e-9)
+    saddle = 3.0 * rows ** 2 - 1.5 * cols ** 2
+    error = (3.0 * centre_r ** 2 - 1.5 * centre_c ** 2) - bilinear_heights(
+        saddle, centre_r, centre_c)
+    assert np.all(np.abs(error) <= curvature_error(saddle)[:-1, :-1] + 1e-9)
+    assert curvature_error(np.ones((2, 5))) == pytest.approx(0.0)  # too short an axis
+
+
+def test_interpolation_factor_leaves_to_the_curvature_what_it_explains():
+    """A quadratic's held-out error is all curvature: no slope share; a random walk's
+    relief between posts is not, and keeps one."""
+    from demtool.bundle.surface import interpolation_factor
+
+    rows, cols = np.mgrid[0:40, 0:40].astype(float)
+    assert interpolation_factor(3.0 * rows ** 2 + 1.5 * cols ** 2 + 50.0 * rows) == 0.0
+    rng = np.random.default_rng(2)
+    walk = np.cumsum(rng.normal(size=(60, 60)), axis=0) + np.cumsum(
+        rng.normal(size=(60, 60)), axis=1)
+    assert 0.1 < interpolation_factor(walk) < 1.0
+
+
+def test_point_sigmas_add_the_curvature_bound_on_crater_floors_not_on_planes():
+    """σ² = sigma² + (factor · post · slope)² + curvature bound²: with no slope share a
+    tie point on a planar slope keeps sigma, one on a crater's parabolic floor gets the
+    bilinear bound of the floor's curvature."""
+    import dataclasses
+
+    from demtool.bundle.surface import curvature_error
+
+    surface = _surface(spacing_m=500.0)
+    rows, cols = np.indices(surface.heights.shape, dtype=float)
+    n = surface.heights.shape[0]
+    centre = (n - 1) / 2.0
+    radius2 = (rows - centre) ** 2 + (cols - centre) ** 2
+    inside = radius2 < (n / 6.0) ** 2
+    heights = 0.1 * 500.0 * cols + np.where(inside, 20.0 * (radius2 - (n / 6.0) ** 2), 0.0)
+    crater = dataclasses.replace(surface, heights=heights, post_m=500.0, slope_factor=0.0,
+                                 curvature=curvature_error(heights))
+    xyz = orbital.ground_points(400, half_width_m=35e3, seed=11)
+    row, col = crater.pixels(xyz)
+    distance2 = (row - centre) ** 2 + (col - centre) ** 2
+    floor = distance2 < (n / 6.0 - 2.0) ** 2
+    plane = distance2 > (n / 6.0 + 2.0) ** 2
+    sigmas = crater.point_sigmas(xyz)
+    assert floor.sum() > 10 and plane.sum() > 10
+    assert sigmas[plane] == pytest.approx(5.0)  # bilinear reproduces the plane
+    assert sigmas[floor] == pytest.approx(np.hypot(5.0, 2 * 40.0 / 8.0))  # f'' = 40 m/post²
+    sloped = dataclasses.replace(crater, slope_factor=0.25)
+    _, gradient = crater.residuals_and_gradient(xyz[plane])
+    up = xyz[plane] / np.linalg.norm(xyz[plane], axis=1, keepdims=True)
+    slope = np.linalg.norm(gradient - np.sum(gradient * up, axis=1, keepdims=True) * up, axis=1)
+    assert sloped.point_sigmas(xyz[plane]) == pytest.approx(
+        np.hypot(5.0, 0.25 * 500.0 * slope), rel=1e-6)
+    # the pyramid levels of the registration carry their own curvature
+    assert crater.coarsened(2).curvature.shape == crater.coarsened(2).heights.shape
+
+
+def test_measuring_window_grows_a_small_footprint_to_the_factor_posts():
+    from demtool.bundle.surface import FACTOR_POSTS, measuring_window
+
+    assert measuring_window((10, 19, 100, 109), (240, 480)) == (0, FACTOR_POSTS, 84, 125)
+    assert measuring_window((0, 5, 470, 480), (240, 480)) == (0, 41, 439, 480)
+    assert measuring_window((3, 200, 7, 300), (240, 480)) == (3, 200, 7, 300)
+    assert measuring_window((0, 5, 0, 5), (20, 30)) == (0, 20, 0, 30)  # the whole DEM

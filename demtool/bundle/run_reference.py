@@ -142,14 +142,15 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
 
 
 def is_radius_map(values: np.ndarray, radius: float, path) -> bool:
-    """Whether a DEM's values (metres) are radii rather than heights: ISIS shape models
-    such as LOLA's ``ldem_*.cub`` store the distance from the body's centre, and their
-    median exceeds half the body's radius, which no height does (one log line)."""
-    median = float(np.nanmedian(values))
-    if abs(median) <= 0.5 * radius:
+    """Whether a DEM's values are radii rather than heights (:func:`demtool.maps.holds_radii`;
+    one log line when they are)."""
+    from demtool.maps import holds_radii
+
+    if not holds_radii(values, radius):
         return False
     from demtool.logs import get_logger
 
     get_logger("demtool.bundle").info("reference DEM %s holds radii (median %.1f m): heights "
-                                      "are the radii minus %.1f m", path, median, radius)
+                                      "are the radii minus %.1f m", path,
+                                      float(np.nanmedian(values)), radius)
     return True

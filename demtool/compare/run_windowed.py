@@ -81,9 +81,17 @@ class Source:
     target: Any  # the comparison grid
     same: bool = False
     reads: list[int] = field(default_factory=list)  # cells of each window read
+    offset: float = 0.0  # metres subtracted: the body's radius for a map of radii
 
     def __post_init__(self) -> None:
+        from demtool import io as dio
         from demtool.compare.grids import _check_overlap, same_grid
+        from demtool.compare.run import radius_offset
+
+        if self.what != "mask":
+            self.offset = radius_offset(self.path, self.grid.crs,
+                                        dio.read_decimated(self.path, what=self.what),
+                                        self.what)
 
         self.same = same_grid(self.grid, self.target)
         if not self.same:
@@ -99,7 +107,8 @@ class Source:
 
         if self.same:
             self.reads.append((window[1] - window[0]) * (window[3] - window[2]))
-            return dio.read_window(self.path, window, what=self.what).astype(np.float64)
+            return dio.read_window(self.path, window, what=self.what).astype(
+                np.float64) - self.offset
         rows, cols = source_pixels(self.grid, self.target, window)
         shape = (window[1] - window[0], window[3] - window[2])
         finite = np.isfinite(rows) & np.isfinite(cols)
@@ -112,7 +121,7 @@ class Source:
             if r1 > r0 and c1 > c0:
                 self.reads.append((r1 - r0) * (c1 - c0))
                 data = dio.read_window(self.path, (r0, r1, c0, c1), what=self.what)
-                return sample_bilinear(data, rows - r0, cols - c0)
+                return sample_bilinear(data, rows - r0, cols - c0) - self.offset
         return np.full(shape, np.nan)
 
 

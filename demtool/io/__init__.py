@@ -396,6 +396,30 @@ def read_window(path: str | os.PathLike, window: tuple[int, int, int, int], *,
                                [dataset.offsets[band - 1]])[0]
 
 
+def read_decimated(path: str | os.PathLike, *, max_side: int = 256, band: int = 1,
+                   what: str = "raster") -> np.ndarray:
+    """One band read at most ``max_side`` cells a side (nearest cells of the whole raster,
+    as a GDAL overview would give), float32, NaN nodata, scale and offset applied: a
+    sample of a raster too large to read whole.
+    """
+    from rasterio.enums import Resampling
+    from rasterio.errors import NotGeoreferencedWarning, RasterioError
+
+    p = Path(path)
+    with _open_dataset(p, what) as dataset:
+        step = max(1, -(-max(dataset.height, dataset.width) // max_side))
+        shape = (1, max(1, dataset.height // step), max(1, dataset.width // step))
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                data = dataset.read([band], out_shape=shape, masked=True,
+                                    resampling=Resampling.nearest)
+        except (RasterioError, ValueError) as exc:
+            raise InputError(f"{p}: cannot read {what}: {_first_line(exc)}") from None
+        return physical_values(data, [dataset.scales[band - 1]],
+                               [dataset.offsets[band - 1]])[0]
+
+
 class RasterBlockWriter:
     """A float32 GeoTIFF being written one window at a time (see :func:`raster_writer`)."""
 

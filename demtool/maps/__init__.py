@@ -46,6 +46,7 @@ from demtool.maps.grids import (
     grid_lonlat,
     grid_xyz,
     height_above_sphere,
+    holds_radii,
     metric_grid_for,
     snap_grid,
 )
@@ -82,6 +83,7 @@ __all__ = [
     "grid_lonlat",
     "grid_xyz",
     "height_above_sphere",
+    "holds_radii",
     "iau_code",
     "known_bodies",
     "local_radius",

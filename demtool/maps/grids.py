@@ -225,6 +225,20 @@ def grid_xyz(grid: MapGrid, heights: np.ndarray | float = 0.0) -> np.ndarray:
     return map_to_xyz(grid.crs, x, y, h)
 
 
+def holds_radii(values: np.ndarray, radius: float) -> bool:
+    """Whether a DEM's values (metres) are radii rather than heights: ISIS shape models
+    such as LOLA's ``ldem_*.cub`` and MOLA's store the distance from the body's centre,
+    and their median exceeds half the body's radius, which no height does.
+
+    Parameters
+    ----------
+    values : array of metres (NaN ignored)
+    radius : float, the body's reference sphere, metres
+    """
+    finite = np.asarray(values)[np.isfinite(values)]
+    return bool(finite.size) and abs(float(np.median(finite))) > 0.5 * radius
+
+
 def height_above_sphere(xyz: np.ndarray, radius: float) -> np.ndarray:
     """Height of body-fixed points above a sphere centred on the body, metres.
 

@@ -82,3 +82,28 @@ def test_metric_grid_only_for_degrees():
     assert note["spacing_m"] == pytest.approx(list(metric.spacing))
     assert metric.shape[1] == pytest.approx(180, abs=2) and metric.shape[0] == pytest.approx(
         90, abs=2)
+
+
+@pytest.mark.parametrize("tile_size", [0, 64])
+def test_a_reference_of_radii_is_compared_as_heights(tmp_path, tile_size):
+    """An ISIS shape model (LOLA ldem_*, MOLA) stores each post's distance from the Moon's
+    centre: compare subtracts the radius (in memory and in windows) instead of reporting
+    a 1737 km offset."""
+    from demtool import io as dio
+    from demtool.compare.params import CompareParams
+    from demtool.compare.run import run_compare
+    from demtool.maps import body_by_name, make_projection
+
+    moon = body_by_name("Moon")
+    crs = make_projection(moon, "equirectangular", 10.0, 5.0)
+    rows, cols = np.mgrid[0:120, 0:120]
+    heights = (40.0 * np.sin(rows / 9.0) * np.cos(cols / 13.0) + 0.5 * cols).astype(np.float32)
+    transform = Affine(20.0, 0, -1200.0, 0, -20.0, 1200.0)
+    dio.write_raster(tmp_path / "dem.tif", heights, transform=transform, crs=crs)
+    dio.write_raster(tmp_path / "ldem.tif", (heights.astype(np.float64) + moon.radius)
+                     .astype(np.float32), transform=transform, crs=crs)
+    report = run_compare(tmp_path / "dem.tif", tmp_path / "ldem.tif", tmp_path / "out",
+                         CompareParams(align="none", plots=False, tile_size=tile_size))
+    # float32 radii near 1.7e6 m hold heights to 1/8 m
+    assert abs(report["median"]) < 0.1 and report["rmse"] < 0.1
+    assert report["completeness"] == pytest.approx(100.0)

@@ -21,9 +21,10 @@ block (sgm or match disparity and its rectify.npz; the pair need not include the
 target): its disparities are triangulated with the bundle's own cameras of the pair,
 projected into the target and converted to heights as the bundle points are (eq. 2
 with the bundle points' mean depth), so measured cells replace interpolated ones.
-One local-median outlier test over both sources; where a bundle point survives it,
-its cell keeps the bundle point.  The log and sidecar count the cells each source
-measured and the interpolated rest.
+Each source gets the local-median outlier test; a bundle point that disagrees with
+the dense heights of its cell is dropped, one that agrees is averaged with them.  The
+log and sidecar count the cells each source measured and the interpolated rest; match
+with `sgm --no-fill` so that the occlusions sgm would fill count as interpolated.
 From a disparity map (SIAM route):
 `demtool dem --disparity disparity.tif --rectify rectify.npz (--reference REF.tif |
 --cameras cameras.npz) --out dem.tif` maps disparities back through the inverse

@@ -307,8 +307,9 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
         log_sources(log, result.report, result.dem.size)
     elif points_path is not None and result.report["measured_fraction"] < SPARSE_MEASURED:
         log.warning("%.1f %% of the DEM is interpolated: %d cells measured (%d bundle points "
-                    "in the target), the heights between them are the gap filling's; give "
-                    "dem --points a denser source for measured detail",
+                    "in the target), the heights between them are the gap filling's; for "
+                    "measured detail add --dense DISPARITY RECTIFY, a pair of the block "
+                    "matched by rectify and sgm",
                     100 * summary["interpolated_fraction"], summary["measured_cells"],
                     result.report["points_in_target"])
     tags = prov.tags(frame=f"image:{target_name}", dem_route=route, gsd_m=gsd,

@@ -13,7 +13,8 @@ PathPair = tuple[str | os.PathLike, str | os.PathLike]
 def read_dense_pairs(dense: Sequence[PathPair], cameras: dict, bundle_path, log) -> list:
     """The ``--dense`` pairs as :class:`demtool.dem.dense.DensePair`, each checked.
 
-    A disparity must be on its rectification's canvas and in its left rectified frame
+    A rectification must be uncalibrated (homographies of the original images), a
+    disparity on its rectification's canvas and in its left rectified frame
     (:func:`demtool.dem.inputs.read_disparity`, :func:`demtool.dem.inputs.pair_names`), and
     both images of the pair must be registered in the bundle at the rectification's
     sizes (:func:`demtool.dem.inputs.check_pair_cameras`); InputError (one line naming
@@ -21,11 +22,22 @@ def read_dense_pairs(dense: Sequence[PathPair], cameras: dict, bundle_path, log)
     """
     from demtool import io as dio
     from demtool.dem.dense import DensePair
-    from demtool.dem.inputs import check_pair_cameras, pair_names, read_disparity
+    from demtool.dem.inputs import (
+        check_pair_cameras,
+        is_calibrated,
+        pair_names,
+        read_disparity,
+    )
+    from demtool.errors import InputError
 
     pairs = []
     for disparity_path, rectify_path in dense:
         rectification = dio.read_npz(rectify_path, "rectification")
+        if is_calibrated(rectification):
+            raise InputError(f"{rectify_path}: rectified with sensor models, whose images are "
+                             "not homographies of the originals; triangulate that pair with "
+                             "dem --disparity (--dense takes pairs of rectify without "
+                             "--sensor-left/--sensor-right)")
         disparity = read_disparity(disparity_path, rectify_path, rectification,
                                    rectification["size_rect"], log)
         left, right, _, _ = pair_names(disparity_path, rectify_path, rectification,

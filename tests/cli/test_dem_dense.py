@@ -96,6 +96,15 @@ def test_dense_bad_inputs_exit_1_without_output(block, tmp_path):
     other_size = _rectify_with(tmp_path / "size.npz", block["rectify"],
                                size_right=np.array([128, 96]))
     assert "the right image is 128×96" in refused("--dense", disparity, str(other_size))
+    # a rectification through sensor models (not homographies of the images)
+    eye = np.eye(3)
+    calibrated = _rectify_with(tmp_path / "calibrated.npz", block["rectify"],
+                               calibrated=np.asarray(True), R_rect=eye, K_left_rect=eye,
+                               K_right_rect=eye, pointing_correction=eye,
+                               pointing_correction_mrad=np.zeros(3),
+                               sensor_left_type=np.asarray("frame"),
+                               sensor_right_type=np.asarray("frame"))
+    assert "rectified with sensor models" in refused("--dense", disparity, str(calibrated))
     # the disparity is not on the rectification's canvas
     small = tmp_path / "small.tif"
     dio.write_raster(small, np.ones((10, 10), dtype=np.float32),

@@ -6,11 +6,12 @@ For each seed, through the command line in a temporary folder, with the demo's p
 ``select`` → ``bundle`` with the NavCam intrinsics given but **not** aligned (the comet
 case: no sensor model, an arbitrary model frame and scale, heights by eq. 2 with the
 scene's distance) → ``rectify`` + ``sgm`` of the target with view_01 (B/H 0.3) and with
-view_04 (B/H 0.26, the other side) → ``dem --points`` sparse, and densified by one and
-by both pairs; and by the view_01 pair matched with ``sgm --no-fill``, whose occlusions
-and mismatches stay invalid so that ``dem`` counts them as interpolated rather than as
-measured.  Reference row, same run and same disparity: the calibrated SIAM route with
-the *true* cameras (``dem --disparity --cameras``), which a comet block does not have.
+view_04 (B/H 0.26, the other side) and with view_05 (B/H 0.34) → ``dem --points``
+sparse, and densified by one, two and three pairs; and by the view_01 pair matched
+with ``sgm --no-fill``, whose occlusions and mismatches stay invalid so that ``dem``
+counts them as interpolated rather than as measured.  Reference row, same run and same
+disparity: the calibrated SIAM route with the *true* cameras (``dem --disparity
+--cameras``), which a comet block does not have.
 
 Each DEM is compared with ``truth_dem_target.tif`` after removing the median offset
 (eq. 2 has its own datum): RMSE, NMAD, the fraction of cells measured (not
@@ -34,7 +35,7 @@ from pipeline_accuracy import StageFailed, demtool, metrics
 
 from demtool import io
 
-PARTNERS = ("view_01", "view_04")
+PARTNERS = ("view_01", "view_04", "view_05")
 CONFIG = str(Path(__file__).resolve().parents[1] / "configs" / "navcam.toml")
 
 
@@ -84,6 +85,8 @@ def run_seed(seed: int, work: Path) -> list[dict]:
                                           "--dense", unfilled, pairs[0][1]],
         "BAM + dense view_01, view_04": ["--points", str(bundle), "--scene", scene_json,
                                          "--dense", *pairs[0], "--dense", *pairs[1]],
+        "BAM + dense view_01, 04, 05": ["--points", str(bundle), "--scene", scene_json,
+                                        *(arg for pair in pairs for arg in ("--dense", *pair))],
         "ref: SIAM, true cameras": ["--disparity", pairs[0][0], "--rectify", pairs[0][1],
                                     "--cameras", str(scene / "cameras.npz"), "--scene",
                                     scene_json],

@@ -22,6 +22,12 @@ agrees is averaged with the dense height of its cell at equal weight: two indepe
 measurements, neither known to be the better (there, at the 6259 cells both measured,
 ties alone 0.234 m RMSE, dense alone 0.226 m, their mean 0.184 m).  Where the pair
 does not see, the ties measure alone, tested among themselves as in the sparse route.
+
+A pair need not include the target: its points are projected into the target like the
+tie points.  Points the target cannot see (behind relief, from an oblique pair) are not
+removed by a visibility test; in a cell they share with visible ground they are a
+minority that the local-median test drops, but on steep ground seen obliquely prefer
+pairs that include the target.
 """
 
 from __future__ import annotations
@@ -126,10 +132,13 @@ def dense_samples(pair: DensePair, cameras: Mapping[str, PinholeCamera], target:
     Raises
     ------
     InputError
-        The pair's images are not in the bundle, or their sizes differ from the
-        bundle's cameras (the dense source is not a pair of this block).
+        Not a pair of this block: its images are not in the bundle, no disparity
+        triangulates in front of both cameras, or the rays miss each other by a median
+        of more than :data:`MAX_MEDIAN_GAP_PX` pixels.
     ProcessingError
         No valid disparity, or no triangulated point lands in the target image.
+    ValueError
+        ``mean_depth`` or ``distance_m`` missing for an unaligned bundle.
     """
     missing = [name for name in (pair.left, pair.right) if name not in cameras]
     if missing:

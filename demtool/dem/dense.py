@@ -25,9 +25,9 @@ does not see, the ties measure alone, tested among themselves as in the sparse r
 
 A pair need not include the target: its points are projected into the target like the
 tie points.  Points the target cannot see (behind relief, from an oblique pair) are not
-removed by a visibility test; in a cell they share with visible ground they are a
-minority that the local-median test drops, but on steep ground seen obliquely prefer
-pairs that include the target.
+removed by a visibility test (only the local-median test may drop them, where they are
+few among their neighbours), so on steep ground seen obliquely prefer pairs that include
+the target.
 """
 
 from __future__ import annotations

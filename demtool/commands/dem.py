@@ -16,6 +16,15 @@ Two forms.  From bundle points (BAM route):
 `demtool dem --points bundle.npz [--distance D | --scene scene.json] --out dem.tif`
 projects the points into the target camera; heights come from eq. 2 of the NavCam
 study (depth offset (z/mean(z) - 1)·D, negated) or, for an aligned bundle, are metric.
+Densified BAM DEM: `--dense DISPARITY RECTIFY` (repeatable) adds a matched pair of the
+block (sgm or match disparity and its rectify.npz; the pair need not include the
+target): its disparities are triangulated with the bundle's own cameras of the pair,
+projected into the target and converted to heights as the bundle points are (eq. 2
+with the bundle points' mean depth), so measured cells replace interpolated ones.
+Each source gets the local-median outlier test; a bundle point that disagrees with
+the dense heights of its cell is dropped, one that agrees is averaged with them.  The
+log and sidecar count the cells each source measured and the interpolated rest; match
+with `sgm --no-fill` so that the occlusions sgm would fill count as interpolated.
 From a disparity map (SIAM route):
 `demtool dem --disparity disparity.tif --rectify rectify.npz (--reference REF.tif |
 --cameras cameras.npz) --out dem.tif` maps disparities back through the inverse
@@ -61,6 +70,11 @@ sensor-model and map-projected routes write it on the body's map.
               help="The two orthoimages (demtool mapproject, or ISIS cam2map cubes of a "
                    "line-scan camera: its camera from the cube's tables, the surface its "
                    "Mapping ellipsoid) the disparity was matched on.")
+@click.option("--dense", nargs=2, type=click.Path(dir_okay=False), multiple=True,
+              metavar="DISPARITY RECTIFY",
+              help="With --points: a disparity of a pair of the block and its rectify.npz "
+                   "(repeatable), triangulated with the bundle's cameras to densify the BAM "
+                   "DEM.")
 @options.path_option("--scene", "scene.json with distance_m and gsd_m (metadata from synth).")
 @options.parameter_options(DemParams)
 @options.path_option("--interpolated-mask", "Also write a raster: 1 where interpolated, 0 "
@@ -79,13 +93,16 @@ def command(ctx: click.Context, points: str | None, disparity: str | None,
             scene: str | None, mapprojected: tuple[str, str] | None,
             interpolated_mask: str | None, error_out: str | None,
             up: tuple[float, float, float] | None, points_out: str | None,
-            out: str,
+            dense: tuple[tuple[str, str], ...], out: str,
             **values: Any) -> None:
     """Check the form (points or disparity), call :func:`demtool.dem.run.run_dem`."""
     from demtool.dem.run import run_dem
 
     if mapprojected is not None and disparity is None:
         raise click.BadParameter("--mapprojected needs --disparity", param_hint="--mapprojected")
+    if dense and points is None:
+        raise click.BadParameter("--dense densifies the BAM route: it needs --points "
+                                 "bundle.npz", param_hint="--dense")
     options.exclusive({"--points": points is not None, "--disparity": disparity is not None},
                       exactly_one=True)
     if mapprojected is not None:
@@ -107,6 +124,6 @@ def command(ctx: click.Context, points: str | None, disparity: str | None,
                       reference_path=reference, cameras_path=cameras, scene_path=scene,
                       mask_path=interpolated_mask, error_path=error_out,
                       mapprojected=mapprojected, up=up, points_out=points_out,
-                      resolved=options.resolved_params(ctx))
+                      dense=dense, resolved=options.resolved_params(ctx))
     if summary.get("dry_run"):  # --dry-run (tiles): the plan on stdout
         click.echo(summary["dry_run"])

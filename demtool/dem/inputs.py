@@ -68,6 +68,44 @@ def searched_range(tags: dict) -> tuple[float, float] | None:
     return low, low + count - 1
 
 
+def pair_names(disparity_path, rectify_path, rectification: dict, frame: str,
+               target: str | None) -> tuple[str, str, str, str]:
+    """(left name, right name, target name, target side) of a disparity's pair, checked:
+    the disparity's frame must be the rectification's left rectified image, and the
+    target (default the left image) one of the pair (InputError otherwise)."""
+    from demtool.errors import InputError
+
+    left_name = str(rectification["left_name"])
+    right_name = str(rectification["right_name"])
+    if frame.startswith("image:") and frame != f"image:{left_name}_rect":
+        raise InputError(f"{disparity_path}: disparity in frame {frame}, but {rectify_path} "
+                         f"rectifies {left_name} (image:{left_name}_rect); is it the "
+                         "rectification of this pair?")
+    target_name = target or left_name
+    if target_name not in (left_name, right_name):
+        raise InputError(f"{rectify_path}: target {target_name} is neither the left "
+                         f"({left_name}) nor the right ({right_name}) image of the pair")
+    return left_name, right_name, target_name, "left" if target_name == left_name else "right"
+
+
+def check_pair_cameras(cameras: dict, cameras_path, rectify_path, rectification: dict,
+                       left_name: str, right_name: str) -> None:
+    """InputError unless ``cameras`` (read from ``cameras_path``: a cameras.npz or a
+    bundle.npz) has both images of the pair at the sizes the rectification says."""
+    from demtool.errors import InputError
+
+    missing = [n for n in (left_name, right_name) if n not in cameras]
+    if missing:
+        raise InputError(f"{cameras_path}: no camera for {', '.join(missing)} (the images "
+                         f"{rectify_path} rectifies)")
+    for name, side_name in ((left_name, "left"), (right_name, "right")):
+        size = tuple(int(v) for v in rectification[f"size_{side_name}"])
+        if (cameras[name].width, cameras[name].height) != size:
+            raise InputError(f"{cameras_path}: camera {name} is {cameras[name].width}×"
+                             f"{cameras[name].height} px but {rectify_path} says the "
+                             f"{side_name} image is {size[0]}×{size[1]}")
+
+
 def is_calibrated(rectification: dict) -> bool:
     """True for a rectify.npz written with sensor models."""
     return "calibrated" in rectification and bool(rectification["calibrated"])

@@ -43,8 +43,9 @@ class DemParams(Parameters):
                                 "models (auto: polar stereographic poleward of 70 degrees).",
                                 choices=PROJECTIONS, what="projection")
     max_ray_gap: float | None = parameter(
-        None, "Calibrated routes: drop points whose rays miss each other by more, metres "
-        "(default: median gap + max(4 NMAD, 2 GSD)).", minimum=0.0, min_open=True)
+        None, "Calibrated routes and --dense: drop points whose rays miss each other by "
+        "more, metres (an unaligned bundle's model units with --dense; default: median gap + "
+        "max(4 NMAD, 2 GSD)).", minimum=0.0, min_open=True)
     seed: int = seed_field()
     # Tiles over the output grid (demtool.dem.tiled; docs/stages/scale.md): disparity route with
     # --cameras only.

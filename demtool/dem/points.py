@@ -77,12 +77,15 @@ def project_to_target(points: np.ndarray, camera: PinholeCamera,
     return pixels[index], depth[index], index
 
 
-def heights_from_relative_depth(depth: np.ndarray, distance_m: float) -> np.ndarray:
+def heights_from_relative_depth(depth: np.ndarray, distance_m: float, *,
+                                mean_depth: float | None = None) -> np.ndarray:
     """Metric heights from the depths of a model of arbitrary scale (NavCam study, eq. 2).
 
     The depth offset of a point from the mean depth, in metres, is
     ``(z / mean(z) - 1) * d`` with d the spacecraft–surface distance; the height
-    (positive toward the camera) is its negative.
+    (positive toward the camera) is its negative.  ``mean_depth`` gives mean(z) when
+    it is not these points' own mean (dense points converted with the tie points'
+    mean, :mod:`demtool.dem.dense`, so that both share one datum and scale).
 
     Parameters
     ----------
@@ -90,6 +93,8 @@ def heights_from_relative_depth(depth: np.ndarray, distance_m: float) -> np.ndar
         Camera z of the points in the target camera, model units (any scale).
     distance_m : float
         Spacecraft–surface distance d, metres.
+    mean_depth : float, optional
+        The reference depth mean(z), model units (default: the mean of ``depth``).
 
     Returns
     -------
@@ -99,7 +104,8 @@ def heights_from_relative_depth(depth: np.ndarray, distance_m: float) -> np.ndar
     depth = np.asarray(depth, dtype=np.float64)
     if distance_m <= 0:
         raise ValueError(f"the spacecraft-surface distance must be positive, got {distance_m}")
-    return -(depth / np.mean(depth) - 1.0) * distance_m
+    reference = float(np.mean(depth)) if mean_depth is None else float(mean_depth)
+    return -(depth / reference - 1.0) * distance_m
 
 
 def heights_along_view(points: np.ndarray, camera: PinholeCamera) -> np.ndarray:

@@ -81,7 +81,8 @@ def _check_samples(count: int, what: str) -> None:
                               f"{MIN_SAMPLES} are needed to interpolate a DEM")
 
 
-def _finish(measured: np.ndarray, median_px: int, report: dict[str, Any]) -> DemResult:
+def finish_dem(measured: np.ndarray, median_px: int, report: dict[str, Any]) -> DemResult:
+    """Fill the measured grid (NaN = unmeasured), median-filter it, wrap it with the report."""
     filled = fill_and_smooth(measured, median_px=median_px)
     report["measured_fraction"] = float(np.mean(~filled.interpolated))
     return DemResult(dem=filled.dem, interpolated=filled.interpolated, measured=measured,
@@ -141,7 +142,7 @@ def dem_from_points(points: np.ndarray, camera: PinholeCamera, *, aligned: bool,
     log.info("%d of %d points in the target image, %d outliers removed, %d cells measured",
              report["points_in_target"], report["points_total"], report["outliers_removed"],
              report["cells_measured"])
-    return _finish(measured, median_px, report)
+    return finish_dem(measured, median_px, report)
 
 
 def _target_side(target: str) -> str:
@@ -210,7 +211,7 @@ def dem_from_disparity_calibrated(disparity: np.ndarray, H_left: np.ndarray,
              "than %.3g m dropped (median ray gap %.3g m), %d outliers removed",
              report["disparities"], screen.behind, screen.rejected_gap, screen.max_gap,
              report["ray_distance_median_m"], report["outliers_removed"])
-    return _finish(measured, median_px, report)
+    return finish_dem(measured, median_px, report)
 
 
 def dem_from_disparity_projective(disparity: np.ndarray, H_left: np.ndarray,
@@ -271,4 +272,4 @@ def dem_from_disparity_projective(disparity: np.ndarray, H_left: np.ndarray,
     }
     log.info("projective fit on %d disparities: %d inliers, height residual NMAD %.3g",
              report["fit_points"], report["fit_inliers"], fit.residual_nmad)
-    return _finish(measured, median_px, report)
+    return finish_dem(measured, median_px, report)

@@ -4,16 +4,23 @@ route) or from a disparity map (SIAM routes: projective fit or triangulation).""
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from demtool.dem.inputs import read_disparity, searched_range
+from demtool.dem.inputs import (
+    check_pair_cameras,
+    pair_names,
+    read_disparity,
+    searched_range,
+)
 from demtool.stagerun import StageRun, sidecar_path
 from demtool.synth.folder import read_scene_description, scene_number
 
 if TYPE_CHECKING:
     from demtool.dem import OutlierOptions
     from demtool.dem.params import DemParams
+    from demtool.dem.run_dense import PathPair
 
 
 #: a points-route DEM measured on less than this share of its cells gets a warning
@@ -23,8 +30,11 @@ SPARSE_MEASURED = 0.05
 def _points_route(points_path: str | os.PathLike, *, target: str | None,
                   distance_m: float | None, scene: dict[str, Any],
                   scene_path: str | os.PathLike | None, outliers: OutlierOptions,
-                  median_px: int) -> tuple[Any, str, str, float, dict[str, Any]]:
-    """BAM route: (DemResult, target name, route tag, estimated GSD, extra summary)."""
+                  median_px: int, dense: Sequence[PathPair] = (),
+                  max_ray_gap: float | None = None
+                  ) -> tuple[Any, str, str, float, dict[str, Any]]:
+    """BAM route: (DemResult, target name, route tag, estimated GSD, extra summary);
+    densified by the ``dense`` pairs (disparity, rectify.npz) when given."""
     import numpy as np
 
     from demtool import dem as core
@@ -49,51 +59,36 @@ def _points_route(points_path: str | os.PathLike, *, target: str | None,
             raise ParameterError("the bundle is not aligned: give the spacecraft-surface "
                                  "distance with --distance or --scene scene.json")
     camera = cameras[target_name]
-    result = core.dem_from_points(bundle["points"], camera, aligned=aligned,
-                                  distance_m=distance_m, distortion=distortion,
-                                  outliers=outliers, median_px=median_px)
+    if dense:
+        from demtool.dem.dense import dem_from_points_dense
+        from demtool.dem.run_dense import read_dense_pairs
+        from demtool.logs import get_logger
+
+        pairs = read_dense_pairs(dense, cameras, points_path, get_logger("dem"))
+        result = dem_from_points_dense(bundle["points"], cameras, target_name, pairs,
+                                       aligned=aligned, distance_m=distance_m,
+                                       distortion=distortion, outliers=outliers,
+                                       median_px=median_px, max_ray_gap=max_ray_gap)
+    else:
+        result = core.dem_from_points(bundle["points"], camera, aligned=aligned,
+                                      distance_m=distance_m, distortion=distortion,
+                                      outliers=outliers, median_px=median_px)
     estimated_gsd = core.estimate_gsd(camera, aligned=aligned,
                                       depth=np.array([result.report["median_depth"]]),
                                       distance_m=distance_m)
-    route = "points-metric" if aligned else "points-eq2"
+    route = ("points-metric" if aligned else "points-eq2") + ("-dense" if dense else "")
     return result, target_name, route, estimated_gsd, {"distance_m": distance_m}
-
-
-def _pair_names(disparity_path, rectify_path, rectification: dict, frame: str,
-                target: str | None) -> tuple[str, str, str, str]:
-    """(left name, right name, target name, target side) of a disparity's pair, checked."""
-    from demtool.errors import InputError
-
-    left_name = str(rectification["left_name"])
-    right_name = str(rectification["right_name"])
-    if frame.startswith("image:") and frame != f"image:{left_name}_rect":
-        raise InputError(f"{disparity_path}: disparity in frame {frame}, but {rectify_path} "
-                         f"rectifies {left_name} (image:{left_name}_rect); is it the "
-                         "rectification of this pair?")
-    target_name = target or left_name
-    if target_name not in (left_name, right_name):
-        raise InputError(f"{rectify_path}: target {target_name} is neither the left "
-                         f"({left_name}) nor the right ({right_name}) image of the pair")
-    return left_name, right_name, target_name, "left" if target_name == left_name else "right"
 
 
 def _pair_cameras(cameras_path, rectify_path, rectification: dict, left_name: str,
                   right_name: str) -> dict:
     """The pair's cameras from cameras.npz, checked against the rectification's sizes."""
     from demtool import io as dio
-    from demtool.errors import InputError
     from demtool.sensors.pinhole import cameras_from_arrays
 
     cameras = cameras_from_arrays(dio.read_npz(cameras_path, "cameras"))
-    missing = [n for n in (left_name, right_name) if n not in cameras]
-    if missing:
-        raise InputError(f"{cameras_path}: no camera for {', '.join(missing)}")
-    for name, side_name in ((left_name, "left"), (right_name, "right")):
-        size = tuple(int(v) for v in rectification[f"size_{side_name}"])
-        if (cameras[name].width, cameras[name].height) != size:
-            raise InputError(f"{cameras_path}: camera {name} is {cameras[name].width}×"
-                             f"{cameras[name].height} px but {rectify_path} says the "
-                             f"{side_name} image is {size[0]}×{size[1]}")
+    check_pair_cameras(cameras, cameras_path, rectify_path, rectification, left_name,
+                       right_name)
     return cameras
 
 
@@ -114,7 +109,7 @@ def _tiled_pair(disparity_path, rectify_path, cameras_path, target: str | None) 
     with dio._open_dataset(Path(disparity_path), "disparity") as dataset:
         tags = dataset.tags()
         frame = tags.get("frame", "")
-    left_name, right_name, target_name, side = _pair_names(
+    left_name, right_name, target_name, side = pair_names(
         disparity_path, rectify_path, rectification, frame, target)
     cameras = _pair_cameras(cameras_path, rectify_path, rectification, left_name, right_name)
     low, high = (float(v) for v in rectification["disparity_range"])
@@ -144,7 +139,7 @@ def _disparity_route(disparity_path: str | os.PathLike, rectify_path: str | os.P
     rectification = dio.read_npz(rectify_path, "rectification")
     disparity = read_disparity(disparity_path, rectify_path, rectification,
                                rectification["size_rect"], get_logger("dem"))
-    left_name, right_name, target_name, side = _pair_names(
+    left_name, right_name, target_name, side = pair_names(
         disparity_path, rectify_path, rectification, disparity.tags.get("frame", ""), target)
     width, height = (int(v) for v in rectification[f"size_{side}"])
     H_left, H_right = rectification["H_left"], rectification["H_right"]
@@ -183,7 +178,7 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
             mask_path: PathLike = None, error_path: PathLike = None,
             mapprojected: tuple[str | os.PathLike, str | os.PathLike] | None = None,
             up: tuple[float, float, float] | None = None, points_out: PathLike = None,
-            resolved: dict | None = None) -> dict:
+            dense: Sequence[PathPair] = (), resolved: dict | None = None) -> dict:
     """Run the dem stage: read the inputs, build the DEM, write it with its sidecar.
 
     Give ``points_path`` (BAM route) or ``disparity_path`` with ``rectify_path`` and
@@ -195,6 +190,8 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
     as PLY, :func:`demtool.dem.run_local.run_dem_local`), or ``disparity_path`` with
     ``mapprojected`` = (left orthoimage, right orthoimage) from ``demtool mapproject``
     (a DEM on the body's map, :func:`demtool.dem.run_mapprojected.run_dem_mapprojected`).
+    With ``points_path``, ``dense`` = ((disparity, rectify.npz), …), pairs of the block,
+    densifies the BAM DEM (:mod:`demtool.dem.dense`).
     ``mask_path`` also writes the interpolation mask.
     Returns the sidecar summary.
     """
@@ -209,13 +206,18 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
                            "--rectify": rectify_path, "--reference": reference_path,
                            "--cameras": cameras_path, "--scene": scene_path,
                            "--mapprojected LEFT": mapprojected[0] if mapprojected else None,
-                           "--mapprojected RIGHT": mapprojected[1] if mapprojected else None},
+                           "--mapprojected RIGHT": mapprojected[1] if mapprojected else None,
+                           "--dense": [path for pair in dense for path in pair] or None},
                    outputs={"--out": out, "--interpolated-mask": mask_path,
                             "--error-out": error_path, "--points-out": points_out,
                             "sidecar": sidecar_path(out)})
     log, prov = run.log, run.provenance
     for path in run.input_paths():
         dio.require_file(path, "input file")
+    if dense and points_path is None:
+        from demtool.errors import ParameterError
+
+        raise ParameterError("--dense densifies the BAM route: it needs --points bundle.npz")
     if disparity_path is not None and mapprojected is not None:
         from demtool.dem.run_mapprojected import run_dem_mapprojected
         from demtool.errors import ParameterError
@@ -265,7 +267,8 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
     if points_path is not None:
         result, target_name, route, estimated_gsd, extra = _points_route(
             points_path, target=target, distance_m=params.distance, scene=scene,
-            scene_path=scene_path, outliers=outliers, median_px=median_px)
+            scene_path=scene_path, outliers=outliers, median_px=median_px, dense=dense,
+            max_ray_gap=params.max_ray_gap)
     else:
         result, target_name, route, estimated_gsd, extra = _disparity_route(
             disparity_path, rectify_path, reference_path=reference_path,
@@ -298,10 +301,15 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
              result.dem.shape[1], result.dem.shape[0], target_name, route, gsd,
              100 * result.report["measured_fraction"], summary["height_min_m"],
              summary["height_max_m"])
-    if points_path is not None and result.report["measured_fraction"] < SPARSE_MEASURED:
+    if dense:
+        from demtool.dem.run_dense import log_sources
+
+        log_sources(log, result.report, result.dem.size)
+    elif points_path is not None and result.report["measured_fraction"] < SPARSE_MEASURED:
         log.warning("%.1f %% of the DEM is interpolated: %d cells measured (%d bundle points "
-                    "in the target), the heights between them are the gap filling's; give "
-                    "dem --points a denser source for measured detail",
+                    "in the target), the heights between them are the gap filling's; for "
+                    "measured detail add --dense DISPARITY RECTIFY, a pair of the block "
+                    "matched by rectify and sgm",
                     100 * summary["interpolated_fraction"], summary["measured_cells"],
                     result.report["points_in_target"])
     tags = prov.tags(frame=f"image:{target_name}", dem_route=route, gsd_m=gsd,

@@ -1,0 +1,66 @@
+"""What ``dem --points bundle.npz --dense DISPARITY RECTIFY …`` reads and says: the block's
+matched pairs checked against the bundle (:mod:`demtool.dem.dense` does the science)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from typing import Any
+
+PathPair = tuple[str | os.PathLike, str | os.PathLike]
+
+
+def read_dense_pairs(dense: Sequence[PathPair], cameras: dict, bundle_path, log) -> list:
+    """The ``--dense`` pairs as :class:`demtool.dem.dense.DensePair`, each checked.
+
+    A rectification must be uncalibrated (homographies of the original images), a
+    disparity on its rectification's canvas and in its left rectified frame
+    (:func:`demtool.dem.inputs.read_disparity`, :func:`demtool.dem.inputs.pair_names`), and
+    both images of the pair must be registered in the bundle at the rectification's
+    sizes (:func:`demtool.dem.inputs.check_pair_cameras`); InputError (one line naming
+    the file) otherwise.
+    """
+    from demtool import io as dio
+    from demtool.dem.dense import DensePair
+    from demtool.dem.inputs import (
+        check_pair_cameras,
+        is_calibrated,
+        pair_names,
+        read_disparity,
+    )
+    from demtool.errors import InputError
+
+    pairs = []
+    for disparity_path, rectify_path in dense:
+        rectification = dio.read_npz(rectify_path, "rectification")
+        if is_calibrated(rectification):
+            raise InputError(f"{rectify_path}: rectified with sensor models, whose images are "
+                             "not homographies of the originals; triangulate that pair with "
+                             "dem --disparity (--dense takes pairs of rectify without "
+                             "--sensor-left/--sensor-right)")
+        disparity = read_disparity(disparity_path, rectify_path, rectification,
+                                   rectification["size_rect"], log)
+        left, right, _, _ = pair_names(disparity_path, rectify_path, rectification,
+                                       disparity.tags.get("frame", ""), None)
+        check_pair_cameras(cameras, bundle_path, rectify_path, rectification, left, right)
+        pairs.append(DensePair(disparity.data, rectification["H_left"],
+                               rectification["H_right"], left, right, str(disparity_path)))
+    return pairs
+
+
+def log_sources(log, report: dict[str, Any], cells: int) -> None:
+    """One line: how many of the DEM's ``cells`` the tie points and the dense pairs measured,
+    how many are interpolated, and how ties and dense samples agree."""
+    ties, dense_only = report["cells_ties"], report["cells_dense_only"]
+    interpolated = cells - report["cells_measured"]
+    log.info("measured: %d cells by tie points (%.2f %%), %d more by the %d dense pair(s) "
+             "(%.1f %%); interpolated %d (%.1f %%); outliers removed: %d ties, %d dense; "
+             "tie − dense where both measured: median %s, NMAD %s", ties, 100 * ties / cells,
+             dense_only, len(report["dense_pairs"]), 100 * dense_only / cells, interpolated,
+             100 * interpolated / cells, report["tie_outliers"], report["dense_outliers"],
+             _metres(report["tie_minus_dense_median_m"]),
+             _metres(report["tie_minus_dense_nmad_m"]))
+
+
+def _metres(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3g} m"

@@ -83,6 +83,13 @@ $(WORK)/bundle.npz: $(WORK)/selection.json
 $(WORK)/dem_bam.tif: $(WORK)/bundle.npz
 	$(DT) dem --points $< --scene $(SCENE)/scene.json --out $@
 
+# BAM densified (issue 27): the tie points plus the SIAM pair's disparities, triangulated
+# with the bundle's own cameras (no sensor model), merged cell by cell
+PRODUCTS += dem_bam_dense
+$(WORK)/dem_bam_dense.tif: $(WORK)/bundle.npz $(STEREO)/disparity_sgm.tif $(STEREO)/rectify.npz
+	$(DT) dem --points $< --dense $(STEREO)/disparity_sgm.tif $(STEREO)/rectify.npz \
+	  --scene $(SCENE)/scene.json --out $@
+
 # SIAM route: rectify → sgm → dem (calibrated, and the study's projective fit to BAM)
 $(STEREO)/rectify.npz: $(SCENE)/scene.json
 	$(DT) rectify $(SCENE)/$(TARGET).tif $(SCENE)/$(PARTNER).tif --out $(STEREO)

@@ -114,8 +114,9 @@ def height_limit(body: Any) -> float:
 def check_surface_heights(found, dem_path: Any, body: Any) -> None:
     """Refuse a DEM whose heights under the image's footprint cannot be heights above the
     body's sphere: none valid (all NaN, nodata, or the DEM elsewhere), or beyond
-    :func:`height_limit` (radii written as heights, 1e27 fill values) — naming the DEM,
-    not the image."""
+    :func:`height_limit` (1e27 fill values, radii of another body; radii of this body are
+    read as heights by :func:`demtool.mapproject.surface.read_dem_surface`) — naming the
+    DEM, not the image."""
     from demtool.errors import InputError
 
     found = np.asarray(found, dtype=np.float64)
@@ -128,8 +129,8 @@ def check_surface_heights(found, dem_path: Any, body: Any) -> None:
     if worst > limit:
         raise InputError(f"{dem_path}: DEM heights reach {worst:.4g} m under the image's "
                          f"footprint, beyond ±{limit:.4g} m of {body.name}'s reference sphere "
-                         f"(radius {body.radius:.7g} m): radii instead of heights above the "
-                         "sphere, or a fill value?")
+                         f"(radius {body.radius:.7g} m): a fill value, or a DEM of another "
+                         "body?")
 
 
 def check_height(sensor: Any, body: Any, height: float) -> None:

@@ -81,7 +81,9 @@ def require_same_body(path: str | os.PathLike, crs: Any, body: Any,
 
 def read_dem_surface(dem_path, sensor_path, body) -> DemSurface:
     """The DEM at ``dem_path`` as a :class:`DemSurface` (checked: a map of the sensor's
-    body, on a sphere)."""
+    body, on a sphere).  Heights above the map's sphere, or radii (an ISIS shape model,
+    told by :func:`demtool.maps.holds_radii` on a decimated read): both become heights
+    above the body's reference sphere."""
     from demtool import io as dio
     from demtool.errors import InputError
     from demtool.maps import crs_radius, to_pyproj_crs
@@ -97,7 +99,18 @@ def read_dem_surface(dem_path, sensor_path, body) -> DemSurface:
     except ValueError:
         raise InputError(f"{dem_path}: DEM is on an ellipsoid; demtool's map heights are above "
                          "the body's reference sphere (reproject it onto the sphere)") from None
-    return DemSurface(info=info, offset_m=radius - body.radius, geographic=crs.is_geographic)
+    offset_m = radius - body.radius
+    from demtool.maps import holds_radii
+
+    if holds_radii(dio.read_decimated(dem_path, what="DEM"), body.radius):
+        # an ISIS shape model (LOLA ldem_*, MOLA, demprep output) stores radii
+        offset_m = -float(body.radius)
+        from demtool.logs import get_logger
+
+        get_logger("demtool.mapproject").info("DEM %s holds radii (ISIS shape model): heights "
+                                              "are the radii minus %.1f m", dem_path,
+                                              body.radius)
+    return DemSurface(info=info, offset_m=offset_m, geographic=crs.is_geographic)
 
 
 def orthoimage_on_grid(image_path: str | os.PathLike, sensor, dem) -> np.ndarray:

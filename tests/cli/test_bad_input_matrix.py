@@ -165,7 +165,9 @@ def _write_bad_sensors():
     shape = (grid.height, grid.width)
     for name, values in (("map_dem_nan.tif", np.full(shape, np.nan)),
                          ("map_dem_1e27.tif", np.full(shape, 1e27)),
-                         ("map_dem_radius.tif", np.full(shape, moon.radius))):
+                         # radii of Mars's size on a Moon map: read as radii, still
+                         # 1652 km above the Moon's sphere
+                         ("map_dem_radius.tif", np.full(shape, 3389500.0))):
         dio.write_raster(name, values, transform=grid.transform, crs=grid.crs)
 
 
@@ -496,9 +498,10 @@ CASES = [
     case("mapproject-1e27-dem", ["mapproject", "left.tif", "--sensor", "cam.json",
                                  "--dem", "map_dem_1e27.tif", "--out", "o.tif"], 1,
          "map_dem_1e27.tif: DEM heights reach 1e+27 m"),
-    case("mapproject-radius-valued-dem", ["mapproject", "left.tif", "--sensor", "cam.json",
-                                          "--dem", "map_dem_radius.tif", "--out", "o.tif"], 1,
-         "map_dem_radius.tif: DEM heights reach 1.737e+06 m"),
+    case("mapproject-radii-of-another-body", ["mapproject", "left.tif", "--sensor",
+                                              "cam.json", "--dem", "map_dem_radius.tif",
+                                              "--out", "o.tif"], 1,
+         "map_dem_radius.tif: DEM heights reach 1.652e+06 m"),
     case("mapproject-height-below-the-centre", ["mapproject", "left.tif", "--sensor",
                                                 "cam.json", "--height", "-2e6", "--out",
                                                 "o.tif"], 1,

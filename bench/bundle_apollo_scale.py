@@ -31,6 +31,9 @@ relief.  A metric reference that resolves it: the DEM of the cube pair (0297 / 0
 the SPICE base of 41 km); the BAM DEM is regressed on it over the cells it covers, beside
 LOLA on the same cells.
 
+The third row densifies the focal-given BAM DEM with the frames 0297 / 0298 matched by
+``sgm`` (``dem --points --dense``): the same regression over many more measured cells.
+
 Usage: ``.venv/bin/python bench/bundle_apollo_scale.py``
 """
 
@@ -155,16 +158,32 @@ def slope(h_dem, h_ref, rows, cols, *, quadratic: bool) -> tuple[float, float]:
     return float(a @ b / (b @ b)), float(a @ b / np.sqrt((a @ a) * (b @ b)))
 
 
-def case(work: Path, frames, label: str, params, frame_model, surface, stereo=None) -> dict:
-    """Bundle the frames, make the BAM DEM of the target and regress it on LOLA (and on
+def frames_pair(work: Path) -> tuple[Path, Path]:
+    """The frames 0297 / 0298 rectified from their matches and matched by sgm (defaults):
+    the dense source of ``dem --points --dense`` (no cameras needed)."""
+    from demtool.rectify.run import run_rectify
+    from demtool.sgm.run import run_sgm
+
+    folder = work / "frames_pair"
+    run_rectify(APOLLO / f"{TARGET}.png", APOLLO / "AS15-M-0298_SML.png", folder)
+    run_sgm(folder / "left_rect.tif", folder / "right_rect.tif", folder / "disparity.tif",
+            rectify=folder / "rectify.npz")
+    return folder / "disparity.tif", folder / "rectify.npz"
+
+
+def case(work: Path, frames, label: str, params, frame_model, surface, stereo=None,
+         dense=(), bundle_path: Path | None = None) -> dict:
+    """Bundle the frames (or reuse ``bundle_path``), make the BAM DEM of the target
+    (densified by the ``dense`` pairs when given) and regress it on LOLA (and on
     ``stereo``, a surface of the cube pair's DEM, where it covers the frame)."""
     from demtool import io as dio
     from demtool.bundle.run import run_bundle
     from demtool.dem.params import DemParams
     from demtool.dem.run import run_dem
 
-    out = work / f"{label}.npz"
-    summary = run_bundle(frames, out, params)
+    out = bundle_path or work / f"{label}.npz"
+    summary = (dio.read_json(Path(f"{out}.json"))["summary"] if bundle_path
+               else run_bundle(frames, out, params))
     f = summary["focal_px"][0]
     decision = summary["intrinsics"].get("decisions", {}).get("f", {}).get("status", "?")
     bundle = dio.read_npz(out, "bundle")
@@ -179,7 +198,7 @@ def case(work: Path, frames, label: str, params, frame_model, surface, stereo=No
     distance = float(np.nanmean(lola_depths(frame_model, pixels[:, 1], pixels[:, 0], surface)))
     dem_path = work / f"{label}_dem.tif"
     report = run_dem(dem_path, DemParams(target=TARGET, distance=distance, mask_band=True),
-                     points_path=out)
+                     points_path=out, dense=dense)
     dem = dio.read_raster(dem_path, band=1).data
     interpolated = dio.read_raster(dem_path, band=2).data
     rows, cols = np.nonzero(interpolated == 0)
@@ -250,6 +269,9 @@ def main() -> None:
             focal_mm=FOCAL_MM, pixel_mm=PIXEL_MM), frame_model, surface, stereo))
         rows.append(case(work, frames, "free intrinsics", BundleParams(), frame_model,
                          surface, stereo))
+        rows.append(case(work, frames, "focal given, dense (0297/0298)", None, frame_model,
+                         surface, stereo, dense=[frames_pair(work)],
+                         bundle_path=work / "focal given.npz"))
     print(f"\nBAM DEM of {TARGET} (bundle of the 4 frames, dem --points) against LOLA "
           f"(f = {FOCAL_MM} mm / {PIXEL_MM:.5f} mm = {FOCAL_MM / PIXEL_MM:.1f} px)")
     print("| case | f px | f decision | D km | mean px | measured cells | interpolated "

@@ -97,10 +97,7 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
     inner = np.s_[r0 - wide[0]:r1 - wide[0], c0 - wide[2]:c1 - wide[2]]
     if not np.isfinite(values[inner]).any():
         raise InputError(f"{path}: reference DEM has no data under the images' footprints")
-    if is_radius_map(values[inner], body.radius, path):
-        values = values - body.radius
-    else:
-        values = values + dem.offset_m
+    values = values + dem.offset_m  # heights above the body's sphere (radii: minus R)
     heights = values[inner]
     from demtool.mapproject.checks import check_surface_heights
 
@@ -139,18 +136,3 @@ def read_reference_surface(path: str | os.PathLike, models: Sequence[Any],
              float(np.nanmedian(slope_m)), typical, sigma)
     return dataclasses.replace(surface, post_m=post_m, slope_factor=factor,
                                curvature=curvature)
-
-
-def is_radius_map(values: np.ndarray, radius: float, path) -> bool:
-    """Whether a DEM's values are radii rather than heights (:func:`demtool.maps.holds_radii`;
-    one log line when they are)."""
-    from demtool.maps import holds_radii
-
-    if not holds_radii(values, radius):
-        return False
-    from demtool.logs import get_logger
-
-    get_logger("demtool.bundle").info("reference DEM %s holds radii (median %.1f m): heights "
-                                      "are the radii minus %.1f m", path,
-                                      float(np.nanmedian(values)), radius)
-    return True

@@ -25,7 +25,7 @@ from demtool.errors import InputError
 from demtool.logs import get_logger
 from demtool.maps.bodies import body_label
 
-__all__ = ["check_bodies", "metric_grid"]
+__all__ = ["check_bodies", "metric_grid", "radius_offset"]
 
 log = get_logger(__name__)
 
@@ -110,3 +110,26 @@ def metric_grid(grid: Grid) -> tuple[Grid, dict[str, Any] | None]:
     log.info("the comparison grid is in degrees (%.6g x %.6g deg): measuring on %s at "
              "%.4g m", grid.spacing[0], grid.spacing[1], metric.crs.name, metric.gsd[0])
     return out, note
+
+
+def radius_offset(path: str | os.PathLike, crs, values, what: str) -> float:
+    """The body's radius when a DEM on a planetary map holds radii (ISIS shape models:
+    LOLA ``ldem_*``, MOLA), else 0: the metres to subtract for heights (one log line)."""
+    import numpy as np
+
+    from demtool.maps import body_from_crs, holds_radii, to_pyproj_crs
+
+    if crs is None:
+        return 0.0
+    try:
+        radius = float(body_from_crs(to_pyproj_crs(crs)).radius)
+    except (ValueError, TypeError, AttributeError):
+        return 0.0  # not a body's map: heights as they are
+    if not holds_radii(values, radius):
+        return 0.0
+    from demtool.logs import get_logger
+
+    get_logger("demtool.compare").info("%s %s holds radii (median %.1f m): heights are the "
+                                       "radii minus %.1f m", what, path,
+                                       float(np.nanmedian(values)), radius)
+    return radius

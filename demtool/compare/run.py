@@ -22,29 +22,6 @@ if TYPE_CHECKING:
     from demtool.compare.params import CompareParams
 
 
-def radius_offset(path: str | os.PathLike, crs, values, what: str) -> float:
-    """The body's radius when a DEM on a planetary map holds radii (ISIS shape models:
-    LOLA ``ldem_*``, MOLA), else 0: the metres to subtract for heights (one log line)."""
-    import numpy as np
-
-    from demtool.maps import body_from_crs, holds_radii, to_pyproj_crs
-
-    if crs is None:
-        return 0.0
-    try:
-        radius = float(body_from_crs(to_pyproj_crs(crs)).radius)
-    except (ValueError, TypeError, AttributeError):
-        return 0.0  # not a body's map: heights as they are
-    if not holds_radii(values, radius):
-        return 0.0
-    from demtool.logs import get_logger
-
-    get_logger("demtool.compare").info("%s %s holds radii (median %.1f m): heights are the "
-                                       "radii minus %.1f m", what, path,
-                                       float(np.nanmedian(values)), radius)
-    return radius
-
-
 def _read_dem(path: str | os.PathLike, what: str):
     import dataclasses
 
@@ -55,6 +32,8 @@ def _read_dem(path: str | os.PathLike, what: str):
 
     refuse_image_as_dem(path, what)  # an ISIS image cube holds I/F, not metres
     raster = dio.read_raster(path, what=what)
+    from demtool.compare.planetary import radius_offset
+
     offset = radius_offset(path, raster.crs, raster.data, what)
     if offset:
         raster = dataclasses.replace(raster, data=(raster.data - offset).astype(np.float32))

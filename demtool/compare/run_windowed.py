@@ -86,7 +86,7 @@ class Source:
     def __post_init__(self) -> None:
         from demtool import io as dio
         from demtool.compare.grids import _check_overlap, same_grid
-        from demtool.compare.run import radius_offset
+        from demtool.compare.planetary import radius_offset
 
         if self.what != "mask":
             self.offset = radius_offset(self.path, self.grid.crs,

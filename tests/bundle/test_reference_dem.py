@@ -213,11 +213,12 @@ def test_reference_dem_sigma_must_be_positive(sensor_files, tmp_path):
 
 def test_radius_maps_are_read_as_heights():
     """An ISIS shape model stores radii (LOLA's ldem): its values minus the radius."""
-    from demtool.bundle.run_reference import is_radius_map
+    from demtool.maps import holds_radii
 
     radius = 1_737_400.0
-    assert is_radius_map(np.array([[radius + 3000.0, radius - 1500.0]]), radius, "ldem.cub")
-    assert not is_radius_map(np.array([[3000.0, -1500.0, np.nan]]), radius, "dem.tif")
+    assert holds_radii(np.array([[radius + 3000.0, radius - 1500.0]]), radius)
+    assert not holds_radii(np.array([[3000.0, -1500.0, np.nan]]), radius)
+    assert not holds_radii(np.array([[np.nan]]), radius)
 
 
 def test_a_camera_moved_beyond_three_sigma_gets_one_warning_naming_the_sigma(caplog):

@@ -40,9 +40,11 @@ from demtool.sgm.noise import noise_sigma, p2_kappa
 from demtool.sgm.passes import (
     COST_DEFAULTS,
     CostDefaults,
+    ad_pixel_cost,
     census_fallback,
     filter_pass,
     match_cost,
+    pixel_pass,
     support_radius,
 )
 
@@ -313,13 +315,14 @@ def choose(hmi, *, window, given, cost_window, match, filters, fractions, pixel_
     zone = (discontinuity_zone(hmi[0])
             if pixel_census and noise <= FINE_NOISE_MAX else None)
     if zone is not None and zone.any():  # no discontinuity (terrain): nothing to sharpen
-        fine = filter_pass(*census_fallback(cost_window, *given, match, FINE_CENSUS),
+        fine = filter_pass(*census_fallback(cost_window, *given, holding(match, hmi),
+                                            FINE_CENSUS),
                        **filters)
         if not (why_not := prefer_fine(fine[0], hmi[0], valid)):
             log.info("cost auto: pixel census near depth discontinuities (noise σ %.1f)", noise)
             base, radius = choose(hmi, window=window, given=given, cost_window=cost_window,
-                                 match=match, filters=filters, fractions=fractions,
-                                 pixel_census=False)
+                                 match=holding(match, fine), filters=filters,
+                                 fractions=fractions, pixel_census=False)
             fractions.update(cost_used=f"census+{fractions.get('cost_used', 'hmi')}",
                              edge_census=share(zone, valid))
             window = FINE_CENSUS.window if cost_window is None else int(cost_window)
@@ -327,8 +330,9 @@ def choose(hmi, *, window, given, cost_window, match, filters, fractions, pixel_
                     max(radius, support_radius("census", window, census_shape)))
         log.info("cost auto: no pixel census (%s)", why_not)
         fractions["cost_reason"] = why_not
-    other = filter_pass(*census_fallback(cost_window, *given, match), **filters)
-    gradient = filter_pass(*gradient_pass(cost_window, given, match), **filters)
+    other = filter_pass(*census_fallback(cost_window, *given, holding(match, hmi)), **filters)
+    gradient = filter_pass(*gradient_pass(cost_window, given, holding(match, hmi, other)),
+                           **filters)
     reason = prefer_gradient(gradient[0], hmi[0], other[0], full_range(
         valid, match["min_disparity"], match["num_disparities"]))
     if reason:
@@ -338,7 +342,17 @@ def choose(hmi, *, window, given, cost_window, match, filters, fractions, pixel_
         gradient_window = COST_DEFAULTS["ad"].window if cost_window is None else cost_window
         return gradient, support_radius("ad", int(gradient_window), census_shape)
     return windowed_choice(hmi, other, window=window, cost_window=cost_window,
-                            match=match, fractions=fractions, filters=filters)
+                            match=holding(match, gradient), fractions=fractions,
+                            filters=filters)
+
+
+def holding(match: dict, *results: tuple) -> dict:
+    """``match`` for a pass during which the (disparity, confidence, occluded)
+    ``results`` of earlier passes are held: their bytes count against the memory budget
+    (:func:`demtool.sgm.strips.match_pass`)."""
+    held = sum(array.nbytes for result in results for array in result)
+    common = match["common"]
+    return dict(match, common=dict(common, held_bytes=common.get("held_bytes", 0) + held))
 
 
 def gradient_pass(cost_window, given, match):
@@ -346,22 +360,30 @@ def gradient_pass(cost_window, given, match):
     defaults (OpenCV StereoSGBM's prefilter; an offset cancels, a gain scales)."""
     from scipy import ndimage  # only here: its import costs about a second
 
-    images = {}
-    for side in ("left", "right"):
+    def gradient(side):
         valid = match[f"{side}_valid"]
         filled = costs.fill_invalid(match[side], valid).astype(np.float64)
-        images[side] = np.where(valid, ndimage.sobel(filled, axis=1),
-                                np.nan).astype(np.float32)
+        return np.where(valid, ndimage.sobel(filled, axis=1), np.nan).astype(np.float32)
+
     defaults = COST_DEFAULTS["ad"]
     p1, p2 = (d if g is None else g for g, d in zip(given, (defaults.p1, defaults.p2),
                                                      strict=True))
-    guide = costs.quantize(images["left"], match["left_valid"], 256)
+    left_valid, right_valid = match["left_valid"], match["right_valid"]
+    with match["common"]["timer"].measure("prepare"):
+        # the float gradient images are dropped before the pass: only their 8-bit
+        # levels (cost and guide) are held while S is (2048²: 32 MB less)
+        left, right = gradient("left"), gradient("right")
+        pixel_cost = ad_pixel_cost(left, right, left_valid, right_valid)
+        guide = costs.quantize(left, left_valid, 256)
+        del left, right
     common = dict(match["common"], p1=p1, p2=max(p1, p2))
     if common["p2_kappa"]:
-        common["p2_kappa"] = p2_kappa(guide, match["left_valid"])
+        common["p2_kappa"] = p2_kappa(guide, left_valid)
     window = defaults.window if cost_window is None else int(cost_window)
-    return match_cost("ad", window=window, **dict(match, common=common, guide=guide,
-                                                    **images))
+    return pixel_pass(pixel_cost, left_valid=left_valid, right_valid=right_valid,
+                      guide=guide, min_disparity=match["min_disparity"],
+                      num_disparities=match["num_disparities"], window=window,
+                      common=common, final=match["final"], levels=match["levels"])
 
 
 def windowed_choice(hmi, other, *, window, cost_window, match, fractions, filters):
@@ -392,7 +414,8 @@ def windowed_choice(hmi, other, *, window, cost_window, match, fractions, filter
         fractions["edge_census"] = share(zone, valid)
         log.info("cost auto: pixel census near depth edges (%.1f %% of the pixels)",
                  100 * fractions["edge_census"])
-        result = at_depth_edges(zone, result, edge_census(match, filters))
+        result = at_depth_edges(zone, result,
+                                edge_census(holding(match, hmi, other, result), filters))
     return result, hmi_radius
 
 
@@ -405,7 +428,8 @@ def edge_census(match, filters):
     left = filter_pass(*match_cost("census", **dict(match, **options)), **filters)
     if match["final"]["lr_threshold"] is None:
         return left
-    right = filter_pass(*match_cost("census", **dict(match, **options, **mirrored(match))),
+    right = filter_pass(*match_cost("census", **dict(holding(match, left), **options,
+                                                     **mirrored(match))),
                     **filters)
     return cross_check(left[0], left[1], right[0][:, ::-1],
                               match["final"]["lr_threshold"])

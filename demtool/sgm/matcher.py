@@ -187,8 +187,9 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         Threads (0 = all cores): two run the down and up sweeps of a strip; more match
         ``workers // 2`` strips at once.
     max_memory_mb : float
-        Budget of S and the row buffers of the strips matched at once, MiB (beyond it
-        the sweeps recompute their end rows: same result, ~13 % more CPU; issue 28).
+        Budget of S and the row buffers of the strips matched at once, and of the
+        results cost "auto" holds from its earlier passes, MiB (beyond it the sweeps
+        recompute their end rows: same result, ~13 % more CPU; issue 28).
     seed : int
         Seed of the random initial disparity of "hmi".
 

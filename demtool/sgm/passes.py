@@ -141,32 +141,46 @@ def match_cost(cost, *, left, right, left_valid, right_valid, guide, left_range,
                common, final, speckle, levels, workers):
     """The raw disparity and confidence of one cost (before filters and fill);
     ``census_shape``: the census window's (rows, columns)."""
-    timer: PhaseTimer = common["timer"]
     if cost in ("census", "ad"):
-        with timer.measure("prepare"):
+        with common["timer"].measure("prepare"):
             if cost == "census":
                 pixel_cost = costs.census_pixel_cost(costs.fill_invalid(left, left_valid),
                                                      costs.fill_invalid(right, right_valid),
                                                      census_shape,
                                                      workers=workers)
             else:
-                value_range = costs.robust_range([left, right], [left_valid, right_valid])
-                pixel_cost = costs.table_pixel_cost(
-                    "ad", costs.quantize(left, left_valid, 256, value_range),
-                    costs.quantize(right, right_valid, 256, value_range),
-                    costs.absolute_difference_table(256, AD_TRUNCATION))
-        disparity, confidence = match_pass(
-            pixel_cost, left_valid, right_valid, guide, min_disparity=min_disparity,
-            num_disparities=num_disparities, window=window, **common, **final)
-        levels.append({"scale": 1, "cost": cost, "min_disparity": min_disparity,
-                       "num_disparities": num_disparities,
-                       "valid_fraction": float(np.isfinite(disparity).mean())})
-        return disparity, confidence
+                pixel_cost = ad_pixel_cost(left, right, left_valid, right_valid)
+        return pixel_pass(pixel_cost, left_valid=left_valid, right_valid=right_valid,
+                          guide=guide, min_disparity=min_disparity,
+                          num_disparities=num_disparities, window=window, common=common,
+                          final=final, levels=levels)
     return mutual_information_sgm(
         left, right, left_valid, right_valid, guide, cost=cost,
         min_disparity=min_disparity, num_disparities=num_disparities, window=window,
         mi_iterations=mi_iterations, seed=seed, common=common, final=final,
         speckle=speckle, levels=levels, left_range=left_range)
+
+
+def ad_pixel_cost(left, right, left_valid, right_valid) -> costs.PixelCost:
+    """Truncated absolute difference of the pair quantized to 256 levels over their
+    joint robust range (:data:`AD_TRUNCATION`)."""
+    value_range = costs.robust_range([left, right], [left_valid, right_valid])
+    return costs.table_pixel_cost("ad", costs.quantize(left, left_valid, 256, value_range),
+                                  costs.quantize(right, right_valid, 256, value_range),
+                                  costs.absolute_difference_table(256, AD_TRUNCATION))
+
+
+def pixel_pass(pixel_cost, *, left_valid, right_valid, guide, min_disparity, num_disparities,
+               window, common, final, levels):
+    """The full-resolution SGM pass of a census or "ad" pixel cost; its raw disparity
+    and confidence (the pass is recorded in ``levels``)."""
+    disparity, confidence = match_pass(
+        pixel_cost, left_valid, right_valid, guide, min_disparity=min_disparity,
+        num_disparities=num_disparities, window=window, **common, **final)
+    levels.append({"scale": 1, "cost": pixel_cost.name, "min_disparity": min_disparity,
+                   "num_disparities": num_disparities,
+                   "valid_fraction": float(np.isfinite(disparity).mean())})
+    return disparity, confidence
 
 
 def mutual_information_sgm(left, right, left_valid, right_valid, guide, *, cost, min_disparity,
@@ -194,7 +208,11 @@ def mutual_information_sgm(left, right, left_valid, right_valid, guide, *, cost,
             pyramid.insert(0, (scale, image_l, image_r, valid_l, valid_r,
                                costs.quantize(image_l, valid_l, 256)))
     previous = None
-    for index, (scale, image_l, image_r, valid_l, valid_r, level_guide) in enumerate(pyramid):
+    for index in range(len(pyramid)):
+        # each level is dropped once matched, the estimate once its MI table is made
+        # (2048² × 128: about 40 MB less held during the full-resolution pass)
+        scale, image_l, image_r, valid_l, valid_r, level_guide = pyramid[index]
+        pyramid[index] = None
         with timer.measure("prepare"):
             n_levels = mi_levels(int(min(valid_l.sum(), valid_r.sum())))
             levels_l = costs.quantize(image_l, valid_l, n_levels,
@@ -226,6 +244,7 @@ def mutual_information_sgm(left, right, left_valid, right_valid, guide, *, cost,
                         f"{scale} scale (disparities {lo} … {hi})")
                 pixel_cost = costs.table_pixel_cost("mi", levels_l, levels_r,
                                                     costs.mi_cost_table(mi))
+                estimate = previous = None
             final_pass = last_level and iteration == iterations - 1
             options = final if final_pass else dict(subpixel="none", lr_threshold=1.0)
             disparity, confidence = match_pass(

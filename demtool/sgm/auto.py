@@ -304,11 +304,14 @@ def share(mask: np.ndarray, valid: np.ndarray) -> float:
     return round(float(np.count_nonzero(mask & valid)) / max(int(valid.sum()), 1), 4)
 
 
-def choose(hmi, *, window, given, cost_window, match, filters, fractions, pixel_census=True):
+def choose(hmi, *, window, given, cost_window, match, filters, fractions, pixel_census=True,
+           replaced=None):
     """The choices of cost "auto" after HMI (:mod:`demtool.sgm.auto`; ``pixel_census``
     False: the windowed choice alone).  ``hmi``: HMI's filtered (disparity, confidence,
-    occluded), ``window`` its cost window.  Returns the chosen triple and its cost's
-    support radius (:func:`demtool.sgm.edges.snap_edges`); the choice goes to ``fractions``."""
+    occluded), ``window`` its cost window; ``replaced``: (H, W) bool, the pixels whose
+    result the caller replaces (a pass used only there is skipped).  Returns the chosen
+    triple and its cost's support radius (:func:`demtool.sgm.edges.snap_edges`); the
+    choice goes to ``fractions``."""
     valid, guide = match["left_valid"], match["guide"]
     census_shape = match["census_shape"]
     fractions["noise_sigma"] = round(noise := noise_sigma(guide, valid), 2)
@@ -316,13 +319,12 @@ def choose(hmi, *, window, given, cost_window, match, filters, fractions, pixel_
             if pixel_census and noise <= FINE_NOISE_MAX else None)
     if zone is not None and zone.any():  # no discontinuity (terrain): nothing to sharpen
         fine = filter_pass(*census_fallback(cost_window, *given, holding(match, hmi),
-                                            FINE_CENSUS),
-                       **filters)
+                                            FINE_CENSUS), **filters)
         if not (why_not := prefer_fine(fine[0], hmi[0], valid)):
             log.info("cost auto: pixel census near depth discontinuities (noise σ %.1f)", noise)
             base, radius = choose(hmi, window=window, given=given, cost_window=cost_window,
-                                 match=holding(match, fine), filters=filters,
-                                 fractions=fractions, pixel_census=False)
+                                  match=holding(match, fine), filters=filters,
+                                  fractions=fractions, pixel_census=False, replaced=zone)
             fractions.update(cost_used=f"census+{fractions.get('cost_used', 'hmi')}",
                              edge_census=share(zone, valid))
             window = FINE_CENSUS.window if cost_window is None else int(cost_window)
@@ -342,8 +344,8 @@ def choose(hmi, *, window, given, cost_window, match, filters, fractions, pixel_
         gradient_window = COST_DEFAULTS["ad"].window if cost_window is None else cost_window
         return gradient, support_radius("ad", int(gradient_window), census_shape)
     return windowed_choice(hmi, other, window=window, cost_window=cost_window,
-                            match=holding(match, gradient), fractions=fractions,
-                            filters=filters)
+                           match=holding(match, gradient), fractions=fractions,
+                           filters=filters, replaced=replaced)
 
 
 def holding(match: dict, *results: tuple) -> dict:
@@ -386,13 +388,16 @@ def gradient_pass(cost_window, given, match):
                       common=common, final=match["final"], levels=match["levels"])
 
 
-def windowed_choice(hmi, other, *, window, cost_window, match, fractions, filters):
+def windowed_choice(hmi, other, *, window, cost_window, match, fractions, filters,
+                    replaced=None):
     """HMI, census summed over a window, or the HMI pixels census confirms (near depth
-    edges the pixel census, :func:`edge_census`)."""
+    edges the pixel census, :func:`edge_census`, unless all of them are ``replaced``:
+    the low-noise choice's depth-discontinuity zone often covers them, on tsukuba
+    entirely, sparing its two passes)."""
     valid, census_shape = match["left_valid"], match["census_shape"]
     hmi_radius = support_radius("hmi", window, census_shape)
     reason = prefer_census(hmi[0], other[0], valid, match["min_disparity"],
-                                  match["num_disparities"])
+                           match["num_disparities"])
     fractions["cost_used"] = "census" if reason else "hmi"
     if reason:
         log.info("cost auto: census instead of HMI (%s)", reason)
@@ -412,6 +417,10 @@ def windowed_choice(hmi, other, *, window, cost_window, match, fractions, filter
     result, zone = (disparity, confidence, hmi[2] | other[2]), depth_edge_zone(disparity)
     if zone.any():  # where the windowed costs fatten a foreground
         fractions["edge_census"] = share(zone, valid)
+        if replaced is not None and not (zone & ~replaced).any():
+            log.info("cost auto: no pixel census near depth edges (the pixel census near "
+                     "depth discontinuities replaces them all)")
+            return result, hmi_radius
         log.info("cost auto: pixel census near depth edges (%.1f %% of the pixels)",
                  100 * fractions["edge_census"])
         result = at_depth_edges(zone, result,

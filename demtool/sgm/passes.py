@@ -138,18 +138,19 @@ def support_radius(cost: str, window: int, census_shape: tuple[int, int]) -> int
 
 def match_cost(cost, *, left, right, left_valid, right_valid, guide, left_range,
                min_disparity, num_disparities, window, census_shape, mi_iterations, seed,
-               common, final, speckle, levels, workers):
+               common, final, speckle, levels, workers, census_codes=None):
     """The raw disparity and confidence of one cost (before filters and fill);
-    ``census_shape``: the census window's (rows, columns)."""
+    ``census_shape``: the census window's (rows, columns); ``census_codes``: the pair's
+    census pixel cost when already computed (:func:`census_cost`)."""
     if cost in ("census", "ad"):
         with common["timer"].measure("prepare"):
-            if cost == "census":
-                pixel_cost = costs.census_pixel_cost(costs.fill_invalid(left, left_valid),
-                                                     costs.fill_invalid(right, right_valid),
-                                                     census_shape,
-                                                     workers=workers)
-            else:
+            if cost == "ad":
                 pixel_cost = ad_pixel_cost(left, right, left_valid, right_valid)
+            elif census_codes is None:
+                pixel_cost = census_cost(left, right, left_valid, right_valid, census_shape,
+                                         workers)
+            else:
+                pixel_cost = census_codes
         return pixel_pass(pixel_cost, left_valid=left_valid, right_valid=right_valid,
                           guide=guide, min_disparity=min_disparity,
                           num_disparities=num_disparities, window=window, common=common,
@@ -159,6 +160,14 @@ def match_cost(cost, *, left, right, left_valid, right_valid, guide, left_range,
         min_disparity=min_disparity, num_disparities=num_disparities, window=window,
         mi_iterations=mi_iterations, seed=seed, common=common, final=final,
         speckle=speckle, levels=levels, left_range=left_range)
+
+
+def census_cost(left, right, left_valid, right_valid, census_shape, workers
+                ) -> costs.PixelCost:
+    """Census pixel cost of the pair, invalid pixels filled (window ``census_shape``)."""
+    return costs.census_pixel_cost(costs.fill_invalid(left, left_valid),
+                                   costs.fill_invalid(right, right_valid), census_shape,
+                                   workers=workers)
 
 
 def ad_pixel_cost(left, right, left_valid, right_valid) -> costs.PixelCost:

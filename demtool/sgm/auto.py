@@ -36,6 +36,7 @@ import numpy as np
 
 from demtool.logs import get_logger
 from demtool.sgm import cost as costs
+from demtool.sgm.extremes import box_max, box_min
 from demtool.sgm.noise import noise_sigma, p2_kappa
 from demtool.sgm.passes import (
     COST_DEFAULTS,
@@ -213,15 +214,16 @@ def discontinuity_zone(disparity: np.ndarray, radius: int = EDGE_ZONE_RADIUS,
     neighbourhood whose finite disparities span more than ``jump`` px.  A jump between
     pixels at most 4 px apart, not a range over the zone: a terrain slope (orbital stereo
     at B/H 0.3 on a 40° crater wall changes the disparity by ~0.25 px per pixel) is not
-    an edge, an object's border is."""
-    from scipy import ndimage  # only here: its import costs about a second
-
+    an edge, an object's border is.  (The window extremes: :mod:`demtool.sgm.extremes`,
+    equal to scipy.ndimage's maximum/minimum filters.)"""
     finite = np.isfinite(disparity)
-    high = ndimage.maximum_filter(np.where(finite, disparity, -np.inf), size=5)
-    low = ndimage.minimum_filter(np.where(finite, disparity, np.inf), size=5)
+    high = box_max(np.where(finite, disparity, -np.inf), 2)
+    low = box_min(np.where(finite, disparity, np.inf), 2)
     with np.errstate(invalid="ignore"):
         edge = np.isfinite(high) & np.isfinite(low) & (high - low > jump)
-    return ndimage.maximum_filter(edge, size=2 * radius + 1)
+    if not edge.any():  # terrain: no zone
+        return edge
+    return box_max(edge, radius) > 0
 
 
 def blend_fine(fine: tuple, hmi: tuple, zone: np.ndarray, base: tuple) -> tuple:
@@ -240,12 +242,9 @@ def depth_edge_zone(disparity: np.ndarray, radius: int = EDGE_ZONE_RADIUS,
                     jump: float = EDGE_ZONE_JUMP) -> np.ndarray:
     """(H, W) bool: pixels within ``radius`` px (a square) of a depth edge, i.e. whose
     neighbourhood holds finite disparities more than ``jump`` px apart (NaN ignored)."""
-    from scipy import ndimage  # only here: its import costs about a second
-
     finite = np.isfinite(disparity)
-    size = 2 * radius + 1
-    high = ndimage.maximum_filter(np.where(finite, disparity, -np.inf), size=size)
-    low = ndimage.minimum_filter(np.where(finite, disparity, np.inf), size=size)
+    high = box_max(np.where(finite, disparity, -np.inf), radius)
+    low = box_min(np.where(finite, disparity, np.inf), radius)
     with np.errstate(invalid="ignore"):
         return np.isfinite(high) & np.isfinite(low) & (high - low > jump)
 

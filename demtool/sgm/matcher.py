@@ -1,6 +1,8 @@
-"""Semi-global matching of a rectified pair: costs, strips, MI iterations and HMI pyramid.
+"""Semi-global matching of a rectified pair: checks, the cost's passes, edges and fill.
 
-:func:`sgm` is the stage's core (arrays in, arrays out).  Each SGM pass holds one
+:func:`sgm` is the stage's core (arrays in, arrays out); one cost's pass (and the MI /
+HMI schedule) is :mod:`demtool.sgm.passes`, the default cost's choices
+:mod:`demtool.sgm.auto`.  Each SGM pass holds one
 uint16 volume, the aggregated cost S; the matching cost is computed row by row inside
 the sweeps (:mod:`demtool.sgm.aggregate`).  The down and up sweeps run in two threads
 (the numba kernels release the GIL).  Only when S does not fit the memory budget is the

@@ -324,15 +324,13 @@ def choose(hmi, *, window, given, cost_window, match, filters, fractions, pixel_
             codes = census_cost(*(match[k] for k in ("left", "right", "left_valid",
                                                      "right_valid", "census_shape",
                                                      "workers")))
-        match = dict(match, census_codes=codes)
-        fine = filter_pass(*census_fallback(cost_window, *given,
-                                            holding(match, hmi, (codes.left, codes.right)),
+        match = holding(dict(match, census_codes=codes), (codes.left, codes.right))
+        fine = filter_pass(*census_fallback(cost_window, *given, holding(match, hmi),
                                             FINE_CENSUS), **filters)
         if not (why_not := prefer_fine(fine[0], hmi[0], valid)):
             log.info("cost auto: pixel census near depth discontinuities (noise σ %.1f)", noise)
             base, radius = choose(hmi, window=window, given=given, cost_window=cost_window,
-                                  match=holding(match, fine, (codes.left, codes.right)),
-                                  filters=filters,
+                                  match=holding(match, fine), filters=filters,
                                   fractions=fractions, pixel_census=False, replaced=zone)
             fractions.update(cost_used=f"census+{fractions.get('cost_used', 'hmi')}",
                              edge_census=share(zone, valid))

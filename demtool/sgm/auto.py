@@ -350,9 +350,9 @@ def choose(hmi, *, window, given, cost_window, match, filters, fractions, pixel_
         fractions.update(cost_used="gradient", cost_reason=reason)
         gradient_window = COST_DEFAULTS["ad"].window if cost_window is None else cost_window
         return gradient, support_radius("ad", int(gradient_window), census_shape)
-    return windowed_choice(hmi, other, window=window, cost_window=cost_window,
-                           match=holding(match, gradient), fractions=fractions,
-                           filters=filters, replaced=replaced)
+    del gradient  # not chosen: the windowed choice's passes run without it
+    return windowed_choice(hmi, other, window=window, cost_window=cost_window, match=match,
+                           fractions=fractions, filters=filters, replaced=replaced)
 
 
 def holding(match: dict, *results: tuple) -> dict:
@@ -439,13 +439,17 @@ def edge_census(match, filters):
     """:data:`EDGE_CENSUS` from the left and the right image, cross-checked
     (:func:`cross_check`; not with ``lr_check`` off).  P2 constant: no guide."""
     census = EDGE_CENSUS
-    options = dict(window=census.window, common=dict(match["common"], p1=census.p1,
-                   p2=census.p2, p2_kappa=0), final=dict(match["final"], lr_threshold=None))
-    left = filter_pass(*match_cost("census", **dict(match, **options)), **filters)
+
+    def options(match):
+        return dict(match, window=census.window, common=dict(
+            match["common"], p1=census.p1, p2=census.p2, p2_kappa=0),
+            final=dict(match["final"], lr_threshold=None))
+
+    left = filter_pass(*match_cost("census", **options(match)), **filters)
     if match["final"]["lr_threshold"] is None:
         return left
-    right = filter_pass(*match_cost("census", **dict(holding(match, left), **options,
+    right = filter_pass(*match_cost("census", **dict(options(holding(match, left)),
                                                      **mirrored(match), census_codes=None)),
-                    **filters)
+                        **filters)
     return cross_check(left[0], left[1], right[0][:, ::-1],
                               match["final"]["lr_threshold"])

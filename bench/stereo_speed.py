@@ -2,11 +2,13 @@
 
 Times, in one run and after a warm-up run (so numba's compiled code is cached), the
 ``demtool sgm`` command on a 2048×2048 pair with 128 disparities (8 paths, left–right
-check and sub-pixel; the census cost, census within a 640 MiB budget — S recomputed at
-the ends of the sweeps instead of stored, exactly the same disparity —, and the default
+check and sub-pixel; the census cost within the default 640 MiB budget — S recomputed
+at the ends of the sweeps instead of stored, exactly the same disparity —, census with
+the whole S (``--max-memory-mb 1400``: what the recomputed rows cost), and the default
 cost ``auto``) and an OpenCV script that does the same job (reads the same GeoTIFFs,
 StereoSGBM MODE_HH with disp12MaxDiff=1, writes the disparity GeoTIFF).  Each command
-runs as a child process; wall time, CPU time (user + system, all threads) and peak
+runs as a child process; wall time, CPU time (user + system, all threads; the system
+part, mostly the kernel zeroing fresh pages of S, in its own column) and peak
 resident memory (``getrusage(RUSAGE_CHILDREN)``, measured by a small wrapper process per
 command; each command runs twice, in turn, and its run of least CPU time counts) are
 printed beside the targets of issue 28: census CPU seconds ≤ 0.5× OpenCV's (wall ≤ 0.3×
@@ -44,7 +46,7 @@ code = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess
 wall = time.perf_counter() - start
 usage = resource.getrusage(resource.RUSAGE_CHILDREN)
 print(json.dumps({"code": code, "wall_s": wall, "peak_mb": usage.ru_maxrss / 1024.0,
-                  "cpu_s": usage.ru_utime + usage.ru_stime}))
+                  "cpu_s": usage.ru_utime + usage.ru_stime, "sys_s": usage.ru_stime}))
 """
 
 # The OpenCV equivalent of `demtool sgm --cost census`: read, match (with LR check), write.
@@ -172,8 +174,8 @@ def main(argv: list[str] | None = None) -> int:
         runs = {
             "OpenCV SGBM HH (bs=5)": (opencv(left, right, count, "cv.tif"), "cv"),
             "demtool sgm census": (ours("census", left, right, count, "census.tif"), "census"),
-            "census, 640 MiB budget": (ours("census", left, right, count, "budget.tif",
-                                            "--max-memory-mb", "640"), "budget"),
+            "census, whole S": (ours("census", left, right, count, "whole.tif",
+                                     "--max-memory-mb", "1400"), "whole"),
             "demtool sgm auto": (ours("auto", left, right, count, "auto.tif"), "auto"),
         }
         results, phases = {}, {}
@@ -193,12 +195,12 @@ def main(argv: list[str] | None = None) -> int:
     opencv_run = results["OpenCV SGBM HH (bs=5)"]
     census = results["demtool sgm census"]
     # CPU-time targets (issue 28): against OpenCV's, and the default cost against census
-    targets = {"demtool sgm census": ("OpenCV", 0.5), "census, 640 MiB budget": ("OpenCV", 0.5),
-               "demtool sgm auto": ("census", 1.2)}
+    targets = {"demtool sgm census": ("OpenCV", 0.5), "demtool sgm auto": ("census", 1.2)}
     print(f"\n{size}×{size} px, {count} disparities, 8 paths, LR check, sub-pixel; "
           f"{os.cpu_count()} CPU(s), load average {os.getloadavg()[0]:.1f}")
-    print(f"{'command':<24} {'wall s':>7} {'×OpenCV':>8} {'CPU s':>7} {'×OpenCV':>8} "
-          f"{'×census':>8} {'target':>13} {'':>7} {'peak MB':>8} {'≤1000':>7} {'bad-2':>6}")
+    print(f"{'command':<24} {'wall s':>7} {'×OpenCV':>8} {'CPU s':>7} {'sys s':>6} "
+          f"{'×OpenCV':>8} {'×census':>8} {'target':>13} {'':>7} {'peak MB':>8} {'≤1000':>7} "
+          f"{'bad-2':>6}")
     for label, result in results.items():
         cpu_vs_opencv = result["cpu_s"] / opencv_run["cpu_s"]
         cpu_vs_census = result["cpu_s"] / census["cpu_s"]
@@ -210,7 +212,8 @@ def main(argv: list[str] | None = None) -> int:
             verdict = "met" if ratio <= target[1] else "NOT met"
             memory = "met" if result["peak_mb"] <= 1000 else "NOT met"
         print(f"{label:<24} {result['wall_s']:7.2f} {result['wall_s'] / opencv_run['wall_s']:8.2f} "
-              f"{result['cpu_s']:7.2f} {cpu_vs_opencv:8.2f} {cpu_vs_census:8.2f} {goal:>13} "
+              f"{result['cpu_s']:7.2f} {result['sys_s']:6.2f} {cpu_vs_opencv:8.2f} "
+              f"{cpu_vs_census:8.2f} {goal:>13} "
               f"{verdict:>7} {result['peak_mb']:8.0f} {memory:>7} {100 * result['bad2']:5.1f}%")
     print("CPU time (user + system, all threads) is the target's measure: it depends less on "
           "other processes' load than wall time.  OpenCV's MODE_HH runs on one thread.")

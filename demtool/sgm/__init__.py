@@ -7,7 +7,9 @@ window-summed cost rows), :mod:`~demtool.sgm.mutual_information` (the MI cost ta
 :mod:`~demtool.sgm.aggregate` (8/16-path aggregation sweeps, numba),
 :mod:`~demtool.sgm.disparity` (WTA, sub-pixel, left–right check, speckles, median),
 :mod:`~demtool.sgm.strips` (one pass: strips, sweep threads, timing),
-:mod:`~demtool.sgm.matcher` (MI iterations, the HMI pyramid, the public :func:`sgm`).
+:mod:`~demtool.sgm.passes` (one cost's pass: MI iterations, the HMI pyramid, filters,
+fill), :mod:`~demtool.sgm.auto` (the default cost's rules and passes),
+:mod:`~demtool.sgm.matcher` (the public :func:`sgm`).
 
 Names are imported lazily (PEP 562), so ``demtool sgm --help`` and the
 parameter module ``demtool.sgm.params`` do not pull in numba, OpenCV or pycolmap.

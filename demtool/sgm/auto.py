@@ -32,17 +32,25 @@ The thresholds were chosen by leave-one-out over the pairs of ``bench/stereo_acc
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 
+from demtool.logs import get_logger
+from demtool.sgm import cost as costs
+from demtool.sgm.extremes import box_max, box_min
+from demtool.sgm.noise import noise_sigma, p2_kappa
+from demtool.sgm.passes import (
+    COST_DEFAULTS,
+    CostDefaults,
+    ad_pixel_cost,
+    census_cost,
+    census_fallback,
+    filter_pass,
+    match_cost,
+    pixel_pass,
+    support_radius,
+)
 
-class CostDefaults(NamedTuple):
-    """Tuned defaults of one cost: window side and penalties (cost units)."""
-
-    window: int
-    p1: int
-    p2: int
+log = get_logger(__name__)
 
 
 # "auto": census replaces HMI where its left–right-consistent fraction is higher by more
@@ -206,15 +214,16 @@ def discontinuity_zone(disparity: np.ndarray, radius: int = EDGE_ZONE_RADIUS,
     neighbourhood whose finite disparities span more than ``jump`` px.  A jump between
     pixels at most 4 px apart, not a range over the zone: a terrain slope (orbital stereo
     at B/H 0.3 on a 40° crater wall changes the disparity by ~0.25 px per pixel) is not
-    an edge, an object's border is."""
-    from scipy import ndimage  # only here: its import costs about a second
-
+    an edge, an object's border is.  (The window extremes: :mod:`demtool.sgm.extremes`,
+    equal to scipy.ndimage's maximum/minimum filters.)"""
     finite = np.isfinite(disparity)
-    high = ndimage.maximum_filter(np.where(finite, disparity, -np.inf), size=5)
-    low = ndimage.minimum_filter(np.where(finite, disparity, np.inf), size=5)
+    high = box_max(np.where(finite, disparity, -np.inf), 2)
+    low = box_min(np.where(finite, disparity, np.inf), 2)
     with np.errstate(invalid="ignore"):
         edge = np.isfinite(high) & np.isfinite(low) & (high - low > jump)
-    return ndimage.maximum_filter(edge, size=2 * radius + 1)
+    if not edge.any():  # terrain: no zone
+        return edge
+    return box_max(edge, radius) > 0
 
 
 def blend_fine(fine: tuple, hmi: tuple, zone: np.ndarray, base: tuple) -> tuple:
@@ -233,12 +242,9 @@ def depth_edge_zone(disparity: np.ndarray, radius: int = EDGE_ZONE_RADIUS,
                     jump: float = EDGE_ZONE_JUMP) -> np.ndarray:
     """(H, W) bool: pixels within ``radius`` px (a square) of a depth edge, i.e. whose
     neighbourhood holds finite disparities more than ``jump`` px apart (NaN ignored)."""
-    from scipy import ndimage  # only here: its import costs about a second
-
     finite = np.isfinite(disparity)
-    size = 2 * radius + 1
-    high = ndimage.maximum_filter(np.where(finite, disparity, -np.inf), size=size)
-    low = ndimage.minimum_filter(np.where(finite, disparity, np.inf), size=size)
+    high = box_max(np.where(finite, disparity, -np.inf), radius)
+    low = box_min(np.where(finite, disparity, np.inf), radius)
     with np.errstate(invalid="ignore"):
         return np.isfinite(high) & np.isfinite(low) & (high - low > jump)
 
@@ -296,3 +302,154 @@ def at_depth_edges(zone: np.ndarray, base: tuple, sharp: tuple) -> tuple:
 def share(mask: np.ndarray, valid: np.ndarray) -> float:
     """Fraction of the ``valid`` pixels in ``mask``, rounded to 4 decimals."""
     return round(float(np.count_nonzero(mask & valid)) / max(int(valid.sum()), 1), 4)
+
+
+def choose(hmi, *, window, given, cost_window, match, filters, fractions, pixel_census=True,
+           replaced=None):
+    """The choices of cost "auto" after HMI (:mod:`demtool.sgm.auto`; ``pixel_census``
+    False: the windowed choice alone).  ``hmi``: HMI's filtered (disparity, confidence,
+    occluded), ``window`` its cost window; ``replaced``: (H, W) bool, the pixels whose
+    result the caller replaces (a pass used only there is skipped).  Returns the chosen
+    triple and its cost's support radius (:func:`demtool.sgm.edges.snap_edges`); the
+    choice goes to ``fractions``."""
+    valid, guide = match["left_valid"], match["guide"]
+    census_shape = match["census_shape"]
+    fractions["noise_sigma"] = round(noise := noise_sigma(guide, valid), 2)
+    zone = (discontinuity_zone(hmi[0])
+            if pixel_census and noise <= FINE_NOISE_MAX else None)
+    if zone is not None and zone.any():  # no discontinuity (terrain): nothing to sharpen
+        # the pair's census codes, shared by the pixel census, the windowed census and
+        # the edge census from the left image (one transform instead of three)
+        with match["common"]["timer"].measure("prepare"):
+            codes = census_cost(*(match[k] for k in ("left", "right", "left_valid",
+                                                     "right_valid", "census_shape",
+                                                     "workers")))
+        match = holding(dict(match, census_codes=codes), (codes.left, codes.right))
+        fine = filter_pass(*census_fallback(cost_window, *given, holding(match, hmi),
+                                            FINE_CENSUS), **filters)
+        if not (why_not := prefer_fine(fine[0], hmi[0], valid)):
+            log.info("cost auto: pixel census near depth discontinuities (noise σ %.1f)", noise)
+            base, radius = choose(hmi, window=window, given=given, cost_window=cost_window,
+                                  match=holding(match, fine), filters=filters,
+                                  fractions=fractions, pixel_census=False, replaced=zone)
+            fractions.update(cost_used=f"census+{fractions.get('cost_used', 'hmi')}",
+                             edge_census=share(zone, valid))
+            window = FINE_CENSUS.window if cost_window is None else int(cost_window)
+            return (blend_fine(fine, hmi, zone, base),
+                    max(radius, support_radius("census", window, census_shape)))
+        log.info("cost auto: no pixel census (%s)", why_not)
+        fractions["cost_reason"] = why_not
+    other = filter_pass(*census_fallback(cost_window, *given, holding(match, hmi)), **filters)
+    gradient = filter_pass(*gradient_pass(cost_window, given, holding(match, hmi, other)),
+                           **filters)
+    reason = prefer_gradient(gradient[0], hmi[0], other[0], full_range(
+        valid, match["min_disparity"], match["num_disparities"]))
+    if reason:
+        log.info("cost auto: horizontal-gradient difference instead of HMI and census (%s)",
+                 reason)
+        fractions.update(cost_used="gradient", cost_reason=reason)
+        gradient_window = COST_DEFAULTS["ad"].window if cost_window is None else cost_window
+        return gradient, support_radius("ad", int(gradient_window), census_shape)
+    del gradient  # not chosen: the windowed choice's passes run without it
+    return windowed_choice(hmi, other, window=window, cost_window=cost_window, match=match,
+                           fractions=fractions, filters=filters, replaced=replaced)
+
+
+def holding(match: dict, *results: tuple) -> dict:
+    """``match`` for a pass during which the (disparity, confidence, occluded)
+    ``results`` of earlier passes are held: their bytes count against the memory budget
+    (:func:`demtool.sgm.strips.match_pass`)."""
+    held = sum(array.nbytes for result in results for array in result)
+    common = match["common"]
+    return dict(match, common=dict(common, held_bytes=common.get("held_bytes", 0) + held))
+
+
+def gradient_pass(cost_window, given, match):
+    """Absolute difference of the images' horizontal Sobel gradients, with the "ad"
+    defaults (OpenCV StereoSGBM's prefilter; an offset cancels, a gain scales)."""
+    from scipy import ndimage  # only here: its import costs about a second
+
+    def gradient(side):
+        valid = match[f"{side}_valid"]
+        filled = costs.fill_invalid(match[side], valid).astype(np.float64)
+        return np.where(valid, ndimage.sobel(filled, axis=1), np.nan).astype(np.float32)
+
+    defaults = COST_DEFAULTS["ad"]
+    p1, p2 = (d if g is None else g for g, d in zip(given, (defaults.p1, defaults.p2),
+                                                     strict=True))
+    left_valid, right_valid = match["left_valid"], match["right_valid"]
+    with match["common"]["timer"].measure("prepare"):
+        # the float gradient images are dropped before the pass: only their 8-bit
+        # levels (cost and guide) are held while S is (2048²: 32 MB less)
+        left, right = gradient("left"), gradient("right")
+        pixel_cost = ad_pixel_cost(left, right, left_valid, right_valid)
+        guide = costs.quantize(left, left_valid, 256)
+        del left, right
+    common = dict(match["common"], p1=p1, p2=max(p1, p2))
+    if common["p2_kappa"]:
+        common["p2_kappa"] = p2_kappa(guide, left_valid)
+    window = defaults.window if cost_window is None else int(cost_window)
+    return pixel_pass(pixel_cost, left_valid=left_valid, right_valid=right_valid,
+                      guide=guide, min_disparity=match["min_disparity"],
+                      num_disparities=match["num_disparities"], window=window,
+                      common=common, final=match["final"], levels=match["levels"])
+
+
+def windowed_choice(hmi, other, *, window, cost_window, match, fractions, filters,
+                    replaced=None):
+    """HMI, census summed over a window, or the HMI pixels census confirms (near depth
+    edges the pixel census, :func:`edge_census`, unless all of them are ``replaced``:
+    the low-noise choice's depth-discontinuity zone often covers them, on tsukuba
+    entirely, sparing its two passes)."""
+    valid, census_shape = match["left_valid"], match["census_shape"]
+    hmi_radius = support_radius("hmi", window, census_shape)
+    reason = prefer_census(hmi[0], other[0], valid, match["min_disparity"],
+                           match["num_disparities"])
+    fractions["cost_used"] = "census" if reason else "hmi"
+    if reason:
+        log.info("cost auto: census instead of HMI (%s)", reason)
+        fractions["cost_reason"] = reason
+        window = COST_DEFAULTS["census"].window if cost_window is None else int(cost_window)
+        return other, support_radius("census", window, census_shape)
+    agreed, agreed_share = agreement(hmi[0], other[0])
+    if agreed_share < AUTO_AGREEMENT:
+        log.info("cost auto: HMI kept (census agrees on only %.1f %% of its matches)",
+                 100 * agreed_share)
+        return hmi, hmi_radius
+    log.info("cost auto: HMI and census agree on %.1f %% of HMI's matches; keeping those, "
+             "the rest is filled", 100 * agreed_share)
+    fractions["cost_used"] = "hmi+census"
+    disparity, confidence = (np.where(agreed, a, np.float32(np.nan)).astype(np.float32)
+                             for a in (hmi[0], np.minimum(hmi[1], other[1])))
+    result, zone = (disparity, confidence, hmi[2] | other[2]), depth_edge_zone(disparity)
+    if zone.any():  # where the windowed costs fatten a foreground
+        fractions["edge_census"] = share(zone, valid)
+        if replaced is not None and not (zone & ~replaced).any():
+            log.info("cost auto: no pixel census near depth edges (the pixel census near "
+                     "depth discontinuities replaces them all)")
+            return result, hmi_radius
+        log.info("cost auto: pixel census near depth edges (%.1f %% of the pixels)",
+                 100 * fractions["edge_census"])
+        result = at_depth_edges(zone, result,
+                                edge_census(holding(match, hmi, other, result), filters))
+    return result, hmi_radius
+
+
+def edge_census(match, filters):
+    """:data:`EDGE_CENSUS` from the left and the right image, cross-checked
+    (:func:`cross_check`; not with ``lr_check`` off).  P2 constant: no guide."""
+    census = EDGE_CENSUS
+
+    def options(match):
+        return dict(match, window=census.window, common=dict(
+            match["common"], p1=census.p1, p2=census.p2, p2_kappa=0),
+            final=dict(match["final"], lr_threshold=None))
+
+    left = filter_pass(*match_cost("census", **options(match)), **filters)
+    if match["final"]["lr_threshold"] is None:
+        return left
+    right = filter_pass(*match_cost("census", **dict(options(holding(match, left)),
+                                                     **mirrored(match), census_codes=None)),
+                        **filters)
+    return cross_check(left[0], left[1], right[0][:, ::-1],
+                              match["final"]["lr_threshold"])

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
-from scipy import ndimage
 
 from demtool.sgm.disparity import _DIRECTIONS, _fill
 
@@ -114,14 +113,42 @@ def occluded_regions(disparity: np.ndarray, invalid: np.ndarray, occluded: np.nd
     jump, and it starts where the visible background ends; the rest of a long run
     (weak texture on the foreground that failed the check) stays a mismatch.
     """
-    labels, count = ndimage.label(invalid, structure=np.ones((3, 3), dtype=bool))
-    touched = np.zeros(count + 1, dtype=bool)
-    touched[np.unique(labels[occluded & invalid])] = True
-    touched[0] = False
+    invalid = np.ascontiguousarray(invalid, dtype=np.bool_)
+    seeds = np.ascontiguousarray(occluded & invalid)
+    touched = np.zeros(invalid.shape, dtype=np.bool_)
+    _grow_regions(invalid, seeds, touched)
     out = np.zeros(invalid.shape, dtype=np.bool_)
-    _epipolar_occlusions(disparity, occluded & invalid, touched[labels],
-                         invalid | np.isfinite(disparity), out)
+    _epipolar_occlusions(disparity, seeds, touched, invalid | np.isfinite(disparity), out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _grow_regions(inside, seeds, out):
+    """``out``: the pixels of ``inside`` 8-connected (within ``inside``) to a pixel of
+    ``seeds`` — the regions ``scipy.ndimage.label`` would number that hold a seed, without
+    the labels (and without scipy's import, about 0.3 s of CPU at each start)."""
+    height, width = inside.shape
+    stack = np.empty(height * width, dtype=np.int64)
+    top = 0
+    for y in range(height):
+        for x in range(width):
+            if seeds[y, x] and inside[y, x] and not out[y, x]:
+                out[y, x] = True
+                stack[top] = y * width + x
+                top += 1
+    while top > 0:
+        top -= 1
+        y, x = divmod(stack[top], width)
+        for dy in range(-1, 2):
+            yy = y + dy
+            if yy < 0 or yy >= height:
+                continue
+            for dx in range(-1, 2):
+                xx = x + dx
+                if 0 <= xx < width and inside[yy, xx] and not out[yy, xx]:
+                    out[yy, xx] = True
+                    stack[top] = yy * width + xx
+                    top += 1
 
 
 def fill_classified(disparity: np.ndarray, occluded: np.ndarray, usable: np.ndarray

@@ -142,16 +142,40 @@ def recompute_rows(rows: int, budget_rows: int, threads: int) -> int:
     """
     if rows <= budget_rows:
         return 0
-    if threads >= 2:
-        most = (rows // 2) // 2
-        q = -(-(rows - budget_rows) // 2)
-    else:
-        most = rows // 2
-        q = rows - budget_rows
+    most = most_recomputed(rows, threads)
+    q = -(-(rows - budget_rows) // 2) if threads >= 2 else rows - budget_rows
     if q > most:
         raise ParameterError(f"the aggregated cost of {rows} rows does not fit --max-memory-mb "
                              f"({budget_rows} rows); raise it")
     return q
+
+
+def most_recomputed(rows: int, threads: int) -> int:
+    """The most end rows q a sweep may recompute (:func:`recompute_rows`): a quarter of
+    the strip with two sweep threads (S keeps rows − 2q), half with one (rows − q)."""
+    return (rows // 2) // 2 if threads >= 2 else rows // 2
+
+
+def stored_rows_of_pass(height: int, width: int, num_disparities: int, *, workers: int,
+                        max_memory_mb: float, fixed_bytes: int, threads: int, single: bool,
+                        held_bytes: int = 0) -> int:
+    """Rows of S each strip of a pass may store (:func:`budget_rows`).
+
+    ``held_bytes`` that the caller holds during the pass count against the budget only
+    where the plan is a ``single`` strip, and only down to the fewest rows that strip can
+    store (:func:`most_recomputed`): recomputing more end rows gives exactly the same
+    disparity, cutting the image into (other) strips would not.
+    """
+    rows = budget_rows(width, num_disparities, workers=workers, max_memory_mb=max_memory_mb,
+                       fixed_bytes=fixed_bytes)
+    if not (held_bytes and single):
+        return rows
+    fewest = height - (2 if threads >= 2 and height >= 2 else 1) * most_recomputed(height,
+                                                                                    threads)
+    held = budget_rows(width, num_disparities, workers=workers,
+                       max_memory_mb=max_memory_mb - held_bytes / 2**20,
+                       fixed_bytes=fixed_bytes)
+    return max(min(held, rows), fewest)
 
 
 def match_strip(source: tuple, radius: int, guide: np.ndarray, *, n_disp: int, paths: int,
@@ -259,10 +283,16 @@ def match_pass(pixel_cost: PixelCost, left_valid: np.ndarray, right_valid: np.nd
                 guide: np.ndarray, *, min_disparity: int, num_disparities: int, window: int,
                 p1: int, p2: int, paths: int, p2_kappa: int, subpixel: str,
                 lr_threshold: float | None, workers: int, max_memory_mb: float,
-                unmatched_fraction: float, timer: PhaseTimer) -> tuple[np.ndarray, np.ndarray]:
+                unmatched_fraction: float, timer: PhaseTimer, held_bytes: int = 0
+                ) -> tuple[np.ndarray, np.ndarray]:
     """One SGM pass over the whole image: strips (one when it fits), two sweeps each.
 
     ``workers`` threads: ``workers // 2`` strips at once, two sweep threads each.
+    ``held_bytes``: memory the caller holds during the pass (the results of earlier
+    passes of cost "auto"); it counts against ``max_memory_mb`` as far as the image stays
+    the same strips — a single strip then recomputes more end rows (the same result,
+    :func:`recompute_rows`), several strips are not cut differently (that would change
+    the disparity).
     """
     height, width = left_valid.shape
     concurrent = max(1, workers // 2)
@@ -270,8 +300,10 @@ def match_pass(pixel_cost: PixelCost, left_valid: np.ndarray, right_valid: np.nd
     fixed = 2 * sweep_state_bytes(width, num_disparities, paths, window)
     strips = plan_strips(height, width, num_disparities, workers=concurrent,
                          max_memory_mb=max_memory_mb, fixed_bytes=fixed, threads=threads)
-    stored_rows = budget_rows(width, num_disparities, workers=concurrent,
-                              max_memory_mb=max_memory_mb, fixed_bytes=fixed)
+    stored_rows = stored_rows_of_pass(height, width, num_disparities, workers=concurrent,
+                                      max_memory_mb=max_memory_mb, fixed_bytes=fixed,
+                                      threads=threads, single=len(strips) == 1,
+                                      held_bytes=held_bytes)
     max_cost = pixel_cost.max_cost * window * window
     if paths * (max_cost + p2) > np.iinfo(np.uint16).max:
         raise ParameterError(

@@ -17,6 +17,7 @@ from demtool.sgm.fill import (
     FILLED_OCCLUSION,
     INVALID,
     MATCHED,
+    _grow_regions,
     class_fractions,
     classify,
     fill_classified,
@@ -115,6 +116,26 @@ def test_occluded_regions_widen_along_the_row_by_the_disparity_jump():
     # the occlusion is 10 − 4 = 6 px wide from the visible background on
     assert np.flatnonzero(regions[0]).tolist() == [5, 6, 7, 8, 9, 10]
     assert not occluded_regions(disparity, invalid, np.zeros_like(invalid)).any()
+
+
+def test_grown_regions_are_the_8_connected_components_holding_a_seed():
+    # the regions scipy.ndimage.label numbers (8-connected) that hold a seed pixel
+    from scipy import ndimage
+
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        shape = tuple(rng.integers(1, 30, 2))
+        inside = rng.random(shape) < rng.uniform(0.2, 0.8)
+        seeds = inside & (rng.random(shape) < 0.05)
+        labels, count = ndimage.label(inside, structure=np.ones((3, 3), dtype=bool))
+        expected = np.isin(labels, np.unique(labels[seeds])) & inside
+        grown = np.zeros(shape, dtype=bool)
+        _grow_regions(inside, seeds, grown)
+        assert np.array_equal(grown, expected)
+    diagonal = np.eye(5, dtype=bool)  # corners touch: one region
+    grown = np.zeros_like(diagonal)
+    _grow_regions(diagonal, np.pad([[True]], ((0, 4), (0, 4))), grown)
+    assert np.array_equal(grown, diagonal)
 
 
 def test_foreground_fattened_into_an_occlusion_is_refilled_as_background():

@@ -87,3 +87,25 @@ def test_auto_takes_the_cross_checked_pixel_census_at_a_boxes_borders(monkeypatc
     bad_edges = error_rates(edges.disparity, truth, scored)["bad1"]
     bad_plain = error_rates(plain.disparity, truth, scored)["bad1"]
     assert bad_edges < 0.7 * bad_plain, (bad_edges, bad_plain)
+
+
+def test_the_edge_census_is_skipped_where_the_pixel_census_replaces_all_its_pixels(
+        monkeypatch):
+    # a low-noise box: the pixel census near depth discontinuities (here widened to 20 px,
+    # so that it covers every depth edge) replaces the windowed choice there, so the
+    # windowed choice's edge census (two passes) would be thrown away: skipped, and the
+    # result is exactly the one with it
+    left, right, _, _ = occlusion_pair(noise=1.0, box=(30, 66, 56, 76))
+    monkeypatch.setattr(rules, "prefer_census", lambda *args: "")
+    monkeypatch.setattr(rules, "prefer_gradient", lambda *args: "")
+    monkeypatch.setattr(rules.discontinuity_zone, "__defaults__", (20, rules.FINE_EDGE_JUMP))
+    skipped = sgm(left, right, min_disparity=0, num_disparities=24, workers=1)
+    always = rules.windowed_choice
+    monkeypatch.setattr(rules, "windowed_choice",
+                        lambda *args, replaced=None, **kwargs: always(*args, **kwargs))
+    full = sgm(left, right, min_disparity=0, num_disparities=24, workers=1)
+    assert skipped.fractions["cost_used"] == full.fractions["cost_used"] == "census+hmi+census"
+    assert len(skipped.levels) == len(full.levels) - 2  # the edge census's two passes
+    assert np.array_equal(skipped.disparity, full.disparity, equal_nan=True)
+    assert np.array_equal(skipped.confidence, full.confidence, equal_nan=True)
+    assert skipped.fractions == full.fractions

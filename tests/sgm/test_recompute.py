@@ -7,7 +7,16 @@ import pytest
 
 from demtool.errors import ParameterError
 from demtool.sgm import cost as costs
-from demtool.sgm.strips import PhaseTimer, match_strip, plan_strips, recompute_rows
+from demtool.sgm import strips
+from demtool.sgm.matcher import sgm
+from demtool.sgm.strips import (
+    PhaseTimer,
+    match_strip,
+    plan_strips,
+    recompute_rows,
+    stored_rows_of_pass,
+)
+from tests.helpers.sgm import smooth_disparity_pair
 
 
 def _strip(rows, threads, recompute, paths, cost):
@@ -70,3 +79,37 @@ def test_a_2048_square_in_700_mib_is_one_exact_strip():
         # under half of S (plus the buffers): strips again
         assert len(plan_strips(2048, 2048, 128, workers=1, max_memory_mb=500,
                                threads=threads)) > 1
+
+
+def test_held_results_count_against_the_budget_of_a_single_strip_only():
+    # 2048² × 128 in 640 MiB: one strip storing 1238 rows; 72 MiB held (two results of
+    # cost "auto") take 144 rows more off, never below the 1024 rows it must store
+    args = dict(workers=1, max_memory_mb=640, fixed_bytes=2 * 2**20, threads=2)
+    alone = stored_rows_of_pass(2048, 2048, 128, single=True, **args)
+    held = stored_rows_of_pass(2048, 2048, 128, single=True, held_bytes=72 * 2**20, **args)
+    assert alone == 1276 and held == alone - 144
+    assert stored_rows_of_pass(2048, 2048, 128, single=True, held_bytes=2**30, **args) == 1024
+    # several strips are never cut differently: their overlaps would change the disparity
+    assert stored_rows_of_pass(2048, 2048, 128, single=False, held_bytes=2**30,
+                               **args) == alone
+
+
+def test_auto_holding_results_in_a_small_budget_gives_exactly_the_same_disparity(monkeypatch):
+    # cost "auto" keeps earlier passes' results while it runs the next: within 1 MiB their
+    # bytes make the sweeps recompute more end rows, with exactly the same result
+    left, right, _ = smooth_disparity_pair(height=200, width=96, offset=0.0)
+    whole = sgm(left, right, min_disparity=-12, num_disparities=24, workers=2)
+    recomputed = []
+    original = strips.recompute_rows
+
+    def recording(rows, budget, threads):
+        recomputed.append(q := original(rows, budget, threads))
+        return q
+
+    monkeypatch.setattr(strips, "recompute_rows", recording)
+    small = sgm(left, right, min_disparity=-12, num_disparities=24, workers=2,
+                max_memory_mb=1.0)
+    assert len(set(recomputed)) > 1 and max(recomputed) > 0  # held results: more rows
+    assert small.fractions["cost_used"] == whole.fractions["cost_used"]
+    assert np.array_equal(whole.disparity, small.disparity, equal_nan=True)
+    assert np.array_equal(whole.confidence, small.confidence, equal_nan=True)

@@ -17,14 +17,8 @@ Two forms.  From bundle points (BAM route):
 projects the points into the target camera; heights come from eq. 2 of the NavCam
 study (depth offset (z/mean(z) - 1)·D, negated) or, for an aligned bundle, are metric.
 Densified BAM DEM: `--dense DISPARITY RECTIFY` (repeatable) adds a matched pair of the
-block (sgm or match disparity and its rectify.npz; the pair need not include the
-target): its disparities are triangulated with the bundle's own cameras of the pair,
-projected into the target and converted to heights as the bundle points are (eq. 2
-with the bundle points' mean depth), so measured cells replace interpolated ones.
-Each source gets the local-median outlier test; a bundle point that disagrees with
-the dense heights of its cell is dropped, one that agrees is averaged with them.  The
-log and sidecar count the cells each source measured and the interpolated rest; match
-with `sgm --no-fill` so that the occlusions sgm would fill count as interpolated.
+block, triangulated with the bundle's cameras and merged cell by cell with its points
+(docs/stages/dem.md; match with `sgm --no-fill` so filled occlusions count as gaps).
 From a disparity map (SIAM route):
 `demtool dem --disparity disparity.tif --rectify rectify.npz (--reference REF.tif |
 --cameras cameras.npz) --out dem.tif` maps disparities back through the inverse
@@ -58,8 +52,7 @@ sensor-model and map-projected routes write it on the body's map.
 
 @click.command(name="dem", help=HELP)
 @options.path_option("--points", "bundle.npz from `demtool bundle` (BAM route).")
-@options.path_option("--disparity", "Disparity GeoTIFF in the left rectified frame (SIAM "
-                     "route).")
+@options.path_option("--disparity", "Disparity GeoTIFF in the left rectified frame (SIAM route).")
 @options.path_option("--rectify", "rectify.npz of the pair (with --disparity).")
 @options.path_option("--reference", "Reference DEM on the target grid (e.g. the BAM DEM): "
                      "uncalibrated projective fit.")
@@ -72,18 +65,15 @@ sensor-model and map-projected routes write it on the body's map.
                    "Mapping ellipsoid) the disparity was matched on.")
 @click.option("--dense", nargs=2, type=click.Path(dir_okay=False), multiple=True,
               metavar="DISPARITY RECTIFY",
-              help="With --points: a disparity of a pair of the block and its rectify.npz "
-                   "(repeatable), triangulated with the bundle's cameras to densify the BAM "
-                   "DEM.")
+              help="With --points: a pair's disparity and rectify.npz (repeatable) to "
+                   "densify the BAM DEM.")
 @options.path_option("--scene", "scene.json with distance_m and gsd_m (metadata from synth).")
 @options.parameter_options(DemParams)
 @options.path_option("--interpolated-mask", "Also write a raster: 1 where interpolated, 0 "
                      "where measured.")
-@options.path_option("--error-out", "Sensor-model route: also write the triangulation "
-                     "error (median ray gap per cell, metres).")
-@options.vector_option("--up", help_text="Local-frame models (no body): the up direction "
-                       "heights are measured along, in the models' frame (default the "
-                       "frame's +Z; e.g. 0,0,-1 for a z-down rover frame).")
+@options.path_option("--error-out", "Sensor-model routes: also write each cell's ray gap, m.")
+@options.vector_option("--up", help_text="Local-frame models: the up direction of heights, "
+                       "models' frame (default +Z; 0,0,-1 for a z-down rover frame).")
 @options.path_option("--points-out", "Local-frame models: also write the triangulated "
                      "points (models' frame, metres) as a PLY point cloud.")
 @options.out_file("Output DEM GeoTIFF.")

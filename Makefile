@@ -220,7 +220,7 @@ $(WORK)/reports/dem_linescan_refined/report.json: $(WORK)/dem_linescan_refined.t
 # image warped by the disparity it predicts, the residual searched) → dem → fuse.  It
 # trades the matching window's smoothing for the fused DEM's own fine-scale error, which
 # falls with the number of pairs: on synthetic blocks (bench/fuse_block.py) it lowered
-# the fused RMSE on every block of 5 or more pairs and raised it on every 3-pair block
+# the fused RMSE on every block of 4 or more pairs and raised it on every 3-pair block
 # (docs/stages/fuse.md).  The demo's three views give 3 pairs: one pass.
 # The scene is 256 px so the block stays a small part of the demo's time.
 BLOCK_SCENE := $(WORK)/scene_block
@@ -230,7 +230,7 @@ PRODUCTS += dem_block_fused
 
 block_left = $(word 1,$(subst +, ,$(1)))
 block_right = $(word 2,$(subst +, ,$(1)))
-BLOCK_SECOND_PASS_PAIRS ?= 5
+BLOCK_SECOND_PASS_PAIRS ?= 4
 # the pairs' files are kept: the second pass reads them after the first pass's sub-make
 .PRECIOUS: $(BLOCK_STEREO)/%/rectify.npz $(BLOCK_STEREO)/%/disparity_sgm.tif \
   $(BLOCK_STEREO)/%/disparity_prior.tif $(BLOCK_STEREO)/%/dem.tif

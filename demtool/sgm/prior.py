@@ -26,19 +26,24 @@ MAX_ITERATIONS = 30
 CONVERGED_M = 1e-3
 
 
-def rectified_rays(geometry, shape: tuple[int, int]) -> np.ndarray:
+#: rectified rows intersected at once (bounds the (rows, width, 3) float64 arrays)
+ROWS_PER_BLOCK = 256
+
+
+def rectified_rays(geometry, shape: tuple[int, int], first_row: int = 0) -> np.ndarray:
     """Unit body-fixed directions of the left rectified pixels' rays.
 
     Parameters
     ----------
     geometry : RectifiedGeometry
-    shape : (height, width) of the rectified canvas
+    shape : (rows, width) of the block of the rectified canvas
+    first_row : int, the block's first row on the canvas
 
     Returns
     -------
-    (height, width, 3) float64
+    (rows, width, 3) float64
     """
-    rows, cols = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
+    rows, cols = np.mgrid[first_row:first_row + shape[0], 0:shape[1]].astype(np.float64)
     K = geometry.K("left")
     direction = np.stack([(cols - K[0, 2]) / K[0, 0], (rows - K[1, 2]) / K[1, 1],
                           np.ones(shape)], axis=-1) @ geometry.R_rect  # R_rectᵀ d per pixel
@@ -88,6 +93,7 @@ def intersect_dem(origin: np.ndarray, direction: np.ndarray, radius: float,
         active[np.flatnonzero(active)[~still]] = False
         if not active.any():
             break
+    points[active] = np.nan  # not converged (a grazing ray on a steep slope): no answer
     return points.reshape(direction.shape)
 
 
@@ -110,13 +116,17 @@ def prior_disparity(geometry, shape: tuple[int, int], radius: float,
     -------
     (height, width) float64 disparity, pixels (``x_right = x_left − d``); NaN off the DEM.
     """
-    rays = rectified_rays(geometry, shape)
-    points = intersect_dem(geometry.centers[0], rays, radius, heights_at)
-    in_right = (points - geometry.centers[1]) @ geometry.R_rect.T
-    with np.errstate(invalid="ignore", divide="ignore"):
-        x_right = geometry.f_px * in_right[..., 0] / in_right[..., 2] + geometry.cx_right
+    out = np.full(shape, np.nan)
     x_left = np.arange(shape[1], dtype=np.float64)[None, :]
-    return np.where(in_right[..., 2] > 0, x_left - x_right, np.nan)
+    for start in range(0, shape[0], ROWS_PER_BLOCK):
+        stop = min(start + ROWS_PER_BLOCK, shape[0])
+        rays = rectified_rays(geometry, (stop - start, shape[1]), start)
+        points = intersect_dem(geometry.centers[0], rays, radius, heights_at)
+        in_right = (points - geometry.centers[1]) @ geometry.R_rect.T
+        with np.errstate(invalid="ignore", divide="ignore"):
+            x_right = geometry.f_px * in_right[..., 0] / in_right[..., 2] + geometry.cx_right
+            out[start:stop] = np.where(in_right[..., 2] > 0, x_left - x_right, np.nan)
+    return out
 
 
 def extend_nearest(values: np.ndarray, where: np.ndarray) -> np.ndarray:

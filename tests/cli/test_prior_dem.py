@@ -95,6 +95,13 @@ def test_prior_dem_bad_inputs(first_pass, tmp_path):
                   rect / "rectify.npz", "--prior-dem", prior, "--out", out)
     assert run.exit_code == 1 and "mars.tif: is a DEM of Mars" in run.output
     assert not out.exists()
+    # a DEM in an image's own frame (no CRS): not on the body's map
+    prior = tmp_path / "frame.tif"
+    dio.write_raster(prior, truth.astype(np.float32))
+    run = _invoke("sgm", rect / "left_rect.tif", rect / "right_rect.tif", "--rectify",
+                  rect / "rectify.npz", "--prior-dem", prior, "--out", out)
+    assert run.exit_code == 1 and "frame.tif: DEM has no CRS" in run.output
+    assert not out.exists()
     # a DEM that covers none of the image (its grid 100 km away)
     far = dem.transform.translation(20000, 0) @ dem.transform
     prior = tmp_path / "far.tif"

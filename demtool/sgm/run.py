@@ -158,7 +158,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
         left = dio.read_raster(left_path, what="left rectified image")
         right = dio.read_raster(right_path, what="right rectified image")
     check_stereo_pair(left, right, rectify)
-    right_data, prior = right.data, None
+    right_data, prior, summary_prior = right.data, None, {}
     if prior_dem is not None:
         from demtool.sgm.prior import warp_right
         from demtool.sgm.run_prior import read_prior
@@ -179,8 +179,11 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
         summary_prior = {**prior.summary, "residual_median_px": float(np.nanmedian(disparity))
                          if np.isfinite(disparity).any() else None}
         disparity = disparity + prior.disparity
-        min_disparity = min(prior.searched[0], min_disparity)
-        num_disparities = prior.searched[1]
+        # the total range searched: the prediction's extremes plus the residual's bounds
+        # (after any widening of the residual range)
+        low = math.floor(float(np.nanmin(prior.disparity))) + min_disparity
+        high = math.ceil(float(np.nanmax(prior.disparity))) + min_disparity + num_disparities - 1
+        min_disparity, num_disparities = low, high - low + 1
     valid = np.isfinite(disparity)
     input_valid = np.isfinite(left.data)
     values = disparity[valid]
@@ -222,8 +225,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
                "widening_limits_px": list(limits),
                "range_widenings": result.parameters["range_widenings"],
                "resolved": result.parameters,
-               **ortho_stats, **(summary_prior if prior is not None else {}),
-               "timings_s": result.timings, "passes": result.levels,
+               **ortho_stats, **summary_prior, "timings_s": result.timings, "passes": result.levels,
                "convention": "x_right = x_left - d, pixels, NaN = invalid"}
     frame = left.tags.get("frame", f"image:{Path(left_path).stem}")
     tags = provenance.tags(frame=frame, disparity_convention="x_right = x_left - d",

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import os
 from typing import Any, NamedTuple
 
@@ -10,10 +9,9 @@ import numpy as np
 
 
 class Prior(NamedTuple):
-    """The disparity a prior DEM predicts on the left rectified canvas, and its range."""
+    """The disparity a prior DEM predicts on the left rectified canvas."""
 
     disparity: np.ndarray  # (H, W) float64 pixels, NaN outside the left image
-    searched: tuple[int, int]  # (min_disparity, num_disparities) the total disparity spans
     summary: dict[str, Any]
 
 
@@ -70,12 +68,10 @@ def read_prior(prior_dem: str | os.PathLike, rectify: str | os.PathLike | None,
                     "centres the search elsewhere", prior_dem, 100 * coverage)
     disparity = extend_nearest(predicted, left_valid)
     disparity[~left_valid] = np.nan
-    low = math.floor(float(np.nanmin(disparity))) - search_px
-    high = math.ceil(float(np.nanmax(disparity))) + search_px
     summary = {"prior_dem": str(prior_dem), "prior_coverage_fraction": round(coverage, 4),
                "prior_search_px": search_px,
                "prior_disparity_range_px": [float(np.nanmin(disparity)),
                                             float(np.nanmax(disparity))]}
     log.info("prior DEM %s: predicted disparity %.1f … %.1f px; residual searched within "
              "± %d px", prior_dem, *summary["prior_disparity_range_px"], search_px)
-    return Prior(disparity=disparity, searched=(low, high - low + 1), summary=summary)
+    return Prior(disparity=disparity, summary=summary)

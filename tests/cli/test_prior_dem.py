@@ -66,6 +66,13 @@ def test_prior_dem_matches_the_residual(first_pass, tmp_path, offset_m):
     assert summary["prior_coverage_fraction"] > 0.95
     # residual ≈ −offset × 0.06 px/m: it measures what the prior got wrong
     assert summary["residual_median_px"] == pytest.approx(-0.06 * offset_m, abs=0.25)
+    # the range written for dem is the total one: the prediction's extremes ± the search
+    total = dio.read_raster(out, what="disparity")
+    low, count = int(total.tags["min_disparity"]), int(total.tags["num_disparities"])
+    predicted = summary["prior_disparity_range_px"]
+    assert low == np.floor(predicted[0]) - 4 and low + count - 1 == np.ceil(predicted[1]) + 4
+    values = total.data[np.isfinite(total.data)]
+    assert values.min() >= low and values.max() <= low + count - 1
     run = _invoke("dem", "--disparity", out, "--rectify", rect / "rectify.npz",
                   "--out", tmp_path / "dem2.tif")
     assert run.exit_code == 0, run.output

@@ -73,20 +73,18 @@ def intersect_dem(origin: np.ndarray, direction: np.ndarray, radius: float,
     -------
     (..., 3) float64, body-fixed metres; NaN where the ray misses the sphere or the DEM.
     """
+    from demtool.sensors.base import ray_ellipsoid_intersection
+
     flat = direction.reshape(-1, 3)
     height = np.zeros(len(flat))
-    along = flat @ origin
-    reach = along**2 - origin @ origin
     points = np.full(flat.shape, np.nan)
     active = np.ones(len(flat), dtype=bool)
     for _ in range(MAX_ITERATIONS):
-        disc = reach[active] + (radius + height[active]) ** 2
-        with np.errstate(invalid="ignore"):
-            t = -along[active] - np.sqrt(disc)
-        points[active] = origin + t[:, None] * flat[active]
+        points[active], hit = ray_ellipsoid_intersection(
+            origin, flat[active], radius, radius, height[active], return_hit=True)
         new = heights_at(points[active])
         change = np.abs(new - height[active])
-        bad = ~np.isfinite(new) | ~(t > 0)
+        bad = ~np.isfinite(new) | ~hit
         height[active] = np.where(bad, np.nan, new)
         points[np.flatnonzero(active)[bad]] = np.nan
         still = ~bad & (change > CONVERGED_M)

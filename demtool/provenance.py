@@ -7,6 +7,7 @@ and the stage's summary figures.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import platform
@@ -22,12 +23,27 @@ from demtool import io as dio
 
 
 def file_sha256(path: str | os.PathLike, chunk_size: int = 1 << 20) -> str | None:
-    """SHA-256 of a file's content (hex), or None if it is not a readable file."""
+    """SHA-256 of a file's content (hex), or None if it is not a readable file.
+
+    A file is read once per process while it stays the same file with the same size and
+    modification and change times (nanoseconds): a stage checks an input's hash against
+    an orthoimage's tags and records it in its sidecar, and a sensor model that is an
+    ISIS cube can be large.
+    """
     p = Path(path)
     if not p.is_file():
         return None
+    stat = p.stat()
+    return _sha256_of(str(p.resolve()), stat.st_ino, stat.st_size, stat.st_mtime_ns,
+                      stat.st_ctime_ns, chunk_size)
+
+
+@functools.lru_cache(maxsize=256)
+def _sha256_of(path: str, inode: int, size: int, mtime_ns: int, ctime_ns: int,
+               chunk_size: int) -> str:
+    """The hash of :func:`file_sha256`, cached by the file's identity and times."""
     digest = hashlib.sha256()
-    with open(p, "rb") as handle:
+    with open(path, "rb") as handle:
         while block := handle.read(chunk_size):
             digest.update(block)
     return digest.hexdigest()

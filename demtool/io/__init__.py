@@ -297,7 +297,11 @@ def write_raster(path: str | os.PathLike, data: np.ndarray, *, transform=None, c
         "width": width,
         "transform": transform if transform is not None else image_frame_transform(1.0),
         "crs": crs,
+        # DEFLATE (every GDAL build reads it) at level 1: half the time
+        # of the default level 6 for 2 % more bytes (a 2048² disparity: 0.11 against
+        # 0.24 s, 8.5 against 8.3 MB)
         "compress": "deflate",
+        "zlevel": 1,
         "predictor": 3,
         "tiled": width >= 256 and height >= 256,
     }
@@ -444,9 +448,9 @@ def raster_writer(path: str | os.PathLike, *, height: int, width: int, count: in
     """Write a float32 GeoTIFF (NaN nodata, tiled, ZSTD) block by block, atomically.
 
     The file is created filled with NaN; the block yields a :class:`RasterBlockWriter`.
-    Compression is ZSTD level 1 with the floating-point predictor (4x faster than
-    :func:`write_raster`'s deflate at the same size on image data; GDAL >= 2.3 reads it),
-    since the rasters written this way are the large ones.
+    Compression is ZSTD level 1 with the floating-point predictor (about 1.7x faster than
+    :func:`write_raster`'s deflate level 1 at the same size on image data; GDAL >= 2.3
+    reads it), since the rasters written this way are the large ones.
     As :func:`write_raster`, the file appears (inside :func:`output_transaction`: at the
     end of the transaction) only when the block succeeds.
     """

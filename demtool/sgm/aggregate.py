@@ -42,7 +42,7 @@ from numba import njit
 
 from demtool.sgm.cost import advance_window, volume_source
 from demtool.sgm.disparity import select_row
-from demtool.sgm.simd import LANES, paths_chunks, paths_chunks_add
+from demtool.sgm.simd import LANES, paths_row, paths_row_add
 
 # int16 sentinel for the path cost beyond the disparity range; SENTINEL + P1 must fit int16
 SENTINEL = 16383
@@ -80,8 +80,7 @@ def _define_four_paths(callee_digest: str):
         slot ``s<t>``, column ``c<t>`` (its minimum over d at ``mins[s<t>, j, c<t>]``) and
         uses P2 = ``e<t>``.  The new L_r go to column ``col`` of ``slot``, their minima to
         ``mins``; their sum is written to (or, with ``accumulate``, added to) ``out[x]``.
-        Whole groups of 16 disparities go through :func:`demtool.sgm.simd.paths_chunks`
-        (explicit vectors); the remaining D mod 16 through the same recursion here.
+        Plain numba loops, for D < 16 (:func:`demtool.sgm.simd.paths_row` does D ≥ 16).
         """
         if callee_digest == "":  # never: it puts the digest into numba's cache key
             return
@@ -89,32 +88,12 @@ def _define_four_paths(callee_digest: str):
         j1, j2, j3 = j0 + 1, j0 + 2, j0 + 3
         m0, m1 = mins[s0, j0, c0], mins[s1, j1, c1]
         m2, m3 = mins[s2, j2, c2], mins[s3, j3, c3]
-        n_chunks = n_disp // LANES
         low0 = low1 = low2 = low3 = np.int16(32767)
-        if n_chunks > 0:
-            n_dirs, columns, padded = buf.shape[1], buf.shape[2], buf.shape[3]
-            here = ((slot * n_dirs + j0) * columns + col) * padded + 1
-            step = columns * padded  # one direction further
-            cur = (here, here + step, here + 2 * step, here + 3 * step)
-            prev = (((s0 * n_dirs + j0) * columns + c0) * padded + 1,
-                    ((s1 * n_dirs + j1) * columns + c1) * padded + 1,
-                    ((s2 * n_dirs + j2) * columns + c2) * padded + 1,
-                    ((s3 * n_dirs + j3) * columns + c3) * padded + 1)
-            above = (np.int64(m0) + e0, np.int64(m1) + e1, np.int64(m2) + e2, np.int64(m3) + e3)
-            low = (np.int64(m0), np.int64(m1), np.int64(m2), np.int64(m3))
-            if accumulate:
-                found = paths_chunks_add(buf, cur, prev, (cost, x * n_disp), (out, x * n_disp),
-                                         n_chunks, np.int64(p1), above, low)
-            else:
-                found = paths_chunks(buf, cur, prev, (cost, x * n_disp), (out, x * n_disp),
-                                     n_chunks, np.int64(p1), above, low)
-            low0, low1 = np.int16(found[0]), np.int16(found[1])
-            low2, low3 = np.int16(found[2]), np.int16(found[3])
         a0, a1 = np.int16(m0 + e0), np.int16(m1 + e1)
         a2, a3 = np.int16(m2 + e2), np.int16(m3 + e3)
         # branch-free accumulation (a conditional load in the loop would stop vectorisation)
         keep = np.uint16(0xFFFF) if accumulate else np.uint16(0)
-        for k in range(n_chunks * LANES + 1, n_disp + 1):
+        for k in range(1, n_disp + 1):
             c = np.int16(cost[x, k - 1])
             v0 = np.int16(c + np.int16(min(min(buf[s0, j0, c0, k], np.int16(
                 min(buf[s0, j0, c0, k - 1], buf[s0, j0, c0, k + 1]) + p1)), a0) - m0))
@@ -161,7 +140,8 @@ def adapted_p2_table(p1: int, p2: int, kappa: int) -> np.ndarray:
 
 def callee_sources_digest() -> str:
     """SHA-256 of :mod:`demtool.sgm.cost`, :mod:`demtool.sgm.disparity` and
-    :mod:`demtool.sgm.simd`, whose kernels :func:`sweep_rows` and ``_four_paths`` inline.
+    :mod:`demtool.sgm.simd`, whose kernels :func:`sweep_rows`, ``_four_paths`` and
+    ``_paths_rows`` inline.
 
     numba's on-disk cache knows only the compiled function's own file and bytecode (and
     its closure variables), so :func:`sweep_rows` closes over this digest: an edit of
@@ -174,6 +154,51 @@ def callee_sources_digest() -> str:
 
 
 _four_paths = _define_four_paths(callee_sources_digest())
+
+
+def _define_paths_rows(callee_digest: str):
+    @njit(nogil=True, cache=True)
+    def _paths_rows(buf, mins, cost, out, penalty, n_groups, slot, previous_slot,
+                    column_step, sign, p1):
+        """Eq. 13 along one image row for every group of four directions (D ≥ 16).
+
+        The offsets of the row's first pixel (in sweep order) in the path buffers
+        ``buf[slot, j, column, 1:D+1]`` and ``mins``, in ``cost``/``out`` and in
+        ``penalty`` for :func:`demtool.sgm.simd.paths_row`, which runs the row; the
+        arguments as in :func:`sweep_rows`.
+        """
+        if callee_digest == "":  # never: it puts the digest into numba's cache key
+            return
+        n_dirs, columns, padded = buf.shape[1], buf.shape[2], buf.shape[3]
+        width, n_disp = cost.shape
+        x0 = 0 if sign > 0 else width - 1
+        col = x0 + PAD
+        steps = (sign * padded, np.int64(sign), sign * n_disp, np.int64(sign),
+                 columns * padded, np.int64(columns))
+        for g in range(n_groups):
+            j = 4 * g
+            w0 = (previous_slot[j] * n_dirs + j) * columns + col + column_step[j]
+            w1 = (previous_slot[j + 1] * n_dirs + j + 1) * columns + col + column_step[j + 1]
+            w2 = (previous_slot[j + 2] * n_dirs + j + 2) * columns + col + column_step[j + 2]
+            w3 = (previous_slot[j + 3] * n_dirs + j + 3) * columns + col + column_step[j + 3]
+            prev = (w0 * padded + 1, w1 * padded + 1, w2 * padded + 1, w3 * padded + 1)
+            pens = (j * width + x0, (j + 1) * width + x0, (j + 2) * width + x0,
+                    (j + 3) * width + x0)
+            here = (slot * n_dirs + j) * columns + col
+            cur = (here * padded + 1, here)
+            # group 0's first direction is the horizontal (0, 1) (path_groups): its
+            # predecessor is the previous pixel, whose minimum paths_row keeps in a register
+            if g == 0:
+                paths_row(buf, mins, cost, out, penalty, cur, prev, (w0, w1, w2, w3), pens,
+                          steps, x0 * n_disp, width, np.int64(p1))
+            else:
+                paths_row_add(buf, mins, cost, out, penalty, cur, prev, (w0, w1, w2, w3),
+                              pens, steps, x0 * n_disp, width, np.int64(p1))
+
+    return _paths_rows
+
+
+_paths_rows = _define_paths_rows(callee_sources_digest())
 
 
 def _define_sweep_rows(callee_digest: str):
@@ -212,6 +237,7 @@ def _define_sweep_rows(callee_digest: str):
         penalty = np.empty((n_dirs, width), dtype=np.int64)
         p1s = np.int16(p1)
         n_out = disparity.shape[0]
+        n_disp = running.shape[1]
         y = first
         while y != stop:
             advance_window(source, y, sign, radius, ring, running, pixel, window_state)
@@ -239,29 +265,33 @@ def _define_sweep_rows(callee_digest: str):
                         penalty[j, x] = p2_table[0]
             # group 0 writes (a literal flag: no load of out), the others add
             out = total[y - total_base] if mode == MODE_STORE else scratch
-            for i in range(width):
-                x = i if sign > 0 else width - 1 - i
-                col = x + PAD
-                for g in range(n_groups):
-                    j = 4 * g
-                    # literal flags: two specialisations, the first without the load of out
-                    if g == 0:
-                        _four_paths(buf, mins, 0, slot, col,
-                                    previous_slot[0], col + column_step[0], penalty[0, x],
-                                    previous_slot[1], col + column_step[1], penalty[1, x],
-                                    previous_slot[2], col + column_step[2], penalty[2, x],
-                                    previous_slot[3], col + column_step[3], penalty[3, x],
-                                    running, x, p1s, out, False)
-                    else:
-                        _four_paths(buf, mins, j, slot, col,
-                                    previous_slot[j], col + column_step[j], penalty[j, x],
-                                    previous_slot[j + 1], col + column_step[j + 1],
-                                    penalty[j + 1, x],
-                                    previous_slot[j + 2], col + column_step[j + 2],
-                                    penalty[j + 2, x],
-                                    previous_slot[j + 3], col + column_step[j + 3],
-                                    penalty[j + 3, x],
-                                    running, x, p1s, out, True)
+            if n_disp >= LANES:
+                _paths_rows(buf, mins, running, out, penalty, n_groups, slot, previous_slot,
+                            column_step, sign, p1)
+            else:
+                for i in range(width):
+                    x = i if sign > 0 else width - 1 - i
+                    col = x + PAD
+                    for g in range(n_groups):
+                        j = 4 * g
+                        # literal flags: two specialisations, the first without the load of out
+                        if g == 0:
+                            _four_paths(buf, mins, 0, slot, col,
+                                        previous_slot[0], col + column_step[0], penalty[0, x],
+                                        previous_slot[1], col + column_step[1], penalty[1, x],
+                                        previous_slot[2], col + column_step[2], penalty[2, x],
+                                        previous_slot[3], col + column_step[3], penalty[3, x],
+                                        running, x, p1s, out, False)
+                        else:
+                            _four_paths(buf, mins, j, slot, col,
+                                        previous_slot[j], col + column_step[j], penalty[j, x],
+                                        previous_slot[j + 1], col + column_step[j + 1],
+                                        penalty[j + 1, x],
+                                        previous_slot[j + 2], col + column_step[j + 2],
+                                        penalty[j + 2, x],
+                                        previous_slot[j + 3], col + column_step[j + 3],
+                                        penalty[j + 3, x],
+                                        running, x, p1s, out, True)
             if mode == MODE_ADD:
                 stored = total[y - total_base]
                 for x in range(width):

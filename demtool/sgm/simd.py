@@ -1,14 +1,15 @@
 """Explicit 16-lane int16 vectors for the SGM path update (LLVM IR through numba).
 
-Written as plain numba loops, the update of four paths at one pixel
-(:func:`demtool.sgm.aggregate._four_paths`) is vectorised by LLVM, which cannot prove
-that the path buffers, the cost row and the sum row do not overlap: before every
-pixel's loop over the disparities it checks some 30 address ranges at run time and
-spills its registers, about 70 ns a pixel — a third of the aggregation on a
-128-disparity volume (bench/stereo_roofline.md).  :func:`paths_chunks` states the
-vectors itself (<16 x i16>, as SSE2/AVX2 ``pminsw``/``paddw`` code), so there is no
-alias check to make; the arithmetic is eq. 13 of Hirschmüller (2008) as in
-``_four_paths``, bit for bit (int16 path costs, uint16 sums that wrap).
+Written as plain numba loops, the update of four paths at one pixel is vectorised by
+LLVM, which cannot prove that the path buffers, the cost row and the sum row do not
+overlap: before every pixel's loop over the disparities it checks some 30 address
+ranges at run time and spills its registers, about 70 ns a pixel — a third of the
+aggregation on a 128-disparity volume (bench/stereo_roofline.md).  :func:`paths_row`
+states the vectors itself (<16 x i16>, as SSE2/AVX2 ``pminsw``/``paddw`` code), so there
+is no alias check to make, and runs the loop over a row's pixels too, so the per-pixel
+offsets are increments and the horizontal path's minimum stays in a register; the
+arithmetic is eq. 13 of Hirschmüller (2008) as in ``aggregate._four_paths``, bit for
+bit (int16 path costs, uint16 sums that wrap).
 """
 
 from __future__ import annotations
@@ -41,81 +42,137 @@ def _smin(builder, a, b):
     return builder.select(builder.icmp_signed("<", a, b), a, b)
 
 
-def _reduce_smin(builder, vector):
-    """Smallest lane of a <16 x i16> vector (a shuffle tree), as int16."""
-    for half in (8, 4, 2, 1):
-        mask = [i + half if i < half else i for i in range(LANES)]
-        shuffled = builder.shuffle_vector(vector, vector,
-                                          ir.Constant(ir.VectorType(_I32, LANES), mask))
-        vector = _smin(builder, vector, shuffled)
-    return builder.extract_element(vector, ir.Constant(_I32, 0))
+def _reduce_min(builder, vector):
+    """Smallest lane of a <16 x i16> vector of path costs, as int16.
+
+    Path costs lie in 0 .. 32767 (L_r ≥ C ≥ 0 by eq. 13, at most C_max + P2 ≤
+    ``aggregate.SENTINEL``; the running minima start at 32767), where the unsigned
+    order is the signed one: ``llvm.vector.reduce.umin``, which x86 lowers to one
+    ``pminuw`` of the two 8-lane halves and SSE4.1's ``phminposuw`` instead of a
+    shuffle tree of four shuffles and four minima.
+    """
+    reduce = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_I16, [_VEC]),
+                                            "llvm.vector.reduce.umin.v16i16")
+    return builder.call(reduce, [vector])
 
 
-def _make_paths_chunks(accumulate: bool):
+def _make_paths_row(first_group: bool):
     @intrinsic
-    def paths_chunks(typingctx, buf, cur, prev, cost, out, n_chunks, p1, above, low):
-        """Eq. 13 for four paths at one pixel, disparities 16·i .. 16·i + 15, i < n_chunks.
+    def paths_row(typingctx, buf, mins, cost, out, penalty, cur, prev, prev_mins, pens,
+                  steps, row0, n_pixels, p1):
+        """Eq. 13 for four paths along one row of ``n_pixels`` pixels, all disparities.
 
-        ``buf`` is the int16 path-cost array; ``cur`` and ``prev`` (4 int64 each) are
-        the flat element offsets in it of the first disparity (k = 1 of its padded axis)
-        of each path's new and previous costs L_r(p) and L_r(p − r); ``cost`` and
-        ``out`` (uint16) the pixel's cost and path-sum rows as (array, flat offset);
-        ``above`` (4 int64) is min_k L_r(p − r, k) + P2 of each path and ``low`` (4
-        int64) min_k L_r(p − r, k).  Writes the new path costs, writes (or, in the
-        accumulating variant, adds) their sum to ``out`` and returns each path's
-        minimum over these disparities (4 int64).
+        ``buf`` (int16, C order) holds the path costs L_r with one int16 per disparity
+        d = 1 .. D of a padded axis, ``mins`` (int16) their minima over d, ``cost`` and
+        ``out`` (uint16, C order) the row's window costs C and path sums, D per pixel,
+        ``penalty`` (int64) P2 per direction and pixel.  For the row's first pixel (in
+        sweep order): ``cur`` = (offset in ``buf`` of L_r(p, 1), offset in ``mins``) of
+        the group's first direction; ``prev``, ``prev_mins`` and ``pens`` (4 int64 each)
+        the offsets of each direction's L_r(p − r, 1), min_k L_r(p − r, k) and P2;
+        ``row0`` that of C(p, ·) and the sum.  ``steps`` = (buf, mins, row, penalty
+        offset from one pixel to the next; buf, mins offset from one direction to the
+        next).  The new L_r and their minima are written at ``cur``; their sum over the
+        four paths is written to ``out`` (``paths_row``) or added to it
+        (``paths_row_add``).  D ≥ 16: D mod 16 disparities are a last vector overlapping
+        the one before (same values stored twice, the sum added once).  In
+        ``paths_row`` (the first group) the first direction is the horizontal one, whose
+        predecessor is the previous pixel: its minimum is passed on in a register.
         """
-        ret = types.UniTuple(types.int64, 4)
-        sig = ret(buf, cur, prev, cost, out, n_chunks, p1, above, low)
+        sig = types.none(buf, mins, cost, out, penalty, cur, prev, prev_mins, pens, steps,
+                         row0, n_pixels, p1)
 
         def codegen(context, builder, signature, args):
-            buf_v, cur_v, prev_v, cost_v, out_v, chunks_v, p1_v, above_v, low_v = args
-            buf_data = context.make_array(signature.args[0])(context, builder, buf_v).data
-            cost_arr, cost_off = (builder.extract_value(cost_v, i) for i in (0, 1))
-            out_arr, out_off = (builder.extract_value(out_v, i) for i in (0, 1))
-            cost_data = context.make_array(signature.args[3].types[0])(
-                context, builder, cost_arr).data
-            out_data = context.make_array(signature.args[4].types[0])(
-                context, builder, out_arr).data
-            curs = [builder.extract_value(cur_v, t) for t in range(4)]
-            prevs = [builder.extract_value(prev_v, t) for t in range(4)]
-            aboves = [_splat(builder, builder.extract_value(above_v, t)) for t in range(4)]
-            lows = [_splat(builder, builder.extract_value(low_v, t)) for t in range(4)]
+            (buf_v, mins_v, cost_v, out_v, pen_v, cur_v, prev_v, pmin_v, pens_v, steps_v,
+             row0_v, n_v, p1_v) = args
+            data = [context.make_array(signature.args[i])(context, builder, arg).data
+                    for i, arg in enumerate((buf_v, mins_v, cost_v, out_v, pen_v))]
+            buf_d, mins_d, cost_d, out_d, pen_d = data
+            i64 = ir.IntType(64)
+            n_disp = builder.extract_value(
+                context.make_array(signature.args[2])(context, builder, cost_v).shape, 1)
+            n_chunks = builder.udiv(n_disp, ir.Constant(i64, LANES))
+            tail_at = builder.sub(n_disp, ir.Constant(i64, LANES))
+            rest = builder.sub(n_disp, builder.mul(n_chunks, ir.Constant(i64, LANES)))
+            # lanes of the overlapping last vector not yet summed: lane ≥ 16 − rest
+            lane_ids = ir.Constant(_VEC, list(range(LANES)))
+            fresh = builder.icmp_signed(">=", lane_ids, _splat(builder, builder.sub(
+                ir.Constant(i64, LANES), rest)))
+            zero = ir.Constant(_VEC, [0] * LANES)
+            def ext(value, k):
+                return builder.extract_value(value, k)
+
+            cur_b, cur_m = ext(cur_v, 0), ext(cur_v, 1)
+            prevs = [ext(prev_v, t) for t in range(4)]
+            pmins = [ext(pmin_v, t) for t in range(4)]
+            pens = [ext(pens_v, t) for t in range(4)]
+            st_b, st_m, st_r, st_p, dir_b, dir_m = (ext(steps_v, k) for k in range(6))
             p1s = _splat(builder, p1_v)
-            minima = [cgutils.alloca_once_value(builder, _splat(builder, ir.Constant(
-                _I16, 32767))) for _ in range(4)]
-            one = ir.Constant(ir.IntType(64), 1)
-            with cgutils.for_range(builder, chunks_v) as loop:
-                step = builder.mul(loop.index, ir.Constant(ir.IntType(64), LANES))
-                total = None
-                c = builder.load(_vector_at(builder, cost_data, builder.add(cost_off, step)),
+            minima = [cgutils.alloca_once(builder, _VEC) for _ in range(4)]
+            carried = cgutils.alloca_once_value(builder, builder.load(
+                builder.gep(mins_d, [pmins[0]])))
+            one = ir.Constant(i64, 1)
+
+            def chunk(px, at, last):
+                """Update the four paths at disparity offset ``at`` of pixel ``px``."""
+                c = builder.load(_vector_at(builder, cost_d, builder.add(px["row"], at)),
                                  align=2)
+                total = None
                 for t in range(4):
-                    at = builder.add(prevs[t], step)
-                    centre = builder.load(_vector_at(builder, buf_data, at), align=2)
-                    below = builder.load(_vector_at(builder, buf_data, builder.sub(at, one)),
+                    pos = builder.add(px["prev"][t], at)
+                    centre = builder.load(_vector_at(builder, buf_d, pos), align=2)
+                    below = builder.load(_vector_at(builder, buf_d, builder.sub(pos, one)),
                                          align=2)
-                    over = builder.load(_vector_at(builder, buf_data, builder.add(at, one)),
+                    over = builder.load(_vector_at(builder, buf_d, builder.add(pos, one)),
                                         align=2)
                     best = _smin(builder, centre, builder.add(_smin(builder, below, over), p1s))
-                    best = _smin(builder, best, aboves[t])
-                    value = builder.add(c, builder.sub(best, lows[t]))
-                    builder.store(value, _vector_at(builder, buf_data,
-                                                    builder.add(curs[t], step)), align=2)
+                    best = _smin(builder, best, px["above"][t])
+                    value = builder.add(c, builder.sub(best, px["low"][t]))
+                    builder.store(value, _vector_at(builder, buf_d,
+                                                    builder.add(px["cur"][t], at)), align=2)
                     builder.store(_smin(builder, builder.load(minima[t]), value), minima[t])
                     total = value if total is None else builder.add(total, value)
-                target = _vector_at(builder, out_data, builder.add(out_off, step))
-                if accumulate:
+                target = _vector_at(builder, out_d, builder.add(px["row"], at))
+                if not first_group:
+                    if last:
+                        total = builder.select(fresh, total, zero)
                     total = builder.add(builder.load(target, align=2), total)
                 builder.store(total, target, align=2)
-            results = [builder.sext(_reduce_smin(builder, builder.load(m)), ir.IntType(64))
-                       for m in minima]
-            return context.make_tuple(builder, ret, results)
+
+            with cgutils.for_range(builder, n_v) as pixels:
+                i = pixels.index
+                px = {"row": builder.add(row0_v, builder.mul(i, st_r)),
+                      "cur": [], "prev": [], "above": [], "low": []}
+                here = builder.add(cur_b, builder.mul(i, st_b))
+                for t in range(4):
+                    px["cur"].append(builder.add(here, builder.mul(ir.Constant(i64, t), dir_b)))
+                    px["prev"].append(builder.add(prevs[t], builder.mul(i, st_b)))
+                    if first_group and t == 0:
+                        low = builder.load(carried)
+                    else:
+                        low = builder.load(builder.gep(
+                            mins_d, [builder.add(pmins[t], builder.mul(i, st_m))]))
+                    pen = builder.load(builder.gep(pen_d, [builder.add(pens[t],
+                                                                       builder.mul(i, st_p))]))
+                    px["above"].append(_splat(builder, builder.add(builder.sext(low, i64), pen)))
+                    px["low"].append(_splat(builder, low))
+                    builder.store(_splat(builder, ir.Constant(_I16, 32767)), minima[t])
+                with cgutils.for_range(builder, n_chunks) as loop:
+                    chunk(px, builder.mul(loop.index, ir.Constant(i64, LANES)), False)
+                with builder.if_then(builder.icmp_signed(">", rest, ir.Constant(i64, 0))):
+                    chunk(px, tail_at, True)
+                here_m = builder.add(cur_m, builder.mul(i, st_m))
+                for t in range(4):
+                    low = _reduce_min(builder, builder.load(minima[t]))
+                    at = builder.add(here_m, builder.mul(ir.Constant(i64, t), dir_m))
+                    builder.store(low, builder.gep(mins_d, [at]))
+                    if first_group and t == 0:
+                        builder.store(low, carried)
+            return context.get_dummy_value()
 
         return sig, codegen
 
-    return paths_chunks
+    return paths_row
 
 
-paths_chunks = _make_paths_chunks(False)
-paths_chunks_add = _make_paths_chunks(True)
+paths_row = _make_paths_row(True)
+paths_row_add = _make_paths_row(False)

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from demtool.sgm.simd import right_minima
+
 SUBPIXEL_MODES = {"none": 0, "parabola": 1, "equiangular": 2}
 #: Confidence :func:`select_row` gives a pixel the left–right check rejects as occluded
 #: (the right view sees a nearer surface at its match); other invalid pixels get NaN.
@@ -48,17 +50,7 @@ def _right_disparities(srow, min_disparity, right_best, right_key):
     width, n_disp = srow.shape
     for xr in range(width):
         right_key[xr] = 0xFFFFFFFF
-    for x in range(width):
-        base = x - min_disparity
-        k_hi = max(0, min(n_disp, base + 1))
-        k_lo = min(k_hi, max(0, base - width + 1))
-        start = base - k_lo
-        # k = k_lo + i, right pixel start − i (>= 0: unsigned, so numba adds no
-        # wraparound; counted from 0, so the reversed accesses vectorise)
-        for i in range(k_hi - k_lo):
-            xr = np.uint64(start - i)
-            key = (np.uint32(srow[x, k_lo + i]) << np.uint32(16)) | np.uint32(k_lo + i)
-            right_key[xr] = min(right_key[xr], key)
+    right_minima(srow, right_key, min_disparity)
     for xr in range(width):
         key = right_key[xr]
         right_best[xr] = -1 if key == 0xFFFFFFFF else np.int16(key & np.uint32(0xFFFF))

@@ -248,3 +248,80 @@ def right_minima(typingctx, srow, right_key, min_disparity):
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+def _umin(builder, a, b):
+    return builder.select(builder.icmp_unsigned("<", a, b), a, b)
+
+
+@intrinsic
+def best_two(typingctx, srow, x):
+    """Winner-takes-all at pixel ``x`` of an S row: (k, S(x, k), second), int64.
+
+    ``srow`` (W, D ≥ 16) uint16, C order.  k is the smallest index of the least cost;
+    second the least cost at least two disparities from k (65535 if there is none).
+    Two passes of <16 x i16> vectors: per lane the running minimum and the index where
+    it was first met, then the minimum with k − 1 .. k + 1 masked out; D mod 16 is a
+    last vector overlapping the one before (a minimum and its first index do not change
+    when elements are seen twice).
+    """
+    if not (isinstance(srow, types.Array) and srow.layout == "C" and srow.ndim == 2
+            and isinstance(x, types.Integer)):
+        return None
+    ret = types.UniTuple(types.int64, 3)
+    sig = ret(srow, types.int64)
+    i64 = ir.IntType(64)
+
+    def codegen(context, builder, signature, args):
+        s_arr = context.make_array(signature.args[0])(context, builder, args[0])
+        n_disp = builder.extract_value(s_arr.shape, 1)
+        row = builder.mul(args[1], n_disp)
+        n_chunks = builder.udiv(n_disp, ir.Constant(i64, LANES))
+        last = builder.sub(n_disp, ir.Constant(i64, LANES))
+        iota = ir.Constant(_VEC, list(range(LANES)))
+        ones = _splat(builder, ir.Constant(_I16, 0xFFFF))
+
+        def load(at):
+            return builder.load(_vector_at(builder, s_arr.data, builder.add(row, at)), align=2)
+
+        def each_vector(step):
+            """step(offset) for offsets 0, 16, .. and D − 16 (the overlapping last one)."""
+            with cgutils.for_range(builder, n_chunks) as loop:
+                step(builder.mul(loop.index, ir.Constant(i64, LANES)))
+            with builder.if_then(builder.icmp_signed(">", builder.srem(
+                    n_disp, ir.Constant(i64, LANES)), ir.Constant(i64, 0))):
+                step(last)
+
+        # a lane that never goes below 65535 has it first at its first element
+        low_v = cgutils.alloca_once_value(builder, ones)
+        first_v = cgutils.alloca_once_value(builder, iota)
+
+        def first_pass(at):
+            values, low = load(at), builder.load(low_v)
+            lower = builder.icmp_unsigned("<", values, low)
+            builder.store(builder.select(lower, values, low), low_v)
+            index = builder.add(iota, _splat(builder, at))
+            builder.store(builder.select(lower, index, builder.load(first_v)), first_v)
+
+        each_vector(first_pass)
+        low_vec = builder.load(low_v)
+        low = _reduce_min(builder, low_vec)
+        at_low = builder.icmp_unsigned("==", low_vec, _splat(builder, low))
+        best = _reduce_min(builder, builder.select(at_low, builder.load(first_v), ones))
+        second_v = cgutils.alloca_once_value(builder, ones)
+        # lanes k with k − best + 1 ≤ 2 (unsigned): best − 1 .. best + 1
+        shift = _splat(builder, builder.sub(ir.Constant(_I16, 1), best))
+        two = _splat(builder, ir.Constant(_I16, 2))
+
+        def second_pass(at):
+            index = builder.add(builder.add(iota, _splat(builder, at)), shift)
+            near = builder.sext(builder.icmp_unsigned("<=", index, two), _VEC)
+            values = builder.or_(load(at), near)
+            builder.store(_umin(builder, builder.load(second_v), values), second_v)
+
+        each_vector(second_pass)
+        second = _reduce_min(builder, builder.load(second_v))
+        return context.make_tuple(builder, ret, [builder.zext(v, i64)
+                                                 for v in (best, low, second)])
+
+    return sig, codegen

@@ -42,7 +42,7 @@ from numba import njit
 
 from demtool.sgm.cost import advance_window, volume_source
 from demtool.sgm.disparity import select_row
-from demtool.sgm.simd import LANES, paths_chunks, paths_chunks_add
+from demtool.sgm.simd import LANES, paths_row, paths_row_add
 
 # int16 sentinel for the path cost beyond the disparity range; SENTINEL + P1 must fit int16
 SENTINEL = 16383
@@ -80,8 +80,7 @@ def _define_four_paths(callee_digest: str):
         slot ``s<t>``, column ``c<t>`` (its minimum over d at ``mins[s<t>, j, c<t>]``) and
         uses P2 = ``e<t>``.  The new L_r go to column ``col`` of ``slot``, their minima to
         ``mins``; their sum is written to (or, with ``accumulate``, added to) ``out[x]``.
-        Whole groups of 16 disparities go through :func:`demtool.sgm.simd.paths_chunks`
-        (explicit vectors); the remaining D mod 16 through the same recursion here.
+        Plain numba loops, for D < 16 (:func:`demtool.sgm.simd.paths_row` does D ≥ 16).
         """
         if callee_digest == "":  # never: it puts the digest into numba's cache key
             return
@@ -89,32 +88,12 @@ def _define_four_paths(callee_digest: str):
         j1, j2, j3 = j0 + 1, j0 + 2, j0 + 3
         m0, m1 = mins[s0, j0, c0], mins[s1, j1, c1]
         m2, m3 = mins[s2, j2, c2], mins[s3, j3, c3]
-        n_chunks = n_disp // LANES
         low0 = low1 = low2 = low3 = np.int16(32767)
-        if n_chunks > 0:
-            n_dirs, columns, padded = buf.shape[1], buf.shape[2], buf.shape[3]
-            here = ((slot * n_dirs + j0) * columns + col) * padded + 1
-            step = columns * padded  # one direction further
-            cur = (here, here + step, here + 2 * step, here + 3 * step)
-            prev = (((s0 * n_dirs + j0) * columns + c0) * padded + 1,
-                    ((s1 * n_dirs + j1) * columns + c1) * padded + 1,
-                    ((s2 * n_dirs + j2) * columns + c2) * padded + 1,
-                    ((s3 * n_dirs + j3) * columns + c3) * padded + 1)
-            above = (np.int64(m0) + e0, np.int64(m1) + e1, np.int64(m2) + e2, np.int64(m3) + e3)
-            low = (np.int64(m0), np.int64(m1), np.int64(m2), np.int64(m3))
-            if accumulate:
-                found = paths_chunks_add(buf, cur, prev, (cost, x * n_disp), (out, x * n_disp),
-                                         n_chunks, np.int64(p1), above, low)
-            else:
-                found = paths_chunks(buf, cur, prev, (cost, x * n_disp), (out, x * n_disp),
-                                     n_chunks, np.int64(p1), above, low)
-            low0, low1 = np.int16(found[0]), np.int16(found[1])
-            low2, low3 = np.int16(found[2]), np.int16(found[3])
         a0, a1 = np.int16(m0 + e0), np.int16(m1 + e1)
         a2, a3 = np.int16(m2 + e2), np.int16(m3 + e3)
         # branch-free accumulation (a conditional load in the loop would stop vectorisation)
         keep = np.uint16(0xFFFF) if accumulate else np.uint16(0)
-        for k in range(n_chunks * LANES + 1, n_disp + 1):
+        for k in range(1, n_disp + 1):
             c = np.int16(cost[x, k - 1])
             v0 = np.int16(c + np.int16(min(min(buf[s0, j0, c0, k], np.int16(
                 min(buf[s0, j0, c0, k - 1], buf[s0, j0, c0, k + 1]) + p1)), a0) - m0))
@@ -161,7 +140,8 @@ def adapted_p2_table(p1: int, p2: int, kappa: int) -> np.ndarray:
 
 def callee_sources_digest() -> str:
     """SHA-256 of :mod:`demtool.sgm.cost`, :mod:`demtool.sgm.disparity` and
-    :mod:`demtool.sgm.simd`, whose kernels :func:`sweep_rows` and ``_four_paths`` inline.
+    :mod:`demtool.sgm.simd`, whose kernels :func:`sweep_rows`, ``_four_paths`` and
+    ``_paths_rows`` inline.
 
     numba's on-disk cache knows only the compiled function's own file and bytecode (and
     its closure variables), so :func:`sweep_rows` closes over this digest: an edit of
@@ -174,6 +154,51 @@ def callee_sources_digest() -> str:
 
 
 _four_paths = _define_four_paths(callee_sources_digest())
+
+
+def _define_paths_rows(callee_digest: str):
+    @njit(nogil=True, cache=True)
+    def _paths_rows(buf, mins, cost, out, penalty, n_groups, slot, previous_slot,
+                    column_step, sign, p1):
+        """Eq. 13 along one image row for every group of four directions (D ≥ 16).
+
+        The offsets of the row's first pixel (in sweep order) in the path buffers
+        ``buf[slot, j, column, 1:D+1]`` and ``mins``, in ``cost``/``out`` and in
+        ``penalty`` for :func:`demtool.sgm.simd.paths_row`, which runs the row; the
+        arguments as in :func:`sweep_rows`.
+        """
+        if callee_digest == "":  # never: it puts the digest into numba's cache key
+            return
+        n_dirs, columns, padded = buf.shape[1], buf.shape[2], buf.shape[3]
+        width, n_disp = cost.shape
+        x0 = 0 if sign > 0 else width - 1
+        col = x0 + PAD
+        steps = (sign * padded, np.int64(sign), sign * n_disp, np.int64(sign),
+                 columns * padded, np.int64(columns))
+        for g in range(n_groups):
+            j = 4 * g
+            w0 = (previous_slot[j] * n_dirs + j) * columns + col + column_step[j]
+            w1 = (previous_slot[j + 1] * n_dirs + j + 1) * columns + col + column_step[j + 1]
+            w2 = (previous_slot[j + 2] * n_dirs + j + 2) * columns + col + column_step[j + 2]
+            w3 = (previous_slot[j + 3] * n_dirs + j + 3) * columns + col + column_step[j + 3]
+            prev = (w0 * padded + 1, w1 * padded + 1, w2 * padded + 1, w3 * padded + 1)
+            pens = (j * width + x0, (j + 1) * width + x0, (j + 2) * width + x0,
+                    (j + 3) * width + x0)
+            here = (slot * n_dirs + j) * columns + col
+            cur = (here * padded + 1, here)
+            # group 0's first direction is the horizontal (0, 1) (path_groups): its
+            # predecessor is the previous pixel, whose minimum paths_row keeps in a register
+            if g == 0:
+                paths_row(buf, mins, cost, out, penalty, cur, prev, (w0, w1, w2, w3), pens,
+                          steps, x0 * n_disp, width, np.int64(p1))
+            else:
+                paths_row_add(buf, mins, cost, out, penalty, cur, prev, (w0, w1, w2, w3),
+                              pens, steps, x0 * n_disp, width, np.int64(p1))
+
+    return _paths_rows
+
+
+_paths_rows = _define_paths_rows(callee_sources_digest())
 
 
 def _define_sweep_rows(callee_digest: str):
@@ -212,6 +237,7 @@ def _define_sweep_rows(callee_digest: str):
         penalty = np.empty((n_dirs, width), dtype=np.int64)
         p1s = np.int16(p1)
         n_out = disparity.shape[0]
+        n_disp = running.shape[1]
         y = first
         while y != stop:
             advance_window(source, y, sign, radius, ring, running, pixel, window_state)
@@ -239,29 +265,33 @@ def _define_sweep_rows(callee_digest: str):
                         penalty[j, x] = p2_table[0]
             # group 0 writes (a literal flag: no load of out), the others add
             out = total[y - total_base] if mode == MODE_STORE else scratch
-            for i in range(width):
-                x = i if sign > 0 else width - 1 - i
-                col = x + PAD
-                for g in range(n_groups):
-                    j = 4 * g
-                    # literal flags: two specialisations, the first without the load of out
-                    if g == 0:
-                        _four_paths(buf, mins, 0, slot, col,
-                                    previous_slot[0], col + column_step[0], penalty[0, x],
-                                    previous_slot[1], col + column_step[1], penalty[1, x],
-                                    previous_slot[2], col + column_step[2], penalty[2, x],
-                                    previous_slot[3], col + column_step[3], penalty[3, x],
-                                    running, x, p1s, out, False)
-                    else:
-                        _four_paths(buf, mins, j, slot, col,
-                                    previous_slot[j], col + column_step[j], penalty[j, x],
-                                    previous_slot[j + 1], col + column_step[j + 1],
-                                    penalty[j + 1, x],
-                                    previous_slot[j + 2], col + column_step[j + 2],
-                                    penalty[j + 2, x],
-                                    previous_slot[j + 3], col + column_step[j + 3],
-                                    penalty[j + 3, x],
-                                    running, x, p1s, out, True)
+            if n_disp >= LANES:
+                _paths_rows(buf, mins, running, out, penalty, n_groups, slot, previous_slot,
+                            column_step, sign, p1)
+            else:
+                for i in range(width):
+                    x = i if sign > 0 else width - 1 - i
+                    col = x + PAD
+                    for g in range(n_groups):
+                        j = 4 * g
+                        # literal flags: two specialisations, the first without the load of out
+                        if g == 0:
+                            _four_paths(buf, mins, 0, slot, col,
+                                        previous_slot[0], col + column_step[0], penalty[0, x],
+                                        previous_slot[1], col + column_step[1], penalty[1, x],
+                                        previous_slot[2], col + column_step[2], penalty[2, x],
+                                        previous_slot[3], col + column_step[3], penalty[3, x],
+                                        running, x, p1s, out, False)
+                        else:
+                            _four_paths(buf, mins, j, slot, col,
+                                        previous_slot[j], col + column_step[j], penalty[j, x],
+                                        previous_slot[j + 1], col + column_step[j + 1],
+                                        penalty[j + 1, x],
+                                        previous_slot[j + 2], col + column_step[j + 2],
+                                        penalty[j + 2, x],
+                                        previous_slot[j + 3], col + column_step[j + 3],
+                                        penalty[j + 3, x],
+                                        running, x, p1s, out, True)
             if mode == MODE_ADD:
                 stored = total[y - total_base]
                 for x in range(width):
@@ -303,26 +333,41 @@ class SweepState:
         return sum(a.nbytes for a in vars(self).values())
 
 
+def _aligned_zeros(shape, dtype, alignment=64, skew=0):
+    """np.zeros whose data start ``skew`` bytes before a multiple of ``alignment``."""
+    size = int(np.prod(shape)) * np.dtype(dtype).itemsize
+    raw = np.zeros(size + alignment, dtype=np.uint8)
+    start = (-raw.ctypes.data - skew) % alignment
+    return raw[start:start + size].view(dtype).reshape(shape)
+
+
 def new_sweep_state(width: int, num_disparities: int, paths: int, radius: int) -> SweepState:
     """Fresh buffers for a sweep over rows of ``width`` pixels.
 
     Path costs: ring slots (2, or 3 for the 16-path knight moves, plus an all-zero slot
     for paths that start on this row) × directions × (W + 2·PAD) columns (zero padding:
-    paths entering from outside the image start there) × (D + 2) (sentinels).
+    paths entering from outside the image start there) × (D + 2 sentinels, rounded up
+    to a multiple of 16: every column's disparity 1 starts a 32-byte vector, so the
+    path update's stores and centre loads are aligned; 11 % faster aggregation at 128
+    disparities than unaligned columns of D + 2).  The cost and sum rows start on
+    64-byte boundaries.
     """
     n_slots = 3 if paths == 16 else 2
     n_dirs = 4 * path_groups(paths).shape[0]
     columns = width + 2 * PAD
-    buf = np.zeros((n_slots + 1, n_dirs, columns, num_disparities + 2), dtype=np.int16)
+    # disparity 1 of every column on a 32-byte boundary: columns of a multiple of 16
+    # int16, the array starting 2 bytes before a 64-byte boundary
+    padded = -(-(num_disparities + 2) // LANES) * LANES
+    buf = _aligned_zeros((n_slots + 1, n_dirs, columns, padded), np.int16, skew=2)
     buf[:n_slots, :, PAD:PAD + width, 0] = SENTINEL
-    buf[:n_slots, :, PAD:PAD + width, -1] = SENTINEL
+    buf[:n_slots, :, PAD:PAD + width, num_disparities + 1] = SENTINEL
     return SweepState(
         buf=buf, mins=np.zeros((n_slots + 1, n_dirs, columns), dtype=np.int16),
-        ring=np.zeros((2 * radius + 1, width, num_disparities), dtype=np.uint16),
-        running=np.zeros((width, num_disparities), dtype=np.uint16),
-        pixel=np.zeros((width, num_disparities), dtype=np.uint16),
+        ring=_aligned_zeros((2 * radius + 1, width, num_disparities), np.uint16),
+        running=_aligned_zeros((width, num_disparities), np.uint16),
+        pixel=_aligned_zeros((width, num_disparities), np.uint16),
         window_state=np.zeros(2, dtype=np.int64),
-        scratch=np.zeros((width, num_disparities), dtype=np.uint16),
+        scratch=_aligned_zeros((width, num_disparities), np.uint16),
         right_best=np.zeros(width, dtype=np.int16), right_key=np.zeros(width, dtype=np.uint32))
 
 

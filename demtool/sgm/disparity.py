@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from demtool.sgm.simd import best_two, right_minima
+
 SUBPIXEL_MODES = {"none": 0, "parabola": 1, "equiangular": 2}
 #: Confidence :func:`select_row` gives a pixel the left–right check rejects as occluded
 #: (the right view sees a nearer surface at its match); other invalid pixels get NaN.
@@ -48,20 +50,27 @@ def _right_disparities(srow, min_disparity, right_best, right_key):
     width, n_disp = srow.shape
     for xr in range(width):
         right_key[xr] = 0xFFFFFFFF
-    for x in range(width):
-        base = x - min_disparity
-        k_hi = max(0, min(n_disp, base + 1))
-        k_lo = min(k_hi, max(0, base - width + 1))
-        start = base - k_lo
-        # k = k_lo + i, right pixel start − i (>= 0: unsigned, so numba adds no
-        # wraparound; counted from 0, so the reversed accesses vectorise)
-        for i in range(k_hi - k_lo):
-            xr = np.uint64(start - i)
-            key = (np.uint32(srow[x, k_lo + i]) << np.uint32(16)) | np.uint32(k_lo + i)
-            right_key[xr] = min(right_key[xr], key)
+    right_minima(srow, right_key, min_disparity)
     for xr in range(width):
         key = right_key[xr]
         right_best[xr] = -1 if key == 0xFFFFFFFF else np.int16(key & np.uint32(0xFFFF))
+
+
+@njit(nogil=True, cache=True)
+def _best_two(srow, x):
+    """:func:`demtool.sgm.simd.best_two` in plain loops (for D < 16)."""
+    n_disp = srow.shape[1]
+    # argmin as the minimum of the keys S·2¹⁶ + k: ties keep the smallest k
+    best_key = np.uint32(0xFFFFFFFF)
+    for k in range(n_disp):
+        best_key = min(best_key, (np.uint32(srow[x, k]) << np.uint32(16)) | np.uint32(k))
+    best = np.int64(best_key & np.uint32(0xFFFF))
+    # the best cost at least two disparities away
+    second = np.uint16(65535)
+    for k in range(n_disp):
+        value = srow[x, k]
+        second = min(second, np.uint16(65535) if abs(k - best) <= 1 else value)
+    return best, np.int64(best_key >> np.uint32(16)), np.int64(second)
 
 
 @njit(nogil=True, cache=True)
@@ -77,19 +86,10 @@ def select_row(srow, y, min_disparity, mode, lr_threshold, left_valid, right_val
     if lr_threshold >= 0:
         _right_disparities(srow, min_disparity, right_best, right_key)
     for x in range(width):
-        # argmin as the minimum of the keys S·2¹⁶ + k: one vectorised pass, and ties
-        # keep the smallest k
-        best_key = np.uint32(0xFFFFFFFF)
-        for k in range(n_disp):
-            best_key = min(best_key, (np.uint32(srow[x, k]) << np.uint32(16)) | np.uint32(k))
-        best = np.int64(best_key & np.uint32(0xFFFF))
-        low = np.uint16(best_key >> np.uint32(16))
-        # the best cost at least two disparities away: one branch-free loop over all k
-        # (two loops around the minimum do not vectorise)
-        second = np.uint16(65535)
-        for k in range(n_disp):
-            value = srow[x, k]
-            second = min(second, np.uint16(65535) if abs(k - best) <= 1 else value)
+        if n_disp >= 16:
+            best, low, second = best_two(srow, x)
+        else:
+            best, low, second = _best_two(srow, x)
         d_int = min_disparity + best
         xr = x - d_int
         valid = left_valid[y, x] and xr >= 0 and xr < width and right_valid[y, xr]

@@ -1,6 +1,7 @@
-"""The vectorised SGM aggregation (explicit 16-lane path updates, issue 28) against a
-plain, slow implementation of Hirschmüller (2008) eq. 13–14 on small volumes whose
-disparity count spans whole vectors and a remainder."""
+"""The vectorised SGM aggregation (explicit 16-lane path updates over whole rows, issue
+28) against a plain, slow implementation of Hirschmüller (2008) eq. 13–14 on small
+volumes whose disparity count is below one vector (the scalar kernel), one vector, and
+whole vectors and a remainder (the overlapping last vector)."""
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ from tests.helpers.sgm import reference_aggregation
 P1, P2 = 3, 20
 
 
-@pytest.mark.parametrize("n_disp", [16, 37])
+@pytest.mark.parametrize("n_disp", [5, 16, 37])
 @pytest.mark.parametrize("paths,kappa", [(8, 0), (8, 8), (16, 8)])
 def test_vectorised_aggregation_equals_the_plain_recursion(n_disp, paths, kappa):
     rng = np.random.default_rng(7)

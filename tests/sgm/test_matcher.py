@@ -390,7 +390,7 @@ def test_sweep_kernel_cache_key_covers_the_kernels_it_inlines():
     expected = hashlib.sha256(b"".join((folder / name).read_bytes() for name in
                                        ("cost.py", "disparity.py", "simd.py"))).hexdigest()
     assert callee_sources_digest() == expected
-    for kernel in (aggregate.sweep_rows, aggregate._four_paths):
+    for kernel in (aggregate.sweep_rows, aggregate._four_paths, aggregate._paths_rows):
         assert expected in [c.cell_contents for c in kernel.py_func.__closure__]
 
 

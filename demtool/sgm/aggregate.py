@@ -341,6 +341,12 @@ def _aligned_zeros(shape, dtype, alignment=64, skew=0):
     return raw[start:start + size].view(dtype).reshape(shape)
 
 
+def padded_disparities(num_disparities: int) -> int:
+    """Length of a path-buffer column: D + 2 sentinels rounded up to a multiple of 16
+    (see :func:`new_sweep_state`)."""
+    return -(-(num_disparities + 2) // LANES) * LANES
+
+
 def new_sweep_state(width: int, num_disparities: int, paths: int, radius: int) -> SweepState:
     """Fresh buffers for a sweep over rows of ``width`` pixels.
 
@@ -357,7 +363,7 @@ def new_sweep_state(width: int, num_disparities: int, paths: int, radius: int) -
     columns = width + 2 * PAD
     # disparity 1 of every column on a 32-byte boundary: columns of a multiple of 16
     # int16, the array starting 2 bytes before a 64-byte boundary
-    padded = -(-(num_disparities + 2) // LANES) * LANES
+    padded = padded_disparities(num_disparities)
     buf = _aligned_zeros((n_slots + 1, n_dirs, columns, padded), np.int16, skew=2)
     buf[:n_slots, :, PAD:PAD + width, 0] = SENTINEL
     buf[:n_slots, :, PAD:PAD + width, num_disparities + 1] = SENTINEL

@@ -25,6 +25,7 @@ from demtool.sgm.aggregate import (
     SweepState,
     adapted_p2_table,
     new_sweep_state,
+    padded_disparities,
     path_groups,
     sweep_rows,
 )
@@ -80,7 +81,7 @@ def sweep_state_bytes(width: int, num_disparities: int, paths: int, window: int)
     """Bytes of the buffers of one sweep (:func:`demtool.sgm.aggregate.new_sweep_state`)."""
     n_slots = 3 if paths == 16 else 2
     n_dirs = 4 * path_groups(paths).shape[0]
-    path_bytes = (n_slots + 1) * n_dirs * (width + 4) * (num_disparities + 2) * 2
+    path_bytes = (n_slots + 1) * n_dirs * (width + 4) * padded_disparities(num_disparities) * 2
     return path_bytes + (window + 4) * width * num_disparities * 2
 
 

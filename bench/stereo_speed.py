@@ -148,6 +148,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=0, help="demtool --workers")
     parser.add_argument("--busy", action="store_true",
                         help="one other CPU-bound process runs during the timed commands")
+    parser.add_argument("--record", metavar="MACHINE", default=None,
+                        help="also write the table to bench/results/ for docs/validation.md, "
+                             "MACHINE describing where it ran")
     args = parser.parse_args(argv)
     size = args.size or (1024 if args.quick else 2048)
     count = args.disparities or (64 if args.quick else 128)
@@ -235,6 +238,8 @@ def main(argv: list[str] | None = None) -> int:
           + ("with one other busy process" if args.busy else "on two quiet cores")
           + f" ({'met' if wall_ratio <= wall_target else 'NOT met'}; load average above "
           "counts this run's own processes)")
+    if args.record:
+        record(results, phases, args, size, count)
     print("\ndemtool phases (from the sidecar), wall / CPU seconds; 'startup + I/O' = the "
           "command's wall time minus the matcher's (imports, numba, reading, writing):")
     for label, timing in phases.items():
@@ -244,6 +249,41 @@ def main(argv: list[str] | None = None) -> int:
         startup = results[label]["wall_s"] - timing["total"]
         print(f"  {label:<22} " + ", ".join(cells) + f"; startup + I/O {startup:.2f}")
     return 0
+
+
+def record(results: dict, phases: dict, args, size: int, count: int) -> None:
+    """Write the table as bench/results/12_stereo_speed[_busy].json (docs/validation.md)."""
+    import datetime
+
+    sys.path.insert(0, str(ROOT / "bench"))
+    from validation_page import write_result
+
+    opencv_run, census = results["OpenCV SGBM HH (bs=5)"], results["demtool sgm census"]
+    rows = []
+    for label, result in results.items():
+        timing = phases.get(label, {})
+        match = (f"{timing['match']:.2f} / {timing['match_cpu']:.2f}" if "match" in timing
+                 else "—")
+        rows.append([label, f"{result['wall_s']:.2f}",
+                     f"{result['wall_s'] / opencv_run['wall_s']:.2f}",
+                     f"{result['cpu_s']:.2f}", f"{result['cpu_s'] / opencv_run['cpu_s']:.2f}",
+                     f"{result['cpu_s'] / census['cpu_s']:.2f}", match,
+                     f"{result['peak_mb']:.0f}", f"{100 * result['bad2']:.1f} %"])
+    busy = "_busy" if args.busy else ""
+    command = (f"python bench/stereo_speed.py{' --busy' if args.busy else ''} "
+               f"(size {size}, {count} disparities)")
+    write_result(
+        f"12_stereo_speed{busy}", section="Stereo matching", order=12 if not busy else 13,
+        title=("`sgm` speed and memory against OpenCV StereoSGBM MODE_HH (one thread)"
+               + (", one other busy process" if busy else ", quiet cores")),
+        command=command, date=datetime.date.today().isoformat(), machine=args.record,
+        columns=["command", "wall s", "wall × OpenCV", "CPU s", "CPU × OpenCV", "CPU × census",
+                 "match phase wall / CPU s", "peak MiB", "bad-2"],
+        rows=rows,
+        notes=("Issue 28's targets: census CPU ≤ 0.5× OpenCV's, wall ≤ 0.3× on two quiet "
+               "cores and ≤ 0.6× with one other busy process, the default cost ≤ 1.2× census, "
+               "peak ≤ 1000 MiB, bad-2 unchanged.  Each command runs twice, its run of least "
+               "CPU time counts.  Where the rest of the time goes: bench/stereo_roofline.md."))
 
 
 if __name__ == "__main__":

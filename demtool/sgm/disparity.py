@@ -10,6 +10,9 @@ float32 pixels, NaN = invalid.
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
+
 import numpy as np
 from numba import njit
 
@@ -188,6 +191,33 @@ def select_disparities(total: np.ndarray, *, min_disparity: int, left_valid: np.
     return disparity, confidence
 
 
+#: Fewest rows (or directions' pixels) worth a second thread in :func:`in_halves`.
+MIN_SPLIT_ROWS = 64
+
+
+def in_halves(work: Callable[[int, int], object], count: int,
+              min_split: int | None = None) -> None:
+    """Run ``work(start, stop)`` over ``0 … count`` in two halves on two threads.
+
+    For the per-row (or per-direction) post-processing kernels, which release the GIL
+    (numba ``nogil``): each half writes only its own rows, so the result is the one
+    thread's, bit for bit.  One call ``work(0, count)`` when there is one core or fewer
+    than ``min_split`` items (default :data:`MIN_SPLIT_ROWS`).
+    """
+    min_split = MIN_SPLIT_ROWS if min_split is None else min_split
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    if count < min_split or (cores or 1) < 2:
+        work(0, count)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    middle = count // 2
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        future = pool.submit(work, middle, count)
+        work(0, middle)
+        future.result()
+
+
 _DIRECTIONS = np.array([[0, 1], [0, -1], [1, 0], [-1, 0], [1, 1], [1, -1], [-1, 1], [-1, -1]],
                        dtype=np.int64)
 
@@ -233,21 +263,35 @@ def _nearest_along(disparity, usable, index, dy, dx, found, k):
 
 
 @njit(nogil=True, cache=True)
-def _fill(disparity, occluded, usable, directions, out):
+def _fill_index(disparity, usable, index):
+    """``index[y, x]``: the number of the invalid usable pixel (row-major), else −1;
+    returns their count."""
     height, width = disparity.shape
-    index = np.full((height, width), -1, dtype=np.int64)
     count = 0
     for y in range(height):
         for x in range(width):
             if usable[y, x] and not np.isfinite(disparity[y, x]):
                 index[y, x] = count
                 count += 1
-    n_dir = directions.shape[0]
-    found = np.empty((n_dir, count), dtype=np.float32)
-    for k in range(n_dir):
+            else:
+                index[y, x] = -1
+    return count
+
+
+@njit(nogil=True, cache=True)
+def _nearest_directions(disparity, usable, index, directions, found, start, stop):
+    """:func:`_nearest_along` for directions ``start … stop − 1``."""
+    for k in range(start, stop):
         _nearest_along(disparity, usable, index, directions[k, 0], directions[k, 1], found, k)
+
+
+@njit(nogil=True, cache=True)
+def _fill_rows(occluded, index, found, out, start, stop):
+    """Rows ``start … stop − 1`` of the fill from the nearest values ``found``."""
+    width = index.shape[1]
+    n_dir = found.shape[0]
     values = np.empty(n_dir, dtype=np.float32)
-    for y in range(height):
+    for y in range(start, stop):
         for x in range(width):
             i = index[y, x]
             if i < 0:
@@ -272,6 +316,21 @@ def _fill(disparity, occluded, usable, directions, out):
                 out[y, x] = 0.5 * (values[n // 2 - 1] + values[n // 2])
 
 
+def fill_nearest(disparity: np.ndarray, occluded: np.ndarray, usable: np.ndarray,
+                 out: np.ndarray) -> None:
+    """The fill of :func:`fill_invalid` into ``out`` (a copy of ``disparity``); all
+    arrays C-contiguous.  The 8 directions' searches, then the rows, in two threads
+    (:func:`in_halves`)."""
+    index = np.empty(disparity.shape, dtype=np.int64)
+    count = _fill_index(disparity, usable, index)
+    found = np.empty((_DIRECTIONS.shape[0], count), dtype=np.float32)
+    in_halves(lambda start, stop: _nearest_directions(disparity, usable, index, _DIRECTIONS,
+                                                       found, start, stop),
+              _DIRECTIONS.shape[0], min_split=2 if count >= 4096 else _DIRECTIONS.shape[0] + 1)
+    in_halves(lambda start, stop: _fill_rows(occluded, index, found, out, start, stop),
+              disparity.shape[0])
+
+
 def fill_invalid(disparity: np.ndarray, occluded: np.ndarray, usable: np.ndarray
                  ) -> np.ndarray:
     """Fill invalid pixels from the nearest valid disparities in 8 directions.
@@ -294,9 +353,9 @@ def fill_invalid(disparity: np.ndarray, occluded: np.ndarray, usable: np.ndarray
     (H, W) float32, a filled copy (pixels no search reached stay NaN).
     """
     out = np.array(disparity, dtype=np.float32, copy=True)
-    _fill(np.ascontiguousarray(disparity, dtype=np.float32),
-          np.ascontiguousarray(occluded, dtype=np.bool_),
-          np.ascontiguousarray(usable, dtype=np.bool_), _DIRECTIONS, out)
+    fill_nearest(np.ascontiguousarray(disparity, dtype=np.float32),
+                 np.ascontiguousarray(occluded, dtype=np.bool_),
+                 np.ascontiguousarray(usable, dtype=np.bool_), out)
     return out
 
 
@@ -394,10 +453,11 @@ def _median_of_nine(disparity, y, x):
 
 
 @njit(nogil=True, cache=True)
-def _median(disparity, radius, out):
+def _median(disparity, radius, out, start, stop):
+    """Rows ``start … stop − 1`` of the NaN-aware median (see :func:`median_filter`)."""
     height, width = disparity.shape
     window = np.empty((2 * radius + 1) ** 2, dtype=np.float32)
-    for y in range(height):
+    for y in range(start, stop):
         for x in range(width):
             if not np.isfinite(disparity[y, x]):
                 out[y, x] = np.nan
@@ -443,7 +503,9 @@ def median_filter(disparity: np.ndarray, size: int) -> np.ndarray:
     if size % 2 == 0:
         raise ValueError(f"median size must be odd, got {size}")
     out = np.empty(disparity.shape, dtype=np.float32)
-    _median(np.ascontiguousarray(disparity, dtype=np.float32), size // 2, out)
+    source = np.ascontiguousarray(disparity, dtype=np.float32)
+    in_halves(lambda start, stop: _median(source, size // 2, out, start, stop),
+              source.shape[0])
     return out
 
 

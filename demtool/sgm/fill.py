@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from demtool.sgm.disparity import _DIRECTIONS, _fill
+from demtool.sgm.disparity import fill_nearest, in_halves
 
 INVALID = 0  # no disparity (NaN in the output)
 MATCHED = 1  # passed the left–right check and the filters
@@ -38,11 +38,12 @@ CLASS_NAMES = {INVALID: "invalid", MATCHED: "matched", FILLED_OCCLUSION: "filled
 
 
 @njit(nogil=True, cache=True)
-def _epipolar_occlusions(disparity, occluded, touched, usable, out):
-    """Per row, each run of invalid pixels that holds an occluded one: its first
-    ``jump`` pixels are occluded, jump = d(right end) − d(left end) of the run."""
-    height, width = disparity.shape
-    for y in range(height):
+def _epipolar_occlusions(disparity, occluded, touched, usable, out, start, stop):
+    """Per row (``start … stop − 1``), each run of invalid pixels that holds an occluded
+    one: its first ``jump`` pixels are occluded, jump = d(right end) − d(left end) of
+    the run."""
+    width = disparity.shape[1]
+    for y in range(start, stop):
         x = 0
         while x < width:
             if not usable[y, x] or np.isfinite(disparity[y, x]):
@@ -70,13 +71,14 @@ def _epipolar_occlusions(disparity, occluded, touched, usable, out):
 
 
 @njit(nogil=True, cache=True)
-def _unfatten(disparity, occluded, usable, out, marked):
-    """Per row: after the last visible background pixel (disparity d_b) an occlusion is
-    d_f − d_b pixels wide, d_f the foreground's; matched pixels inside that band, past
-    an invalid run that holds an occluded pixel, are the foreground fattened into the
-    occlusion: NaN in ``out``, True in ``marked``."""
-    height, width = disparity.shape
-    for y in range(height):
+def _unfatten(disparity, occluded, usable, out, marked, start, stop):
+    """Per row (``start … stop − 1``): after the last visible background pixel
+    (disparity d_b) an occlusion is d_f − d_b pixels wide, d_f the foreground's;
+    matched pixels inside that band, past an invalid run that holds an occluded pixel,
+    are the foreground fattened into the occlusion: NaN in ``out``, True in
+    ``marked``."""
+    width = disparity.shape[1]
+    for y in range(start, stop):
         x = 0
         while x < width:
             if not (usable[y, x] and not np.isfinite(disparity[y, x])):
@@ -118,7 +120,9 @@ def occluded_regions(disparity: np.ndarray, invalid: np.ndarray, occluded: np.nd
     touched = np.zeros(invalid.shape, dtype=np.bool_)
     _grow_regions(invalid, seeds, touched)
     out = np.zeros(invalid.shape, dtype=np.bool_)
-    _epipolar_occlusions(disparity, seeds, touched, invalid | np.isfinite(disparity), out)
+    usable = invalid | np.isfinite(disparity)
+    in_halves(lambda start, stop: _epipolar_occlusions(disparity, seeds, touched, usable, out,
+                                                       start, stop), invalid.shape[0])
     return out
 
 
@@ -176,16 +180,17 @@ def fill_classified(disparity: np.ndarray, occluded: np.ndarray, usable: np.ndar
     disparity = np.ascontiguousarray(disparity, dtype=np.float32)
     thin = disparity.copy()  # the foreground fattened into occlusions: refilled
     marked = np.zeros(disparity.shape, dtype=np.bool_)
-    _unfatten(disparity, np.ascontiguousarray(occluded & ~np.isfinite(disparity)),
-              np.ascontiguousarray(usable, dtype=np.bool_), thin, marked)
+    seeds = np.ascontiguousarray(occluded & ~np.isfinite(disparity))
+    usable = np.ascontiguousarray(usable, dtype=np.bool_)
+    in_halves(lambda start, stop: _unfatten(disparity, seeds, usable, thin, marked, start, stop),
+              disparity.shape[0])
     disparity = thin
     occluded = occluded | marked
     matched = np.isfinite(disparity)
     invalid = usable & ~matched
     occluded_all = occluded_regions(disparity, invalid, occluded)
     out = disparity.copy()
-    _fill(disparity, occluded_all, np.ascontiguousarray(usable, dtype=np.bool_), _DIRECTIONS,
-          out)
+    fill_nearest(disparity, np.ascontiguousarray(occluded_all), usable, out)
     classes = np.full(disparity.shape, INVALID, dtype=np.uint8)
     filled = invalid & np.isfinite(out)
     classes[matched] = MATCHED

@@ -360,41 +360,92 @@ def fill_invalid(disparity: np.ndarray, occluded: np.ndarray, usable: np.ndarray
 
 
 @njit(nogil=True, cache=True)
-def _speckles(disparity, max_size, max_difference, out):
-    height, width = disparity.shape
-    label = np.zeros((height, width), dtype=np.int32)
-    stack = np.empty(height * width, dtype=np.int64)
-    members = np.empty(height * width, dtype=np.int64)
-    current = 0
-    for start in range(height * width):
-        y0, x0 = divmod(start, width)
-        if label[y0, x0] != 0 or not np.isfinite(disparity[y0, x0]):
+def _label_band(disparity, max_difference, label, sizes, start, stop):
+    """Number the 4-connected regions of rows ``start … stop − 1`` (not crossing the
+    band's first or last row) in ``label``, from start·W + 1 on (so two bands never
+    share a number); ``sizes[l]``: region l's pixel count."""
+    width = disparity.shape[1]
+    stack = np.empty((stop - start) * width, dtype=np.int64)
+    current = start * width
+    for y0 in range(start, stop):
+        for x0 in range(width):
+            if label[y0, x0] != 0 or not np.isfinite(disparity[y0, x0]):
+                continue
+            current += 1
+            label[y0, x0] = current
+            top = 0
+            stack[0] = y0 * width + x0
+            count = 0
+            while top >= 0:
+                index = stack[top]
+                top -= 1
+                count += 1
+                y, x = divmod(index, width)
+                value = disparity[y, x]
+                for n in range(4):
+                    yy = y + (1 if n == 0 else -1 if n == 1 else 0)
+                    xx = x + (1 if n == 2 else -1 if n == 3 else 0)
+                    if yy < start or yy >= stop or xx < 0 or xx >= width or label[yy, xx] != 0:
+                        continue
+                    other = disparity[yy, xx]
+                    if np.isfinite(other) and abs(other - value) <= max_difference:
+                        label[yy, xx] = current
+                        top += 1
+                        stack[top] = yy * width + xx
+            sizes[current] = count
+
+
+@njit(nogil=True, cache=True)
+def _root(parent, node):
+    while parent[node] != node:
+        node = parent[node]
+    return node
+
+
+@njit(nogil=True, cache=True)
+def _join_bands(disparity, max_difference, label, sizes, parent, joined, row):
+    """Merge the regions that meet across rows ``row − 1`` and ``row`` (the edge of two
+    bands of :func:`_label_band`): union–find over the labels on those rows
+    (``joined[l]`` marks them, ``parent`` their tree); each root's ``sizes`` becomes
+    its merged region's count."""
+    width = disparity.shape[1]
+    for x in range(width):
+        for y in (row - 1, row):
+            node = label[y, x]
+            if node > 0 and not joined[node]:
+                joined[node] = True
+                parent[node] = node
+    for x in range(width):
+        above, below = label[row - 1, x], label[row, x]
+        if above == 0 or below == 0:
             continue
-        current += 1
-        label[y0, x0] = current
-        top = 0
-        stack[0] = start
-        count = 0
-        while top >= 0:
-            index = stack[top]
-            top -= 1
-            members[count] = index
-            count += 1
-            y, x = divmod(index, width)
-            value = disparity[y, x]
-            for n in range(4):
-                yy = y + (1 if n == 0 else -1 if n == 1 else 0)
-                xx = x + (1 if n == 2 else -1 if n == 3 else 0)
-                if yy < 0 or yy >= height or xx < 0 or xx >= width or label[yy, xx] != 0:
-                    continue
-                other = disparity[yy, xx]
-                if np.isfinite(other) and abs(other - value) <= max_difference:
-                    label[yy, xx] = current
-                    top += 1
-                    stack[top] = yy * width + xx
-        if count < max_size:
-            for j in range(count):
-                y, x = divmod(members[j], width)
+        if abs(disparity[row, x] - disparity[row - 1, x]) <= max_difference:
+            a, b = _root(parent, above), _root(parent, below)
+            if a != b:
+                parent[max(a, b)] = min(a, b)
+    for x in range(width):  # move each label's count to its root, once
+        for y in (row - 1, row):
+            node = label[y, x]
+            if node > 0 and joined[node]:
+                root = _root(parent, node)
+                if root != node and sizes[node] >= 0:
+                    sizes[root] += sizes[node]
+                    sizes[node] = -1  # counted
+
+
+@njit(nogil=True, cache=True)
+def _drop_small(label, sizes, parent, joined, max_size, out, start, stop):
+    """NaN in rows ``start … stop − 1`` of ``out`` where the pixel's region (merged
+    across bands: :func:`_join_bands`) has fewer than ``max_size`` pixels."""
+    width = label.shape[1]
+    for y in range(start, stop):
+        for x in range(width):
+            node = label[y, x]
+            if node == 0:
+                continue
+            if joined[node]:
+                node = _root(parent, node)
+            if sizes[node] < max_size:
                 out[y, x] = np.nan
 
 
@@ -404,6 +455,8 @@ def remove_speckles(disparity: np.ndarray, *, max_size: int, max_difference: flo
 
     Regions are 4-connected sets of valid pixels whose neighbours differ by at most
     ``max_difference`` pixels; those with fewer than ``max_size`` pixels become NaN.
+    Two halves of the rows are labelled in two threads and the regions that meet at
+    their edge merged (union–find), which gives the regions of one labelling.
 
     Parameters
     ----------
@@ -416,9 +469,26 @@ def remove_speckles(disparity: np.ndarray, *, max_size: int, max_difference: flo
     (H, W) float32, a filtered copy.
     """
     out = np.array(disparity, dtype=np.float32, copy=True)
-    if max_size > 0:
-        _speckles(np.ascontiguousarray(disparity, dtype=np.float32), int(max_size),
-                  float(max_difference), out)
+    if max_size <= 0:
+        return out
+    source = np.ascontiguousarray(disparity, dtype=np.float32)
+    height, width = source.shape
+    label = np.zeros(source.shape, dtype=np.int32 if height * width < 2 ** 31 else np.int64)
+    sizes = np.empty(height * width + 1, dtype=np.int64)
+    starts: list[int] = []  # the bands labelled (two in two threads, else one)
+
+    def band(start: int, stop: int) -> None:
+        _label_band(source, float(max_difference), label, sizes, start, stop)
+        starts.append(start)
+
+    in_halves(band, height)
+    parent = np.empty(height * width + 1, dtype=np.int64)
+    joined = np.zeros(height * width + 1, dtype=np.bool_)
+    for start in starts:
+        if start > 0:
+            _join_bands(source, float(max_difference), label, sizes, parent, joined, start)
+    in_halves(lambda start, stop: _drop_small(label, sizes, parent, joined, int(max_size), out,
+                                              start, stop), height)
     return out
 
 

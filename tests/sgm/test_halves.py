@@ -96,3 +96,19 @@ def test_the_column_pass_on_views_equals_the_row_pass_on_the_transpose():
     assert _same(by_views, np.ascontiguousarray(by_copy.T))
     assert _same(moved_views, np.ascontiguousarray(moved_copy.T))
     assert moved_views.any()
+
+
+@pytest.mark.parametrize("split", [2, 10 ** 9])
+def test_a_speckle_region_cut_by_the_halves_is_counted_whole(monkeypatch, split):
+    monkeypatch.setattr(disparity, "MIN_SPLIT_ROWS", split)
+    field = np.full((80, 30), np.nan, dtype=np.float32)
+    field[34:46, 5] = 7.0  # 12 px across rows 39 | 40 (the halves' edge): kept
+    field[36:44, 10] = 9.0  # 8 px across the edge: removed
+    steps = np.linspace(3.0, 8.5, 24, dtype=np.float32).reshape(12, 2)  # 0.5 px steps
+    field[34:46, 15:17] = steps  # one region of 24 across the edge: kept
+    field[38, 20], field[39, 20:26], field[40, 25] = 4.0, 4.0, 30.0  # the last pixel jumps: 7 + 1
+    cleaned = remove_speckles(field, max_size=10, max_difference=1.0)
+    assert np.isfinite(cleaned[34:46, 5]).all()
+    assert np.isnan(cleaned[:, 10]).all()
+    assert np.isfinite(cleaned[34:46, 15:17]).all()
+    assert np.isnan(cleaned[38:41, 20:26]).all()

@@ -12,6 +12,8 @@ from demtool.stagerun import StageRun, check_stereo_pair, sidecar_path
 if TYPE_CHECKING:
     from demtool.sgm.params import SgmParams
 
+PAIR_WHAT = ("left rectified image", "right rectified image")
+
 
 def disparity_range_from_rectify(path: str | os.PathLike) -> tuple[int, int]:
     """(min_disparity, num_disparities) covering ``disparity_range`` of a rectify.npz."""
@@ -100,8 +102,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
         source = f"--prior-dem {prior_dem} ± {params.prior_search} px"
     if min_disparity is None or num_disparities is None:
         if rectify is None and ortho:  # the range from the orthoimages' matches
-            left = dio.read_raster(left_path, what="left rectified image")
-            right = dio.read_raster(right_path, what="right rectified image")
+            left, right = dio.read_raster_pair(left_path, right_path, what=PAIR_WHAT)
             from_file, source, ortho_stats = ortho_pair_range(left, right)
             min_disparity = from_file[0] if min_disparity is None else min_disparity
             num_disparities = from_file[1] if num_disparities is None else num_disparities
@@ -155,8 +156,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
                          min_disparity=min_disparity, num_disparities=num_disparities,
                          confidence=confidence, rectify=rectify)
     if left is None:
-        left = dio.read_raster(left_path, what="left rectified image")
-        right = dio.read_raster(right_path, what="right rectified image")
+        left, right = dio.read_raster_pair(left_path, right_path, what=PAIR_WHAT)
     check_stereo_pair(left, right, rectify)
     right_data, prior, summary_prior = right.data, None, {}
     if prior_dem is not None:

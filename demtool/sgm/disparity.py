@@ -11,6 +11,7 @@ float32 pixels, NaN = invalid.
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Callable
 
 import numpy as np
@@ -193,6 +194,22 @@ def select_disparities(total: np.ndarray, *, min_disparity: int, left_valid: np.
 
 #: Fewest rows (or directions' pixels) worth a second thread in :func:`in_halves`.
 MIN_SPLIT_ROWS = 64
+_HELPER: dict[int, object] = {}  # process id -> the one-thread pool of in_halves
+_HELPER_LOCK = threading.Lock()
+
+
+def _helper_pool():
+    """The thread that runs the second halves: started once per process (a new one
+    after a fork, whose child has no threads), not once per call (~1.5 ms each here)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with _HELPER_LOCK:
+        pool = _HELPER.get(os.getpid())
+        if pool is None:
+            _HELPER.clear()
+            pool = _HELPER[os.getpid()] = ThreadPoolExecutor(
+                max_workers=1, thread_name_prefix="demtool-halves")
+    return pool
 
 
 def in_halves(work: Callable[[int, int], object], count: int,
@@ -202,19 +219,19 @@ def in_halves(work: Callable[[int, int], object], count: int,
     For the per-row (or per-direction) post-processing kernels, which release the GIL
     (numba ``nogil``): each half writes only its own rows, so the result is the one
     thread's, bit for bit.  One call ``work(0, count)`` when there is one core or fewer
-    than ``min_split`` items (default :data:`MIN_SPLIT_ROWS`).
+    than ``min_split`` items (default :data:`MIN_SPLIT_ROWS`).  ``work`` must not call
+    :func:`in_halves` itself (the second halves share one thread).
     """
     min_split = MIN_SPLIT_ROWS if min_split is None else min_split
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     if count < min_split or (cores or 1) < 2:
         work(0, count)
         return
-    from concurrent.futures import ThreadPoolExecutor
-
     middle = count // 2
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        future = pool.submit(work, middle, count)
+    future = _helper_pool().submit(work, middle, count)
+    try:
         work(0, middle)
+    finally:
         future.result()
 
 
@@ -408,7 +425,7 @@ def _join_bands(disparity, max_difference, label, sizes, parent, joined, row):
     bands of :func:`_label_band`): union–find over the labels on those rows
     (``joined[l]`` marks them, ``parent`` their tree); each root's ``sizes`` becomes
     its merged region's count."""
-    width = disparity.shape[1]
+    width = disparity.shape[1] if row > 0 else 0
     for x in range(width):
         for y in (row - 1, row):
             node = label[y, x]
@@ -484,9 +501,8 @@ def remove_speckles(disparity: np.ndarray, *, max_size: int, max_difference: flo
     in_halves(band, height)
     parent = np.empty(height * width + 1, dtype=np.int64)
     joined = np.zeros(height * width + 1, dtype=np.bool_)
-    for start in starts:
-        if start > 0:
-            _join_bands(source, float(max_difference), label, sizes, parent, joined, start)
+    for start in starts:  # (row 0: nothing to join; called anyway, so warm compiles it)
+        _join_bands(source, float(max_difference), label, sizes, parent, joined, start)
     in_halves(lambda start, stop: _drop_small(label, sizes, parent, joined, int(max_size), out,
                                               start, stop), height)
     return out

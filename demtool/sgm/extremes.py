@@ -163,7 +163,8 @@ def percentiles(values: np.ndarray, q: tuple[float, ...]) -> np.ndarray:
     it, and only those are partitioned.  numpy's interpolation is then applied to the
     same two order statistics with the same weights (``_lerp`` of
     ``numpy/lib/_function_base_impl.py``: a + (b − a)·γ, or b − (b − a)·(1 − γ) for
-    γ ≥ 0.5).  Small arrays, NaN, or a bracket that misses: ``np.percentile`` itself.
+    γ ≥ 0.5).  Under 1024 values, NaN, or a bracket that misses: ``np.percentile``
+    itself.
 
     Parameters
     ----------
@@ -176,7 +177,7 @@ def percentiles(values: np.ndarray, q: tuple[float, ...]) -> np.ndarray:
     """
     values = np.ascontiguousarray(values).ravel()
     n = values.size
-    if n < 1 << 16 or values.dtype.kind != "f":
+    if n < 1024 or values.dtype.kind != "f":  # (warm's small images reach the kernel)
         return np.percentile(values, q)
     quantiles = np.true_divide(q, 100)
     virtual = (n - 1) * quantiles  # numpy's "linear" virtual index

@@ -46,6 +46,7 @@ def test_percentiles_are_numpys_bit_for_bit():
                rng.integers(0, 40, size=150_000).astype(np.float32),  # many ties
                np.exp(5.0 * rng.normal(size=100_001)),  # float64, heavy tail
                np.concatenate([np.full(90_000, 3.0), rng.normal(size=9_000)]),  # a plateau
+               rng.normal(size=5000).astype(np.float32),  # the sample is all of it
                rng.normal(size=1000).astype(np.float32)]  # small: numpy itself
     for values in samples:
         for q in [(0.5, 99.5), (1.0, 50.0, 99.0), (0.0, 100.0), (37.3,), (99.99, 0.01)]:

@@ -10,6 +10,7 @@ from demtool.sgm import disparity, edges
 from demtool.sgm.disparity import fill_invalid, in_halves, median_filter, remove_speckles
 from demtool.sgm.edges import snap_edges
 from demtool.sgm.fill import fill_classified
+from demtool.sgm.noise import noise_sigma
 
 
 def _scene(seed: int = 3, shape: tuple[int, int] = (131, 97)):
@@ -112,3 +113,16 @@ def test_a_speckle_region_cut_by_the_halves_is_counted_whole(monkeypatch, split)
     assert np.isnan(cleaned[:, 10]).all()
     assert np.isfinite(cleaned[34:46, 15:17]).all()
     assert np.isnan(cleaned[38:41, 20:26]).all()
+
+
+def test_the_noise_histogram_of_two_halves_is_the_whole_images(monkeypatch):
+    rng = np.random.default_rng(4)
+    image = np.clip(100 + 40 * np.sin(np.arange(97) / 9.0)[None, :]
+                    + rng.normal(0, 4, (131, 97)), 0, 255).astype(np.uint8)
+    valid = rng.random(image.shape) > 0.05
+    monkeypatch.setattr(disparity, "MIN_SPLIT_ROWS", 10 ** 9)
+    single = noise_sigma(image, valid)
+    monkeypatch.setattr(disparity, "MIN_SPLIT_ROWS", 2)
+    split = noise_sigma(image, valid)
+    assert split == single
+    assert 3.0 < single < 5.5  # σ = 4 grey levels (rounded to integers)

@@ -509,14 +509,9 @@ def remove_speckles(disparity: np.ndarray, *, max_size: int, max_difference: flo
 
 
 @njit(nogil=True, cache=True)
-def _median_of_nine(disparity, y, x):
-    """Median of the 3×3 neighbourhood by a 19-exchange sorting network (Paeth 1990,
-    Graphics Gems), or NaN when a value in it is not finite."""
-    p0, p1, p2 = disparity[y - 1, x - 1], disparity[y - 1, x], disparity[y - 1, x + 1]
-    p3, p4, p5 = disparity[y, x - 1], disparity[y, x], disparity[y, x + 1]
-    p6, p7, p8 = disparity[y + 1, x - 1], disparity[y + 1, x], disparity[y + 1, x + 1]
-    if not np.isfinite(p0 + p1 + p2 + p3 + p4 + p5 + p6 + p7 + p8):
-        return np.float32(np.nan)
+def _network_of_nine(p0, p1, p2, p3, p4, p5, p6, p7, p8):
+    """Median of nine finite values by a 19-exchange sorting network (Paeth 1990,
+    Graphics Gems)."""
     p1, p2 = min(p1, p2), max(p1, p2)
     p4, p5 = min(p4, p5), max(p4, p5)
     p7, p8 = min(p7, p8), max(p7, p8)
@@ -539,20 +534,38 @@ def _median_of_nine(disparity, y, x):
 
 
 @njit(nogil=True, cache=True)
+def _nine_row(disparity, y, out):
+    """``out[x]`` (x = 1 … W − 2): the median of the 3×3 window around (y, x) when all
+    nine values are finite, else NaN — one branch-free loop over the row, so it
+    vectorises (8 pixels per AVX2 instruction)."""
+    width = disparity.shape[1]
+    above, row, below = disparity[y - 1], disparity[y], disparity[y + 1]
+    for x in range(1, width - 1):
+        p0, p1, p2 = above[x - 1], above[x], above[x + 1]
+        p3, p4, p5 = row[x - 1], row[x], row[x + 1]
+        p6, p7, p8 = below[x - 1], below[x], below[x + 1]
+        median = _network_of_nine(p0, p1, p2, p3, p4, p5, p6, p7, p8)
+        total = p0 + p1 + p2 + p3 + p4 + p5 + p6 + p7 + p8
+        out[x] = median if np.isfinite(total) else np.float32(np.nan)
+
+
+@njit(nogil=True, cache=True)
 def _median(disparity, radius, out, start, stop):
     """Rows ``start … stop − 1`` of the NaN-aware median (see :func:`median_filter`)."""
     height, width = disparity.shape
     window = np.empty((2 * radius + 1) ** 2, dtype=np.float32)
+    nine = np.full(width, np.nan, dtype=np.float32)
     for y in range(start, stop):
+        fast = radius == 1 and 0 < y < height - 1
+        if fast:
+            _nine_row(disparity, y, nine)
         for x in range(width):
             if not np.isfinite(disparity[y, x]):
                 out[y, x] = np.nan
                 continue
-            if radius == 1 and 0 < y < height - 1 and 0 < x < width - 1:
-                value = _median_of_nine(disparity, y, x)
-                if np.isfinite(value):  # all nine valid
-                    out[y, x] = value
-                    continue
+            if fast and 0 < x < width - 1 and np.isfinite(nine[x]):  # all nine valid
+                out[y, x] = nine[x]
+                continue
             count = 0
             for yy in range(max(y - radius, 0), min(y + radius + 1, height)):
                 for xx in range(max(x - radius, 0), min(x + radius + 1, width)):

@@ -126,3 +126,18 @@ def test_the_noise_histogram_of_two_halves_is_the_whole_images(monkeypatch):
     split = noise_sigma(image, valid)
     assert split == single
     assert 3.0 < single < 5.5  # σ = 4 grey levels (rounded to integers)
+
+
+def test_the_vectorised_median_of_nine_is_the_windows_median_exactly():
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    rng = np.random.default_rng(8)
+    values = np.round(rng.normal(size=(70, 83)) * 4, 1).astype(np.float32)  # with ties
+    values[rng.random(values.shape) < 0.03] = np.nan
+    filtered = median_filter(values, 3)[1:-1, 1:-1]
+    windows = sliding_window_view(values, (3, 3)).reshape(68, 81, 9)
+    whole = np.isfinite(windows).all(axis=2)
+    assert whole.mean() > 0.5
+    assert np.array_equal(filtered[whole], np.median(windows[whole], axis=1))
+    partial = ~whole & np.isfinite(values[1:-1, 1:-1])
+    assert np.array_equal(filtered[partial], np.nanmedian(windows[partial], axis=1))

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from demtool.sgm import disparity, edges
-from demtool.sgm.disparity import fill_invalid, in_halves, median_filter, remove_speckles
+from demtool.sgm.disparity import in_halves, median_filter, remove_speckles
 from demtool.sgm.edges import snap_edges
-from demtool.sgm.fill import fill_classified
+from demtool.sgm.fill import fill_classified, fill_invalid
 from demtool.sgm.noise import noise_sigma
 
 

@@ -38,39 +38,27 @@ def ortho_pair_range(left, right) -> tuple[tuple[int, int], str, dict[str, Any]]
     return (min_disparity, math.ceil(found.high) - min_disparity + 1), source, stats
 
 
-def _load_kernels(options: dict[str, Any]) -> None:
+def _first_kernel() -> None:
     import numpy as np
 
-    from demtool.sgm import sgm
+    from demtool.sgm.extremes import percentiles
 
-    if options.get("cost") not in ("census", "auto"):  # numba's start alone
-        from demtool.sgm.extremes import percentiles
-
-        percentiles(np.arange(1024, dtype=np.float32), (0.5, 99.5))
-        return
-    # a census match of a small random pair calls every kernel a census match calls
-    # (auto's census pass too), with the same census window and path count
-    left = np.random.default_rng(0).random((48, 64)).astype(np.float32)
-    try:
-        sgm(left, np.roll(left, -2, axis=1), min_disparity=0, num_disparities=16,
-            **{**options, "cost": "census", "workers": 1})
-    except Exception:  # bad options: the run itself says what is wrong, once
-        return
+    percentiles(np.arange(1024, dtype=np.float32), (0.5, 99.5))
 
 
-def start_numba(options: dict[str, Any]):
-    """Load numba's CPU target and the matcher's kernels from the cache in a thread
-    (numba's first kernel call in a process takes ~0.3 s, a census match's kernels
-    ~0.07 s more, part of it in LLVM without the GIL); returns the thread.
+def start_numba():
+    """Start numba's CPU target (its first kernel call in a process: ~0.3 s, part of it
+    in LLVM without the GIL) in a thread; returns the thread.
 
     The pair's reads (GDAL) and texture checks (numpy) run meanwhile: 2048² census,
-    quiet machine, best of 4-5 alternated: prepare 0.39 -> 0.10 s, wall 2.59 -> 2.40 s
-    (numba's start alone), 2.40 -> 2.32 s (and the kernels).
+    quiet machine, best of 4 alternated: the sidecar's prepare 0.39 -> 0.11 s, wall
+    2.59 -> 2.40 s.  (Loading all of a census match's kernels there too, by matching a
+    small random pair, saved another 0.07 s but raised the peak memory by 31 MB: the
+    thread's own malloc arena.)
     """
     import threading
 
-    loading = threading.Thread(target=_load_kernels, args=(options,), name="demtool-numba",
-                               daemon=True)
+    loading = threading.Thread(target=_first_kernel, name="demtool-numba", daemon=True)
     loading.start()
     return loading
 
@@ -192,7 +180,7 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
         return sgm_tiled(run, left_path, right_path, out, params, shape, source=source,
                          min_disparity=min_disparity, num_disparities=num_disparities,
                          confidence=confidence, rectify=rectify)
-    loading = start_numba(sgm_options)  # meanwhile: the pair is read and checked
+    loading = start_numba()  # meanwhile: the pair is read and checked
     if left is None:
         left, right = dio.read_raster_pair(left_path, right_path, what=PAIR_WHAT)
     check_stereo_pair(left, right, rectify)

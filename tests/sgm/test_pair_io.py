@@ -41,16 +41,13 @@ def test_an_error_names_the_first_file_that_fails(tmp_path, missing):
         dio.read_raster_pair(tmp_path / "ok.tif", first, what=("left image", "right image"))
 
 
-@pytest.mark.parametrize("options", [{"cost": "census", "paths": 8},
-                                     {"cost": "census", "paths": 7},  # refused by sgm
-                                     {"cost": "ad"}])
-def test_the_kernels_load_in_a_thread_that_never_raises(options, monkeypatch):
+def test_numba_starts_in_a_thread_that_ends(monkeypatch):
     import threading
 
     from demtool.sgm.run import start_numba
 
     raised = []
     monkeypatch.setattr(threading, "excepthook", raised.append)
-    loading = start_numba(options)
+    loading = start_numba()
     loading.join(timeout=120)
     assert not loading.is_alive() and raised == []

@@ -28,31 +28,30 @@ from demtool.sgm.disparity import in_halves
 
 
 @njit(cache=True, nogil=True)
-def _max_along_columns(values, radius, out, start, stop):
+def _max_along_columns(values, radius, out, prefix, suffix, start, stop):
     """out[y, x] = max of values[y − r … y + r, x] (rows clipped to the image), for
-    the columns ``start … stop − 1``."""
+    the columns ``start … stop − 1``; ``prefix``, ``suffix`` (H + 2r, W) scratch
+    (allocated by the caller: scratch numba allocates in a second thread stays in that
+    thread's malloc arena, and in the process's peak memory)."""
     height = values.shape[0]
-    width = stop - start
     size = 2 * radius + 1
     n = height + 2 * radius  # the rows padded with −inf at both ends
-    prefix = np.empty((n, width), dtype=values.dtype)
-    suffix = np.empty((n, width), dtype=values.dtype)
     low = -np.inf
     for j in range(n):
         y = j - radius
         first = j % size == 0
-        for x in range(width):
-            v = values[y, start + x] if 0 <= y < height else low
+        for x in range(start, stop):
+            v = values[y, x] if 0 <= y < height else low
             prefix[j, x] = v if first else max(prefix[j - 1, x], v)
     for j in range(n - 1, -1, -1):
         y = j - radius
         last = j % size == size - 1 or j == n - 1
-        for x in range(width):
-            v = values[y, start + x] if 0 <= y < height else low
+        for x in range(start, stop):
+            v = values[y, x] if 0 <= y < height else low
             suffix[j, x] = v if last else max(suffix[j + 1, x], v)
     for y in range(height):
-        for x in range(width):
-            out[y, start + x] = max(suffix[y, x], prefix[y + 2 * radius, x])
+        for x in range(start, stop):
+            out[y, x] = max(suffix[y, x], prefix[y + 2 * radius, x])
 
 
 @njit(cache=True, nogil=True)
@@ -87,7 +86,9 @@ def box_max(values: np.ndarray, radius: int) -> np.ndarray:
         values = values.astype(np.float32, copy=False)
     radius = int(radius)
     columns = np.empty_like(values)  # each pass in two threads, over halves of the image
-    in_halves(lambda start, stop: _max_along_columns(values, radius, columns, start, stop),
+    scratch = np.empty((2, values.shape[0] + 2 * radius, values.shape[1]), dtype=values.dtype)
+    in_halves(lambda start, stop: _max_along_columns(values, radius, columns, scratch[0],
+                                                     scratch[1], start, stop),
               values.shape[1])
     out = np.empty_like(values)
     in_halves(lambda start, stop: _max_along_rows(columns, radius, out, start, stop),

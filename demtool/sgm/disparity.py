@@ -2,13 +2,19 @@
 
 Winner-takes-all on the aggregated cost S, sub-pixel interpolation, the right
 image's disparity from the same S (diagonal search, Hirschmüller 2008 §3.1.4), the
-left–right consistency check, speckle removal and a NaN-aware median filter.
+left–right consistency check, speckle removal and a NaN-aware median filter (the fill
+of invalid pixels: :mod:`demtool.sgm.fill`), and :func:`in_halves`, which runs the
+post-processing kernels in two threads.
 
 Disparity convention: ``x_right = x_left − d`` in the left image's pixel frame,
 float32 pixels, NaN = invalid.
 """
 
 from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Callable
 
 import numpy as np
 from numba import njit
@@ -188,155 +194,156 @@ def select_disparities(total: np.ndarray, *, min_disparity: int, left_valid: np.
     return disparity, confidence
 
 
-_DIRECTIONS = np.array([[0, 1], [0, -1], [1, 0], [-1, 0], [1, 1], [1, -1], [-1, 1], [-1, -1]],
-                       dtype=np.int64)
+#: Fewest rows (or directions' pixels) worth a second thread in :func:`in_halves`.
+MIN_SPLIT_ROWS = 64
+_HELPER: dict[int, object] = {}  # process id -> the one-thread pool of in_halves
+_HELPER_LOCK = threading.Lock()
 
 
-@njit(nogil=True, cache=True)
-def _nearest_along(disparity, usable, index, dy, dx, found, k):
-    """found[k, index[y, x]] = the first valid disparity at (y, x) + t (dy, dx), t ≥ 1.
+def _helper_pool():
+    """The thread that runs the second halves: started once per process (a new one
+    after a fork, whose child has no threads), not once per call (~1.5 ms each here)."""
+    from concurrent.futures import ThreadPoolExecutor
 
-    One pass from the far end, carrying per column the nearest valid value at or
-    beyond each pixel (NaN past a pixel outside ``usable``): O(H W) per direction.
+    with _HELPER_LOCK:
+        pool = _HELPER.get(os.getpid())
+        if pool is None:
+            _HELPER.clear()
+            pool = _HELPER[os.getpid()] = ThreadPoolExecutor(
+                max_workers=1, thread_name_prefix="demtool-halves")
+    return pool
+
+
+def in_halves(work: Callable[[int, int], object], count: int,
+              min_split: int | None = None) -> None:
+    """Run ``work(start, stop)`` over ``0 … count`` in two halves on two threads.
+
+    For the per-row (or per-direction) post-processing kernels, which release the GIL
+    (numba ``nogil``): each half writes only its own rows, so the result is the one
+    thread's, bit for bit.  One call ``work(0, count)`` when there is one core or fewer
+    than ``min_split`` items (default :data:`MIN_SPLIT_ROWS`).  ``work`` must not call
+    :func:`in_halves` itself (the second halves share one thread).
     """
-    height, width = disparity.shape
-    carry = np.full(width, np.nan, dtype=np.float32)
-    new = np.full(width, np.nan, dtype=np.float32)
-    first, last, step = (height - 1, -1, -1) if dy > 0 else (0, height, 1)
-    for y in range(first, last, step):
-        if dy == 0:  # along the row, from its far end
-            ahead = np.float32(np.nan)
-            x0, x1, sx = (width - 1, -1, -1) if dx > 0 else (0, width, 1)
-            for x in range(x0, x1, sx):
-                if index[y, x] >= 0:
-                    found[k, index[y, x]] = ahead
-                value = disparity[y, x]
-                if not usable[y, x]:
-                    ahead = np.float32(np.nan)
-                elif np.isfinite(value):
-                    ahead = value
-            continue
-        for x in range(width):
-            xx = x + dx
-            ahead = carry[xx] if 0 <= xx < width else np.float32(np.nan)
-            if index[y, x] >= 0:
-                found[k, index[y, x]] = ahead
-            value = disparity[y, x]
-            if not usable[y, x]:
-                new[x] = np.nan
-            elif np.isfinite(value):
-                new[x] = value
-            else:
-                new[x] = ahead
-        for x in range(width):
-            carry[x] = new[x]
+    min_split = MIN_SPLIT_ROWS if min_split is None else min_split
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    if count < min_split or (cores or 1) < 2:
+        work(0, count)
+        return
+    middle = count // 2
+    future = _helper_pool().submit(work, middle, count)
+    try:
+        work(0, middle)
+    finally:
+        future.result()
 
 
 @njit(nogil=True, cache=True)
-def _fill(disparity, occluded, usable, directions, out):
-    height, width = disparity.shape
-    index = np.full((height, width), -1, dtype=np.int64)
-    count = 0
-    for y in range(height):
-        for x in range(width):
-            if usable[y, x] and not np.isfinite(disparity[y, x]):
-                index[y, x] = count
+def _label_band(disparity, max_difference, label, sizes, stack, start, stop):
+    """Number the 4-connected regions of rows ``start … stop − 1`` (not crossing the
+    band's first or last row) in ``label``, from start·W + 1 on (so two bands never
+    share a number); ``sizes[l]``: region l's pixel count; ``stack``: scratch of
+    (stop − start)·W, from the caller (see :func:`_speckle_stage`)."""
+    width = disparity.shape[1]
+    current = start * width
+    for y0 in range(start, stop):
+        for x0 in range(width):
+            if label[y0, x0] != 0 or not np.isfinite(disparity[y0, x0]):
+                continue
+            current += 1
+            label[y0, x0] = current
+            top = 0
+            stack[0] = y0 * width + x0
+            count = 0
+            while top >= 0:
+                index = stack[top]
+                top -= 1
                 count += 1
-    n_dir = directions.shape[0]
-    found = np.empty((n_dir, count), dtype=np.float32)
-    for k in range(n_dir):
-        _nearest_along(disparity, usable, index, directions[k, 0], directions[k, 1], found, k)
-    values = np.empty(n_dir, dtype=np.float32)
-    for y in range(height):
-        for x in range(width):
-            i = index[y, x]
-            if i < 0:
-                continue
-            n = 0
-            for k in range(n_dir):
-                value = found[k, i]
-                if np.isfinite(value):  # insertion sort
-                    j = n
-                    while j > 0 and values[j - 1] > value:
-                        values[j] = values[j - 1]
-                        j -= 1
-                    values[j] = value
-                    n += 1
-            if n == 0:
-                continue
-            if occluded[y, x]:  # the background: the second lowest (one outlier allowed)
-                out[y, x] = values[1] if n > 2 else values[0]
-            elif n % 2 == 1:
-                out[y, x] = values[n // 2]
-            else:
-                out[y, x] = 0.5 * (values[n // 2 - 1] + values[n // 2])
-
-
-def fill_invalid(disparity: np.ndarray, occluded: np.ndarray, usable: np.ndarray
-                 ) -> np.ndarray:
-    """Fill invalid pixels from the nearest valid disparities in 8 directions.
-
-    Hirschmüller (2008), §3.1.5 (Fig. 8): an occluded pixel takes the background — the
-    second lowest of the eight disparities, so one outlier does not decide — and any
-    other invalid pixel (a mismatch) their median.  Searches stop at pixels outside
-    ``usable``, which are never filled.
-
-    Parameters
-    ----------
-    disparity : (H, W) float32, pixels, NaN = invalid
-    occluded : (H, W) bool
-        Invalid pixels that the left–right check found occluded.
-    usable : (H, W) bool
-        Pixels that may be filled and that searches may cross (the valid left image).
-
-    Returns
-    -------
-    (H, W) float32, a filled copy (pixels no search reached stay NaN).
-    """
-    out = np.array(disparity, dtype=np.float32, copy=True)
-    _fill(np.ascontiguousarray(disparity, dtype=np.float32),
-          np.ascontiguousarray(occluded, dtype=np.bool_),
-          np.ascontiguousarray(usable, dtype=np.bool_), _DIRECTIONS, out)
-    return out
+                y, x = divmod(index, width)
+                value = disparity[y, x]
+                for n in range(4):
+                    yy = y + (1 if n == 0 else -1 if n == 1 else 0)
+                    xx = x + (1 if n == 2 else -1 if n == 3 else 0)
+                    if yy < start or yy >= stop or xx < 0 or xx >= width or label[yy, xx] != 0:
+                        continue
+                    other = disparity[yy, xx]
+                    if np.isfinite(other) and abs(other - value) <= max_difference:
+                        label[yy, xx] = current
+                        top += 1
+                        stack[top] = yy * width + xx
+            sizes[current] = count
 
 
 @njit(nogil=True, cache=True)
-def _speckles(disparity, max_size, max_difference, out):
-    height, width = disparity.shape
-    label = np.zeros((height, width), dtype=np.int32)
-    stack = np.empty(height * width, dtype=np.int64)
-    members = np.empty(height * width, dtype=np.int64)
-    current = 0
-    for start in range(height * width):
-        y0, x0 = divmod(start, width)
-        if label[y0, x0] != 0 or not np.isfinite(disparity[y0, x0]):
+def _root(parent, node):
+    while parent[node] != node:
+        node = parent[node]
+    return node
+
+
+@njit(nogil=True, cache=True)
+def _join_bands(disparity, max_difference, label, sizes, parent, joined, row):
+    """Merge the regions that meet across rows ``row − 1`` and ``row`` (the edge of two
+    bands of :func:`_label_band`): union–find over the labels on those rows
+    (``joined[l]`` marks them, ``parent`` their tree); each root's ``sizes`` becomes
+    its merged region's count."""
+    width = disparity.shape[1] if row > 0 else 0
+    for x in range(width):
+        for y in (row - 1, row):
+            node = label[y, x]
+            if node > 0 and not joined[node]:
+                joined[node] = True
+                parent[node] = node
+    for x in range(width):
+        above, below = label[row - 1, x], label[row, x]
+        if above == 0 or below == 0:
             continue
-        current += 1
-        label[y0, x0] = current
-        top = 0
-        stack[0] = start
-        count = 0
-        while top >= 0:
-            index = stack[top]
-            top -= 1
-            members[count] = index
-            count += 1
-            y, x = divmod(index, width)
-            value = disparity[y, x]
-            for n in range(4):
-                yy = y + (1 if n == 0 else -1 if n == 1 else 0)
-                xx = x + (1 if n == 2 else -1 if n == 3 else 0)
-                if yy < 0 or yy >= height or xx < 0 or xx >= width or label[yy, xx] != 0:
-                    continue
-                other = disparity[yy, xx]
-                if np.isfinite(other) and abs(other - value) <= max_difference:
-                    label[yy, xx] = current
-                    top += 1
-                    stack[top] = yy * width + xx
-        if count < max_size:
-            for j in range(count):
-                y, x = divmod(members[j], width)
+        if abs(disparity[row, x] - disparity[row - 1, x]) <= max_difference:
+            a, b = _root(parent, above), _root(parent, below)
+            if a != b:
+                parent[max(a, b)] = min(a, b)
+    for x in range(width):  # move each label's count to its root, once
+        for y in (row - 1, row):
+            node = label[y, x]
+            if node > 0 and joined[node]:
+                root = _root(parent, node)
+                if root != node and sizes[node] >= 0:
+                    sizes[root] += sizes[node]
+                    sizes[node] = -1  # counted
+
+
+@njit(nogil=True, cache=True)
+def _drop_small(label, sizes, parent, joined, max_size, out, start, stop):
+    """NaN in rows ``start … stop − 1`` of ``out`` where the pixel's region (merged
+    across bands: :func:`_join_bands`) has fewer than ``max_size`` pixels."""
+    width = label.shape[1]
+    for y in range(start, stop):
+        for x in range(width):
+            node = label[y, x]
+            if node == 0:
+                continue
+            if joined[node]:
+                node = _root(parent, node)
+            if sizes[node] < max_size:
                 out[y, x] = np.nan
+
+
+@njit(nogil=True, cache=True)
+def _speckle_stage(stage, disparity, max_difference, max_size, label, sizes, parent, joined,
+                   stack, out, start, stop):
+    """One dispatcher (one cache load) for the steps of :func:`remove_speckles`: 0
+    labels the band of rows ``start … stop − 1``, 1 joins the bands meeting at row
+    ``start``, 2 drops the small regions from rows ``start … stop − 1``.  ``stack``
+    (H·W) is the labelling's scratch, allocated by the caller: what numba allocates in
+    the second thread stays in that thread's malloc arena (+16 MB of peak memory at
+    2048²)."""
+    width = disparity.shape[1]
+    if stage == 0:
+        _label_band(disparity, max_difference, label, sizes,
+                    stack[start * width:stop * width], start, stop)
+    elif stage == 1:
+        _join_bands(disparity, max_difference, label, sizes, parent, joined, start)
+    else:
+        _drop_small(label, sizes, parent, joined, max_size, out, start, stop)
 
 
 def remove_speckles(disparity: np.ndarray, *, max_size: int, max_difference: float
@@ -345,6 +352,8 @@ def remove_speckles(disparity: np.ndarray, *, max_size: int, max_difference: flo
 
     Regions are 4-connected sets of valid pixels whose neighbours differ by at most
     ``max_difference`` pixels; those with fewer than ``max_size`` pixels become NaN.
+    Two halves of the rows are labelled in two threads and the regions that meet at
+    their edge merged (union–find), which gives the regions of one labelling.
 
     Parameters
     ----------
@@ -357,21 +366,34 @@ def remove_speckles(disparity: np.ndarray, *, max_size: int, max_difference: flo
     (H, W) float32, a filtered copy.
     """
     out = np.array(disparity, dtype=np.float32, copy=True)
-    if max_size > 0:
-        _speckles(np.ascontiguousarray(disparity, dtype=np.float32), int(max_size),
-                  float(max_difference), out)
+    if max_size <= 0:
+        return out
+    source = np.ascontiguousarray(disparity, dtype=np.float32)
+    height, width = source.shape
+    label = np.zeros(source.shape, dtype=np.int32 if height * width < 2 ** 31 else np.int64)
+    sizes = np.empty(height * width + 1, dtype=np.int64)
+    parent = np.empty(height * width + 1, dtype=np.int64)
+    joined = np.zeros(height * width + 1, dtype=np.bool_)
+    starts: list[int] = []  # the bands labelled (two in two threads, else one)
+
+    stack = np.empty(height * width, dtype=np.int64)
+
+    def stage(step: int, start: int, stop: int) -> None:
+        _speckle_stage(step, source, float(max_difference), int(max_size), label, sizes,
+                       parent, joined, stack, out, start, stop)
+        starts.append(start)
+
+    in_halves(lambda start, stop: stage(0, start, stop), height)
+    for start in sorted(starts):  # (row 0: nothing to join)
+        stage(1, start, start)
+    in_halves(lambda start, stop: stage(2, start, stop), height)
     return out
 
 
 @njit(nogil=True, cache=True)
-def _median_of_nine(disparity, y, x):
-    """Median of the 3×3 neighbourhood by a 19-exchange sorting network (Paeth 1990,
-    Graphics Gems), or NaN when a value in it is not finite."""
-    p0, p1, p2 = disparity[y - 1, x - 1], disparity[y - 1, x], disparity[y - 1, x + 1]
-    p3, p4, p5 = disparity[y, x - 1], disparity[y, x], disparity[y, x + 1]
-    p6, p7, p8 = disparity[y + 1, x - 1], disparity[y + 1, x], disparity[y + 1, x + 1]
-    if not np.isfinite(p0 + p1 + p2 + p3 + p4 + p5 + p6 + p7 + p8):
-        return np.float32(np.nan)
+def _network_of_nine(p0, p1, p2, p3, p4, p5, p6, p7, p8):
+    """Median of nine finite values by a 19-exchange sorting network (Paeth 1990,
+    Graphics Gems)."""
     p1, p2 = min(p1, p2), max(p1, p2)
     p4, p5 = min(p4, p5), max(p4, p5)
     p7, p8 = min(p7, p8), max(p7, p8)
@@ -394,19 +416,38 @@ def _median_of_nine(disparity, y, x):
 
 
 @njit(nogil=True, cache=True)
-def _median(disparity, radius, out):
+def _nine_row(disparity, y, out):
+    """``out[x]`` (x = 1 … W − 2): the median of the 3×3 window around (y, x) when all
+    nine values are finite, else NaN — one branch-free loop over the row, so it
+    vectorises (8 pixels per AVX2 instruction)."""
+    width = disparity.shape[1]
+    above, row, below = disparity[y - 1], disparity[y], disparity[y + 1]
+    for x in range(1, width - 1):
+        p0, p1, p2 = above[x - 1], above[x], above[x + 1]
+        p3, p4, p5 = row[x - 1], row[x], row[x + 1]
+        p6, p7, p8 = below[x - 1], below[x], below[x + 1]
+        median = _network_of_nine(p0, p1, p2, p3, p4, p5, p6, p7, p8)
+        total = p0 + p1 + p2 + p3 + p4 + p5 + p6 + p7 + p8
+        out[x] = median if np.isfinite(total) else np.float32(np.nan)
+
+
+@njit(nogil=True, cache=True)
+def _median(disparity, radius, out, start, stop):
+    """Rows ``start … stop − 1`` of the NaN-aware median (see :func:`median_filter`)."""
     height, width = disparity.shape
     window = np.empty((2 * radius + 1) ** 2, dtype=np.float32)
-    for y in range(height):
+    nine = np.full(width, np.nan, dtype=np.float32)
+    for y in range(start, stop):
+        fast = radius == 1 and 0 < y < height - 1
+        if fast:
+            _nine_row(disparity, y, nine)
         for x in range(width):
             if not np.isfinite(disparity[y, x]):
                 out[y, x] = np.nan
                 continue
-            if radius == 1 and 0 < y < height - 1 and 0 < x < width - 1:
-                value = _median_of_nine(disparity, y, x)
-                if np.isfinite(value):  # all nine valid
-                    out[y, x] = value
-                    continue
+            if fast and 0 < x < width - 1 and np.isfinite(nine[x]):  # all nine valid
+                out[y, x] = nine[x]
+                continue
             count = 0
             for yy in range(max(y - radius, 0), min(y + radius + 1, height)):
                 for xx in range(max(x - radius, 0), min(x + radius + 1, width)):
@@ -443,7 +484,9 @@ def median_filter(disparity: np.ndarray, size: int) -> np.ndarray:
     if size % 2 == 0:
         raise ValueError(f"median size must be odd, got {size}")
     out = np.empty(disparity.shape, dtype=np.float32)
-    _median(np.ascontiguousarray(disparity, dtype=np.float32), size // 2, out)
+    source = np.ascontiguousarray(disparity, dtype=np.float32)
+    in_halves(lambda start, stop: _median(source, size // 2, out, start, stop),
+              source.shape[0])
     return out
 
 

@@ -23,6 +23,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from demtool.sgm.disparity import in_halves
+
 #: Smallest disparity step (px) between neighbours treated as a depth discontinuity.
 EDGE_JUMP = 2.0
 
@@ -62,11 +64,13 @@ def _edge_offset(disparity, image, step, y, p, sign, foreground, radius, min_ste
 
 
 @njit(nogil=True, cache=True)
-def _snap_lines(disparity, image, step, occluded, radius, jump, min_step, out, moved):
-    """Along the last axis (see :func:`snap_edges`); ``occluded`` marks the invalid
-    pixels the check found occluded."""
-    lines, length = disparity.shape
-    for y in range(lines):
+def _snap_lines(disparity, image, step, occluded, radius, jump, min_step, out, moved, start,
+                stop):
+    """Lines ``start … stop − 1`` along the last axis (see :func:`snap_edges`);
+    ``occluded`` marks the invalid pixels the check found occluded.  The column pass
+    gives transposed views (no copies)."""
+    length = disparity.shape[1]
+    for y in range(start, stop):
         for x in range(length - 1):
             a = disparity[y, x]
             b = disparity[y, x + 1]
@@ -90,22 +94,68 @@ def _snap_lines(disparity, image, step, occluded, radius, jump, min_step, out, m
                     moved[y, x + 1 - i] = True
 
 
-def _smooth_and_steps(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The image smoothed [1 2 1] across the last axis, and |I(x + 1) − I(x)| of it
-    along the last axis (float32)."""
-    padded = np.pad(np.asarray(image, dtype=np.float32), ((1, 1), (0, 0)), mode="edge")
-    smooth = 0.25 * padded[:-2] + 0.5 * padded[1:-1] + 0.25 * padded[2:]
-    steps = np.zeros(smooth.shape, dtype=np.float32)
-    steps[:, :-1] = np.abs(np.diff(smooth, axis=1))
-    return np.ascontiguousarray(smooth), steps
+@njit(nogil=True, cache=True)
+def _smooth_rows(image, smooth, steps, start, stop, along):
+    """Rows ``start … stop − 1`` of :func:`_smooth_and_steps` (float32 arithmetic in
+    numpy's order: the same bits as ``0.25 * a + 0.5 * b + 0.25 * c`` of float32 arrays)."""
+    height, width = image.shape
+    quarter, half = np.float32(0.25), np.float32(0.5)
+    for y in range(start, stop):
+        above, below = max(y - 1, 0), min(y + 1, height - 1)
+        for x in range(width):
+            if along == 1:  # [1 2 1] across the rows
+                first, last = image[above, x], image[below, x]
+            else:  # across the columns
+                first, last = image[y, max(x - 1, 0)], image[y, min(x + 1, width - 1)]
+            smooth[y, x] = (quarter * np.float32(first) + half * np.float32(image[y, x])
+                            + quarter * np.float32(last))
+        if along == 1:
+            for x in range(width - 1):
+                steps[y, x] = abs(smooth[y, x + 1] - smooth[y, x])
+            steps[y, width - 1] = 0.0
+    if along == 0:  # steps down the columns: rows start … stop − 1 need row stop smoothed
+        for y in range(start, stop):
+            if y == height - 1:
+                for x in range(width):
+                    steps[y, x] = 0.0
+                continue
+            for x in range(width):
+                if y + 1 < stop:
+                    below_value = smooth[y + 1, x]
+                else:  # the next half's first row, smoothed here too
+                    left, right = image[y + 1, max(x - 1, 0)], image[y + 1, min(x + 1, width - 1)]
+                    below_value = (quarter * np.float32(left)
+                                   + half * np.float32(image[y + 1, x])
+                                   + quarter * np.float32(right))
+                steps[y, x] = abs(below_value - smooth[y, x])
 
 
-def _snap(disparity, image, occluded, radius, jump, min_step):
+def _smooth_and_steps(image: np.ndarray, along: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """For lines along axis ``along`` (1: rows, 0: columns): the image smoothed [1 2 1]
+    across the lines (edges replicated), and |I(u + 1) − I(u)| of it along them
+    (float32, 0 at each line's end)."""
+    image = np.ascontiguousarray(image)
+    smooth = np.empty(image.shape, dtype=np.float32)
+    steps = np.empty(image.shape, dtype=np.float32)
+    in_halves(lambda start, stop: _smooth_rows(image, smooth, steps, start, stop, along),
+              image.shape[0])
+    return smooth, steps
+
+
+def _snap(disparity, image, occluded, radius, jump, min_step, along=1):
+    """One pass of :func:`snap_edges` along the rows (``along`` = 1) or the columns (0:
+    the kernel gets transposed views, so nothing is copied into the other layout)."""
     out = disparity.copy()
     moved = np.zeros(disparity.shape, dtype=np.bool_)
-    smooth, steps = _smooth_and_steps(image)
-    _snap_lines(disparity, smooth, steps, occluded, int(radius), float(jump),
-                float(min_step), out, moved)
+    smooth, steps = _smooth_and_steps(image, along)
+    arrays = (disparity, smooth, steps, occluded, out, moved)
+    if along == 0:
+        arrays = tuple(array.T for array in arrays)
+    source, smooth, steps, occluded, target, marked = arrays
+    in_halves(lambda start, stop: _snap_lines(source, smooth, steps, occluded, int(radius),
+                                              float(jump), float(min_step), target, marked,
+                                              start, stop),
+              source.shape[0])
     return out, moved
 
 
@@ -143,7 +193,7 @@ def snap_edges(disparity: np.ndarray, image: np.ndarray, radius: int,
     occluded = (np.zeros(disparity.shape, dtype=np.bool_) if occluded is None
                 else np.ascontiguousarray(occluded, dtype=np.bool_))
     rows, moved_rows = _snap(disparity, image, occluded, radius, jump, min_step)
-    columns, moved_columns = _snap(np.ascontiguousarray(rows.T), np.ascontiguousarray(image.T),
-                                   np.zeros(rows.T.shape, dtype=np.bool_), radius, jump,
-                                   min_step)
-    return np.ascontiguousarray(columns.T), moved_rows | moved_columns.T
+    columns, moved_columns = _snap(rows, image, np.zeros(rows.shape, dtype=np.bool_), radius,
+                                   jump, min_step, along=0)
+    moved_columns |= moved_rows
+    return columns, moved_columns

@@ -17,19 +17,23 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from demtool.sgm.disparity import in_halves
+
 P2_KAPPA = 8  # grey levels (of 256) above which the adaptive P2 shrinks, at least
 P2_KAPPA_NOISE = 3.0  # ... and at least this many times the guide image's noise σ
 
 
 @njit(cache=True, nogil=True)
-def _laplacian_histogram(image: np.ndarray, valid: np.ndarray, counts: np.ndarray) -> int:
-    """Histogram of |Immerkær response| of a uint8 image where the 3 × 3 window is valid.
+def _laplacian_histogram(image: np.ndarray, valid: np.ndarray, counts: np.ndarray,
+                         start: int, stop: int) -> int:
+    """Histogram of |Immerkær response| of a uint8 image where the 3 × 3 window is valid,
+    over the rows ``max(start, 1) … min(stop, H − 1) − 1``.
 
     ``counts`` has 4 · 255 · 4 + 1 bins (the largest response); returns the count.
     """
     height, width = image.shape
     total = 0
-    for y in range(1, height - 1):
+    for y in range(max(start, 1), min(stop, height - 1)):
         for x in range(1, width - 1):
             if not (valid[y - 1, x - 1] and valid[y - 1, x + 1] and valid[y + 1, x - 1]
                     and valid[y + 1, x + 1] and valid[y, x]):
@@ -79,9 +83,16 @@ def noise_sigma(image: np.ndarray, valid: np.ndarray) -> float:
     if min(image.shape) < 3:
         return 0.0
     if image.dtype == np.uint8:  # the guide: integer responses, an O(n) histogram median
-        counts = np.zeros(4 * 255 * 4 + 1, dtype=np.int64)
-        total = _laplacian_histogram(image, np.ascontiguousarray(valid, dtype=np.bool_),
-                                     counts)
+        mask = np.ascontiguousarray(valid, dtype=np.bool_)
+        counts = np.zeros((2, 4 * 255 * 4 + 1), dtype=np.int64)  # one per half of the rows
+        totals = [0, 0]
+
+        def half(start: int, stop: int) -> None:
+            totals[int(start > 0)] = _laplacian_histogram(image, mask, counts[int(start > 0)],
+                                                     start, stop)
+
+        in_halves(half, image.shape[0])
+        counts, total = counts.sum(axis=0), sum(totals)  # integer counts: exact
         return 0.0 if total == 0 else float(1.4826 * _histogram_median(counts, total) / 6.0)
     a = np.where(valid, image, 0.0).astype(np.float64)
     response = (a[:-2, :-2] - 2 * a[:-2, 1:-1] + a[:-2, 2:]

@@ -100,7 +100,7 @@ def test_fill_gives_occlusions_the_background_with_zero_confidence(cost):
 
 
 def test_fill_invalid_background_and_median():
-    from demtool.sgm.disparity import fill_invalid
+    from demtool.sgm.fill import fill_invalid
 
     disparity = np.full((5, 9), 10.0, dtype=np.float32)
     disparity[:, 5:] = 3.0  # a far surface right of a near one
@@ -395,7 +395,7 @@ def test_sweep_kernel_cache_key_covers_the_kernels_it_inlines():
 
 
 def test_fill_invalid_matches_a_brute_force_search():
-    from demtool.sgm.disparity import fill_invalid
+    from demtool.sgm.fill import fill_invalid
 
     rng = np.random.default_rng(7)
     disparity = rng.uniform(0, 20, (23, 31)).astype(np.float32)

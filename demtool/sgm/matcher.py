@@ -16,6 +16,7 @@ information, IEEE TPAMI 30(2), 328–341.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -26,6 +27,7 @@ from demtool.errors import InputError, ParameterError
 from demtool.logs import get_logger
 from demtool.sgm import auto as choice
 from demtool.sgm import cost as costs
+from demtool.sgm.disparity import threads_limited
 from demtool.sgm.edges import snap_edges
 from demtool.sgm.fill import class_fractions, classify
 from demtool.sgm.noise import (  # noqa: F401  (re-exported: part of this module's API)
@@ -117,6 +119,18 @@ def _check_inputs(left: np.ndarray, right: np.ndarray, min_disparity: int,
                              f"than the image ({width} px)")
 
 
+def _threads_of_workers(function):
+    """Run the matcher with :func:`demtool.sgm.disparity.threads_limited` set to its
+    ``workers`` (≤ 0: the cores), so its post-processing threads follow ``--workers``."""
+    @functools.wraps(function)
+    def limited(*args, workers: int = 0, **kwargs):
+        with threads_limited(available_cores() if workers <= 0 else int(workers)):
+            return function(*args, workers=workers, **kwargs)
+
+    return limited
+
+
+@_threads_of_workers
 def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparities: int,
         cost: str = "auto", census_window: str = "5x5", cost_window: int | None = None,
         paths: int = 8, p1: int | None = None, p2: int | None = None,

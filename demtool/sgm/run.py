@@ -181,10 +181,12 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
                          min_disparity=min_disparity, num_disparities=num_disparities,
                          confidence=confidence, rectify=rectify)
     loading = start_numba()  # meanwhile: the pair is read and checked
-    if left is None:
-        left, right = dio.read_raster_pair(left_path, right_path, what=PAIR_WHAT)
-    check_stereo_pair(left, right, rectify)
-    loading.join()
+    try:
+        if left is None:
+            left, right = dio.read_raster_pair(left_path, right_path, what=PAIR_WHAT)
+        check_stereo_pair(left, right, rectify)
+    finally:  # also before a refusal's exit: no thread left inside numba's import
+        loading.join()
     right_data, prior, summary_prior = right.data, None, {}
     if prior_dem is not None:
         from demtool.sgm.prior import warp_right

@@ -141,3 +141,42 @@ def test_the_vectorised_median_of_nine_is_the_windows_median_exactly():
     assert np.array_equal(filtered[whole], np.median(windows[whole], axis=1))
     partial = ~whole & np.isfinite(values[1:-1, 1:-1])
     assert np.array_equal(filtered[partial], np.nanmedian(windows[partial], axis=1))
+
+
+def test_threads_follow_the_workers_limit(monkeypatch):
+    """`--workers 1` (a tile job, a Dask worker with one thread): one call in the caller's
+    thread, inside the matcher's limit; the matcher sets the limit from its workers."""
+    import threading
+
+    from demtool.sgm.disparity import threads_limited
+    from demtool.sgm.matcher import sgm
+
+    calls: list[tuple[int, int, str]] = []
+
+    def record(start, stop):
+        calls.append((start, stop, threading.current_thread().name))
+
+    with threads_limited(1):
+        in_halves(record, 1000)
+    assert calls == [(0, 1000, threading.current_thread().name)]
+    calls.clear()
+    with threads_limited(2):
+        in_halves(record, 1000)
+    if len(disparity.os.sched_getaffinity(0)) >= 2:
+        assert sorted(c[:2] for c in calls) == [(0, 500), (500, 1000)]
+    # the matcher with workers=1: every post-processing split sees a limit of one thread
+    limits: list[int] = []
+    original = disparity.in_halves
+
+    def spy(work, count, min_split=None):
+        limits.append(disparity._THREAD_LIMIT.get())
+        return original(work, count, min_split)
+
+    monkeypatch.setattr(disparity, "in_halves", spy)
+    monkeypatch.setattr(edges, "in_halves", spy)
+    rng = np.random.default_rng(0)
+    left = rng.normal(100.0, 20.0, (96, 128)).astype(np.float32)
+    right = np.roll(left, -4, axis=1)
+    sgm(left, right, min_disparity=0, num_disparities=16, cost="census", workers=1)
+    assert limits and set(limits) == {1}
+    assert disparity._THREAD_LIMIT.get() == 0  # reset after the call

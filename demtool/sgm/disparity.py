@@ -22,6 +22,7 @@ import numpy as np
 from numba import njit
 
 from demtool.sgm.simd import best_two, right_minima
+from demtool.tiling.distributed import available_cores
 
 SUBPIXEL_MODES = {"none": 0, "parabola": 1, "equiangular": 2}
 #: Confidence :func:`select_row` gives a pixel the left–right check rejects as occluded
@@ -243,10 +244,10 @@ def in_halves(work: Callable[[int, int], object], count: int,
     :func:`in_halves` itself (the second halves share one thread).
     """
     min_split = MIN_SPLIT_ROWS if min_split is None else min_split
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    cores = available_cores()
     if _THREAD_LIMIT.get() > 0:
-        cores = min(cores or 1, _THREAD_LIMIT.get())
-    if count < min_split or (cores or 1) < 2:
+        cores = min(cores, _THREAD_LIMIT.get())
+    if count < min_split or cores < 2:
         work(0, count)
         return
     middle = count // 2

@@ -51,9 +51,9 @@ from demtool.sgm.passes import (  # noqa: F401  (COST_DEFAULTS: part of this mod
 from demtool.sgm.pyramid import MI_LEVELS, mi_levels  # noqa: F401  (mi_levels: this API)
 from demtool.sgm.strips import (  # noqa: F401  (plan_strips: part of this module's API)
     PhaseTimer,
-    available_cores,
     plan_strips,
 )
+from demtool.tiling.distributed import available_cores
 
 log = get_logger(__name__)
 
@@ -120,11 +120,13 @@ def _check_inputs(left: np.ndarray, right: np.ndarray, min_disparity: int,
 
 
 def _threads_of_workers(function):
-    """Run the matcher with :func:`demtool.sgm.disparity.threads_limited` set to its
-    ``workers`` (≤ 0: the cores), so its post-processing threads follow ``--workers``."""
+    """Run the matcher with ``workers`` resolved (≤ 0: the cores) and
+    :func:`demtool.sgm.disparity.threads_limited` set to it, so its post-processing
+    threads follow ``--workers``."""
     @functools.wraps(function)
     def limited(*args, workers: int = 0, **kwargs):
-        with threads_limited(available_cores() if workers <= 0 else int(workers)):
+        workers = available_cores() if workers <= 0 else int(workers)
+        with threads_limited(workers):
             return function(*args, workers=workers, **kwargs)
 
     return limited
@@ -245,7 +247,6 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         raise ParameterError(f"uniqueness must be in [0, 1), got {uniqueness}")
     if median > 1 and median % 2 == 0:
         raise ParameterError(f"median size must be odd, got {median}")
-    workers = available_cores() if workers <= 0 else int(workers)
     timer = PhaseTimer()
     start = time.perf_counter()
     with timer.measure("prepare"):

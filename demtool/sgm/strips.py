@@ -8,7 +8,6 @@ image when it fits ``max_memory_mb``); the down and up sweeps of
 from __future__ import annotations
 
 import math
-import os
 import threading
 import time
 from collections.abc import Iterator
@@ -67,14 +66,6 @@ class PhaseTimer:
             yield
         finally:
             self.add(phase, time.perf_counter() - wall, time.thread_time() - cpu)
-
-
-def available_cores() -> int:
-    """CPU cores this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
 
 
 def sweep_state_bytes(width: int, num_disparities: int, paths: int, window: int) -> int:

@@ -2,8 +2,9 @@
 
 from importlib.metadata import PackageNotFoundError, version
 
-from demtool import jitcache
+from demtool import blas, jitcache
 
+blas.configure()  # before numpy loads OpenBLAS: its workers sleep instead of spinning
 jitcache.configure()  # before any demtool module imports numba: the compiled kernels' cache
 
 try:

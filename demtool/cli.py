@@ -113,10 +113,13 @@ def cli(ctx: click.Context, verbose: int, quiet: int, debug: bool, config_path: 
     Each stage reads and writes files (GeoTIFF, NPZ, JSON), so stages chain in shell
     pipelines, Makefiles and batch jobs.  Run ``demtool STAGE --help`` for a stage.
     """
+    from demtool import jitcache
     from demtool.commands.config import load_config, to_default_map
-    from demtool.logs import configure_logging
+    from demtool.logs import configure_logging, get_logger
 
     configure_logging(verbose - quiet)
+    if ctx.invoked_subcommand != "warm" and (unusable := jitcache.unwritable_cache_message()):
+        get_logger("demtool").warning(unusable)  # warm refuses such a folder itself
     ctx.obj = AppState(verbosity=verbose - quiet, debug=debug, config_path=config_path)
     if config_path:
         content = load_config(config_path)

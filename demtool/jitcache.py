@@ -108,6 +108,24 @@ def configure() -> Path | None:
     return folder
 
 
+def unwritable_cache_message(environ: dict[str, str] | None = None) -> str | None:
+    """A warning when ``NUMBA_CACHE_DIR`` names a folder this user cannot write; else None.
+
+    numba uses a cache folder only where it can write (``UserProvidedCacheLocator``
+    tries a temporary file there), also for reading: a shared cache made read-only for
+    the users after ``demtool warm`` filled it is skipped, and every user's first runs
+    compile the kernels again into numba's own per-user cache.
+    """
+    environ = os.environ if environ is None else environ
+    given = environ.get(ENV)
+    if not given or usable(Path(given)):
+        return None
+    return (f"{ENV}={given} cannot be written by this user, so numba does not use it (not "
+            "even to read the kernels `demtool warm` put there): each stage's first run "
+            "compiles its kernels again. Make the folder writable for the users (a group "
+            f"folder), or unset {ENV} to use your own cache")
+
+
 def describe() -> str:
     """One line naming the cache folder in use, for logs and ``demtool warm``."""
     folder = choose_cache_dir()

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
+import pytest
 from click.testing import CliRunner
 
 from demtool import jitcache
@@ -99,3 +101,52 @@ def test_warm_check_reports_the_cache():
     assert result.exit_code == 0, result.output
     assert result.output.startswith("numba cache:")
     assert "kernels cached" in result.output
+
+
+def test_warm_writes_the_bytecode_of_a_writable_package(tmp_path):
+    import importlib.util
+
+    from demtool.warm import compile_bytecode
+
+    package = tmp_path / "pkg"
+    (package / "sub").mkdir(parents=True)
+    (package / "a.py").write_text("X = 1\n")
+    (package / "sub" / "b.py").write_text("Y = 2\n")
+    assert compile_bytecode(package) is True
+    for module in (package / "a.py", package / "sub" / "b.py"):
+        assert Path(importlib.util.cache_from_source(str(module))).is_file()
+
+
+def test_warm_leaves_a_read_only_package_alone(tmp_path):
+    from demtool.warm import compile_bytecode
+
+    assert compile_bytecode(tmp_path / "missing") is False
+
+
+def test_warm_names_a_module_that_does_not_compile(tmp_path):
+    from demtool.errors import ProcessingError
+    from demtool.warm import compile_bytecode
+
+    (tmp_path / "broken.py").write_text("def f(:\n")
+    with pytest.raises(ProcessingError, match=f"{tmp_path}: a module does not compile"):
+        compile_bytecode(tmp_path)
+
+
+def test_a_cache_folder_the_user_cannot_write_is_named(tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    folder = blocker / "cache"  # cannot be created: numba would skip it
+    message = jitcache.unwritable_cache_message({"NUMBA_CACHE_DIR": str(folder)})
+    assert message.startswith(f"NUMBA_CACHE_DIR={folder} cannot be written by this user")
+    assert "unset NUMBA_CACHE_DIR" in message
+    assert jitcache.unwritable_cache_message({"NUMBA_CACHE_DIR": str(tmp_path)}) is None
+    assert jitcache.unwritable_cache_message({}) is None
+
+
+def test_every_command_warns_of_an_unwritable_cache_folder(tmp_path, monkeypatch):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(blocker / "cache"))
+    result = CliRunner().invoke(cli, ["sgm", "--help"])
+    assert result.exit_code == 0
+    assert f"NUMBA_CACHE_DIR={blocker / 'cache'} cannot be written" in result.output

@@ -51,7 +51,7 @@ def test_camera_pair_on_the_antimeridian_is_the_pair_at_10_east(scenes):
     at_180, at_10 = reports[180.0], reports[10.0]
     for key in ("overlap_area_km2", "base_to_height", "convergence_deg"):
         assert at_180["pairs"][0][key] == pytest.approx(at_10["pairs"][0][key], rel=1e-6)
-    for one, other in zip(at_180["cameras"], at_10["cameras"]):
+    for one, other in zip(at_180["cameras"], at_10["cameras"], strict=True):
         assert abs(abs(one["center_lon_deg"]) - 180.0) < 1e-6
         assert one["gsd_m"] == pytest.approx(other["gsd_m"], rel=1e-6)
         assert 0.0 <= one["sun_azimuth_deg"] < 360.0

@@ -105,3 +105,29 @@ def test_interrupt_inside_a_stage_is_reported_and_rolled_back(tmp_path, monkeypa
     assert result.exit_code == 130
     assert "demtool synth: interrupted; no output written" in result.output
     assert list(tmp_path.iterdir()) == []
+
+
+def test_main_pauses_the_cycle_collector_only_for_the_imports(monkeypatch):
+    """main() turns Python's gc off for the imports; the group callback freezes what they
+    made and turns it back on, and it is on again however the command ends."""
+    import gc
+    import signal
+    import warnings
+
+    from demtool.cli import main
+
+    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # main reroutes it
+    previous = signal.getsignal(signal.SIGTERM)
+    seen = []
+    try:
+        for argv in (["--version"], ["--no-such-option"], ["sgm", "--no-such-option"],
+                     ["warm", "--help"]):
+            with pytest.raises(SystemExit):
+                main(argv)
+            seen.append((gc.isenabled(), gc.get_freeze_count() > 0))
+            gc.unfreeze()
+    finally:
+        gc.unfreeze()
+        signal.signal(signal.SIGTERM, previous)
+    # --version and the group's usage errors end before its callback: nothing frozen
+    assert seen == [(True, False), (True, False), (True, True), (True, True)]

@@ -501,6 +501,11 @@ def test_parameters_check_refuses_a_scheduler_that_is_not_an_address():
         DemParams(scheduler="x").check()
 
 
+# The interrupted runs' tiles: 63 of 24 px, so the run is still going when the test sees
+# the first one cached (with 20 tiles of 48 px the last 18 took 0.1 s on two cores)
+INTERRUPT_TILE = "24"
+
+
 def interrupt_tiled_sgm(folder: Path, out: Path, signame: str, to_group: bool,
                         *execution: str) -> int:
     """Start a tiled ``demtool sgm`` (``execution``: --workers/--scheduler) in a child
@@ -512,7 +517,7 @@ def interrupt_tiled_sgm(folder: Path, out: Path, signame: str, to_group: bool,
     import time
 
     argv = [sys.executable, "-m", "demtool", "sgm", str(folder / "left.tif"),
-            str(folder / "right.tif"), "--out", str(out), *SGM, "--tile-size", "48",
+            str(folder / "right.tif"), "--out", str(out), *SGM, "--tile-size", INTERRUPT_TILE,
             *execution]
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
     process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -520,7 +525,7 @@ def interrupt_tiled_sgm(folder: Path, out: Path, signame: str, to_group: bool,
     deadline = time.time() + 240
     while time.time() < deadline and process.poll() is None and not list(
             tiling.work_folder(out).glob("*/tile_*.npy")):
-        time.sleep(0.2)
+        time.sleep(0.02)
     assert process.poll() is None, process.communicate()[0]
     sent = time.time()
     if to_group:
@@ -552,7 +557,7 @@ def test_interrupting_two_dask_workers_gives_one_line_and_exit_130(pair, tmp_pat
     cached = interrupt_tiled_sgm(folder, out, signame, to_group, "--workers", "2")
     result = CliRunner().invoke(cli, ["sgm", str(folder / "left.tif"),
                                       str(folder / "right.tif"), "--out", str(out), *SGM,
-                                      "--tile-size", "48"])
+                                      "--tile-size", INTERRUPT_TILE])
     assert result.exit_code == 0, result.output
     assert f"{cached} of" in result.output and "tiles found" in result.output, result.output
     assert out.exists() and not tiling.work_folder(out).exists()
@@ -595,11 +600,12 @@ def test_interrupting_a_run_on_an_external_scheduler(pair, tmp_path, signame):
         assert cluster.poll() is None
         result = CliRunner().invoke(cli, ["sgm", str(folder / "left.tif"),
                                           str(folder / "right.tif"), "--out", str(out), *SGM,
-                                          "--tile-size", "48", "--scheduler", address])
+                                          "--tile-size", INTERRUPT_TILE, "--scheduler",
+                                          address])
         assert result.exit_code == 0, result.output
         assert f"{cached} of" in result.output and "tiles found" in result.output, result.output
         reference = tmp_path / "in_process.tif"
-        assert sgm(folder, reference, "--tile-size", "48").exit_code == 0
+        assert sgm(folder, reference, "--tile-size", INTERRUPT_TILE).exit_code == 0
         np.testing.assert_array_equal(dio.read_raster(out).data,
                                       dio.read_raster(reference).data)
         assert not tiling.work_folder(out).exists()

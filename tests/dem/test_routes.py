@@ -216,3 +216,17 @@ def test_screen_triangulation_counts_behind_and_gap():
     screened = screen_triangulation(points, gap, left, right, max_ray_gap=1.0)
     assert screened.behind == 3 and screened.rejected_gap == 1
     assert screened.keep.sum() == 9
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 16, 17])
+def test_row_medians_are_numpys_bit_for_bit(k):
+    from demtool.dem.grid import row_medians
+
+    rng = np.random.default_rng(k)
+    values = rng.normal(0.0, 1000.0, (500, k))
+    values[7] = 3.0  # ties
+    values[8, : (k + 1) // 2] = -np.inf  # infinities go through np.median
+    assert np.array_equal(row_medians(values), np.median(values, axis=1))
+    values[9, 0] = np.nan
+    found = row_medians(values)
+    assert np.isnan(found[9]) and np.array_equal(found[:9], np.median(values[:9], axis=1))

@@ -101,3 +101,16 @@ def test_bad_inputs(white):
         radial_coherence(ramp, white[:64, :64])
     with pytest.raises(ValueError, match="threshold"):
         coherence_cutoff(white, white, threshold=1.5)
+
+
+@pytest.mark.parametrize("length", [0, 1, 2, 3, 7, 64, 255, 256, 1001])
+def test_windows_are_scipys_value_for_value(length):
+    """The tapers without scipy.signal's import: the same floats as scipy's windows."""
+    from scipy.signal import windows
+
+    from demtool.imaging.spectral import periodic_hann, periodic_tukey
+
+    assert np.array_equal(periodic_hann(length), windows.hann(length, sym=False))
+    for alpha in (0.0, 0.1, 0.25, 0.5, 0.99, 1.0, 1.5):
+        assert np.array_equal(periodic_tukey(length, alpha),
+                              windows.tukey(length, alpha, sym=False))

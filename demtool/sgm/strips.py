@@ -30,6 +30,7 @@ from demtool.sgm.aggregate import (
 )
 from demtool.sgm.cost import PixelCost
 from demtool.sgm.disparity import SUBPIXEL_MODES
+from demtool.sizes import release_free_memory
 
 STRIP_OVERLAP = 32  # rows shared by neighbouring strips
 
@@ -196,6 +197,7 @@ def match_strip(source: tuple, radius: int, guide: np.ndarray, *, n_disp: int, p
     two = threads >= 2 and hi - lo >= 2
     q = int(recompute)
     n_stored = (hi - lo) - (2 * q if two else q)
+    release_free_memory()  # S is mapped fresh: the earlier steps' freed blocks go first
     total = np.empty((n_stored, width, n_disp), dtype=np.uint16)
     disparity = np.empty((stop - start, width), dtype=np.float32)
     confidence = np.empty((stop - start, width), dtype=np.float32)

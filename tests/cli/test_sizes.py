@@ -117,3 +117,12 @@ def test_dem_grid_checked_before_gridding(frame_files, tmp_path, monkeypatch):
     assert result.exit_code == 1, result.output
     assert str(noise) in result.output and "Traceback" not in result.output
     assert not out.exists()
+
+
+def test_free_memory_goes_back_to_the_system_on_glibc():
+    """malloc_trim where the C library is glibc; elsewhere nothing, and False."""
+    import platform
+
+    blocks = [np.ones(50_000) for _ in range(200)]  # 80 MB of small heap blocks
+    del blocks
+    assert sizes.release_free_memory() is (platform.libc_ver()[0] == "glibc")

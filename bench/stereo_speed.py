@@ -10,7 +10,8 @@ StereoSGBM MODE_HH with disp12MaxDiff=1, writes the disparity GeoTIFF).  Each co
 runs as a child process; wall time, CPU time (user + system, all threads; the system
 part, mostly the kernel zeroing fresh pages of S, in its own column) and peak
 resident memory (``getrusage(RUSAGE_CHILDREN)``, measured by a small wrapper process per
-command; each command runs twice, in turn, and its run of least CPU time counts) are
+command; each command runs ``--rounds`` times (default 2), in turn, and its run of least
+CPU time counts) are
 printed beside the targets of issue 28: census CPU seconds ≤ 0.5× OpenCV's (wall ≤ 0.3×
 on two quiet cores), the default cost ≤ 1.2× census, peak memory ≤ 1 GB
 (1000 MiB).  bad-2 of every row against the pair's known disparity field (pixels whose
@@ -146,6 +147,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--size", type=int, default=None, help="image side, px")
     parser.add_argument("--disparities", type=int, default=None, help="disparities searched")
     parser.add_argument("--workers", type=int, default=0, help="demtool --workers")
+    parser.add_argument("--rounds", type=int, default=2,
+                        help="runs of each command, in turn; the one of least CPU time counts "
+                             "(the kernel's page zeroing varies from run to run: 0.3-0.9 s)")
     parser.add_argument("--busy", action="store_true",
                         help="one other CPU-bound process runs during the timed commands")
     parser.add_argument("--record", metavar="MACHINE", default=None,
@@ -190,9 +194,9 @@ def main(argv: list[str] | None = None) -> int:
         busy = (subprocess.Popen([sys.executable, "-c", "while True: pass"])
                 if args.busy else None)
         try:
-            # each command twice, in turn, keeping its run of least CPU time: the first big
+            # each command --rounds times, in turn, keeping its run of least CPU time: a big
             # allocation after another process's may pay the kernel's memory compaction
-            for _ in range(2):
+            for _ in range(max(1, args.rounds)):
                 for label, (command, _) in runs.items():
                     run = timed(command)
                     if label not in results or run["cpu_s"] < results[label]["cpu_s"]:
@@ -282,8 +286,10 @@ def record(results: dict, phases: dict, args, size: int, count: int) -> None:
         rows=rows,
         notes=("Issue 28's targets: census CPU ≤ 0.5× OpenCV's, wall ≤ 0.3× on two quiet "
                "cores and ≤ 0.6× with one other busy process, the default cost ≤ 1.2× census, "
-               "peak ≤ 1000 MiB, bad-2 unchanged.  Each command runs twice, its run of least "
-               "CPU time counts.  Where the rest of the time goes: bench/stereo_roofline.md."))
+               f"peak ≤ 1000 MiB, bad-2 unchanged.  Each command runs {max(1, args.rounds)} "
+               "times, in turn; its run of least CPU time counts (the kernel's zeroing of "
+               "fresh pages varies by 0.3-0.9 s from run to run).  Where the rest of the time "
+               "goes: bench/stereo_roofline.md."))
 
 
 if __name__ == "__main__":

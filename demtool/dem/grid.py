@@ -139,7 +139,9 @@ def local_median_statistics(pixels: np.ndarray, values: np.ndarray, *,
                             ) -> tuple[np.ndarray, np.ndarray]:
     """Median and NMAD of each sample's ``neighbours`` nearest samples (itself excluded).
 
-    The statistics of :func:`local_median_inliers` (Westerweel & Scarano 2005).
+    The statistics of :func:`local_median_inliers` (Westerweel & Scarano 2005).  The
+    neighbour search runs on :func:`demtool.tiling.distributed.usable_threads` threads
+    (a tile job's, in a tiled run).
 
     Parameters
     ----------
@@ -159,11 +161,14 @@ def local_median_statistics(pixels: np.ndarray, values: np.ndarray, *,
     """
     from scipy.spatial import cKDTree
 
+    from demtool.tiling.distributed import usable_threads
+
     values = np.asarray(values, dtype=np.float64)
     k = int(min(max(neighbours, 3), len(values) - 1))
     tree = cKDTree(np.asarray(pixels, dtype=np.float64))
     queries = np.asarray(pixels) if at is None else np.asarray(pixels)[at]
-    _, index = tree.query(queries, k=k + 1)
+    # each query is independent: the same neighbours on any number of threads
+    _, index = tree.query(queries, k=k + 1, workers=usable_threads())
     neighbour_values = values[index[:, 1:]]
     local_median = row_medians(neighbour_values)
     local_nmad = NMAD_FACTOR * row_medians(np.abs(neighbour_values - local_median[:, None]))

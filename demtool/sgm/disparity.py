@@ -12,17 +12,15 @@ float32 pixels, NaN = invalid.
 
 from __future__ import annotations
 
-import contextvars
 import os
 import threading
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 
 import numpy as np
 from numba import njit
 
 from demtool.sgm.simd import best_two, right_minima
-from demtool.tiling.distributed import available_cores
+from demtool.tiling.distributed import usable_threads
 
 SUBPIXEL_MODES = {"none": 0, "parabola": 1, "equiangular": 2}
 #: Confidence :func:`select_row` gives a pixel the left–right check rejects as occluded
@@ -199,10 +197,6 @@ def select_disparities(total: np.ndarray, *, min_disparity: int, left_valid: np.
 
 #: Fewest rows (or directions' pixels) worth a second thread in :func:`in_halves`.
 MIN_SPLIT_ROWS = 64
-#: Threads :func:`in_halves` may use in this context (0: the process's cores); set by
-#: :func:`threads_limited` from the matcher's ``workers``, so a tile job given one
-#: thread (``--workers``, a Dask worker) does not start a second one.
-_THREAD_LIMIT: contextvars.ContextVar[int] = contextvars.ContextVar("sgm_threads", default=0)
 _HELPER: dict[int, object] = {}  # process id -> the one-thread pool of in_halves
 _HELPER_LOCK = threading.Lock()
 
@@ -221,17 +215,6 @@ def _helper_pool():
     return pool
 
 
-@contextmanager
-def threads_limited(threads: int) -> Iterator[None]:
-    """Within the block, :func:`in_halves` uses at most ``threads`` threads (≤ 0: the
-    process's cores); the matcher's ``workers``."""
-    token = _THREAD_LIMIT.set(int(threads))
-    try:
-        yield
-    finally:
-        _THREAD_LIMIT.reset(token)
-
-
 def in_halves(work: Callable[[int, int], object], count: int,
               min_split: int | None = None) -> None:
     """Run ``work(start, stop)`` over ``0 … count`` in two halves on two threads.
@@ -239,15 +222,12 @@ def in_halves(work: Callable[[int, int], object], count: int,
     For the per-row (or per-direction) post-processing kernels, which release the GIL
     (numba ``nogil``): each half writes only its own rows, so the result is the one
     thread's, bit for bit.  One call ``work(0, count)`` when there is one core (or
-    :func:`threads_limited` allows one thread) or fewer than ``min_split`` items
-    (default :data:`MIN_SPLIT_ROWS`).  ``work`` must not call
+    :func:`demtool.tiling.distributed.threads_limited` allows one thread) or fewer than
+    ``min_split`` items (default :data:`MIN_SPLIT_ROWS`).  ``work`` must not call
     :func:`in_halves` itself (the second halves share one thread).
     """
     min_split = MIN_SPLIT_ROWS if min_split is None else min_split
-    cores = available_cores()
-    if _THREAD_LIMIT.get() > 0:
-        cores = min(cores, _THREAD_LIMIT.get())
-    if count < min_split or cores < 2:
+    if count < min_split or usable_threads() < 2:
         work(0, count)
         return
     middle = count // 2

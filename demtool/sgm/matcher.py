@@ -27,7 +27,6 @@ from demtool.errors import InputError, ParameterError
 from demtool.logs import get_logger
 from demtool.sgm import auto as choice
 from demtool.sgm import cost as costs
-from demtool.sgm.disparity import threads_limited
 from demtool.sgm.edges import snap_edges
 from demtool.sgm.fill import class_fractions, classify
 from demtool.sgm.noise import (  # noqa: F401  (re-exported: part of this module's API)
@@ -53,7 +52,7 @@ from demtool.sgm.strips import (  # noqa: F401  (plan_strips: part of this modul
     PhaseTimer,
     plan_strips,
 )
-from demtool.tiling.distributed import available_cores
+from demtool.tiling.distributed import available_cores, threads_limited
 
 log = get_logger(__name__)
 
@@ -121,7 +120,7 @@ def _check_inputs(left: np.ndarray, right: np.ndarray, min_disparity: int,
 
 def _threads_of_workers(function):
     """Run the matcher with ``workers`` resolved (≤ 0: the cores) and
-    :func:`demtool.sgm.disparity.threads_limited` set to it, so its post-processing
+    :func:`demtool.tiling.distributed.threads_limited` set to it, so its post-processing
     threads follow ``--workers``."""
     @functools.wraps(function)
     def limited(*args, workers: int = 0, **kwargs):

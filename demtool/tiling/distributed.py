@@ -19,10 +19,12 @@ finished stay cached.  Progress: tiles done / total on a terminal, a log line ev
 
 from __future__ import annotations
 
+import contextvars
 import logging
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 from demtool.errors import ProcessingError
@@ -48,6 +50,31 @@ def available_cores() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not Linux
         return os.cpu_count() or 1
+
+
+#: Threads the work of this context may use (0: the process's cores); set by
+#: :func:`threads_limited` from a stage's ``--workers`` or a tile job's threads, so a tile
+#: job given one thread (a Dask worker) does not start a second one.
+_THREAD_LIMIT: contextvars.ContextVar[int] = contextvars.ContextVar("demtool_threads",
+                                                                    default=0)
+
+
+@contextmanager
+def threads_limited(threads: int) -> Iterator[None]:
+    """Within the block, :func:`usable_threads` is at most ``threads`` (≤ 0: no limit)."""
+    token = _THREAD_LIMIT.set(int(threads))
+    try:
+        yield
+    finally:
+        _THREAD_LIMIT.reset(token)
+
+
+def usable_threads() -> int:
+    """Threads the calling work may use: the process's cores, or fewer within
+    :func:`threads_limited`."""
+    cores = available_cores()
+    limit = _THREAD_LIMIT.get()
+    return min(cores, limit) if limit > 0 else cores
 
 
 def compute_tile(job: TileJob, tile: Tile, cache: TileCache, threads: int) -> dict[str, Any]:

@@ -230,3 +230,19 @@ def test_row_medians_are_numpys_bit_for_bit(k):
     values[9, 0] = np.nan
     found = row_medians(values)
     assert np.isnan(found[9]) and np.array_equal(found[:9], np.median(values[:9], axis=1))
+
+
+def test_local_median_statistics_do_not_depend_on_the_threads():
+    """The neighbour search follows the context's thread limit (a tile job's threads) and
+    finds the same neighbours on one thread as on all (ties of a regular grid included)."""
+    from demtool.dem.grid import local_median_statistics
+    from demtool.tiling.distributed import threads_limited, usable_threads
+
+    rows, cols = np.mgrid[0:60, 0:70]
+    pixels = np.column_stack([cols.ravel(), rows.ravel()]).astype(np.float64)
+    heights = np.random.default_rng(3).normal(0.0, 1.0, len(pixels))
+    with threads_limited(1):
+        assert usable_threads() == 1
+        one = local_median_statistics(pixels, heights)
+    every = local_median_statistics(pixels, heights)
+    assert all(np.array_equal(a, b) for a, b in zip(one, every, strict=True))

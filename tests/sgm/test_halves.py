@@ -148,8 +148,9 @@ def test_threads_follow_the_workers_limit(monkeypatch):
     thread, inside the matcher's limit; the matcher sets the limit from its workers."""
     import threading
 
-    from demtool.sgm.disparity import threads_limited
     from demtool.sgm.matcher import sgm
+    from demtool.tiling import distributed
+    from demtool.tiling.distributed import threads_limited
 
     calls: list[tuple[int, int, str]] = []
 
@@ -162,14 +163,14 @@ def test_threads_follow_the_workers_limit(monkeypatch):
     calls.clear()
     with threads_limited(2):
         in_halves(record, 1000)
-    if disparity.available_cores() >= 2:
+    if distributed.available_cores() >= 2:
         assert sorted(c[:2] for c in calls) == [(0, 500), (500, 1000)]
     # the matcher with workers=1: every post-processing split sees a limit of one thread
     limits: list[int] = []
     original = disparity.in_halves
 
     def spy(work, count, min_split=None):
-        limits.append(disparity._THREAD_LIMIT.get())
+        limits.append(distributed.usable_threads())
         return original(work, count, min_split)
 
     monkeypatch.setattr(disparity, "in_halves", spy)
@@ -179,4 +180,4 @@ def test_threads_follow_the_workers_limit(monkeypatch):
     right = np.roll(left, -4, axis=1)
     sgm(left, right, min_disparity=0, num_disparities=16, cost="census", workers=1)
     assert limits and set(limits) == {1}
-    assert disparity._THREAD_LIMIT.get() == 0  # reset after the call
+    assert distributed._THREAD_LIMIT.get() == 0  # reset after the call

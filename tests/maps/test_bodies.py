@@ -131,3 +131,26 @@ def test_geotiff_round_trip_keeps_body_and_projection(tmp_path, make):
     lat = np.array([10.0, 14.0, -85.0]) if not crs.is_geographic else np.array([1.0, 2, 3])
     np.testing.assert_allclose(np.column_stack(maps.lonlat_to_map(back, lon, lat)),
                                np.column_stack(maps.lonlat_to_map(crs, lon, lat)), atol=1e-6)
+
+
+def test_body_from_crs_asks_proj_once_per_crs(monkeypatch):
+    """PROJ's authority search is slow (up to 0.08 s a CRS): a CRS seen before is answered
+    from the cache, with the same body; another CRS is identified anew."""
+    from pyproj import CRS
+
+    from demtool.maps import bodies
+
+    calls = []
+    original = bodies._identify_body
+
+    def counted(crs):
+        calls.append(crs.name)
+        return original(crs)
+
+    monkeypatch.setattr(bodies, "_identify_body", counted)
+    monkeypatch.setattr(bodies, "_BODIES_OF_CRS", {})
+    moon = "+proj=eqc +R=1737400 +units=m +no_defs"
+    first = bodies.body_from_crs(moon)
+    assert bodies.body_from_crs(CRS.from_proj4(moon)) == first and len(calls) == 1
+    mars = bodies.body_from_crs("IAU_2015:49900")
+    assert len(calls) == 2 and mars.naif_id == 499 and first.naif_id == 301

@@ -10,6 +10,7 @@ the wrong way to find out.  The budget is half the machine's memory unless
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import shutil
@@ -118,7 +119,15 @@ def check_disk(path: str | os.PathLike, nbytes: int, *, what: str, option: str) 
                              f"{option} or a smaller area")
 
 
-_LIBC: list = []  # the C library's handle, looked up once (None: not glibc)
+@functools.cache
+def _malloc_trim():
+    """glibc's ``malloc_trim``, or None where the C library has none."""
+    import ctypes
+
+    try:
+        return ctypes.CDLL("libc.so.6").malloc_trim
+    except (OSError, AttributeError):
+        return None
 
 
 def release_free_memory() -> bool:
@@ -134,14 +143,8 @@ def release_free_memory() -> bool:
     bool
         False where the C library has no ``malloc_trim`` (not glibc): nothing done.
     """
-    if not _LIBC:
-        import ctypes
-
-        try:
-            _LIBC.append(ctypes.CDLL("libc.so.6").malloc_trim)
-        except (OSError, AttributeError):
-            _LIBC.append(None)
-    if _LIBC[0] is None:
+    trim = _malloc_trim()
+    if trim is None:
         return False
-    _LIBC[0](0)
+    trim(0)
     return True

@@ -141,7 +141,7 @@ def local_median_statistics(pixels: np.ndarray, values: np.ndarray, *,
 
     The statistics of :func:`local_median_inliers` (Westerweel & Scarano 2005).  The
     neighbour search runs on :func:`demtool.tiling.distributed.usable_threads` threads
-    (a tile job's, in a tiled run).
+    (a tile job's in a tiled run: :func:`demtool.tiling.distributed.compute_tile`).
 
     Parameters
     ----------

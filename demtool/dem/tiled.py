@@ -201,12 +201,6 @@ class DemTileJob:
 
     # ---------------------------------------------------------------------- steps
     def compute(self, tile: Tile, threads: int) -> tuple[np.ndarray, dict[str, Any]]:
-        from demtool.tiling.distributed import threads_limited
-
-        with threads_limited(threads):  # the neighbour searches' threads
-            return self._compute(tile)
-
-    def _compute(self, tile: Tile) -> tuple[np.ndarray, dict[str, Any]]:
         if self.step == "stats":
             return self._stats(tile)
         if self.step == "measure":

@@ -53,8 +53,9 @@ def available_cores() -> int:
 
 
 #: Threads the work of this context may use (0: the process's cores); set by
-#: :func:`threads_limited` from a stage's ``--workers`` or a tile job's threads, so a tile
-#: job given one thread (a Dask worker) does not start a second one.
+#: :func:`threads_limited` from a stage's ``--workers`` and, by :func:`compute_tile`, from
+#: a tile job's threads, so a tile job given one thread (a Dask worker) does not start a
+#: second one.
 _THREAD_LIMIT: contextvars.ContextVar[int] = contextvars.ContextVar("demtool_threads",
                                                                     default=0)
 
@@ -78,9 +79,11 @@ def usable_threads() -> int:
 
 
 def compute_tile(job: TileJob, tile: Tile, cache: TileCache, threads: int) -> dict[str, Any]:
-    """Compute one tile and store its core in the cache (the task a worker runs)."""
+    """Compute one tile and store its core in the cache (the task a worker runs); within
+    the job, :func:`usable_threads` is ``threads`` (0: the process's cores)."""
     start, cpu = time.perf_counter(), time.process_time()
-    values, info = job.compute(tile, threads)
+    with threads_limited(threads):
+        values, info = job.compute(tile, threads)
     expected = (len(job.bands), *tile.core_shape)
     if values.shape != expected:  # pragma: no cover - a stage's bug, not the user's
         raise ProcessingError(f"{job.stage}: {tile.describe()} gave shape {values.shape}, "

@@ -613,3 +613,23 @@ def test_interrupting_a_run_on_an_external_scheduler(pair, tmp_path, signame):
         os.killpg(cluster.pid, signal.SIGTERM)
         cluster.wait(timeout=60)
         cluster.stdout.close()
+
+
+def test_a_tile_job_runs_within_its_threads(tmp_path):
+    """compute_tile limits the job's usable_threads to the threads it was given (a Dask
+    worker's), and 0 leaves the process's cores."""
+    from demtool.tiling.distributed import available_cores, compute_tile, usable_threads
+
+    class Job:
+        stage, bands = "test", ("values",)
+        seen: list[int] = []
+
+        def compute(self, tile, threads):
+            self.seen.append(usable_threads())
+            return np.zeros((1, *tile.core_shape), dtype=np.float32), {}
+
+    tile = tiling.plan_tiles(16, 16, 16, overlap=0).tiles[0]
+    job = Job()
+    compute_tile(job, tile, tiling.TileCache(tmp_path / "one"), 1)
+    compute_tile(job, tile, tiling.TileCache(tmp_path / "all"), 0)
+    assert job.seen == [1, available_cores()] and usable_threads() == available_cores()

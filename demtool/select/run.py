@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from demtool.errors import DemtoolError, InputError, ProcessingError
 from demtool.stagerun import StageRun, sidecar_path
 from demtool.synth.folder import read_scene_description, scene_sun_vector
 
@@ -13,6 +14,7 @@ if TYPE_CHECKING:
     from demtool.select.params import SelectParams
 
 DEFAULT_CACHE_NAME = ".demtool-features"
+UNREADABLE = "unreadable"  # a candidate's rejection reason when it cannot be read
 
 
 def _load_geometry_sources(cameras_path, scene_path):
@@ -82,6 +84,25 @@ def _format_table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def _nothing_selected(records: list[dict[str, Any]], target: str | os.PathLike,
+                      min_matches: int, min_inliers: int) -> DemtoolError:
+    """The error when no candidate passes: unreadable files named as such (a missing or
+    corrupt image is not a question of overlap), else the best-matched candidate."""
+    unreadable = [r for r in records if r["reason"].startswith(UNREADABLE)]
+    readable = [r for r in records if not r["reason"].startswith(UNREADABLE)]
+    first = unreadable[0]["reason"][len(UNREADABLE) + 2:-1] if unreadable else ""
+    more = f" (and {len(unreadable) - 1} more unreadable)" if len(unreadable) > 1 else ""
+    if not readable:
+        return InputError(f"no candidate image could be read: {first}{more}")
+    best = max(readable, key=lambda r: (r.get("inliers", 0), r.get("matches", 0)))
+    skipped = (f"; {len(unreadable)} unreadable, e.g. {first}" if unreadable else "")
+    return ProcessingError(
+        f"no image passes the selection against {target}: {len(records)} candidate(s), "
+        f"best {best['name']} with {best.get('matches', 0)} matches and "
+        f"{best.get('inliers', 0)} inliers (need >= {min_matches} matches, "
+        f">= {min_inliers} inliers){skipped}; lower --min-matches or check the images overlap")
+
+
 def run_select(images: list[str], target: str, out: str | os.PathLike,
                params: SelectParams | None = None, *,
                roi: tuple[float, float, float, float] | None = None,
@@ -105,7 +126,7 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
     import numpy as np
 
     from demtool import io as dio
-    from demtool.errors import InputError, ParameterError, ProcessingError
+    from demtool.errors import ParameterError
     from demtool.imaging import features
     from demtool.imaging.feature_cache import FeatureCache
     from demtool.logs import progress
@@ -177,7 +198,7 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
         try:
             raster = dio.read_image(path, what="image")
         except InputError as exc:
-            return {**record, "selected": False, "reason": f"unreadable ({exc})",
+            return {**record, "selected": False, "reason": f"{UNREADABLE} ({exc})",
                     "matches": 0, "inliers": 0, "overlap": 0.0}
         found = cache.get_or_compute(path, sift, lambda: detect(raster.data))
         height, width = raster.data.shape
@@ -222,12 +243,7 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
     log.info("%d candidate(s) compared with %s (feature cache: %d hit(s), %d miss(es))\n%s",
              len(records), target_name, cache.hits, cache.misses, _format_table(records))
     if not chosen:
-        best = max(records, key=lambda r: (r.get("inliers", 0), r.get("matches", 0)))
-        raise ProcessingError(
-            f"no image passes the selection against {target}: {len(records)} candidate(s), "
-            f"best {best['name']} with {best.get('matches', 0)} matches and "
-            f"{best.get('inliers', 0)} inliers (need >= {min_matches} matches, "
-            f">= {min_inliers} inliers); lower --min-matches or check the images overlap")
+        raise _nothing_selected(records, target, min_matches, min_inliers)
     target_entry: dict[str, Any] = {
         "name": target_name, "path": target, "role": "target",
         "keypoints": len(target_features), "matches": len(target_features),

@@ -139,6 +139,20 @@ def test_bad_inputs(scene_files, tmp_path):
     none_pass = _invoke(scene_files / "noise.tif", scene_files / "elsewhere.tif",
                         "--target", views[0], "--no-cache", "--out", out)
     assert none_pass.exit_code == 1 and "no image passes" in none_pass.output
+    # candidates that cannot be read are named as such, not as a question of overlap
+    text = tmp_path / "text.tif"
+    text.write_text("not an image")
+    unreadable = _invoke(tmp_path / "gone.tif", text, "--target", views[0], "--no-cache",
+                         "--out", out)
+    assert unreadable.exit_code == 1
+    assert ("no candidate image could be read: " in unreadable.output
+            and "gone.tif: image not found (and 1 more unreadable)" in unreadable.output)
+    assert "--min-matches" not in unreadable.output
+    mixed = _invoke(scene_files / "noise.tif", tmp_path / "gone.tif", "--target", views[0],
+                    "--no-cache", "--out", out)
+    assert mixed.exit_code == 1 and "best noise with" in mixed.output
+    assert "1 unreadable, e.g. " in mixed.output and "gone.tif: image not found" in mixed.output
+    assert not out.exists()
     only_target = _invoke(views[0], "--target", views[0], "--out", out)
     assert only_target.exit_code == 1 and "no candidate" in only_target.output
     cameras = tmp_path / "cameras.npz"

@@ -367,12 +367,9 @@ def holding(match: dict, *results: tuple) -> dict:
 def gradient_pass(cost_window, given, match):
     """Absolute difference of the images' horizontal Sobel gradients, with the "ad"
     defaults (OpenCV StereoSGBM's prefilter; an offset cancels, a gain scales)."""
-    from scipy import ndimage  # only here: its import costs about a second
-
     def gradient(side):
         valid = match[f"{side}_valid"]
-        filled = costs.fill_invalid(match[side], valid).astype(np.float64)
-        return np.where(valid, ndimage.sobel(filled, axis=1), np.nan).astype(np.float32)
+        return costs.horizontal_sobel(costs.fill_invalid(match[side], valid), valid)
 
     defaults = COST_DEFAULTS["ad"]
     p1, p2 = (d if g is None else g for g, d in zip(given, (defaults.p1, defaults.p2),

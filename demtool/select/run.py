@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
-from demtool.errors import DemtoolError, InputError, ProcessingError
+from demtool.errors import InputError, ProcessingError
 from demtool.stagerun import StageRun, sidecar_path
 from demtool.synth.folder import read_scene_description, scene_sun_vector
 
@@ -85,18 +85,19 @@ def _format_table(rows: list[dict[str, Any]]) -> str:
 
 
 def _nothing_selected(records: list[dict[str, Any]], target: str | os.PathLike,
-                      min_matches: int, min_inliers: int) -> DemtoolError:
-    """The error when no candidate passes: unreadable files named as such (a missing or
-    corrupt image is not a question of overlap), else the best-matched candidate."""
+                      min_matches: int, min_inliers: int) -> NoReturn:
+    """Raise the error when no candidate passes: unreadable files named as such (a
+    missing or corrupt image is not a question of overlap), else the best-matched
+    candidate."""
     unreadable = [r for r in records if r["reason"].startswith(UNREADABLE)]
     readable = [r for r in records if not r["reason"].startswith(UNREADABLE)]
     first = unreadable[0]["reason"][len(UNREADABLE) + 2:-1] if unreadable else ""
     more = f" (and {len(unreadable) - 1} more unreadable)" if len(unreadable) > 1 else ""
     if not readable:
-        return InputError(f"no candidate image could be read: {first}{more}")
+        raise InputError(f"no candidate image could be read: {first}{more}")
     best = max(readable, key=lambda r: (r.get("inliers", 0), r.get("matches", 0)))
     skipped = (f"; {len(unreadable)} unreadable, e.g. {first}" if unreadable else "")
-    return ProcessingError(
+    raise ProcessingError(
         f"no image passes the selection against {target}: {len(records)} candidate(s), "
         f"best {best['name']} with {best.get('matches', 0)} matches and "
         f"{best.get('inliers', 0)} inliers (need >= {min_matches} matches, "
@@ -243,7 +244,7 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
     log.info("%d candidate(s) compared with %s (feature cache: %d hit(s), %d miss(es))\n%s",
              len(records), target_name, cache.hits, cache.misses, _format_table(records))
     if not chosen:
-        raise _nothing_selected(records, target, min_matches, min_inliers)
+        _nothing_selected(records, target, min_matches, min_inliers)
     target_entry: dict[str, Any] = {
         "name": target_name, "path": target, "role": "target",
         "keypoints": len(target_features), "matches": len(target_features),

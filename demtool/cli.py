@@ -75,7 +75,11 @@ class DemtoolGroup(click.Group):
                 raise
             click.echo(f"Error: {_prefix(ctx)}: {exc}", err=True)
             ctx.exit(1)
-        except (KeyboardInterrupt, SystemError) as exc:
+        except (KeyboardInterrupt, Exception) as exc:
+            # an interrupt may surface as another error raised while it unwound: numba's
+            # dispatcher wraps it in a SystemError, and a Ctrl-C inside threading's
+            # Condition.wait (Dask's as_completed) leaves "cannot release un-acquired
+            # lock" (RuntimeError)
             if not _is_interrupt(exc):
                 raise
             # Outputs were rolled back by io.output_transaction while unwinding.

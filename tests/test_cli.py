@@ -86,7 +86,12 @@ def test_load_config_missing_file(tmp_path):
         load_config(tmp_path / "absent.toml")
 
 
-def test_interrupt_inside_a_stage_is_reported_and_rolled_back(tmp_path, monkeypatch):
+@pytest.mark.parametrize("wrapper", [
+    SystemError("returned a result with an exception set"),  # numba's dispatcher
+    RuntimeError("cannot release un-acquired lock"),  # Ctrl-C in threading's Condition.wait
+    None,  # the interrupt itself
+])
+def test_interrupt_inside_a_stage_is_reported_and_rolled_back(tmp_path, monkeypatch, wrapper):
     import numpy as np
 
     from demtool import io as dio
@@ -97,14 +102,26 @@ def test_interrupt_inside_a_stage_is_reported_and_rolled_back(tmp_path, monkeypa
             dio.write_raster(tmp_path / "half.tif", np.zeros((4, 4)))
             try:
                 raise KeyboardInterrupt("terminated by signal 15")
-            except KeyboardInterrupt as exc:  # as numba's dispatcher reports it
-                raise SystemError("returned a result with an exception set") from exc
+            except KeyboardInterrupt:
+                if wrapper is None:
+                    raise
+                raise wrapper  # noqa: B904 - raised while handling it, as the libraries do
 
     monkeypatch.setattr("demtool.cli.load_command", lambda name: interrupted)
     result = CliRunner().invoke(cli, ["synth"])
     assert result.exit_code == 130
     assert "demtool synth: interrupted; no output written" in result.output
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_error_that_is_no_interrupt_still_surfaces(monkeypatch):
+    @click.command(name="synth")
+    def failing():
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr("demtool.cli.load_command", lambda name: failing)
+    result = CliRunner().invoke(cli, ["synth"])
+    assert result.exit_code == 1 and isinstance(result.exception, RuntimeError)
 
 
 def test_main_pauses_the_cycle_collector_only_for_the_imports(monkeypatch):

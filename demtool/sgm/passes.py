@@ -174,9 +174,10 @@ def ad_pixel_cost(left, right, left_valid, right_valid) -> costs.PixelCost:
     """Truncated absolute difference of the pair quantized to 256 levels over their
     joint robust range (:data:`AD_TRUNCATION`)."""
     value_range = costs.robust_range([left, right], [left_valid, right_valid])
-    return costs.table_pixel_cost("ad", costs.quantize(left, left_valid, 256, value_range),
-                                  costs.quantize(right, right_valid, 256, value_range),
-                                  costs.absolute_difference_table(256, AD_TRUNCATION))
+    return costs.absolute_difference_pixel_cost(
+        "ad", costs.quantize(left, left_valid, 256, value_range),
+        costs.quantize(right, right_valid, 256, value_range), levels=256,
+        truncation=AD_TRUNCATION)
 
 
 def pixel_pass(pixel_cost, *, left_valid, right_valid, guide, min_disparity, num_disparities,

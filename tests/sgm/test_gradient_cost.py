@@ -40,3 +40,45 @@ def test_a_ramp_and_a_step():
     step[:, 2:] = 1.0
     assert costs.horizontal_sobel(step, np.ones(step.shape, bool)).tolist() == [
         [0.0, 4.0, 4.0, 0.0]] * 3
+
+
+def test_computed_absolute_difference_is_the_table_lookup_bit_for_bit():
+    # the gradient cost's kernels compute min(|i - k|, truncation); the generic table path
+    # (one load per cell) gives the values that defined it
+    rng = np.random.default_rng(5)
+    for _ in range(30):
+        height, width = rng.integers(1, 40, 2)
+        levels = int(rng.choice([2, 16, 256]))
+        truncation = int(rng.integers(0, levels + 3))
+        left, right = (rng.integers(0, levels, (height, width)).astype(np.uint8)
+                       for _ in range(2))
+        left_valid = rng.random((height, width)) > 0.2
+        right_valid = rng.random((height, width)) > 0.2
+        computed = costs.absolute_difference_pixel_cost("ad", left, right, levels=levels,
+                                                        truncation=truncation)
+        looked_up = costs.table_pixel_cost(
+            "ad", left, right, costs.absolute_difference_table(levels, truncation))
+        assert computed.max_cost == looked_up.max_cost
+        assert computed.kernel_source(left_valid, right_valid, 0)[0] == \
+            costs.KIND_ABSOLUTE_DIFFERENCE
+        window = int(rng.choice([1, 3, 5]))
+        n_disp = int(rng.integers(1, 2 * width + 2))  # also more disparities than columns
+        min_disparity = int(rng.integers(-width, width + 1))
+        volumes = [costs.windowed_cost_volume(
+            cost, left_valid, right_valid, min_disparity=min_disparity,
+            num_disparities=n_disp, window=window, rows=(0, height))
+            for cost in (computed, looked_up)]
+        assert np.array_equal(*volumes)
+
+
+def test_absolute_difference_values():
+    left = np.array([[0, 10, 200]], dtype=np.uint8)
+    right = np.array([[5, 0, 0]], dtype=np.uint8)
+    valid = np.ones(left.shape, dtype=bool)
+    cost = costs.absolute_difference_pixel_cost("ad", left, right, levels=256, truncation=24)
+    assert cost.max_cost == 24
+    volume = costs.windowed_cost_volume(cost, valid, valid, min_disparity=0,
+                                        num_disparities=2, window=1, rows=(0, 1))
+    unmatched = costs.unmatched_cost(cost)  # x - d outside the right image
+    # x = 0: d 0 → |0 − 5|; x = 1: |10 − 0|, |10 − 5|; x = 2: min(200, 24), min(195, 24)
+    assert volume[0].tolist() == [[5, unmatched], [10, 5], [24, 24]]

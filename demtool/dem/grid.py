@@ -138,9 +138,11 @@ def local_median_statistics(pixels: np.ndarray, values: np.ndarray, *,
                             ) -> tuple[np.ndarray, np.ndarray]:
     """Median and NMAD of each sample's ``neighbours`` nearest samples (itself excluded).
 
-    The statistics of :func:`local_median_inliers` (Westerweel & Scarano 2005).  The
-    neighbour search runs on :func:`demtool.tiling.distributed.usable_threads` threads
-    (a tile job's in a tiled run: :func:`demtool.tiling.distributed.compute_tile`).
+    The statistics of :func:`local_median_inliers` (Westerweel & Scarano 2005), from
+    :func:`demtool.dem.neighbours.neighbour_statistics` (equal distances: the lower
+    sample index first), or scipy's KD-tree where the positions crowd into a few spots.
+    The search runs on :func:`demtool.tiling.distributed.usable_threads` threads (a tile
+    job's in a tiled run: :func:`demtool.tiling.distributed.compute_tile`).
 
     Parameters
     ----------
@@ -158,12 +160,17 @@ def local_median_statistics(pixels: np.ndarray, values: np.ndarray, *,
     -------
     local_median, local_nmad : (N,) float64, or (M,) with ``at``
     """
-    from scipy.spatial import cKDTree
-
+    from demtool.dem.neighbours import neighbour_statistics
     from demtool.tiling.distributed import usable_threads
 
     values = np.asarray(values, dtype=np.float64)
     k = int(min(max(neighbours, 3), len(values) - 1))
+    if np.isfinite(pixels).all():
+        statistics = neighbour_statistics(pixels, values, k, at=at, threads=usable_threads())
+        if statistics is not None:
+            return statistics
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(np.asarray(pixels, dtype=np.float64))
     queries = np.asarray(pixels) if at is None else np.asarray(pixels)[at]
     # each query is independent: the same neighbours on any number of threads

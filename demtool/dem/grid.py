@@ -92,25 +92,14 @@ def splat_bilinear(pixels: np.ndarray, values: np.ndarray, shape: tuple[int, int
     weight : (H, W) float64
         Total weight received per cell.
     """
+    from demtool.dem.splat_moments import bilinear_moments
+
     pixels = np.asarray(pixels, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
     keep = np.isfinite(pixels).all(axis=1) & np.isfinite(values)
     x, y, z = pixels[keep, 0], pixels[keep, 1], values[keep]
-    height, width = shape
-    size = height * width
-    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
-    fx, fy = x - x0, y - y0
-    # Weighted moments per cell of the offsets (dx, dy) = sample - cell centre.
-    moments = np.zeros((9, size))  # w, w dx, w dy, w dx2, w dxdy, w dy2, w z, w z dx, w z dy
-    for step_x, step_y, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
-                              (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-        cols, rows = x0 + step_x, y0 + step_y
-        ok = (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height) & (w > 0)
-        cells = rows[ok] * width + cols[ok]
-        wk, dx, dy, zk = w[ok], (fx - step_x)[ok], (fy - step_y)[ok], z[ok]
-        for i, term in enumerate((wk, wk * dx, wk * dy, wk * dx * dx, wk * dx * dy,
-                                  wk * dy * dy, wk * zk, wk * zk * dx, wk * zk * dy)):
-            moments[i] += np.bincount(cells, weights=term, minlength=size)
+    size = shape[0] * shape[1]
+    moments = bilinear_moments(x, y, z, shape)  # w, w dx, w dy, w dx2, w dxdy, w dy2, w z, ...
     total = moments[0]
     grid = np.full(size, np.nan)
     measured = total >= min_weight
@@ -120,15 +109,18 @@ def splat_bilinear(pixels: np.ndarray, values: np.ndarray, shape: tuple[int, int
     # determinant of the (normalised) offset covariance.
     var_x, var_y = m[3] - m[1] ** 2, m[5] - m[2] ** 2
     cov_xy = m[4] - m[1] * m[2]
-    matrix = np.stack([np.stack([np.ones_like(mean), m[1], m[2]], -1),
-                       np.stack([m[1], m[3], m[4]], -1),
-                       np.stack([m[2], m[4], m[5]], -1)], -2)
-    rhs = np.stack([m[6], m[7], m[8]], -1)
     supported = var_x * var_y - cov_xy**2 > 1e-4
     intercept = mean.copy()
     if supported.any():
-        intercept[supported] = np.linalg.solve(matrix[supported],
-                                               rhs[supported][..., None])[:, 0, 0]
+        s = m[:, supported]
+        # [[1, m1, m2], [m1, m3, m4], [m2, m4, m5]] · (a, b, c) = (m6, m7, m8)
+        matrix = np.empty((s.shape[1], 3, 3))
+        matrix[:, 0, 0] = 1.0
+        for (row, column), moment in (((0, 1), 1), ((0, 2), 2), ((1, 0), 1), ((1, 1), 3),
+                                      ((1, 2), 4), ((2, 0), 2), ((2, 1), 4), ((2, 2), 5)):
+            matrix[:, row, column] = s[moment]
+        rhs = s[6:9].T[..., None].copy()
+        intercept[supported] = np.linalg.solve(matrix, rhs)[:, 0, 0]
     grid[measured] = intercept
     return grid.reshape(shape), total.reshape(shape)
 

@@ -42,6 +42,8 @@ def splat_median(pixels: np.ndarray, values: np.ndarray,
     counts : (H, W) int64
         Number of samples per cell.
     """
+    from demtool.dem.splat_kernels import cell_medians
+
     pixels = np.asarray(pixels, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
     keep = _inside(pixels, shape) & np.isfinite(values)
@@ -49,17 +51,8 @@ def splat_median(pixels: np.ndarray, values: np.ndarray,
     cols = np.rint(pixels[keep, 0]).astype(np.int64)
     rows = np.rint(pixels[keep, 1]).astype(np.int64)
     cells = rows * width + cols
-    kept = values[keep]
-    grid = np.full(height * width, np.nan)
     counts = np.bincount(cells, minlength=height * width)
-    if len(cells):
-        order = np.lexsort((kept, cells))
-        sorted_cells, sorted_values = cells[order], kept[order]
-        starts = np.flatnonzero(np.r_[True, sorted_cells[1:] != sorted_cells[:-1]])
-        sizes = np.diff(np.r_[starts, len(sorted_cells)])
-        lower = sorted_values[starts + (sizes - 1) // 2]
-        upper = sorted_values[starts + sizes // 2]
-        grid[sorted_cells[starts]] = 0.5 * (lower + upper)
+    grid = cell_medians(cells, values[keep], counts)
     return grid.reshape(shape), counts.reshape(shape)
 
 
@@ -92,7 +85,7 @@ def splat_bilinear(pixels: np.ndarray, values: np.ndarray, shape: tuple[int, int
     weight : (H, W) float64
         Total weight received per cell.
     """
-    from demtool.dem.splat_moments import bilinear_moments
+    from demtool.dem.splat_kernels import bilinear_moments
 
     pixels = np.asarray(pixels, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)

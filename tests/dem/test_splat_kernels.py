@@ -1,8 +1,8 @@
-"""The splatting moments kernel (demtool.dem.splat_moments) against its numpy formulation."""
+"""The splatting moments kernel (demtool.dem.splat_kernels) against its numpy formulation."""
 
 import numpy as np
 
-from demtool.dem.splat_moments import bilinear_moments
+from demtool.dem.splat_kernels import bilinear_moments, cell_medians
 
 
 def numpy_moments(x, y, z, shape):
@@ -46,3 +46,39 @@ def test_one_sample_spreads_its_bilinear_weights():
     assert np.allclose(moments[6], 2.0 * moments[0])  # Σ w z = z Σ w
     # offsets sample − cell centre: +0.25 from column 1, −0.75 from column 2
     assert np.allclose(moments[1].reshape(2, 3)[0], [0.0, 0.375 * 0.25, 0.125 * -0.75])
+
+
+def lexsort_medians(cells, values, size):
+    """What splat_median computed before: a lexsort of all samples by (cell, value)."""
+    grid = np.full(size, np.nan)
+    order = np.lexsort((values, cells))
+    sorted_cells, sorted_values = cells[order], values[order]
+    starts = np.flatnonzero(np.r_[True, sorted_cells[1:] != sorted_cells[:-1]])
+    sizes = np.diff(np.r_[starts, len(sorted_cells)])
+    lower = sorted_values[starts + (sizes - 1) // 2]
+    upper = sorted_values[starts + sizes // 2]
+    grid[sorted_cells[starts]] = 0.5 * (lower + upper)
+    return grid
+
+
+def test_cell_medians_equal_the_lexsort_formulation_bit_for_bit():
+    rng = np.random.default_rng(1)
+    for size, count in ((1, 5), (50, 0), (50, 1), (400, 3000), (30, 5000)):
+        # few samples a cell, and (30 cells, 5000 samples) cells of over 64 samples
+        cells = rng.integers(0, size, count)
+        values = rng.normal(size=count) * 10.0
+        values[rng.random(count) < 0.3] = 2.0  # repeated values
+        values[rng.random(count) < 0.05] = -0.0
+        counts = np.bincount(cells, minlength=size)
+        found = cell_medians(cells, values, counts)
+        if count:
+            assert np.array_equal(found, lexsort_medians(cells, values, size), equal_nan=True)
+        else:
+            assert np.isnan(found).all()
+
+
+def test_cell_medians_values():
+    cells = np.array([2, 0, 2, 2, 0])
+    values = np.array([5.0, 1.0, -1.0, 3.0, 4.0])
+    found = cell_medians(cells, values, np.bincount(cells, minlength=4))
+    assert np.array_equal(found, [2.5, np.nan, 3.0, np.nan], equal_nan=True)

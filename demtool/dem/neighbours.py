@@ -26,10 +26,13 @@ from numba import njit
 
 from demtool.imaging.robust import NMAD_FACTOR
 
-# Mean samples per bucket; and the most one bucket may hold before the queries would
-# scan too many (clustered or repeated positions), when scipy's KD-tree is used instead.
+# Mean samples per bucket.  A query scans its bucket's neighbours, so the work grows with
+# Σ (samples per bucket)² (3 N for evenly spread samples); where positions crowd (clusters,
+# repeated positions) beyond MAX_CROWDING · N, or MAX_BUCKET_SAMPLES into one bucket,
+# scipy's KD-tree is used instead.
 BUCKET_OCCUPANCY = 2.0
 MAX_BUCKET_SAMPLES = 256
+MAX_CROWDING = 32
 
 
 def bucket_layout(pixels: np.ndarray) -> tuple[float, float, float, int, int]:
@@ -201,15 +204,16 @@ def neighbour_statistics(pixels: np.ndarray, values: np.ndarray, k: int, *,
     Returns
     -------
     (local_median, local_nmad), (N,) or (M,) float64; None where the positions crowd
-    more than :data:`MAX_BUCKET_SAMPLES` into one bucket (the caller then uses a
-    KD-tree).
+    (:data:`MAX_BUCKET_SAMPLES`, :data:`MAX_CROWDING`): the caller then uses a KD-tree.
     """
     pixels = np.ascontiguousarray(pixels, dtype=np.float64)
     xs, ys = np.ascontiguousarray(pixels[:, 0]), np.ascontiguousarray(pixels[:, 1])
     values = np.ascontiguousarray(values, dtype=np.float64)
     x0, y0, side, nx, ny = bucket_layout(pixels)
     starts, order = _sort_into_buckets(xs, ys, x0, y0, side, nx, ny)
-    if np.diff(starts).max() > MAX_BUCKET_SAMPLES:
+    occupancy = np.diff(starts)
+    if (occupancy.max() > MAX_BUCKET_SAMPLES
+            or float(np.dot(occupancy, occupancy)) > MAX_CROWDING * len(xs)):
         return None
     queries = (np.arange(len(values), dtype=np.int64) if at is None
                else np.ascontiguousarray(at, dtype=np.int64))

@@ -115,3 +115,19 @@ def test_crowded_positions_go_to_the_kdtree():
     median, nmad = local_median_statistics(pixels, values, neighbours=16)
     expected = kdtree_statistics(pixels, values, 16)
     assert np.array_equal(median, expected[0]) and np.array_equal(nmad, expected[1])
+
+
+def test_a_dense_cluster_in_a_wide_field_goes_to_the_kdtree(monkeypatch):
+    # most samples in a spot 1/1000 of the field's width: buckets sized for the mean
+    # density would hold them all (Σ occupancy² decides, whatever the largest bucket)
+    import demtool.dem.neighbours as neighbours
+
+    monkeypatch.setattr(neighbours, "MAX_BUCKET_SAMPLES", 10**9)
+    rng = np.random.default_rng(5)
+    pixels = np.concatenate([rng.random((200, 2)) * 5000.0,
+                             2500.0 + rng.random((6000, 2)) * 5.0])
+    values = rng.normal(size=len(pixels))
+    assert neighbour_statistics(pixels, values, 16) is None
+    median, nmad = local_median_statistics(pixels, values, neighbours=16)
+    expected = kdtree_statistics(pixels, values, 16)
+    assert np.array_equal(median, expected[0]) and np.array_equal(nmad, expected[1])

@@ -105,18 +105,39 @@ def _block_ids(shape: tuple[int, int], n_target: int = 64) -> np.ndarray:
     return rows[:, None] * (cols.max() + 1) + cols[None, :]
 
 
+@njit(nogil=True, cache=True)
+def _block_normal_equations(design, target, block, n_blocks):
+    """Per block, Σ design_i · design_j and Σ design_i · target over its samples, added in
+    sample order (as ``np.bincount`` adds its weights): (n_blocks, p·p), (n_blocks, p)."""
+    n_params = design.shape[1]
+    normal = np.zeros((n_blocks, n_params * n_params))
+    rhs = np.zeros((n_blocks, n_params))
+    for row in range(design.shape[0]):
+        b = block[row]
+        for i in range(n_params):
+            for j in range(n_params):
+                normal[b, i * n_params + j] += design[row, i] * design[row, j]
+            rhs[b, i] += design[row, i] * target[row]
+    return normal, rhs
+
+
 def _bootstrap_sigma(design: np.ndarray, target: np.ndarray, blocks: np.ndarray, *,
                      replicates: int = 300, seed: int = 0) -> np.ndarray:
-    """Std of least-squares solutions when whole blocks are resampled with replacement."""
-    ids, inverse = np.unique(blocks, return_inverse=True)
+    """Std of least-squares solutions when whole blocks are resampled with replacement.
+
+    ``blocks``: non-negative block ids (:func:`_block_ids`); the normal equations of each
+    block are summed once, so each replicate costs one sum over blocks.
+    """
+    # the blocks present, and each sample's index among them (np.unique's, without a sort)
+    ids = np.flatnonzero(np.bincount(blocks))
     n_params = design.shape[1]
     if ids.size < 8:
         return np.full(n_params, np.nan)
-    outer = design[:, :, None] * design[:, None, :]
-    normal = np.stack([np.bincount(inverse, weights=outer[:, i, j], minlength=ids.size)
-                       for i in range(n_params) for j in range(n_params)], axis=1)
-    rhs = np.stack([np.bincount(inverse, weights=design[:, i] * target, minlength=ids.size)
-                    for i in range(n_params)], axis=1)
+    position = np.zeros(int(ids[-1]) + 1, dtype=np.int64)
+    position[ids] = np.arange(ids.size)
+    normal, rhs = _block_normal_equations(np.ascontiguousarray(design, dtype=np.float64),
+                                          np.ascontiguousarray(target, dtype=np.float64),
+                                          position[blocks], ids.size)
     rng = np.random.default_rng(seed)
     draws = rng.integers(0, ids.size, size=(replicates, ids.size))
     weights = np.zeros((replicates, ids.size))

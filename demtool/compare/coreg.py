@@ -301,7 +301,7 @@ def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
                                - params[2]))[usable[sub]]
         residual = residual[np.isfinite(residual)]
         centre = float(np.median(residual)) if residual.size else 0.0
-        halfwidth = 4.0 * nmad(residual) if residual.size else 0.0
+        halfwidth = 4.0 * nmad(residual, median=centre) if residual.size else 0.0
         if halfwidth > 0:
             sums = _gradient_sums(grad_x, grad_y, dh, usable, params, centre, halfwidth)
             params, sigma, variance, count = _solve_sums(sums)

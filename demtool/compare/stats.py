@@ -52,7 +52,7 @@ def difference_statistics(difference: np.ndarray, mask: np.ndarray | None = None
         "median": median,
         "std": float(x.std()),
         "rmse": float(np.sqrt(np.mean(x * x))),
-        "nmad": nmad(x),
+        "nmad": nmad(x, median=median),
         "le90": float(np.percentile(np.abs(x), 90)),
         "min": float(x.min()),
         "max": float(x.max()),

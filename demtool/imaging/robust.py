@@ -9,13 +9,15 @@ import numpy as np
 NMAD_FACTOR = 1.4826
 
 
-def nmad(values: np.ndarray) -> float:
+def nmad(values: np.ndarray, *, median: float | None = None) -> float:
     """Normalised median absolute deviation ``1.4826 · median(|x − median(x)|)``.
 
     Parameters
     ----------
     values : array of float
         Finite values (any shape; NaN must be removed first).
+    median : float, optional
+        ``np.median(values)`` where the caller has it already (it is not recomputed).
 
     Returns
     -------
@@ -23,4 +25,5 @@ def nmad(values: np.ndarray) -> float:
         The robust standard deviation, in the values' units.
     """
     x = np.asarray(values, dtype=np.float64)
-    return float(NMAD_FACTOR * np.median(np.abs(x - np.median(x))))
+    centre = np.median(x) if median is None else median
+    return float(NMAD_FACTOR * np.median(np.abs(x - centre)))

@@ -42,7 +42,7 @@ def splat_median(pixels: np.ndarray, values: np.ndarray,
     counts : (H, W) int64
         Number of samples per cell.
     """
-    from demtool.dem.splat_kernels import cell_medians
+    from demtool.dem.grid_kernels import cell_medians
 
     pixels = np.asarray(pixels, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
@@ -85,7 +85,7 @@ def splat_bilinear(pixels: np.ndarray, values: np.ndarray, shape: tuple[int, int
     weight : (H, W) float64
         Total weight received per cell.
     """
-    from demtool.dem.splat_kernels import bilinear_moments
+    from demtool.dem.grid_kernels import bilinear_moments
 
     pixels = np.asarray(pixels, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
@@ -124,7 +124,7 @@ def local_median_statistics(pixels: np.ndarray, values: np.ndarray, *,
     """Median and NMAD of each sample's ``neighbours`` nearest samples (itself excluded).
 
     The statistics of :func:`local_median_inliers` (Westerweel & Scarano 2005), from
-    :func:`demtool.dem.neighbours.neighbour_statistics` (equal distances: the lower
+    :func:`demtool.dem.grid_kernels.neighbour_statistics` (equal distances: the lower
     sample index first), or scipy's KD-tree where the positions crowd into a few spots.
     The search runs on :func:`demtool.tiling.distributed.usable_threads` threads (a tile
     job's in a tiled run: :func:`demtool.tiling.distributed.compute_tile`).
@@ -145,7 +145,7 @@ def local_median_statistics(pixels: np.ndarray, values: np.ndarray, *,
     -------
     local_median, local_nmad : (N,) float64, or (M,) with ``at``
     """
-    from demtool.dem.neighbours import neighbour_statistics
+    from demtool.dem.grid_kernels import neighbour_statistics
     from demtool.tiling.distributed import usable_threads
 
     values = np.asarray(values, dtype=np.float64)

@@ -1,11 +1,11 @@
-"""The k-nearest-neighbour statistics of the outlier test (demtool.dem.neighbours)."""
+"""The k-nearest-neighbour statistics of the outlier test (demtool.dem.grid_kernels)."""
 
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
 from demtool.dem.grid import local_median_statistics, row_medians
-from demtool.dem.neighbours import MAX_BUCKET_SAMPLES, neighbour_statistics
+from demtool.dem.grid_kernels import MAX_BUCKET_SAMPLES, neighbour_statistics
 from demtool.imaging.robust import NMAD_FACTOR
 
 
@@ -120,9 +120,9 @@ def test_crowded_positions_go_to_the_kdtree():
 def test_a_dense_cluster_in_a_wide_field_goes_to_the_kdtree(monkeypatch):
     # most samples in a spot 1/1000 of the field's width: buckets sized for the mean
     # density would hold them all (Σ occupancy² decides, whatever the largest bucket)
-    import demtool.dem.neighbours as neighbours
+    import demtool.dem.grid_kernels as kernels
 
-    monkeypatch.setattr(neighbours, "MAX_BUCKET_SAMPLES", 10**9)
+    monkeypatch.setattr(kernels, "MAX_BUCKET_SAMPLES", 10**9)
     rng = np.random.default_rng(5)
     pixels = np.concatenate([rng.random((200, 2)) * 5000.0,
                              2500.0 + rng.random((6000, 2)) * 5.0])

@@ -1,8 +1,8 @@
-"""The splatting moments kernel (demtool.dem.splat_kernels) against its numpy formulation."""
+"""The splatting moments kernel (demtool.dem.grid_kernels) against its numpy formulation."""
 
 import numpy as np
 
-from demtool.dem.splat_kernels import bilinear_moments, cell_medians
+from demtool.dem.grid_kernels import bilinear_moments, cell_medians
 
 
 def numpy_moments(x, y, z, shape):

@@ -158,17 +158,15 @@ def default_max_ray_gap(gap: np.ndarray, gsd_m: float) -> float:
 def overlap_mask(grid, left: SensorModel, right: SensorModel, height: float) -> np.ndarray:
     """Cells of ``grid`` whose centre, ``height`` metres above the sphere, both cameras see.
 
+    Most cells are decided on a lattice of exact projections, the cells near an image edge
+    one by one (:func:`demtool.dem.overlap.cells_seen`: the same answer as projecting every
+    cell).
+
     Returns (rows, columns) bool.
     """
-    from demtool.maps.grids import grid_xyz
+    from demtool.dem.overlap import cells_seen
 
-    xyz = grid_xyz(grid, float(height))
-    mask = np.ones(grid.shape, dtype=bool)
-    for model in (left, right):
-        line, sample = model.ground_to_image(xyz)
-        mask &= (np.isfinite(line) & np.isfinite(sample) & (line >= 0) & (sample >= 0)
-                 & (line <= model.lines) & (sample <= model.samples))
-    return mask
+    return cells_seen(left, grid, float(height)) & cells_seen(right, grid, float(height))
 
 
 class MapDem(NamedTuple):

@@ -16,7 +16,10 @@ does not depend on the last pixel, so :func:`cells_seen` projects exactly only
 
 The result is the exact per-cell answer (a cell is decided on the lattice only when the
 interpolated position is ``margin_px`` from the edge, four times the largest error
-measured between the nodes); tests compare it with the cell-by-cell projection.
+measured between the nodes); tests compare it with the cell-by-cell projection.  One
+case it cannot see: a sensor without an image in a patch narrower than a lattice square
+that misses every node and square centre (a gap in the ephemeris inside the image), whose
+cells would count as seen.
 """
 
 from __future__ import annotations

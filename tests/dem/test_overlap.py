@@ -33,7 +33,7 @@ def footprint_grid(model, gsd, *, pad=0.3):
 def test_line_scan_equals_every_cell(roll, gsd):
     model = linescan_sensor(lines=400, samples=300, gsd=1.0, roll_deg=roll)
     grid = footprint_grid(model, gsd)
-    assert min(grid.shape) >= 4 * LATTICE_STEP  # the lattice path, not the small-grid one
+    assert min(grid.shape) >= 4 * LATTICE_STEP  # many lattice squares, edges inside them
     for height in (0.0, 350.0):
         expected = every_cell(model, grid, height)
         assert 0.2 < expected.mean() < 0.9  # edges inside the grid
@@ -49,7 +49,7 @@ def test_frame_pair_equals_every_cell():
         assert np.array_equal(cells_seen(model, grid, 0.0, step=5, margin_px=0.5), expected)
 
 
-def test_small_grids_project_every_cell():
+def test_small_grids_equal_every_cell():
     model = linescan_sensor(lines=40, samples=30, gsd=1.0)
     grid = footprint_grid(model, 1.0)
     assert min(grid.shape) < 4 * LATTICE_STEP
@@ -57,7 +57,7 @@ def test_small_grids_project_every_cell():
 
 
 class Wavy:
-    """A sensor whose image position bends within a lattice square (bilinear fails)."""
+    """A sensor whose image position bends within a lattice square (bilinear is off)."""
 
     lines, samples = 400.0, 400.0
 
@@ -69,14 +69,14 @@ class Wavy:
         return line + self.amplitude * np.sin(sample / 3.0), sample
 
 
-def test_a_bending_mapping_falls_back_to_every_cell(caplog):
+def test_a_bending_mapping_refines_the_lattice(caplog):
     model = Wavy(linescan_sensor(lines=400, samples=400, gsd=1.0), amplitude_px=6.0)
     grid = footprint_grid(model.model, 1.0)
-    with caplog.at_level(logging.DEBUG, logger="demtool.dem.overlap"):
+    with caplog.at_level(logging.DEBUG, logger="demtool.mapproject.core"):
         found = cells_seen(model, grid, 0.0)
-    assert "every cell projected" in caplog.text  # the lattice was found off, not used
+    assert "refining" in caplog.text  # the lattice was found off, not used as it was
     assert np.array_equal(found, every_cell(model, grid, 0.0))
     caplog.clear()
-    with caplog.at_level(logging.DEBUG, logger="demtool.dem.overlap"):
+    with caplog.at_level(logging.DEBUG, logger="demtool.mapproject.core"):
         cells_seen(model.model, grid, 0.0)
-    assert "every cell projected" not in caplog.text  # the straight sensor uses it
+    assert "refining" not in caplog.text  # the straight sensor uses the first lattice

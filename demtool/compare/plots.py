@@ -25,6 +25,11 @@ __all__ = [
 ]
 
 DPI = 110
+#: most samples along a map's longer side: at least two per screen pixel of the widest
+#: map panel (7 in at ``DPI``), so a larger grid drawn with "nearest" looks the same
+#: from every second, third … cell; contours and resampling of a 2048² grid took
+#: seconds (issue 28)
+DISPLAY_SAMPLES = 1200
 
 
 def _pyplot():
@@ -45,6 +50,25 @@ def _png(figure) -> bytes:
 
 def _extent(shape: tuple[int, int], spacing: tuple[float, float]) -> list[float]:
     return [0.0, shape[1] * spacing[0], shape[0] * spacing[1], 0.0]
+
+
+def display_stride(shape: tuple[int, int], samples: int = DISPLAY_SAMPLES) -> int:
+    """Every how many cells a map of ``shape`` is drawn: 1 up to ``samples`` cells along
+    its longer side, else the least step that keeps it within ``samples``."""
+    return max(1, -(-max(shape) // samples))
+
+
+def _map_image(axis, values: np.ndarray, spacing: tuple[float, float], stride: int,
+               **style):
+    """``imshow`` of every ``stride``-th cell of ``values`` (cell i·stride standing for the
+    cells i·stride … (i + 1)·stride − 1), the axes limited to the whole grid."""
+    shown = values[::stride, ::stride]
+    image = axis.imshow(shown, extent=_extent(shown.shape, (spacing[0] * stride,
+                                                            spacing[1] * stride)),
+                        interpolation="nearest", **style)
+    axis.set_xlim(0.0, values.shape[1] * spacing[0])
+    axis.set_ylim(values.shape[0] * spacing[1], 0.0)
+    return image
 
 
 def hillshade(dem: np.ndarray, spacing: tuple[float, float] = (1.0, 1.0), *,
@@ -78,8 +102,8 @@ def difference_figure(difference: np.ndarray, spacing: tuple[float, float], *,
     plt = _pyplot()
     limit = _symmetric_limit(difference)
     figure, axis = plt.subplots(figsize=(7, 6), layout="constrained")
-    image = axis.imshow(difference, cmap="RdBu_r", vmin=-limit, vmax=limit,
-                        extent=_extent(difference.shape, spacing), interpolation="nearest")
+    image = _map_image(axis, difference, spacing, display_stride(difference.shape),
+                       cmap="RdBu_r", vmin=-limit, vmax=limit)
     axis.set_facecolor("0.8")
     figure.colorbar(image, ax=axis, label="DEM − reference (m)", extend="both")
     axis.set_xlabel("x (m)")
@@ -111,18 +135,17 @@ def dems_figure(dems: Sequence[tuple[str, np.ndarray]], spacing: tuple[float, fl
                                 layout="constrained")
     image = None
     for axis, (name, dem) in zip(axes[0], dems, strict=True):
-        extent = _extent(dem.shape, spacing)
-        shade = hillshade(dem, spacing)
+        stride = display_stride(dem.shape)
+        shade = hillshade(dem, spacing)  # of every cell: the shown ones keep their relief
         axis.set_facecolor("0.85")
-        axis.imshow(shade, cmap="gray", vmin=0, vmax=1, extent=extent,
-                    interpolation="nearest")
-        image = axis.imshow(dem, cmap="terrain", vmin=low, vmax=high, alpha=0.55,
-                            extent=extent, interpolation="nearest")
-        rows, cols = dem.shape
-        x = (np.arange(cols) + 0.5) * spacing[0]
-        y = (np.arange(rows) + 0.5) * spacing[1]
-        if np.isfinite(dem).sum() > 4:
-            axis.contour(x, y, np.ma.masked_invalid(dem), levels=levels, colors="k",
+        _map_image(axis, shade, spacing, stride, cmap="gray", vmin=0, vmax=1)
+        image = _map_image(axis, dem, spacing, stride, cmap="terrain", vmin=low,
+                           vmax=high, alpha=0.55)
+        shown = dem[::stride, ::stride]
+        x = (np.arange(shown.shape[1]) * stride + 0.5) * spacing[0]
+        y = (np.arange(shown.shape[0]) * stride + 0.5) * spacing[1]
+        if np.isfinite(shown).sum() > 4:
+            axis.contour(x, y, np.ma.masked_invalid(shown), levels=levels, colors="k",
                          linewidths=0.5)
         axis.set_title(name)
         axis.set_xlabel("x (m)")
@@ -210,8 +233,8 @@ def completeness_figure(coverage: np.ndarray, spacing: tuple[float, float], *,
     plt = _pyplot()
     figure, axis = plt.subplots(figsize=(7, 6), layout="constrained")
     axis.set_facecolor("white")
-    axis.imshow(coverage, cmap=ListedColormap(["tab:red", "0.7"]), vmin=0, vmax=1,
-                extent=_extent(coverage.shape, spacing), interpolation="nearest")
+    _map_image(axis, coverage, spacing, display_stride(coverage.shape),
+               cmap=ListedColormap(["tab:red", "0.7"]), vmin=0, vmax=1)
     axis.set_title(f"{title} completeness {percent:.2f} % (red: no DEM value)".strip())
     axis.set_xlabel("x (m)")
     axis.set_ylabel("y (m, down)")

@@ -1,0 +1,70 @@
+"""The comparison figures draw large grids from every k-th cell (demtool.compare.plots):
+the same picture, without contouring and resampling millions of cells."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+
+from demtool.compare import plots
+
+
+def decoded(png: bytes) -> np.ndarray:
+    from matplotlib import image
+
+    return image.imread(io.BytesIO(png), format="png")
+
+
+@pytest.mark.parametrize(("shape", "stride"), [((512, 512), 1), ((1200, 30), 1),
+                                               ((1201, 30), 2), ((2048, 2048), 2),
+                                               ((5000, 20000), 17)])
+def test_stride_keeps_the_longer_side_within_the_display_samples(shape, stride):
+    assert plots.display_stride(shape) == stride
+    assert -(-max(shape) // stride) <= plots.DISPLAY_SAMPLES
+
+
+def test_a_strided_map_covers_the_whole_grid():
+    plt = plots._pyplot()
+    values = np.arange(2500 * 90, dtype=float).reshape(2500, 90)
+    figure, axis = plt.subplots()
+    image = plots._map_image(axis, values, (2.0, 0.5), 3, cmap="gray")
+    shown = image.get_array()
+    assert shown.shape == (834, 30)
+    assert shown[1, 1] == values[3, 3]
+    # sample i stands for cells 3i … 3i + 2: its extent is 3 cells a sample
+    assert image.get_extent() == [0.0, 30 * 3 * 2.0, 834 * 3 * 0.5, 0.0]
+    assert axis.get_xlim() == (0.0, 90 * 2.0)
+    assert axis.get_ylim() == (2500 * 0.5, 0.0)
+    plt.close(figure)
+
+
+def smooth_field(size: int) -> np.ndarray:
+    y, x = np.mgrid[0:size, 0:size] / size
+    field = 10.0 * np.sin(6.0 * x) * np.cos(5.0 * y)
+    field[: size // 10, : size // 8] = np.nan  # a hole
+    return field
+
+
+def test_a_strided_figure_looks_like_the_full_one(monkeypatch):
+    """1300² cells, drawn from every second cell and from all: the decoded pictures
+    differ on few pixels (the hole's edge and contour lines shifted by a cell)."""
+    field = smooth_field(1300)
+    reference = field + 0.3 * np.cos(20.0 * np.linspace(0, 1, 1300))[None, :]
+    spacing = (0.5, 0.5)
+
+    def figures() -> list[np.ndarray]:
+        return [decoded(plots.difference_figure(field - reference, spacing, title="t")),
+                decoded(plots.dems_figure([("dem", field), ("reference", reference)],
+                                          spacing)),
+                decoded(plots.completeness_figure(np.isfinite(field), spacing,
+                                                  percent=99.0))]
+
+    strided = figures()
+    monkeypatch.setattr(plots, "DISPLAY_SAMPLES", 10**6)
+    full = figures()
+    for fast, slow in zip(strided, full, strict=True):
+        assert fast.shape == slow.shape
+        changed = np.abs(fast - slow).max(axis=-1) > 0.1
+        assert changed.mean() < 0.01

@@ -2,10 +2,10 @@
 
 from importlib.metadata import PackageNotFoundError, version
 
-from demtool import blas, blas_probe, jitcache
+from demtool import blas, jitcache
 
 blas.configure()  # before numpy loads OpenBLAS: its workers sleep instead of spinning
-blas_probe.configure()  # before numba starts: its BLAS probe skips scipy.linalg's import
+blas.defer_numba_probe()  # before numba starts: its BLAS probe skips scipy.linalg's import
 jitcache.configure()  # before any demtool module imports numba: the compiled kernels' cache
 
 try:

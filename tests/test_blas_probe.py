@@ -1,4 +1,4 @@
-"""numba's BLAS probe sees a stand-in for scipy.linalg.cython_blas (demtool.blas_probe):
+"""numba's BLAS probe sees a stand-in for scipy.linalg.cython_blas (demtool.blas):
 kernels start without importing scipy.linalg, and BLAS still works where a kernel uses it.
 
 Each check runs in a fresh interpreter: what numba imported stays imported."""
@@ -11,7 +11,7 @@ import subprocess
 import sys
 import textwrap
 
-from demtool import blas_probe
+from demtool import blas as blas_probe
 
 
 def run_fresh(code: str) -> dict:
@@ -67,7 +67,7 @@ def test_a_kernel_calling_blas_gets_the_real_library():
 def test_the_stand_in_answers_from_the_real_module_and_leaves_sys_modules():
     seen = run_fresh("""
         import json, sys
-        from demtool.blas_probe import DeferredModule
+        from demtool.blas import DeferredModule
 
         stand_in = DeferredModule("json.tool")
         sys.modules["json.tool"] = stand_in
@@ -89,7 +89,7 @@ def without_finder(monkeypatch):
 def test_nothing_is_deferred_once_numba_has_probed(monkeypatch):
     without_finder(monkeypatch)
     monkeypatch.setitem(sys.modules, blas_probe.PROBING_MODULE, object())
-    assert blas_probe.configure() is False
+    assert blas_probe.defer_numba_probe() is False
     assert not any(isinstance(f, blas_probe._ProbeFinder) for f in sys.meta_path)
 
 
@@ -99,7 +99,7 @@ def test_nothing_is_deferred_without_the_probed_module(monkeypatch):
     monkeypatch.delitem(sys.modules, blas_probe.PROBING_MODULE, raising=False)
     monkeypatch.delitem(sys.modules, blas_probe.PROBED_MODULE, raising=False)
     monkeypatch.setattr(blas_probe, "PROBED_MODULE", "scipy.linalg.no_such_module")
-    assert blas_probe.configure() is False
+    assert blas_probe.defer_numba_probe() is False
     assert not any(isinstance(f, blas_probe._ProbeFinder) for f in sys.meta_path)
 
 

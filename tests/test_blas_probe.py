@@ -11,7 +11,7 @@ import subprocess
 import sys
 import textwrap
 
-from demtool import blas as blas_probe
+from demtool import blas
 
 
 def run_fresh(code: str) -> dict:
@@ -83,28 +83,28 @@ def test_the_stand_in_answers_from_the_real_module_and_leaves_sys_modules():
 def without_finder(monkeypatch):
     """This process's own finder (installed on ``import demtool``) set aside."""
     monkeypatch.setattr(sys, "meta_path", [f for f in sys.meta_path
-                                           if not isinstance(f, blas_probe._ProbeFinder)])
+                                           if not isinstance(f, blas._ProbeFinder)])
 
 
 def test_nothing_is_deferred_once_numba_has_probed(monkeypatch):
     without_finder(monkeypatch)
-    monkeypatch.setitem(sys.modules, blas_probe.PROBING_MODULE, object())
-    assert blas_probe.defer_numba_probe() is False
-    assert not any(isinstance(f, blas_probe._ProbeFinder) for f in sys.meta_path)
+    monkeypatch.setitem(sys.modules, blas.PROBING_MODULE, object())
+    assert blas.defer_numba_probe() is False
+    assert not any(isinstance(f, blas._ProbeFinder) for f in sys.meta_path)
 
 
 def test_nothing_is_deferred_without_the_probed_module(monkeypatch):
     """Without scipy's cython_blas the probe must fail as numba expects (no BLAS)."""
     without_finder(monkeypatch)
-    monkeypatch.delitem(sys.modules, blas_probe.PROBING_MODULE, raising=False)
-    monkeypatch.delitem(sys.modules, blas_probe.PROBED_MODULE, raising=False)
-    monkeypatch.setattr(blas_probe, "PROBED_MODULE", "scipy.linalg.no_such_module")
-    assert blas_probe.defer_numba_probe() is False
-    assert not any(isinstance(f, blas_probe._ProbeFinder) for f in sys.meta_path)
+    monkeypatch.delitem(sys.modules, blas.PROBING_MODULE, raising=False)
+    monkeypatch.delitem(sys.modules, blas.PROBED_MODULE, raising=False)
+    monkeypatch.setattr(blas, "PROBED_MODULE", "scipy.linalg.no_such_module")
+    assert blas.defer_numba_probe() is False
+    assert not any(isinstance(f, blas._ProbeFinder) for f in sys.meta_path)
 
 
 def test_findable_walks_package_folders_without_importing_them():
     spec = importlib.util.find_spec("scipy")
-    assert blas_probe._findable("scipy.linalg.cython_blas", spec)
-    assert not blas_probe._findable("scipy.no_such_package.cython_blas", spec)
-    assert not blas_probe._findable("scipy.linalg.no_such_module", spec)
+    assert blas._findable("scipy.linalg.cython_blas", spec)
+    assert not blas._findable("scipy.no_such_package.cython_blas", spec)
+    assert not blas._findable("scipy.linalg.no_such_module", spec)

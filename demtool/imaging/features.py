@@ -292,8 +292,11 @@ def _brute_force(a: np.ndarray, b: np.ndarray,
 
     Returns, for each row of ``a``, the indices (Na, 2) and squared distances (Na, 2) of
     its two nearest rows of ``b`` (index -1, distance inf when ``b`` has one row), and
-    for each row of ``b`` the index (Nb,) of its nearest row of ``a``.
+    for each row of ``b`` the index (Nb,) of its nearest row of ``a``
+    (:func:`demtool.imaging.nearest.nearest_both_ways`; ties: the lower index).
     """
+    from demtool.imaging.nearest import nearest_both_ways
+
     norms_b = np.einsum("ij,ij->i", b, b)
     indices = np.full((len(a), 2), -1, np.int64)
     distances = np.full((len(a), 2), np.inf, np.float64)
@@ -303,19 +306,7 @@ def _brute_force(a: np.ndarray, b: np.ndarray,
     for start in range(0, len(a), rows):
         block = a[start:start + rows]
         d2 = np.einsum("ij,ij->i", block, block)[:, None] + norms_b[None, :] - 2.0 * (block @ b.T)
-        np.maximum(d2, 0.0, out=d2)
-        k = min(2, len(b))
-        nearest = np.argpartition(d2, k - 1, axis=1)[:, :k] if len(b) > k else \
-            np.tile(np.arange(k), (len(block), 1))
-        nearest_d = np.take_along_axis(d2, nearest, axis=1)
-        order = np.argsort(nearest_d, axis=1)
-        indices[start:start + len(block), :k] = np.take_along_axis(nearest, order, axis=1)
-        distances[start:start + len(block), :k] = np.take_along_axis(nearest_d, order, axis=1)
-        column_best = np.argmin(d2, axis=0)
-        column_d = d2[column_best, np.arange(len(b))]
-        better = column_d < best_b_distance
-        best_b_distance[better] = column_d[better]
-        best_a_for_b[better] = column_best[better] + start
+        nearest_both_ways(d2, start, indices, distances, best_a_for_b, best_b_distance)
     return indices, distances, best_a_for_b
 
 

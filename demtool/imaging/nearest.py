@@ -4,8 +4,8 @@
 descriptor sets with one BLAS product per block of rows; this pass reads a block once,
 in memory order, for each row's two nearest columns and each column's nearest row.
 numpy needed an ``argpartition`` along the rows and an ``argmin`` down the columns,
-which copies the block transposed first: 36 % of ``select``'s CPU time on the demo's
-eight views.
+which copies the block transposed first: 0.33 CPU s against 0.14 for 4000 × 4000
+descriptors, 1.22 against 0.58 for 8000 × 8000 (the BLAS product is the rest).
 """
 
 from __future__ import annotations

@@ -7,49 +7,49 @@ import numpy as np
 import pytest
 
 from demtool.imaging import features
+from demtool.imaging.nearest import nearest_both_ways
 
 
-def numpy_brute_force(a, b, chunk_bytes=64 << 20):
-    """The previous implementation: argpartition along rows, argmin down columns."""
-    norms_b = np.einsum("ij,ij->i", b, b)
-    indices = np.full((len(a), 2), -1, np.int64)
-    distances = np.full((len(a), 2), np.inf, np.float64)
-    best_a_for_b = np.zeros(len(b), np.int64)
-    best_b_distance = np.full(len(b), np.inf, np.float64)
-    rows = max(1, chunk_bytes // (4 * len(b)))
-    for start in range(0, len(a), rows):
-        block = a[start:start + rows]
-        d2 = np.einsum("ij,ij->i", block, block)[:, None] + norms_b[None, :] - 2.0 * (block @ b.T)
-        np.maximum(d2, 0.0, out=d2)
-        k = min(2, len(b))
-        nearest = np.argpartition(d2, k - 1, axis=1)[:, :k] if len(b) > k else \
-            np.tile(np.arange(k), (len(block), 1))
-        nearest_d = np.take_along_axis(d2, nearest, axis=1)
-        order = np.argsort(nearest_d, axis=1)
-        indices[start:start + len(block), :k] = np.take_along_axis(nearest, order, axis=1)
-        distances[start:start + len(block), :k] = np.take_along_axis(nearest_d, order, axis=1)
-        column_best = np.argmin(d2, axis=0)
-        column_d = d2[column_best, np.arange(len(b))]
-        better = column_d < best_b_distance
-        best_b_distance[better] = column_d[better]
-        best_a_for_b[better] = column_best[better] + start
-    return indices, distances, best_a_for_b
+def numpy_fold(d2, start, indices, distances, best_a_for_b, best_b_distance):
+    """The numpy formula the kernel replaced: argpartition along the rows, argmin down
+    the columns (which copies the block transposed)."""
+    d2 = np.maximum(d2, 0.0)
+    n_b = d2.shape[1]
+    k = min(2, n_b)
+    nearest = np.argpartition(d2, k - 1, axis=1)[:, :k] if n_b > k else \
+        np.tile(np.arange(k), (len(d2), 1))
+    nearest_d = np.take_along_axis(d2, nearest, axis=1)
+    order = np.argsort(nearest_d, axis=1)
+    indices[start:start + len(d2), :k] = np.take_along_axis(nearest, order, axis=1)
+    distances[start:start + len(d2), :k] = np.take_along_axis(nearest_d, order, axis=1)
+    column_best = np.argmin(d2, axis=0)
+    column_d = d2[column_best, np.arange(n_b)]
+    better = column_d < best_b_distance
+    best_b_distance[better] = column_d[better]
+    best_a_for_b[better] = column_best[better] + start
 
 
-@pytest.mark.parametrize(("n_a", "n_b", "chunk_bytes"), [(300, 500, 64 << 20),
-                                                         (300, 500, 4 * 500 * 7),
-                                                         (40, 1, 64 << 20),
-                                                         (40, 2, 64 << 20),
-                                                         (1, 3, 64 << 20)])
-def test_the_same_neighbours_and_distances_as_numpy(n_a, n_b, chunk_bytes):
-    """Random descriptors (no ties), one block or blocks of 7 rows, and the small sets
-    where ``b`` has one or two rows."""
-    rng = np.random.default_rng(n_a + n_b)
-    a = rng.uniform(0, 100, (n_a, 128)).astype(np.float32)
-    b = rng.uniform(0, 100, (n_b, 128)).astype(np.float32)
-    b[: min(n_b, n_a) // 2] = a[: min(n_b, n_a) // 2] + 0.5  # some near pairs
-    got = features._brute_force(a, b, chunk_bytes)
-    expected = numpy_brute_force(a, b, chunk_bytes)
+def folded(fold, blocks, n_b):
+    n_a = sum(len(b) for b in blocks)
+    state = (np.full((n_a, 2), -1, np.int64), np.full((n_a, 2), np.inf),
+             np.zeros(n_b, np.int64), np.full(n_b, np.inf))
+    start = 0
+    for block in blocks:
+        fold(block, start, *state)
+        start += len(block)
+    return state
+
+
+@pytest.mark.parametrize(("n_b", "block_rows"), [(500, 300), (500, 7), (1, 40), (2, 40),
+                                                 (3, 1)])
+def test_the_same_neighbours_and_distances_as_numpy(n_b, block_rows):
+    """Random float32 distances (no ties; some below 0, as rounding leaves them), in one
+    block or blocks of 7 rows, and the small sets where ``b`` has one or two rows."""
+    rng = np.random.default_rng(n_b + block_rows)
+    d2 = rng.uniform(-1.0, 1e5, (300 if block_rows > 1 else 1, n_b)).astype(np.float32)
+    blocks = [d2[i:i + block_rows] for i in range(0, len(d2), block_rows)]
+    got = folded(nearest_both_ways, blocks, n_b)
+    expected = folded(numpy_fold, blocks, n_b)
     for mine, theirs in zip(got, expected, strict=True):
         np.testing.assert_array_equal(mine, theirs)
 

@@ -81,7 +81,7 @@ class DeferredModule(types.ModuleType):
         self._lock = threading.Lock()
 
     def __getattr__(self, attribute: str):
-        if attribute.startswith("_DeferredModule") or attribute == "_lock":
+        if attribute == "_lock":  # read before __init__ set it (a copy, an unpickling)
             raise AttributeError(attribute)
         with self._lock:
             if sys.modules.get(self.__name__) is self:

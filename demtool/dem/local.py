@@ -146,11 +146,11 @@ class LocalDem(NamedTuple):
 
 def _seen_by_both(points: np.ndarray, models: tuple[SensorModel, ...]) -> np.ndarray:
     """(N,) bool: each point projects inside every model's image, in front of it."""
+    from demtool.dem.overlap import inside_image
+
     seen = np.isfinite(points).all(axis=1)
     for model in models:
-        line, sample = model.ground_to_image(points)
-        seen &= (np.isfinite(line) & np.isfinite(sample) & (line >= 0) & (sample >= 0)
-                 & (line <= model.lines) & (sample <= model.samples))
+        seen &= inside_image(model, *model.ground_to_image(points))
         center = np.asarray(model.camera_center(0.5 * model.lines), dtype=np.float64)
         look = np.asarray(model.look_direction(0.5 * model.lines, 0.5 * model.samples),
                           dtype=np.float64).reshape(3)

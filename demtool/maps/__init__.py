@@ -30,6 +30,8 @@ from demtool.maps.bodies import (
     to_pyproj_crs,
 )
 from demtool.maps.frames import (
+    WGS84_ELLIPSOID,
+    GeodeticEllipsoid,
     enu_frame,
     local_radius,
     longitude_span,
@@ -55,6 +57,7 @@ from demtool.maps.projections import (
     PROJECTIONS,
     choose_projection,
     crs_radius,
+    crs_surface,
     footprint_center,
     lonlat_to_map,
     make_projection,
@@ -65,6 +68,8 @@ from demtool.maps.projections import (
 )
 
 __all__ = [
+    "WGS84_ELLIPSOID",
+    "GeodeticEllipsoid",
     "POLAR_LATITUDE",
     "PROJECTIONS",
     "Body",
@@ -75,6 +80,7 @@ __all__ = [
     "body_from_radii",
     "choose_projection",
     "crs_radius",
+    "crs_surface",
     "degree_pixel_size",
     "enu_frame",
     "footprint_center",

@@ -20,7 +20,10 @@ The registry of bodies is read from PROJ's own database (no table is copied here
 every body PROJ knows (planets, moons, comets such as 67P, asteroids) is available.
 
 demtool's map contract: heights are metres above the body's **reference sphere**, the
-sphere of PROJ's ``+0`` CRS (radius :attr:`Body.radius`).
+sphere of PROJ's ``+0`` CRS (radius :attr:`Body.radius`) — except where the data say
+otherwise: an Earth RPC model's heights are above the WGS 84 ellipsoid, and so are the
+maps made through it (:attr:`Body.height_reference` ``"ellipsoid"``: geodetic latitude,
+height along the normal, :attr:`Body.surface`).
 """
 
 from __future__ import annotations
@@ -88,6 +91,20 @@ class Body:
     b: float
     c: float
     radius: float
+    height_reference: str = "sphere"
+
+    @property
+    def surface(self):
+        """The surface map heights are measured from, as the ``radii`` argument of
+        :func:`~demtool.maps.frames.lonlat_height_to_xyz` /
+        :func:`~demtool.maps.frames.xyz_to_lonlat_height`: the reference sphere's radius
+        (float, metres), or a :class:`~demtool.maps.frames.GeodeticEllipsoid` (a, c) when
+        :attr:`height_reference` is ``"ellipsoid"``."""
+        if self.height_reference == "ellipsoid":
+            from demtool.maps.frames import GeodeticEllipsoid
+
+            return GeodeticEllipsoid(self.a, self.c)
+        return self.radius
 
     @property
     def radii(self) -> tuple[float, float, float]:
@@ -116,6 +133,8 @@ class Body:
         """
         from pyproj import CRS
 
+        if self.height_reference == "ellipsoid":
+            return self._ellipsoid_crs()
         code = self.iau_code("geographic")
         if code is not None:
             crs = CRS.from_user_input(code)
@@ -128,6 +147,23 @@ class Body:
                                     semi_major_axis=self.radius, inverse_flattening=0.0)
         datum = CustomDatum(name=f"{self.name} reference sphere", ellipsoid=ellipsoid)
         return GeographicCRS(name=f"{self.name} reference sphere / Ocentric", datum=datum)
+
+    def _ellipsoid_crs(self):
+        """The geographic CRS of the (biaxial) ellipsoid: EPSG:4326 for WGS 84's radii,
+        otherwise a CRS on that ellipsoid named after the body."""
+        from pyproj import CRS
+
+        wgs84 = CRS.from_epsg(4326)
+        if math.isclose(self.a, wgs84.ellipsoid.semi_major_metre, rel_tol=1e-12) and \
+                math.isclose(self.c, wgs84.ellipsoid.semi_minor_metre, rel_tol=1e-12):
+            return wgs84
+        from pyproj.crs import GeographicCRS
+        from pyproj.crs.datum import CustomDatum, CustomEllipsoid
+
+        ellipsoid = CustomEllipsoid(name=f"{self.name} ellipsoid", semi_major_axis=self.a,
+                                    semi_minor_axis=self.c)
+        datum = CustomDatum(name=f"{self.name} ellipsoid", ellipsoid=ellipsoid)
+        return GeographicCRS(name=f"{self.name} ellipsoid / Ographic", datum=datum)
 
     def proj_string(self, surface: str = "sphere") -> str:
         """PROJ string of the reference sphere (``+proj=longlat +R=… +no_defs``) or, with
@@ -147,11 +183,13 @@ class Body:
         -------
         dict
             ``body``, ``body_naif_id`` (None if unknown), ``body_radii_m`` [a, b, c],
-            ``reference_sphere_radius_m``, ``height_reference`` ("sphere").
+            ``reference_sphere_radius_m``, ``height_reference`` ("sphere", or
+            "ellipsoid": above the ellipsoid a, c along its normal).
         """
         return {"body": self.name, "body_naif_id": self.naif_id,
                 "body_radii_m": [self.a, self.b, self.c],
-                "reference_sphere_radius_m": self.radius, "height_reference": "sphere"}
+                "reference_sphere_radius_m": self.radius,
+                "height_reference": self.height_reference}
 
 
 def to_pyproj_crs(crs: Any):
@@ -394,15 +432,19 @@ def _identify_body(crs) -> Body:
                     break
     if naif is None and math.isclose(a, 6378137.0, rel_tol=1e-3):
         naif = EARTH_NAIF_ID
+    # a CRS on an ellipsoid measures geodetic latitudes and heights along the normal
+    reference = "sphere" if a == c else "ellipsoid"
     if naif is not None and naif in _registry()[0]:
         known = body_by_naif_id(naif)
-        return Body(name=known.name, naif_id=known.naif_id, a=a, b=a, c=c, radius=a)
+        return Body(name=known.name, naif_id=known.naif_id, a=a, b=a, c=c, radius=a,
+                    height_reference=reference)
     matched = body_from_radii(a, a, c)
     if matched.naif_id is not None:
-        return Body(name=matched.name, naif_id=matched.naif_id, a=a, b=a, c=c, radius=a)
+        return Body(name=matched.name, naif_id=matched.naif_id, a=a, b=a, c=c, radius=a,
+                    height_reference=reference)
     label = ellipsoid.name if ellipsoid.name and ellipsoid.name != "unknown" else \
         f"unknown body (a={a:.10g} m, c={c:.10g} m)"
-    return Body(name=label, naif_id=None, a=a, b=a, c=c, radius=a)
+    return Body(name=label, naif_id=None, a=a, b=a, c=c, radius=a, height_reference=reference)
 
 
 def same_body(first: Body, second: Body) -> bool:

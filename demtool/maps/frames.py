@@ -13,13 +13,22 @@ centre.  For the reference sphere r_ref = R; for a triaxial ellipsoid
 r_ref = (u_x²/a² + u_y²/b² + u_z²/c²)^(-1/2) with u the unit radius vector
 (ISIS ``TriaxialEllipsoid``'s local radius; Archinal et al. 2018, Celest. Mech. Dyn.
 Astron. 130:22, sec. 3).
+
+Earth's products (RPC models, UTM maps) measure heights differently: **geodetic**
+latitude (the angle of the ellipsoid's normal) and height along that normal above an
+ellipsoid of revolution (WGS 84).  A :class:`GeodeticEllipsoid` passed as ``radii``
+selects that convention in :func:`lonlat_height_to_xyz` and :func:`xyz_to_lonlat_height`
+(the body's :attr:`~demtool.maps.Body.surface` says which one a map uses).
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 __all__ = [
+    "GeodeticEllipsoid",
     "enu_frame",
     "local_radius",
     "lonlat_height_to_xyz",
@@ -28,6 +37,57 @@ __all__ = [
     "wrap_longitude",
     "xyz_to_lonlat_height",
 ]
+
+
+class GeodeticEllipsoid(NamedTuple):
+    """An ellipsoid of revolution whose points are given by geodetic latitude and height
+    along the normal (WGS 84: ``GeodeticEllipsoid(6378137.0, 6356752.314245179)``).
+
+    Attributes
+    ----------
+    a, c : float
+        Equatorial and polar semi-axes, metres.
+    """
+
+    a: float
+    c: float
+
+
+#: The WGS 84 ellipsoid (EPSG:7030), heights of RPC models and Earth maps.
+WGS84_ELLIPSOID = GeodeticEllipsoid(6378137.0, 6356752.314245179)
+
+
+def geodetic_to_xyz(lon_deg, lat_deg, height, ellipsoid: GeodeticEllipsoid) -> np.ndarray:
+    """Body-fixed XYZ (metres, S + (3,)) of geodetic lon/lat (degrees) and height
+    (metres along the normal): ``((N + h) cos φ cos λ, (N + h) cos φ sin λ,
+    (N (1 − e²) + h) sin φ)`` with ``N = a / sqrt(1 − e² sin² φ)``."""
+    a, c = float(ellipsoid[0]), float(ellipsoid[1])
+    lon, lat = np.radians(lon_deg), np.radians(lat_deg)
+    e2 = 1.0 - (c * c) / (a * a)
+    n = a / np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
+    lon, lat, n, h = np.broadcast_arrays(lon, lat, n, np.asarray(height, dtype=np.float64))
+    return np.stack([(n + h) * np.cos(lat) * np.cos(lon), (n + h) * np.cos(lat) * np.sin(lon),
+                     (n * (1.0 - e2) + h) * np.sin(lat)], axis=-1)
+
+
+def xyz_to_geodetic(xyz, ellipsoid: GeodeticEllipsoid
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Geodetic lon, lat (degrees) and height (metres) of body-fixed XYZ (Bowring's
+    iteration, converged to 1e-12 rad in a few steps)."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    a, c = float(ellipsoid[0]), float(ellipsoid[1])
+    e2 = 1.0 - (c * c) / (a * a)
+    x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
+    p = np.hypot(x, y)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lat = np.arctan2(z, p * (1.0 - e2))
+        for _ in range(6):
+            n = a / np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
+            height = np.where(np.abs(np.cos(lat)) > 1e-9, p / np.cos(lat) - n, np.abs(z) - c)
+            lat = np.arctan2(z, p * (1.0 - e2 * n / (n + height)))
+        n = a / np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
+        height = np.where(np.abs(np.cos(lat)) > 1e-9, p / np.cos(lat) - n, np.abs(z) - c)
+    return np.degrees(np.arctan2(y, x)), np.degrees(lat), height
 
 
 def wrap_longitude(lon_deg: np.ndarray | float, center: float = 0.0) -> np.ndarray:
@@ -90,6 +150,8 @@ def local_radius(unit: np.ndarray, radii: float | tuple[float, float, float]) ->
     (...) float64, metres
     """
     u = np.asarray(unit, dtype=np.float64)
+    if isinstance(radii, GeodeticEllipsoid):  # the ellipsoid's radius, not a normal height
+        radii = (radii.a, radii.a, radii.c)
     if np.ndim(radii) == 0:
         return np.full(u.shape[:-1], float(radii))
     a, b, c = (float(r) for r in radii)  # type: ignore[union-attr]
@@ -107,15 +169,18 @@ def lonlat_height_to_xyz(lon_deg: np.ndarray | float, lat_deg: np.ndarray | floa
         East-positive longitude, planetocentric latitude (broadcastable).
     height : float array, metres
         Radial height above the reference surface (broadcastable).
-    radii : float or (a, b, c)
-        Reference sphere radius (demtool's maps: ``body.radius``) or ellipsoid radii,
-        metres.
+    radii : float, (a, b, c) or GeodeticEllipsoid
+        Reference sphere radius (demtool's maps: ``body.surface``) or ellipsoid radii,
+        metres; a :class:`GeodeticEllipsoid` makes the latitude geodetic and the height
+        normal to it.
 
     Returns
     -------
     (..., 3) float64
         Body-fixed X, Y, Z, metres.
     """
+    if isinstance(radii, GeodeticEllipsoid):
+        return geodetic_to_xyz(lon_deg, lat_deg, height, radii)
     unit = unit_vector(lon_deg, lat_deg)
     h = np.asarray(height, dtype=np.float64)
     distance = local_radius(unit, radii) + h
@@ -130,8 +195,9 @@ def xyz_to_lonlat_height(xyz: np.ndarray, *, radii: float | tuple[float, float, 
     ----------
     xyz : (..., 3) float
         Body-fixed points, metres.
-    radii : float or (a, b, c)
-        Reference sphere radius or ellipsoid radii, metres.
+    radii : float, (a, b, c) or GeodeticEllipsoid
+        Reference sphere radius or ellipsoid radii, metres (a
+        :class:`GeodeticEllipsoid`: geodetic latitude and normal height).
 
     Returns
     -------
@@ -145,6 +211,8 @@ def xyz_to_lonlat_height(xyz: np.ndarray, *, radii: float | tuple[float, float, 
     p = np.asarray(xyz, dtype=np.float64)
     if p.shape[-1] != 3:
         raise ValueError(f"xyz must have a last axis of 3, got shape {p.shape}")
+    if isinstance(radii, GeodeticEllipsoid):
+        return xyz_to_geodetic(p, radii)
     x, y, z = p[..., 0], p[..., 1], p[..., 2]
     horizontal = np.hypot(x, y)
     distance = np.hypot(horizontal, z)

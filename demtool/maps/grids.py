@@ -193,7 +193,7 @@ def grid_from_xyz(body: Body, xyz: np.ndarray, gsd_m: float, *, projection: str 
     MapGrid
     """
     lon, lat, _ = xyz_to_lonlat_height(np.asarray(xyz, dtype=np.float64).reshape(-1, 3),
-                                       radii=body.radius)
+                                       radii=body.surface)
     return grid_from_lonlat(body, lon, lat, gsd_m, projection=projection, crs=crs,
                             polygon=False)
 

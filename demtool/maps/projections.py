@@ -39,6 +39,7 @@ __all__ = [
     "PROJECTIONS",
     "choose_projection",
     "crs_radius",
+    "crs_surface",
     "footprint_center",
     "lonlat_to_map",
     "make_projection",
@@ -234,37 +235,54 @@ def crs_radius(crs: Any) -> float:
     return float(a)
 
 
+def crs_surface(crs: Any):
+    """The surface a CRS measures heights from, as a ``radii`` argument of
+    :func:`~demtool.maps.frames.lonlat_height_to_xyz`: its sphere's radius (metres), or
+    a :class:`~demtool.maps.frames.GeodeticEllipsoid` for a CRS on an ellipsoid of
+    revolution (EPSG:4326, UTM: geodetic latitude, height along the normal)."""
+    from demtool.maps.frames import GeodeticEllipsoid
+
+    pcrs = to_pyproj_crs(crs)
+    ellipsoid = (pcrs.geodetic_crs or pcrs).ellipsoid
+    a, c = ellipsoid.semi_major_metre, ellipsoid.semi_minor_metre
+    if np.isclose(a, c, rtol=1e-12, atol=0.0):
+        return float(a)
+    return GeodeticEllipsoid(float(a), float(c))
+
+
 def map_to_xyz(crs: Any, x: np.ndarray, y: np.ndarray, height: np.ndarray | float = 0.0
                ) -> np.ndarray:
-    """Body-fixed XYZ of map coordinates raised by heights above the CRS's sphere.
+    """Body-fixed XYZ of map coordinates raised by heights above the CRS's surface.
 
     Parameters
     ----------
-    crs : CRS-like, on a sphere
+    crs : CRS-like
+        On a sphere (heights radial) or an ellipsoid (heights along the normal,
+        :func:`crs_surface`).
     x, y : float arrays, map units
-    height : float array, metres above the sphere (broadcastable)
+    height : float array, metres above the surface (broadcastable)
 
     Returns
     -------
     (..., 3) float64, metres
     """
     lon, lat = map_to_lonlat(crs, x, y)
-    return lonlat_height_to_xyz(lon, lat, height, radii=crs_radius(crs))
+    return lonlat_height_to_xyz(lon, lat, height, radii=crs_surface(crs))
 
 
 def xyz_to_map(crs: Any, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Map coordinates and height above the CRS's sphere of body-fixed points.
+    """Map coordinates and height above the CRS's surface of body-fixed points.
 
     Parameters
     ----------
-    crs : CRS-like, on a sphere
+    crs : CRS-like, on a sphere or an ellipsoid (:func:`crs_surface`)
     xyz : (..., 3) float, metres
 
     Returns
     -------
     x, y : (...) float64, map units
-    height : (...) float64, metres above the sphere
+    height : (...) float64, metres above the surface
     """
-    lon, lat, height = xyz_to_lonlat_height(xyz, radii=crs_radius(crs))
+    lon, lat, height = xyz_to_lonlat_height(xyz, radii=crs_surface(crs))
     x, y = lonlat_to_map(crs, lon, lat)
     return x, y, height

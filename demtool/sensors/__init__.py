@@ -19,7 +19,8 @@ from demtool.sensors.linescan import LineScanSensor
 from demtool.sensors.pinhole import PinholeCamera
 from demtool.sensors.pushframe import PushFrameSensor
 from demtool.sensors.readers import read_sensor, read_sensors
-from demtool.sensors.rpc import RpcSensor, read_rpc
+from demtool.sensors.rpc import RpcSensor
+from demtool.sensors.rpc_files import read_rpc
 from demtool.sensors.tsai import TsaiCamera, read_tsai
 
 __all__ = ["Detector", "Distortion", "FrameSensor", "LineScanSensor", "PinholeCamera",

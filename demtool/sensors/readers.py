@@ -8,7 +8,8 @@ JSON with ``name_model`` (ALE ISD)     :class:`FrameSensor` / :class:`LineScanSe
 ISIS3 cube (``Object = IsisCube``)     :class:`FrameSensor`, :class:`LineScanSensor` (LRO
                                        NAC, CTX, HiRISE; SPICE must be attached)
 ASP ``.tsai`` (``VERSION_n``/``PINHOLE``)  :class:`TsaiCamera` (body-fixed pinhole)
-RPC: GeoTIFF tags, ``_RPC.TXT``, .RPB  :class:`RpcSensor` (WGS84 heights)
+RPC: GeoTIFF tags, NITF, DIMAP,       :class:`RpcSensor` (WGS84 heights;
+``_RPC.TXT``, .RPB, OSSIM ``.geom``    :mod:`demtool.sensors.rpc_files`)
 NPZ of kind ``cameras`` or ``bundle``  :class:`PinholeCamera` (one per image)
 =====================================  ==========================================
 """
@@ -41,11 +42,16 @@ def _sniff(path: Path) -> str:
     if first.startswith(b"VERSION_") or first == b"PINHOLE" or text.startswith(b"fu"):
         return "tsai"
     if head[:4] in (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+") or b"LINE_NUM_COEFF" in head \
-            or b"lineNumCoef" in head or text.startswith((b"LINE_OFF", b"satId", b"bandId")):
+            or b"lineNumCoef" in head or text.startswith((b"LINE_OFF", b"satId", b"bandId")) \
+            or b"line_num_coeff_" in head or b"polynomial_format" in head \
+            or head.startswith((b"NITF", b"NSIF")) or path.suffix.lower() in (
+                ".geom", ".rpb", ".ntf", ".nitf", ".jp2") \
+            or path.name.upper().endswith("_RPC.TXT") \
+            or path.name.upper().startswith(("DIM_", "RPC_")) and path.suffix.lower() == ".xml":
         return "rpc"
     raise InputError(f"{path}: not a sensor model demtool reads (ALE ISD JSON, ISIS3 cube "
-                     "with SPICE, ASP .tsai, RPC GeoTIFF/_RPC.TXT/.RPB, cameras.npz or "
-                     "bundle.npz)")
+                     "with SPICE, ASP .tsai, RPC in GeoTIFF/NITF/DIMAP/_RPC.TXT/.RPB/OSSIM "
+                     ".geom, cameras.npz or bundle.npz)")
 
 
 def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
@@ -76,7 +82,7 @@ def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
             model = read_isis_cube(p)
         return {model.name: validate.check_model(model, p, "cube")}
     if kind == "rpc":  # an RPC has no camera position or focal plane: its reader checks it
-        from demtool.sensors.rpc import read_rpc
+        from demtool.sensors.rpc_files import read_rpc
 
         model = read_rpc(p, radii=radii)
         return {model.name: model}

@@ -19,25 +19,35 @@ iterations (analytic Jacobian, from the normalised centre), as ASP's ``RPCModel`
 and GDAL's RPC transformer do; the imaging ray joins the ground points at the top and
 bottom of the RPC's height range.
 
-Readers: GeoTIFF RPC tags (rasterio's ``dataset.rpcs``), GDAL/DigitalGlobe ``_RPC.TXT``
-(``KEY: value`` lines) and DigitalGlobe ``.RPB`` (``key = value;``, coefficient lists in
-parentheses).  A malformed line is refused naming the file and the line.
+The model is checked as it is built: 20 finite coefficients per polynomial, non-zero
+scales, and denominators that neither are all zero nor vanish inside the validity domain
+(the cube ``|P|, |L|, |H| ≤ 1`` of the offsets and scales), where the ratio would be
+infinite.  :meth:`RpcSensor.domain_problem` tells a caller whose ground lies outside that
+domain (an RPC is a fit valid only there).
 
-References: GDAL ``alg/gdal_rpc.cpp``; ASP ``src/asp/Camera/RPCModel.cc``.
+Readers: :mod:`demtool.sensors.rpc_files` (every file GDAL reads RPCs from, and OSSIM
+``.geom`` keyword lists).
+
+References: GDAL ``alg/gdal_rpc.cpp``; ASP ``src/asp/Camera/RPCModel.cc``; OSSIM
+``ossimRpcModel.cpp``.
 """
 
 from __future__ import annotations
 
-import re
-from pathlib import Path
-
 import numpy as np
 
-from demtool.errors import InputError
+from demtool.maps.frames import GeodeticEllipsoid, geodetic_to_xyz, xyz_to_geodetic
 from demtool.sensors.base import Ray, SensorModel
+
+__all__ = ["COEFFS", "SCALARS", "WGS84", "RpcSensor", "geodetic_to_xyz", "xyz_to_geodetic"]
 
 #: WGS84 semi-major and semi-minor axes, metres.
 WGS84 = (6378137.0, 6356752.314245179)
+#: How far (in units of the RPC's own scales) outside the validity domain a ground point
+#: may lie before :meth:`RpcSensor.domain_problem` objects: RPC fits are made over the
+#: domain and extrapolate smoothly a little beyond (image corners, a mountain above the
+#: height range), not across another place.
+DOMAIN_MARGIN = 0.5
 #: The 10 offsets/scales of an RPC00B, with their ``_RPC.TXT`` names and ``.RPB`` names.
 SCALARS = {"line_off": ("LINE_OFF", "lineOffset"), "samp_off": ("SAMP_OFF", "sampOffset"),
            "lat_off": ("LAT_OFF", "latOffset"), "long_off": ("LONG_OFF", "longOffset"),
@@ -71,36 +81,6 @@ def _terms_dP(L, P, H):
                      3 * P * P, H * H, z, 2 * P * H, z], axis=-1)
 
 
-def geodetic_to_xyz(lon, lat, height, radii) -> np.ndarray:
-    """Body-fixed XYZ (metres, S + (3,)) of geodetic lon/lat (degrees) and height."""
-    a, b = radii
-    lon, lat = np.radians(lon), np.radians(lat)
-    e2 = 1.0 - (b * b) / (a * a)
-    n = a / np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
-    h = np.asarray(height, dtype=np.float64)
-    return np.stack([(n + h) * np.cos(lat) * np.cos(lon), (n + h) * np.cos(lat) * np.sin(lon),
-                     (n * (1.0 - e2) + h) * np.sin(lat)], axis=-1)
-
-
-def xyz_to_geodetic(xyz, radii) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Geodetic lon, lat (degrees) and height (metres) of body-fixed XYZ (Bowring's
-    iteration, converged to 1e-12 rad in a few steps)."""
-    xyz = np.asarray(xyz, dtype=np.float64)
-    a, b = radii
-    e2 = 1.0 - (b * b) / (a * a)
-    x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
-    p = np.hypot(x, y)
-    lat = np.arctan2(z, p * (1.0 - e2))
-    for _ in range(6):
-        n = a / np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
-        height = np.where(np.abs(np.cos(lat)) > 1e-9, p / np.cos(lat) - n,
-                          np.abs(z) - b)
-        lat = np.arctan2(z, p * (1.0 - e2 * n / (n + height)))
-    n = a / np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
-    height = np.where(np.abs(np.cos(lat)) > 1e-9, p / np.cos(lat) - n, np.abs(z) - b)
-    return np.degrees(np.arctan2(y, x)), np.degrees(lat), height
-
-
 class RpcSensor(SensorModel):
     """An RPC00B camera (see the module docstring).
 
@@ -117,21 +97,100 @@ class RpcSensor(SensorModel):
     """
 
     kind = "rpc"
+    #: heights are geodetic, above the ellipsoid ``radii`` (WGS 84 for Earth)
+    height_reference = "ellipsoid"
 
     def __init__(self, rpc: dict, *, lines: int = 0, samples: int = 0,
                  radii: tuple[float, float] = WGS84, name: str = ""):
-        self.rpc = {k: float(rpc[k]) for k in SCALARS}
+        self.rpc = {}
+        for key in SCALARS:
+            try:
+                self.rpc[key] = float(rpc[key])
+            except (KeyError, TypeError, ValueError):
+                raise ValueError(f"'{SCALARS[key][0]}' is missing or not a number "
+                                 f"({rpc.get(key)!r})") from None
+            if not np.isfinite(self.rpc[key]):
+                raise ValueError(f"'{SCALARS[key][0]}' is {self.rpc[key]}")
         for key in COEFFS:
             values = np.asarray(rpc[key], dtype=np.float64).reshape(-1)
-            if values.size != 20 or not np.all(np.isfinite(values)):
-                raise ValueError(f"'{key}' needs 20 finite coefficients, got {values.size}")
+            if values.size != 20:
+                raise ValueError(f"'{COEFFS[key][0]}' has {values.size} coefficients, "
+                                 "expected 20")
+            if not np.all(np.isfinite(values)):
+                raise ValueError(f"'{COEFFS[key][0]}' has a coefficient that is not a finite "
+                                 "number")
             self.rpc[key] = values
         for key in ("line_scale", "samp_scale", "lat_scale", "long_scale", "height_scale"):
-            if self.rpc[key] == 0 or not np.isfinite(self.rpc[key]):
-                raise ValueError(f"'{key}' is {self.rpc[key]}: scales must be non-zero")
+            if self.rpc[key] == 0:
+                raise ValueError(f"'{SCALARS[key][0]}' is 0: scales must be non-zero")
+        self._check_denominators()
         self.lines, self.samples = int(lines), int(samples)
         self.radii = (float(radii[0]), float(radii[1]))
         self.name = str(name)
+
+    def _check_denominators(self) -> None:
+        """ValueError when a denominator is all zeros or changes sign / reaches zero
+        inside the validity domain (sampled on a 9³ lattice of the unit cube): the
+        ratio would be infinite there, which no imaging geometry is."""
+        t = np.linspace(-1.0, 1.0, 9)
+        L, P, H = (v.ravel() for v in np.meshgrid(t, t, t, indexing="ij"))
+        terms = _terms(L, P, H)
+        for key in ("line_den_coeff", "samp_den_coeff"):
+            coeffs = self.rpc[key]
+            name = COEFFS[key][0]
+            if not np.any(coeffs):
+                raise ValueError(f"'{name}' is all zeros: the "
+                                 f"{key.split('_')[0]} polynomial has no denominator")
+            values = terms @ coeffs
+            scale = float(np.max(np.abs(values)))
+            if values.min() * values.max() <= 0 or np.min(np.abs(values)) < 1e-9 * scale:
+                raise ValueError(f"'{name}' vanishes inside the RPC's validity domain "
+                                 f"(denominator from {values.min():.3g} to "
+                                 f"{values.max():.3g}): the model is not usable")
+
+    @property
+    def ellipsoid(self) -> GeodeticEllipsoid:
+        """The ellipsoid of the heights (geodetic latitude, height along the normal)."""
+        return GeodeticEllipsoid(*self.radii)
+
+    def domain(self) -> dict[str, tuple[float, float]]:
+        """The validity domain: ``lon``, ``lat`` (degrees) and ``height`` (metres) as
+        (min, max) = offset ∓ |scale|."""
+        r = self.rpc
+        return {name: (r[off] - abs(r[scale]), r[off] + abs(r[scale]))
+                for name, off, scale in (("lon", "long_off", "long_scale"),
+                                         ("lat", "lat_off", "lat_scale"),
+                                         ("height", "height_off", "height_scale"))}
+
+    def domain_problem(self, lon, lat, height, *, margin: float = DOMAIN_MARGIN
+                       ) -> str | None:
+        """Why ground points lie outside the validity domain (by more than ``margin``
+        times the scales; NaN ignored), or None when they are inside.
+
+        Parameters
+        ----------
+        lon, lat : float arrays, degrees (geodetic, WGS 84 for Earth)
+        height : float array, metres above the ellipsoid
+        """
+        r = self.rpc
+        for what, values, off, scale, unit in (
+                ("height", height, "height_off", "height_scale", " m"),
+                ("latitude", lat, "lat_off", "lat_scale", "°"),
+                ("longitude", lon, "long_off", "long_scale", "°")):
+            v = np.asarray(values, dtype=np.float64)
+            v = v[np.isfinite(v)]
+            if what == "longitude":
+                v = (v - r[off] + 180.0) % 360.0 - 180.0 + r[off]
+            if not v.size:
+                continue
+            norm = (v - r[off]) / abs(r[scale])
+            if np.max(np.abs(norm)) > 1.0 + margin:
+                low, high = r[off] - abs(r[scale]), r[off] + abs(r[scale])
+                span = (f"{v.min():.6g}" if v.min() == v.max() else
+                        f"{v.min():.6g}…{v.max():.6g}")
+                return (f"{what} {span}{unit} lies outside the RPC's validity domain "
+                        f"{low:.6g}…{high:.6g}{unit}")
+        return None
 
     def __repr__(self) -> str:
         return f"RpcSensor(name={self.name!r}, size={self.lines}x{self.samples})"
@@ -200,7 +259,8 @@ class RpcSensor(SensorModel):
     def image_to_ground(self, line, sample, height=0.0) -> np.ndarray:
         """Body-fixed XYZ (metres, S + (3,)) of image points at geodetic ``height``."""
         lon, lat = self.image_to_lonlat(line, sample, height)
-        return geodetic_to_xyz(lon, lat, np.broadcast_to(height, np.shape(lon)), self.radii)
+        return geodetic_to_xyz(lon, lat, np.broadcast_to(height, np.shape(lon)),
+                               self.ellipsoid)
 
     def image_to_ray(self, line, sample) -> Ray:
         """The ray through the ground points at the top and bottom of the RPC's height
@@ -214,7 +274,7 @@ class RpcSensor(SensorModel):
 
     def ground_to_image(self, xyz) -> tuple[np.ndarray, np.ndarray]:
         """CSM (line, sample) of body-fixed points (metres)."""
-        lon, lat, height = xyz_to_geodetic(xyz, self.radii)
+        lon, lat, height = xyz_to_geodetic(xyz, self.ellipsoid)
         return self.lonlat_to_image(lon, lat, height)
 
     def camera_center(self, line) -> np.ndarray:
@@ -226,171 +286,4 @@ class RpcSensor(SensorModel):
         return np.zeros(np.shape(line) + (3,))
 
 
-# ---------------------------------------------------------------------------------------
-# Readers
-# ---------------------------------------------------------------------------------------
 
-def _number(path: Path, number: int, key: str, text: str) -> float:
-    token = text.strip().rstrip(";").strip().strip("()").strip().rstrip(",").split()
-    try:
-        value = float(token[0]) if token else float("nan")
-    except ValueError:
-        value = float("nan")
-    if not np.isfinite(value):
-        raise InputError(f"{path}: line {number}: '{key}' is not a number ({text.strip()!r})")
-    return value
-
-
-def parse_rpc_txt(text: str, path: str | Path = "<rpc>") -> dict:
-    """Parse GDAL/DigitalGlobe ``_RPC.TXT`` text (``KEY: value [unit]`` per line,
-    ``LINE_NUM_COEFF_1`` … ``_20``) into :class:`RpcSensor`'s ``rpc`` dict."""
-    path = Path(path)
-    names = {v[0]: k for k, v in SCALARS.items()}
-    values: dict[str, float] = {}
-    coeffs: dict[str, dict[int, float]] = {k: {} for k in COEFFS}
-    prefixes = {v[0]: k for k, v in COEFFS.items()}
-    for number, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        if not line:
-            continue
-        key, sep, value = line.partition(":")
-        key = key.strip().upper()
-        if not sep:
-            raise InputError(f"{path}: line {number}: cannot parse {line!r} (expected "
-                             "'KEY: value')")
-        if key in names:
-            values[names[key]] = _number(path, number, key, value)
-            continue
-        match = re.fullmatch(r"(LINE_NUM_COEFF|LINE_DEN_COEFF|SAMP_NUM_COEFF|SAMP_DEN_COEFF)"
-                             r"_(\d+)", key)
-        if match:
-            index = int(match.group(2))
-            if not 1 <= index <= 20:
-                raise InputError(f"{path}: line {number}: '{key}': coefficients are numbered "
-                                 "1 to 20")
-            coeffs[prefixes[match.group(1)]][index] = _number(path, number, key, value)
-        # other keys (ERR_BIAS, ERR_RAND, MIN_/MAX_LONG…) are not needed
-    return _assemble(path, values, {k: [v.get(i) for i in range(1, 21)]
-                                    for k, v in coeffs.items()}, 0)
-
-
-def parse_rpb(text: str, path: str | Path = "<rpb>") -> dict:
-    """Parse DigitalGlobe ``.RPB`` text (``key = value;``; coefficient lists
-    ``key = ( v1, v2, … );`` over several lines) into the ``rpc`` dict."""
-    path = Path(path)
-    names = {v[1]: k for k, v in SCALARS.items()}
-    lists = {v[1]: k for k, v in COEFFS.items()}
-    values: dict[str, float] = {}
-    coeffs: dict[str, list] = {}
-    current: str | None = None
-    for number, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        if not line or line.upper().startswith(("BEGIN_GROUP", "END_GROUP", "END;")):
-            continue
-        if current is not None:
-            for item in (s for s in line.replace(")", " ").replace(";", " ").split(",")
-                         if s.strip()):
-                coeffs[current].append(_number(path, number, current, item))
-            if ")" in line:
-                current = None
-            continue
-        key, sep, value = (part.strip() for part in line.partition("="))
-        if not sep:
-            raise InputError(f"{path}: line {number}: cannot parse {line!r} (expected "
-                             "'key = value;')")
-        if key in lists:
-            current = lists[key]
-            coeffs[current] = []
-            rest = value.lstrip("(")
-            for item in (s for s in rest.replace(")", " ").replace(";", " ").split(",")
-                         if s.strip()):
-                coeffs[current].append(_number(path, number, key, item))
-            if ")" in value:
-                current = None
-        elif key in names:
-            values[names[key]] = _number(path, number, key, value)
-    return _assemble(path, values, coeffs, 1)
-
-
-def _assemble(path: Path, values: dict, coeffs: dict, style: int) -> dict:
-    for key, spelled in SCALARS.items():
-        if key not in values:
-            raise InputError(f"{path}: lacks the RPC key '{spelled[style]}'")
-    out = dict(values)
-    for key, spelled in COEFFS.items():
-        got = coeffs.get(key)
-        if got is None or any(v is None for v in got):
-            missing = (spelled[style] if got is None else
-                       f"{spelled[style]}_{[v is None for v in got].index(True) + 1}")
-            raise InputError(f"{path}: lacks the RPC key '{missing}'")
-        if len(got) != 20:
-            raise InputError(f"{path}: '{spelled[style]}' has {len(got)} coefficients, "
-                             "expected 20")
-        out[key] = np.asarray(got, dtype=np.float64)
-    return out
-
-
-def _image_size(path: Path) -> tuple[int, int, Path | None]:
-    """(lines, samples, image) of the image an RPC file sits beside, or (0, 0, None)."""
-    stem = re.sub(r"(_RPC)$", "", path.stem, flags=re.IGNORECASE)
-    for suffix in (".tif", ".TIF", ".tiff", ".TIFF", ".ntf", ".NTF", ".jp2", ".JP2"):
-        candidate = path.with_name(stem + suffix)
-        if candidate.exists():
-            import rasterio
-
-            try:
-                with rasterio.open(candidate) as ds:
-                    return int(ds.height), int(ds.width), candidate
-            except rasterio.errors.RasterioIOError:
-                continue
-    return 0, 0, None
-
-
-def read_rpc(path: str | Path, *, radii: tuple[float, float] | None = None) -> RpcSensor:
-    """Read an RPC model: GeoTIFF RPC tags, ``_RPC.TXT`` or ``.RPB``.
-
-    The image size comes from the GeoTIFF, or from the image beside an RPC text file
-    (same name without ``_RPC``); otherwise it is 0 x 0 and the model says so in its
-    ``notes``.  ``radii`` (metres) replaces WGS84 for another body.
-
-    Raises
-    ------
-    InputError
-        Unreadable file, a malformed line (named by its number), a missing key, a
-        coefficient list of the wrong length, a zero scale.
-    """
-    p = Path(path)
-    notes: list[str] = []
-    try:
-        head = p.read_bytes()[:4]
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read RPC model ({exc.strerror or exc})") from None
-    if head[:4] in (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+"):
-        import rasterio
-
-        try:
-            with rasterio.open(p) as ds:
-                rpcs, lines, samples = ds.rpcs, ds.height, ds.width
-        except rasterio.errors.RasterioIOError as exc:
-            raise InputError(f"{p}: cannot read GeoTIFF ({exc})") from None
-        if rpcs is None:
-            raise InputError(f"{p}: not a sensor model: the GeoTIFF carries no RPC tags")
-        rpc = {k: getattr(rpcs, k) for k in list(SCALARS) + list(COEFFS)}
-    else:
-        try:
-            text = p.read_text(encoding="utf-8")
-        except UnicodeDecodeError:
-            raise InputError(f"{p}: not a text RPC file") from None
-        rpc = parse_rpb(text, p) if "=" in text.split("\n", 1)[0] or p.suffix.lower() \
-            == ".rpb" else parse_rpc_txt(text, p)
-        lines, samples, image = _image_size(p)
-        if image is None:
-            notes.append("the RPC file gives no image size and no image lies beside it")
-    try:
-        model = RpcSensor(rpc, lines=lines, samples=samples,
-                          radii=WGS84 if radii is None else radii,
-                          name=re.sub(r"_RPC$", "", p.stem, flags=re.IGNORECASE))
-    except ValueError as exc:
-        raise InputError(f"{p}: {exc}") from None
-    model.notes = notes
-    return model

@@ -86,5 +86,22 @@ def test_bad_projection_and_non_sphere_crs(moon):
     with pytest.raises(ValueError, match="unknown projection 'mercator'"):
         maps.make_projection(moon, "mercator", 0.0, 0.0)
     with pytest.raises(ValueError, match="on an ellipsoid"):
-        maps.map_to_xyz("IAU_2015:49902", 0.0, 0.0)
+        maps.crs_radius("IAU_2015:49902")
     assert maps.crs_radius("IAU_2015:49910") == 3396190.0
+
+
+def test_map_on_an_ellipsoid_is_geodetic_as_proj():
+    """A CRS on an ellipsoid (UTM on WGS 84): geodetic latitude, height along the normal,
+    as PROJ's geographic 3D -> geocentric conversion."""
+    from pyproj import Transformer
+
+    x, y = np.array([359746.0, 360100.0]), np.array([7651923.0, 7651500.0])
+    h = np.array([2300.0, -40.0])
+    xyz = maps.map_to_xyz("EPSG:32740", x, y, h)
+    lon, lat = Transformer.from_crs("EPSG:32740", "EPSG:4326", always_xy=True).transform(x, y)
+    want = np.column_stack(Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+                           .transform(lon, lat, h))
+    np.testing.assert_allclose(xyz, want, atol=1e-6)
+    bx, by, bh = maps.xyz_to_map("EPSG:32740", xyz)
+    np.testing.assert_allclose(np.column_stack([bx, by, bh]), np.column_stack([x, y, h]),
+                               atol=1e-6)

@@ -36,7 +36,8 @@ DEMs of different bodies are refused), co-registers it (--align), and writes int
 --out: report.json
 (RMSE, NMAD, mean, median, std, LE90, min/max, completeness %, count, the applied
 shift {dx_px, dy_px, dz} added to the DEM — x right, y down in grid pixels, dz in
-metres — with its uncertainty, per-slope-class statistics, effective resolution from
+metres — with its uncertainty, the same shift in metres east/north/up (shift_m) and in
+each input's own pixels (shift_input_px), per-slope-class statistics, effective resolution from
 the spectral coherence, provenance), difference.tif, and the figures difference.png,
 dems.png, profiles.png, histogram.png, completeness.png, coherence.png.  A reference
 whose posts are at least twice the DEM's cells (LOLA, MOLA against a stereo DEM) is

@@ -11,6 +11,9 @@ REPORT = "report.json"
 DIFFERENCE = "difference.tif"
 
 
+# The shift in metres and in each input's own pixels (demtool.compare.shift_units).
+UNIT_KEYS = ("shift_m", "shift_uncertainty_m", "shift_input_px")
+
 FIGURES = ("difference.png", "dems.png", "profiles.png", "histogram.png", "completeness.png",
            "coherence.png")
 
@@ -35,34 +38,69 @@ def _headline(report: dict[str, Any]) -> dict[str, Any]:
     keys = ("count", "completeness", "mean", "median", "std", "rmse", "nmad", "le90", "min",
             "max")
     resolution = report.get("effective_resolution") or {}
+    units = {k: report[k] for k in UNIT_KEYS if k in report}
     return {**{k: report[k] for k in keys}, "shift": report["shift"],
-            "shift_uncertainty": report["shift_uncertainty"],
+            "shift_uncertainty": report["shift_uncertainty"], **units,
             "wavelength_m": resolution.get("wavelength_m")}
 
 
 def format_table(rows: Sequence[tuple[str, dict[str, Any]]]) -> str:
-    """Short plain-text table: one row per compared DEM."""
+    """Short plain-text table: one row per compared DEM.
+
+    The shift is given three ways: comparison-grid pixels (``dx px``, ``dy px``), metres
+    east and north (``dE m``, ``dN m``; ``dX m``, ``dY m`` along the map axes of a
+    raster without CRS) with ``dz m`` up, and the DEM's own pixels (``dx DEM``,
+    ``dy DEM``) when known."""
     def fmt(value: Any, spec: str) -> str:
         return "—" if value is None else format(value, spec)
 
+    first = rows[0][1].get("shift_m") or {}
+    east, north = ("dE m", "dN m") if "east" in first else ("dX m", "dY m")
     header = (f"{'DEM':<20} {'n':>9} {'compl %':>8} {'mean':>8} {'RMSE':>8} {'NMAD':>8} "
-              f"{'LE90':>8} {'dx px':>7} {'dy px':>7} {'dz m':>8} {'λ coh m':>8}")
+              f"{'LE90':>8} {'dx px':>7} {'dy px':>7} {east:>8} {north:>8} {'dz m':>8} "
+              f"{'dx DEM':>7} {'dy DEM':>7} {'λ coh m':>8}")
     lines = [header]
     for label, r in rows:
         resolution = r.get("effective_resolution") or {}
+        metres = r.get("shift_m") or {}
+        horizontal = [metres.get(k) for k in (("east", "north") if "east" in metres
+                                              else ("x", "y"))]
+        own = (r.get("shift_input_px") or {}).get("dem") or {}
         lines.append(
             f"{label[:20]:<20} {r['count']:>9d} {fmt(r['completeness'], '8.2f')} "
             f"{fmt(r['mean'], '8.3f')} {fmt(r['rmse'], '8.3f')} {fmt(r['nmad'], '8.3f')} "
             f"{fmt(r['le90'], '8.3f')} {r['shift']['dx_px']:7.3f} {r['shift']['dy_px']:7.3f} "
-            f"{r['shift']['dz']:8.3f} {fmt(resolution.get('wavelength_m'), '8.2f')}")
+            f"{fmt(horizontal[0], '8.3f')} {fmt(horizontal[1], '8.3f')} "
+            f"{r['shift']['dz']:8.3f} {fmt(own.get('dx_px'), '7.3f')} "
+            f"{fmt(own.get('dy_px'), '7.3f')} {fmt(resolution.get('wavelength_m'), '8.2f')}")
     return "\n".join(lines)
+
+
+def add_shift_units(report: dict[str, Any], target: Any, dem_grid: Any,
+                    reference_grid: Any) -> None:
+    """Add ``shift_m``, ``shift_uncertainty_m`` and ``shift_input_px`` (``dem``,
+    ``reference``) to one DEM's report (:func:`demtool.compare.shift_units.shift_in_units`
+    on the comparison grid ``target``)."""
+    from demtool.compare.shift_units import shift_in_units
+
+    report.update(shift_in_units(report["shift"], report["shift_uncertainty"], target,
+                                 [("dem", dem_grid), ("reference", reference_grid)]))
 
 
 def assemble_report(reports: Sequence[tuple[str, dict[str, Any]]], *, dem_path, reference_path,
                     also: Sequence[str], grid: str, target: Any, frame: str | None,
-                    degrees: Any, body_warnings: Sequence[str], lines, log) -> dict[str, Any]:
+                    degrees: Any, body_warnings: Sequence[str], lines, log,
+                    dem_grids: Sequence[Any] = (), reference_grid: Any = None
+                    ) -> dict[str, Any]:
     """The report of one comparison run from each DEM's own report (main DEM first, then
-    the ``also`` DEMs), logged as the table and the warnings; in memory and in windows."""
+    the ``also`` DEMs), logged as the table and the warnings; in memory and in windows.
+
+    ``dem_grids`` (one :class:`demtool.compare.grids.Grid` per compared DEM, in order)
+    and ``reference_grid``, when given, add the shift in metres and in the inputs' own
+    pixels to each DEM's report (:func:`add_shift_units`)."""
+    if reference_grid is not None:
+        for (_, r), dem_grid in zip(reports, dem_grids, strict=True):
+            add_shift_units(r, target, dem_grid, reference_grid)
     label, main = reports[0]
     report: dict[str, Any] = {"label": label, "dem": str(dem_path),
                               "reference": str(reference_path), **main}

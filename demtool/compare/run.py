@@ -214,7 +214,9 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     report = assemble_report([(name, c.report) for name, c in comparisons],
                              dem_path=dem_path, reference_path=reference_path, also=also,
                              grid=grid, target=target, frame=frame, degrees=degrees,
-                             body_warnings=body_warnings, lines=lines, log=log)
+                             body_warnings=body_warnings, lines=lines, log=log,
+                             dem_grids=[_grid_of(r) for r in (dem, *extra)],
+                             reference_grid=_grid_of(reference))
     from demtool.compare.coarse import compare_at_reference_resolution
 
     dem_cells = dem.data.astype(np.float64)

@@ -377,7 +377,9 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
                                  dem_path=dem_path, reference_path=reference_path, also=also,
                                  grid=params.grid, target=target, frame=frame,
                                  degrees=degrees, body_warnings=body_warnings, lines=lines,
-                                 log=log)
+                                 log=log, dem_grids=[_grid(infos[str(p)])
+                                                     for p in (dem_path, *also)],
+                                 reference_grid=_grid(infos["reference"]))
         from demtool.compare.coarse import MIN_RATIO, resolution_ratio
 
         ratio, _ = resolution_ratio(_grid(infos["dem"]), _grid(infos["reference"]))

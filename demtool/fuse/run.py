@@ -30,6 +30,15 @@ PathLike = str | os.PathLike
 SUFFIXES = ("count", "spread", "error")
 
 
+def _shift_units(shift, uncertainty, target, spec, ref_spec) -> dict[str, Any]:
+    """A shift on the fused grid in metres and in the DEM's and the reference's own pixels
+    (:func:`demtool.compare.shift_units.shift_in_units`)."""
+    from demtool.compare.shift_units import shift_in_units
+
+    return shift_in_units(shift, uncertainty, target.grid(),
+                          [("dem", spec.grid()), ("reference", ref_spec.grid())])
+
+
 def output_paths(out: PathLike) -> dict[str, Path]:
     """The fused DEM and the rasters written beside it (``<stem>_count.tif`` ...)."""
     out = Path(out)
@@ -186,7 +195,10 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
     Returns
     -------
     dict
-        The summary written to the sidecar: ``grid``, ``dems`` (each with its shift,
+        The summary written to the sidecar: ``grid``, ``dems`` (each with its shift, also
+        in metres and in its own and the reference's pixels — ``shift_m``,
+        ``shift_uncertainty_m``, ``shift_input_px`` of
+        :func:`demtool.compare.shift_units.shift_in_units` —,
         consensus NMAD and whether it was used), ``cells``, ``rejected_fraction``.
 
     Raises
@@ -258,8 +270,9 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
         record: dict[str, Any] = {"dem": str(path), "error": None if error_paths[i] is None
                                   else str(error_paths[i])}
         if path == ref_path and not reference:
-            record["alignment"] = {"method": "reference", "shift": {"dx_px": 0.0, "dy_px": 0.0,
-                                                                    "dz": 0.0}}
+            zero = {"dx_px": 0.0, "dy_px": 0.0, "dz": 0.0}
+            record["alignment"] = {"method": "reference", "shift": zero,
+                                   **_shift_units(zero, zero, target, specs[i], ref_spec)}
             shifts.append((0.0, 0.0, 0.0))
             records.append(record)
             continue
@@ -277,9 +290,15 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
             raise InputError(str(exc).replace("the reference",
                                               f"the reference {ref_path}")) from None
         s = alignment["shift"]
-        log.info("%s: shift to the reference dx %+.3f dy %+.3f cells, dz %+.3f m (%s, %d "
-                 "common cells)", path, s["dx_px"], s["dy_px"], s["dz"], params.align,
-                 alignment["common_cells"])
+        alignment.update(_shift_units(s, alignment["shift_uncertainty"], target, specs[i],
+                                      ref_spec))
+        metres, own = alignment["shift_m"], alignment["shift_input_px"]["dem"]
+        log.info("%s: shift to the reference dx %+.3f dy %+.3f cells of the fused grid "
+                 "(%+.3f %+.3f of its own pixels; %s %+.3f %+.3f m), dz %+.3f m (%s, %d "
+                 "common cells)", path, s["dx_px"], s["dy_px"], own["dx_px"], own["dy_px"],
+                 "east, north" if "east" in metres else "map x, y",
+                 *(v for k, v in metres.items() if k not in ("up", "axes")), s["dz"],
+                 params.align, alignment["common_cells"])
         for warning in alignment.get("warnings", []):
             log.warning("%s: %s", path, warning)
         shifts.append((s["dx_px"], s["dy_px"], s["dz"]))

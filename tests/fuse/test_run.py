@@ -46,6 +46,12 @@ def test_fuse_aligns_rejects_blunders_and_beats_each_dem(block):
     assert shifts[1]["dy_px"] == pytest.approx(0.4, abs=0.1)
     assert shifts[1]["dz"] == pytest.approx(-1.5, abs=0.1)
     assert shifts[2]["dz"] == pytest.approx(0.8, abs=0.1)  # 1 % of +50 m blunders
+    # the same shift in metres (2 m cells; +0.4 cells down is 0.8 m south) and own pixels
+    second = summary["dems"][1]["alignment"]
+    assert second["shift_m"]["east"] == pytest.approx(2.0 * shifts[1]["dx_px"], abs=1e-3)
+    assert second["shift_m"]["north"] == pytest.approx(-2.0 * shifts[1]["dy_px"], abs=1e-3)
+    assert second["shift_input_px"]["dem"]["dx_px"] == pytest.approx(shifts[1]["dx_px"])
+    assert summary["dems"][0]["alignment"]["shift_m"]["east"] == 0.0
     count = dio.read_raster(output_paths(out)["count"]).data
     assert set(np.unique(count)) == {0, 1, 2, 3}
     assert np.isnan(fused.data[count == 0]).all()

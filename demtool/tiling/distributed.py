@@ -30,6 +30,12 @@ from typing import Any
 from demtool.errors import ProcessingError
 from demtool.tiling import Tile, TileCache, TileJob
 
+# A test hook (issue 46): with this set to a file path, the calling process writes that
+# file once the first tile of the run is done and then waits (at most HOLD_SECONDS) for
+# a signal, so an interrupt test hits a run that is certainly mid-work however busy the
+# machine is, instead of racing the remaining tiles.
+HOLD_ENV = "DEMTOOL_TEST_HOLD_AFTER_FIRST_TILE"
+HOLD_SECONDS = 300.0
 CONNECT_TIMEOUT = "20s"  # waiting for a --scheduler that does not answer
 # No dashboard; the scheduler's HTTP routes on a free port (not 8787, which another
 # cluster on the machine may hold).
@@ -102,6 +108,7 @@ class Progress:
         self.step = max(1, total // 10)
         self.start = time.perf_counter()
         self.terminal = sys.stderr.isatty() and log.isEnabledFor(logging.INFO)
+        self.held = False  # the test hook of HOLD_ENV ran
 
     def advance(self) -> None:
         self.done += 1
@@ -113,6 +120,24 @@ class Progress:
             sys.stderr.flush()
         elif self.done % self.step == 0 or self.done == self.total:
             self.log.info("%s: %d/%d tiles, %.1f s", self.what, self.done, self.total, elapsed)
+        if not self.held:
+            self.held = True
+            hold_for_a_signal()
+
+
+def hold_for_a_signal() -> None:
+    """The test hook of :data:`HOLD_ENV`: announce "mid-run" in a file, then wait for the
+    signal the test sends (which raises here, as anywhere else in the run)."""
+    import os
+    from pathlib import Path
+
+    marker = os.environ.get(HOLD_ENV)
+    if not marker:
+        return
+    Path(marker).write_text("holding\n")
+    deadline = time.monotonic() + HOLD_SECONDS
+    while time.monotonic() < deadline:
+        time.sleep(0.05)
 
 
 def tile_failure(job: TileJob, tile: Tile, exc: BaseException, cache: TileCache,

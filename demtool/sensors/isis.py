@@ -44,6 +44,8 @@ from demtool.sensors.base import Detector
 from demtool.sensors.distortion import Distortion
 from demtool.sensors.frame import FrameSensor
 from demtool.sensors.isd import Orientations
+from demtool.sensors.isis_frames import FrameInterior, mission_interior
+from demtool.sensors.isis_kinds import naif_ik_code
 from demtool.sensors.isis_label import read_label
 
 _TYPES = {"Double": "f8", "Integer": "i4", "Real": "f4"}
@@ -120,38 +122,27 @@ def read_cube(path: str | Path) -> FrameSensor:
     tables = _tables(label)
     needed = ("InstrumentPointing", "InstrumentPosition", "BodyRotation", "SunPosition")
     absent = [t for t in needed if t not in tables]
-    if absent or "NaifKeywords" not in label:
-        what = absent[0] if absent else "NaifKeywords"
-        raise InputError(f"{p}: the cube has no attached SPICE ({what} missing); run "
+    if absent:
+        raise InputError(f"{p}: the cube has no attached SPICE ({absent[0]} missing); run "
                          "'spiceinit from=CUBE attach=true' in ISIS, or pass an ALE ISD "
                          "(isd_generate) instead")
+    if "NaifKeywords" not in label:
+        raise InputError(f"{p}: the cube has SPICE tables but no NaifKeywords object (the "
+                         "label layout of ISIS before 3.6): the camera's constants are not "
+                         "in the file; re-run spiceinit, or pass an ALE ISD (isd_generate)")
     raw = {name: _read_table(p, data, tables[name]) for name in needed}
     core = label["IsisCube"]["Core"]
     try:
         samples = int(core["Dimensions"]["Samples"])
         lines = int(core["Dimensions"]["Lines"])
-        code = int(label["IsisCube"]["Kernels"]["NaifFrameCode"])
     except KeyError as exc:
         raise InputError(f"{p}: the cube label lacks the key {exc}") from None
+    code = naif_ik_code(p, label)
     naif = label["NaifKeywords"]
-    ins = f"INS{code}"
-    focal = float(_naif(p, naif, f"{ins}_FOCAL_LENGTH", 1)[0])
-    if code in TAGCAMS_CODES:  # ISIS OsirisRexTagcamsCamera: the IK gives metres
-        focal *= 1000.0
-    itrans_s = _naif(p, naif, f"{ins}_ITRANSS", 3)
-    itrans_l = _naif(p, naif, f"{ins}_ITRANSL", 3)
-    if f"{ins}_BORESIGHT_SAMPLE" in naif:
-        center_s = float(_naif(p, naif, f"{ins}_BORESIGHT_SAMPLE", 1)[0])
-        center_l = float(_naif(p, naif, f"{ins}_BORESIGHT_LINE", 1)[0])
-    elif f"{ins}_CCD_CENTER" in naif:
-        center_s, center_l = _naif(p, naif, f"{ins}_CCD_CENTER", 2)
-        if code in TAGCAMS_CODES:  # OsirisRexTagcamsCamera: CCD_CENTER is 0-based
-            center_s, center_l = center_s + 1.0, center_l + 1.0
-    else:  # Apollo Metric: ISIS sets the origin to (ParentSamples / 2, ParentLines / 2)
-        alpha = label["IsisCube"].get("AlphaCube")
-        full_s = float(alpha["AlphaSamples"]) if alpha is not None else samples
-        full_l = float(alpha["AlphaLines"]) if alpha is not None else lines
-        center_s, center_l = full_s / 2.0, full_l / 2.0
+    instrument = label["IsisCube"].get("Instrument", {})
+    interior = mission_interior(p, label, naif, code)
+    if interior is None:
+        interior = _generic_interior(p, label, naif, code, samples, lines)
     body_keys = [k for k in naif.keys() if k.startswith("BODY") and k.endswith("_RADII")]
     if not body_keys:
         raise InputError(f"{p}: NaifKeywords lacks the key 'BODY<code>_RADII'")
@@ -159,9 +150,9 @@ def read_cube(path: str | Path) -> FrameSensor:
     # What the label says the body is (PROJ may not know it: Bennu, 2101955); the radii
     # above are the model's own either way.
     body_naif = re.fullmatch(r"BODY(-?\d+)_RADII", body_keys[0])
-    instrument = label["IsisCube"].get("Instrument", {})
 
-    # Cube pixel → original detector pixel (CSM convention: ISIS − 0.5).
+    # Cube pixel → parent pixel (AlphaCube) → detector pixel (the camera's binning and
+    # first detector pixel; CSM convention: ISIS − 0.5).
     start_s = start_l = 0.0
     sum_s = sum_l = 1.0
     alpha = label["IsisCube"].get("AlphaCube")
@@ -172,10 +163,15 @@ def read_cube(path: str | Path) -> FrameSensor:
             / float(alpha["BetaLines"])
         start_s = float(alpha["AlphaStartingSample"]) - 0.5
         start_l = float(alpha["AlphaStartingLine"]) - 0.5
+    binning = interior.binning
+    itrans_s, itrans_l = interior.itrans_sample, interior.itrans_line
+    focal = interior.focal
     detector = Detector(itrans_sample=itrans_s, itrans_line=itrans_l,
-                        center_sample=center_s - 0.5, center_line=center_l - 0.5,
-                        start_sample=start_s, start_line=start_l,
-                        sample_summing=sum_s, line_summing=sum_l)
+                        center_sample=interior.center_sample - 0.5,
+                        center_line=interior.center_line - 0.5,
+                        start_sample=interior.start_sample + binning * start_s,
+                        start_line=interior.start_line + binning * start_l,
+                        sample_summing=binning * sum_s, line_summing=binning * sum_l)
 
     body = _orientations(p, tables["BodyRotation"], raw["BodyRotation"], "BodyRotation")
     pointing = _orientations(p, tables["InstrumentPointing"], raw["InstrumentPointing"],
@@ -193,15 +189,44 @@ def read_cube(path: str | Path) -> FrameSensor:
     sun_body = body.matrices_at(sun_times[:1])[0] @ sun[0] * 1000.0
     # ISIS's zDirection: the side of the focal plane the body is on (Apollo Metric: −z).
     z_direction = -1.0 if rotation[:, 2] @ position_body > 0 else 1.0
-    distortion = _distortion(p, naif, code, focal, instrument)
+    distortion = interior.distortion
     model = FrameSensor(position=position_body, rotation=rotation, focal_length=focal,
                         detector=detector, distortion=distortion, lines=lines, samples=samples,
                         radii=(float(radii[0]), float(radii[2])), sun=sun_body, name=p.stem,
                         time=time, z_direction=z_direction)
-    model.notes = []
+    model.notes = list(interior.notes)
     model.body_name = str(instrument.get("TargetName", "")) or None
     model.body_naif_id = int(body_naif.group(1)) if body_naif else None
     return model
+
+
+def _generic_interior(p: Path, label, naif, code: int, samples: int,
+                      lines: int) -> FrameInterior:
+    """The interior orientation of a frame camera described by its IK keywords alone
+    (``INS<code>_FOCAL_LENGTH``, ``_ITRANSS/L``, ``_BORESIGHT_SAMPLE/LINE`` or
+    ``_CCD_CENTER``; Apollo Metric's image centre), with :func:`_distortion`."""
+    ins = f"INS{code}"
+    instrument = label["IsisCube"].get("Instrument", {})
+    focal = float(_naif(p, naif, f"{ins}_FOCAL_LENGTH", 1)[0])
+    if code in TAGCAMS_CODES:  # ISIS OsirisRexTagcamsCamera: the IK gives metres
+        focal *= 1000.0
+    itrans_s = _naif(p, naif, f"{ins}_ITRANSS", 3)
+    itrans_l = _naif(p, naif, f"{ins}_ITRANSL", 3)
+    if f"{ins}_BORESIGHT_SAMPLE" in naif:
+        center_s = float(_naif(p, naif, f"{ins}_BORESIGHT_SAMPLE", 1)[0])
+        center_l = float(_naif(p, naif, f"{ins}_BORESIGHT_LINE", 1)[0])
+    elif f"{ins}_CCD_CENTER" in naif:
+        center_s, center_l = _naif(p, naif, f"{ins}_CCD_CENTER", 2)
+        if code in TAGCAMS_CODES:  # OsirisRexTagcamsCamera: CCD_CENTER is 0-based
+            center_s, center_l = center_s + 1.0, center_l + 1.0
+    else:  # Apollo Metric: ISIS sets the origin to (ParentSamples / 2, ParentLines / 2)
+        alpha = label["IsisCube"].get("AlphaCube")
+        full_s = float(alpha["AlphaSamples"]) if alpha is not None else samples
+        full_l = float(alpha["AlphaLines"]) if alpha is not None else lines
+        center_s, center_l = full_s / 2.0, full_l / 2.0
+    return FrameInterior(focal=focal, itrans_sample=itrans_s, itrans_line=itrans_l,
+                         center_sample=float(center_s), center_line=float(center_l),
+                         distortion=_distortion(p, naif, code, focal, instrument))
 
 
 #: NAIF codes of OSIRIS-REx's TAGCAMS cameras (NavCam, NFTCam, StowCam; ISIS
@@ -273,21 +298,15 @@ def _tagcams(path: Path, naif, ins: str, focal: float, instrument) -> Distortion
 
 
 def _refuse_unread_kinds(path: Path, label) -> None:
-    """One-line refusals of cubes that are not raw frame-camera images.
-
-    A map-projected cube (ISIS ``cam2map``: a ``Mapping`` group) has its pixels on the
-    map, not in the camera; a line-scan camera (``LineExposureDuration`` in the
-    ``Instrument`` group: CTX, HiRISE, LRO NAC, MOC) is not a frame model.
+    """One-line refusals of cubes that are not raw frame-camera images: those of
+    :func:`demtool.sensors.isis_kinds.refuse_unread_kinds` (map-projected, SAR, no SPICE
+    attached, tables named but absent), and line-scan cameras (``LineExposureDuration``
+    in the ``Instrument`` group: CTX, HiRISE, LRO NAC, MOC), which are not frame models.
     """
-    cube = label["IsisCube"]
-    mapping = cube.get("Mapping")
-    if mapping is not None:
-        from demtool.sensors.isis_map import mapping_summary
+    from demtool.sensors.isis_kinds import refuse_unread_kinds
 
-        raise InputError(f"{path}: is a map-projected cube ({mapping_summary(mapping)}): its "
-                         "pixels lie on that map, not in the camera; use it as a map "
-                         "(its CRS from the Mapping group), or the raw image's cube or ISD "
-                         "for a camera model")
+    refuse_unread_kinds(path, label)
+    cube = label["IsisCube"]
     instrument = cube.get("Instrument", {})
     if "LineExposureDuration" in instrument:
         what = instrument.get("InstrumentId", "a line-scan camera")

@@ -72,6 +72,7 @@ from pathlib import Path
 import numpy as np
 
 from demtool.errors import InputError
+from demtool.sensors.isis_linescan_cameras import THEMIS_IR_CODE, themis_ir
 
 #: NAIF codes of the line-scan cameras read here: LRO NAC left/right, CTX, HiRISE.
 LRO_NAC_CODES = (-85600, -85610)
@@ -140,7 +141,16 @@ class _Cube:
         text = self.data[: end if end > 0 else 65536].decode("latin-1")
         pattern = r"CLOCK_ET_(-?\d+)_" + re.escape(count) + r"_COMPUTED\s*=\s*([0-9A-Fa-f]+)"
         match = re.search(pattern, text)
-        if match is None:
+        if match is None:  # a decimal count the label parser re-wrote (698713127.000)
+            for candidate in re.finditer(r"CLOCK_ET_(-?\d+)_([0-9.]+)_COMPUTED\s*=\s*"
+                                         r"([0-9A-Fa-f]+)", text):
+                try:
+                    same = float(candidate.group(2)) == float(count)
+                except ValueError:
+                    same = False
+                if same:
+                    return struct.unpack("<d", bytes.fromhex(
+                        candidate.group(3).zfill(16)))[0]
             raise InputError(f"{self.path}: NaifKeywords lacks the key 'CLOCK_ET_<sc>_{count}"
                              f"_COMPUTED' (spiceinit's ephemeris time of {count_key}); "
                              "re-run spiceinit, or pass an ALE ISD (isd_generate)")
@@ -221,10 +231,17 @@ def _camera(cube: _Cube, code: int) -> dict:
                     center=(64.0 - tdi / 2.0, 1024.0),
                     first_sample=1024.0 if channel == 0 else 0.0, summing=summing,
                     distortion={"radial": {"coefficients": cube.key(f"{ins}_OD_K", 3).tolist()}})
+    if code == THEMIS_IR_CODE:
+        return themis_ir(cube, ins)
     what = str(cube.instrument.get("InstrumentId", "")) or "an unnamed camera"
-    raise InputError(f"{cube.path}: is a line-scan cube of {what} (NAIF code {code}); "
-                     "demtool reads the ISIS line-scan models of LRO NAC, MRO CTX and MRO "
-                     "HiRISE from cubes: pass an ALE ISD of this image (isd_generate)")
+    why = ""
+    if code in (-94032, -94033):  # ISIS MocWideAngleCamera
+        why = (" (ISIS's MocWideAngleDetectorMap and MocWideAngleDistortionMap, a "
+               "field-angle polynomial, are not reproduced)")
+    raise InputError(f"{cube.path}: is a line-scan cube of {what} (NAIF code {code}){why}; "
+                     "demtool reads the ISIS line-scan models of LRO NAC, MRO CTX, MRO "
+                     "HiRISE and THEMIS IR from cubes: pass an ALE ISD of this image "
+                     "(isd_generate)")
 
 
 def _itrans(cube: _Cube, ins: str) -> tuple[list, list]:
@@ -362,6 +379,7 @@ def cube_isd(path: str | Path, label=None, data: bytes | None = None, *,
         than LRO NAC, CTX or HiRISE; a map-projected cube when ``mapped`` is False.
     """
     from demtool.sensors.isis import _tables
+    from demtool.sensors.isis_kinds import camera_kind, naif_ik_code
     from demtool.sensors.isis_label import read_label
 
     p = Path(path)
@@ -371,14 +389,10 @@ def cube_isd(path: str | Path, label=None, data: bytes | None = None, *,
     if "Mapping" in cube.cube and not mapped:
         raise InputError(f"{p}: is a map-projected cube: its pixels lie on the map, not in "
                          "the camera")
-    if not is_linescan_label(label):
+    if camera_kind(label) != "linescan":
         raise InputError(f"{p}: the Instrument group lacks the key 'LineExposureDuration' "
                          "(not a line-scan camera cube)")
-    kernels = cube.cube.get("Kernels", {})
-    code_key = next((k for k in ("NaifIkCode", "NaifFrameCode") if k in kernels), None)
-    if code_key is None:
-        raise InputError(f"{p}: the Kernels group lacks the key 'NaifFrameCode'")
-    code = int(kernels[code_key])
+    code = naif_ik_code(p, label)
     camera = _camera(cube, code)
     start_s, start_l, k_s, k_l, samples, lines = _alpha(cube)
     tables = _tables(label)
@@ -473,14 +487,25 @@ def read_linescan_cube(path: str | Path, label=None, data: bytes | None = None, 
 
 
 def read_isis_cube(path: str | Path):
-    """Any ISIS3 camera cube with attached SPICE: a line-scan cube (not map-projected) as
-    :func:`read_linescan_cube`, every other cube through
-    :func:`demtool.sensors.isis.read_cube` (frame cameras; refusals)."""
+    """Any ISIS3 camera cube with attached SPICE, by its ISIS camera class
+    (:func:`demtool.sensors.isis_kinds.camera_kind`): a line-scan cube as
+    :func:`read_linescan_cube`, a push-frame cube as
+    :func:`demtool.sensors.isis_pushframe.read_pushframe_cube`, a frame camera through
+    :func:`demtool.sensors.isis.read_cube`; cubes no camera can be built from are refused
+    first with their reason (:func:`demtool.sensors.isis_kinds.refuse_unread_kinds`)."""
     from demtool.sensors.isis import read_cube
     from demtool.sensors.isis_label import read_label
 
+    from demtool.sensors.isis_kinds import camera_kind, refuse_unread_kinds
+
     p = Path(path)
     label, data = read_label(p)
-    if "Mapping" not in label["IsisCube"] and is_linescan_label(label):
+    refuse_unread_kinds(p, label)
+    kind = camera_kind(label)
+    if kind == "linescan":
         return read_linescan_cube(p, label, data)
+    if kind == "pushframe":
+        from demtool.sensors.isis_pushframe import read_pushframe_cube
+
+        return read_pushframe_cube(p, label, data)
     return read_cube(p)

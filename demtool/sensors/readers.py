@@ -5,8 +5,8 @@ content                                model
 =====================================  ==========================================
 JSON with ``name_model`` (ALE ISD)     :class:`FrameSensor` / :class:`LineScanSensor` /
                                        :class:`PushFrameSensor`
-ISIS3 cube (``Object = IsisCube``)     :class:`FrameSensor`, :class:`LineScanSensor` (LRO
-                                       NAC, CTX, HiRISE; SPICE must be attached)
+ISIS3 cube (``Object = IsisCube``)     :class:`FrameSensor`, :class:`LineScanSensor`
+                                       (:mod:`~demtool.sensors.isis_kinds`; SPICE attached)
 ASP ``.tsai`` (``VERSION_n``/``PINHOLE``)  :class:`TsaiCamera` (body-fixed pinhole)
 RPC: GeoTIFF tags, NITF, DIMAP,       :class:`RpcSensor` (WGS84 heights;
 ``_RPC.TXT``, .RPB, OSSIM ``.geom``    :mod:`demtool.sensors.rpc_files`)
@@ -38,6 +38,11 @@ def _sniff(path: Path) -> str:
         return "isd"
     if b"IsisCube" in head[:200]:
         return "cube"
+    if b"SFDU_LABEL" in head[:200] or (b"^QUBE" in head and b"Object = QUBE" in head):
+        raise InputError(f"{path}: is an ISIS2 qube (PDS-style label with ^QUBE), not an "
+                         "ISIS3 cube: it carries no SPICE tables; import it into ISIS3 "
+                         "(lo2isis for Lunar Orbiter, pds2isis otherwise), run spiceinit, "
+                         "and pass that cube or an ALE ISD")
     first = text.split(None, 1)[0].upper() if text.strip() else b""
     if first.startswith(b"VERSION_") or first == b"PINHOLE" or text.startswith(b"fu"):
         return "tsai"
@@ -77,6 +82,9 @@ def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
     if kind == "cube":
         from demtool.sensors.isis_linescan import read_isis_cube
 
+        from demtool.sensors.isis_kinds import refuse_cube_kind
+
+        refuse_cube_kind(p)  # map-projected, SAR, no SPICE: said before values are checked
         validate_raw.check_cube_label(p)
         with np.errstate(invalid="ignore", divide="ignore"):  # zero quaternions: checked next
             model = read_isis_cube(p)

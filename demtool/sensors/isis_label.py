@@ -3,12 +3,43 @@
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from pathlib import Path
 
 from demtool.errors import InputError
 
+#: The last few labels parsed, by (path, size, mtime): a cube is looked at by the
+#: refusals, the dispatch and its camera reader in turn, and PVL parsing of a 64 KiB
+#: label takes a second or more.  Callers never modify a label.
+_CACHE: OrderedDict = OrderedDict()
+_CACHE_SIZE = 4
+
 
 def read_label(path: Path) -> tuple[dict, bytes]:
+    """The parsed PVL label (``pvl``'s module) of an ISIS3 cube and the file's bytes.
+
+    Raises
+    ------
+    InputError
+        Unreadable file, not an ISIS3 cube, or a label PVL cannot parse.
+    """
+    try:
+        stat = path.stat()
+        key = (str(Path(path).resolve()), stat.st_size, stat.st_mtime_ns)
+    except OSError:
+        key = None
+    if key is not None and key in _CACHE:
+        _CACHE.move_to_end(key)
+        return _CACHE[key]
+    result = _parse(path)
+    if key is not None:
+        _CACHE[key] = result
+        while len(_CACHE) > _CACHE_SIZE:
+            _CACHE.popitem(last=False)
+    return result
+
+
+def _parse(path: Path) -> tuple[dict, bytes]:
     import warnings
 
     with warnings.catch_warnings():  # pvl notes the optional multidict package is absent

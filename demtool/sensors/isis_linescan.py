@@ -494,9 +494,8 @@ def read_isis_cube(path: str | Path):
     :func:`demtool.sensors.isis.read_cube`; cubes no camera can be built from are refused
     first with their reason (:func:`demtool.sensors.isis_kinds.refuse_unread_kinds`)."""
     from demtool.sensors.isis import read_cube
-    from demtool.sensors.isis_label import read_label
-
     from demtool.sensors.isis_kinds import camera_kind, refuse_unread_kinds
+    from demtool.sensors.isis_label import read_label
 
     p = Path(path)
     label, data = read_label(p)

@@ -1,0 +1,229 @@
+"""ISIS cubes of issue 41: the instrument code of NaifIkCode-only cubes (ISIS
+``Spice::init``), MDIS's filter keywords and temperature-dependent focal length, Viking's
+focal lengths, THEMIS IR's line-scan timing, and the true reason of each refusal (SAR,
+no SPICE, tables named but absent, ISIS2 qube, ring-plane projection, push frame); with
+../shared, every cube of the conformance corpus loads and round-trips or is refused for
+the reason its README gives."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from demtool.errors import InputError
+from demtool.sensors import read_sensor
+from demtool.sensors.base import ray_ellipsoid_intersection
+from demtool.sensors.distortion import MODELS
+from demtool.sensors.isis_linescan import cube_isd
+from tests.sensors.test_isis_apollo import write_cube
+from tests.sensors.test_isis_linescan import CAMERAS, ET0, write_linescan_cube
+
+CONFORMANCE = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "conformance" \
+    / "isis" / "isis" / "tests" / "data"
+
+MDIS = {"BODY199_RADII": "(2440.0, 2440.0, 2440.0)",
+        "TempDependentFocalLength": "78.2574555656155",
+        "INS-236807_FOCAL_LENGTH": "78.2367",
+        "INS-236807_FL_TEMP_COEFFS": "(78.286534058671, 0.0010882669556798, 0, 0, 0, 0)",
+        "INS-236807_ITRANSS": "(0.0, 71.42857143, 0.0)",
+        "INS-236807_ITRANSL": "(0.0, 0.0, 71.42857143)",
+        "INS-236800_BORESIGHT_SAMPLE": "512.5", "INS-236800_BORESIGHT_LINE": "512.5",
+        "INS-236807_OD_T_X": "(0.0, 0.99998164157363, -5.27602089733654e-06, "
+                             "-7.32059999999968e-05, 2.15189999999999e-06, 0.0, "
+                             "5.34975284298397e-06, 1.46060238113648e-07, "
+                             "5.48634198618427e-06, 1.23834839985695e-07)",
+        "INS-236807_OD_T_Y": "(0.0, 5.27602089733571e-06, 0.99998164157363, 0.0, "
+                             "-7.3206e-05, 2.15189999999974e-06, -1.23834839985724e-07, "
+                             "5.48634198618425e-06, -1.46060238113479e-07, "
+                             "5.34975284298432e-06)"}
+MDIS_GROUPS = (b"  Group = Instrument\n    InstrumentId = MDIS-WAC\n    TargetName = Mercury\n"
+               b"    FocalPlaneTemperature = -26.72 <DEGC>\n    FpuBinningMode = 0\n"
+               b"    PixelBinningMode = 0\n  End_Group\n"
+               b"  Group = BandBin\n    Number = 7\n  End_Group\n")
+VIKING = {"BODY499_RADII": "(3396.19, 3396.19, 3376.2)",
+          "INS-30001_ITRANSS": "(0.0, 85.0, 0.0)", "INS-30001_ITRANSL": "(0.0, 0.0, 85.0)"}
+VIKING_GROUPS = (b"  Group = Instrument\n    SpacecraftName = VIKING_ORBITER_2\n"
+                 b"    InstrumentId = VISUAL_IMAGING_SUBSYSTEM_CAMERA_A\n"
+                 b"    TargetName = MARS\n  End_Group\n")
+
+
+def _edit_label(path, *replacements, head=8192):
+    """Replace text in a label-only cube's label, keeping the tables where they are."""
+    data = path.read_bytes()
+    label = data[:head].rstrip(b"\0")
+    for old, new in replacements:
+        assert old in label
+        label = label.replace(old, new, 1)
+    assert len(label) < head
+    path.write_bytes(label.ljust(head, b"\0") + data[head:])
+    return path
+
+
+def _round_trip(model):
+    ll, ss = np.meshgrid(np.linspace(0.5, model.lines - 0.5, 9),
+                         np.linspace(0.5, model.samples - 0.5, 9), indexing="ij")
+    ray = model.image_to_ray(ll.ravel(), ss.ravel())
+    xyz, hit = ray_ellipsoid_intersection(ray.origin, ray.direction, *model.radii, 0.0,
+                                          return_hit=True)
+    back_l, back_s = model.ground_to_image(xyz[hit])
+    return hit, np.hypot(back_l - ll.ravel()[hit], back_s - ss.ravel()[hit])
+
+
+def test_mdis_wac_with_naif_ik_code_only_reads_its_filter(tmp_path):
+    # MdisCamera: the filter's code −236800 − 7 holds ITRANS and the Taylor distortion,
+    # the camera's code the boresight; spiceinit's TempDependentFocalLength is
+    # Σ FL_TEMP_COEFFS[i] T^i at T = −26.72 °C.
+    path = write_cube(tmp_path / "mdis.cub", size=1024, naif=MDIS, distance_km=2440 + 12000)
+    path = _edit_label(path, (b"NaifFrameCode = -915240", b"NaifIkCode = -236800"),
+                       (b"  Group = Kernels", MDIS_GROUPS + b"  Group = Kernels"))
+    model = read_sensor(path)
+    assert model.focal_length == pytest.approx(78.286534058671 + 0.0010882669556798 * -26.72,
+                                               abs=1e-9)
+    assert model.distortion.model == "transverse"
+    assert model.distortion.coefficients[1] == pytest.approx(0.99998164157363)
+    assert (model.detector.center_sample, model.detector.center_line) == (512.0, 512.0)
+    hit, error = _round_trip(model)
+    assert hit.all() and error.max() < 1e-4  # the Taylor inverse's Newton tolerance
+
+
+def test_viking_focal_length_and_origin_are_viking_cameras(tmp_path):
+    path = write_cube(tmp_path / "vik.cub", size=1204, naif=VIKING, distance_km=3396.19 + 2000)
+    path = _edit_label(path, (b"NaifFrameCode = -915240", b"NaifFrameCode = -30001"),
+                       (b"  Group = Kernels", VIKING_GROUPS + b"  Group = Kernels"))
+    model = read_sensor(path)
+    assert model.focal_length == 474.610  # VikingCamera, VO2 camera A
+    assert (model.detector.center_sample, model.detector.center_line) == (601.5, 527.5)
+    assert any("reseau" in note for note in model.notes)
+    hit, error = _round_trip(model)
+    assert hit.all() and error.max() < 1e-6
+
+
+def test_themis_ir_timing_and_detector_are_themis_ir_cameras(tmp_path, monkeypatch):
+    # ThemisIrCamera: no LineExposureDuration; r = 33.2871 ms × SpatialSumming; start =
+    # clock + SpacecraftClockOffset + (d − 0.5) r with filter 3's TDI line d = 50.5;
+    # along-track offset 120.5 − d − 0.089, sample origin 160.5 − 0.005 (Kirk's terms).
+    monkeypatch.setitem(CAMERAS, "themisir", dict(
+        code=-53031, code_key="NaifFrameCode", clock="SpacecraftClockCount",
+        instrument={"InstrumentId": "THEMIS_IR", "SpacecraftClockCount": "698713127.000",
+                    "SpacecraftClockOffset": "0.5 <seconds>", "TimeDelayIntegration":
+                    "ENABLED", "SpatialSumming": 1},
+        naif={"INS-53031_ITRANSS": "(0.0, 20.0, 0.0)", "INS-53031_ITRANSL": "(0.0, 0.0, 20.0)"},
+        rate=0.0332871, start=ET0))
+    path = write_linescan_cube(tmp_path / "thm.cub", "themisir")
+    path = _edit_label(path, (b"  Group = Kernels", b"  Group = BandBin\n    FilterNumber = "
+                              b"(3, 4)\n  End_Group\n  Group = Kernels"), head=16384)
+    isd = cube_isd(path)
+    start = ET0 + 0.5 + 50.0 * 0.0332871
+    assert isd["starting_ephemeris_time"] == pytest.approx(start + 100.0 * 0.0332871, abs=1e-9)
+    assert isd["line_scan_rate"][0][2] == pytest.approx(2 * 0.0332871)  # AlphaCube 2x
+    assert isd["detector_center"]["line"] == pytest.approx(-(120.5 - 50.5 - 0.089))
+    assert isd["detector_center"]["sample"] == pytest.approx(160.5 - 0.005 - 0.5)
+    assert isd["optical_distortion"] == {"themisir": {"p_k": 0.994260, "p_alpha1": 0.00447623,
+                                                      "p_alpha2": 0.00107556}}
+    assert isd["focal_length_model"]["focal_length"] == 203.9213
+    assert "band 1 (filter 3) of 2" in isd["notes"][0]
+
+
+@pytest.mark.parametrize("edit, match", [
+    ((b"  Group = Kernels", b"  Group = Instrument\n    InstrumentId = MRFLRO\n  End_Group\n"
+      b"  Group = Kernels"), r"x\.cub: is a synthetic-aperture radar image \(MRFLRO"),
+    ((b"  Group = Kernels", b"  Group = Instrument\n    InstrumentId = Marci\n  End_Group\n"
+      b"  Group = Kernels"), r"x\.cub: is a push-frame cube of Marci"),
+    ((b"  Group = Kernels", b"  Group = Mapping\n    ProjectionName = Planar\n"
+      b"    TargetName = Saturn\n  End_Group\n  Group = Kernels"),
+     r"x\.cub: is a map-projected cube onto the ring plane \(ISIS Mapping group: Planar"),
+    ((b"NaifFrameCode = -915240\n", b"NaifFrameCode = -915240\n    InstrumentPointing = "
+      b"Table\n"), None),
+])
+def test_cube_refused_with_its_true_reason(tmp_path, edit, match):
+    path = _edit_label(write_cube(tmp_path / "x.cub"), edit)
+    if match is None:  # the pointing table is attached: the cube loads
+        assert read_sensor(path).focal_length == pytest.approx(76.054)
+        return
+    with pytest.raises(InputError, match=match) as info:
+        read_sensor(path)
+    assert "\n" not in str(info.value)
+
+
+def test_cube_without_spice_or_with_tables_named_but_absent_says_so(tmp_path):
+    path = write_cube(tmp_path / "x.cub")
+    data = path.read_bytes()
+    label = data[:8192].rstrip(b"\0")
+    bare = label[:label.index(b"End_Object\nObject = Table")] + b"End_Object\nEnd\n"
+    (tmp_path / "raw.cub").write_bytes(bare.ljust(8192, b"\0"))
+    with pytest.raises(InputError, match=r"raw\.cub: the cube has no SPICE attached \(the "
+                                         r"Kernels group holds only the NAIF code\)"):
+        read_sensor(tmp_path / "raw.cub")
+    named = bare.replace(b"NaifFrameCode = -915240\n", b"NaifFrameCode = -915240\n"
+                         b"    InstrumentPointing = Table\n")
+    (tmp_path / "named.cub").write_bytes(named.ljust(8192, b"\0"))
+    with pytest.raises(InputError, match=r"named\.cub: the Kernels group names 'Table' for "
+                                         r"InstrumentPointing but the file has no "
+                                         r"InstrumentPointing table attached"):
+        read_sensor(tmp_path / "named.cub")
+
+
+def test_isis2_qube_is_named(tmp_path):
+    path = tmp_path / "lo.cub"
+    path.write_bytes(b"CCSD3ZF0000100000001NJPL3IF0PDS200000001 = SFDU_LABEL\n"
+                     b"RECORD_TYPE = FIXED_LENGTH\n^QUBE = 9190 <BYTES>\nObject = QUBE\n"
+                     b"  AXES = 3\nEnd_Object\nEND\n".ljust(4096, b" "))
+    with pytest.raises(InputError, match=r"lo\.cub: is an ISIS2 qube .*lo2isis"):
+        read_sensor(path)
+
+
+# ---------------------------------------------------------------------------------------
+# The conformance corpus (../shared): one cube per outcome (bench/conformance.py runs
+# them all), as its README states it; slow: each label takes seconds to parse
+# ---------------------------------------------------------------------------------------
+
+_NO_SPICE = r"has no SPICE attached \(the Kernels group holds only the NAIF code\)"
+REFUSED = {
+    "hicubeit/RE.cub": _NO_SPICE,
+    "lrowaccal/M1388981421CE.tmp.vis.even.reduced.cub": _NO_SPICE,
+    "demprep/vest64_dtm_specialpixels_downsampled.cub":
+        r"is a map-projected cube \(ISIS Mapping group: Equirectangular on Vesta",
+    "rings/rings1proj.cub": r"is a map-projected cube onto the ring plane",
+    "miniRFImage/LSZ_04866_1CD_XKU_89N109_V1_lev1.crop.cub": r"synthetic-aperture radar",
+    "lo2isis/case04/3083_med_isis2_cropped.cub": r"is an ISIS2 qube",
+    "tgoCassis/tgocassisstitch/CAS-MCO-2016-11-22T16.16.16.833-RED-01006-B1_crop.cub":
+        r"names 'Table' for InstrumentPointing.* but the file has no InstrumentPointing",
+    "marcical/P12_005901_3391_MA_00N096W_cropped.cub": r"is a push-frame cube of Marci",
+    "mgsImages/mocImage.cub": r"line-scan cube of MOC-WA .*MocWideAngleDistortionMap",
+    "cnetedit/e0902065.cal.sub.cub": r"no NaifKeywords object",
+}
+#: Cubes that load, with where they look (planetocentric lat, lon in degrees, ±1°) when
+#: another file confirms it: the Viking and THEMIS images of one control network.
+LOADED = {
+    "offBodyImage/EW0131773041G.cal.crop.cub": None,
+    "vikingThemisNetwork/F704b51.lev1_slo_crop.cub": (44.0, -74.9),
+    "vikingThemisNetwork/I52634011RDR_crop.cub": (42.2, -79.6),
+}
+THEMIS = ("vikingThemisNetwork/I52634011RDR_crop.cub",)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not CONFORMANCE.exists(), reason="../shared/data/conformance is absent")
+@pytest.mark.parametrize("name", sorted(REFUSED))
+def test_conformance_cube_refused_for_its_true_reason(name):
+    with pytest.raises(InputError, match=REFUSED[name]) as info:
+        read_sensor(CONFORMANCE / name)
+    assert "\n" not in str(info.value) and Path(name).name in str(info.value)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not CONFORMANCE.exists(), reason="../shared/data/conformance is absent")
+@pytest.mark.parametrize("name", sorted(LOADED))
+def test_conformance_cube_loads_and_round_trips(name):
+    if name in THEMIS and "themisir" not in MODELS:  # ISIS's ThemisIrDistortionMap
+        with pytest.raises(InputError, match="themisir"):
+            read_sensor(CONFORMANCE / name)
+        return
+    model = read_sensor(CONFORMANCE / name)
+    hit, error = _round_trip(model)
+    assert hit.any() and error.max() <= 0.01
+    if LOADED[name] is not None:
+        xyz = model.image_to_ground(model.lines / 2, model.samples / 2)
+        lat = np.degrees(np.arctan2(xyz[2], np.hypot(xyz[0], xyz[1])))
+        lon = np.degrees(np.arctan2(xyz[1], xyz[0]))
+        assert abs(lat - LOADED[name][0]) < 1.0 and abs(lon - LOADED[name][1]) < 1.0

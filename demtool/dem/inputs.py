@@ -111,6 +111,21 @@ def is_calibrated(rectification: dict) -> bool:
     return "calibrated" in rectification and bool(rectification["calibrated"])
 
 
+def rectifying_right_model(rectification: dict, right, rectify_path):
+    """The right model that resampled the pair: ``rectifying_right_*`` when rectify fitted a
+    pose to the matches for the rectification only (:mod:`demtool.rectify.relative_pose`),
+    else ``right`` (the triangulating model)."""
+    from demtool.errors import InputError
+    from demtool.sensors.arrays import model_from_arrays
+
+    if "rectifying_right_type" not in rectification:
+        return right
+    try:
+        return model_from_arrays(rectification, "rectifying_right_")
+    except (KeyError, ValueError, TypeError) as exc:
+        raise InputError(f"{rectify_path}: bad rectifying right model ({exc})") from None
+
+
 def models_from_rectification(rectification: dict, rectify_path
                               ) -> tuple[SensorModel, SensorModel]:
     """The left and right models stored in a calibrated rectify.npz (InputError naming the
@@ -135,7 +150,8 @@ def models_from_rectification(rectification: dict, rectify_path
 
 
 def geometry_from_rectification(rectification: dict, left, right):
-    """The :class:`~demtool.rectify.calibrated.RectifiedGeometry` stored in rectify.npz."""
+    """The :class:`~demtool.rectify.calibrated.RectifiedGeometry` stored in rectify.npz;
+    ``right`` is the model that rectified (:func:`rectifying_right_model`)."""
     import numpy as np
 
     from demtool.rectify.calibrated import RectifiedGeometry

@@ -35,7 +35,11 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
     import numpy as np
 
     from demtool import io as dio
-    from demtool.dem.inputs import geometry_from_rectification, read_disparity
+    from demtool.dem.inputs import (
+        geometry_from_rectification,
+        read_disparity,
+        rectifying_right_model,
+    )
     from demtool.dem.local import dem_on_local_grid, footprint_gsd, local_frame
     from demtool.dem.sensors import screen_ray_gaps, triangulate_sensors
     from demtool.errors import ParameterError, ProcessingError
@@ -46,7 +50,8 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
         raise ParameterError("--tile-size/--scheduler/--dry-run: the local-frame route "
                              f"({rectify_path}: models without a body) runs untiled")
     frame = local_frame(up)
-    geometry = geometry_from_rectification(rectification, left, right)
+    rectifying = rectifying_right_model(rectification, right, rectify_path)
+    geometry = geometry_from_rectification(rectification, left, rectifying)
     disparity = read_disparity(disparity_path, rectify_path, rectification,
                                geometry.size_rect, log)
     if _sgm_filled(disparity.tags):
@@ -62,8 +67,8 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
     x_left, y = cols.astype(np.float64), rows.astype(np.float64)
     x_right = x_left - d[rows, cols]
     l_line, l_sample = rect_to_pixels(left, geometry, "left", x_left, y, scene_distance(left))
-    r_line, r_sample = rect_to_pixels(right, geometry, "right", x_right, y,
-                                      scene_distance(right))
+    r_line, r_sample = rect_to_pixels(rectifying, geometry, "right", x_right, y,
+                                      scene_distance(rectifying))
     tri = triangulate_sensors(left, right, l_line, l_sample, r_line, r_sample)
     finite = np.isfinite(tri.xyz).all(axis=1)
     in_front = finite & tri.in_front

@@ -307,6 +307,10 @@ class CalibratedRectification(NamedTuple):
     disparity_range : (2,) float, pixels, robust range of the inlier matches with margin
     points_left, points_right : (M, 2) inlier matches, original (x, y) 0-based
     points_left_rect, points_right_rect : (M, 2) the same on the canvas
+    rectifying_right : the right model that rectified the pair: ``right_model``, or (a
+        local rig whose error no rotation explains) the pose fitted to the matches' rows
+        while ``right_model`` stays as given for the triangulation
+        (:mod:`demtool.rectify.relative_pose`)
     """
 
     geometry: RectifiedGeometry
@@ -318,6 +322,7 @@ class CalibratedRectification(NamedTuple):
     points_right: np.ndarray
     points_left_rect: np.ndarray
     points_right_rect: np.ndarray
+    rectifying_right: SensorModel | None = None
 
 
 def rectify_sensors(left: SensorModel, right: SensorModel, points_left: np.ndarray,
@@ -370,7 +375,20 @@ def rectify_sensors(left: SensorModel, right: SensorModel, points_left: np.ndarr
     fit = PointingFit(np.zeros(3), np.eye(3), residual, residual, inliers)
     corrected = False
     right_model = right
-    if rms_before > systematic_px:
+    rectifying = None
+    if left.radii is None:  # a local rig: its relative pose (demtool.rectify.relative_pose)
+        from demtool.rectify.relative_pose import correct_local_pose
+
+        local_fit, right_model, rectifying = correct_local_pose(
+            left, right, R, f, pl, pr, rms_before, max_residual_px=max_residual_px,
+            max_pointing_mrad=max_pointing_mrad, systematic_px=systematic_px, what=what)
+        corrected = local_fit is not None
+        fit = local_fit if local_fit is not None else fit
+        # a turned baseline turns the rectified frame too: every match is redone in it
+        R = rectified_geometry(left, rectifying or right_model).R_rect
+        xl, yl, xr, yr = match_residuals(left, rectifying or right_model, R, f, pl, pr)
+        inliers = fit.inliers & np.isfinite(xl) & np.isfinite(xr)
+    elif rms_before > systematic_px:
         fit = fit_pointing_correction(right, R, f, pr, yl)
         angle_mrad = 1e3 * float(np.linalg.norm(fit.omega_rect))
         rms_after = float(np.sqrt(np.mean(fit.residuals_after[fit.inliers] ** 2)))
@@ -381,12 +399,6 @@ def rectify_sensors(left: SensorModel, right: SensorModel, points_left: np.ndarr
                         f"({angle_mrad:.2f} mrad, {100 * fit.inliers.mean():.0f} % inliers; "
                         f"limits {max_residual_px:g} px --max-vertical-residual, "
                         f"{max_pointing_mrad:g} mrad --max-pointing-correction)")
-            if left.radii is None:  # local-frame models: no SPICE, no body to bundle on
-                raise ProcessingError(
-                    f"{what}: the models' relative pose is off: {measured}; recalibrate the "
-                    "pair (a stereo calibration of the rig), or raise "
-                    "--max-vertical-residual / --max-pointing-correction if that residual "
-                    "is acceptable")
             raise ProcessingError(
                 f"{what}: the SPICE is off: {measured}; run `demtool bundle --sensors` with "
                 "these models as priors and rectify with the adjusted models (or raise "
@@ -403,7 +415,7 @@ def rectify_sensors(left: SensorModel, right: SensorModel, points_left: np.ndarr
         raise ProcessingError(f"{what}: only {int(inliers.sum())} matches agree with the "
                               f"models' geometry, at least {min_matches} are needed")
     offset = float(np.median((xl - xr)[inliers]))
-    geometry = rectified_geometry(left, right_model, disparity_offset=offset)
+    geometry = rectified_geometry(left, rectifying or right_model, disparity_offset=offset)
     shift_l = np.array([geometry.cx_left, geometry.cy])
     shift_r = np.array([geometry.cx_right, geometry.cy])
     pl_rect = np.stack([xl, yl], axis=-1)[inliers] + shift_l
@@ -418,4 +430,5 @@ def rectify_sensors(left: SensorModel, right: SensorModel, points_left: np.ndarr
     disparity_range[1] = max(disparity_range[1], disparity_range[0])
     return CalibratedRectification(geometry, right_model, fit, corrected,
                                    np.asarray(disparity_range, dtype=np.float64),
-                                   pl[inliers], pr[inliers], pl_rect, pr_rect)
+                                   pl[inliers], pr[inliers], pl_rect, pr_rect,
+                                   rectifying or right_model)

@@ -162,8 +162,10 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
         max_pointing_mrad=params.max_pointing_correction,
         disparity_margin=params.disparity_margin, min_matches=params.min_matches, what=pair)
     geometry, fit = result.geometry, result.fit
+    rectifying = result.rectifying_right or result.right_model
+    split = rectifying is not result.right_model  # rectified by a pose, triangulated as given
     maps = {side: resampling_maps(model, geometry, side)
-            for side, model in (("left", left_model), ("right", result.right_model))}
+            for side, model in (("left", left_model), ("right", rectifying))}
     left_rect = warp(left_image.data, *maps["left"])
     right_rect = warp(right_image.data, *maps["right"])
     for warped in (left_rect, right_rect):  # nodata is NaN, never ±inf (file contract)
@@ -194,6 +196,12 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
         "rms_vertical_residual_px": round(rms, 4),
         "max_abs_vertical_residual_px": round(float(np.max(np.abs(residuals))), 4),
         "pointing_corrected": bool(result.corrected),
+        "relative_pose": ("as given" if not result.corrected else "fitted to the matches' "
+                          "rows for the rectification only; triangulation through the "
+                          "models as given" if split else "corrected (rectification and "
+                          "triangulation)"),
+        "baseline_turn_mrad": [round(1e3 * float(v), 4)
+                               for v in getattr(fit, "beta_rect", np.zeros(2))],
         "pointing_correction_mrad": [round(float(v), 4) for v in omega_mrad],
         "pointing_correction_angle_mrad": round(float(np.linalg.norm(omega_mrad)), 4),
         "median_ray_gap_spice_m": round(gaps["spice"], 3),
@@ -209,11 +217,11 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
              "under the models (median %.3f px), %.3f px after rectification", pair,
              len(pairs), len(result.points_left), rms_before,
              summary["median_vertical_residual_before_px"], rms)
-    log.info("median ray gap of the matches: %.3g m under the models as given, %.3g m with "
-             "the pointing correction", gaps["spice"], gaps["corrected"])
+    log.info("median ray gap of the matches: %.3g m under the models as given, %.3g m "
+             "through the models triangulating", gaps["spice"], gaps["corrected"])
     log.info("pointing correction of the right camera: %s (rectified x, y, z: %.3f, %.3f, "
              "%.3f mrad); disparity range %.1f … %.1f px; rectified canvas %d x %d",
-             "applied" if result.corrected else "none needed", *omega_mrad,
+             summary["relative_pose"] if result.corrected else "none needed", *omega_mrad,
              *result.disparity_range, *geometry.size_rect)
     arrays = {
         "H_left": H_left, "H_right": H_right, "F": F,
@@ -238,6 +246,8 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
         **model_to_arrays(left_model, "sensor_left_"),
         **model_to_arrays(result.right_model, "sensor_right_"),
     }
+    if split:  # dem resamples through the rectifying model, triangulates through the other
+        arrays.update(model_to_arrays(rectifying, "rectifying_right_"))
     write_rectified_pair(run, out, (left_rect, right_rect), (left_name, right_name), arrays,
                          summary, ({"calibrated": True}, {"calibrated": True}))
     return result

@@ -517,3 +517,13 @@ _REMOVE = {"radial": _radial_remove, "transverse": _transverse_remove,
            "brown": _brown_remove, "brownconrady": _brownconrady_remove,
            "photometrix": _photometrix_remove, "apollometric": _apollo_remove,
            "opencv": _opencv_remove}
+
+# ISIS mission distortions read from cubes (their own module)
+from demtool.sensors.distortion_isis import APPLY as _ISIS_APPLY  # noqa: E402
+from demtool.sensors.distortion_isis import COUNTS as _ISIS_COUNTS  # noqa: E402
+from demtool.sensors.distortion_isis import REMOVE as _ISIS_REMOVE  # noqa: E402
+
+MODELS = MODELS + tuple(_ISIS_COUNTS)
+_COUNTS.update(_ISIS_COUNTS)
+_APPLY.update(_ISIS_APPLY)
+_REMOVE.update(_ISIS_REMOVE)

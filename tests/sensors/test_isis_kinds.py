@@ -13,8 +13,10 @@ import pytest
 from demtool.errors import InputError
 from demtool.sensors import read_sensor
 from demtool.sensors.base import ray_ellipsoid_intersection
-from demtool.sensors.distortion import MODELS
+from demtool.sensors.distortion import MODELS, Distortion
+from demtool.sensors.isis_label import read_label
 from demtool.sensors.isis_linescan import cube_isd
+from demtool.sensors.isis_pushframe import marci_isd
 from tests.sensors.test_isis_apollo import write_cube
 from tests.sensors.test_isis_linescan import CAMERAS, ET0, write_linescan_cube
 
@@ -60,13 +62,24 @@ def _edit_label(path, *replacements, head=8192):
 
 
 def _round_trip(model):
+    """Rays of a 9 × 9 grid that meet the body, and each one's round-trip error: pixels,
+    or, where ground → image returns another pixel (overlapping framelets), the distance
+    of that pixel's ground from the ray's in ground pixels (GSD)."""
     ll, ss = np.meshgrid(np.linspace(0.5, model.lines - 0.5, 9),
                          np.linspace(0.5, model.samples - 0.5, 9), indexing="ij")
-    ray = model.image_to_ray(ll.ravel(), ss.ravel())
+    ll, ss = ll.ravel(), ss.ravel()
+    ray = model.image_to_ray(ll, ss)
     xyz, hit = ray_ellipsoid_intersection(ray.origin, ray.direction, *model.radii, 0.0,
                                           return_hit=True)
-    back_l, back_s = model.ground_to_image(xyz[hit])
-    return hit, np.hypot(back_l - ll.ravel()[hit], back_s - ss.ravel()[hit])
+    ll, ss, xyz = ll[hit], ss[hit], xyz[hit]
+    back_l, back_s = model.ground_to_image(xyz)
+    error = np.hypot(back_l - ll, back_s - ss)
+    far = ~(error <= 0.01)
+    if far.any():
+        other = model.image_to_ground(back_l[far], back_s[far])
+        gsd = np.linalg.norm(model.image_to_ground(ll[far] + 1.0, ss[far]) - xyz[far], axis=-1)
+        error[far] = np.linalg.norm(other - xyz[far], axis=-1) / gsd
+    return hit, error
 
 
 def test_mdis_wac_with_naif_ik_code_only_reads_its_filter(tmp_path):
@@ -127,8 +140,8 @@ def test_themis_ir_timing_and_detector_are_themis_ir_cameras(tmp_path, monkeypat
 @pytest.mark.parametrize("edit, match", [
     ((b"  Group = Kernels", b"  Group = Instrument\n    InstrumentId = MRFLRO\n  End_Group\n"
       b"  Group = Kernels"), r"x\.cub: is a synthetic-aperture radar image \(MRFLRO"),
-    ((b"  Group = Kernels", b"  Group = Instrument\n    InstrumentId = Marci\n  End_Group\n"
-      b"  Group = Kernels"), r"x\.cub: is a push-frame cube of Marci"),
+    ((b"  Group = Kernels", b"  Group = Instrument\n    InstrumentId = THEMIS_VIS\n"
+      b"  End_Group\n  Group = Kernels"), r"x\.cub: is a push-frame cube of THEMIS_VIS"),
     ((b"  Group = Kernels", b"  Group = Mapping\n    ProjectionName = Planar\n"
       b"    TargetName = Saturn\n  End_Group\n  Group = Kernels"),
      r"x\.cub: is a map-projected cube onto the ring plane \(ISIS Mapping group: Planar"),
@@ -188,7 +201,6 @@ REFUSED = {
     "lo2isis/case04/3083_med_isis2_cropped.cub": r"is an ISIS2 qube",
     "tgoCassis/tgocassisstitch/CAS-MCO-2016-11-22T16.16.16.833-RED-01006-B1_crop.cub":
         r"names 'Table' for InstrumentPointing.* but the file has no InstrumentPointing",
-    "marcical/P12_005901_3391_MA_00N096W_cropped.cub": r"is a push-frame cube of Marci",
     "mgsImages/mocImage.cub": r"line-scan cube of MOC-WA .*MocWideAngleDistortionMap",
     "cnetedit/e0902065.cal.sub.cub": r"no NaifKeywords object",
 }
@@ -227,3 +239,64 @@ def test_conformance_cube_loads_and_round_trips(name):
         lat = np.degrees(np.arctan2(xyz[2], np.hypot(xyz[0], xyz[1])))
         lon = np.degrees(np.arctan2(xyz[1], xyz[0]))
         assert abs(lat - LOADED[name][0]) < 1.0 and abs(lon - LOADED[name][1]) < 1.0
+
+
+def test_marci_distortion_is_isis_marci_distortion_map():
+    # MarciDistortionMap: in pixels of pitch p, u = d (k0 + k1 r² + k2 r⁴ + k3 r⁶).
+    odk, pitch = [0.997322, 2.84786e-06, -6.67752e-12, 1.43076e-16], 0.009
+    lens = Distortion("marci", [pitch, *odk])
+    x, y = np.array([1.2, -3.0, 0.0]), np.array([0.5, 2.0, 0.0])
+    r2 = (x * x + y * y) / pitch ** 2
+    factor = odk[0] + odk[1] * r2 + odk[2] * r2 ** 2 + odk[3] * r2 ** 3
+    u, v = lens.remove(x, y)
+    np.testing.assert_allclose(u, x * factor, rtol=1e-14)
+    np.testing.assert_allclose(v, y * factor, rtol=1e-14)
+    back_x, back_y = lens.apply(u, v)
+    np.testing.assert_allclose(back_x, x, atol=1e-11)
+    np.testing.assert_allclose(back_y, y, atol=1e-11)
+
+
+def test_marci_framelet_timing_and_detector_are_marci_cameras(tmp_path, monkeypatch):
+    # MarciCamera: t0 = clock − ExposureDuration / 2000; BLUE's framelet offset 4 ×
+    # ColorOffset 2, negated (DataFlipped): −8 framelets, so usgscsm's start (reversed
+    # order) is t0 − 8 Δ; BLUE's first detector row 709, origin (512.5, 768.5) ISIS.
+    monkeypatch.setitem(CAMERAS, "marci", dict(
+        code=-74410, code_key="NaifIkCode", clock="SpacecraftClockCount",
+        instrument={"InstrumentId": "Marci", "SpacecraftClockCount": "1235691810:1",
+                    "SummingMode": 2, "DataFlipped": 1, "ColorOffset": 2,
+                    "InterframeDelay": "2.6 <seconds>", "ExposureDuration": "0.0088 <seconds>",
+                    "Framelets": "Even"},
+        naif={"INS-74410_FOCAL_LENGTH": 3.9215079, "INS-74410_PIXEL_SIZE": 0.009,
+              "INS-74410_DISTORTION_COEFFS": "(0.997322, 2.84786e-06, -6.67752e-12, "
+                                             "1.43076e-16)",
+              "INS-74400_ITRANSS": "(0.0, 111.11111111111, 0.0)",
+              "INS-74400_ITRANSL": "(0.0, 0.0, 111.11111111111)"},
+        rate=2.6, start=ET0))
+    path = write_linescan_cube(tmp_path / "marci.cub", "marci")
+    path = _edit_label(path, (b"  Group = Kernels", b"  Group = BandBin\n    FilterName = "
+                              b"(BLUE, GREEN)\n  End_Group\n  Group = Kernels"), head=16384)
+    label, data = read_label(path)
+    isd, line_offset, line_scale = marci_isd(path, label, data)
+    assert isd["starting_ephemeris_time"] == pytest.approx(ET0 - 0.0088 / 2000 - 8 * 2.6,
+                                                           abs=1e-9)
+    assert isd["framelet_order_reversed"] and not isd["framelets_flipped"]
+    assert (isd["framelet_height"], isd["detector_line_summing"]) == (16, 2)
+    assert isd["starting_detector_line"] == 709.0 and isd["exposure_duration"] == 0.0
+    assert isd["detector_center"] == {"line": 768.0, "sample": 512.0}
+    assert isd["image_lines"] == 4000  # the parent image: its framelets
+    assert (line_offset, line_scale) == (100.0, 2.0)  # AlphaCube: cube line → parent line
+    assert "band 1 (BLUE) of 2" in isd["notes"][0]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not CONFORMANCE.exists(), reason="../shared/data/conformance is absent")
+def test_marci_cube_sees_its_image_centre_and_framelets_agree():
+    # K14_059003_3475_MA_00N112W: the tables cover the whole parent image (10640 lines);
+    # its centre line looks at the 00N 112W of the file name.
+    model = read_sensor(CONFORMANCE / "marcical/K14_059003_3475_MA_00N112W_cropped.cub")
+    xyz = model.image_to_ground(5320.0 - model.line_offset, 128.0)
+    lat = np.degrees(np.arctan2(xyz[2], np.hypot(xyz[0], xyz[1])))
+    lon = np.degrees(np.arctan2(xyz[1], xyz[0]))
+    assert abs(lat) < 3.0 and abs(lon + 112.0) < 3.0
+    hit, error = _round_trip(model)  # overlapping framelets: back on the same ground
+    assert hit.all() and error.max() <= 0.01

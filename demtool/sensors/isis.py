@@ -106,7 +106,7 @@ def _naif(path: Path, naif, key: str, size: int | None = None):
 
 def read_cube(path: str | Path) -> FrameSensor:
     """Read an ISIS3 cube with attached SPICE into a :class:`FrameSensor` (line-scan
-    cubes: :func:`demtool.sensors.isis_linescan.read_isis_cube`).
+    cubes: :func:`demtool.sensors.isis_cube.read_isis_cube`).
 
     Raises
     ------

@@ -1,4 +1,5 @@
-"""ISIS3 line-scan cubes with SPICE attached (LRO NAC, MRO CTX, MRO HiRISE) as
+"""ISIS3 line-scan cubes with SPICE attached (LRO NAC, MRO CTX, MRO HiRISE; THEMIS IR in
+:mod:`demtool.sensors.isis_linescan_cameras`) as
 :class:`~demtool.sensors.linescan.LineScanSensor` models.
 
 The cube carries what ALE's ``IsisSpice`` drivers read (DOI-USGS/ale
@@ -84,11 +85,6 @@ HIRISE_CCD = {0: 0, 1: 1, 2: 2, 3: 3, 4: 12, 5: 4, 6: 10, 7: 11, 8: 5, 9: 13, 10
 _SECONDS = {"ms": 1e-3, "msec": 1e-3, "milliseconds": 1e-3, "millisecond": 1e-3,
             "microseconds": 1e-6, "microsecond": 1e-6, "us": 1e-6, "usec": 1e-6,
             "s": 1.0, "sec": 1.0, "seconds": 1.0}
-
-
-def is_linescan_label(label) -> bool:
-    """True when the cube's ``Instrument`` group has a ``LineExposureDuration``."""
-    return "LineExposureDuration" in label["IsisCube"].get("Instrument", {})
 
 
 class _Cube:
@@ -484,27 +480,3 @@ def read_linescan_cube(path: str | Path, label=None, data: bytes | None = None, 
     radii_key = next((k for k in naif.keys() if re.fullmatch(r"BODY-?\d+_RADII", k)), None)
     model.body_naif_id = int(radii_key[4:-6]) if radii_key else None
     return model
-
-
-def read_isis_cube(path: str | Path):
-    """Any ISIS3 camera cube with attached SPICE, by its ISIS camera class
-    (:func:`demtool.sensors.isis_kinds.camera_kind`): a line-scan cube as
-    :func:`read_linescan_cube`, a push-frame cube as
-    :func:`demtool.sensors.isis_pushframe.read_pushframe_cube`, a frame camera through
-    :func:`demtool.sensors.isis.read_cube`; cubes no camera can be built from are refused
-    first with their reason (:func:`demtool.sensors.isis_kinds.refuse_unread_kinds`)."""
-    from demtool.sensors.isis import read_cube
-    from demtool.sensors.isis_kinds import camera_kind, refuse_unread_kinds
-    from demtool.sensors.isis_label import read_label
-
-    p = Path(path)
-    label, data = read_label(p)
-    refuse_unread_kinds(p, label)
-    kind = camera_kind(label)
-    if kind == "linescan":
-        return read_linescan_cube(p, label, data)
-    if kind == "pushframe":
-        from demtool.sensors.isis_pushframe import read_pushframe_cube
-
-        return read_pushframe_cube(p, label, data)
-    return read_cube(p)

@@ -80,8 +80,8 @@ def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
         model = sensor_from_isd(validate_raw.check_isd(load_isd(p), p), str(p))
         return {model.name or p.stem: validate.check_model(model, p, "isd")}
     if kind == "cube":
+        from demtool.sensors.isis_cube import read_isis_cube
         from demtool.sensors.isis_kinds import refuse_cube_kind
-        from demtool.sensors.isis_linescan import read_isis_cube
 
         refuse_cube_kind(p)  # map-projected, SAR, no SPICE: said before values are checked
         validate_raw.check_cube_label(p)

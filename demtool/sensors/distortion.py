@@ -518,12 +518,12 @@ _REMOVE = {"radial": _radial_remove, "transverse": _transverse_remove,
            "photometrix": _photometrix_remove, "apollometric": _apollo_remove,
            "opencv": _opencv_remove}
 
-# ISIS mission distortions read from cubes (their own module)
-from demtool.sensors.distortion_isis import APPLY as _ISIS_APPLY  # noqa: E402
-from demtool.sensors.distortion_isis import COUNTS as _ISIS_COUNTS  # noqa: E402
-from demtool.sensors.distortion_isis import REMOVE as _ISIS_REMOVE  # noqa: E402
+# MARCI's distortion, read from cubes (demtool.sensors.distortion_marci)
+from demtool.sensors.distortion_marci import APPLY as _MARCI_APPLY  # noqa: E402
+from demtool.sensors.distortion_marci import COUNTS as _MARCI_COUNTS  # noqa: E402
+from demtool.sensors.distortion_marci import REMOVE as _MARCI_REMOVE  # noqa: E402
 
-MODELS = MODELS + tuple(_ISIS_COUNTS)
-_COUNTS.update(_ISIS_COUNTS)
-_APPLY.update(_ISIS_APPLY)
-_REMOVE.update(_ISIS_REMOVE)
+MODELS = MODELS + tuple(_MARCI_COUNTS)
+_COUNTS.update(_MARCI_COUNTS)
+_APPLY.update(_MARCI_APPLY)
+_REMOVE.update(_MARCI_REMOVE)

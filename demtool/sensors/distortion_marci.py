@@ -1,5 +1,5 @@
-"""Lens distortions of ISIS mission cameras that usgscsm has no model for, read from
-cubes (registered in :mod:`demtool.sensors.distortion` under the names below).
+"""The lens distortion of MRO MARCI, which usgscsm has no model for, read from cubes
+(registered in :mod:`demtool.sensors.distortion` under the name below).
 
 ==========  ==========================================================================
 model       coefficients and definition (``remove``: distorted → undistorted, mm)

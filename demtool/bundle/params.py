@@ -73,6 +73,32 @@ class BundleParams(Parameters):
                                       "shifts within 3 sigmas of the priors) and keep the "
                                       "solution of lower cost.",
                                       flag="--register-to-dem/--no-register-to-dem")
+    solve: str = parameter("angles+rates", "With --control-network: the pointing terms "
+                           "solved per image (polynomial in time: knoten's omega/phi/kappa "
+                           "bias, rate, acceleration; jigsaw's CKDEGREE 0-2); a frame "
+                           "camera's rates are not solved.",
+                           choices=("angles", "angles+rates", "angles+rates+accelerations"),
+                           what="pointing terms")
+    solve_position: bool = parameter(False, "With --control-network: also solve a constant "
+                                     "position bias per image (along track, across track, "
+                                     "radial; a priori --position-sigma).",
+                                     flag="--solve-position/--no-solve-position")
+    angular_rate_sigma: float = parameter(0.1, "With --control-network: a priori standard "
+                                          "deviation of the angular rates, mrad/s (the "
+                                          "angles': --pointing-sigma).", minimum=0.0,
+                                          min_open=True)
+    angular_acceleration_sigma: float = parameter(0.01, "With --control-network: a priori "
+                                                  "standard deviation of the angular "
+                                                  "accelerations, mrad/s^2.", minimum=0.0,
+                                                  min_open=True)
+    measure_sigma: float = parameter(1.0, "With --control-network: standard deviation of a "
+                                     "measure's line and sample, pixels.", minimum=0.0,
+                                     min_open=True)
+    rejection_multiplier: float = parameter(3.0, "With --control-network: reject measures "
+                                            "whose residual exceeds this many robust sigmas "
+                                            "(and 3 --measure-sigma) and adjust again "
+                                            "(jigsaw's outlier rejection); 0: none.",
+                                            minimum=0.0)
     seed: int = seed_field()
     workers: int = workers_field()
 

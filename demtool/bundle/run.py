@@ -52,7 +52,10 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
                sensors: Sequence[str | os.PathLike] | None = None,
                adjusted_dir: str | os.PathLike | None = None,
                reference_dem: str | os.PathLike | None = None, verbose: bool = False,
-               resolved: dict | None = None) -> dict:
+               resolved: dict | None = None,
+               control_network: str | os.PathLike | None = None,
+               adjusted_network: str | os.PathLike | None = None,
+               serials: str | os.PathLike | None = None) -> dict:
     """Run the bundle stage: read the block, adjust it, write bundle.npz and its sidecar.
 
     ``inputs`` is one selection.json or image paths (or empty with ``image_list``);
@@ -75,6 +78,22 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
     started = time.perf_counter()
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
+    if control_network is not None:  # sensor models on an ISIS control network
+        from demtool.bundle.run_network import check_network_options, run_bundle_network
+
+        check_network_options(inputs, sensors, image_list, {
+            "INPUTS": bool(inputs), "--images": image_list, "--colmap-dir": colmap_dir,
+            "--cameras": cameras_path, "--align-cameras": align_path,
+            "--reference-dem": reference_dem})
+        return run_bundle_network(sensors, control_network, out, params,
+                                  adjusted_dir=adjusted_dir,
+                                  adjusted_network=adjusted_network, serials=serials,
+                                  resolved=resolved, started=started)
+    if adjusted_network is not None or serials is not None:
+        from demtool.errors import ParameterError
+
+        raise ParameterError(f"{'--adjusted-network' if adjusted_network else '--serials'} "
+                             "needs --control-network")
     block = read_block(list(inputs), image_list)
     sensor_paths = sensor_models_of(block, sensors)
     if sensor_paths is not None:

@@ -51,6 +51,19 @@ the ground; the prior block
 is first registered to the DEM by a search of shifts within 3 sigmas of the priors (as
 ASP's pc_align before bundle_adjust), and the adjustment from there is kept where it
 costs less than the one from the priors.
+
+With --control-network NET (an ISIS control network, binary or PVL) and --sensors (no
+images needed) the models are adjusted on the network's measures instead, as ISIS jigsaw
+and knoten do: per image the pointing terms of --solve (angles, rates, accelerations:
+polynomial in time) and with --solve-position a position bias, a priori
+--pointing-sigma (mrad), --angular-rate-sigma, --angular-acceleration-sigma,
+--position-sigma; free points triangulated, constrained points weighted by their a
+priori covariance, fixed points held; measures weighted by --measure-sigma, outliers
+rejected (--rejection-multiplier).  The network's serial numbers are matched to the
+models by their spacecraft clock (or --serials LIST: one serial a line, one per model).
+OUT.bundleout.txt and OUT.points.csv report sigma0, per-image residuals and corrections,
+per-point residuals and the rejected measures (jigsaw's bundleout); --adjusted-network
+receives the adjusted network, --adjusted-dir the adjusted models.
 """
 
 
@@ -75,11 +88,18 @@ costs less than the one from the priors.
                      "the tie points' heights, weighted by --reference-dem-sigma: the "
                      "block's height, tilt, scale and (over relief) position (with "
                      "sensor models).")
+@options.path_option("--control-network", "An ISIS control network (.net, binary or PVL) "
+                     "to adjust the --sensors models on.")
+@click.option("--adjusted-network", type=click.Path(dir_okay=False),
+              help="With --control-network: write the adjusted network (.net) here.")
+@options.path_option("--serials", "With --control-network: the serial number of each "
+                     "--sensors model, one a line, same order.")
 @options.parameter_options(BundleParams)
 @click.pass_context
 def command(ctx: click.Context, inputs: tuple[str, ...], images: str | None, out: str,
             colmap_dir: str | None, cameras: str | None, align_cameras: str | None,
             sensors: tuple[str, ...], adjusted_dir: str | None, reference_dem: str | None,
+            control_network: str | None, adjusted_network: str | None, serials: str | None,
             **values: Any) -> None:
     """Options → BundleParams → :func:`demtool.bundle.run.run_bundle`."""
     from demtool.bundle.run import run_bundle
@@ -89,7 +109,7 @@ def command(ctx: click.Context, inputs: tuple[str, ...], images: str | None, out
                        "--focal-mm": values["focal_mm"] is not None,
                        "--cameras": cameras is not None})
     options.exclusive({"INPUTS": bool(inputs), "--images": images is not None},
-                      exactly_one=True)
+                      exactly_one=control_network is None)
     if len(inputs) > 1 and any(name.lower().endswith(".json") for name in inputs):
         raise click.BadParameter("a selection.json comes alone, not with image files",
                                  param_hint="INPUTS")
@@ -97,6 +117,7 @@ def command(ctx: click.Context, inputs: tuple[str, ...], images: str | None, out
     run_bundle(list(inputs), out, BundleParams.from_options(values), image_list=images,
                colmap_dir=colmap_dir, cameras_path=cameras, align_path=align_cameras,
                sensors=list(sensors) or None, adjusted_dir=adjusted_dir,
-               reference_dem=reference_dem,
+               reference_dem=reference_dem, control_network=control_network,
+               adjusted_network=adjusted_network, serials=serials,
                verbose=state is not None and state.verbosity > 0,
                resolved=options.resolved_params(ctx))

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import os
 import struct
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -39,135 +39,17 @@ from demtool.io.controlnet_messages import (
     POINT_TYPES,
     messages,
 )
-
-#: ISIS pixel coordinates minus demtool's (CSM): the first pixel's centre is 1.0 vs 0.5
-ISIS_PIXEL_OFFSET = 0.5
-#: where ISIS (and plio) put the protobuf header: after a 64 KiB PVL label
-HEADER_START_BYTE = 65536
-_OBSOLETE = {"obsolete_Tie": "Free", "obsolete_Ground": "Fixed", "Tie": "Free",
-             "Ground": "Fixed"}
-
-
-@dataclass
-class ControlMeasure:
-    """One measure of a control point: where one image sees it.
-
-    ``line``/``sample`` (and ``apriori_line``/``apriori_sample``) are demtool's pixel
-    coordinates (first pixel centre at 0.5); ``line_residual``/``sample_residual`` and
-    the sigmas are pixels, as ISIS writes them.  ``log`` keeps ISIS's log entries as
-    ``(doubleDataType, doubleDataValue, boolDataType, boolDataValue)`` tuples (None
-    where absent).  Optional fields absent from the file are None.
-    """
-
-    serial: str
-    type: str = "Candidate"
-    line: float | None = None
-    sample: float | None = None
-    line_residual: float | None = None
-    sample_residual: float | None = None
-    chooser_name: str | None = None
-    datetime: str | None = None
-    edit_lock: bool | None = None
-    ignore: bool | None = None
-    jigsaw_rejected: bool | None = None
-    diameter: float | None = None
-    apriori_line: float | None = None
-    apriori_sample: float | None = None
-    line_sigma: float | None = None
-    sample_sigma: float | None = None
-    log: list = field(default_factory=list)
-
-    @property
-    def ignored(self) -> bool:
-        return bool(self.ignore)
-
-
-@dataclass
-class ControlPoint:
-    """One control point: its type, a priori and adjusted body-fixed position and
-    covariance (metres, m²; (3,) and (3, 3) arrays or None), and its measures.
-
-    ``type`` is ``"Free"`` (image to image: a tie point), ``"Constrained"`` (its a priori
-    position weighted by ``apriori_covariance``) or ``"Fixed"`` (held at its a priori
-    position); ISIS's obsolete ``Tie``/``Ground`` read as Free/Fixed.
-    """
-
-    id: str
-    type: str = "Free"
-    measures: list[ControlMeasure] = field(default_factory=list)
-    chooser_name: str | None = None
-    datetime: str | None = None
-    edit_lock: bool | None = None
-    ignore: bool | None = None
-    jigsaw_rejected: bool | None = None
-    reference_index: int | None = None
-    apriori_surface_point_source: str | None = None
-    apriori_surface_point_source_file: str | None = None
-    apriori_radius_source: str | None = None
-    apriori_radius_source_file: str | None = None
-    latitude_constrained: bool | None = None
-    longitude_constrained: bool | None = None
-    radius_constrained: bool | None = None
-    apriori_xyz: np.ndarray | None = None
-    apriori_covariance: np.ndarray | None = None
-    adjusted_xyz: np.ndarray | None = None
-    adjusted_covariance: np.ndarray | None = None
-    log: list = field(default_factory=list)
-
-    @property
-    def ignored(self) -> bool:
-        return bool(self.ignore)
-
-
-@dataclass
-class ControlNetwork:
-    """An ISIS control network: header fields and points (file order)."""
-
-    network_id: str
-    target_name: str
-    points: list[ControlPoint]
-    created: str | None = None
-    last_modified: str | None = None
-    description: str | None = None
-    user_name: str | None = None
-    version: int = 5
-
-    @property
-    def measure_count(self) -> int:
-        return sum(len(p.measures) for p in self.points)
-
-    def serials(self) -> list[str]:
-        """The serial numbers measured, in order of first appearance."""
-        seen: dict[str, None] = {}
-        for point in self.points:
-            for measure in point.measures:
-                seen.setdefault(measure.serial, None)
-        return list(seen)
-
-
-# -- covariance: ISIS stores the upper triangle (xx, xy, xz, yy, yz, zz), m² ----------------
-
-
-def _covariance(values, source: str, what: str) -> np.ndarray | None:
-    values = [float(v) for v in values]
-    if not values:
-        return None
-    if len(values) != 6:
-        raise InputError(f"{source}: {what} has {len(values)} values; ISIS stores 6 "
-                         "(xx, xy, xz, yy, yz, zz)")
-    xx, xy, xz, yy, yz, zz = values
-    return np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
-
-
-def _triangle(matrix) -> list[float]:
-    m = np.asarray(matrix, dtype=np.float64)
-    return [float(m[0, 0]), float(m[0, 1]), float(m[0, 2]), float(m[1, 1]), float(m[1, 2]),
-            float(m[2, 2])]
-
-
-def _shift(value, offset: float):
-    return None if value is None else float(value) + offset
-
+from demtool.io.controlnet_model import (  # noqa: F401  (part of this interface)
+    _OBSOLETE,
+    HEADER_START_BYTE,
+    ISIS_PIXEL_OFFSET,
+    ControlMeasure,
+    ControlNetwork,
+    ControlPoint,
+    _covariance,
+    _shift,
+    _triangle,
+)
 
 # -- binary form ---------------------------------------------------------------------------
 
@@ -376,115 +258,6 @@ def _read_binary(data: bytes, label, source: Path) -> ControlNetwork:
         version=version)
 
 
-# -- text form -----------------------------------------------------------------------------
-
-
-def _value(group, key: str):
-    value = group.get(key)
-    if value is None:
-        return None
-    if hasattr(value, "value"):  # pvl Quantity with units
-        value = value.value
-    return value
-
-
-def _number(group, key: str, offset: float = 0.0):
-    value = _value(group, key)
-    return None if value is None else float(value) + offset
-
-
-def _flag(group, key: str):
-    value = _value(group, key)
-    if value is None:
-        return None
-    return value if isinstance(value, bool) else str(value).strip().lower() in ("true", "yes")
-
-
-def _text(group, key: str):
-    value = _value(group, key)
-    return None if value is None else str(value)
-
-
-def _read_pvl(label, source: Path) -> ControlNetwork:
-    network = label["ControlNetwork"]
-    version = int(network.get("Version", 1))
-    if version < 3:
-        raise InputError(f"{source}: PVL control network version {version} is not supported "
-                         "(3 to 5 are); convert it with ISIS cnetbin2pvl")
-    points = []
-    for key, value in network.items():
-        if key != "ControlPoint":
-            continue
-        pid = _text(value, "PointId")
-        if pid is None:
-            raise InputError(f"{source}: control point {len(points)} has no PointId")
-        kind = _text(value, "PointType") or "Free"
-        kind = _OBSOLETE.get(kind, kind)
-        if kind not in ("Free", "Constrained", "Fixed"):
-            raise InputError(f"{source}: point {pid}: unknown PointType {kind!r}")
-        measures = []
-        for mkey, group in value.items():
-            if mkey != "ControlMeasure":
-                continue
-            serial = _text(group, "SerialNumber")
-            if serial is None:
-                raise InputError(f"{source}: point {pid}: a measure has no SerialNumber")
-            log = []
-            for name, number in (("GoodnessOfFit", 2), ("MinimumPixelZScore", 3),
-                                 ("MaximumPixelZScore", 4), ("PixelShift", 5),
-                                 ("WholePixelCorrelation", 6), ("SubPixelCorrelation", 7)):
-                if _value(group, name) is not None:
-                    log.append((number, _number(group, name), None, None))
-            measures.append(ControlMeasure(
-                serial=serial, type=_text(group, "MeasureType") or "Candidate",
-                line=_number(group, "Line", -ISIS_PIXEL_OFFSET),
-                sample=_number(group, "Sample", -ISIS_PIXEL_OFFSET),
-                line_residual=_number(group, "LineResidual"),
-                sample_residual=_number(group, "SampleResidual"),
-                chooser_name=_text(group, "ChooserName"), datetime=_text(group, "DateTime"),
-                edit_lock=_flag(group, "EditLock"), ignore=_flag(group, "Ignore"),
-                jigsaw_rejected=_flag(group, "JigsawRejected"),
-                diameter=_number(group, "Diameter"),
-                apriori_line=_number(group, "AprioriLine", -ISIS_PIXEL_OFFSET),
-                apriori_sample=_number(group, "AprioriSample", -ISIS_PIXEL_OFFSET),
-                line_sigma=_number(group, "LineSigma"),
-                sample_sigma=_number(group, "SampleSigma"), log=log))
-        xyz = [_number(value, f"Apriori{a}") for a in "XYZ"]
-        adjusted = [_number(value, f"Adjusted{a}") for a in "XYZ"]
-        points.append(ControlPoint(
-            id=pid, type=kind, measures=measures,
-            chooser_name=_text(value, "ChooserName"), datetime=_text(value, "DateTime"),
-            edit_lock=_flag(value, "EditLock"), ignore=_flag(value, "Ignore"),
-            jigsaw_rejected=_flag(value, "JigsawRejected"),
-            apriori_surface_point_source=_text(value, "AprioriXYZSource"),
-            apriori_surface_point_source_file=_text(value, "AprioriXYZSourceFile"),
-            apriori_radius_source=_text(value, "AprioriRadiusSource"),
-            apriori_radius_source_file=_text(value, "AprioriRadiusSourceFile"),
-            latitude_constrained=_flag(value, "LatitudeConstrained"),
-            longitude_constrained=_flag(value, "LongitudeConstrained"),
-            radius_constrained=_flag(value, "RadiusConstrained"),
-            apriori_xyz=None if None in xyz else np.array(xyz),
-            apriori_covariance=_covariance(value.get("AprioriCovarianceMatrix") or [],
-                                           str(source), f"point {pid}: "
-                                           "AprioriCovarianceMatrix"),
-            adjusted_xyz=None if None in adjusted else np.array(adjusted),
-            adjusted_covariance=_covariance(value.get("AdjustedCovarianceMatrix") or [],
-                                            str(source), f"point {pid}: "
-                                            "AdjustedCovarianceMatrix")))
-        reference = [i for i, (mkey, group) in enumerate(
-            (k, g) for k, g in value.items() if k == "ControlMeasure")
-            if _flag(group, "Reference")]
-        if reference:
-            points[-1].reference_index = reference[0]
-    return ControlNetwork(
-        network_id=_text(network, "NetworkId") or "", target_name=_text(network,
-                                                                         "TargetName") or "",
-        points=points, created=_text(network, "Created"),
-        last_modified=_text(network, "LastModified"),
-        description=_text(network, "Description"), user_name=_text(network, "UserName"),
-        version=version)
-
-
 def read_control_network(path: str | os.PathLike) -> ControlNetwork:
     """Read an ISIS control network, binary (protobuf version 2 or 5) or PVL text
     (versions 3 to 5); see the module docstring.
@@ -507,9 +280,11 @@ def read_control_network(path: str | os.PathLike) -> ControlNetwork:
         label = _parse_pvl(data[:_label_end(data)].decode("latin-1"), source)
         return _read_binary(data, label, source)
     if b"ControlNetwork" in data[:4096]:
+        from demtool.io.controlnet_pvl import read_pvl_network
+
         label = _parse_pvl(data.decode("latin-1"), source)
         if "ControlNetwork" in label:
-            return _read_pvl(label, source)
+            return read_pvl_network(label, source)
     raise InputError(f"{source}: not an ISIS control network (no 'Object = ProtoBuffer' "
                      "or 'Object = ControlNetwork' label)")
 

@@ -273,8 +273,8 @@ class LineScanSensor(SensorModel):
             self._affine = (xyz.mean(axis=0), coef, slope)
         return self._affine
 
-    def ground_to_image(self, xyz, *, precision: float = 1e-6,
-                        max_iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    def ground_to_image(self, xyz, *, precision: float = 1e-6, max_iterations: int = 30,
+                        start_line=None) -> tuple[np.ndarray, np.ndarray]:
         """Image coordinates of body-fixed points, iteratively (see module docstring).
 
         Parameters
@@ -283,6 +283,10 @@ class LineScanSensor(SensorModel):
             Body-fixed metres.
         precision : float
             Convergence tolerance on the line, pixels.
+        start_line : array of shape S, optional
+            A first guess of the lines (NaN: none), e.g. a nearby point's (bundle
+            adjustment's derivatives); the iteration starts there instead of at the
+            affine guess.
 
         Returns
         -------
@@ -294,6 +298,9 @@ class LineScanSensor(SensorModel):
         pts = xyz.reshape(-1, 3)
         mean, coef, slope = self._affine_guess()
         line = np.column_stack([pts - mean, np.ones(len(pts))]) @ coef[:, 0]
+        if start_line is not None:
+            guess = np.broadcast_to(np.asarray(start_line, dtype=np.float64), shape).reshape(-1)
+            line = np.where(np.isfinite(guess), guess, line)
         det_line = np.full(len(pts), np.nan)
         sample = np.full(len(pts), np.nan)
         depth = np.full(len(pts), np.nan)

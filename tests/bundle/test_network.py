@@ -1,0 +1,161 @@
+"""``bundle --control-network``: line scanners adjusted on an ISIS control network."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from demtool.bundle.network import adjust_network, image_axes, solve_mask
+from demtool.bundle.network_inputs import build_problem, match_serials, serial_clock
+from demtool.bundle.network_models import CorrectedSensor, adjust_isd_timed
+from demtool.cli import cli
+from demtool.errors import InputError
+from demtool.io.controlnet import read_control_network, write_control_network
+from demtool.sensors import read_sensor, sensor_from_isd
+from tests.bundle import network_block as nb
+from tests.helpers.linescan import isd_dict
+
+NAMES = ["img0", "img1", "img2"]
+SIGMAS = np.array([1e-3] * 3 + [1e-4] * 3 + [1e-5] * 3 + [100.0] * 3)
+
+
+@pytest.fixture(scope="module")
+def block():
+    models = nb.true_models()
+    theta = nb.bias()
+    theta[:, 2] = 0.0  # kappa: a 200 px swath does not determine a twist (see its sigma)
+    priors = [sensor_from_isd(d) for d in nb.prior_isds(models, theta)]
+    return models, theta, priors
+
+
+def test_corrected_isd_is_the_corrected_model(block):
+    models, theta, priors = block
+    for model, t, prior in zip(models, theta, priors, strict=True):
+        direct = CorrectedSensor(model, image_axes(model), t)
+        lines = np.array([1.0, 150.0, 299.0])
+        samples = np.array([10.0, 100.0, 190.0])
+        ground = direct.image_to_ground(lines, samples)
+        np.testing.assert_allclose(prior.image_to_ground(lines, samples), ground, atol=1e-3)
+        line, sample = prior.ground_to_image(ground)
+        np.testing.assert_allclose(line, lines, atol=1e-4)
+        np.testing.assert_allclose(sample, samples, atol=1e-4)
+
+
+def test_serials_matched_by_clock_and_explicitly(block):
+    models, _, priors = block
+    network, _ = nb.network(models, count=3)
+    serials = network.serials()
+    assert serial_clock(serials[1]) == float(serials[1].split("/")[2].split(":")[0])
+    assert match_serials(serials[::-1], priors, NAMES) == {s: k for k, s in enumerate(serials)}
+    assert match_serials(serials, priors, NAMES, explicit=serials[::-1]) == \
+        {s: 2 - k for k, s in enumerate(serials)}
+    with pytest.raises(InputError, match="matches an image"):
+        match_serials(["OTHER/CAM/not-a-clock"], priors, NAMES)
+
+
+def test_known_pointing_error_is_recovered_with_ground_control(block):
+    models, theta, priors = block
+    network, _ = nb.network(models, count=40, fixed=8, noise_px=0.1)
+    mapping = match_serials(network.serials(), priors, NAMES)
+    problem, _, _ = build_problem(network, priors, NAMES, mapping,
+                                  solve=solve_mask(["angles", "rates"]), sigmas=SIGMAS,
+                                  pixel_sigma=0.1)
+    solution = adjust_network(problem)
+    assert solution.initial_sigma0 > 5 * solution.sigma0  # errors of 1-3 px, noise 0.1 px
+    assert 0.7 < solution.sigma0 < 1.3  # the measures' noise is their sigma
+    error = solution.theta[:, :6] + theta[:, :6]
+    sigma = solution.theta_sigma[:, :6]
+    assert np.all(np.abs(error) < 4 * sigma)
+    assert np.all(np.abs(error[:, :2]) < 0.15 * np.abs(theta[:, :2]).max())  # omega, phi
+
+
+@pytest.mark.slow
+def test_cli_adjusts_writes_models_network_and_a_consistent_report(block, tmp_path):
+    models, theta, _ = block
+    paths = []
+    for k, isd in enumerate(nb.prior_isds(models, theta)):
+        paths.append(tmp_path / f"{NAMES[k]}.json")
+        paths[-1].write_text(json.dumps(isd))
+    network, _ = nb.network(models, count=30, noise_px=0.1)
+    network.points[0].measures[1].ignore = True
+    net = write_control_network(tmp_path / "in.net", network)
+    args = ["-q", "bundle", "--control-network", net, "--out", tmp_path / "out" / "bundle.npz",
+            "--adjusted-dir", tmp_path / "adj", "--adjusted-network", tmp_path / "adj.net",
+            "--measure-sigma", "0.1"]
+    for p in paths:
+        args += ["--sensors", p]
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    assert result.exit_code == 0, result.output
+    summary = json.loads((tmp_path / "out" / "bundle.npz.json").read_text())["summary"]
+    report = (tmp_path / "out" / "bundle.bundleout.txt").read_text()
+    assert f"Sigma0: {summary['sigma0']:.6f}" in report
+    assert summary["measures"] == 89  # one of 90 ignored
+    adjusted = read_control_network(tmp_path / "adj.net")
+    assert adjusted.points[0].measures[1].line_residual is None
+    recomputed = []
+    adjusted_models = [read_sensor(tmp_path / "adj" / f"{n}.json") for n in NAMES]
+    for point in adjusted.points:
+        for k, m in enumerate(point.measures):
+            if m.ignored:
+                continue
+            model = adjusted_models[k]
+            line, sample = model.ground_to_image(point.adjusted_xyz)
+            assert line - m.line == pytest.approx(m.line_residual, abs=1e-4)
+            assert sample - m.sample == pytest.approx(m.sample_residual, abs=1e-4)
+            recomputed.append([line - m.line, sample - m.sample])
+    recomputed = np.array(recomputed)
+    assert np.sqrt(np.mean(recomputed[:, 0] ** 2)) == pytest.approx(summary["rms_line_px"],
+                                                                     rel=1e-3)
+    points_csv = (tmp_path / "out" / "bundle.points.csv").read_text().splitlines()
+    assert len(points_csv) == 31 and points_csv[0].startswith("id,type,measures")
+
+
+def _run(args):
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    return result.exit_code, result.output.strip().splitlines()
+
+
+def test_network_of_other_images_is_one_line_exit_1(block, tmp_path):
+    models, theta, _ = block
+    paths = []
+    for k, isd in enumerate(nb.prior_isds(models, theta)):
+        paths.append(tmp_path / f"{NAMES[k]}.json")
+        paths[-1].write_text(json.dumps(isd))
+    network, _ = nb.network(models, count=4)
+    for point in network.points:
+        for m in point.measures:
+            m.serial = "MRO/CTX/1234:000"
+    net = write_control_network(tmp_path / "other.net", network)
+    code, lines = _run(["-q", "bundle", "--control-network", net, "--out", tmp_path / "b.npz",
+                        *sum((["--sensors", p] for p in paths), [])])
+    assert code == 1 and len(lines) == 1 and "matches an image" in lines[0]
+    assert not (tmp_path / "b.npz").exists()
+
+
+def test_measure_outside_its_image_is_one_line_exit_1(block, tmp_path):
+    models, theta, _ = block
+    paths = []
+    for k, isd in enumerate(nb.prior_isds(models, theta)):
+        paths.append(tmp_path / f"{NAMES[k]}.json")
+        paths[-1].write_text(json.dumps(isd))
+    network, _ = nb.network(models, count=4)
+    network.points[2].measures[1].line = 5000.0
+    net = write_control_network(tmp_path / "out.net", network)
+    code, lines = _run(["-q", "bundle", "--control-network", net, "--out", tmp_path / "b.npz",
+                        *sum((["--sensors", p] for p in paths), [])])
+    assert code == 1 and len(lines) == 1 and "outside its image img1" in lines[0]
+
+
+def test_time_varying_isd_writeback_keeps_other_keys():
+    model = nb.true_models()[1]
+    isd = isd_dict(model, center_time=100.0)
+    isd["extra"] = {"kept": True}
+    theta = np.zeros(12)
+    theta[3] = 1e-4
+    out = adjust_isd_timed(isd, image_axes(model), theta, center_time=100.0)
+    assert out["extra"] == {"kept": True} and out["instrument_position"] == \
+        isd["instrument_position"]
+    assert out["instrument_pointing"]["quaternions"] != isd["instrument_pointing"]["quaternions"]

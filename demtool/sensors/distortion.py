@@ -518,12 +518,12 @@ _REMOVE = {"radial": _radial_remove, "transverse": _transverse_remove,
            "photometrix": _photometrix_remove, "apollometric": _apollo_remove,
            "opencv": _opencv_remove}
 
-# MARCI's distortion, read from cubes (demtool.sensors.distortion_marci)
-from demtool.sensors.distortion_marci import APPLY as _MARCI_APPLY  # noqa: E402
-from demtool.sensors.distortion_marci import COUNTS as _MARCI_COUNTS  # noqa: E402
-from demtool.sensors.distortion_marci import REMOVE as _MARCI_REMOVE  # noqa: E402
+# Distortions of ISIS cameras read from cubes (MARCI, MOC-WA: demtool.sensors.distortion_cubes)
+from demtool.sensors.distortion_cubes import APPLY as _CUBE_APPLY  # noqa: E402
+from demtool.sensors.distortion_cubes import COUNTS as _CUBE_COUNTS  # noqa: E402
+from demtool.sensors.distortion_cubes import REMOVE as _CUBE_REMOVE  # noqa: E402
 
-MODELS = MODELS + tuple(_MARCI_COUNTS)
-_COUNTS.update(_MARCI_COUNTS)
-_APPLY.update(_MARCI_APPLY)
-_REMOVE.update(_MARCI_REMOVE)
+MODELS = MODELS + tuple(_CUBE_COUNTS)
+_COUNTS.update(_CUBE_COUNTS)
+_APPLY.update(_CUBE_APPLY)
+_REMOVE.update(_CUBE_REMOVE)

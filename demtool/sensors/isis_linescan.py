@@ -73,7 +73,7 @@ from pathlib import Path
 import numpy as np
 
 from demtool.errors import InputError
-from demtool.sensors.isis_linescan_cameras import THEMIS_IR_CODE, themis_ir
+from demtool.sensors.isis_linescan_cameras import MOC_WA_CODES, THEMIS_IR_CODE, moc_wa, themis_ir
 
 #: NAIF codes of the line-scan cameras read here: LRO NAC left/right, CTX, HiRISE.
 LRO_NAC_CODES = (-85600, -85610)
@@ -183,6 +183,8 @@ def _camera(cube: _Cube, code: int) -> dict:
     ins = f"INS{code}"
     if code == MOC_NA_CODE and cube.naif is None:
         return _moc_na(cube)
+    if code in MOC_WA_CODES:
+        return moc_wa(cube, ins)
     if cube.naif is None:
         cube.key(f"{ins}_FOCAL_LENGTH")  # raises: no NaifKeywords (old layout)
     if code in LRO_NAC_CODES:
@@ -229,14 +231,12 @@ def _camera(cube: _Cube, code: int) -> dict:
                     distortion={"radial": {"coefficients": cube.key(f"{ins}_OD_K", 3).tolist()}})
     if code == THEMIS_IR_CODE:
         return themis_ir(cube, ins)
+    if code in MOC_WA_CODES:
+        return moc_wa(cube, ins)
     what = str(cube.instrument.get("InstrumentId", "")) or "an unnamed camera"
-    why = ""
-    if code in (-94032, -94033):  # ISIS MocWideAngleCamera
-        why = (" (ISIS's MocWideAngleDetectorMap and MocWideAngleDistortionMap, a "
-               "field-angle polynomial, are not reproduced)")
-    raise InputError(f"{cube.path}: is a line-scan cube of {what} (NAIF code {code}){why}; "
+    raise InputError(f"{cube.path}: is a line-scan cube of {what} (NAIF code {code}); "
                      "demtool reads the ISIS line-scan models of LRO NAC, MRO CTX, MRO "
-                     "HiRISE and THEMIS IR from cubes: pass an ALE ISD of this image "
+                     "HiRISE, MOC and THEMIS IR from cubes: pass an ALE ISD of this image "
                      "(isd_generate)")
 
 

@@ -17,7 +17,7 @@ MARCI, as ISIS's ``MarciCamera`` and ``PushFrameCameraDetectorMap`` define it:
   VIS camera (−74410) or (512.5, 288.5) of the UV camera (−74420), through
   ``INS-74400_ITRANSS/L``; focal length ``INS<code>_FOCAL_LENGTH``; distortion ISIS's
   ``MarciDistortionMap`` (``INS<code>_DISTORTION_COEFFS`` in pixels of
-  ``INS<code>_PIXEL_SIZE``: the ``marci`` model of :mod:`demtool.sensors.distortion_marci`).
+  ``INS<code>_PIXEL_SIZE``: the ``marci`` model of :mod:`demtool.sensors.distortion_cubes`).
 
 That is usgscsm's push-frame model (:class:`~demtool.sensors.pushframe.PushFrameSensor`)
 with ``starting_ephemeris_time = t0 ∓ o Δ``, ``framelet_order_reversed = DataFlipped``,

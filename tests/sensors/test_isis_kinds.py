@@ -201,8 +201,6 @@ REFUSED = {
     "lo2isis/case04/3083_med_isis2_cropped.cub": r"is an ISIS2 qube",
     "tgoCassis/tgocassisstitch/CAS-MCO-2016-11-22T16.16.16.833-RED-01006-B1_crop.cub":
         r"names 'Table' for InstrumentPointing.* but the file has no InstrumentPointing",
-    "mgsImages/mocImage.cub": r"line-scan cube of MOC-WA .*MocWideAngleDistortionMap",
-    "cnetedit/e0902065.cal.sub.cub": r"no NaifKeywords object",
 }
 #: Cubes that load, with where they look (planetocentric lat, lon in degrees, ±1°) when
 #: another file confirms it: the Viking and THEMIS images of one control network.
@@ -300,3 +298,47 @@ def test_marci_cube_sees_its_image_centre_and_framelets_agree():
     assert abs(lat) < 3.0 and abs(lon + 112.0) < 3.0
     hit, error = _round_trip(model)  # overlapping framelets: back on the same ground
     assert hit.all() and error.max() <= 0.01
+
+
+def test_mocwa_distortion_is_isis_moc_wide_angle_distortion_map():
+    # MocWideAngleDistortionMap::SetFocalPlane (blue: y scaled by 1.000452).
+    c = [1.000452, 1.000246, 0.4612695, 0.2352545, 0.3535922, -0.2853861, 0.5574971]
+    focal = 11.20537656
+    lens = Distortion("mocwa", c, focal)
+    x, y = np.array([1.0, -6.0, 9.5]), np.array([0.5, 2.0, -3.0])
+    sy = y / c[0]
+    s = np.hypot(x, sy)
+    angle = np.arctan(s / focal)
+    angle_u = angle * np.polynomial.polynomial.polyval(angle * angle, c[1:])
+    u, v = lens.remove(x, y)
+    np.testing.assert_allclose(u, x * focal * np.tan(angle_u) / s, rtol=1e-13)
+    np.testing.assert_allclose(v, sy * focal * np.tan(angle_u) / s, rtol=1e-13)
+    back_x, back_y = lens.apply(u, v)  # the exact inverse (ISIS's second fit is not)
+    np.testing.assert_allclose(back_x, x, atol=1e-12)
+    np.testing.assert_allclose(back_y, y, atol=1e-12)
+
+
+def test_moc_wa_timing_and_detector_are_moc_wide_angle_cameras(tmp_path, monkeypatch):
+    # MocWideAngleCamera (red): start = clock, r = LineExposureDuration × DowntrackSumming;
+    # first detector sample FirstLineSample, summed by CrosstrackSumming; origin sample
+    # 1674.65 and along-track offset 6.7785 (ISIS), the red distortion constants.
+    monkeypatch.setitem(CAMERAS, "mocwa", dict(
+        code=-94032, code_key="NaifFrameCode", clock="SpacecraftClockCount",
+        instrument={"InstrumentId": "MOC-WA", "SpacecraftClockCount": "561812335:32",
+                    "LineExposureDuration": "100.0 <milliseconds>", "CrosstrackSumming": 4,
+                    "DowntrackSumming": 4, "FirstLineSample": 673},
+        naif={"INS-94032_FOCAL_LENGTH": 11.20537656,
+              "INS-94032_ITRANSS": "(0.0, 0.0, -142.8571429)",
+              "INS-94032_ITRANSL": "(0.0, 142.8571429, 0.0)"},
+        rate=0.4, start=ET0))
+    path = write_linescan_cube(tmp_path / "moc.cub", "mocwa")
+    path = _edit_label(path, (b"  Group = Kernels", b"  Group = BandBin\n    FilterName = RED"
+                              b"\n  End_Group\n  Group = Kernels"), head=16384)
+    isd = cube_isd(path)
+    assert isd["starting_ephemeris_time"] == pytest.approx(ET0 + 100.0 * 0.4, abs=1e-9)
+    assert isd["line_scan_rate"][0][2] == pytest.approx(2 * 0.4)  # AlphaCube 2x
+    assert isd["detector_center"] == {"line": -6.7785, "sample": 1674.15}
+    # AlphaCube sample 200.5 (ISIS) is CSM 200: 200 × 4 + 672 detector samples in
+    assert isd["starting_detector_sample"] == pytest.approx(200 * 4 + 672)
+    assert isd["detector_sample_summing"] == pytest.approx(2 * 4)
+    assert isd["optical_distortion"]["mocwa"]["coefficients"][1] == 0.9993258

@@ -1,0 +1,101 @@
+"""Lens distortions of ISIS cameras that usgscsm has no model for, read from cubes
+(registered in :mod:`demtool.sensors.distortion` under the names below).
+
+==========  ==========================================================================
+model       coefficients and definition (``remove``: distorted → undistorted, mm)
+==========  ==========================================================================
+``marci``   ``[p, k0, k1, k2, k3]``: ISIS ``MarciDistortionMap``: in pixels of pitch
+            ``p`` mm, ``u = d (k0 + k1 r² + k2 r⁴ + k3 r⁶)``, ``r = |d| / p``
+            (``INS<code>_DISTORTION_COEFFS``, ``INS<code>_PIXEL_SIZE``)
+``mocwa``   ``[s, c0, …, c5]``: ISIS ``MocWideAngleDistortionMap``, focal length ``f``
+            (the model's): ``y' = y / s``, field angle ``θ = atan(|(x, y')| / f)``,
+            ``θ_u = θ (c0 + c1 θ² + … + c5 θ¹⁰)``, ``u = (x, y') f tan θ_u / |(x, y')|``
+            (ISIS's constants: red ``s`` 1, blue 1.000452)
+==========  ==========================================================================
+
+``marci``'s ``apply`` (undistorted → distorted) solves the radial equation by
+Newton–Raphson to 1e-12 pixel, as ISIS's ``SetUndistortedFocalPlane`` does to 1e-9
+(ISIS starts from a per-filter guess; the converged root is the same); points that do
+not converge are NaN.  ``mocwa``'s ``apply`` inverts ``remove`` by Newton–Raphson on
+the field angle (to 1e-14 rad): ISIS's ``SetUndistortedFocalPlane`` uses a second,
+fitted polynomial instead, which inverts ``remove`` only to its fit (a round trip
+through ISIS's two maps moves a point), so that one is not used.
+
+References: DOI-USGS/ISIS3 ``isis/src/mro/objs/MarciCamera/MarciDistortionMap.cpp``,
+``isis/src/mgs/objs/MocWideAngleCamera/MocWideAngleDistortionMap.cpp``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _marci_factor(rr, c):
+    return c[1] + rr * (c[2] + rr * (c[3] + rr * c[4]))
+
+
+def _marci_remove(x, y, c, f, tol):
+    p = c[0]
+    rr = (x * x + y * y) / (p * p)
+    factor = _marci_factor(rr, c)
+    return x * factor, y * factor
+
+
+def _marci_apply(x, y, c, f, tol):
+    p = c[0]
+    ru = np.hypot(x, y) / p
+    rd = ru / c[1]
+    with np.errstate(all="ignore"):
+        for _ in range(50):
+            rr = rd * rd
+            g = rd * _marci_factor(rr, c) - ru
+            dg = c[1] + rr * (3 * c[2] + rr * (5 * c[3] + rr * 7 * c[4]))
+            step = g / dg
+            rd = rd - step
+            if np.all(~(np.abs(step) > 1e-12)):
+                break
+        scale = np.where(ru > 0, rd / np.where(ru > 0, ru, 1.0), 1.0 / c[1])
+        scale = np.where(np.abs(step) > 1e-9, np.nan, scale)
+    return x * scale, y * scale
+
+
+def _moc_angle(theta, c):
+    t2 = theta * theta
+    poly = c[6]
+    for k in (5, 4, 3, 2, 1):
+        poly = poly * t2 + c[k]
+    return theta * poly
+
+
+def _mocwa_remove(x, y, c, f, tol):
+    sy = y / c[0]
+    s = np.hypot(x, sy)
+    with np.errstate(all="ignore"):
+        sp = f * np.tan(_moc_angle(np.arctan(s / f), c))
+        ratio = np.where(s > 0, sp / np.where(s > 0, s, 1.0), c[1])
+    return x * ratio, sy * ratio
+
+
+def _mocwa_apply(x, y, c, f, tol):
+    sp = np.hypot(x, y)
+    target = np.arctan(sp / f)
+    theta = target / c[1]
+    with np.errstate(all="ignore"):
+        for _ in range(50):
+            t2 = theta * theta
+            slope = 11 * c[6]
+            for k in (5, 4, 3, 2, 1):
+                slope = slope * t2 + (2 * k - 1) * c[k]
+            step = (_moc_angle(theta, c) - target) / slope
+            theta = theta - step
+            if np.all(~(np.abs(step) > 1e-14)):
+                break
+        theta = np.where(np.abs(step) > 1e-10, np.nan, theta)
+        ratio = np.where(sp > 0, f * np.tan(theta) / np.where(sp > 0, sp, 1.0), 1.0 / c[1])
+    return x * ratio, y * ratio * c[0]
+
+
+#: Coefficient counts, apply and remove functions of the models above.
+COUNTS = {"marci": (5,), "mocwa": (7,)}
+APPLY = {"marci": _marci_apply, "mocwa": _mocwa_apply}
+REMOVE = {"marci": _marci_remove, "mocwa": _mocwa_remove}

@@ -39,6 +39,10 @@ from demtool.sensors.base import SensorModel
 #: points outside these percentiles of each horizontal axis are left off the grid (a few
 #: mismatches at infinity must not stretch the grid over kilometres)
 EXTENT_PERCENTILES = (0.5, 99.5)
+#: the grid covers the points within this many times their median range of the left
+#: camera (with ``center``): the bulk of a perspective view, where the GSD defaulted from
+#: the median range's pixel footprint means something
+BULK_RANGE_FACTOR = 3.0
 #: a filled cell is hidden when it lies this many cells plus this fraction of its range
 #: behind the surface a camera saw along its pixel
 OCCLUSION_CELLS = 3.0
@@ -125,6 +129,122 @@ def footprint_gsd(xyz: np.ndarray, center: np.ndarray, frame: LocalFrame,
     return float(np.median(side))
 
 
+#: the ground's fitted normal snaps to a frame axis within this angle (degrees): frames
+#: are built with gravity along an axis; a steeper slope keeps the normal itself
+SNAP_AXIS_DEG = 15.0
+#: points farther than this many times the matches' farthest range (their 99th
+#: percentile), or nearer than the nearest over it, are outliers the matches do not imply
+MATCH_RANGE_FACTOR = 2.0
+
+
+def fit_ground_normal(xyz: np.ndarray, centers: np.ndarray, *, iterations: int = 4
+                      ) -> tuple[np.ndarray, float]:
+    """The normal of the plane fitted to the points, pointing to the cameras' side.
+
+    Total least squares (the smallest principal axis of the points), refitted on the
+    points within 3 NMAD of the plane ``iterations`` times.
+
+    Parameters
+    ----------
+    xyz : (N, 3) float, metres, the models' frame
+    centers : (K, 3) float, the camera centres, metres
+
+    Returns
+    -------
+    normal : (3,) unit vector, (mean centre − plane point) · normal > 0
+    rms_m : float, RMS distance of the kept points to the plane, metres
+    """
+    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    p = p[np.isfinite(p).all(axis=1)]
+    if len(p) > 200_000:
+        p = p[np.random.default_rng(0).choice(len(p), 200_000, replace=False)]
+    if len(p) < 3:
+        raise ProcessingError(f"only {len(p)} points: no ground to fit")
+    keep = np.ones(len(p), dtype=bool)
+    for _ in range(iterations):
+        mean = p[keep].mean(axis=0)
+        normal = np.linalg.svd(p[keep] - mean, full_matrices=False)[2][2]
+        distance = (p - mean) @ normal
+        nmad = 1.4826 * np.median(np.abs(distance - np.median(distance)))
+        keep = np.abs(distance - np.median(distance)) <= max(3.0 * nmad, 1e-9)
+    side = (np.mean(np.asarray(centers, dtype=np.float64).reshape(-1, 3), axis=0) - mean)
+    normal = normal if side @ normal > 0 else -normal
+    return normal, float(np.sqrt(np.mean(distance[keep] ** 2)))
+
+
+def infer_up(xyz: np.ndarray, centers: np.ndarray) -> tuple[np.ndarray, str]:
+    """The up direction of points seen by cameras standing above them.
+
+    The ground's fitted normal on the cameras' side (:func:`fit_ground_normal`); the
+    frame axis (±X, ±Y, ±Z) nearest it when within :data:`SNAP_AXIS_DEG` (a rover frame
+    is built with gravity along an axis: z down in ASP's K10 example).
+
+    Returns
+    -------
+    up : (3,) unit vector
+    source : str, how it was found (for the log and the sidecar)
+    """
+    normal, _ = fit_ground_normal(xyz, centers)
+    axis = np.argmax(np.abs(normal))
+    snapped = np.zeros(3)
+    snapped[axis] = np.sign(normal[axis])
+    angle = float(np.degrees(np.arccos(np.clip(normal @ snapped, -1.0, 1.0))))
+    name = ("-" if snapped[axis] < 0 else "+") + "XYZ"[axis]
+    if angle <= SNAP_AXIS_DEG:
+        return snapped, (f"inferred: the frame's {name} axis, {angle:.1f}° from the normal "
+                         "of the ground fitted to the points, on the cameras' side")
+    return normal, ("inferred: the normal of the ground fitted to the points, on the "
+                    f"cameras' side ({angle:.1f}° from the nearest frame axis {name})")
+
+
+def check_up(up: np.ndarray, xyz: np.ndarray, centers: np.ndarray, source: str) -> float:
+    """Refuse an up direction the cameras do not stand above the ground along.
+
+    Returns the height of the cameras' mean centre above the points' median height
+    along ``up`` (metres, positive).
+
+    Raises
+    ------
+    ProcessingError
+        One line naming ``source`` (``--up``): the cameras lie at or below the median of
+        the points along it, with the up the geometry gives.
+    """
+    u = np.asarray(up, dtype=np.float64).reshape(3)
+    u = u / np.linalg.norm(u)
+    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    p = p[np.isfinite(p).all(axis=1)]
+    camera = float(np.mean(np.asarray(centers, dtype=np.float64).reshape(-1, 3), axis=0) @ u)
+    above = camera - float(np.median(p @ u))
+    if above <= 0:
+        inferred, _ = infer_up(p, centers)
+        raise ProcessingError(
+            f"{source} {','.join(f'{v:g}' for v in u)} puts the cameras {-above:.3g} m "
+            "below the ground they look at (the median of the points along it): that is "
+            "down; the geometry gives up ≈ " + ",".join(f"{v:.3g}" for v in inferred)
+            + " (leave --up out to use it)")
+    return above
+
+
+def beyond_matches(xyz: np.ndarray, center: np.ndarray, match_ranges: np.ndarray,
+                   factor: float = MATCH_RANGE_FACTOR) -> np.ndarray:
+    """(N,) bool: points whose range from ``center`` lies far outside the matches' ranges.
+
+    The matches (rectify's control points, triangulated) bound the scene the pair sees:
+    a dense disparity beyond ``factor`` times their 99th percentile of range (or nearer
+    than their 1st over ``factor``) is a mismatch (sky, sgm's range widened onto noise),
+    not terrain.
+    """
+    r = np.linalg.norm(np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+                       - np.asarray(center, dtype=np.float64), axis=1)
+    m = np.asarray(match_ranges, dtype=np.float64)
+    m = m[np.isfinite(m) & (m > 0)]
+    if m.size < 3:
+        return np.zeros(len(r), dtype=bool)
+    near, far = np.percentile(m, [1.0, 99.0])
+    with np.errstate(invalid="ignore"):
+        return (r > factor * far) | (r < near / factor)
+
+
 class LocalDem(NamedTuple):
     """A DEM on a local metric grid.
 
@@ -198,7 +318,7 @@ def dem_on_local_grid(xyz: np.ndarray, gap: np.ndarray, frame: LocalFrame, *,
                       gsd_m: float, left: SensorModel | None = None,
                       right: SensorModel | None = None, neighbours: int = 16,
                       threshold: float = 3.0, fill: bool = True,
-                      median_px: int = 0) -> LocalDem:
+                      median_px: int = 0, center: np.ndarray | None = None) -> LocalDem:
     """Grid triangulated points as heights along ``frame.up`` on a local metric grid.
 
     Parameters
@@ -215,6 +335,12 @@ def dem_on_local_grid(xyz: np.ndarray, gap: np.ndarray, frame: LocalFrame, *,
     neighbours, threshold : the local-median outlier test (threshold ≤ 0: off)
     fill : bool, fill the gaps
     median_px : int, median filter after filling (0 = off; odd)
+    center : (3,) float, optional
+        The left camera's centre: the grid then covers the bulk of the points, those
+        within :data:`BULK_RANGE_FACTOR` times their median range of it (a perspective
+        view's far ground spreads a few per cent of the points over most of the area:
+        K10's 2 % beyond 27 m would stretch a 5 mm grid over 25 m); the others are left
+        off the grid and counted (``points_beyond_bulk``).
 
     Returns
     -------
@@ -232,6 +358,12 @@ def dem_on_local_grid(xyz: np.ndarray, gap: np.ndarray, frame: LocalFrame, *,
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
     gap = np.asarray(gap, dtype=np.float64).ravel()
     keep = np.isfinite(xyz).all(axis=1)
+    beyond_bulk = 0
+    if center is not None and keep.any():
+        ranges = np.linalg.norm(xyz - np.asarray(center, dtype=np.float64), axis=1)
+        far = keep & (ranges > BULK_RANGE_FACTOR * np.median(ranges[keep]))
+        beyond_bulk = int(far.sum())
+        keep &= ~far
     local, gap = frame.to_local(xyz[keep]), gap[keep]
     if len(local) < 3:
         raise ProcessingError(f"only {len(local)} triangulated points: nothing to grid")
@@ -284,6 +416,7 @@ def dem_on_local_grid(xyz: np.ndarray, gap: np.ndarray, frame: LocalFrame, *,
         "grid_shape": [height, width],
         "grid_gsd_m": float(gsd_m),
         "points_outside_extent": outside_extent,
+        "points_beyond_bulk": beyond_bulk,
         "outliers_removed": int((~inliers).sum()),
         "measured_cells": int(measured.sum()),
         "filled_cells": int(filled.sum()),

@@ -40,7 +40,16 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
         read_disparity,
         rectifying_right_model,
     )
-    from demtool.dem.local import dem_on_local_grid, footprint_gsd, local_frame
+    from demtool.dem.local import (
+        MATCH_RANGE_FACTOR,
+        beyond_matches,
+        check_up,
+        dem_on_local_grid,
+        fit_ground_normal,
+        footprint_gsd,
+        infer_up,
+        local_frame,
+    )
     from demtool.dem.sensors import screen_ray_gaps, triangulate_sensors
     from demtool.errors import ParameterError, ProcessingError
     from demtool.rectify.calibrated import rect_to_pixels, scene_distance
@@ -49,7 +58,6 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
     if params.tile_size or params.scheduler or params.dry_run:
         raise ParameterError("--tile-size/--scheduler/--dry-run: the local-frame route "
                              f"({rectify_path}: models without a body) runs untiled")
-    frame = local_frame(up)
     rectifying = rectifying_right_model(rectification, right, rectify_path)
     geometry = geometry_from_rectification(rectification, left, rectifying)
     disparity = read_disparity(disparity_path, rectify_path, rectification,
@@ -77,24 +85,49 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
         raise ProcessingError(f"{disparity_path}: no disparity triangulates in front of both "
                               "cameras")
     center = geometry.centers[0]
+    centers = np.stack([left.camera_center(0.5 * left.lines),
+                        right.camera_center(0.5 * right.lines)])
+    far = in_front & beyond_matches(tri.xyz, center, _match_ranges(rectification, left,
+                                                                   right, center))
+    in_front &= ~far
+    if not in_front.any():
+        raise ProcessingError(f"{disparity_path}: no disparity triangulates in front of both "
+                              "cameras within the ranges of rectify's matches")
+    if up is not None:
+        up_source = "--up"
+    else:
+        up, up_source = infer_up(tri.xyz[in_front], centers)
+    check_up(up, tri.xyz[in_front], centers, "--up" if up_source == "--up" else up_source)
+    frame = local_frame(up)
     if params.gsd is not None:
         gsd, gsd_source = float(params.gsd), "--gsd"
     else:
         gsd = footprint_gsd(tri.xyz[in_front], center, frame, 1.0 / geometry.f_px)
         gsd_source = "estimated (median pixel footprint on the plane normal to up)"
     keep, max_gap, median_gap = screen_ray_gaps(tri.gap, in_front, params.max_ray_gap, gsd)
-    log.info("%d disparities: %d behind a camera (dropped), %d rays missing by more than "
-             "%.3g m (dropped; median gap %.3g m)", finite.size, behind,
-             int((in_front & ~keep).sum()), max_gap, median_gap)
+    log.info("%d disparities: %d behind a camera (dropped), %d beyond %g times the ranges of "
+             "rectify's matches (dropped), %d rays missing by more than %.3g m (dropped; "
+             "median gap %.3g m); up %s (%s)", finite.size, behind, int(far.sum()),
+             MATCH_RANGE_FACTOR, int((in_front & ~keep).sum()), max_gap, median_gap,
+             ",".join(f"{v:.3g}" for v in frame.up), up_source)
     result = dem_on_local_grid(tri.xyz[keep], tri.gap[keep], frame, gsd_m=gsd, left=left,
                                right=right, neighbours=params.outlier_neighbours,
-                               threshold=params.outlier_threshold, median_px=params.median)
+                               threshold=params.outlier_threshold, median_px=params.median,
+                               center=center)
     ranges = np.linalg.norm(tri.xyz[keep] - center, axis=1)
+    normal, ground_rms = fit_ground_normal(tri.xyz[keep], centers)
+    ground = float(np.median(tri.xyz[keep] @ normal))
+    camera_above = float(centers.mean(axis=0) @ normal) - ground
     summary: dict[str, Any] = {
         "route": "disparity-local",
         "frame": "map:local",
         "up": [float(v) for v in frame.up],
-        "up_source": "--up" if up is not None else "the models' frame +Z",
+        "up_source": up_source,
+        "camera_above_fitted_ground_m": camera_above,
+        "fitted_ground_tilt_deg": float(np.degrees(np.arccos(np.clip(abs(normal @ frame.up),
+                                                                     0.0, 1.0)))),
+        "fitted_ground_rms_m": ground_rms,
+        "beyond_match_ranges": int(far.sum()),
         "x_axis": [float(v) for v in frame.axes[0]],
         "shape": list(result.dem.shape),
         "gsd_m": gsd,
@@ -135,6 +168,23 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
             outputs.append(Path(points_out))
         prov.write_sidecar(out, summary, outputs=outputs)
     return summary
+
+
+def _match_ranges(rectification: dict, left, right, center):
+    """Ranges (m) from ``center`` of rectify's inlier matches triangulated through the
+    models (empty when the file has none)."""
+    import numpy as np
+
+    from demtool.dem.sensors import triangulate_sensors
+
+    pl = np.asarray(rectification.get("points_left", np.zeros((0, 2))), dtype=np.float64)
+    pr = np.asarray(rectification.get("points_right", np.zeros((0, 2))), dtype=np.float64)
+    if len(pl) == 0 or pl.shape != pr.shape:
+        return np.zeros(0)
+    tri = triangulate_sensors(left, right, pl[:, 1] + 0.5, pl[:, 0] + 0.5, pr[:, 1] + 0.5,
+                              pr[:, 0] + 0.5)
+    ok = tri.in_front & np.isfinite(tri.xyz).all(axis=1)
+    return np.linalg.norm(tri.xyz[ok] - center, axis=1)
 
 
 def _sgm_filled(tags: dict) -> bool:

@@ -338,3 +338,39 @@ def check_rotation(H_left: np.ndarray, H_right: np.ndarray, F: np.ndarray,
              "angle: the baseline is not along the rows", what, turn_left, turn_right,
              along, across)
     return turn
+
+
+def check_left_right(left, right, left_path, right_path) -> None:
+    """Refuse a pair whose right camera stands on the left of the left one.
+
+    The baseline ``C_right − C_left`` must not point against the images' rows (their x
+    axis, image right, in the models' frame): a side-by-side pair given the other way
+    round (two ``.tsai`` swapped) would rectify turned by 180° and triangulate behind
+    the cameras.  Pairs whose baseline runs across the rows (one camera above the other)
+    pass: only a baseline within 60° of the images' left is refused.
+
+    Raises
+    ------
+    InputError
+        One line naming both model files.
+    """
+    from demtool.errors import InputError
+
+    axes = []
+    for model in (left, right):
+        line, sample = 0.5 * model.lines, 0.5 * model.samples
+        rays = model.image_to_ray(np.array([line, line]),
+                                  np.array([sample - 0.5, sample + 0.5])).direction
+        axis = rays[1] - rays[0]
+        axes.append(axis / np.linalg.norm(axis))
+    baseline = (np.asarray(right.camera_center(0.5 * right.lines), dtype=np.float64)
+                - np.asarray(left.camera_center(0.5 * left.lines), dtype=np.float64))
+    length = float(np.linalg.norm(baseline))
+    if not length > 0:
+        return
+    along = float(baseline @ (axes[0] + axes[1])) / (2.0 * length)
+    if along < -0.5:
+        raise InputError(
+            f"{right_path}: its camera stands {length * -along:.3g} m to the left of "
+            f"{left_path}'s along the images' rows: the left and right models (or images) "
+            "are swapped")

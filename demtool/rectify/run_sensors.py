@@ -138,6 +138,9 @@ def rectify_with_sensors(left_path: str | os.PathLike, right_path: str | os.Path
     right_model = read_frame_model(sensor_right, right_path, right_image.data.shape,
                                    "--sensor-right")
     check_same_body(left_model, right_model, sensor_left, sensor_right)
+    from demtool.rectify.checks import check_left_right
+
+    check_left_right(left_model, right_model, sensor_left, sensor_right)
     from demtool.mapproject.checks import check_pair_overlaps
 
     check_pair_overlaps(left_model, right_model, sensor_left, sensor_right)

@@ -104,3 +104,72 @@ def test_write_ply_round_trip(tmp_path):
     np.testing.assert_array_equal(np.column_stack([record["x"], record["y"], record["z"]]),
                                   xyz)
     np.testing.assert_allclose(record["ray_gap"], [0.1, 0.2], rtol=1e-6)
+
+
+def _ground_under_cameras(z_down=False):
+    """Points on a bumpy ground 1-5 m ahead of two cameras 0.9 m above it."""
+    rng = np.random.default_rng(5)
+    xy = np.column_stack([rng.uniform(-1.5, 1.5, 5000), rng.uniform(1, 5, 5000)])
+    z = 0.05 * np.sin(3 * xy[:, 0]) + rng.normal(0, 0.01, 5000)
+    points = np.column_stack([xy, z])
+    centers = np.array([[-0.15, 0, 0.9], [0.15, 0, 0.9]])
+    if z_down:  # the same scene in a frame with Z down (180° about X)
+        flip = np.diag([1.0, -1.0, -1.0])
+        points, centers = points @ flip, centers @ flip
+    return points, centers
+
+
+def test_up_is_inferred_from_the_ground_on_the_cameras_side():
+    from demtool.dem.local import check_up, fit_ground_normal, infer_up
+
+    for z_down, expected in ((False, (0, 0, 1)), (True, (0, 0, -1))):
+        points, centers = _ground_under_cameras(z_down)
+        up, source = infer_up(points, centers)
+        np.testing.assert_allclose(up, expected)
+        assert "inferred" in source
+        assert check_up(up, points, centers, "--up") == pytest.approx(0.9, abs=0.02)
+        normal, rms = fit_ground_normal(points, centers)
+        assert np.degrees(np.arccos(abs(normal @ up))) < 2.0 and rms < 0.05
+    # a tilted ground (20°) far from any axis keeps its own normal
+    points, centers = _ground_under_cameras()
+    tilt = np.radians(20)
+    turn = np.array([[1, 0, 0], [0, np.cos(tilt), -np.sin(tilt)],
+                     [0, np.sin(tilt), np.cos(tilt)]])
+    up, source = infer_up(points @ turn.T, centers @ turn.T)
+    np.testing.assert_allclose(up, turn @ [0, 0, 1], atol=0.02)
+    assert "normal" in source
+
+
+def test_an_up_that_puts_the_cameras_under_the_ground_is_refused():
+    from demtool.dem.local import check_up
+
+    points, centers = _ground_under_cameras(z_down=True)
+    with pytest.raises(ProcessingError, match=r"--up 0,0,1 puts the cameras 0.9\d* m below")\
+            as info:
+        check_up(np.array([0, 0, 1.0]), points, centers, "--up")
+    assert "0,0,-1" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_points_far_beyond_the_matches_ranges_are_outliers():
+    from demtool.dem.local import beyond_matches
+
+    rng = np.random.default_rng(6)
+    match_ranges = rng.uniform(1.0, 5.0, 300)
+    xyz = np.array([[0, 3.0, 0], [0, 9.0, 0], [0, 11.0, 0], [0, 0.45, 0], [0, 1600.0, 0]])
+    np.testing.assert_array_equal(beyond_matches(xyz, np.zeros(3), match_ranges),
+                                  [False, False, True, True, True])
+    assert not beyond_matches(xyz, np.zeros(3), np.zeros(0)).any()
+
+
+def test_the_grid_covers_the_bulk_of_a_perspective_view():
+    frame = local_frame()
+    rng = np.random.default_rng(7)
+    near = np.column_stack([rng.uniform(-1, 1, 20000), rng.uniform(1, 3, 20000),
+                            np.zeros(20000)])
+    far = np.column_stack([rng.uniform(-15, 15, 400), rng.uniform(10, 30, 400),
+                           np.zeros(400)])  # 2 % of the points, spread over 600 m²
+    xyz = np.concatenate([near, far])
+    result = dem_on_local_grid(xyz, np.zeros(len(xyz)), frame, gsd_m=0.05,
+                               center=np.array([0.0, 0.0, 1.0]))
+    assert result.report["points_beyond_bulk"] >= 390
+    assert max(result.dem.shape) <= 50  # 2 m x 2 m at 5 cm, not 30 m x 30 m

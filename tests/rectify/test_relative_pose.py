@@ -140,3 +140,17 @@ def test_a_rig_off_by_a_yaw_and_a_roll_gives_the_exact_rigs_dem(tmp_path):
                             summary["rms_vertical_residual_px"])
     assert residuals["off"][1] < residuals["off"][0]  # reported before / after
     assert rmse["off"] <= 1.5 * rmse["exact"], rmse
+
+
+def test_swapped_models_are_refused_in_one_line():
+    from demtool.errors import InputError
+    from demtool.rectify.checks import check_left_right
+
+    left, right = _rig()
+    check_left_right(left, right, "l.tsai", "r.tsai")
+    with pytest.raises(InputError, match="r.tsai: its camera stands 0.3 m to the left of "
+                       "l.tsai's.*swapped"):
+        check_left_right(right, left, "l.tsai", "r.tsai")
+    # one camera above the other: the baseline runs across the rows, not refused
+    above = dataclasses.replace(right, t=-right.R @ (left.center + [0, 0, 0.3]))
+    check_left_right(left, above, "l.tsai", "r.tsai")

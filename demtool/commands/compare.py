@@ -44,7 +44,13 @@ whose posts are at least twice the DEM's cells (LOLA, MOLA against a stereo DEM)
 also compared at its own resolution, beside those figures: the DEM averaged over each
 reference cell minus the reference at its posts (report.json at_reference_resolution),
 since sampling a coarse reference at fine cells charges the DEM with the relief the
-reference cannot show.""")
+reference cannot show.
+
+A REFERENCE that is a table of laser altimetry shots (.csv, .tab, .txt: LOLA RDR, MOLA
+PEDR, or columns named longitude/latitude/radius or height) is compared point by point:
+DEM - shot at each shot (counts of shots on the DEM, on no data, outside), the
+translation moving the DEM onto the shots (east/north/up metres and DEM posts, with its
+formal sigma), report.json, shots.csv and a profile figure per track.""")
 @options.input_file("dem")
 @options.input_file("reference")
 @options.out_dir("Report folder (created if needed).")

@@ -151,6 +151,11 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     from demtool.imaging.checks import check_magnitude
 
     params = params or CompareParams()
+    from demtool.compare.run_altimetry import is_shot_table, run_compare_shots
+
+    if is_shot_table(reference_path):  # laser altimetry shots (LOLA, MOLA): points
+        return run_compare_shots(dem_path, reference_path, out_dir, params,
+                                 resolved=resolved)
     run = StageRun("compare", params, resolved=resolved,
                    inputs={"DEM": dem_path, "REFERENCE": reference_path, "--also": also,
                            "--mask": mask_path}, folders={"--out": out_dir},

@@ -7,13 +7,16 @@ model       coefficients and definition (``remove``: distorted → undistorted, 
 ``marci``   ``[p, k0, k1, k2, k3]``: ISIS ``MarciDistortionMap``: in pixels of pitch
             ``p`` mm, ``u = d (k0 + k1 r² + k2 r⁴ + k3 r⁶)``, ``r = |d| / p``
             (``INS<code>_DISTORTION_COEFFS``, ``INS<code>_PIXEL_SIZE``)
+``lrowac``  ``[k1, k2, k3]``: ISIS ``LroWideAngleCameraDistortionMap``:
+            ``u = d (1 + k1 r² + k2 r⁴ + k3 r⁶)`` (mm; the filter's ``INS<code>_OD_K``)
 ``mocwa``   ``[s, c0, …, c5]``: ISIS ``MocWideAngleDistortionMap``, focal length ``f``
             (the model's): ``y' = y / s``, field angle ``θ = atan(|(x, y')| / f)``,
             ``θ_u = θ (c0 + c1 θ² + … + c5 θ¹⁰)``, ``u = (x, y') f tan θ_u / |(x, y')|``
             (ISIS's constants: red ``s`` 1, blue 1.000452)
 ==========  ==========================================================================
 
-``marci``'s ``apply`` (undistorted → distorted) solves the radial equation by
+``lrowac`` is ``marci`` with a pitch of 1 mm and ``k0 = 1``.  ``marci``'s ``apply``
+(undistorted → distorted) solves the radial equation by
 Newton–Raphson to 1e-12 pixel, as ISIS's ``SetUndistortedFocalPlane`` does to 1e-9
 (ISIS starts from a per-filter guess; the converged root is the same); points that do
 not converge are NaN.  ``mocwa``'s ``apply`` inverts ``remove`` by Newton–Raphson on
@@ -95,7 +98,15 @@ def _mocwa_apply(x, y, c, f, tol):
     return x * ratio, y * ratio * c[0]
 
 
+def _lrowac_remove(x, y, c, f, tol):
+    return _marci_remove(x, y, [1.0, 1.0, *c], f, tol)
+
+
+def _lrowac_apply(x, y, c, f, tol):
+    return _marci_apply(x, y, [1.0, 1.0, *c], f, tol)
+
+
 #: Coefficient counts, apply and remove functions of the models above.
-COUNTS = {"marci": (5,), "mocwa": (7,)}
-APPLY = {"marci": _marci_apply, "mocwa": _mocwa_apply}
-REMOVE = {"marci": _marci_remove, "mocwa": _mocwa_remove}
+COUNTS = {"marci": (5,), "mocwa": (7,), "lrowac": (3,)}
+APPLY = {"marci": _marci_apply, "mocwa": _mocwa_apply, "lrowac": _lrowac_apply}
+REMOVE = {"marci": _marci_remove, "mocwa": _mocwa_remove, "lrowac": _lrowac_remove}

@@ -141,23 +141,22 @@ class CubeWindowPushFrame(PushFrameSensor):
 
 
 def read_pushframe_cube(path: Path, label, data: bytes):
-    """An ISIS push-frame cube with SPICE attached: MARCI as a
+    """An ISIS push-frame cube with SPICE attached: MARCI or LRO WAC as a
     :class:`CubeWindowPushFrame`; another camera refused in one line."""
     instrument = label["IsisCube"].get("Instrument", {})
     ident = str(instrument.get("InstrumentId", "")) or "an unnamed camera"
-    if ident.upper() == "MARCI":
-        return _marci(path, label, data)
+    if ident.upper() in ("MARCI", "WAC-VIS", "WAC-UV"):
+        return _window_model(path, label, data)
     raise InputError(f"{path}: is a push-frame cube of {ident} (ISIS PushFrameCamera, "
-                     "framelets with per-filter offsets): demtool builds MARCI's from a "
-                     "cube, not this camera's; pass its ALE ISD (isd_generate) instead")
+                     "framelets with per-filter offsets): demtool builds MARCI's and LRO "
+                     "WAC's from cubes, not this camera's; pass its ALE ISD (isd_generate)")
 
 
 def marci_isd(path: Path, label, data: bytes) -> tuple[dict, float, float]:
     """The usgscsm push-frame ISD of a MARCI cube's parent image (module docstring), and
     the cube's window in it: (ISD, line offset, line scale)."""
-    from demtool.sensors.isis import _tables
     from demtool.sensors.isis_kinds import naif_ik_code
-    from demtool.sensors.isis_linescan import _alpha, _Cube, _radii, _rotations_block, _states_block
+    from demtool.sensors.isis_linescan import _Cube
 
     cube = _Cube(path, label, data)
     code = naif_ik_code(path, label)
@@ -176,62 +175,151 @@ def marci_isd(path: Path, label, data: bytes) -> tuple[dict, float, float]:
         raise InputError(f"{path}: the Instrument key 'SummingMode' is {summing}, not a "
                          "divisor of MARCI's 16-line framelets")
     flipped = int(cube.number("DataFlipped")) != 0
-    color = int(cube.number("ColorOffset"))
-    offset = order * color * (-1 if flipped else 1)
-    delay = cube.number("InterframeDelay")  # ISIS reads the number as seconds
-    t0 = cube.clock_et("SpacecraftClockCount") - cube.number("ExposureDuration") / 2000.0
+    ins = f"INS{code}"
+    origin = MARCI_ORIGIN[code]
+    notes = []
+    if len(names) > 1:
+        notes.append(f"MARCI: the geometry of band 1 ({band}) of {len(names)}; each filter "
+                     "has its own detector rows and framelet offset")
+    camera = dict(
+        name="MARCI", height=MARCI_FRAMELET_LINES, summing=summing, first_row=first_row,
+        sample_offset=0.0, reversed=flipped,
+        framelet_offset=order * int(cube.number("ColorOffset")) * (-1 if flipped else 1),
+        delay=cube.number("InterframeDelay"),  # ISIS reads the number as seconds
+        t0=cube.clock_et("SpacecraftClockCount") - cube.number("ExposureDuration") / 2000.0,
+        focal=cube.scalar(f"{ins}_FOCAL_LENGTH"),
+        itrans=(cube.key("INS-74400_ITRANSS", 3).tolist(),
+                cube.key("INS-74400_ITRANSL", 3).tolist()),
+        center=(origin[1] - 0.5, origin[0] - 0.5),
+        distortion={"marci": {"coefficients": [cube.scalar(f"{ins}_PIXEL_SIZE"),
+                                               *cube.key(f"{ins}_DISTORTION_COEFFS", 4)
+                                               .tolist()]}},
+        notes=notes)
+    return _framelet_isd(cube, camera)
+
+
+def wac_isd(path: Path, label, data: bytes) -> tuple[dict, float, float]:
+    """The usgscsm push-frame ISD of an LRO WAC cube's parent image, and the cube's
+    window in it (ISIS ``LroWideAngleCamera``):
+
+    - the Kernels code ``c`` (−85621 VIS, −85626 UV; ``NaifIkCode``) holds the filter
+      tables ``INS<c>_FILTER_BANDCENTER``, ``_FILTER_OFFSET`` (first detector row) and
+      ``_FILTER_BANDID``; the filter of wavelength ``λ`` (band 1's ``BandBin/Center``)
+      has its own code ``c − (b + id)``, ``b`` = 7 (VIS) or 14 (UV), holding its focal
+      length, boresight (the detector origin ``BORESIGHT + 1``, ISIS 1-based), ``ITRANSS/L``
+      and ``OD_K`` (ISIS ``LroWideAngleCameraDistortionMap``: ``u = d (1 + k1 r² + k2 r⁴
+      + k3 r⁶)``, the ``lrowac`` model);
+    - framelets of 14 (VIS) or 16 (UV) detector lines, summed 1 or 4 in both directions;
+      the first detector sample ``INS<c>_<mode>_SAMPLE_OFFSET + 1`` (``mode`` the
+      ``InstrumentModeId``, ``BW`` followed by ``Mode``);
+    - the framelet times ``t0 + (f − o − 1) Δ`` (``DataFlipped``: ``t0 + (N − f + o) Δ``),
+      ``t0`` the clock count ``SpacecraftClockStartCount`` plus half the
+      ``ExposureDuration``, ``Δ`` the ``InterframeDelay`` (ms), ``o`` the filter's rank
+      among the filters by detector row times ``ColorOffset`` (negated when flipped; 0
+      in BW mode).
+    """
+    from demtool.sensors.isis_kinds import naif_ik_code
+    from demtool.sensors.isis_linescan import _Cube
+
+    cube = _Cube(path, label, data)
+    code = naif_ik_code(path, label)
+    ident = str(cube.inst("InstrumentId")).strip().upper()
+    uv = ident == "WAC-UV"
+    height, summing, base = (16, 4, 14) if uv else (14, 1, 7)
+    ins = f"INS{code}"
+    centers = [int(round(v)) for v in cube.key(f"{ins}_FILTER_BANDCENTER")]
+    offsets = [int(round(v)) for v in cube.key(f"{ins}_FILTER_OFFSET")]
+    band_ids = [int(round(v)) for v in cube.key(f"{ins}_FILTER_BANDID")]
+    if not len(centers) == len(offsets) == len(band_ids):
+        raise InputError(f"{path}: NaifKeywords '{ins}_FILTER_BANDCENTER', '_FILTER_OFFSET' "
+                         "and '_FILTER_BANDID' differ in length")
+    wanted = cube.cube.get("BandBin", {}).get("Center")
+    wanted = wanted if isinstance(wanted, (list, tuple)) else [wanted]
+    try:
+        wavelength = int(round(float(getattr(wanted[0], "value", wanted[0]))))
+        index = centers.index(wavelength)
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: BandBin 'Center' {wanted[0]!r} is not a WAC filter of "
+                         f"{ins}_FILTER_BANDCENTER {centers}") from None
+    filter_code = code - (base + band_ids[index])
+    fik = f"INS{filter_code}"
+    flipped = str(cube.inst("DataFlipped")).strip().upper() == "YES"
+    mode = str(cube.inst("InstrumentModeId")).strip().upper()
+    rank = sorted(offsets).index(offsets[index])
+    factor = int(cube.number("ColorOffset")) * (-1 if flipped else 1)
+    if mode == "BW":
+        mode += str(cube.inst("Mode")).strip()
+        rank = 0
+    notes = []
+    if len(wanted) > 1:
+        notes.append(f"LRO WAC: the geometry of band 1 ({wavelength} nm) of {len(wanted)}; "
+                     "each filter has its own detector rows and framelet offset")
+    camera = dict(
+        name=ident, height=height, summing=summing, first_row=float(offsets[index]),
+        sample_offset=cube.scalar(f"{ins}_{mode}_SAMPLE_OFFSET"), reversed=flipped,
+        framelet_offset=rank * factor, delay=cube.seconds("InterframeDelay", "ms"),
+        t0=cube.clock_et("SpacecraftClockStartCount")
+        + cube.seconds("ExposureDuration", "ms") / 2.0,
+        focal=cube.scalar(f"{fik}_FOCAL_LENGTH"),
+        itrans=(cube.key(f"{fik}_ITRANSS", 3).tolist(), cube.key(f"{fik}_ITRANSL", 3).tolist()),
+        center=(cube.scalar(f"{fik}_BORESIGHT_LINE") + 0.5,
+                cube.scalar(f"{fik}_BORESIGHT_SAMPLE") + 0.5),
+        distortion={"lrowac": {"coefficients": cube.key(f"{fik}_OD_K", 3).tolist()}},
+        notes=notes)
+    return _framelet_isd(cube, camera)
+
+
+def _framelet_isd(cube, camera: dict) -> tuple[dict, float, float]:
+    """usgscsm's push-frame ISD of an ISIS push-frame camera's parent image (``camera``:
+    framelet ``height`` and ``summing``, first detector ``first_row``/``sample_offset``,
+    ``framelet_offset`` and order, ``delay``, ``t0``, interior), and the cube's window."""
+    from demtool.sensors.isis import _tables
+    from demtool.sensors.isis_linescan import _alpha, _radii, _rotations_block, _states_block
+
     start_s, start_l, k_s, k_l, samples, lines = _alpha(cube)
     alpha = cube.cube.get("AlphaCube", {})
     dims = cube.cube.get("Core", {}).get("Dimensions", {})
     parent_lines = int(alpha.get("AlphaLines", dims.get("Lines", lines)))
-    height = MARCI_FRAMELET_LINES // summing
-    n_framelets = parent_lines // height
-    start = t0 + offset * delay if flipped else t0 - offset * delay
-    centre = start + 0.5 * n_framelets * delay
-    ins = f"INS{code}"
-    focal = cube.scalar(f"{ins}_FOCAL_LENGTH")
-    pitch = cube.scalar(f"{ins}_PIXEL_SIZE")
-    odk = cube.key(f"{ins}_DISTORTION_COEFFS", 4)
-    origin = MARCI_ORIGIN[code]
+    summing, delay = camera["summing"], camera["delay"]
+    n_framelets = parent_lines // (camera["height"] // summing)
+    offset = camera["framelet_offset"] * delay
+    start = camera["t0"] + offset if camera["reversed"] else camera["t0"] - offset
     radii, radii_note = _radii(cube)
-    tables = _tables(label)
-    notes = [n for n in (radii_note,) if n]
-    if len(names) > 1:
-        notes.append(f"MARCI: the geometry of band 1 ({band}) of {len(names)}; each filter "
-                     "has its own detector rows and framelet offset")
+    tables = _tables(cube.label)
     isd = {
-        "name_model": "USGS_ASTRO_PUSH_FRAME_SENSOR_MODEL", "image_identifier": path.stem,
-        "name_sensor": "MARCI", "image_lines": parent_lines, "image_samples": samples,
+        "name_model": "USGS_ASTRO_PUSH_FRAME_SENSOR_MODEL", "image_identifier": cube.path.stem,
+        "name_sensor": camera["name"], "image_lines": parent_lines, "image_samples": samples,
         "radii": {"semimajor": float(radii[0]), "semiminor": float(radii[2]), "unit": "km"},
-        "focal_length_model": {"focal_length": focal},
-        "focal2pixel_samples": cube.key("INS-74400_ITRANSS", 3).tolist(),
-        "focal2pixel_lines": cube.key("INS-74400_ITRANSL", 3).tolist(),
-        "detector_center": {"line": origin[1] - 0.5, "sample": origin[0] - 0.5},
-        "starting_detector_line": float(first_row),
-        "starting_detector_sample": summing * (start_s - 0.5),
+        "focal_length_model": {"focal_length": camera["focal"]},
+        "focal2pixel_samples": list(camera["itrans"][0]),
+        "focal2pixel_lines": list(camera["itrans"][1]),
+        "detector_center": {"line": camera["center"][0], "sample": camera["center"][1]},
+        "starting_detector_line": float(camera["first_row"]),
+        "starting_detector_sample": camera["sample_offset"] + summing * (start_s - 0.5),
         "detector_sample_summing": summing * k_s, "detector_line_summing": summing,
-        "optical_distortion": {"marci": {"coefficients": [pitch, *odk.tolist()]}},
-        "framelet_height": MARCI_FRAMELET_LINES, "exposure_duration": 0.0,
+        "optical_distortion": camera["distortion"],
+        "framelet_height": camera["height"], "exposure_duration": 0.0,
         "interframe_delay": delay, "starting_ephemeris_time": start,
-        "center_ephemeris_time": centre, "framelets_flipped": False,
-        "framelet_order_reversed": flipped,
+        "center_ephemeris_time": start + 0.5 * n_framelets * delay,
+        "framelets_flipped": False, "framelet_order_reversed": bool(camera["reversed"]),
         "instrument_position": _states_block(cube, "InstrumentPosition", tables),
         "sun_position": _states_block(cube, "SunPosition", tables),
         "instrument_pointing": _rotations_block(cube, "InstrumentPointing", tables),
         "body_rotation": _rotations_block(cube, "BodyRotation", tables),
-        "notes": notes,
+        "notes": [n for n in (radii_note, *camera["notes"]) if n],
     }
     return isd, start_l - 0.5, k_l
 
 
-def _marci(path: Path, label, data: bytes) -> CubeWindowPushFrame:
+def _window_model(path: Path, label, data: bytes) -> CubeWindowPushFrame:
     import logging
     import re
 
     from demtool.sensors.coverage import coverage_note, covered_lines
     from demtool.sensors.isd import sensor_from_isd
 
-    isd, line_offset, line_scale = marci_isd(path, label, data)
+    marci = str(label["IsisCube"]["Instrument"].get("InstrumentId", "")).upper() == "MARCI"
+    isd, line_offset, line_scale = (marci_isd if marci else wac_isd)(path, label, data)
     sensors_log = logging.getLogger("demtool.sensors")
     level = sensors_log.level
     sensors_log.setLevel(logging.ERROR)  # the parent image's coverage is not the cube's

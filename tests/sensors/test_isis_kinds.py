@@ -16,7 +16,7 @@ from demtool.sensors.base import ray_ellipsoid_intersection
 from demtool.sensors.distortion import MODELS, Distortion
 from demtool.sensors.isis_label import read_label
 from demtool.sensors.isis_linescan import cube_isd
-from demtool.sensors.isis_pushframe import marci_isd
+from demtool.sensors.isis_pushframe import marci_isd, wac_isd
 from tests.sensors.test_isis_apollo import write_cube
 from tests.sensors.test_isis_linescan import CAMERAS, ET0, write_linescan_cube
 
@@ -342,3 +342,59 @@ def test_moc_wa_timing_and_detector_are_moc_wide_angle_cameras(tmp_path, monkeyp
     assert isd["starting_detector_sample"] == pytest.approx(200 * 4 + 672)
     assert isd["detector_sample_summing"] == pytest.approx(2 * 4)
     assert isd["optical_distortion"]["mocwa"]["coefficients"][1] == 0.9993258
+
+
+WAC_NAIF = {"INS-85621_FILTER_BANDCENTER": "(415, 566, 604, 643, 689)",
+            "INS-85621_FILTER_OFFSET": "(703, 728, 754, 781, 806)",
+            "INS-85621_FILTER_BANDID": "(3, 4, 5, 6, 7)",
+            "INS-85621_COLOR_SAMPLE_OFFSET": 160.0,
+            "INS-85632_FOCAL_LENGTH": 6.0193387, "INS-85632_BORESIGHT_SAMPLE": 509.5445,
+            "INS-85632_BORESIGHT_LINE": 775.7541,
+            "INS-85632_ITRANSS": "(0.0, 0.0026684381921, 111.1111110790686)",
+            "INS-85632_ITRANSL": "(0.0, -111.1111110790686, 0.0026684381921)",
+            "INS-85632_OD_K": "(0.0113301372841102, 0.000147788496863675, "
+                              "4.87090732732635e-06)"}
+
+
+def test_lro_wac_with_naif_ik_code_only_is_lro_wide_angle_camera(tmp_path, monkeypatch):
+    # LroWideAngleCamera (VIS, COLOR mode): band 1 is 566 nm, filter id 4 → code
+    # −85621 − (7 + 4) = −85632; its first detector row 728 ranks 2nd of the filters'
+    # rows, so its framelet offset is 1 × ColorOffset 2; t0 = clock + 60 ms / 2; the
+    # detector origin is BORESIGHT + 1 (ISIS), CSM BORESIGHT + 0.5; the first detector
+    # sample COLOR_SAMPLE_OFFSET + 1 (ISIS), CSM 160.
+    monkeypatch.setitem(CAMERAS, "wac", dict(
+        code=-85621, code_key="NaifIkCode", clock="SpacecraftClockStartCount",
+        instrument={"InstrumentId": "WAC-VIS", "SpacecraftClockStartCount": "1/656034953:43889",
+                    "ExposureDuration": "60.0 <ms>", "InterframeDelay": "10.0 <ms>",
+                    "DataFlipped": "No", "ColorOffset": 2, "Mode": 0,
+                    "InstrumentModeId": "COLOR", "Framelets": "Even"},
+        naif=WAC_NAIF, rate=0.01, start=ET0))
+    path = write_linescan_cube(tmp_path / "wac.cub", "wac")
+    path = _edit_label(path, (b"  Group = Kernels", b"  Group = BandBin\n    Center = (566, "
+                              b"604)\n  End_Group\n  Group = Kernels"), head=16384)
+    label, data = read_label(path)
+    isd, line_offset, line_scale = wac_isd(path, label, data)
+    assert isd["starting_ephemeris_time"] == pytest.approx(ET0 + 0.03 - 2 * 0.01, abs=1e-9)
+    assert isd["focal_length_model"]["focal_length"] == 6.0193387
+    assert isd["detector_center"] == {"line": 775.7541 + 0.5, "sample": 509.5445 + 0.5}
+    assert isd["starting_detector_line"] == 728.0
+    assert isd["starting_detector_sample"] == pytest.approx(160.0 + 200.0)  # + AlphaCube
+    assert (isd["framelet_height"], isd["detector_line_summing"]) == (14, 1)
+    assert not isd["framelet_order_reversed"]
+    assert isd["optical_distortion"]["lrowac"]["coefficients"][0] == 0.0113301372841102
+    model = read_sensor(path)
+    hit, error = _round_trip(model)
+    assert hit.all() and error.max() <= 0.01
+
+
+def test_lrowac_distortion_is_isis_lro_wide_angle_distortion_map():
+    k = [0.0113301372841102, 0.000147788496863675, 4.87090732732635e-06]
+    lens = Distortion("lrowac", k)
+    x, y = np.array([1.0, -3.5, 4.0]), np.array([0.5, 2.0, -4.5])
+    rr = x * x + y * y
+    factor = 1 + k[0] * rr + k[1] * rr ** 2 + k[2] * rr ** 3
+    u, v = lens.remove(x, y)
+    np.testing.assert_allclose(u, x * factor, rtol=1e-14)
+    back_x, back_y = lens.apply(u, v)
+    np.testing.assert_allclose(back_x, x, atol=1e-11)
+    np.testing.assert_allclose(back_y, y, atol=1e-11)

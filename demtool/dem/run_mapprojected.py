@@ -40,7 +40,8 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     from demtool import io as dio
     from demtool.dem.run_sensors import triangulate_to_map, write_map_dem
     from demtool.errors import InputError, ProcessingError
-    from demtool.mapproject.stereo import disparity_cells, map_cells_xy, raw_coordinates
+    from demtool.mapproject.stereo import (check_right_cells, disparity_cells, map_cells_xy,
+                                           raw_coordinates)
     from demtool.maps import to_pyproj_crs
 
     log = run.log
@@ -50,13 +51,13 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     from demtool.mapproject.hashes import check_distinct, check_pair_order
 
     check_distinct(left_path, li.tags, right_path, ri.tags)
-    check_pair_order(disparity_path, left_path, right_path)
     if (li.transform != ri.transform or (li.width, li.height) != (ri.width, ri.height)
             or to_pyproj_crs(li.crs) != to_pyproj_crs(ri.crs)):
         raise InputError(f"{left_path} and {right_path}: the orthoimages are on different "
                          "map grids (map-project the right one with --grid-like LEFT)")
     if left.sensor.radii is None or right.sensor.radii is None:
         raise InputError(f"{left_path}: its sensor models are not on a body")
+    check_pair_order(disparity_path, left_path, right_path)
     if params.tile_size or params.scheduler or params.dry_run:  # docs/stages/scale.md
         tiled = _tiled(run, params, out, disparity_path, left_path, right_path, li,
                        mask_path, error_path)
@@ -70,6 +71,7 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
                          f"{disparity.data.shape[0]} vs {li.width}×{li.height} cells, or "
                          "another transform/CRS); match the orthoimages with demtool sgm")
     rows, l_cols, r_cols = disparity_cells(disparity.data)
+    check_right_cells(disparity_path, right_path, l_cols, r_cols, ri.width)
     if rows.size < 3:
         raise ProcessingError(f"{disparity_path}: fewer than 3 valid disparities")
     crs = to_pyproj_crs(li.crs)

@@ -171,7 +171,8 @@ class MapDemTileJob:
     # ------------------------------------------------------------------ step 1
     def _raw_ortho(self, disparity, r0, c0):
         """Raw (line, sample) of each side, and the cells, of the map-projected route."""
-        from demtool.mapproject.stereo import disparity_cells, map_cells_xy, raw_coordinates
+        from demtool.mapproject.stereo import (check_right_cells, disparity_cells,
+                                               map_cells_xy, raw_coordinates)
         from demtool.maps import to_pyproj_crs
 
         left = ortho(self.left_path, "left orthoimage")
@@ -180,6 +181,7 @@ class MapDemTileJob:
         crs = to_pyproj_crs(li.crs)
         rows, l_cols, r_cols = disparity_cells(disparity)
         rows_g, l_g, r_g = rows + r0, l_cols + c0, r_cols + c0
+        check_right_cells(self.disparity_path, self.right_path, l_g, r_g, ri.width)
         l_h = left.heights(*map_cells_xy(li.transform, rows_g, l_g))
         r_h = right.heights(*map_cells_xy(ri.transform, rows_g, r_g))
         return (raw_coordinates(left.sensor, crs, li.transform, rows_g, l_g, l_h),

@@ -81,26 +81,47 @@ def check_distinct(left_path: Any, left_tags: dict[str, Any], right_path: Any,
 
 
 def check_pair_order(disparity_path: Any, left_path: Any, right_path: Any) -> None:
-    """Refuse orthoimages given in the other order than the disparity was matched in.
+    """Refuse orthoimages that are not the pair the disparity was matched on, in its order.
 
     The disparity's provenance sidecar (``<disparity>.json``, written by ``sgm``/``match``)
-    lists its inputs, left first; given right as left, every parallax changes sign and the
-    DEM is wrong everywhere (RMSE 3.55 m instead of 0.15 m).  Without a sidecar, or when
-    it names other files, nothing is checked.
+    lists its inputs, left first, each with its SHA-256.  Given right as left, every
+    parallax changes sign and the DEM is wrong everywhere (RMSE 3.55 m instead of 0.15 m);
+    given orthoimages that are not the ones matched, the parallaxes belong to other
+    images.  The check is by content (issue 46: a copied project folder kept the swap
+    unseen while it compared paths): the two orthoimages' hashes must be the first two
+    recorded, in that order.  A sidecar without hashes is compared by path; without a
+    sidecar nothing is checked.
     """
     import json
+
+    from demtool.provenance import file_sha256
 
     sidecar = Path(f"{disparity_path}.json")
     try:
         record = json.loads(sidecar.read_text())
-        paths = [Path(str(entry["path"])).resolve() for entry in record.get("inputs", [])]
+        entries = [(Path(str(entry["path"])).resolve(), entry.get("sha256"))
+                   for entry in record.get("inputs", [])]
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return
+    swapped = (f"{disparity_path}: was matched with {right_path} as the left orthoimage and "
+               f"{left_path} as the right (its sidecar {sidecar}); give them in that order")
+    recorded = [digest for _, digest in entries[:2]]
+    if len(recorded) == 2 and all(recorded):
+        given = [file_sha256(left_path), file_sha256(right_path)]
+        if None in given or given == recorded:
+            return
+        if given == recorded[::-1]:
+            raise InputError(swapped)
+        which = [(what, path, now, then) for what, path, now, then in zip(
+            ("left", "right"), (left_path, right_path), given, recorded) if now != then]
+        what, path, now, then = which[0]
+        raise InputError(f"{path}: is not the {what} orthoimage {disparity_path} was matched "
+                         f"on (SHA-256 {now[:12]}…, its sidecar records {then[:12]}…); give "
+                         "the orthoimages it was matched on, or match these again")
+    paths = [p for p, _ in entries]
     left, right = Path(left_path).resolve(), Path(right_path).resolve()
     if left in paths and right in paths and paths.index(left) > paths.index(right):
-        raise InputError(f"{disparity_path}: was matched with {right_path} as the left "
-                         f"orthoimage and {left_path} as the right (its sidecar {sidecar}); "
-                         "give them in that order")
+        raise InputError(swapped)
 
 
 def check_own_sensor(image_path: Any, tags: dict[str, Any], sensor_path: Any) -> bool:

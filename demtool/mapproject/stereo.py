@@ -20,7 +20,7 @@ Pure functions: arrays (or rasters as read) in, arrays out; no file I/O.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -214,6 +214,37 @@ def disparity_cells(disparity: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     rows, cols = np.nonzero(np.isfinite(disparity))
     d = disparity[rows, cols].astype(np.float64)
     return rows.astype(np.float64), cols.astype(np.float64), cols - d
+
+
+#: how far (map cells) a right cell may lie beyond the right orthoimage's columns: the
+#: half cell of its edge pixel plus a subpixel refinement's overshoot
+RIGHT_CELL_MARGIN = 1.0
+
+
+def check_right_cells(disparity_path: Any, right_path: Any, left_cols: np.ndarray,
+                      right_cols: np.ndarray, width: int) -> None:
+    """Refuse disparities whose right cell ``col − d`` is off the right orthoimage.
+
+    A matcher found every right cell inside the right orthoimage (``0 ≤ col − d ≤
+    width − 1`` within :data:`RIGHT_CELL_MARGIN`); one outside it is not a disparity
+    between these orthoimages (issue 46: a disparity of 1e27 cells put the DEM elsewhere).
+
+    Raises
+    ------
+    InputError
+        One line naming the disparity, how many cells and the worst disparity value.
+    """
+    from demtool.errors import InputError
+
+    with np.errstate(invalid="ignore"):
+        off = ~((right_cols >= -RIGHT_CELL_MARGIN)
+                & (right_cols <= width - 1 + RIGHT_CELL_MARGIN))
+    if off.any():
+        d = (left_cols - right_cols)[off]
+        worst = float(d[np.argmax(np.abs(d))])
+        raise InputError(f"{disparity_path}: {int(off.sum())} disparities (up to {worst:.4g} "
+                         f"map cells) put the right cell outside the {width} columns of "
+                         f"{right_path}; not a disparity between these orthoimages")
 
 
 def raw_coordinates(sensor, crs, transform, rows: np.ndarray, cols: np.ndarray,

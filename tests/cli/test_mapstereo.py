@@ -213,3 +213,41 @@ def test_dem_refuses_orthos_swapped_against_the_disparity(route, tmp_path):
                     route["right"], route["left"], "--out", out)
     assert_refused(result, out, f"{route['disparity']}: was matched with {route['left']} as "
                    "the left orthoimage")
+
+
+@pytest.mark.slow
+def test_dem_checks_the_pair_by_content_in_a_copied_project(route, tmp_path):
+    """Issue 46: the pair order is checked by the SHA-256 the disparity's sidecar records,
+    not by path: in a copy of the project folder the swap is refused as at home, and an
+    orthoimage the disparity was not matched on is refused, naming it."""
+    import shutil
+
+    copied = {}
+    for key in ("left", "right", "disparity"):
+        copied[key] = tmp_path / Path(route[key]).name
+        shutil.copy(route[key], copied[key])
+    shutil.copy(f"{route['disparity']}.json", f"{copied['disparity']}.json")
+    out = tmp_path / "dem.tif"
+    result = invoke("dem", "--disparity", copied["disparity"], "--mapprojected",
+                    copied["right"], copied["left"], "--out", out)
+    assert_refused(result, out, f"{copied['disparity']}: was matched with {copied['left']} "
+                   "as the left orthoimage")
+    tags = dio.read_raster(route["right"]).tags
+    other = copy_raster(route["right"], tmp_path / "other.tif",
+                        tags={**tags, "note": "another orthoimage of the same grid"})
+    result = invoke("dem", "--disparity", copied["disparity"], "--mapprojected",
+                    copied["left"], other, "--out", out)
+    assert_refused(result, out, f"{other}: is not the right orthoimage", "SHA-256")
+
+
+@pytest.mark.slow
+def test_dem_refuses_a_disparity_pointing_off_the_right_ortho(route, tmp_path):
+    """Issue 46: a disparity of 1e27 map cells has no right cell; refused, naming it."""
+    d = dio.read_raster(route["disparity"]).data.copy()
+    d[SIZE // 2, SIZE // 2] = 1e27
+    wild = copy_raster(route["disparity"], tmp_path / "wild.tif", data=d)
+    out = tmp_path / "dem.tif"
+    result = invoke("dem", "--disparity", wild, "--mapprojected", route["left"],
+                    route["right"], "--out", out)
+    assert_refused(result, out, f"{wild}: 1 disparities (up to 1e+27 map cells)",
+                   str(route["right"]))

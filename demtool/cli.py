@@ -67,10 +67,13 @@ class DemtoolGroup(click.Group):
             formatter.write_dl(list(TOOLS.items()))
 
     def invoke(self, ctx: click.Context):
+        from demtool.logs import release_warnings
+
         try:
-            return super().invoke(ctx)
+            result = super().invoke(ctx)
         except DemtoolError as exc:
             state = ctx.find_object(AppState)
+            release_warnings(show=state is not None and state.debug)
             if state is not None and state.debug:
                 raise
             click.echo(f"Error: {_prefix(ctx)}: {exc}", err=True)
@@ -81,10 +84,18 @@ class DemtoolGroup(click.Group):
             # Condition.wait (Dask's as_completed) leaves "cannot release un-acquired
             # lock" (RuntimeError)
             if not _is_interrupt(exc):
+                # a usage error is one message too; a bug's traceback keeps its context
+                release_warnings(show=not isinstance(exc, click.ClickException))
                 raise
+            release_warnings(show=False)
             # Outputs were rolled back by io.output_transaction while unwinding.
             click.echo(f"Error: {_prefix(ctx)}: interrupted; no output written", err=True)
             ctx.exit(130)
+        except BaseException:  # click's exits (usage errors, --help)
+            release_warnings(show=True)
+            raise
+        release_warnings(show=True)
+        return result
 
 
 def _prefix(ctx: click.Context) -> str:

@@ -13,21 +13,50 @@ T = TypeVar("T")
 LOGGER_NAME = "demtool"
 
 
+class _HeldWarnings(logging.Handler):
+    """At ``-q``: warnings held while the stage runs, then written when it succeeds and
+    dropped when it fails, so a failing run says one line (its ``Error:``) on stderr, as
+    ``-q`` promises (issue 46); ``-v`` and the default level show them as they come."""
+
+    def __init__(self, target: logging.Handler) -> None:
+        super().__init__()
+        self.target = target
+        self.held: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.held.append(record)
+
+    def end(self, show: bool) -> None:
+        held, self.held = self.held, []
+        if show:
+            for record in held:
+                self.target.handle(record)
+
+
 def configure_logging(verbosity: int) -> None:
-    """Set the stderr log level: 0 → INFO, 1 → DEBUG, -1 → WARNING, -2 → ERROR."""
+    """Set the stderr log level: 0 → INFO, 1 → DEBUG, -1 → WARNING, -2 → ERROR.
+
+    At -1 (``-q``) the warnings wait for the stage's end (:func:`release_warnings`)."""
     level = {1: logging.DEBUG, 0: logging.INFO, -1: logging.WARNING}.get(
         max(-2, min(1, verbosity)), logging.ERROR)
     logger = logging.getLogger(LOGGER_NAME)
     logger.setLevel(level)
-    if not any(getattr(h, "_demtool", False) for h in logger.handlers):
-        handler = logging.StreamHandler()
-        handler._demtool = True  # type: ignore[attr-defined]
-        handler.setFormatter(logging.Formatter("%(name)s: %(message)s"))
-        logger.addHandler(handler)
-    for handler in logger.handlers:
-        if getattr(handler, "_demtool", False):
-            handler.setStream(sys.stderr)
+    for old in [h for h in logger.handlers if getattr(h, "_demtool", False)]:
+        logger.removeHandler(old)
+    stream = logging.StreamHandler(sys.stderr)
+    stream.setFormatter(logging.Formatter("%(name)s: %(message)s"))
+    handler: logging.Handler = _HeldWarnings(stream) if level == logging.WARNING else stream
+    handler._demtool = True  # type: ignore[attr-defined]
+    logger.addHandler(handler)
     logger.propagate = False
+
+
+def release_warnings(show: bool) -> None:
+    """End of a stage at ``-q``: write the held warnings (``show``: it succeeded, or
+    failed with a traceback) or drop them (it failed with its one ``Error:`` line)."""
+    for handler in logging.getLogger(LOGGER_NAME).handlers:
+        if isinstance(handler, _HeldWarnings):
+            handler.end(show)
 
 
 def route_library_warnings() -> None:

@@ -114,3 +114,16 @@ class Provenance:
         sidecar = Path(f"{output}.json")
         dio.write_json(sidecar, self.record(summary, outputs or [output]))
         return sidecar
+
+
+def recorded_inputs(output: str | os.PathLike) -> list[tuple[Path, str | None]]:
+    """The inputs (path, SHA-256 or None) that ``<output>.json`` records, in order; empty
+    when there is no sidecar or it is not one (a file made elsewhere is taken as given)."""
+    import json
+
+    try:
+        record = json.loads(Path(f"{output}.json").read_text())
+        return [(Path(str(entry["path"])), entry.get("sha256") or None)
+                for entry in record.get("inputs", [])]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return []

@@ -40,8 +40,12 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     from demtool import io as dio
     from demtool.dem.run_sensors import triangulate_to_map, write_map_dem
     from demtool.errors import InputError, ProcessingError
-    from demtool.mapproject.stereo import (check_right_cells, disparity_cells, map_cells_xy,
-                                           raw_coordinates)
+    from demtool.mapproject.stereo import (
+        check_right_cells,
+        disparity_cells,
+        map_cells_xy,
+        raw_coordinates,
+    )
     from demtool.maps import to_pyproj_crs
 
     log = run.log

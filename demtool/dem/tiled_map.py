@@ -171,8 +171,12 @@ class MapDemTileJob:
     # ------------------------------------------------------------------ step 1
     def _raw_ortho(self, disparity, r0, c0):
         """Raw (line, sample) of each side, and the cells, of the map-projected route."""
-        from demtool.mapproject.stereo import (check_right_cells, disparity_cells,
-                                               map_cells_xy, raw_coordinates)
+        from demtool.mapproject.stereo import (
+            check_right_cells,
+            disparity_cells,
+            map_cells_xy,
+            raw_coordinates,
+        )
         from demtool.maps import to_pyproj_crs
 
         left = ortho(self.left_path, "left orthoimage")

@@ -13,7 +13,6 @@ one tile or in many (:mod:`demtool.fuse.tiled`) and write the fused DEM and, bes
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -21,6 +20,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from demtool.fuse.checks import check_frames, check_size, same_content
+from demtool.fuse.grids import (
+    cells_of,
+    centred,
+    coreg_grid,
+    grid_of,
+    intersect,
+    spacing_of,
+    union_grid,
+)
 from demtool.stagerun import StageRun, sidecar_path
 
 if TYPE_CHECKING:
@@ -77,97 +86,6 @@ def _error_rasters(dems: Sequence[Path], errors: Sequence[PathLike] | None, meth
                      "distance only")
         found = [None] * len(dems)
     return found
-
-
-def _grid_of(info):
-    from demtool.fuse.tiled import GridSpec
-
-    return GridSpec.of((info.height, info.width), info.transform, info.crs)
-
-
-def _bounds_in(spec, crs) -> tuple[float, float, float, float]:
-    """(xmin, ymin, xmax, ymax) of a grid in ``crs``'s coordinates."""
-    grid = spec.grid()
-    bounds = grid.bounds()
-    if grid.crs is not None and crs is not None and grid.crs != crs:
-        from rasterio.warp import transform_bounds
-
-        return tuple(transform_bounds(grid.crs, crs, *bounds, densify_pts=21))
-    return bounds
-
-
-def union_grid(specs: Sequence[Any], first: Any):
-    """The grid covering every spec's extent, on ``first``'s CRS, spacing and lattice."""
-    from affine import Affine
-
-    from demtool.fuse.tiled import GridSpec
-
-    t = first.affine()
-    if t.b != 0 or t.d != 0:
-        return first
-    crs = first.crs()
-    boxes = np.array([_bounds_in(s, crs) for s in specs])
-    xmin, ymin = boxes[:, 0].min(), boxes[:, 1].min()
-    xmax, ymax = boxes[:, 2].max(), boxes[:, 3].max()
-    # snap to the first grid's lattice
-    c0 = math.floor((xmin - t.c) / t.a + 1e-6) if t.a > 0 else math.floor((xmax - t.c) / t.a)
-    c1 = math.ceil((xmax - t.c) / t.a - 1e-6) if t.a > 0 else math.ceil((xmin - t.c) / t.a)
-    if t.e < 0:
-        r0 = math.floor((ymax - t.f) / t.e + 1e-6)
-        r1 = math.ceil((ymin - t.f) / t.e - 1e-6)
-    else:
-        r0 = math.floor((ymin - t.f) / t.e + 1e-6)
-        r1 = math.ceil((ymax - t.f) / t.e - 1e-6)
-    transform = t @ Affine.translation(c0, r0)
-    return GridSpec((r1 - r0, c1 - c0), (transform.a, transform.b, transform.c, transform.d,
-                                         transform.e, transform.f), first.crs_wkt)
-
-
-def cells_of(spec, target) -> tuple[int, int, int, int] | None:
-    """The window (row0, row1, col0, col1) of ``target`` that ``spec``'s extent covers."""
-    xmin, ymin, xmax, ymax = _bounds_in(spec, target.crs())
-    inverse = ~target.affine()
-    corners = np.array([inverse @ (x, y) for x in (xmin, xmax) for y in (ymin, ymax)])
-    c0, r0 = np.floor(corners.min(axis=0) + 1e-6).astype(int)
-    c1, r1 = np.ceil(corners.max(axis=0) - 1e-6).astype(int)
-    r0, c0 = max(0, int(r0)), max(0, int(c0))
-    r1, c1 = min(target.shape[0], int(r1)), min(target.shape[1], int(c1))
-    if r0 >= r1 or c0 >= c1:
-        return None
-    return r0, r1, c0, c1
-
-
-def _centred(window: tuple[int, int, int, int], size: int) -> tuple[int, int, int, int]:
-    r0, r1, c0, c1 = window
-    h, w = min(size, r1 - r0), min(size, c1 - c0)
-    rs, cs = r0 + (r1 - r0 - h) // 2, c0 + (c1 - c0 - w) // 2
-    return rs, rs + h, cs, cs + w
-
-
-def _intersect(a, b):
-    r0, r1 = max(a[0], b[0]), min(a[1], b[1])
-    c0, c1 = max(a[2], b[2]), min(a[3], b[3])
-    return (r0, r1, c0, c1) if r0 < r1 and c0 < c1 else None
-
-
-def _check_frames(infos, paths) -> None:
-    from demtool.compare.planetary import check_bodies
-    from demtool.errors import InputError
-
-    with_crs = [p for p, i in zip(paths, infos, strict=True) if i.crs is not None]
-    if with_crs and len(with_crs) != len(paths):
-        without = next(p for p, i in zip(paths, infos, strict=True) if i.crs is None)
-        raise InputError(f"{without}: has no CRS but {with_crs[0]} has one; fuse DEMs of one "
-                         "map (give every DEM its CRS)")
-    distinct: dict[str, Any] = {}  # one raster per CRS: finding a CRS's body is slow (PROJ)
-    for path, info in zip(paths, infos, strict=True):
-        if info.crs is not None:
-            distinct.setdefault(info.crs.to_wkt(), (path, info.crs))
-    try:
-        check_bodies(list(distinct.values()))
-    except InputError as exc:
-        raise InputError(str(exc).replace("compare DEMs of one body",
-                                          "fuse DEMs of one body")) from None
 
 
 def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None = None, *,
@@ -230,14 +148,17 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
     infos = [dio.raster_info(p, what="DEM") for p in dem_paths]
     extra = [dio.raster_info(p, what=what) for p, what in
              ((reference, "reference DEM"), (grid_like, "--grid-like raster")) if p]
-    _check_frames(infos + extra, [*dem_paths, *(p for p in (reference, grid_like) if p)])
+    check_frames(infos + extra, [*dem_paths, *(p for p in (reference, grid_like) if p)])
     error_paths = _error_rasters(dem_paths, errors, params.method, log)
-    specs = [_grid_of(i) for i in infos]
+    specs = [grid_of(i) for i in infos]
     error_specs = []
     for dem, spec, path in zip(dem_paths, specs, error_paths, strict=True):
         if path is None:
             error_specs.append(None)
             continue
+        if same_content(path, dem):
+            raise InputError(f"{path}: is the DEM {dem} itself, given as its error raster; "
+                             "give the error raster dem --error-out wrote with it")
         info = dio.raster_info(path, what="error raster")
         if (info.height, info.width) != spec.shape or \
                 not info.transform.almost_equals(spec.affine()):
@@ -245,11 +166,13 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
                              f"({info.height}x{info.width} vs {spec.shape[0]}x{spec.shape[1]})"
                              "; give the error raster the dem stage wrote with this DEM")
         error_specs.append(spec)
-    target = _grid_of(extra[-1]) if grid_like else union_grid(specs, specs[0])
+    target = grid_of(extra[-1]) if grid_like else union_grid(specs, specs[0])
     spacing = target.grid().spacing
     log.info("fused grid: %d x %d cells of %.4g x %.4g (%s)", target.shape[1],
              target.shape[0], spacing[0], spacing[1],
              "from --grid-like" if grid_like else "union of the DEMs on the first's grid")
+    check_size(target, dem_paths, specs, grid_like, wants_tiles(*target.shape, params), out,
+                log)
     windows = []
     for path, spec in zip(dem_paths, specs, strict=True):
         window = cells_of(spec, target)
@@ -260,12 +183,13 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
 
     # Co-registration to the reference, on a window of their overlap.
     ref_path = Path(reference) if reference else dem_paths[0]
-    ref_spec = _grid_of(extra[0]) if reference else specs[0]
+    ref_spec = grid_of(extra[0]) if reference else specs[0]
     ref_window = cells_of(ref_spec, target)
     if ref_window is None:
         raise InputError(f"{ref_path}: the reference has no common overlap with the fused "
                          "grid; fuse DEMs of one area")
     shifts, records = [], []
+    failed: set[int] = set()  # left out: co-registration failed (with --max-nmad)
     for i, path in enumerate(dem_paths):
         record: dict[str, Any] = {"dem": str(path), "error": None if error_paths[i] is None
                                   else str(error_paths[i])}
@@ -276,19 +200,41 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
             shifts.append((0.0, 0.0, 0.0))
             records.append(record)
             continue
-        common = _intersect(windows[i], ref_window)
+        common = intersect(windows[i], ref_window)
         if common is None:
             raise InputError(f"{path}: no common overlap with the reference {ref_path}; "
                              "fuse DEMs of one area")
-        window = _centred(common, params.coreg_size)
-        dem = sample_on_grid(path, specs[i], target, window)
-        ref = sample_on_grid(ref_path, ref_spec, target, window, what="reference DEM")
+        grid, window, factor = coreg_grid(target, centred(common, params.coreg_size),
+                                           (spacing_of(specs[i]), spacing_of(ref_spec)),
+                                           params.coreg_size)
+        dem = sample_on_grid(path, specs[i], grid, window)
+        ref = sample_on_grid(ref_path, ref_spec, grid, window, what="reference DEM")
         try:
-            alignment = estimate_shift(dem, ref, method=params.align, spacing=spacing,
+            alignment = estimate_shift(dem, ref, method=params.align,
+                                       spacing=tuple(v / factor for v in spacing),
                                        label=str(path))
         except ProcessingError as exc:
-            raise InputError(str(exc).replace("the reference",
-                                              f"the reference {ref_path}")) from None
+            reason = str(exc).replace("the reference", f"the reference {ref_path}")
+            if not reason.startswith(f"{path}:"):
+                reason = (f"{path}: co-registration to the reference {ref_path} failed: "
+                          f"{reason}")
+            if params.max_nmad is None:
+                raise InputError(f"{reason}; check this DEM, or give --max-nmad to leave "
+                                 "out DEMs that do not agree with the others") from None
+            log.warning("%s: left out (%s)", path, reason)
+            record["alignment"] = None
+            record["left_out"] = reason
+            failed.add(i)
+            shifts.append((0.0, 0.0, 0.0))
+            records.append(record)
+            continue
+        if factor > 1:
+            log.info("%s: co-registered on a grid %d times finer than the fused grid",
+                     path, factor)
+            for key in ("shift", "shift_uncertainty"):
+                if key in alignment:
+                    alignment[key] = {k: (v / factor if k in ("dx_px", "dy_px") else v)
+                                      for k, v in alignment[key].items()}
         s = alignment["shift"]
         alignment.update(_shift_units(s, alignment["shift_uncertainty"], target, specs[i],
                                       ref_spec))
@@ -305,14 +251,20 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
         record["alignment"] = alignment
         records.append(record)
 
+    others = [i for i, p in enumerate(dem_paths) if not (p == ref_path and not reference)]
+    if len(others) >= 2 and failed.issuperset(others):
+        raise InputError(f"{ref_path}: no DEM co-registers to this reference ({len(failed)} "
+                         "failed); check it, or give another DEM as --reference")
     # DEM-level outlier rejection against the consensus of the others.
     used = list(range(len(dem_paths)))
     scale_floor = 0.0
     if len(dem_paths) >= 2:
-        window = _centred(ref_window, params.coreg_size)
+        window = centred(ref_window, params.coreg_size)
         stack = np.stack([sample_on_grid(p, specs[i], target, window, shifts[i])
                           for i, p in enumerate(dem_paths)])
+        stack[sorted(failed)] = np.nan
         nmads = consensus_nmad(stack)
+        nmads[sorted(failed)] = np.inf
         if params.method == "huber":
             scale_floor = stack_nmad(stack)
             log.info("Huber scale: at least %.3f m (NMAD of the heights against their "
@@ -322,7 +274,7 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
             log.info("%s: NMAD against the others' median %.3f m", dem_paths[i], value)
         if params.max_nmad is not None:
             used = [i for i, v in enumerate(nmads) if not (v > params.max_nmad)]
-            for i in set(range(len(dem_paths))) - set(used):
+            for i in sorted(set(range(len(dem_paths))) - set(used) - failed):
                 log.warning("%s: left out (NMAD against the others' median %.3f m > "
                             "--max-nmad %g m)", dem_paths[i], nmads[i], params.max_nmad)
             if not used:

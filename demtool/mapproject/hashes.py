@@ -113,7 +113,8 @@ def check_pair_order(disparity_path: Any, left_path: Any, right_path: Any) -> No
         if given == recorded[::-1]:
             raise InputError(swapped)
         which = [(what, path, now, then) for what, path, now, then in zip(
-            ("left", "right"), (left_path, right_path), given, recorded) if now != then]
+            ("left", "right"), (left_path, right_path), given, recorded, strict=True)
+            if now != then]
         what, path, now, then = which[0]
         raise InputError(f"{path}: is not the {what} orthoimage {disparity_path} was matched "
                          f"on (SHA-256 {now[:12]}…, its sidecar records {then[:12]}…); give "

@@ -185,3 +185,32 @@ def test_chain_of_the_comet_case_densified_beats_sparse(small_scene_dir, tmp_pat
     summary = json.loads((tmp_path / "dense.tif.json").read_text())["summary"]
     assert summary["route"] == "points-eq2-dense"
     assert abs(summary["tie_minus_dense_median_m"]) < 0.5 * summary["tie_minus_dense_nmad_m"]
+
+
+def test_dense_refuses_a_pair_of_another_block_of_the_same_names(block, tmp_path):
+    """Issue 46: the pair's images are identified by content (the SHA-256 the sidecars of
+    rectify and bundle record), not by their names: another block's view_00/view_01 are
+    refused, naming the rectification and the image; the block's own pass."""
+    from demtool.provenance import Provenance
+
+    def images(folder: str, seed: int) -> list[Path]:
+        (tmp_path / folder).mkdir()
+        paths = [tmp_path / folder / f"view_0{i}.tif" for i in range(2)]
+        for i, path in enumerate(paths):
+            dio.write_raster(path, np.random.default_rng(seed + i).random((8, 8)))
+        return paths
+
+    ours, theirs = images("ours", 0), images("theirs", 10)
+    Provenance("bundle", {}, ours).write_sidecar(block["bundle"])
+    Provenance("rectify", {}, theirs).write_sidecar(block["rectify"])
+    out = tmp_path / "dem.tif"
+    code, output = run("--points", str(block["bundle"]), "--dense", str(block["disparity"]),
+                       str(block["rectify"]), "--out", str(out))
+    lines = [line for line in output.splitlines() if line.startswith("Error")]
+    assert code == 1 and len(lines) == 1, output
+    assert f"{block['rectify']}: its image view_00" in lines[0]
+    assert "another block" in lines[0] and not out.exists()
+    Provenance("rectify", {}, ours).write_sidecar(block["rectify"])
+    code, output = run("--points", str(block["bundle"]), "--dense", str(block["disparity"]),
+                       str(block["rectify"]), "--out", str(out))
+    assert code == 0, output

@@ -1,0 +1,125 @@
+"""Issue 46's sweep: inputs that do not belong together, values that cannot be right and
+sizes beyond the machine, over the newer stages — each refused in one line naming the
+input (exit 1 or 2, nothing written) or given a right result.  Small synthetic fixtures
+(the fuse DEMs of tests.helpers.fuse); the map-projected and --dense cases live beside
+their routes' fixtures (tests/cli/test_mapstereo.py, tests/cli/test_dem_dense.py)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from affine import Affine
+from click.testing import CliRunner
+
+from demtool import io as dio
+from demtool.cli import cli
+from tests.helpers.fuse import GSD, ORIGIN, moon_crs, write_dem
+
+
+def invoke(*args):
+    return CliRunner().invoke(cli, ["-q", *map(str, args)])
+
+
+def refused(result, *words, code=1, out=None):
+    """Exit ``code``, one ``Error`` line holding every word, and nothing else on the
+    output (no warning before it at -q); no file at ``out``."""
+    assert result.exit_code == code, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and "Error" in lines[0], result.output
+    for word in words:
+        assert str(word) in lines[0], lines[0]
+    if out is not None:
+        assert not list(out.parent.glob(out.name + "*")), list(out.parent.iterdir())
+
+
+# ---------------------------------------------------------------- fuse
+@pytest.fixture()
+def two_dems(tmp_path):
+    paths = [tmp_path / "a.tif", tmp_path / "b.tif"]
+    write_dem(paths[0], (0, 60, 0, 60), noise=0.05, seed=1)
+    write_dem(paths[1], (5, 65, 5, 65), noise=0.05, seed=2, shift=(0.0, 0.0, 0.4))
+    return paths
+
+
+def test_fuse_refuses_image_frame_dems_of_different_targets(tmp_path):
+    rng = np.random.default_rng(0)
+    paths = []
+    for name in ("view_00", "view_07"):
+        paths.append(tmp_path / f"dem_{name}.tif")
+        dio.write_raster(paths[-1], rng.normal(0, 1, (40, 40)), tags={"frame": f"image:{name}"})
+    out = tmp_path / "fused.tif"
+    refused(invoke("fuse", *paths, "--out", out), paths[1], "image:view_07", "image:view_00",
+            out=out)
+
+
+def test_fuse_refuses_a_dem_given_as_its_own_error_raster(two_dems, tmp_path):
+    out = tmp_path / "fused.tif"
+    refused(invoke("fuse", *two_dems, "--error", two_dems[0], "--error", two_dems[0],
+                   "--out", out), two_dems[0], "is the DEM", "itself", out=out)
+
+
+def test_fuse_sizes_the_grid_before_allocating(two_dems, tmp_path):
+    """A --grid-like of 100 000² cells (a sparse GeoTIFF: no data written) and a union with
+    a global mosaic are refused before any allocation, naming what made them."""
+    import rasterio
+
+    crs, _ = moon_crs()
+    huge = tmp_path / "huge.tif"
+    with rasterio.open(huge, "w", driver="GTiff", width=100_000, height=100_000, count=1,
+                       dtype="float32", crs=crs, tiled=True, sparse_ok=True, nodata=np.nan,
+                       transform=Affine(GSD, 0, ORIGIN[0], 0, -GSD, ORIGIN[1])):
+        pass
+    out = tmp_path / "fused.tif"
+    refused(invoke("fuse", *two_dems, "--grid-like", huge, "--out", out),
+            f"--grid-like {huge}", "100000 x 100000 cells", out=out)
+    # a global mosaic: 3 x 2 cells covering the whole equirectangular Moon
+    world = tmp_path / "world.tif"
+    half = np.pi * 1737400.0
+    dio.write_raster(world, np.zeros((2, 3)), crs=crs,
+                     transform=Affine(2 * half / 3, 0, -half, 0, -half / 2, half / 2))
+    refused(invoke("fuse", *two_dems, world, "--out", out), world, "union", out=out)
+
+
+def test_fuse_names_the_dem_that_does_not_coregister_and_max_nmad_drops_it(two_dems,
+                                                                            tmp_path):
+    """A DEM in millimetres among good DEMs (N & K diverges): the error names it; with
+    --max-nmad it is left out and the others are fused."""
+    good = tmp_path / "c.tif"
+    write_dem(good, (2, 62, 3, 63), noise=0.05, seed=3)
+    bad = tmp_path / "millimetres.tif"
+    info = dio.read_raster(two_dems[1])
+    dio.write_raster(bad, info.data * 1000, transform=info.transform, crs=info.crs,
+                     tags=info.tags)
+    out = tmp_path / "fused.tif"
+    dems = (two_dems[0], bad, two_dems[1], good)
+    refused(invoke("fuse", *dems, "--out", out), f"{bad}:", "diverged", "--max-nmad",
+            out=out)
+    result = invoke("fuse", *dems, "--max-nmad", "1", "--out", out)
+    assert result.exit_code == 0, result.output
+    assert result.output.count("left out") == 1 and str(bad) in result.output
+    summary = json.loads(out.with_name("fused.tif.json").read_text())["summary"]
+    assert [d["used"] for d in summary["dems"]] == [True, False, True, True]
+
+
+def test_fuse_with_a_coarse_dem_first_coregisters_the_fine_ones(tmp_path):
+    """A DEM of 8× the spacing first sets the fused grid; the fine DEMs (one shifted by
+    1.5 cells of 2 m = 3 m east) still co-register: no "barely overlap", shift found."""
+    from tests.helpers.fuse import truth_heights
+
+    crs, body = moon_crs()
+    coarse = tmp_path / "coarse.tif"
+    rows, cols = np.mgrid[0:12, 0:12].astype(np.float64)
+    heights = truth_heights(rows * 8 + 3.5, cols * 8 + 3.5)
+    dio.write_raster(coarse, heights, crs=crs, tags=body.tags(),
+                     transform=Affine(8 * GSD, 0, ORIGIN[0], 0, -8 * GSD, ORIGIN[1]))
+    fine, shifted = tmp_path / "fine.tif", tmp_path / "shifted.tif"
+    write_dem(fine, (0, 96, 0, 96), noise=0.02, seed=1)
+    write_dem(shifted, (0, 96, 0, 96), noise=0.02, seed=2, shift=(1.5, 0.0, 0.0))
+    out = tmp_path / "fused.tif"
+    result = invoke("fuse", coarse, fine, shifted, "--reference", fine, "--out", out)
+    assert result.exit_code == 0, result.output
+    dems = json.loads(out.with_name("fused.tif.json").read_text())["summary"]["dems"]
+    dx_m = dems[2]["alignment"]["shift"]["dx_px"] * 8 * GSD  # fused cells of 16 m
+    assert abs(dx_m - (-1.5 * GSD)) < 0.5, dems[2]["alignment"]

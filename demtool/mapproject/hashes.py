@@ -103,15 +103,13 @@ def check_pair_order(disparity_path: Any, left_path: Any, right_path: Any) -> No
                    for entry in record.get("inputs", [])]
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return
-    swapped = (f"{disparity_path}: was matched with {right_path} as the left orthoimage and "
-               f"{left_path} as the right (its sidecar {sidecar}); give them in that order")
     recorded = [digest for _, digest in entries[:2]]
     if len(recorded) == 2 and all(recorded):
         given = [file_sha256(left_path), file_sha256(right_path)]
         if None in given or given == recorded:
             return
         if given == recorded[::-1]:
-            raise InputError(swapped)
+            _refuse_swapped(disparity_path, left_path, right_path, sidecar)
         which = [(what, path, now, then) for what, path, now, then in zip(
             ("left", "right"), (left_path, right_path), given, recorded, strict=True)
             if now != then]
@@ -122,7 +120,14 @@ def check_pair_order(disparity_path: Any, left_path: Any, right_path: Any) -> No
     paths = [p for p, _ in entries]
     left, right = Path(left_path).resolve(), Path(right_path).resolve()
     if left in paths and right in paths and paths.index(left) > paths.index(right):
-        raise InputError(swapped)
+        _refuse_swapped(disparity_path, left_path, right_path, sidecar)
+
+
+def _refuse_swapped(disparity_path: Any, left_path: Any, right_path: Any,
+                    sidecar: Path) -> None:
+    raise InputError(f"{disparity_path}: was matched with {right_path} as the left "
+                     f"orthoimage and {left_path} as the right (its sidecar {sidecar}); give "
+                     "them in that order")
 
 
 def check_own_sensor(image_path: Any, tags: dict[str, Any], sensor_path: Any) -> bool:

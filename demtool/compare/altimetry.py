@@ -46,7 +46,8 @@ class ShotAlignment:
     ``shift_m`` (3,): east, north, up, metres (added to the DEM's positions and
     heights); ``sigma_m`` (3,): its formal standard deviation; ``used``: shots in the
     final fit; ``residuals``: (N,) DEM − shot after the shift (NaN where not sampled);
-    ``converged``.
+    ``converged``; ``horizontal``: whether the horizontal shift was solved (else only
+    ``dz``, and ``note`` says why).
     """
 
     shift_m: np.ndarray
@@ -54,6 +55,8 @@ class ShotAlignment:
     used: int
     residuals: np.ndarray
     converged: bool
+    horizontal: bool = True
+    note: str = ""
 
 
 def align_to_shots(dem: np.ndarray, col, row, heights, *, post_m: tuple[float, float],
@@ -101,8 +104,31 @@ def align_to_shots(dem: np.ndarray, col, row, heights, *, post_m: tuple[float, f
             sigma = np.sqrt(np.diag(s2 * np.linalg.inv(jac.T @ jac)))
         except np.linalg.LinAlgError:
             pass
-    return ShotAlignment(shift_m=shift, sigma_m=sigma, used=int(np.count_nonzero(ok)),
-                         residuals=residuals, converged=converged)
+    determined = converged and np.all(np.isfinite(sigma)) and \
+        np.all(sigma[:2] <= 0.5 * np.array([px, py]))
+    if determined:
+        return ShotAlignment(shift_m=shift, sigma_m=sigma, used=int(np.count_nonzero(ok)),
+                             residuals=residuals, converged=converged)
+    note = ("the horizontal shift did not converge" if not converged else
+            f"the shots determine the horizontal shift only to {sigma[0]:.3g} x "
+            f"{sigma[1]:.3g} m (more than half a post)") + ": only the vertical shift is solved"
+    return _vertical_only(dem, col, row, heights, note)
+
+
+def _vertical_only(dem, col, row, heights, note: str) -> ShotAlignment:
+    """The DEM's vertical shift alone: minus the median of DEM − shot (3-NMAD trimmed)."""
+    diff = sample_bilinear(dem, col, row) - heights
+    ok = np.isfinite(diff)
+    if not np.any(ok):
+        return ShotAlignment(np.zeros(3), np.full(3, np.nan), 0, diff, False, False, note)
+    median = np.median(diff[ok])
+    nmad = 1.4826 * np.median(np.abs(diff[ok] - median))
+    keep = ok & (np.abs(diff - median) <= max(3 * nmad, 1e-9))
+    dz = -float(np.median(diff[keep]))
+    n = int(np.count_nonzero(keep))
+    sigma = 1.2533 * float(np.std(diff[keep])) / np.sqrt(max(n, 1))  # of a median
+    return ShotAlignment(np.array([0.0, 0.0, dz]), np.array([np.nan, np.nan, sigma]), n,
+                         diff + dz, True, False, note)
 
 
 def difference_statistics(diff) -> dict:

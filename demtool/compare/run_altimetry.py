@@ -103,6 +103,8 @@ def run_compare_shots(dem_path: str | os.PathLike, shots_path: str | os.PathLike
         "alignment": {
             "method": "translation (Gauss-Newton on the bilinear DEM, 3 NMAD trimming)",
             "rotation": "not solved",
+            "horizontal_solved": alignment.horizontal,
+            **({"note": alignment.note} if alignment.note else {}),
             "shift_m": {"east": float(shift[0]), "north": float(shift[1]),
                         "up": float(shift[2])},
             "sigma_m": {"east": float(alignment.sigma_m[0]),
@@ -120,6 +122,8 @@ def run_compare_shots(dem_path: str | os.PathLike, shots_path: str | os.PathLike
              len(shots), report["shots_on_dem"], report["shots_on_no_data"],
              report["shots_outside"], report["difference_before"].get("median_m", np.nan),
              report["difference_before"].get("nmad_m", np.nan), *shift, *alignment.sigma_m)
+    if alignment.note:
+        log.warning("%s", alignment.note)
     if not report["shots_on_dem"]:
         log.warning("no shot falls on the DEM's data: nothing compared")
     status = np.where(~inside, "outside", np.where(on_data, "on DEM", "no data"))

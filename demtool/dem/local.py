@@ -225,6 +225,30 @@ def check_up(up: np.ndarray, xyz: np.ndarray, centers: np.ndarray, source: str) 
     return above
 
 
+#: rays that converge by less than this many pixels of the rectified focal length leave
+#: the range unknown to more than 1 / this per pixel of disparity: dropped (the ground
+#: seen along the baseline, at the edge of a fish-eye)
+MIN_CONVERGENCE_PX = 5.0
+
+
+def weak_convergence(xyz: np.ndarray, centers: np.ndarray, f_px: float,
+                     min_px: float = MIN_CONVERGENCE_PX) -> np.ndarray:
+    """(N,) bool: points whose two rays meet at less than ``min_px / f_px`` radians.
+
+    Near the epipoles (the ground along the baseline) the rays are almost parallel: one
+    pixel of disparity moves the point by ``1 / (f γ)`` of its range (γ the rays'
+    angle), and mismatches there land metres away.  ASP's ``stereo`` has the same
+    guard (``--min-triangulation-angle``).
+    """
+    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    c = np.asarray(centers, dtype=np.float64).reshape(2, 3)
+    a = p - c[0]
+    b = p - c[1]
+    cos = np.sum(a * b, axis=1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+    with np.errstate(invalid="ignore"):
+        return np.arccos(np.clip(cos, -1.0, 1.0)) * float(f_px) < min_px
+
+
 def beyond_matches(xyz: np.ndarray, center: np.ndarray, match_ranges: np.ndarray,
                    factor: float = MATCH_RANGE_FACTOR) -> np.ndarray:
     """(N,) bool: points whose range from ``center`` lies far outside the matches' ranges.

@@ -42,6 +42,7 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
     )
     from demtool.dem.local import (
         MATCH_RANGE_FACTOR,
+        MIN_CONVERGENCE_PX,
         beyond_matches,
         check_up,
         dem_on_local_grid,
@@ -49,6 +50,7 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
         footprint_gsd,
         infer_up,
         local_frame,
+        weak_convergence,
     )
     from demtool.dem.sensors import screen_ray_gaps, triangulate_sensors
     from demtool.errors import ParameterError, ProcessingError
@@ -90,6 +92,8 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
     far = in_front & beyond_matches(tri.xyz, center, _match_ranges(rectification, left,
                                                                    right, center))
     in_front &= ~far
+    weak = in_front & weak_convergence(tri.xyz, centers, geometry.f_px)
+    in_front &= ~weak
     if not in_front.any():
         raise ProcessingError(f"{disparity_path}: no disparity triangulates in front of both "
                               "cameras within the ranges of rectify's matches")
@@ -106,9 +110,11 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
         gsd_source = "estimated (median pixel footprint on the plane normal to up)"
     keep, max_gap, median_gap = screen_ray_gaps(tri.gap, in_front, params.max_ray_gap, gsd)
     log.info("%d disparities: %d behind a camera (dropped), %d beyond %g times the ranges of "
-             "rectify's matches (dropped), %d rays missing by more than %.3g m (dropped; "
-             "median gap %.3g m); up %s (%s)", finite.size, behind, int(far.sum()),
-             MATCH_RANGE_FACTOR, int((in_front & ~keep).sum()), max_gap, median_gap,
+             "rectify's matches (dropped), %d with rays converging by less than %g px "
+             "(dropped), %d rays missing by more than %.3g m (dropped; median gap %.3g m); "
+             "up %s (%s)", finite.size, behind, int(far.sum()), MATCH_RANGE_FACTOR,
+             int(weak.sum()), MIN_CONVERGENCE_PX, int((in_front & ~keep).sum()), max_gap,
+             median_gap,
              ",".join(f"{v:.3g}" for v in frame.up), up_source)
     result = dem_on_local_grid(tri.xyz[keep], tri.gap[keep], frame, gsd_m=gsd, left=left,
                                right=right, neighbours=params.outlier_neighbours,
@@ -128,6 +134,7 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
                                                                      0.0, 1.0)))),
         "fitted_ground_rms_m": ground_rms,
         "beyond_match_ranges": int(far.sum()),
+        "weak_convergence": int(weak.sum()),
         "x_axis": [float(v) for v in frame.axes[0]],
         "shape": list(result.dem.shape),
         "gsd_m": gsd,

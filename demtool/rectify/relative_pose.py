@@ -144,11 +144,13 @@ def apply_relative_pose(left: SensorModel, right: SensorModel,
     model = rotate_pointing(right, fit.rotation)
     if not np.any(fit.beta_rect):
         return model
-    if not hasattr(model, "R") or not hasattr(model, "t"):
-        raise ValueError(f"cannot move the centre of a {type(model).__name__} model")
     c_left = np.asarray(left.camera_center(0.5 * left.lines), dtype=np.float64)
     c_right = np.asarray(right.camera_center(0.5 * right.lines), dtype=np.float64)
     center = c_left + fit.baseline_rotation @ (c_right - c_left)
+    if hasattr(model, "turned"):  # a CAHVOR camera
+        return model.turned(np.eye(3), center)
+    if not hasattr(model, "R") or not hasattr(model, "t"):
+        raise ValueError(f"cannot move the centre of a {type(model).__name__} model")
     return dataclasses.replace(model, t=-model.R @ center)
 
 

@@ -34,7 +34,7 @@ def read_frame_model(path: str | os.PathLike, image_path: str | os.PathLike,
     import dataclasses
 
     from demtool.errors import InputError
-    from demtool.sensors import TsaiCamera, read_sensor
+    from demtool.sensors import read_sensor
     from demtool.sensors.arrays import FRAME_TYPES, model_type
 
     p = Path(path)
@@ -47,7 +47,7 @@ def read_frame_model(path: str | os.PathLike, image_path: str | os.PathLike,
                          "`dem --mapprojected`) instead")
     if kind not in FRAME_TYPES:
         raise InputError(f"{p}: is a {kind} model ({option}); rectify takes frame cameras")
-    if isinstance(model, TsaiCamera) and model.lines == 0 and model.samples == 0:
+    if kind in ("tsai", "cahvor") and model.lines == 0 and model.samples == 0:
         # A .tsai file carries no image size: the image gives it.
         model = dataclasses.replace(model, height=int(image_shape[0]), width=int(image_shape[1]))
     if (model.lines, model.samples) != tuple(image_shape):

@@ -22,7 +22,7 @@ from demtool.sensors.frame import FrameSensor
 from demtool.sensors.pinhole import PinholeCamera
 from demtool.sensors.tsai import TsaiCamera
 
-FRAME_TYPES = ("frame", "pinhole", "tsai")
+FRAME_TYPES = ("frame", "pinhole", "tsai", "cahvor")
 
 
 def model_type(model: SensorModel) -> str:
@@ -33,6 +33,8 @@ def model_type(model: SensorModel) -> str:
         return "tsai"
     if isinstance(model, PinholeCamera):
         return "pinhole"
+    if type(model).__name__ == "CahvoreCamera":
+        return "cahvor"
     return str(getattr(model, "kind", type(model).__name__))
 
 
@@ -72,6 +74,13 @@ def model_to_arrays(model: SensorModel, prefix: str) -> dict[str, np.ndarray]:
                        radii=np.asarray(model.body_radii if model.body_radii is not None
                                         else (np.nan, np.nan), dtype=np.float64),
                        pitch=np.asarray(model.pitch))
+    elif kind == "cahvor":
+        out.update(C=model.C, A=model.A, H=model.H, V=model.V, O=model.O, R=model.R,
+                   E=model.E, linearity=np.asarray(model.linearity),
+                   size=np.array([model.height, model.width]),
+                   model_name=np.asarray(model.model_name),
+                   radii=np.asarray(model.body_radii if model.body_radii is not None
+                                    else (np.nan, np.nan), dtype=np.float64))
     else:
         raise ValueError(f"cannot store a {kind} model in rectify.npz (frame cameras only)")
     return {prefix + key: np.asarray(value) for key, value in out.items()}
@@ -112,6 +121,17 @@ def model_from_arrays(arrays: dict[str, np.ndarray], prefix: str) -> SensorModel
                                       if lens_name else None),
                           body_radii=None if not np.all(np.isfinite(radii)) else tuple(radii),
                           pitch=float(get("pitch")))
+    if kind == "cahvor":
+        from demtool.sensors.cahvor import CahvoreCamera
+
+        height, width = (int(v) for v in get("size"))
+        radii = get("radii")
+        return CahvoreCamera(C=get("C"), A=get("A"), H=get("H"), V=get("V"), O=get("O"),
+                             R=get("R"), E=get("E"), linearity=float(get("linearity")),
+                             width=width, height=height, name=name,
+                             model_name=str(get("model_name")),
+                             body_radii=None if not np.all(np.isfinite(radii))
+                             else tuple(radii))
     raise KeyError(prefix + "type")
 
 
@@ -150,4 +170,6 @@ def rotate_pointing(model: SensorModel, rotation: np.ndarray) -> SensorModel:
     if kind in ("pinhole", "tsai"):
         R = model.R @ rotation.T
         return dataclasses.replace(model, R=R, t=-R @ model.center)
+    if kind == "cahvor":
+        return model.turned(rotation)
     raise ValueError(f"cannot turn a {kind} model")

@@ -8,6 +8,7 @@ JSON with ``name_model`` (ALE ISD)     :class:`FrameSensor` / :class:`LineScanSe
 ISIS3 cube (``Object = IsisCube``)     :class:`FrameSensor`, :class:`LineScanSensor`
                                        (:mod:`~demtool.sensors.isis_kinds`; SPICE attached)
 ASP ``.tsai`` (``VERSION_n``/``PINHOLE``)  :class:`TsaiCamera` (body-fixed pinhole)
+``.cahv(or|ore)`` text, PDS3 label    :class:`CahvoreCamera` (JPL CAHV/CAHVOR/CAHVORE)
 RPC: GeoTIFF tags, NITF, DIMAP,       :class:`RpcSensor` (WGS84 heights;
 ``_RPC.TXT``, .RPB, OSSIM ``.geom``    :mod:`demtool.sensors.rpc_files`)
 NPZ of kind ``cameras`` or ``bundle``  :class:`PinholeCamera` (one per image)
@@ -46,6 +47,9 @@ def _sniff(path: Path) -> str:
     first = text.split(None, 1)[0].upper() if text.strip() else b""
     if first.startswith(b"VERSION_") or first == b"PINHOLE" or text.startswith(b"fu"):
         return "tsai"
+    if text.startswith(b"PDS_VERSION_ID") and b"GEOMETRIC_CAMERA_MODEL" in head[:4096] \
+            or path.suffix.lower() in (".cahv", ".cahvor", ".cahvore"):
+        return "cahvor"
     if head[:4] in (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+") or b"LINE_NUM_COEFF" in head \
             or b"lineNumCoef" in head or text.startswith((b"LINE_OFF", b"satId", b"bandId")) \
             or b"line_num_coeff_" in head or b"polynomial_format" in head \
@@ -74,6 +78,13 @@ def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
 
         model = read_tsai(p, radii=radii)
         return {model.name: validate.check_model(model, p, "tsai")}
+    if kind == "cahvor":  # JPL's CAHV/CAHVOR/CAHVORE: checked by its reader
+        from demtool.sensors.cahvor_files import read_cahvor, read_pds3_cahvor
+
+        read = read_pds3_cahvor if p.suffix.lower() not in (".cahv", ".cahvor",
+                                                            ".cahvore") else read_cahvor
+        model = read(p, radii=radii)
+        return {model.name: model}
     if kind == "isd":
         from demtool.sensors.isd import load_isd, sensor_from_isd
 

@@ -173,3 +173,13 @@ def test_the_grid_covers_the_bulk_of_a_perspective_view():
                                center=np.array([0.0, 0.0, 1.0]))
     assert result.report["points_beyond_bulk"] >= 390
     assert max(result.dem.shape) <= 50  # 2 m x 2 m at 5 cm, not 30 m x 30 m
+
+
+def test_points_seen_along_the_baseline_converge_too_little():
+    from demtool.dem.local import weak_convergence
+
+    centers = np.array([[-0.15, 0, 1.0], [0.15, 0, 1.0]])
+    ahead = np.array([[0.0, 3.0, 0.0]])  # 5.7° between the rays: 16 px at f = 160
+    along = np.array([[-5.0, 0.1, 0.9]])  # beside the baseline: 0.07° apart
+    assert not weak_convergence(ahead, centers, 160.0)[0]
+    assert weak_convergence(along, centers, 160.0)[0]

@@ -7,7 +7,7 @@ import pytest
 
 from demtool.errors import InputError
 from demtool.sensors.cahvor import CahvoreCamera, cahvor_from_pinhole
-from demtool.sensors.cahvor_files import parse_cahvor_text, read_cahvor, read_pds3_cahvor
+from demtool.sensors.cahvor_files import parse_cahvor_text, read_cahvor
 from demtool.sensors.pinhole import look_at
 
 F, CX, CY = 1000.0, 500.0, 400.0

@@ -19,6 +19,7 @@ import re
 import shlex
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -223,3 +224,72 @@ def test_slurm_tutorial(small_scene_dir, tmp_path, monkeypatch):
     gsd = json.loads((scene / "scene.json").read_text())["gsd_m"]
     assert _report(work / "report")["rmse"] < gsd
     assert not list(work.glob(".*.tiles"))
+
+
+@pytest.mark.slow
+def test_control_altimetry_tutorial(tmp_path, monkeypatch):
+    """The CTX network stand-in: three synthetic line scanners with a known pointing error
+    and their network (tests/bundle/network_block.py); the LOLA stand-in: a DEM moved by a
+    known shift and shots along two tracks."""
+    from demtool import io as dio
+    from demtool.io.controlnet import write_control_network
+    from demtool.maps import body_by_name, grid_from_lonlat, grid_lonlat, lonlat_to_map
+    from tests.bundle import network_block as nb
+
+    models = nb.true_models()
+    theta = nb.bias()
+    data = tmp_path / "data"
+    data.mkdir()
+    isds = []
+    for k, isd in enumerate(nb.prior_isds(models, theta)):
+        isds.append(data / f"img{k}.json")
+        isds[-1].write_text(json.dumps(isd))
+    network, _ = nb.network(models, count=20, noise_px=0.1)
+    net = write_control_network(data / "net.net", network)
+    moon = body_by_name("Moon")
+    grid = grid_from_lonlat(moon, np.array([29.95, 30.05, 30.05, 29.95]),
+                            np.array([-10.05, -10.05, -9.95, -9.95]), 20.0)
+    gx, gy = lonlat_to_map(grid.crs, *grid_lonlat(grid))
+    dem = 40 * np.sin((gx - 30.0) / 300.0) * np.cos(gy / 400.0) + 3.0
+    dio.write_raster(data / "dem.tif", dem.astype(np.float32), transform=grid.transform,
+                     crs=grid.crs, tags=moon.tags())
+    lon = np.concatenate([np.full(200, 30.0), np.full(200, 30.02)])
+    lat = np.concatenate([np.linspace(-10.04, -9.96, 200)] * 2)
+    x, y = lonlat_to_map(grid.crs, lon, lat)
+    radius = moon.radius + 40 * np.sin(x / 300.0) * np.cos(y / 400.0)
+    (data / "shots.csv").write_text("longitude,latitude,radius_m,orbit\n" + "\n".join(
+        f"{a:.8f},{b:.8f},{r:.3f},{int(a > 30.01)}" for a, b, r in zip(lon, lat, radius,
+                                                                          strict=True)))
+    names = {"G21_026491_2001_XN_20N286W.lev1.json": str(isds[0]),
+             "P15_006844_2009_XN_20N286W.lev1.json": str(isds[1]),
+             "P17_007846_2007_XN_20N286W.lev1.json": str(isds[2]),
+             "controlnet.net": str(net), "dem.tif": str(data / "dem.tif"),
+             "lidarPoints.csv": str(data / "shots.csv")}
+    run_tutorial("control-altimetry.md", names, tmp_path, monkeypatch)
+    summary = json.loads((tmp_path / "ctx" / "bundle.npz.json").read_text())["summary"]
+    assert summary["sigma0"] < summary["initial_sigma0"]
+    report_text = (tmp_path / "ctx" / "bundle.bundleout.txt").read_text()
+    assert f"Sigma0: {summary['sigma0']:.6f}" in report_text
+    assert len((tmp_path / "ctx" / "bundle.points.csv").read_text().splitlines()) == 21
+    # the report's residuals are those of the written models and network, read back
+    from demtool.io.controlnet import read_control_network
+    from demtool.sensors import read_sensor
+
+    adjusted = read_control_network(tmp_path / "ctx" / "adjusted.net")
+    written = [read_sensor(tmp_path / "ctx" / "adjusted" / f"img{k}.json") for k in range(3)]
+    xyz = np.array([p.adjusted_xyz for p in adjusted.points])
+    recomputed = []
+    for k, model in enumerate(written):
+        line, sample = model.ground_to_image(xyz)
+        measured = [p.measures[k] for p in adjusted.points]
+        assert np.allclose(line - [m.line for m in measured],
+                           [m.line_residual for m in measured], atol=1e-4)
+        assert np.allclose(sample - [m.sample for m in measured],
+                           [m.sample_residual for m in measured], atol=1e-4)
+        recomputed += list(line - [m.line for m in measured])
+    assert np.sqrt(np.mean(np.square(recomputed))) == pytest.approx(summary["rms_line_px"],
+                                                                    rel=1e-3)
+    report = json.loads((tmp_path / "lola" / "report.json").read_text())
+    assert abs(report["alignment"]["shift_m"]["east"] + 30.0) < 2.0  # undoes its 30 m
+    assert abs(report["alignment"]["shift_m"]["up"] + 3.0) < 0.1
+    assert len(list((tmp_path / "lola").glob("profile_track_*.png"))) == 2

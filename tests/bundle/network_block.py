@@ -80,14 +80,13 @@ def network(models, *, count: int = 60, noise_px: float = 0.1, fixed: int = 0,
     lon = 10.0 + rng.uniform(-0.9, 0.9, count) * 600.0 / (R * np.radians(1.0))
     lat = 5.0 + rng.uniform(-0.9, 0.9, count) * 1000.0 / (R * np.radians(1.0))
     xyz = lonlat_height_to_xyz(lon, lat, terrain(lon, lat), radii=R)
+    seen = [model.ground_to_image(xyz) for model in models]  # (line, sample) per model
     points = []
     for j in range(count):
-        measures = []
-        for k, model in enumerate(models):
-            line, sample = model.ground_to_image(xyz[j])
-            measures.append(ControlMeasure(serial(k, model), "RegisteredSubPixel",
-                                           line=float(line) + rng.normal(0, noise_px),
-                                           sample=float(sample) + rng.normal(0, noise_px)))
+        measures = [ControlMeasure(serial(k, model), "RegisteredSubPixel",
+                                   line=float(seen[k][0][j]) + rng.normal(0, noise_px),
+                                   sample=float(seen[k][1][j]) + rng.normal(0, noise_px))
+                    for k, model in enumerate(models)]
         kind = "Fixed" if j < fixed else "Free"
         points.append(ControlPoint(f"p{j:03d}", kind, measures,
                                    apriori_xyz=xyz[j].copy() if j < fixed else None))

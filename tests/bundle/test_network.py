@@ -13,8 +13,8 @@ from demtool.bundle.network_inputs import build_problem, match_serials, serial_c
 from demtool.bundle.network_models import CorrectedSensor, adjust_isd_timed
 from demtool.cli import cli
 from demtool.errors import InputError
-from demtool.io.controlnet import read_control_network, write_control_network
-from demtool.sensors import read_sensor, sensor_from_isd
+from demtool.io.controlnet import write_control_network
+from demtool.sensors import sensor_from_isd
 from tests.bundle import network_block as nb
 from tests.helpers.linescan import isd_dict
 
@@ -70,47 +70,6 @@ def test_known_pointing_error_is_recovered_with_ground_control(block):
     sigma = solution.theta_sigma[:, :6]
     assert np.all(np.abs(error) < 4 * sigma)
     assert np.all(np.abs(error[:, :2]) < 0.15 * np.abs(theta[:, :2]).max())  # omega, phi
-
-
-@pytest.mark.slow
-def test_cli_adjusts_writes_models_network_and_a_consistent_report(block, tmp_path):
-    models, theta, _ = block
-    paths = []
-    for k, isd in enumerate(nb.prior_isds(models, theta)):
-        paths.append(tmp_path / f"{NAMES[k]}.json")
-        paths[-1].write_text(json.dumps(isd))
-    network, _ = nb.network(models, count=30, noise_px=0.1)
-    network.points[0].measures[1].ignore = True
-    net = write_control_network(tmp_path / "in.net", network)
-    args = ["-q", "bundle", "--control-network", net, "--out", tmp_path / "out" / "bundle.npz",
-            "--adjusted-dir", tmp_path / "adj", "--adjusted-network", tmp_path / "adj.net",
-            "--measure-sigma", "0.1"]
-    for p in paths:
-        args += ["--sensors", p]
-    result = CliRunner().invoke(cli, [str(a) for a in args])
-    assert result.exit_code == 0, result.output
-    summary = json.loads((tmp_path / "out" / "bundle.npz.json").read_text())["summary"]
-    report = (tmp_path / "out" / "bundle.bundleout.txt").read_text()
-    assert f"Sigma0: {summary['sigma0']:.6f}" in report
-    assert summary["measures"] == 89  # one of 90 ignored
-    adjusted = read_control_network(tmp_path / "adj.net")
-    assert adjusted.points[0].measures[1].line_residual is None
-    recomputed = []
-    adjusted_models = [read_sensor(tmp_path / "adj" / f"{n}.json") for n in NAMES]
-    for point in adjusted.points:
-        for k, m in enumerate(point.measures):
-            if m.ignored:
-                continue
-            model = adjusted_models[k]
-            line, sample = model.ground_to_image(point.adjusted_xyz)
-            assert line - m.line == pytest.approx(m.line_residual, abs=1e-4)
-            assert sample - m.sample == pytest.approx(m.sample_residual, abs=1e-4)
-            recomputed.append([line - m.line, sample - m.sample])
-    recomputed = np.array(recomputed)
-    assert np.sqrt(np.mean(recomputed[:, 0] ** 2)) == pytest.approx(summary["rms_line_px"],
-                                                                     rel=1e-3)
-    points_csv = (tmp_path / "out" / "bundle.points.csv").read_text().splitlines()
-    assert len(points_csv) == 31 and points_csv[0].startswith("id,type,measures")
 
 
 def _run(args):

@@ -62,6 +62,7 @@ def _parse(path: Path) -> tuple[dict, bytes]:
             warnings.simplefilter("ignore", PendingDeprecationWarning)
             label = pvl.loads(text)
     except Exception as exc:  # pvl raises several parser errors
-        raise InputError(f"{path}: cannot parse the ISIS label ({str(exc).splitlines()[0]})") \
-            from None
+        detail = str(exc).splitlines()[0] if str(exc).strip() else "it ends early"
+        raise InputError(f"{path}: cannot parse the ISIS label ({detail}): a truncated label "
+                         "or not an ISIS3 cube") from None
     return label, data

@@ -465,6 +465,7 @@ def read_linescan_cube(path: str | Path, label=None, data: bytes | None = None, 
     InputError
         See :func:`cube_isd`.
     """
+    from demtool.sensors.distortion import MODELS
     from demtool.sensors.isd import sensor_from_isd
     from demtool.sensors.isis_label import read_label
 
@@ -472,6 +473,10 @@ def read_linescan_cube(path: str | Path, label=None, data: bytes | None = None, 
     if label is None or data is None:
         label, data = read_label(p)
     isd = cube_isd(p, label, data, mapped=mapped)
+    lens = next(iter(isd["optical_distortion"]))
+    if lens not in MODELS:  # a mission distortion map the ISD readers add (themisir)
+        raise InputError(f"{p}: needs ISIS's distortion map '{lens}', which this demtool "
+                         "lacks; pass an ALE ISD to a demtool that has it")
     model = sensor_from_isd(isd, str(p))
     model.notes = list(getattr(model, "notes", [])) + list(isd["notes"])
     instrument = label["IsisCube"].get("Instrument", {})

@@ -135,6 +135,10 @@ def test_themis_ir_timing_and_detector_are_themis_ir_cameras(tmp_path, monkeypat
                                                       "p_alpha2": 0.00107556}}
     assert isd["focal_length_model"]["focal_length"] == 203.9213
     assert "band 1 (filter 3) of 2" in isd["notes"][0]
+    if "themisir" not in MODELS:  # ISIS's ThemisIrDistortionMap, from the ISD readers
+        with pytest.raises(InputError, match=r"thm\.cub: needs ISIS's distortion map "
+                                             r"'themisir', which this demtool lacks"):
+            read_sensor(path)
 
 
 @pytest.mark.parametrize("edit, match", [

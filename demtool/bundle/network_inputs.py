@@ -7,12 +7,17 @@ which knoten uses to key its sensors).  An ISD or a model does not carry it, so 
 serials are matched to the models
 
 1. by an explicit list (``serials``: one serial per model, same order), else
-2. by the spacecraft clock in the serials: a clock count is a time since the mission's
+2. for ISIS cubes, by the clock count in the cube's label (``SpacecraftClockCount``,
+   ``SpacecraftClockStartCount``), which is the serial's last part for most missions
+   (ISIS ``SerialNumberKeywords`` translations), else
+3. by the spacecraft clock in the serials: a clock count is a time since the mission's
    clock epoch, so the differences between the images' clock counts equal the
    differences between their start times (ephemeris seconds), within the clock's drift
-   (1 s plus 1e-6 of the interval; MRO's drifts 13 s in 132 Ms).  The match is the
-   one-to-one assignment under one common epoch offset, else
-3. by name: a serial that contains a model's image name.
+   (1 s plus 1e-6 of the interval; MRO's drifts 13 s in 132 Ms).  Each mission (the
+   serial's part before the clock: ``MRO/CTX``) has its own epoch: the match is, per
+   mission, the one-to-one assignment under one epoch offset, else
+4. by name: a serial that contains a model's image name, and last, a single serial left
+   with a single model left.
 
 The pixel coordinates are checked against each image (a measure outside its image is
 an error: the wrong image, or a network of other images).
@@ -51,9 +56,37 @@ def start_time(model) -> float | None:
     return float(centre)
 
 
-def _match_by_clock(serials, models) -> dict[str, int] | None:
+def label_clock(path) -> str | None:
+    """The clock count in an ISIS cube's label (``SpacecraftClockCount``,
+    ``SpacecraftClockStartCount``), or None."""
+    from pathlib import Path
+
+    from demtool.sensors.isis_label import read_label
+
+    try:
+        label, _ = read_label(Path(path))
+        instrument = label["IsisCube"]["Instrument"]
+    except Exception:  # not a cube, or no Instrument group: no clock to match by
+        return None
+    for key in ("SpacecraftClockCount", "SpacecraftClockStartCount",
+                "SpacecraftClockPrerollCount"):
+        if key in instrument:
+            return str(instrument[key]).strip().strip('"')
+    return None
+
+
+def _mission(serial: str) -> str:
+    parts = serial.split("/")
+    for k, part in enumerate(parts[1:], start=1):
+        if _CLOCK.fullmatch(part.strip()):
+            return "/".join(parts[:k])
+    return serial
+
+
+def _match_by_clock(serials, models, indices=None) -> dict[str, int] | None:
+    indices = list(range(len(models))) if indices is None else list(indices)
     clocks = [serial_clock(s) for s in serials]
-    times = [start_time(m) for m in models]
+    times = [start_time(models[i]) for i in indices]
     if any(c is None for c in clocks) or any(t is None for t in times) or not serials:
         return None
     best = None
@@ -72,16 +105,17 @@ def _match_by_clock(serials, models) -> dict[str, int] | None:
                 best = pairs
     if best is None or not best:
         return None
-    if len(serials) > 1 and len(best) < 2:
-        return None  # one image alone fixes no common offset: no evidence
-    return best
+    if len(serials) > 1 and len(best) < 2 or len(serials) == 1 and len(indices) > 1:
+        return None  # one image alone fixes no epoch offset: no evidence
+    return {s: indices[i] for s, i in best.items()}
 
 
 def match_serials(serials: Sequence[str], models: Sequence, names: Sequence[str], *,
-                  explicit: Sequence[str] | None = None, source: str = "network"
-                  ) -> dict[str, int]:
+                  explicit: Sequence[str] | None = None, source: str = "network",
+                  label_clocks: Sequence[str | None] | None = None) -> dict[str, int]:
     """Map each serial number to the index of its model (module docstring); serials of
-    images not given are left out.
+    images not given are left out.  ``label_clocks``: the clock count of each model's
+    cube label (None for other models).
 
     Raises
     ------
@@ -94,12 +128,30 @@ def match_serials(serials: Sequence[str], models: Sequence, names: Sequence[str]
                              f"{len(models)} sensor models; give one per model, same order")
         mapping = {s: i for i, s in enumerate(explicit) if s in set(serials)}
     else:
-        mapping = _match_by_clock(list(serials), list(models)) or {}
+        mapping = {}
+        for i, clock in enumerate(label_clocks or []):  # cubes: the label's clock count
+            hits = [s for s in serials if clock and s.split("/")[-1].strip() == clock]
+            if len(hits) == 1:
+                mapping[hits[0]] = i
+        groups: dict[str, list[str]] = {}
+        for s in serials:
+            if s not in mapping:
+                groups.setdefault(_mission(s), []).append(s)
+        for group in groups.values():  # one clock epoch per mission
+            free = [i for i in range(len(models)) if i not in mapping.values()]
+            found = _match_by_clock(group, list(models), free) if free else None
+            for s, i in (found or {}).items():
+                if i not in mapping.values():
+                    mapping[s] = i
         for s in serials:
             if s not in mapping:
                 hits = [i for i, n in enumerate(names) if n and n in s]
                 if len(hits) == 1 and hits[0] not in mapping.values():
                     mapping[s] = hits[0]
+        left = [s for s in serials if s not in mapping]
+        free = [i for i in range(len(models)) if i not in mapping.values()]
+        if mapping and len(left) == 1 and len(free) == 1:
+            mapping[left[0]] = free[0]  # the one serial left is the one image left
     if not mapping:
         raise InputError(f"{source}: none of its {len(serials)} serial numbers "
                          f"({', '.join(list(serials)[:3])}{' ...' if len(serials) > 3 else ''}"

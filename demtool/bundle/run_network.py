@@ -101,8 +101,12 @@ def run_bundle_network(sensor_paths: Sequence[Path], network_path, out, params, 
             models[k] = read_sensor(sensor_paths[k], radii=radii)
     names = [p.stem for p in sensor_paths]
     explicit = _serial_list(serials) if serials is not None else None
+    from demtool.bundle.network_inputs import label_clock
+
+    clocks = [label_clock(p) if k == "cube" else None
+              for p, k in zip(sensor_paths, kinds, strict=True)]
     mapping = match_serials(network.serials(), models, names, explicit=explicit,
-                            source=str(network_path))
+                            source=str(network_path), label_clocks=clocks)
     unmatched = [s for s in network.serials() if s not in mapping]
     log.info("control network %s: %d points, %d measures; serials matched: %s",
              network.network_id, len(network.points), network.measure_count,

@@ -118,3 +118,13 @@ def test_time_varying_isd_writeback_keeps_other_keys():
     assert out["extra"] == {"kept": True} and out["instrument_position"] == \
         isd["instrument_position"]
     assert out["instrument_pointing"]["quaternions"] != isd["instrument_pointing"]["quaternions"]
+
+
+def test_serials_of_two_missions_match_each_by_its_own_clock(block):
+    _, _, priors = block
+    serials = [nb.serial(k, m) for k, m in enumerate(priors)]
+    other = f"LRO/NACL/{int(serial_clock(serials[2]) - 3.2e8):010d}:123"  # another epoch
+    mapping = match_serials([serials[0], serials[1], other], priors, NAMES)
+    assert mapping == {serials[0]: 0, serials[1]: 1, other: 2}
+    assert match_serials(["X/Y/12345:0"], priors, NAMES,
+                         label_clocks=[None, "12345:0", None]) == {"X/Y/12345:0": 1}

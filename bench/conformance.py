@@ -113,11 +113,10 @@ def file_group(path: Path, groups: dict[str, str]) -> str:
 
 
 def _grid(model, n: int) -> tuple[np.ndarray, np.ndarray]:
-    lines, samples = np.meshgrid(np.linspace(0.5, model.lines - 0.5, n) if model.lines > 1
-                                 else np.full(n, 0.5 * model.lines),
-                                 np.linspace(0.5, model.samples - 0.5, n) if model.samples > 1
-                                 else np.full(n, 0.5 * model.samples), indexing="ij")
-    return lines, samples
+    """``n × n`` image points from edge to edge (a 1-pixel image: across that pixel)."""
+    eps = 1e-6  # the far edge belongs to no pixel (a push frame's next framelet)
+    return np.meshgrid(np.linspace(0.0, float(model.lines) - eps, n),
+                       np.linspace(0.0, float(model.samples) - eps, n), indexing="ij")
 
 
 def measure(model, n: int = GRID) -> tuple[float, float, tuple[float, float] | None]:
@@ -128,28 +127,39 @@ def measure(model, n: int = GRID) -> tuple[float, float, tuple[float, float] | N
     returns another pixel than the one the ray came from (overlapping push-frame
     framelets, a scan mirror seeing the same ground twice), that pixel's own ray must
     land back on the same ground within 0.01 GSD (the local ground size of one pixel);
-    then the error counted is that distance in pixels.
+    then the error counted is that distance in GSD (pixels of ground).
     """
     from demtool.sensors import ray_ellipsoid_intersection
+    from demtool.sensors.body_view import reference_height
 
     lines, samples = _grid(model, n)
     a, b = model.radii
+    h = reference_height(model)  # a surface camera: the ground just below it
     with np.errstate(all="ignore"):
         ray = model.image_to_ray(lines, samples)
-        ground, hit = ray_ellipsoid_intersection(ray.origin, ray.direction, a, b,
+        ground, hit = ray_ellipsoid_intersection(ray.origin, ray.direction, a, b, h,
                                                  return_hit=True)
         hit &= np.all(np.isfinite(ground), axis=-1)
-        if not np.any(hit):
-            return 0.0, float("nan"), None
+        fraction = float(hit.mean())
+        if not np.any(hit):  # a body smaller than the grid spacing: a grid over it
+            lines, samples = _zoom_grid(model, n)
+            if lines is None:
+                return 0.0, float("nan"), None
+            ray = model.image_to_ray(lines, samples)
+            ground, hit = ray_ellipsoid_intersection(ray.origin, ray.direction, a, b, h,
+                                                     return_hit=True)
+            hit &= np.all(np.isfinite(ground), axis=-1)
+            if not np.any(hit):
+                return 0.0, float("nan"), None
         ln, sm, xyz = lines[hit], samples[hit], ground[hit]
         back = model.ground_to_image(xyz)
         err = np.hypot(back[0] - ln, back[1] - sm)
         err = np.where(np.isfinite(err), err, np.inf)
         far = err > TOLERANCE_PX
         if np.any(far):  # another pixel seeing the same ground?
-            other = model.image_to_ground(back[0][far], back[1][far])
-            step = model.image_to_ground(ln[far] + 1.0, sm[far])
-            step2 = model.image_to_ground(ln[far], sm[far] + 1.0)
+            other = model.image_to_ground(back[0][far], back[1][far], h)
+            step = model.image_to_ground(ln[far] + 1.0, sm[far], h)
+            step2 = model.image_to_ground(ln[far], sm[far] + 1.0, h)
             gsd = np.maximum(np.linalg.norm(step - xyz[far], axis=-1),
                              np.linalg.norm(step2 - xyz[far], axis=-1))
             in_gsd = np.linalg.norm(other - xyz[far], axis=-1) / gsd
@@ -158,7 +168,34 @@ def measure(model, n: int = GRID) -> tuple[float, float, tuple[float, float] | N
     mean = xyz.mean(axis=0)
     lon = float(np.degrees(np.arctan2(mean[1], mean[0])))
     lat = float(np.degrees(np.arctan2(mean[2], np.hypot(mean[0], mean[1]))))
-    return float(hit.mean()), float(np.max(err)), (lon, lat)
+    return fraction, float(np.max(err)), (lon, lat)
+
+
+def _zoom_grid(model, n: int):
+    """An ``n × n`` grid over the part of the image where the body is, when it is smaller
+    than the full grid's spacing: the bounding box of its ellipsoid's points facing the
+    camera, projected; (None, None) when none lands in the image."""
+    a, b = model.radii
+    with np.errstate(all="ignore"):
+        centre = np.asarray(model.image_to_ray(np.array([0.5 * model.lines]),
+                                               np.array([0.5 * model.samples])).origin)[0]
+        lon, lat = np.meshgrid(np.linspace(-np.pi, np.pi, 72), np.linspace(-1.5, 1.5, 36))
+        pts = np.stack([a * np.cos(lat) * np.cos(lon), a * np.cos(lat) * np.sin(lon),
+                        b * np.sin(lat)], axis=-1).reshape(-1, 3)
+        pts = pts[np.sum(pts * (centre - pts), axis=-1) > 0]  # the side facing the camera
+        if not len(pts):
+            return None, None
+        line, sample = model.ground_to_image(pts)
+    inside = np.isfinite(line) & np.isfinite(sample) & (line >= 0) & (line <= model.lines) \
+        & (sample >= 0) & (sample <= model.samples)
+    if not np.any(inside):
+        return None, None
+    lo_l, hi_l = line[inside].min(), line[inside].max()
+    lo_s, hi_s = sample[inside].min(), sample[inside].max()
+    pad_l, pad_s = max(hi_l - lo_l, 1.0), max(hi_s - lo_s, 1.0)
+    lines = np.linspace(max(lo_l - pad_l, 0.0), min(hi_l + pad_l, model.lines), n)
+    samples = np.linspace(max(lo_s - pad_s, 0.0), min(hi_s + pad_s, model.samples), n)
+    return np.meshgrid(lines, samples, indexing="ij")
 
 
 def check_file(path: Path, group: str = "") -> Result:
@@ -169,7 +206,7 @@ def check_file(path: Path, group: str = "") -> Result:
     start = time.perf_counter()
     result = Result(path=path, group=group or file_group(path, readme_groups()), status="")
     try:
-        model = read_sensor(path)
+        model = read_sensor(path, require_surface=False)
     except InputError as exc:
         text = str(exc)
         prefix = f"{path}: "
@@ -194,9 +231,13 @@ def check_file(path: Path, group: str = "") -> Result:
         result.status, result.reason = "CRASH", f"measuring: {type(exc).__name__}: {exc}"
         result.seconds = time.perf_counter() - start
         return result
-    if result.hit_fraction == 0:
+    if result.centre is None:
         result.status = "no ground"
-        result.reason = "loads; no ray of the grid meets the body"
+        result.reason = "loads; no ray of the image meets the body"
+    elif result.hit_fraction == 0 and result.round_trip_px <= TOLERANCE_PX:
+        result.status = "ok"
+        result.notes.append("the body is smaller than the grid's spacing: measured on a "
+                            f"{GRID}×{GRID} grid over it")
     elif result.round_trip_px <= TOLERANCE_PX:
         result.status = "ok"
     else:

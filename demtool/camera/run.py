@@ -72,8 +72,9 @@ def _body_of(model, path: Path, named: Body | None) -> Body | None:
 
 
 def _check_outside(model, path: Path, body: Body, named: bool) -> None:
-    """InputError when the camera centre lies inside the body's ellipsoid: the model is
-    not in that body's body-fixed frame (a local-frame camera given ``--body``)."""
+    """InputError when the camera centre lies inside the body, deeper than its lowest
+    surface (:func:`demtool.sensors.body_view.relief_band`): the model is not in that
+    body's body-fixed frame (a local-frame camera given ``--body``)."""
     import numpy as np
 
     from demtool.errors import InputError
@@ -83,7 +84,10 @@ def _check_outside(model, path: Path, body: Body, named: bool) -> None:
     a, b = model.radii
     if not np.isfinite(center).all():
         return
-    if (center[0] ** 2 + center[1] ** 2) / a ** 2 + center[2] ** 2 / b ** 2 < 1.0:
+    from demtool.sensors.body_view import height_above_ellipsoid, relief_band
+
+    # below the body's lowest surface (a rover below the datum is on the surface)
+    if height_above_ellipsoid(center, a, b) < relief_band(a, b).low:
         distance = float(np.linalg.norm(center))
         hint = ("a local-frame camera (rover, lander, lab rig): --body only applies to "
                 "models in the body's body-fixed frame" if named else
@@ -124,7 +128,7 @@ def read_models(paths: Sequence[str | os.PathLike], body: Body | None = None):
     models, bodies, files = {}, {}, {}
     for raw in paths:
         path = Path(raw)
-        for name, model in read_sensors(path, radii=radii).items():
+        for name, model in read_sensors(path, radii=radii, require_surface=False).items():
             key = name or path.stem
             if key in models:
                 key = f"{path.name}:{key}"

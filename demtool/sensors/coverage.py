@@ -15,7 +15,9 @@ Rules (times in seconds from the model's centre time):
 
 - a series of samples covers ``[t_first − m, t_last + m]`` with the margin ``m`` one
   median sample spacing (a line a fraction of a sample beyond the last sample is
-  interpolation, not invention);
+  interpolation, not invention); an attitude further, while continuing its end rotation
+  rate stays within a tenth of a pixel (:func:`attitude_end_margins`: ALE's SLERP
+  extrapolates at that rate, and a spacecraft turning steadily is extrapolated exactly);
 - a step between two samples longer than :data:`GAP_FACTOR` median spacings is a gap:
   the times strictly inside it are not covered.  ALE thins smooth ephemerides (the
   shared real ISDs have steps up to 8× their median spacing: LRO NAC positions 3.04 s
@@ -37,11 +39,14 @@ import numpy as np
 GAP_FACTOR = 20.0
 
 
-def sampled_intervals(times, *, gap_factor: float = GAP_FACTOR) -> list[tuple[float, float]]:
+def sampled_intervals(times, *, gap_factor: float = GAP_FACTOR,
+                      end_margins: tuple[float, float] | None = None
+                      ) -> list[tuple[float, float]]:
     """Time intervals covered by samples at ``times`` (seconds, any order).
 
     One sample covers only itself; several cover their span widened by one median
-    spacing at each end, split at steps longer than ``gap_factor`` median spacings.
+    spacing at each end (or by ``end_margins``, seconds before the first and after the
+    last sample, when larger), split at steps longer than ``gap_factor`` median spacings.
     """
     t = np.unique(np.asarray(times, dtype=np.float64).reshape(-1))
     if len(t) == 0:
@@ -53,8 +58,43 @@ def sampled_intervals(times, *, gap_factor: float = GAP_FACTOR) -> list[tuple[fl
     cuts = np.flatnonzero(steps > gap_factor * spacing)
     starts = np.concatenate([[0], cuts + 1])
     ends = np.concatenate([cuts, [len(t) - 1]])
-    return [(float(t[s] - spacing), float(t[e] + spacing))
-            for s, e in zip(starts, ends, strict=True)]
+    out = [(float(t[s] - spacing), float(t[e] + spacing))
+           for s, e in zip(starts, ends, strict=True)]
+    if end_margins is not None:
+        lo, hi = out[0], out[-1]
+        out[0] = (min(lo[0], float(t[0]) - end_margins[0]), lo[1])
+        out[-1] = (out[-1][0], max(hi[1], float(t[-1]) + end_margins[1]))
+    return out
+
+
+#: An attitude is extrapolated beyond its samples only while the error of continuing its
+#: end rotation rate (SLERP, as ALE's ``Orientations`` does) stays below this fraction of
+#: a pixel's angle: ½ α t² ≤ fraction · IFOV, α the angular acceleration at that end.
+ATTITUDE_EXTRAPOLATION_PX = 0.1
+
+
+def attitude_end_margins(times, quaternions, ifov: float,
+                         fraction: float = ATTITUDE_EXTRAPOLATION_PX) -> tuple[float, float]:
+    """Seconds an attitude series may be extrapolated before its first and after its
+    last sample (see :data:`ATTITUDE_EXTRAPOLATION_PX`), at most its own span; 0 with
+    fewer than three samples (no acceleration to judge by).
+
+    times : (n,) seconds; quaternions : (n, 4), any one component order; ifov : radians.
+    """
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    q = np.asarray(quaternions, dtype=np.float64).reshape(-1, 4)
+    if len(t) < 3 or not (ifov > 0):
+        return 0.0, 0.0
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    dots = np.abs(np.sum(q[1:] * q[:-1], axis=1)).clip(0.0, 1.0)
+    rate = 2.0 * np.arccos(dots) / np.diff(t)  # rad/s between neighbours
+    span = float(t[-1] - t[0])
+    out = []
+    for a, b, dt in ((rate[0], rate[1], t[2] - t[0]), (rate[-1], rate[-2], t[-1] - t[-3])):
+        accel = abs(a - b) / (0.5 * dt)
+        margin = span if accel == 0 else float(np.sqrt(2.0 * fraction * ifov / accel))
+        out.append(min(margin, span))
+    return out[0], out[1]
 
 
 def intersect(first: list[tuple[float, float]], second: list[tuple[float, float]]
@@ -81,11 +121,14 @@ class Coverage:
     sources: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
 
     @classmethod
-    def from_series(cls, series: dict[str, np.ndarray], *, gap_factor: float = GAP_FACTOR
-                    ) -> Coverage:
+    def from_series(cls, series: dict[str, np.ndarray], *, gap_factor: float = GAP_FACTOR,
+                    end_margins: dict[str, tuple[float, float]] | None = None) -> Coverage:
         """Coverage of named sample-time series (a one-sample series of a body
-        rotation is constant and not counted)."""
-        sources = {name: sampled_intervals(times, gap_factor=gap_factor)
+        rotation is constant and not counted); ``end_margins`` widens a series' ends
+        (an attitude extrapolated by :func:`attitude_end_margins`)."""
+        margins = end_margins or {}
+        sources = {name: sampled_intervals(times, gap_factor=gap_factor,
+                                           end_margins=margins.get(name))
                    for name, times in series.items() if np.size(times) > 1
                    or name != "body_rotation"}
         intervals: list[tuple[float, float]] | None = None
@@ -139,7 +182,8 @@ def coverage_note(model, runs: list[tuple[int, int]]) -> str | None:
             f"masked, covered lines {where}")
 
 
-def attach_coverage(model, source: str, series: dict[str, np.ndarray]) -> None:
+def attach_coverage(model, source: str, series: dict[str, np.ndarray],
+                    end_margins: dict[str, tuple[float, float]] | None = None) -> None:
     """Give a line-scan or push-frame model the coverage of its sample times.
 
     Lines outside it are masked from then on; a note (kept in ``model.notes`` and
@@ -154,7 +198,7 @@ def attach_coverage(model, source: str, series: dict[str, np.ndarray]) -> None:
 
     from demtool.errors import InputError
 
-    coverage = Coverage.from_series(series)
+    coverage = Coverage.from_series(series, end_margins=end_margins)
     runs = covered_lines(model, coverage)
     model.coverage = coverage
     note = coverage_note(model, runs)

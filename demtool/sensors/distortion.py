@@ -31,6 +31,9 @@ model           coefficients
 ``photometrix``  ``[xp, yp, k1, k2, k3, p1, p2]`` (ASP / VisionWorkbench), likewise
 ``apollometric``  ``[xp, yp, k1, k2, k3, j1, j2, t0]`` (ISIS ``ApolloMetricDistortionMap``;
                 the NAIF IK's ``INS-91x240_PP``, ``_OD_K``, ``_DECENTER``), in mm
+``legendre``    ``[half_x, half_y, x0..x19, y0..y19]`` (ISIS, New Horizons MVIC frames)
+``themisir``    ``[alpha1, alpha2, k]`` (ISIS, Mars Odyssey THEMIS IR); both in
+                :mod:`demtool.sensors.distortion_isis`
 ``opencv``      ``[k1, k2, k3, k4, k5, k6, p1, p2, sx, sy, ox, oy]`` (ISIS
                 ``OsirisRexTagcamsDistortionMap``: OpenCV's rational radial and
                 tangential model on ``(u/f, −v/f)``; ``sx, sy`` the model's focal
@@ -527,3 +530,12 @@ MODELS = MODELS + tuple(_CUBE_COUNTS)
 _COUNTS.update(_CUBE_COUNTS)
 _APPLY.update(_CUBE_APPLY)
 _REMOVE.update(_CUBE_REMOVE)
+
+# ISIS mission maps ALE writes into ISDs (New Horizons MVIC frames, THEMIS IR:
+# demtool.sensors.distortion_isis)
+from demtool.sensors import distortion_isis as _isis  # noqa: E402
+
+MODELS = MODELS + ("legendre", "themisir")
+_COUNTS.update(legendre=(42,), themisir=(3,))
+_APPLY.update(legendre=_isis.legendre_apply, themisir=_isis.themisir_apply)
+_REMOVE.update(legendre=_isis.legendre_remove, themisir=_isis.themisir_remove)

@@ -44,6 +44,7 @@ from demtool.sensors.base import (
 )
 from demtool.sensors.distortion import Distortion
 from demtool.sensors.frame import FrameSensor
+from demtool.sensors.isd_distortion import distortion_block, distortion_from_isd
 from demtool.sensors.linescan import LineScanSensor
 
 FRAME_MODEL = "USGS_ASTRO_FRAME_SENSOR_MODEL"
@@ -183,47 +184,6 @@ def resample_states(times, positions, velocities, grid) -> np.ndarray:
 MIN_EPHEMERIS_NODES = 25
 
 
-def _distortion(keys: _Keys, isd: Mapping, focal_length: float) -> Distortion:
-    block = keys.get(isd, "optical_distortion")
-    if not isinstance(block, Mapping) or len(block) != 1:
-        raise InputError(f"{keys.source}: ISD key 'optical_distortion' must hold exactly one "
-                         "model")
-    model, params = next(iter(block.items()))
-    where = f"optical_distortion.{model}."
-    model = str(model).lower()
-    if model == "transverse":
-        coefficients = np.concatenate([keys.array(params, "x", where, (10,)),
-                                       keys.array(params, "y", where, (10,))])
-    elif model == "kaguyalism":
-        coefficients = np.concatenate([
-            [float(keys.get(params, "boresight_x", where))], keys.array(params, "x", where, (4,)),
-            [float(keys.get(params, "boresight_y", where))], keys.array(params, "y", where, (4,))])
-    elif model == "lunarorbiter":
-        # ALE writes the perspective factors and the point of symmetry as usgscsm reads
-        # them (perspective_x/_y, center_point_x/_y) and the radial terms k0, k1 (ISIS's
-        # INS<code>_OD_K) as 'odk' (older demtool ISDs: 'coefficients').
-        radial = next((k for k in ("odk", "coefficients") if k in params), None)
-        if radial is None:
-            raise InputError(f"{keys.source}: ISD lacks the key '{where}odk' (the radial "
-                             "distortion terms k0, k1 of the Lunar Orbiter camera)")
-        terms = list(keys.array(params, radial, where))
-        if len(terms) not in (1, 2):
-            raise InputError(f"{keys.source}: ISD key '{where}{radial}' has {len(terms)} "
-                             "values, expected 2 (k0, k1)")
-        coefficients = np.array([float(keys.get(params, k, where)) for k in
-                                 ("perspective_x", "perspective_y", "center_point_x",
-                                  "center_point_y")] + (terms + [0.0])[:2])
-    elif model == "cahvor" and "x" in params:
-        coefficients = np.concatenate([keys.array(params, "coefficients", where, (3,)),
-                                       [float(params["x"]), float(params.get("y", 0.0))]])
-    else:
-        coefficients = keys.array(params, "coefficients", where)
-    try:
-        return Distortion(model, coefficients, focal_length)
-    except ValueError as exc:
-        raise InputError(f"{keys.source}: ISD key 'optical_distortion': {exc}") from None
-
-
 def _detector(keys: _Keys, isd: Mapping) -> Detector:
     center = keys.get(isd, "detector_center")
     return Detector(
@@ -246,8 +206,15 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
         Missing or inconsistent keys, or an unknown ``name_model``; one line naming
         ``source`` and the key.
     """
+    from demtool.sensors.isd_forms import EQUAL_STEP_KEY, normalise_isd
+
+    isd = normalise_isd(isd, source)
     keys = _Keys(source)
     model = keys.get(isd, "name_model")
+    if model == "USGS_ASTRO_SAR_SENSOR_MODEL":
+        raise InputError(f"{source}: ISD key 'name_model' is {model!r}: a SAR (radar) "
+                         "sensor model; demtool reads optical cameras only (frame, line "
+                         "scan, push frame)")
     if model not in (FRAME_MODEL, LINESCAN_MODEL, PUSHFRAME_MODEL):
         raise InputError(f"{source}: ISD key 'name_model' is {model!r}; demtool reads "
                          f"{FRAME_MODEL}, {LINESCAN_MODEL} and {PUSHFRAME_MODEL}")
@@ -262,7 +229,7 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
     radii = (float(keys.get(radii_block, "semimajor", "radii.")) * scale,
              float(keys.get(radii_block, "semiminor", "radii.")) * scale)
     detector = _detector(keys, isd)
-    distortion = _distortion(keys, isd, focal)
+    distortion = distortion_from_isd(keys, isd, focal)
     center_time = float(keys.get(isd, "center_ephemeris_time"))
     body = _orientations(keys, isd, "body_rotation")
     pointing = _orientations(keys, isd, "instrument_pointing")
@@ -292,7 +259,13 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
     # usgscsm (constructStateFromIsd): the ephemeris is resampled on at least 25 equally
     # spaced nodes over the ISD's time span (ALE's Hermite / natural spline), rotated
     # into the body frame at each node; the sun is sampled on the same nodes.
-    if len(pos_times) > 1:
+    if len(pos_times) > 1 and isd.get(EQUAL_STEP_KEY):
+        # usgscsm's older layout: equally spaced body-fixed nodes, used as they are
+        dt_ephem = (pos_times[-1] - pos_times[0]) / (len(pos_times) - 1)
+        grid = pos_times
+        positions = _to_body(body, pos_times, pos_j2000)
+        velocities = _to_body(body, pos_times, vel_j2000)
+    elif len(pos_times) > 1:
         n_nodes = max(len(pos_times), MIN_EPHEMERIS_NODES)
         dt_ephem = (pos_times[-1] - pos_times[0]) / (n_nodes - 1)
         grid = pos_times[0] + dt_ephem * np.arange(n_nodes)
@@ -309,7 +282,8 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
     else:  # one sun position: kept, with its velocity for linear extrapolation
         sun = _to_body(body, sun_times, sun_j2000)
         sun_velocities = _to_body(body, sun_times, sun_vel_j2000)
-    quat_times = np.union1d(body.times, pointing.times)
+    quat_times = pointing.times if isd.get(EQUAL_STEP_KEY) else np.union1d(body.times,
+                                                                            pointing.times)
     if len(quat_times) > 1:
         dt_quat = (quat_times[-1] - quat_times[0]) / (len(quat_times) - 1)
         quat_times = quat_times[0] + dt_quat * np.arange(len(quat_times))
@@ -333,11 +307,16 @@ def sensor_from_isd(isd: Mapping, source: str = "<ISD>"):
             raise InputError(f"{source}: {exc}") from None
     else:
         sensor = LineScanSensor(line_scan_rate=rate, **pose)
-    from demtool.sensors.coverage import attach_coverage
+    from demtool.sensors.coverage import attach_coverage, attitude_end_margins
 
+    pitch = 1.0 / max(float(np.hypot(detector.itrans_sample[1], detector.itrans_sample[2])),
+                      1e-300)  # mm per pixel
+    ifov = pitch * float(detector.sample_summing) / abs(focal)
+    margins = {name: attitude_end_margins(block.times - center_time, block.quaternions, ifov)
+               for name, block in (("instrument_pointing", pointing), ("body_rotation", body))}
     attach_coverage(sensor, source, {"instrument_position": pos_times - center_time,
                                      "instrument_pointing": pointing.times - center_time,
-                                     "body_rotation": body.times - center_time})
+                                     "body_rotation": body.times - center_time}, margins)
     return sensor
 
 
@@ -372,24 +351,6 @@ def _ale_quaternions(sensor_to_body: np.ndarray) -> list:
     return q[:, [3, 0, 1, 2]].tolist()
 
 
-def _distortion_block(distortion: Distortion) -> dict:
-    """ALE's ``optical_distortion`` block of a :class:`Distortion` (the inverse of the
-    reader's :func:`_distortion`; an ideal lens is ALE's zero ``radial``)."""
-    model, c = distortion.model, [float(v) for v in distortion.coefficients]
-    if model == "none":
-        return {"radial": {"coefficients": [0.0, 0.0, 0.0]}}
-    if model == "transverse":
-        return {model: {"x": c[:10], "y": c[10:]}}
-    if model == "kaguyalism":
-        return {model: {"boresight_x": c[0], "x": c[1:5], "boresight_y": c[5], "y": c[6:10]}}
-    if model == "lunarorbiter":
-        return {model: {"perspective_x": c[0], "perspective_y": c[1], "center_point_x": c[2],
-                        "center_point_y": c[3], "odk": c[4:6]}}
-    if model == "cahvor":
-        return {model: {"coefficients": c[:3], "x": c[3], "y": c[4]}}
-    return {model: {"coefficients": c}}
-
-
 def _common_keys(model, detector: Detector, distortion: Distortion, focal: float) -> dict:
     a, b = model.radii
     return {
@@ -406,7 +367,7 @@ def _common_keys(model, detector: Detector, distortion: Distortion, focal: float
         "starting_detector_sample": float(detector.start_sample),
         "detector_line_summing": float(detector.line_summing),
         "detector_sample_summing": float(detector.sample_summing),
-        "optical_distortion": _distortion_block(distortion),
+        "optical_distortion": distortion_block(distortion),
     }
 
 

@@ -328,6 +328,14 @@ class LineScanSensor(SensorModel):
                 det_line[done], sample[done], depth[done] = f, smp, dep
             active = active[keep & np.isfinite(step)]
         bad = ~np.isfinite(line) | ~(depth > 0) | ~(np.abs(det_line) < 1e-3)
+        guess = np.column_stack([pts - mean, np.ones(len(pts))]) @ coef[:, 0]
+        lost = bad | (((line < 0) | (line > self.lines)) & (guess >= 0) & (guess <= self.lines))
+        if np.any(lost):  # several lines see the point (a scan mirror): bracket the zero
+            found = self._bracketed_lines(pts[lost], precision)
+            ok = np.isfinite(found[0])
+            idx = np.flatnonzero(lost)[ok]
+            line[idx], sample[idx] = found[0][ok], found[1][ok]
+            bad[idx] = False
         # a point seen by an image line outside the sampled ephemeris has no image; lines
         # beyond the image stay (callers such as mapproject's lattice extrapolate them)
         uncovered = self._uncovered(np.where(bad, 0.5 * self.lines, line))
@@ -336,6 +344,46 @@ class LineScanSensor(SensorModel):
         line = np.where(bad, np.nan, line)
         sample = np.where(bad, np.nan, sample)
         return line.reshape(shape), sample.reshape(shape)
+
+    def _bracketed_lines(self, pts, precision: float, n_lines: int = 257):
+        """(line, sample) of points (N, 3) found by scanning the image's lines for a sign
+        change of the detector line (in front of the sensor), then bisection: for models
+        whose detector line is not monotonic in the image line (a scanning mirror sees
+        the same ground from several lines), where the secant search of
+        :meth:`ground_to_image` fails.  NaN where no image line sees the point."""
+        lines = np.linspace(0.0, float(self.lines), min(n_lines, 2 * self.lines + 1))
+        n = len(pts)
+        grid_l = np.repeat(lines[None, :], n, axis=0)
+        grid_p = np.repeat(pts[:, None, :], len(lines), axis=1)
+        f, _, depth = self._detector_view_fast(grid_l.reshape(-1), grid_p.reshape(-1, 3))
+        f = np.where(depth > 0, f, np.nan).reshape(n, len(lines))
+        change = (np.sign(f[:, :-1]) * np.sign(f[:, 1:]) <= 0) & np.isfinite(f[:, :-1]) \
+            & np.isfinite(f[:, 1:])
+        has = np.any(change, axis=1)
+        first = np.argmax(change, axis=1)
+        lo = lines[first].copy()
+        hi = lines[np.minimum(first + 1, len(lines) - 1)].copy()
+        f_lo = f[np.arange(n), first]
+        out_line = np.full(n, np.nan)
+        out_sample = np.full(n, np.nan)
+        if not np.any(has):
+            return out_line, out_sample
+        sel = np.flatnonzero(has)
+        lo, hi, f_lo = lo[sel], hi[sel], f_lo[sel]
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            f_mid, _, _ = self._detector_view_fast(mid, pts[sel])
+            left = np.sign(f_mid) * np.sign(f_lo) <= 0
+            hi = np.where(left, mid, hi)
+            lo, f_lo = np.where(left, lo, mid), np.where(left, f_lo, f_mid)
+            if np.all(hi - lo < precision):
+                break
+        mid = 0.5 * (lo + hi)
+        f_mid, smp, dep = self._detector_view_fast(mid, pts[sel])
+        good = (np.abs(f_mid) < 1e-3) & (dep > 0)
+        out_line[sel] = np.where(good, mid, np.nan)
+        out_sample[sel] = np.where(good, smp, np.nan)
+        return out_line, out_sample
 
     def sun_position(self, line) -> np.ndarray:
         """Sun position (body-fixed metres, S + (3,)) at the exposure of ``line``.

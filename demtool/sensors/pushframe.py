@@ -197,8 +197,12 @@ class PushFrameSensor(LineScanSensor):
             d_end[idx] = self._frame_distance(end[idx], pts[idx])
             active[idx] = ((start[idx] != end[idx]) & (d_start[idx] != d_end[idx])
                            & np.isfinite(d_end[idx]))
-        # The secant stops on a framelet that sees the point; where neighbours overlap,
-        # keep the one whose middle line is nearest (usgscsm's criterion).
+        # The secant stops near a framelet that sees the point.  Of it and its neighbours
+        # keep one whose projection (distortion included) falls on its own detector lines
+        # — a point projected into a framelet outside its lines would be read back
+        # through another framelet's pose, on other ground — the one nearest its middle
+        # line where neighbours overlap (usgscsm's criterion); failing that, the nearest
+        # middle line (calcFrameDistance).
         best, d_best = end, np.abs(d_end)
         for step in (-1, 1):
             other = np.clip(end + step, 0, last)
@@ -206,7 +210,19 @@ class PushFrameSensor(LineScanSensor):
             better = d_other < d_best
             best = np.where(better, other, best)
             d_best = np.where(better, d_other, d_best)
-        return self._project(best, pts, shape)
+        h = float(self.summed_height)
+        chosen, d_chosen = best.copy(), np.full(n, np.inf)
+        for step in (-2, -1, 0, 1, 2):
+            other = np.clip(end + step, 0, last)
+            det_line, det_sample, depth = self._view(other, pts)
+            if self.framelets_flipped:
+                det_line = h - det_line
+            on = (det_line >= 0) & (det_line <= h) & (depth > 0) & np.isfinite(det_sample)
+            distance = np.where(on, np.abs(det_line - 0.5 * h), np.inf)
+            better = distance < d_chosen
+            chosen = np.where(better, other, chosen)
+            d_chosen = np.where(better, distance, d_chosen)
+        return self._project(chosen, pts, shape)
 
     def _project(self, best, pts, shape):
         """(line, sample) of points (N, 3) projected into framelets ``best`` (N,)."""

@@ -63,21 +63,24 @@ def _sniff(path: Path) -> str:
                      ".geom, cameras.npz or bundle.npz)")
 
 
-def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
-                 ) -> dict[str, SensorModel]:
+def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None,
+                 require_surface: bool = True) -> dict[str, SensorModel]:
     """All sensor models of a file, by image name (one entry for an ISD, a cube or a
     ``.tsai``); ``radii`` (metres) is the body of a ``.tsai`` pinhole, which the file
     does not carry.  Every model is validated as it is read
-    (:mod:`demtool.sensors.validate`: values, not only keys)."""
+    (:mod:`demtool.sensors.validate`: values, not only keys); ``require_surface=False``
+    keeps a model that sees no surface of its body (with a note) instead of refusing it,
+    for ``demtool camera``, which reports such a model."""
     from demtool.sensors import validate, validate_raw
 
     p = Path(path)
     kind = _sniff(p)
+    check = {"require_surface": require_surface}
     if kind == "tsai":
         from demtool.sensors.tsai import read_tsai
 
         model = read_tsai(p, radii=radii)
-        return {model.name: validate.check_model(model, p, "tsai")}
+        return {model.name: validate.check_model(model, p, "tsai", **check)}
     if kind == "cahvor":  # JPL's CAHV/CAHVOR/CAHVORE: checked by its reader
         from demtool.sensors.cahvor_files import read_cahvor, read_pds3_cahvor
 
@@ -87,9 +90,11 @@ def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
         return {model.name: model}
     if kind == "isd":
         from demtool.sensors.isd import load_isd, sensor_from_isd
+        from demtool.sensors.isd_forms import normalise_isd
 
-        model = sensor_from_isd(validate_raw.check_isd(load_isd(p), p), str(p))
-        return {model.name or p.stem: validate.check_model(model, p, "isd")}
+        isd = validate_raw.check_isd(normalise_isd(load_isd(p), p), p)
+        model = sensor_from_isd(isd, str(p))
+        return {model.name or p.stem: validate.check_model(model, p, "isd", **check)}
     if kind == "cube":
         from demtool.sensors.isis_cube import read_isis_cube
         from demtool.sensors.isis_kinds import refuse_cube_kind
@@ -98,18 +103,19 @@ def read_sensors(path: str | Path, *, radii: tuple[float, float] | None = None
         validate_raw.check_cube_label(p)
         with np.errstate(invalid="ignore", divide="ignore"):  # zero quaternions: checked next
             model = read_isis_cube(p)
-        return {model.name: validate.check_model(model, p, "cube")}
+        return {model.name: validate.check_model(model, p, "cube", **check)}
     if kind == "rpc":  # an RPC has no camera position or focal plane: its reader checks it
         from demtool.sensors.rpc_files import read_rpc
 
         model = read_rpc(p, radii=radii)
         return {model.name: model}
-    return {name: validate.check_model(model, f"{p} ({name})", "npz")
+    return {name: validate.check_model(model, f"{p} ({name})", "npz", **check)
             for name, model in _read_npz(p).items()}
 
 
 def read_sensor(path: str | Path, *, name: str | None = None,
-                radii: tuple[float, float] | None = None) -> SensorModel:
+                radii: tuple[float, float] | None = None,
+                require_surface: bool = True) -> SensorModel:
     """Read one sensor model from any supported file (see the module docstring).
 
     Parameters
@@ -121,6 +127,9 @@ def read_sensor(path: str | Path, *, name: str | None = None,
     radii : (float, float), optional
         Semi-axes of the body (metres) for a ``.tsai`` pinhole (used by its
         ``image_to_ground``); ignored for other files, which carry their own.
+    require_surface : bool
+        Refuse a camera that sees no surface of its body (default: the stages that need
+        ground); False keeps it, with a note saying so.
 
     Raises
     ------
@@ -128,7 +137,7 @@ def read_sensor(path: str | Path, *, name: str | None = None,
         Unreadable or unrecognised file, bad content (one line naming the file and
         the key), or an NPZ with several cameras and no (or an unknown) ``name``.
     """
-    models = read_sensors(path, radii=radii)
+    models = read_sensors(path, radii=radii, require_surface=require_surface)
     if name is None:
         if len(models) == 1:
             return next(iter(models.values()))

@@ -16,9 +16,13 @@ Two stages:
 - **model** (:func:`check_model`): the built model's geometry — finite positive focal
   length and pixel pitch, an invertible focal-plane map (``focal2pixel``), rotations
   that are rotations (orthonormal, determinant +1), finite positions and sun, the body's
-  radii positive, the camera outside the body (positions labelled metres but written in
-  km put it inside), and its boresight meeting the body (a limb image, whose centre
-  misses but whose edge meets it, passes with a note).
+  radii positive, the camera not deeper than the body's lowest surface (positions
+  labelled metres but written in km put it 1000× too close to the centre; a rover below
+  the datum is a *surface camera*, read and named so in a note), and what it sees of
+  the body on a dense ray grid (a limb image passes with the fraction in a note; a camera
+  that sees no surface is refused only where the caller needs ground,
+  ``require_surface``).  These checks refuse only the impossible:
+  :mod:`demtool.sensors.body_view` gives the relief of each body and the rules.
 
 The body named by the file (an ISD's ``naif_keywords``, a cube's ``BODY<id>_RADII``)
 must have the radii the file gives (:func:`check_radii_of_body`), and a body named on
@@ -233,7 +237,7 @@ for _side in ("left", "right"):  # the models a calibrated rectify.npz stores
         "sun": _p + "sun"}
 
 
-def check_model(model, source: Any, reader: str = "isd"):
+def check_model(model, source: Any, reader: str = "isd", *, require_surface: bool = True):
     """Check a built sensor model's geometry; returns the model (with ``notes`` added).
 
     Parameters
@@ -245,6 +249,9 @@ def check_model(model, source: Any, reader: str = "isd"):
         The file, for the messages.
     reader : {"isd", "cube", "tsai", "npz", "rectify_left", "rectify_right"}
         Which file keys to name (:data:`KEYS`).
+    require_surface : bool
+        Refuse a camera that sees no surface of its body (stages that need ground);
+        False keeps it with a note (``demtool camera`` reports it).
 
     Raises
     ------
@@ -270,6 +277,7 @@ def check_model(model, source: Any, reader: str = "isd"):
         if not (d.line_summing > 0 and d.sample_summing > 0):
             raise _fail(source, keys["detector"], np.array([d.line_summing, d.sample_summing]),
                         "summing (or AlphaCube scale) must be positive")
+        _check_distortion_inverts(model, source)
     if isinstance(model, FrameSensor):
         check_rotation(model.rotation, source, keys["rotation"])
         _finite(model.position, source, keys["position"])
@@ -278,16 +286,51 @@ def check_model(model, source: Any, reader: str = "isd"):
         check_quaternions(model.quaternions, source, keys["rotation"])
         _finite(model.positions, source, keys["position"])
         _finite(model.sun_positions, source, keys["sun"])
-        if not np.all(model.int_times > 0):
+        if not np.all(np.isfinite(model.int_times) & (model.int_times != 0)):
             raise _fail(source, "line_scan_rate", model.int_times,
-                        "seconds per line must be positive")
+                        "seconds per line must be finite and not zero")
         if len(model.positions) == 1 and model.lines > 1:
             raise _fail(source, keys["position"], model.positions[0],
                         "one position state for a line scan: its motion over the lines is "
                         "unknown")
     if getattr(model, "radii", None) is not None:
-        _check_on_body(model, source, keys)
+        _check_on_body(model, source, keys, require_surface)
     return model
+
+
+#: distorted → undistorted → distorted → undistorted must come back within this many
+#: pixels: a lens model that cannot be inverted over the image gives rays that ground →
+#: image does not return to.
+DISTORTION_CLOSURE_PX = 0.01
+
+
+def _check_distortion_inverts(model, source) -> None:
+    """Refuse a lens distortion that its own inverse does not undo over the image (e.g. a
+    ``transverse`` polynomial mapping distorted x and y both to undistorted x: singular;
+    usgscsm gives up on it and returns the point unchanged)."""
+    dist = model.distortion
+    if dist is None or dist.is_identity:
+        return
+    lines, samples = int(model.lines), int(model.samples)
+    ll, ss = np.meshgrid(np.linspace(0.5, max(lines - 0.5, 0.5), 9),
+                         np.linspace(0.5, max(samples - 0.5, 0.5), 9), indexing="ij")
+    detector_line = model._detector_line(ll) if hasattr(model, "_detector_line") else ll
+    with np.errstate(all="ignore"):
+        x, y = model.detector.to_focal_plane(detector_line, ss)
+        u, v = dist.remove(x, y)
+        u2, v2 = dist.remove(*dist.apply(u, v))
+    d = model.detector
+    pitch = 1.0 / max(float(np.hypot(d.itrans_sample[1], d.itrans_sample[2])), 1e-300)
+    miss = np.hypot(u2 - u, v2 - v) / pitch
+    miss = np.where(np.isfinite(u) & np.isfinite(v), miss, 0.0)  # off the lens: not judged
+    worst = float(np.nanmax(np.where(np.isfinite(miss), miss, np.inf)))
+    if worst > DISTORTION_CLOSURE_PX:
+        i = np.unravel_index(int(np.nanargmax(np.where(np.isfinite(miss), miss, np.inf))),
+                             miss.shape)
+        raise _fail(source, f"optical_distortion.{dist.model}", dist.coefficients,
+                    f"cannot be inverted over the image: undistorting what it distorts misses "
+                    f"by {worst:.3g} px at line {ll[i]:.1f}, sample {ss[i]:.1f} (a singular "
+                    "or folded lens model)")
 
 
 def _finite(values, source, key: str) -> None:
@@ -311,15 +354,24 @@ def _check_pinhole(model, source, keys) -> None:
     _finite(model.t, source, keys["position"])
 
 
-def _ellipsoid_level(xyz, a: float, b: float) -> np.ndarray:
-    """(x² + y²)/a² + z²/b²: < 1 inside the ellipsoid."""
-    xyz = np.asarray(xyz, dtype=np.float64)
-    return (xyz[..., 0] ** 2 + xyz[..., 1] ** 2) / a ** 2 + xyz[..., 2] ** 2 / b ** 2
+def _note(model, text: str) -> None:
+    notes = list(getattr(model, "notes", []) or [])
+    notes.append(text)
+    try:
+        model.notes = notes
+    except (AttributeError, TypeError):  # frozen dataclass pinholes
+        object.__setattr__(model, "notes", notes)
 
 
-def _check_on_body(model, source, keys) -> None:
-    """Radii, the camera outside the body, the boresight (or the limb) on it."""
-    from demtool.sensors.base import ray_ellipsoid_intersection
+def _check_on_body(model, source, keys, require_surface: bool = True) -> None:
+    """Radii, the camera not inside the body (against the body's relief: a surface
+    camera is named in a note), and what it sees (:mod:`demtool.sensors.body_view`)."""
+    from demtool.sensors.body_view import (
+        body_view,
+        height_above_ellipsoid,
+        reference_height,
+        relief_band,
+    )
 
     a, b = (float(v) for v in model.radii)
     for value, name in ((a, "semi-major"), (b, "semi-minor")):
@@ -330,6 +382,7 @@ def _check_on_body(model, source, keys) -> None:
     if lines <= 0 or samples <= 0:  # a .tsai pinhole without an image size: its centre only
         origin = np.asarray(model.camera_center(np.zeros(1)), dtype=np.float64)
         ray = None
+        _finite(origin, source, keys["position"])
     else:
         line_edge = np.array([0.5, 0.5 * lines, lines - 0.5])
         sample_edge = np.array([0.5, 0.5 * samples, samples - 0.5])
@@ -337,39 +390,55 @@ def _check_on_body(model, source, keys) -> None:
         with np.errstate(all="ignore"):
             ray = model.image_to_ray(ll, ss)
         origin = np.asarray(ray.origin, dtype=np.float64)
-    _finite(origin, source, keys["position"])
-    level = _ellipsoid_level(origin, a, b)
-    if np.any(level <= 1.0):
-        worst = np.unravel_index(int(np.argmin(level)), level.shape)
-        centre = origin[worst]
+        # lines outside a line scan's ephemeris coverage are masked (NaN): judge the others
+        finite = np.all(np.isfinite(origin), axis=-1)
+        if getattr(model, "coverage", None) is None or not np.any(finite):
+            _finite(origin, source, keys["position"])
+        origin = origin[finite]
+    band = relief_band(a, b)
+    height = height_above_ellipsoid(origin, a, b)
+    if np.any(height < band.low):
+        worst = int(np.argmin(height))
+        centre = origin.reshape(-1, 3)[worst]
         distance = float(np.linalg.norm(centre))
         hint = ("a local-frame camera (rover, lander, lab rig)? --body and body radii only "
                 "apply to models in the body's body-fixed frame" if distance < 1e-3 * a
                 else "positions in km labelled metres?")
         raise _fail(source, keys["position"], centre,
                     f"puts the camera inside the body ({distance / 1e3:.6g} km from its "
-                    f"centre, radius {a / 1e3:.6g} km): {hint}")
+                    f"centre, radius {a / 1e3:.6g} km: {-float(height.min()) / 1e3:.6g} km "
+                    f"below the reference ellipsoid, deeper than {band.label} allows): "
+                    f"{hint}")
+    from demtool.sensors.body_view import SURFACE_CLEARANCE_M
+
+    if np.any(height <= band.high + SURFACE_CLEARANCE_M):
+        h = float(np.median(height))
+        where = f"{abs(h) / 1e3:.3g} km {'below' if h < 0 else 'above'} the reference ellipsoid"
+        _note(model, f"a surface camera (rover or lander): {where}, within {band.label}")
+        try:
+            model.surface_camera = True
+        except (AttributeError, TypeError):
+            object.__setattr__(model, "surface_camera", True)
     if ray is None:
         return
     direction = np.asarray(ray.direction, dtype=np.float64)
-    if not np.all(np.isfinite(direction)):
+    finite = np.all(np.isfinite(direction), axis=-1) | ~np.all(np.isfinite(ray.origin), axis=-1)
+    if not np.all(finite):
         raise _fail(source, keys["rotation"], direction.reshape(-1, 3)[0],
                     "gives non-finite look directions")
-    _, hit = ray_ellipsoid_intersection(origin, direction, a, b, return_hit=True)
-    if hit[1, 1]:
+    view = body_view(model, height=reference_height(model))
+    if view.boresight:
         return
-    if np.any(hit):
-        notes = list(getattr(model, "notes", []) or [])
-        notes.append("the boresight misses the body: a limb image (only part of the image "
-                     "sees the surface)")
-        try:
-            model.notes = notes
-        except (AttributeError, TypeError):  # frozen dataclass pinholes
-            object.__setattr__(model, "notes", notes)
+    if view.in_view:
+        _note(model, f"the boresight misses the body: a limb image ({view.where})"
+              if view.fraction > 0 else view.where)
         return
-    raise _fail(source, keys["rotation"], direction[1, 1],
-                "the camera looks away from the body: neither its boresight nor any "
-                "image corner or edge meets it")
+    if require_surface:
+        raise _fail(source, keys["rotation"], direction[1, 1],
+                    f"the camera looks away from the body: {view.where} (demtool camera "
+                    "reads such a model; this stage needs ground)")
+    _note(model, f"the camera sees no surface of the body: {view.where}; stages that need "
+          "ground refuse it")
 
 
 def check_named_body(model, body, source, option: str = "--body") -> None:

@@ -81,13 +81,13 @@ def check_isd(isd: Mapping, source: Any) -> dict:
         if key in isd:
             _number(source, key, isd[key])
     for key in ("detector_line_summing", "detector_sample_summing"):
-        if key in isd:
+        if key in isd:  # (a summing mode of 0 is read as 1: demtool.sensors.isd_forms)
             _number(source, key, isd[key], positive=True)
     if "focal2pixel_samples" in isd and "focal2pixel_lines" in isd:
         s = _numbers(source, "focal2pixel_samples", isd["focal2pixel_samples"], 3)
         ln = _numbers(source, "focal2pixel_lines", isd["focal2pixel_lines"], 3)
         check_focal_plane_map(s, ln, source, "focal2pixel_samples/focal2pixel_lines")
-    for name in ("instrument_pointing", "body_rotation"):
+    for name in ("instrument_pointing", "body_rotation", "sensor_orientation"):
         block = _block(isd, name)
         if block is None:
             continue
@@ -101,7 +101,7 @@ def check_isd(isd: Mapping, source: Any) -> dict:
         if "ephemeris_times" in block:
             _increasing(_numbers(source, f"{name}.ephemeris_times", block["ephemeris_times"]),
                         source, f"{name}.ephemeris_times")
-    for name in ("instrument_position", "sun_position"):
+    for name in ("instrument_position", "sun_position", "sensor_position"):
         block = _block(isd, name)
         if block is None:
             continue
@@ -115,17 +115,53 @@ def check_isd(isd: Mapping, source: Any) -> dict:
         rate = _numbers(source, "line_scan_rate", isd["line_scan_rate"])
         if rate.size and rate.size % 3 == 0:
             rate = rate.reshape(-1, 3)
-            bad = rate[:, 2] <= 0
+            bad = rate[:, 2] == 0
             if np.any(bad):
                 raise _fail(source, "line_scan_rate", rate[bad][0],
-                            "seconds per line must be positive (zero or negative: the lines "
-                            "run backwards in time or all at once)")
+                            "seconds per line must be positive (zero: the lines all at once)")
+            if np.any(rate[:, 2] < 0):
+                _check_backward_lines(isd, rate, source)
             order = np.argsort(rate[:, 0])
             _increasing(rate[order, 0], source, "line_scan_rate (lines)")
             _increasing(rate[order, 1], source, "line_scan_rate (start times)")
             isd = _extend_one_state(isd, rate, source)
     check_radii_of_body(_isd_radii_m(isd), _isd_naif_body(isd), source, "radii")
     return isd
+
+
+def _check_backward_lines(isd: Mapping, rate: np.ndarray, source) -> None:
+    """A negative time per line is usgscsm's: the time of line ``l`` is ``t_i + dt_i (l −
+    l_i + 0.5)`` whatever the sign (Apollo's panoramic camera scans backwards in time:
+    ALE writes its start 2 s *after* the centre time).  It is refused when the lines it
+    times cannot be the image's: ALE's ``center_ephemeris_time`` is the middle of the
+    image's time span, so it must lie within the lines' times, and at least one line
+    must lie within the sampled ephemeris (one median spacing beyond its ends; lines
+    partly outside are masked by the model, :mod:`demtool.sensors.coverage`)."""
+    if "image_lines" not in isd:
+        return
+    order = np.argsort(rate[:, 0])
+    rate = rate[order]
+    lines = np.array([0.5, float(isd["image_lines"]) - 0.5])
+    i = np.clip(np.searchsorted(rate[:, 0], lines, side="right") - 1, 0, len(rate) - 1)
+    line_times = rate[i, 1] + rate[i, 2] * (lines - rate[i, 0] + 0.5)  # from the centre
+    lo, hi = float(line_times.min()), float(line_times.max())
+    step = float(np.max(np.abs(rate[:, 2])))
+    if not lo - step <= 0.0 <= hi + step:
+        raise _fail(source, "line_scan_rate", rate[rate[:, 2] < 0][0],
+                    "seconds per line must be positive, or negative with the lines running "
+                    f"backwards through the centre time: these lines run from {hi:.6g} s "
+                    f"back to {lo:.6g} s, not through center_ephemeris_time (0 s)")
+    block = _block(isd, "instrument_position")
+    times = None if block is None else block.get("ephemeris_times")
+    if not isinstance(times, list) or len(times) < 2:
+        return
+    t = np.asarray(times, dtype=np.float64) - float(isd.get("center_ephemeris_time", 0.0))
+    margin = float(np.median(np.diff(t)))
+    if hi < t[0] - margin or lo > t[-1] + margin:
+        raise _fail(source, "line_scan_rate", rate[rate[:, 2] < 0][0],
+                    "seconds per line must be positive, or negative with lines inside the "
+                    f"ephemeris: these lines run backwards in time over {lo:.6g} … "
+                    f"{hi:.6g} s, outside the positions' {t[0]:.6g} … {t[-1]:.6g} s")
 
 
 def _isd_radii_m(isd: Mapping) -> tuple[float, float] | None:

@@ -76,7 +76,7 @@ FRAME_CASES = [
     ("image_samples", "64", "not a number"),
     ("image_samples", 64.5, "not a whole number"),
     ("detector_center.line", None, "not a number"),
-    ("detector_line_summing", 0, "must be positive"),
+    ("detector_line_summing", -2, "must be positive"),  # 0 reads as 1 (CaSSIS modes)
     ("sun_position.positions", [[float("nan"), 0.0, 0.0]], "non-finite"),
 ]
 

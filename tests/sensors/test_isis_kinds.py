@@ -203,6 +203,8 @@ REFUSED = {
     "rings/rings1proj.cub": r"is a map-projected cube onto the ring plane",
     "miniRFImage/LSZ_04866_1CD_XKU_89N109_V1_lev1.crop.cub": r"synthetic-aperture radar",
     "lo2isis/case04/3083_med_isis2_cropped.cub": r"is an ISIS2 qube",
+    "tgoCassis/tgocassisstitch/CAS-MCO-2016-11-22T16.16.10.833-PAN-00000-B1_crop.cub":
+        r"models lens distortion \(INS-143400_OD_A1_CORR \(ISIS TgoCassisDistortionMap",
     "tgoCassis/tgocassisstitch/CAS-MCO-2016-11-22T16.16.16.833-RED-01006-B1_crop.cub":
         r"names 'Table' for InstrumentPointing.* but the file has no InstrumentPointing",
 }

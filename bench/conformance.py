@@ -272,14 +272,38 @@ def rows(results: list[Result]) -> list[list[str]]:
         hit = "—" if np.isnan(r.hit_fraction) else f"{100 * r.hit_fraction:.0f} %"
         rt = "—" if np.isnan(r.round_trip_px) else f"{r.round_trip_px:.1e}"
         centre = "—" if r.centre is None else f"{r.centre[0]:.2f}, {r.centre[1]:.2f}"
+        named = name_target(r.path.name)
+        if named is not None and r.centre is not None:
+            centre += (f" (name: {named[1]:+.0f}, {named[0]:+.0f}; "
+                       f"{angle_deg(named, r.centre):.1f}° off)")
         why = r.reason if r.status != "ok" else "; ".join(r.notes)
         out.append([r.group, f"`{r.path.name}`", r.status, r.kind or "—", r.size or "—", hit,
                     rt, centre, why[:240]])
     return out
 
 
+def name_target(name: str) -> tuple[float, float] | None:
+    """(lat, lon °E) a PDS product name states for its image centre (MRO's
+    ``…_22N022W``, ``…_00N096W``), or None."""
+    m = re.search(r"_(\d{2})([NS])(\d{3})([EW])(?:[._]|$)", name)
+    if m is None:
+        return None
+    lat = float(m.group(1)) * (1 if m.group(2) == "N" else -1)
+    lon = float(m.group(3)) * (1 if m.group(4) == "E" else -1)
+    return lat, lon
+
+
+def angle_deg(named: tuple[float, float], centre: tuple[float, float]) -> float:
+    """Great-circle angle (degrees) between a named (lat, lon) and a (lon, lat) centre."""
+    lat1, lon1 = np.radians(named)
+    lon2, lat2 = np.radians(centre)
+    c = np.sin(lat1) * np.sin(lat2) + np.cos(lat1) * np.cos(lat2) * np.cos(lon1 - lon2)
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
 COLUMNS = ["mission / instrument", "file", "verdict", "model", "size (s×l)",
-           "rays on body", "round trip px", "centre lon, lat °", "reason / notes"]
+           "rays on body", "round trip px", "centre lon, lat ° (the name's)",
+           "reason / notes"]
 
 
 def summary(results: list[Result]) -> str:

@@ -159,3 +159,16 @@ def test_a_local_frame_tsai_is_not_put_inside_a_body(tmp_path):
     assert "inside the body" in result.output and "local-frame" in result.output
     assert "Traceback" not in result.output
     assert invoke(tmp_path / "rover.tsai", "--body", "Moon").exit_code == 1
+
+
+def test_a_camera_seeing_no_surface_is_reported_not_refused(tmp_path):
+    """A camera looking past the Moon loads in ``camera`` (which says so) though the
+    stages that need ground refuse it (issue 41)."""
+    position = np.array([3e7, 0.0, 0.0])
+    rotation = look_at_rotation(position, position + np.array([0.0, 1e6, 0.0]),
+                                np.array([0.0, 0.0, 1.0]))
+    path = write_isd(tmp_path / "away.json", frame_isd(position, rotation, focal_mm=20.0,
+                                                       pitch_mm=0.01, lines=64, samples=64))
+    result = invoke(path, "--json")
+    assert result.exit_code == 0, result.output
+    assert "sees no surface" in result.stdout

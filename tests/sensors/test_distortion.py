@@ -105,3 +105,50 @@ def test_apollometric_inverse_gives_up_like_isis():
     dx, dy = d.apply(np.array([10.0, 1e4]), np.array([5.0, 0.0]))
     assert np.isfinite(dx[0]) and np.isfinite(dy[0])
     assert np.isnan(dx[1]) and np.isnan(dy[1])
+
+
+# -- ISIS mission maps ALE writes into ISDs (demtool.sensors.distortion_isis) -------------
+
+MVIC_X = [-2.184e-05, 0.00032911, -2.43e-06, 7.444e-05, -0.00019201, -2.18e-06, 6.86e-06,
+          -5.02e-06, -0.0014441, 6.62e-06, -1.94e-06, 5.37e-06, -8.43e-06, 2.01e-06,
+          -2.89e-06, -1.53e-06, -2.09e-06, -6.7e-07, -4.9e-06, -0.00012455]
+MVIC_Y = [0.0019459, 0.0016936, 1.1e-05, -3.5e-05, 0.0060964, -4.3e-05, 4e-06, -0.002871,
+          -0.001149, -5.1e-05, 0.000336, -0.000414, -0.000388, -0.001225, 0.000373, 0.000415,
+          4.5e-05, 0.000113, -0.0006, 0.000409]  # the IK's INS-98900_DISTORTION_COEF_X/_Y
+
+
+def test_legendre_follows_isis_mvic_frame_map():
+    """NewHorizonsMvicFrameCameraDistortionMap: x, y negated and scaled to [−1, 1], the
+    sum of c_k P_i(x) P_j(y) added; off the detector the point is kept."""
+    from numpy.polynomial import legendre as npleg
+
+    from demtool.sensors.distortion_isis import LEGENDRE_TERMS
+
+    half = (32.5, 0.832)  # MVIC: 5000 × 128 pixels of 13 µm
+    model = Distortion("legendre", [*half, *MVIC_X, *MVIC_Y])
+    x, y = np.array([10.0, -20.0, 31.0]), np.array([0.3, -0.5, 0.8])
+    xs, ys = -x / half[0], -y / half[1]
+
+    def p(n, t):
+        return npleg.legval(t, [0] * n + [1])
+
+    dx = sum(c * p(i, xs) * p(j, ys) for c, (i, j) in zip(MVIC_X, LEGENDRE_TERMS, strict=True))
+    dy = sum(c * p(i, xs) * p(j, ys) for c, (i, j) in zip(MVIC_Y, LEGENDRE_TERMS, strict=True))
+    ux, uy = model.remove(x, y)
+    np.testing.assert_allclose(ux, -(xs + dx) * half[0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(uy, -(ys + dy) * half[1], rtol=0, atol=1e-12)
+    back = model.apply(ux, uy)
+    np.testing.assert_allclose(back, (x, y), atol=1e-9)
+    off = model.remove(np.array([40.0]), np.array([0.1]))  # beyond the 32.5 mm half-width
+    np.testing.assert_array_equal(off, ([40.0], [0.1]))
+
+
+def test_themisir_follows_isis_map():
+    """ThemisIrDistortionMap (band 1: k = 0.996005): x_d = k x_u, y_d = y_u (1 + α1) +
+    α2 y_u², inverted in closed form."""
+    model = Distortion("themisir", [0.00447623, 0.00107556, 0.996005])
+    ux, uy = np.array([-3.0, 0.0, 2.5]), np.array([-1.5, 0.2, 3.1])
+    dx, dy = model.apply(ux, uy)
+    np.testing.assert_allclose(dx, 0.996005 * ux)
+    np.testing.assert_allclose(dy, uy * 1.00447623 + 0.00107556 * uy ** 2)
+    np.testing.assert_allclose(model.remove(dx, dy), (ux, uy), atol=1e-12)

@@ -276,3 +276,20 @@ def test_negative_line_times_through_the_centre_load(tmp_path):
     forward = read_sensor(_write(tmp_path, isd_dict(sensor), "forward.json"))
     np.testing.assert_allclose(model.image_to_ground(10.5, 15.0),
                                forward.image_to_ground(109.5, 15.0), atol=1e-3)
+
+
+@pytest.mark.parametrize("radii, depth_km, inside", [
+    (MARS, 8.0, False),        # Hellas's floor: a camera can be there
+    (MARS, 12.0, True),        # deeper than any Mars surface
+    ((1737400.0, 1737400.0), 9.0, False),   # the Moon's lowest (−9.1 km)
+    ((1737400.0, 1737400.0), 1735.0, True),  # km written as m: 1000× too close
+    ((274.0, 138.0), 60.0, False),   # Itokawa-size: its shape is not the ellipsoid
+    ((274.0, 138.0), 150.0, True),   # below half its mean radius
+])
+def test_inside_the_body_is_judged_against_the_relief(radii, depth_km, inside):
+    from demtool.sensors.body_view import relief_band
+
+    a, b = radii
+    depth = depth_km * 1000.0 if a > 1e5 else depth_km
+    height = height_above_ellipsoid(_on_ellipsoid(30.0, 10.0, -depth, a, b), a, b)
+    assert (height < relief_band(a, b).low) == inside

@@ -106,6 +106,9 @@ class NetworkProblem:
     solve: np.ndarray
     sigmas: np.ndarray
     pixel_sigma: float = 1.0
+    #: ground control from altimetry (:class:`demtool.bundle.network_altimetry.
+    #: ShotSurface`): the points' heights tied to the shots' surface
+    reference: object | None = None
 
 
 @dataclass
@@ -163,6 +166,9 @@ def _cost(problem, theta, points, residuals, keep):
         d = points[constrained] - problem.apriori_points[constrained]
         cost += float(np.einsum("pi,pij,pj->", d, np.linalg.inv(
             problem.point_prior[constrained]), d))
+    if problem.reference is not None:
+        dh, sigma = problem.reference.residuals(points)
+        cost += float(np.nansum((dh / sigma) ** 2))
     return cost
 
 
@@ -208,6 +214,13 @@ def _normal(problem, frames, theta, points, base, lines, keep):
         v[constrained] += inv
         gp[constrained] -= np.einsum("pij,pj->pi", inv, points[constrained]
                                      - problem.apriori_points[constrained])
+    if problem.reference is not None:  # altimetry: one height observation per point
+        dh, sigma = problem.reference.residuals(points)
+        tied = np.flatnonzero(np.isfinite(dh))
+        grad = problem.reference.gradient(points[tied])
+        weight = 1.0 / sigma[tied] ** 2
+        v[tied] += weight[:, None, None] * grad[:, :, None] * grad[:, None, :]
+        gp[tied] -= (weight * dh[tied])[:, None] * grad
     fixed = problem.point_kind == 2
     v[fixed] = np.eye(3)
     gp[fixed] = 0.0
@@ -241,7 +254,11 @@ def _dof(problem, keep) -> int:
         len(problem.models) * int(np.count_nonzero(problem.solve))
     constrained = 3 * int(np.count_nonzero(kinds == 1)) + \
         len(problem.models) * int(np.count_nonzero(problem.solve))
-    return 2 * int(np.count_nonzero(keep)) + constrained - unknowns
+    heights = 0
+    if problem.reference is not None:
+        dh, _ = problem.reference.residuals(problem.points[kept_points])
+        heights = int(np.count_nonzero(np.isfinite(dh)))
+    return 2 * int(np.count_nonzero(keep)) + constrained + heights - unknowns
 
 
 def _solve(problem, frames, theta, points, keep, max_iterations, history):

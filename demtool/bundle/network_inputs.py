@@ -235,3 +235,4 @@ def build_problem(network, models: Sequence, names: Sequence[str], mapping: dict
                              apriori_points=np.array(apriori, dtype=np.float64),
                              solve=solve, sigmas=sigmas, pixel_sigma=pixel_sigma)
     return problem, point_index, measure_index
+

@@ -99,6 +99,10 @@ class BundleParams(Parameters):
                                             "(and 3 --measure-sigma) and adjust again "
                                             "(jigsaw's outlier rejection); 0: none.",
                                             minimum=0.0)
+    reference_points_sigma: float = parameter(1.0, "With --reference-points: standard "
+                                              "deviation of a shot's height, metres, where "
+                                              "the table states none (a sigma column).",
+                                              minimum=0.0, min_open=True)
     seed: int = seed_field()
     workers: int = workers_field()
 

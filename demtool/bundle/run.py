@@ -55,7 +55,8 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
                resolved: dict | None = None,
                control_network: str | os.PathLike | None = None,
                adjusted_network: str | os.PathLike | None = None,
-               serials: str | os.PathLike | None = None) -> dict:
+               serials: str | os.PathLike | None = None,
+               reference_points: str | os.PathLike | None = None) -> dict:
     """Run the bundle stage: read the block, adjust it, write bundle.npz and its sidecar.
 
     ``inputs`` is one selection.json or image paths (or empty with ``image_list``);
@@ -88,12 +89,14 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
         return run_bundle_network(sensors, control_network, out, params,
                                   adjusted_dir=adjusted_dir,
                                   adjusted_network=adjusted_network, serials=serials,
+                                  reference_points=reference_points,
                                   resolved=resolved, started=started)
-    if adjusted_network is not None or serials is not None:
-        from demtool.errors import ParameterError
+    for option, value in (("--adjusted-network", adjusted_network), ("--serials", serials),
+                          ("--reference-points", reference_points)):
+        if value is not None:
+            from demtool.errors import ParameterError
 
-        raise ParameterError(f"{'--adjusted-network' if adjusted_network else '--serials'} "
-                             "needs --control-network")
+            raise ParameterError(f"{option} needs --control-network")
     block = read_block(list(inputs), image_list)
     sensor_paths = sensor_models_of(block, sensors)
     if sensor_paths is not None:

@@ -46,7 +46,8 @@ def report_paths(out) -> tuple[Path, Path]:
 
 def run_bundle_network(sensor_paths: Sequence[Path], network_path, out, params, *,
                        adjusted_dir=None, adjusted_network=None, serials=None,
-                       resolved=None, started: float | None = None) -> dict:
+                       reference_points=None, resolved=None,
+                       started: float | None = None) -> dict:
     """Adjust the sensor models on a control network; write the outputs (module
     docstring).  Returns the sidecar summary."""
     from demtool import io as dio
@@ -86,7 +87,8 @@ def run_bundle_network(sensor_paths: Sequence[Path], network_path, out, params, 
     text_path, points_path = report_paths(out)
     run = StageRun("bundle", params, resolved=resolved,
                    inputs={"--sensors": list(sensor_paths),
-                           "--control-network": network_path, "--serials": serials},
+                           "--control-network": network_path, "--serials": serials,
+                           "--reference-points": reference_points},
                    outputs={"--out": out, "sidecar": sidecar_path(out),
                             "report": [text_path, points_path],
                             "--adjusted-network": adjusted_network,
@@ -119,6 +121,18 @@ def run_bundle_network(sensor_paths: Sequence[Path], network_path, out, params, 
     problem, point_index, measure_index = build_problem(
         network, models, names, mapping, solve=solve, sigmas=_sigmas(params),
         pixel_sigma=params.measure_sigma, source=str(network_path))
+    surface = None
+    if reference_points is not None:
+        surface = _shot_surface(reference_points, models, params)
+        import dataclasses
+
+        problem = dataclasses.replace(problem, reference=surface)
+        tied = int(np.count_nonzero(np.isfinite(surface.residuals(problem.points)[0])))
+        log.info("reference points: %d shots, reach %.1f m; %d of %d network points over "
+                 "them", surface.count, surface.reach, tied, len(problem.points))
+        if not tied:
+            log.warning("no network point lies within %.1f m of a shot: the shots do not "
+                        "control this block", surface.reach)
     measured = sorted(set(problem.observations.image.tolist()))
     if len(measured) < len(models):
         missing = [names[i] for i in range(len(models)) if i not in measured]
@@ -131,6 +145,15 @@ def run_bundle_network(sensor_paths: Sequence[Path], network_path, out, params, 
                  zip(models, frames, solution.theta, strict=True)]
     summary = network_summary(problem, solution, names, network, mapping, point_index,
                               measure_index, params)
+    if surface is not None:
+        dh, sigma = surface.residuals(solution.points)
+        on = np.isfinite(dh)
+        summary["reference_points"] = {
+            "file": str(reference_points), "shots": surface.count, "reach_m": surface.reach,
+            "points_tied": int(on.sum()),
+            "height_residual_rms_m": float(np.sqrt(np.mean(dh[on] ** 2))) if on.any()
+            else None,
+            "height_residual_median_m": float(np.median(dh[on])) if on.any() else None}
     log.info("sigma0 %.4f px (%.4f with the prior models), %d degrees of freedom, %d "
              "iterations; %d measure(s) rejected", solution.sigma0, solution.initial_sigma0,
              solution.dof, solution.iterations, len(solution.rejected))
@@ -191,6 +214,27 @@ def run_bundle_network(sensor_paths: Sequence[Path], network_path, out, params, 
     if not written:
         log.warning("no --adjusted-dir: the adjusted sensor models are not written")
     return summary
+
+
+def _shot_surface(path, models, params):
+    """The :class:`ShotSurface` of an altimetry table, refused when its radii are far
+    from the models' body."""
+    from demtool.bundle.network_altimetry import ShotSurface
+    from demtool.errors import InputError
+    from demtool.io.altimetry import BODY_TOLERANCE, read_shots
+
+    shots = read_shots(path)
+    radius = next((m.radii[0] for m in models if m.radii is not None), None)
+    if radius is None:
+        raise InputError(f"{path}: the sensor models give no body radius to place the "
+                         "shots on")
+    if shots.radius is not None:
+        median = float(np.median(shots.radius))
+        if abs(median - radius) > BODY_TOLERANCE * radius:
+            raise InputError(f"{path}: the shots' radii (median {median / 1e3:.1f} km) are "
+                             f"far from the models' body ({radius / 1e3:.1f} km): altimetry "
+                             "of another body?")
+    return ShotSurface(shots, radius=radius, sigma=params.reference_points_sigma)
 
 
 def _adjusted_network(network, problem, solution, point_index, measure_index):

@@ -63,7 +63,9 @@ rejected (--rejection-multiplier).  The network's serial numbers are matched to 
 models by their spacecraft clock (or --serials LIST: one serial a line, one per model).
 OUT.bundleout.txt and OUT.points.csv report sigma0, per-image residuals and corrections,
 per-point residuals and the rejected measures (jigsaw's bundleout); --adjusted-network
-receives the adjusted network, --adjusted-dir the adjusted models.
+receives the adjusted network, --adjusted-dir the adjusted models.  --reference-points
+SHOTS ties the points' heights to laser altimetry (a surface through the shots, within 3
+shot spacings of them; sigma per shot from the table or --reference-points-sigma).
 """
 
 
@@ -92,6 +94,9 @@ receives the adjusted network, --adjusted-dir the adjusted models.
                      "to adjust the --sensors models on.")
 @click.option("--adjusted-network", type=click.Path(dir_okay=False),
               help="With --control-network: write the adjusted network (.net) here.")
+@options.path_option("--reference-points", "With --control-network: laser altimetry shots "
+                     "(LOLA RDR, MOLA PEDR, named columns) as ground control of the "
+                     "points' heights (sigma: the table's or --reference-points-sigma).")
 @options.path_option("--serials", "With --control-network: the serial number of each "
                      "--sensors model, one a line, same order.")
 @options.parameter_options(BundleParams)
@@ -100,7 +105,7 @@ def command(ctx: click.Context, inputs: tuple[str, ...], images: str | None, out
             colmap_dir: str | None, cameras: str | None, align_cameras: str | None,
             sensors: tuple[str, ...], adjusted_dir: str | None, reference_dem: str | None,
             control_network: str | None, adjusted_network: str | None, serials: str | None,
-            **values: Any) -> None:
+            reference_points: str | None, **values: Any) -> None:
     """Options → BundleParams → :func:`demtool.bundle.run.run_bundle`."""
     from demtool.bundle.run import run_bundle
     from demtool.cli import AppState
@@ -119,5 +124,6 @@ def command(ctx: click.Context, inputs: tuple[str, ...], images: str | None, out
                sensors=list(sensors) or None, adjusted_dir=adjusted_dir,
                reference_dem=reference_dem, control_network=control_network,
                adjusted_network=adjusted_network, serials=serials,
+               reference_points=reference_points,
                verbose=state is not None and state.verbosity > 0,
                resolved=options.resolved_params(ctx))

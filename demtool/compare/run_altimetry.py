@@ -21,9 +21,6 @@ from demtool.stagerun import StageRun, sidecar_path
 
 #: file suffixes read as altimetry tables by ``compare``
 SHOT_SUFFIXES = (".csv", ".tab", ".txt")
-#: a shot radius farther than this share of the DEM's body radius from it is another body
-#: (relief on the Moon and Mars stays within ±21 km, < 1 % of their radii)
-BODY_TOLERANCE = 0.05
 
 
 def is_shot_table(path) -> bool:
@@ -62,7 +59,7 @@ def run_compare_shots(dem_path: str | os.PathLike, shots_path: str | os.PathLike
     )
     from demtool.compare.params import CompareParams
     from demtool.errors import InputError
-    from demtool.io.altimetry import read_shots
+    from demtool.io.altimetry import BODY_TOLERANCE, read_shots
     from demtool.logs import get_logger
 
     params = params or CompareParams()

@@ -32,6 +32,9 @@ import numpy as np
 
 from demtool.errors import InputError
 
+#: a shot radius farther than this share of a body's radius from it is another body's
+#: (relief on the Moon and Mars stays within ±21 km, < 1 % of their radii)
+BODY_TOLERANCE = 0.05
 #: TAI − UTC (s) from each date on (IERS Bulletin C)
 LEAP_SECONDS = [("1996-01-01", 30), ("1997-07-01", 31), ("1999-01-01", 32),
                 ("2006-01-01", 33), ("2009-01-01", 34), ("2012-07-01", 35),
@@ -46,6 +49,7 @@ _NAMES = {
     "time": ("utc", "time", "coordinated_universal_time", "date", "datetime"),
     "et": ("ephemeristime", "ephemeris_time", "et", "tdb"),
     "track": ("orbit", "track", "orbit_number", "pass"),
+    "sigma": ("sigma", "sigma_m", "uncertainty", "height_sigma", "radius_sigma"),
 }
 
 
@@ -63,6 +67,8 @@ class Shots:
         Metres above the body's reference surface, when the file gives heights.
     time : (N,) float64 or None
         Ephemeris seconds (TDB past J2000), when the file has times.
+    sigma : (N,) float64 or None
+        Each shot's stated standard deviation (metres; a ``sigma`` column), if any.
     track : (N,) int
         Track of each shot: the file's orbit column, else runs of shots without a gap
         of more than ten times their median spacing in time (0 without times).
@@ -76,6 +82,7 @@ class Shots:
     time: np.ndarray | None
     track: np.ndarray
     source: str
+    sigma: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.lon)
@@ -163,7 +170,7 @@ def read_shots(path: str | os.PathLike, *, lon: str | None = None, lat: str | No
     if has_header:
         cols = {k: _find(first, k, g, source) for k, g in
                 (("lon", lon), ("lat", lat), ("radius", radius), ("height", height),
-                 ("time", None), ("et", None), ("track", None))}
+                 ("time", None), ("et", None), ("track", None), ("sigma", None))}
         if radius is None and height is not None:
             cols["radius"] = None
         if cols["lon"] is None or cols["lat"] is None or (cols["radius"] is None and
@@ -180,7 +187,7 @@ def read_shots(path: str | os.PathLike, *, lon: str | None = None, lat: str | No
                              "(UTC, longitude, latitude, radius km); this one has "
                              f"{len(first)}")
         cols = {"time": 0, "lon": 1, "lat": 2, "radius": 3, "height": None, "et": None,
-                "track": None}
+                "track": None, "sigma": None}
         names = ["radius_km"]
     try:
         table = {k: np.array([float(r[i]) for r in body]) for k, i in cols.items()
@@ -216,4 +223,5 @@ def read_shots(path: str | os.PathLike, *, lon: str | None = None, lat: str | No
     if cols.get("track") is not None:
         track_values = [row[cols["track"]] for row in body]
     return Shots(lon=table["lon"], lat=table["lat"], radius=r, height=h, time=time,
-                 track=_tracks(time, track_values), source=str(Path(source)))
+                 track=_tracks(time, track_values), source=str(Path(source)),
+                 sigma=table.get("sigma"))

@@ -128,3 +128,33 @@ def test_serials_of_two_missions_match_each_by_its_own_clock(block):
     assert mapping == {serials[0]: 0, serials[1]: 1, other: 2}
     assert match_serials(["X/Y/12345:0"], priors, NAMES,
                          label_clocks=[None, "12345:0", None]) == {"X/Y/12345:0": 1}
+
+
+def test_known_pointing_error_is_recovered_with_altimetry_as_ground_control(block):
+    """No control points: the heights of the network's points tied to laser shots (a grid
+    of tracks 10 m apart over the analytic terrain, 0.3 m noise)."""
+    import dataclasses
+
+    from demtool.bundle.network_altimetry import ShotSurface
+    from demtool.io.altimetry import Shots
+    from tests.helpers.linescan import R, terrain
+
+    models, theta, priors = block
+    network, _ = nb.network(models, count=40, noise_px=0.1)
+    mapping = match_serials(network.serials(), priors, NAMES)
+    problem, _, _ = build_problem(network, priors, NAMES, mapping,
+                                  solve=solve_mask(["angles", "rates"]), sigmas=SIGMAS,
+                                  pixel_sigma=0.1)
+    metre = 1.0 / (R * np.radians(1.0))
+    lat = np.tile(5.0 + np.linspace(-600, 600, 241) * metre, 121)
+    lon = np.repeat(10.0 + np.arange(-60, 61) * 10 * metre / np.cos(np.radians(5.0)), 241)
+    height = terrain(lon, lat) + np.random.default_rng(1).normal(0, 0.3, len(lon))
+    shots = Shots(lon, lat, R + height, None, np.arange(len(lon)) * 0.01,
+                  np.zeros(len(lon), dtype=int), "synthetic")
+    surface = ShotSurface(shots, radius=R, sigma=0.3)
+    solution = adjust_network(dataclasses.replace(problem, reference=surface))
+    error = solution.theta[:, :6] + theta[:, :6]
+    assert np.all(np.abs(error) < 3 * solution.theta_sigma[:, :6])
+    assert np.all(np.abs(error[:, :2]) < 0.3 * np.abs(theta[:, :2]).max())  # omega, phi
+    dh, _ = surface.residuals(solution.points)
+    assert np.nanmedian(np.abs(dh)) < 1.0

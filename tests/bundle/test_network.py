@@ -158,3 +158,20 @@ def test_known_pointing_error_is_recovered_with_altimetry_as_ground_control(bloc
     assert np.all(np.abs(error[:, :2]) < 0.3 * np.abs(theta[:, :2]).max())  # omega, phi
     dh, _ = surface.residuals(solution.points)
     assert np.nanmedian(np.abs(dh)) < 1.0
+
+
+def test_reference_points_of_another_body_are_one_line_exit_1(block, tmp_path):
+    models, theta, _ = block
+    paths = []
+    for k, isd in enumerate(nb.prior_isds(models, theta)):
+        paths.append(tmp_path / f"{NAMES[k]}.json")
+        paths[-1].write_text(json.dumps(isd))
+    network, _ = nb.network(models, count=4)
+    net = write_control_network(tmp_path / "n.net", network)
+    mars = tmp_path / "mars.csv"
+    mars.write_text("longitude,latitude,radius_km\n10,5,3396.2\n10.001,5,3396.1\n")
+    code, lines = _run(["-q", "bundle", "--control-network", net, "--out", tmp_path / "b.npz",
+                        "--reference-points", mars,
+                        *sum((["--sensors", p] for p in paths), [])])
+    assert code == 1 and len(lines) == 1 and "another body" in lines[0]
+    assert not (tmp_path / "b.npz").exists()

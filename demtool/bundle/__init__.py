@@ -23,7 +23,7 @@ from demtool.lazy import lazy_exports
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "align": ("align_to_centres", "apply_similarity", "umeyama"),
-    "block": ("BlockAdjustment", "adjust_block", "known_intrinsics"),
+    "block": ("BlockAdjustment", "adjust_block", "check_focal_px", "known_intrinsics"),
     "calibration": ("self_calibrate",),
     "colmap": ("CAMERA_MODELS", "EXHAUSTIVE_MAX_IMAGES", "MATCHERS", "KnownIntrinsics",
         "SfmOptions", "colmap_camera_params", "impose_intrinsics", "run_sfm"),

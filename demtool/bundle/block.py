@@ -172,6 +172,45 @@ def adjust_block(images: Iterable[tuple[str, np.ndarray]], options: SfmOptions, 
     return BlockAdjustment(result=result, summary=summary, model_files=model_files)
 
 
+#: the widest field of view (degrees, across the image's diagonal) of a pinhole camera:
+#: the widest rectilinear lenses made cover about 130° (a 10 mm lens on a 36 × 24 mm
+#: frame); a focal length giving more than this is a unit slip (µm typed as mm) or a
+#: fisheye, which the pinhole models here do not describe
+MAX_PINHOLE_FOV_DEG = 150.0
+
+
+def check_focal_px(focal_px: float, shape: tuple[int, int], source: str) -> None:
+    """Refuse a focal length (pixels) no pinhole camera of this image size can have.
+
+    Parameters
+    ----------
+    focal_px : float
+    shape : (height, width)
+        Pixels of one image of the block.
+    source : str
+        The options that gave it, named in the error (``--focal-mm 14 / --pixel-mm 7``).
+
+    Raises
+    ------
+    ParameterError
+        Not a positive finite number, or a diagonal field of view beyond
+        :data:`MAX_PINHOLE_FOV_DEG`.
+    """
+    from demtool.errors import ParameterError
+
+    height, width = shape
+    if not (np.isfinite(focal_px) and focal_px > 0):
+        raise ParameterError(f"{source}: the focal length would be {focal_px:g} px; it must "
+                             "be a positive number")
+    fov = float(np.degrees(2 * np.arctan(np.hypot(width, height) / 2 / focal_px)))
+    if fov > MAX_PINHOLE_FOV_DEG:
+        raise ParameterError(
+            f"{source}: a focal length of {focal_px:.4g} px gives the {width}×{height} px "
+            f"images a field of view of {fov:.1f}° (a pinhole camera: at most "
+            f"{MAX_PINHOLE_FOV_DEG:g}°); check the units (--pixel-mm is millimetres: "
+            "7 µm is 0.007)")
+
+
 def known_intrinsics(shapes: Mapping[str, tuple[int, int]], *, focal_px: float | None = None,
                      matrices: Mapping[str, np.ndarray] | None = None,
                      refine: bool = False) -> dict[str, KnownIntrinsics]:

@@ -153,6 +153,10 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
     def intrinsics(shapes):
         if focal_px is None and known_cameras is None:
             return None
+        if focal_px is not None:
+            for shape in set(shapes.values()):
+                core.check_focal_px(focal_px, shape, known_decisions(params, None)["f"]
+                                    ["source"])
         return core.known_intrinsics(
             shapes, focal_px=focal_px, refine=params.refine_intrinsics,
             matrices=None if known_cameras is None else

@@ -93,6 +93,40 @@ NPZ_OPTIONAL_SCHEMAS: dict[str, dict[str, tuple[tuple, str]]] = {
 }
 
 
+# Keys whose every value is a number a geometry can use (issue 46: a NaN in a camera's K
+# went on unnoticed); their cameras' focal lengths K[0, 0], K[1, 1] must be positive.
+FINITE_KEYS = {"cameras": ("K", "R", "t"), "bundle": ("K", "R", "t"),
+               "rectification": ("H_left", "H_right", "F")}
+_NAMES_KEY = {"cameras": "names", "bundle": "image_names"}
+
+
+def _check_values(path: Path, kind: str, arrays: Mapping[str, np.ndarray]) -> None:
+    """Refuse a non-finite value in :data:`FINITE_KEYS` or a focal length ≤ 0, naming
+    the key, the camera and the value."""
+    names = np.asarray(arrays.get(_NAMES_KEY.get(kind, ""), []))
+
+    def which(index: tuple) -> str:
+        if names.ndim == 1 and index and index[0] < len(names):
+            return f" of camera {names[index[0]]}"
+        return ""
+
+    for key in FINITE_KEYS.get(kind, ()):
+        value = np.asarray(arrays[key], dtype=np.float64)
+        bad = np.argwhere(~np.isfinite(value))
+        if len(bad):
+            index = tuple(int(i) for i in bad[0])
+            raise InputError(f"{path}: '{key}'{which(index)} holds {value[index]} at "
+                             f"{list(index)}: not a number a camera can have")
+    if "K" in FINITE_KEYS.get(kind, ()):
+        K = np.asarray(arrays["K"], dtype=np.float64)
+        focal = np.stack([K[..., 0, 0], K[..., 1, 1]], axis=-1)
+        bad = np.argwhere(focal <= 0)
+        if len(bad):
+            index = tuple(int(i) for i in bad[0][:-1])
+            raise InputError(f"{path}: 'K'{which(index)} has the focal length "
+                             f"{focal[(*index, bad[0][-1])]:g} px: it must be positive")
+
+
 def _check_array(path: Path, kind: str, key: str, value: np.ndarray, pattern: tuple,
                  dtype_kind: str, sizes: dict[str, int]) -> None:
     kinds = {"f": "fc", "i": "iu", "b": "b", "U": "U"}[dtype_kind]
@@ -124,6 +158,7 @@ def validate_npz(path: Path, kind: str, arrays: Mapping[str, np.ndarray]) -> Non
         if key not in arrays:
             raise InputError(f"{path}: {kind} file lacks the key '{key}'")
         _check_array(path, kind, key, np.asarray(arrays[key]), pattern, dtype_kind, sizes)
+    _check_values(path, kind, arrays)
     optional = NPZ_OPTIONAL_SCHEMAS.get(kind, {})
     if kind == "rectification" and "calibrated" in arrays and bool(arrays["calibrated"]):
         for key in optional:

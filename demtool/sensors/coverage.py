@@ -204,6 +204,11 @@ def attach_coverage(model, source: str, series: dict[str, np.ndarray],
     note = coverage_note(model, runs)
     if note is None:
         return
+    timing = ""
+    if getattr(model, "kind", "") == "pushframe":  # the line times are the framelets'
+        timing = (" (the lines' times come from the framelet keys starting_ephemeris_time, "
+                  "interframe_delay and exposure_duration: check those first)")
+        note = note.replace(": masked", f"{timing}: masked")
     if not runs:
         raise InputError(f"{source}: no image line lies within the sampled ephemeris: "
                          f"{note.split(': masked')[0]}; demtool does not extrapolate the orbit "

@@ -92,7 +92,12 @@ class PushFrameSensor(LineScanSensor):
     def framelet(self, line) -> np.ndarray:
         """Framelet number (int64, in image order) of image lines."""
         line = np.asarray(line, dtype=np.float64)
-        return np.trunc(line / self.summed_height).astype(np.int64)
+        k = np.trunc(line / self.summed_height).astype(np.int64)
+        # the last framelet's bottom edge (line = n_framelets · h, the image's edge when
+        # it holds whole framelets) is that framelet's, not the start of one more that
+        # was never exposed (issue 46: no ray at line = image_lines)
+        edge = self.n_framelets * self.summed_height
+        return np.where((k == self.n_framelets) & (line <= edge), k - 1, k)
 
     def framelet_time(self, framelet) -> np.ndarray:
         """Exposure time (seconds from the centre time) of framelets in image order."""
@@ -117,7 +122,8 @@ class PushFrameSensor(LineScanSensor):
 
     # -- image → ground --------------------------------------------------------------
     def _detector_line(self, line) -> np.ndarray:
-        within = np.fmod(np.asarray(line, dtype=np.float64), self.summed_height)
+        line = np.asarray(line, dtype=np.float64)
+        within = line - self.framelet(line) * self.summed_height
         return self.summed_height - within if self.framelets_flipped else within
 
     def image_to_ray(self, line, sample) -> Ray:
@@ -269,6 +275,10 @@ def framelet_keys(keys, isd, center_time: float) -> dict:
     except (TypeError, ValueError):
         raise InputError(f"{keys.source}: ISD framelet keys must be numbers "
                          f"({', '.join(FRAMELET_KEYS[:4])})") from None
+    for key, number in numbers.items():
+        if not np.isfinite(number):
+            raise InputError(f"{keys.source}: ISD key '{key}' is {values[key]!r}: not a "
+                             "finite number")
     if numbers["framelet_height"] != int(numbers["framelet_height"]):
         raise InputError(f"{keys.source}: ISD key 'framelet_height' is "
                          f"{values['framelet_height']!r}, expected a whole number of lines")

@@ -97,6 +97,13 @@ def _pushframe_window(model, line0: int, detector, lines: int, samples: int):
     return out
 
 
+#: the least convergence (degrees) of a synthetic stereo pair: one model given twice (or
+#: two of one viewpoint) has none and renders two identical images, no parallax at all.
+#: Only that degenerate case is refused: a pair of line-scan windows 93 m apart on a
+#: 50 km orbit converges 0.1° and still measures relief on a synthetic scene.
+MIN_CONVERGENCE_DEG = 0.01
+
+
 def real_pair(paths, params) -> tuple[Any, dict[str, Any], Any, dict[str, Any]]:
     """Read two models, place the scene under their common footprint and cut windows.
 
@@ -135,6 +142,11 @@ def real_pair(paths, params) -> tuple[Any, dict[str, Any], Any, dict[str, Any]]:
     pair = pair_geometry(models[0], models[1], body)
     if pair.get("overlap_center_lon_deg") is None:
         raise InputError(f"{paths[0]}, {paths[1]}: the two footprints do not overlap")
+    if not pair.get("convergence_deg", 0.0) >= MIN_CONVERGENCE_DEG:
+        raise InputError(f"{paths[1]}: sees the overlap from where {paths[0]} does "
+                         f"(convergence {pair.get('convergence_deg', 0.0):.3g}°, base "
+                         f"{pair.get('base_m', 0.0):.4g} m; a stereo pair needs at least "
+                         f"{MIN_CONVERGENCE_DEG:g}°): give two views of the area")
     lon, lat = pair["overlap_center_lon_deg"], pair["overlap_center_lat_deg"]
     place = placement(body, lon, lat)
     centre = body.radius * unit_vector(lon, lat)

@@ -123,3 +123,43 @@ def test_fuse_with_a_coarse_dem_first_coregisters_the_fine_ones(tmp_path):
     dems = json.loads(out.with_name("fused.tif.json").read_text())["summary"]["dems"]
     dx_m = dems[2]["alignment"]["shift"]["dx_px"] * 8 * GSD  # fused cells of 16 m
     assert abs(dx_m - (-1.5 * GSD)) < 0.5, dems[2]["alignment"]
+
+
+# ---------------------------------------------------------------- values that cannot be right
+def test_bundle_refuses_a_focal_length_no_pinhole_camera_has(tmp_path):
+    """--focal-mm 14 --pixel-mm 7 (µm typed as mm): 2 px, a 177° field of view on 96 px
+    images; refused before any matching, naming both options and the value."""
+    paths = []
+    for name in ("a", "b"):
+        paths.append(tmp_path / f"{name}.tif")
+        dio.write_raster(paths[-1], np.random.default_rng(len(paths)).random((96, 96)))
+    out = tmp_path / "bundle.npz"
+    refused(invoke("bundle", *paths, "--focal-mm", "14", "--pixel-mm", "7", "--out", out),
+            "--focal-mm 14 / --pixel-mm 7", "2 px", "field of view", out=out)
+
+
+@pytest.mark.parametrize("kind, key, index, value, words", [
+    ("cameras", "K", (1, 0, 0), np.nan, ["'K' of camera view_01 holds nan"]),
+    ("cameras", "t", (0, 2), np.inf, ["'t' of camera view_00 holds inf"]),
+    ("cameras", "K", (0, 1, 1), -800.0, ["'K' of camera view_00", "focal length -800"]),
+])
+def test_camera_files_with_values_no_camera_has_are_refused(tmp_path, kind, key, index,
+                                                            value, words):
+    """A NaN or infinite K, R or t, or a focal length ≤ 0, in cameras.npz: refused on
+    reading, naming the file, the key, the camera and the value (a NaN K went on)."""
+    from demtool.errors import InputError
+
+    K = np.array([[800.0, 0, 48], [0, 800.0, 48], [0, 0, 1]])
+    arrays = {"names": np.array(["view_00", "view_01"]), "K": np.stack([K, K]),
+              "R": np.stack([np.eye(3)] * 2), "t": np.zeros((2, 3)),
+              "width": np.array([96, 96]), "height": np.array([96, 96])}
+    good = tmp_path / "good.npz"
+    dio.write_npz(good, kind, arrays)
+    arrays[key][index] = value
+    path = tmp_path / "bad.npz"
+    np.savez(path, **arrays, kind=np.asarray(kind), format_version=np.asarray(3))
+    with pytest.raises(InputError) as caught:
+        dio.read_npz(path, kind)
+    for word in [str(path), *words]:
+        assert word in str(caught.value), caught.value
+    assert dio.read_npz(good, kind)["K"].shape == (2, 3, 3)

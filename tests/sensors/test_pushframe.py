@@ -117,3 +117,29 @@ def test_push_frame_isd_with_bad_framelet_values_is_refused():
     isd["framelets_flipped"] = "no"
     with pytest.raises(InputError, match=r"pf\.json: ISD key 'framelets_flipped' is 'no'"):
         sensor_from_isd(isd, "pf.json")
+
+
+def test_push_frame_isd_with_a_nan_framelet_key_is_refused_in_one_line():
+    """Issue 46: a NaN framelet_height was a ValueError traceback."""
+    isd = _isd()
+    isd["framelet_height"] = float("nan")
+    with pytest.raises(InputError, match=r"pf\.json: ISD key 'framelet_height' is nan"):
+        sensor_from_isd(isd, "pf.json")
+
+
+def test_push_frame_timing_off_the_ephemeris_names_the_framelet_keys():
+    """Issue 46: framelet times outside the ephemeris are blamed on the timing keys, not
+    on instrument_position alone."""
+    isd = _isd()
+    isd["starting_ephemeris_time"] += 1e6
+    with pytest.raises(InputError, match=r"pf\.json: no image line .*starting_ephemeris_time"):
+        sensor_from_isd(isd, "pf.json")
+
+
+def test_push_frame_gives_a_ray_at_the_image_edge(model):
+    """Issue 46: line = image_lines (the last framelet's bottom edge) has a ray, continuous
+    with the lines just above it (no "limb" for a nadir view)."""
+    edge = float(model.lines)
+    xyz = model.image_to_ground(np.array([edge - 1e-3, edge]), np.array([8.0, 8.0]))
+    assert np.isfinite(xyz).all()
+    assert np.linalg.norm(xyz[1] - xyz[0]) < 1.0  # 1e-3 line apart: well under a metre

@@ -106,3 +106,15 @@ def test_push_frame_window_and_isd():
                                    atol=1e-3)
     with pytest.raises(ValueError, match="whole framelets: line 5"):
         window(model, 5, 0, 12, 16)
+
+
+def test_synth_refuses_one_model_twice(tmp_path):
+    """Issue 46: one model given twice has no baseline (no parallax): refused, naming it."""
+    from demtool.synth import SceneParams
+    from demtool.synth.run import run_synth
+
+    left, _ = _pair(tmp_path)
+    with pytest.raises(InputError, match=r"left\.json: sees the overlap from where .*left\.json "
+                                         r"does \(convergence 0°"):
+        run_synth(tmp_path / "o", SceneParams(image_size=64), sensor_models=(left, left))
+    assert not (tmp_path / "o").exists()

@@ -128,8 +128,11 @@ def read_models(paths: Sequence[str | os.PathLike], body: Body | None = None):
     models, bodies, files = {}, {}, {}
     for raw in paths:
         path = Path(raw)
-        for name, model in read_sensors(path, radii=radii, require_surface=False).items():
-            key = name or path.stem
+        found = read_sensors(path, radii=radii, require_surface=False)
+        for name, model in found.items():
+            # a file of one model is named by its file, as given (pairs.txt, the tables):
+            # an ISD's internal image id need not match a renamed file (issue 46)
+            key = path.stem if len(found) == 1 else (name or path.stem)
             if key in models:
                 key = f"{path.name}:{key}"
             models[key] = _sized(model)

@@ -86,9 +86,15 @@ def run_pairs(models: Sequence[str | os.PathLike], params: PairsParams | None = 
     log.info("%d model(s), %d pair(s) measured, %d kept", len(sensors), len(verdicts),
              len(chosen))
     if not chosen:
-        raise InputError(f"no pair of the {len(sensors)} models passes the limits:\n{table}\n"
-                         "widen --min-overlap, --min/--max-convergence, --min/--max-bh or "
-                         "--max-sun-difference")
+        for line in table.splitlines():  # why, pair by pair: the log (hidden by -q)
+            log.info("%s", line)
+        reasons = [r.split(" ")[0] for v in verdicts for r in v["reasons"]]
+        common = max(set(reasons), key=reasons.count) if reasons else None
+        raise InputError(f"no pair of the {len(sensors)} models passes the limits ("
+                         f"{len(verdicts)} pair(s)"
+                         + (f"; most often left out by {common}" if common else "")
+                         + "; the log's table says why for each); widen --min-overlap, "
+                         "--min/--max-convergence, --min/--max-bh or --max-sun-difference")
     result = {"pairs": verdicts, "chosen": [[v["first"], v["second"]] for v in chosen]}
     if out is not None:
         summary = {"models": len(sensors), "pairs": len(verdicts), "chosen": result["chosen"]}

@@ -58,3 +58,34 @@ def test_one_model_and_inverted_ranges_are_refused(block, tmp_path):
     assert result.exit_code == 1 and "a block needs at least two" in result.output
     result = invoke(*block, "--min-bh", "0.8", "--max-bh", "0.5")
     assert result.exit_code == 1 and "--min-bh must be <= --max-bh 0.5" in result.output
+
+
+def test_no_pair_passing_is_one_line_at_q_and_the_table_goes_to_the_log(block, tmp_path):
+    """Issue 46: the Error is one line (it was the table, 4–9 lines); the table is logged."""
+    out = tmp_path / "pairs.txt"
+    args = [*map(str, block), "--min-bh", "0.95", "--max-bh", "1.0", "--out", str(out)]
+    quiet = CliRunner().invoke(cli, ["-q", "pairs", *args])
+    assert quiet.exit_code == 1
+    assert quiet.output.strip().splitlines() == [
+        line for line in quiet.output.strip().splitlines() if line.startswith("Error:")]
+    assert len(quiet.output.strip().splitlines()) == 1 and "B/H" in quiet.output
+    logged = CliRunner().invoke(cli, ["pairs", *args])
+    assert "verdict" in logged.output and "v0 v1" in logged.output
+    assert not out.exists()
+
+
+def test_pairs_txt_names_the_files_as_given(block, tmp_path):
+    """Issue 46: renamed ISDs (their internal image ids v0…v3 unchanged) are listed by
+    their file names, so a loop over pairs.txt finds the files."""
+    import shutil
+
+    renamed = []
+    for i, path in enumerate(block):
+        renamed.append(tmp_path / f"M{1000 + i}LE.json")
+        shutil.copy(path, renamed[-1])
+    out = tmp_path / "pairs.txt"
+    result = invoke(*renamed, "--out", out)
+    assert result.exit_code == 0, result.output
+    for line in out.read_text().splitlines():
+        for stem in line.split():
+            assert (tmp_path / f"{stem}.json").is_file(), line

@@ -145,6 +145,9 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
         "interpolated_fraction": float(result.filled.sum() / max(1, result.overlap.sum())),
         **result.report,
     }
+    log.info("%.1f %% of the DEM's cells in the pair's overlap are interpolated (%d of %d)",
+             100 * summary["interpolated_fraction"], int(result.filled.sum()),
+             int(result.overlap.sum()))
     return summary, result, body
 
 

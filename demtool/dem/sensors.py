@@ -102,6 +102,12 @@ def triangulate_sensors(left: SensorModel, right: SensorModel, left_line, left_s
     return intersect_rays(ray_l.origin, ray_l.direction, ray_r.origin, ray_r.direction)
 
 
+#: the largest fraction of the points in front of both cameras a user's --max-ray-gap may
+#: drop: beyond it the DEM is interpolated from a tenth of its measurements or less (the
+#: default threshold, median + max(4 NMAD, 2 GSD), drops less than half by construction)
+MAX_DROPPED_FRACTION = 0.9
+
+
 def screen_ray_gaps(gap: np.ndarray, in_front: np.ndarray, max_ray_gap: float | None,
                     gsd_m: float) -> tuple[np.ndarray, float, float]:
     """Which triangulated points to keep: in front of both cameras and with rays that
@@ -124,13 +130,29 @@ def screen_ray_gaps(gap: np.ndarray, in_front: np.ndarray, max_ray_gap: float | 
     max_gap, median_gap : float
         The threshold used and the median gap of the points in front, metres.
 
-    A threshold that drops most points is logged as a warning (issue 31).
+    A threshold that drops most points is logged as a warning (issue 31); a
+    ``--max-ray-gap`` that drops more than :data:`MAX_DROPPED_FRACTION` of them is refused
+    (issue 46: 98.8 % dropped gave a DEM interpolated almost everywhere, exit 0).
+
+    Raises
+    ------
+    ParameterError
+        ``--max-ray-gap`` keeps less than ``1 − MAX_DROPPED_FRACTION`` of the points.
     """
+    from demtool.errors import ParameterError
+
     gaps = gap[in_front]
     max_gap = float(max_ray_gap) if max_ray_gap is not None else default_max_ray_gap(gaps,
                                                                                      gsd_m)
     keep = in_front & (gap <= max_gap)
     dropped, front = int((in_front & ~keep).sum()), int(in_front.sum())
+    if max_ray_gap is not None and dropped > MAX_DROPPED_FRACTION * front:
+        raise ParameterError(
+            f"--max-ray-gap {max_gap:.3g} m drops {dropped} of {front} points "
+            f"({100.0 * dropped / front:.1f} %; median gap {np.median(gaps):.3g} m): the DEM "
+            f"would be interpolated from the {front - dropped} left (at most "
+            f"{100 * MAX_DROPPED_FRACTION:.0f} % may be dropped); give a larger --max-ray-gap "
+            "or leave it out (median + max(4 NMAD, 2 GSD))")
     if dropped > 0.5 * front:
         log.warning("--max-ray-gap %.3g m drops %d of %d points (%.1f %%): the models may not "
                     "fit this disparity (or give a larger --max-ray-gap)", max_gap, dropped,

@@ -103,6 +103,17 @@ def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gs
             yield height[gap <= max_gap]
 
     kept = sum(h.size for h in kept_heights())
+    from demtool.dem.sensors import MAX_DROPPED_FRACTION
+
+    if params.max_ray_gap is not None and front - kept > MAX_DROPPED_FRACTION * front:
+        from demtool.errors import ParameterError
+
+        raise ParameterError(
+            f"--max-ray-gap {max_gap:.3g} m drops {front - kept} of {front} points "
+            f"({100.0 * (front - kept) / front:.1f} %; median gap {median_gap:.3g} m): the "
+            f"DEM would be interpolated from the {kept} left (at most "
+            f"{100 * MAX_DROPPED_FRACTION:.0f} % may be dropped); give a larger --max-ray-gap "
+            "or leave it out (median + max(4 NMAD, 2 GSD))")
     log.info("%d correspondences in front of both cameras, %d rays missing by more than "
              "%.3g m (median gap %.3g m, GSD %.3g m)", front, front - kept, max_gap,
              median_gap, gsd)

@@ -91,6 +91,10 @@ class PushFrameSensor(LineScanSensor):
     # -- time ------------------------------------------------------------------------
     def framelet(self, line) -> np.ndarray:
         """Framelet number (int64, in image order) of image lines."""
+        return self._framelet_of(line)
+
+    def _framelet_of(self, line) -> np.ndarray:
+        """:meth:`framelet` of lines of the full image (not overridden by windows)."""
         line = np.asarray(line, dtype=np.float64)
         k = np.trunc(line / self.summed_height).astype(np.int64)
         # the last framelet's bottom edge (line = n_framelets · h, the image's edge when
@@ -123,7 +127,7 @@ class PushFrameSensor(LineScanSensor):
     # -- image → ground --------------------------------------------------------------
     def _detector_line(self, line) -> np.ndarray:
         line = np.asarray(line, dtype=np.float64)
-        within = line - self.framelet(line) * self.summed_height
+        within = line - self._framelet_of(line) * self.summed_height
         return self.summed_height - within if self.framelets_flipped else within
 
     def image_to_ray(self, line, sample) -> Ray:

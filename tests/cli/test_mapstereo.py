@@ -251,3 +251,13 @@ def test_dem_refuses_a_disparity_pointing_off_the_right_ortho(route, tmp_path):
                     route["right"], "--out", out)
     assert_refused(result, out, f"{wild}: 1 disparities (up to 1e+27 map cells)",
                    str(route["right"]))
+
+
+@pytest.mark.slow
+def test_dem_refuses_a_max_ray_gap_that_drops_nearly_every_point(route, tmp_path):
+    """Issue 46: a --max-ray-gap dropping 98.8 % of the points gave a DEM interpolated
+    almost everywhere, exit 0; beyond 90 % dropped it is refused, saying how many."""
+    out = tmp_path / "dem.tif"
+    result = invoke("dem", "--disparity", route["disparity"], "--mapprojected",
+                    route["left"], route["right"], "--max-ray-gap", "1e-15", "--out", out)
+    assert_refused(result, out, "--max-ray-gap 1e-15 m drops", "at most 90 % may be dropped")

@@ -18,6 +18,7 @@ frame, metres; heights above the body's reference sphere.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 
@@ -167,3 +168,53 @@ def warp_right(right: np.ndarray, disparity: np.ndarray) -> np.ndarray:
                      borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     warped[(seen == 0) | ~np.isfinite(disparity)] = np.nan
     return warped
+
+
+#: fewest matches of the pair, on the prior, needed to check it (fewer: taken as given)
+MIN_CHECK_MATCHES = 10
+
+
+class PriorCheck(NamedTuple):
+    """How a prior's predicted disparity agrees with the pair's own matches."""
+
+    matches: int  # matches on the prior (finite prediction inside the canvas)
+    offset_px: float  # median of (match disparity − predicted), pixels
+    spread_px: float  # NMAD of the same, pixels
+    within: float  # share of the matches within ± search of the prediction + offset
+
+
+def prior_against_matches(predicted: np.ndarray, points_left_rect: np.ndarray,
+                          points_right_rect: np.ndarray, search_px: float) -> PriorCheck:
+    """Compare a prior's disparity with the pair's matches, before it steers the search.
+
+    Parameters
+    ----------
+    predicted : (H, W) float, pixels, NaN = none
+        :func:`prior_disparity` on the left rectified canvas.
+    points_left_rect, points_right_rect : (N, 2) float, rectified pixels (x, y)
+        The pair's inlier matches (``rectify.npz``); their disparity is ``x_left −
+        x_right`` at the left point.
+    search_px : float
+        The residual searched on each side of the prior.
+
+    Returns
+    -------
+    PriorCheck
+        ``offset_px`` is what the prior gets wrong on the whole (a DEM 30 m high is a
+        constant offset), ``spread_px`` what it gets wrong point by point (an image given
+        as the prior, a DEM of elsewhere).
+    """
+    left = np.asarray(points_left_rect, dtype=np.float64).reshape(-1, 2)
+    right = np.asarray(points_right_rect, dtype=np.float64).reshape(-1, 2)
+    col, row = np.rint(left[:, 0]).astype(np.int64), np.rint(left[:, 1]).astype(np.int64)
+    inside = (row >= 0) & (row < predicted.shape[0]) & (col >= 0) & (col < predicted.shape[1])
+    residual = np.full(len(left), np.nan)
+    residual[inside] = (left[inside, 0] - right[inside, 0]) - predicted[row[inside],
+                                                                        col[inside]]
+    residual = residual[np.isfinite(residual)]
+    if residual.size == 0:
+        return PriorCheck(0, float("nan"), float("nan"), float("nan"))
+    offset = float(np.median(residual))
+    spread = float(1.4826 * np.median(np.abs(residual - offset)))
+    within = float(np.mean(np.abs(residual - offset) <= search_px))
+    return PriorCheck(int(residual.size), offset, spread, within)

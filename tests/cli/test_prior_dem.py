@@ -136,3 +136,27 @@ def test_prior_dem_bad_inputs(first_pass, tmp_path):
                   uncalibrated, "--prior-dem", good, "--out", out)
     assert run.exit_code == 1 and "uncalibrated.npz has no sensor models" in run.output
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_prior_dem_is_checked_against_the_pairs_matches(first_pass, tmp_path):
+    """Issue 46: the prior is checked against the pair's own matches before it steers the
+    search.  300 m too high (18 px, far beyond the ± 4 px search): moved by the measured
+    offset (a warning says how much), and the disparity agrees with the first pass; an
+    image given as the prior (brightness as heights): refused, naming it, nothing written."""
+    scene, folder, rect, dem, truth = first_pass
+    run, out, prior = _second_pass(first_pass, truth + 300.0, "prior_300", tmp_path)
+    assert run.exit_code == 0, run.output
+    assert "the prior is moved" in run.output and "off by -18" in run.output, run.output
+    summary = json.loads(out.with_name(out.name + ".json").read_text())["summary"]
+    assert summary["prior_correction_px"] == pytest.approx(-18.0, abs=0.5)
+    first = dio.read_raster(folder / "disparity.tif").data
+    second = dio.read_raster(out).data
+    both = np.isfinite(first) & np.isfinite(second)
+    assert both.mean() > 0.8 and np.median(np.abs(second - first)[both]) < 0.3
+    image = np.random.default_rng(3).uniform(0, 255, truth.shape)
+    run, out, prior = _second_pass(first_pass, image, "ortho_as_prior", tmp_path)
+    assert run.exit_code == 1, run.output
+    errors = [line for line in run.output.splitlines() if line.startswith("Error")]
+    assert len(errors) == 1 and f"{prior}: disagrees with the" in errors[0], run.output
+    assert not out.exists()

@@ -6,8 +6,10 @@ the points they sample.
 
 Two surfaces are handled:
 
-* a **body** (:class:`~demtool.maps.Body`): rays meet the model's own ellipsoid
-  (usgscsm's ``losEllipsoidIntersect``); positions are reported as planetocentric,
+* a **body** (:class:`~demtool.maps.Body`): rays meet the body's reference sphere
+  (:attr:`Body.radius`), the surface ``synth``, ``mapproject`` and ``dem`` put heights on
+  (issue 46: on Mars the ellipsoid lies up to 20 km below the sphere, and two CTX windows
+  of one point "did not overlap" on it); positions are reported as planetocentric,
   east-positive longitude / latitude (degrees); "up" is the radius vector (the local
   east-north-up frame of :func:`demtool.maps.enu_frame`); altitudes are above the
   body's reference sphere (:attr:`Body.radius`); areas are on that sphere, computed in a
@@ -90,8 +92,8 @@ def surface_points(model: SensorModel, line, sample, body: Body | None
     line, sample : array_like, shape S
         CSM image coordinates.
     body : Body or None
-        ``None``: the plane Z = 0 of the local world frame; otherwise the model's
-        ellipsoid (``model.radii``).
+        ``None``: the plane Z = 0 of the local world frame; otherwise the body's
+        reference sphere (``body.radius``).
 
     Returns
     -------
@@ -106,8 +108,9 @@ def surface_points(model: SensorModel, line, sample, body: Body | None
         hit = np.isfinite(s) & (s > 0)
         xyz = ray.origin + np.where(hit, s, np.nan)[..., None] * ray.direction
         return xyz, hit
-    a, b = model.radii
-    xyz, hit = ray_ellipsoid_intersection(ray.origin, ray.direction, a, b, return_hit=True)
+    radius = float(body.radius)
+    xyz, hit = ray_ellipsoid_intersection(ray.origin, ray.direction, radius, radius,
+                                          return_hit=True)
     return np.where(hit[..., None], xyz, np.nan), hit
 
 
@@ -358,10 +361,8 @@ def pair_geometry(first: SensorModel, second: SensorModel, body: Body | None, *,
     else:
         lon, lat = laea_inverse(np.float64(cx), np.float64(cy), *center_lonlat, body.radius)
         out["overlap_center_lon_deg"], out["overlap_center_lat_deg"] = float(lon), float(lat)
-        # the surface point in that direction, on the models' ellipsoid
-        u = unit_vector(lon, lat)
-        ground = ray_ellipsoid_intersection(4 * body.a * u, -u, first.radii[0],
-                                            first.radii[1])
+        # the surface point in that direction, on the body's reference sphere
+        ground = float(body.radius) * unit_vector(lon, lat)
     c1 = _sensor_position_seeing(first, ground)
     c2 = _sensor_position_seeing(second, ground)
     up = _up(ground, body)

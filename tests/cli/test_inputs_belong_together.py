@@ -163,3 +163,30 @@ def test_camera_files_with_values_no_camera_has_are_refused(tmp_path, kind, key,
     for word in [str(path), *words]:
         assert word in str(caught.value), caught.value
     assert dio.read_npz(good, kind)["K"].shape == (2, 3, 3)
+
+
+# ---------------------------------------------------------------- one surface across stages
+def test_camera_and_pairs_see_the_overlap_on_the_chains_surface(tmp_path):
+    """Issue 46: camera intersected the model's ellipsoid while synth, mapproject and dem
+    use the body's reference sphere.  Two narrow frame cameras on Mars looking at one
+    point at 60°N on the sphere from 30° east and west (the ellipsoid lies 15 km lower
+    there): their footprints overlap on the sphere, as the chain sees them."""
+    from demtool.maps import body_from_radii, enu_frame, lonlat_height_to_xyz
+    from tests.helpers.camera_isd import frame_isd, look_at_rotation, write_isd
+
+    a, c = 3396190.0, 3376200.0
+    radius = body_from_radii(a, a, c).radius
+    east, north, up = enu_frame(20.0, 60.0)
+    target = lonlat_height_to_xyz(20.0, 60.0, 0.0, radii=radius)
+    paths = []
+    for name, side in (("west", -1.0), ("east", 1.0)):
+        position = target + 300e3 * up + side * 300e3 * np.tan(np.radians(30)) * east
+        isd = frame_isd(position, look_at_rotation(position, target, north), focal_mm=500.0,
+                        pitch_mm=0.01, lines=300, samples=300, name=name)
+        isd["radii"] = {"semimajor": a, "semiminor": c, "unit": "m"}
+        paths.append(write_isd(tmp_path / f"{name}.json", isd))
+    result = invoke("camera", *paths, "--json")
+    assert result.exit_code == 0, result.output
+    pair = json.loads(result.output)["pairs"][0]
+    assert pair["overlap_fraction_first"] > 0.9, pair
+    assert pair["convergence_deg"] == pytest.approx(60.0, abs=0.5)

@@ -249,6 +249,49 @@ def weak_convergence(xyz: np.ndarray, centers: np.ndarray, f_px: float,
         return np.arccos(np.clip(cos, -1.0, 1.0)) * float(f_px) < min_px
 
 
+#: images whose "up" (towards the first line) points more than 120° from up are upside
+#: down in the frame (cos 120° = −0.5)
+UPRIGHT_COS = -0.5
+
+
+def image_up(model: SensorModel) -> np.ndarray:
+    """Unit direction, in the models' frame, of the image's up (towards line 0) at its
+    centre: the ray one line above minus the centre's ray."""
+    line, sample = 0.5 * model.lines, 0.5 * model.samples
+    rays = model.image_to_ray(np.array([line, line - 1.0]), np.array([sample, sample]))
+    step = np.asarray(rays.direction[1] - rays.direction[0], dtype=np.float64)
+    return step / np.linalg.norm(step)
+
+
+def check_upright(up: np.ndarray, models: tuple[SensorModel, ...], source: str) -> float:
+    """Refuse an up along which the cameras' images stand upside down.
+
+    A camera looks at the ground with its images upright (their top towards the sky); a
+    model whose rotation is transposed or inverted still triangulates the matches, into
+    a mirrored scene in front of the cameras, often below them, where the fitted ground
+    and the cameras' side agree: the images' up is what betrays it.
+
+    Returns the cosine between up and the cameras' mean image up.
+
+    Raises
+    ------
+    ProcessingError
+        One line naming ``source`` and the angle.
+    """
+    u = np.asarray(up, dtype=np.float64).reshape(3)
+    u = u / np.linalg.norm(u)
+    mean = np.mean([image_up(m) for m in models], axis=0)
+    cos = float(mean @ u / max(np.linalg.norm(mean), 1e-12))
+    if cos < UPRIGHT_COS:
+        raise ProcessingError(
+            f"{source}: the cameras' images would stand upside down along up "
+            f"{','.join(f'{v:.3g}' for v in u)} (their top {np.degrees(np.arccos(cos)):.0f}° "
+            "from it): the models' rotations may be transposed or inverted (a .tsai's R "
+            "is camera-to-world); check them, or rotate the image axes of a camera mounted "
+            "upside down")
+    return cos
+
+
 def beyond_matches(xyz: np.ndarray, center: np.ndarray, match_ranges: np.ndarray,
                    factor: float = MATCH_RANGE_FACTOR) -> np.ndarray:
     """(N,) bool: points whose range from ``center`` lies far outside the matches' ranges.

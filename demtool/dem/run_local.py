@@ -45,6 +45,7 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
         MIN_CONVERGENCE_PX,
         beyond_matches,
         check_up,
+        check_upright,
         dem_on_local_grid,
         fit_ground_normal,
         footprint_gsd,
@@ -101,7 +102,13 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
         up_source = "--up"
     else:
         up, up_source = infer_up(tri.xyz[in_front], centers)
+        if "nearest frame axis" in up_source:
+            log.warning("%s: up %s was %s: a frame tilted on a slope, or models whose "
+                        "rotations are wrong (a .tsai's R transposed triangulates a tilted "
+                        "mirror of the scene); give --up to have it checked",
+                        rectify_path, ",".join(f"{v:.3g}" for v in up), up_source)
     check_up(up, tri.xyz[in_front], centers, "--up" if up_source == "--up" else up_source)
+    check_upright(up, (left, right), rectify_path)
     frame = local_frame(up)
     if params.gsd is not None:
         gsd, gsd_source = float(params.gsd), "--gsd"

@@ -183,3 +183,17 @@ def test_points_seen_along_the_baseline_converge_too_little():
     along = np.array([[-5.0, 0.1, 0.9]])  # beside the baseline: 0.07° apart
     assert not weak_convergence(ahead, centers, 160.0)[0]
     assert weak_convergence(along, centers, 160.0)[0]
+
+
+def test_images_upside_down_along_up_are_refused():
+    from demtool.dem.local import check_upright
+
+    left = look_at((-0.15, 0, 1), (-0.15, 3, 0), up=(0, 0, 1), focal_px=200, width=160,
+                   height=120)
+    right = look_at((0.15, 0, 1), (0.15, 3, 0), up=(0, 0, 1), focal_px=200, width=160,
+                    height=120)
+    assert check_upright(np.array([0, 0, 1.0]), (left, right), "r.npz") > 0.3
+    with pytest.raises(ProcessingError, match=r"r.npz: the cameras' images would stand "
+                       r"upside down along up 0,0,-1 \(their top 1\d\d° from it\)") as info:
+        check_upright(np.array([0, 0, -1.0]), (left, right), "r.npz")
+    assert "\n" not in str(info.value)

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 from pathlib import Path
 
@@ -10,9 +11,12 @@ from demtool.errors import InputError
 
 #: The last few labels parsed, by (path, size, mtime): a cube is looked at by the
 #: refusals, the dispatch and its camera reader in turn, and PVL parsing of a 64 KiB
-#: label takes a second or more.  Callers never modify a label.
+#: label takes a second or more (files up to 64 MiB; the bytes are kept with the label).
+#: Callers never modify a label.
 _CACHE: OrderedDict = OrderedDict()
 _CACHE_SIZE = 4
+_CACHE_BYTES = 64 * 2 ** 20
+_CACHE_LOCK = threading.Lock()
 
 
 def read_label(path: Path) -> tuple[dict, bytes]:
@@ -28,14 +32,16 @@ def read_label(path: Path) -> tuple[dict, bytes]:
         key = (str(Path(path).resolve()), stat.st_size, stat.st_mtime_ns)
     except OSError:
         key = None
-    if key is not None and key in _CACHE:
-        _CACHE.move_to_end(key)
-        return _CACHE[key]
+    with _CACHE_LOCK:
+        if key is not None and key in _CACHE:
+            _CACHE.move_to_end(key)
+            return _CACHE[key]
     result = _parse(path)
-    if key is not None:
-        _CACHE[key] = result
-        while len(_CACHE) > _CACHE_SIZE:
-            _CACHE.popitem(last=False)
+    if key is not None and len(result[1]) <= _CACHE_BYTES:  # big cubes are not kept
+        with _CACHE_LOCK:
+            _CACHE[key] = result
+            while len(_CACHE) > _CACHE_SIZE:
+                _CACHE.popitem(last=False)
     return result
 
 

@@ -1,6 +1,7 @@
-"""ISIS push-frame cubes: MRO MARCI (ISIS ``MarciCamera``) as usgscsm push-frame models;
-the other ISIS push-frame cameras (LRO WAC, THEMIS VIS, JunoCam, MVIC framing) are
-refused in one line naming the camera (their ALE ISDs are read instead).
+"""ISIS push-frame cubes: MRO MARCI (ISIS ``MarciCamera``) and LRO WAC
+(``LroWideAngleCamera``, :func:`wac_isd`) as usgscsm push-frame models; the other ISIS
+push-frame cameras (THEMIS VIS, JunoCam, MVIC framing) are refused in one line naming
+the camera (their ALE ISDs are read instead).
 
 MARCI, as ISIS's ``MarciCamera`` and ``PushFrameCameraDetectorMap`` define it:
 
@@ -29,7 +30,9 @@ band (ISIS's camera before ``SetBand``), with a note; ISIS's ground map searches
 the even or odd framelets the cube holds (``Framelets``), this model all of them.
 
 References: DOI-USGS/ISIS3 ``isis/src/mro/objs/MarciCamera/MarciCamera.cpp``,
-``MarciDistortionMap.cpp``, ``isis/src/base/objs/PushFrameCameraDetectorMap``;
+``MarciDistortionMap.cpp``, ``isis/src/lro/objs/LroWideAngleCamera/`` (camera, focal plane
+and distortion maps), ``isis/src/base/objs/PushFrameCameraDetectorMap``; DOI-USGS/ale
+``ale/drivers/lro_drivers.py`` (``LroLrocWacIsisLabelNaifSpiceDriver``: the filter codes);
 DOI-USGS/usgscsm ``src/UsgsAstroPushFrameSensorModel.cpp``.
 """
 

@@ -154,6 +154,10 @@ def apply_relative_pose(left: SensorModel, right: SensorModel,
     return dataclasses.replace(model, t=-model.R @ center)
 
 
+#: rows that disagree by more than this (px RMS) under the models are not a calibration a
+#: few pixels off: the images do not belong to these models (swapped, another rig)
+MAX_CALIBRATION_ERROR_PX = 10.0
+
 #: a rotation is applied when it lowers the rows' sum of squares by this many times
 #: their variance after it (a 5σ improvement for one parameter; three are fitted)
 SIGNIFICANT_CHI2 = 25.0
@@ -217,7 +221,8 @@ def correct_local_pose(left: SensorModel, right: SensorModel, R_rect: np.ndarray
     Raises
     ------
     ProcessingError
-        A rotation explains the rows but is larger than ``max_pointing_mrad``, or no pose
+        The rows disagree by more than :data:`MAX_CALIBRATION_ERROR_PX` under the models;
+        a rotation explains the rows but is larger than ``max_pointing_mrad``; or no pose
         brings them within ``max_residual_px`` for half the matches.
     """
     from demtool.errors import ProcessingError
@@ -246,6 +251,12 @@ def correct_local_pose(left: SensorModel, right: SensorModel, R_rect: np.ndarray
                  "triangulated with it", what, turn.angle_mrad, *(1e3 * turn.omega_rect),
                  rms_before, turn.rms_after)
         return turn, apply_relative_pose(left, right, turn), None
+    if rms_before > MAX_CALIBRATION_ERROR_PX:
+        raise ProcessingError(
+            f"{what}: the SIFT matches' rows disagree by {rms_before:.1f} px RMS under the "
+            f"models, more than a calibration's error ({MAX_CALIBRATION_ERROR_PX:g} px): "
+            "the images do not belong to these models (left and right swapped, another "
+            "rig's models?)")
     if pose.rms_after > max_residual_px or pose.inliers.mean() < 0.5:
         raise ProcessingError(
             f"{what}: the models' relative pose is off: the SIFT matches' rows disagree by "

@@ -154,3 +154,13 @@ def test_swapped_models_are_refused_in_one_line():
     # one camera above the other: the baseline runs across the rows, not refused
     above = dataclasses.replace(right, t=-right.R @ (left.center + [0, 0, 0.3]))
     check_left_right(left, above, "l.tsai", "r.tsai")
+
+
+def test_rows_far_beyond_a_calibrations_error_are_refused():
+    left, right = _rig()
+    lower = dataclasses.replace(right, t=-right.R @ (right.center + [0, 0, -0.12]))
+    pl, pr = _matches(left, lower, seed=5)  # the images of a rig 12 cm out of level
+    with pytest.raises(ProcessingError, match=r"rows disagree by \d+\.\d px RMS under the "
+                       "models, more than a calibration's error") as info:
+        rectify_sensors(left, right, pl, pr, what="rig")
+    assert "\n" not in str(info.value)

@@ -122,8 +122,12 @@ def _is_interrupt(exc: BaseException) -> bool:
 @click.option("--debug", is_flag=True, help="Show full tracebacks on errors.")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False),
               help="TOML preset (configs/*.toml); command-line options override it.")
+@click.option("--cog", is_flag=True,
+              help="Write the stage's rasters as Cloud Optimized GeoTIFFs (GDAL's COG "
+                   "driver) instead of tiled GeoTIFFs with internal overviews.")
 @click.pass_context
-def cli(ctx: click.Context, verbose: int, quiet: int, debug: bool, config_path: str | None):
+def cli(ctx: click.Context, verbose: int, quiet: int, debug: bool, config_path: str | None,
+        cog: bool):
     """demtool: Digital Elevation Models of planetary surfaces from spacecraft images.
 
     Each stage reads and writes files (GeoTIFF, NPZ, JSON), so stages chain in shell
@@ -140,6 +144,10 @@ def cli(ctx: click.Context, verbose: int, quiet: int, debug: bool, config_path: 
     if ctx.invoked_subcommand != "warm" and (unusable := jitcache.unwritable_cache_message()):
         get_logger("demtool").warning(unusable)  # warm refuses such a folder itself
     ctx.obj = AppState(verbosity=verbose - quiet, debug=debug, config_path=config_path)
+    if cog:  # for this invocation only (the layout is reset when the context closes)
+        from demtool.io.layout import raster_layout
+
+        ctx.with_resource(raster_layout("cog"))
     if config_path:
         content = load_config(config_path)
         ctx.default_map = to_default_map(content, config_path, stage_options)

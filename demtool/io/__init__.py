@@ -277,8 +277,12 @@ def _tag_value(value: Any) -> str:
 
 def write_raster(path: str | os.PathLike, data: np.ndarray, *, transform=None, crs=None,
                  tags: Mapping[str, Any] | None = None,
-                 band_names: list[str] | None = None) -> Path:
+                 band_names: list[str] | None = None, resampling: str | None = None) -> Path:
     """Write a float32 GeoTIFF with NaN nodata, atomically.
+
+    Laid out by :func:`demtool.io.layout.raster_output`: tiled, with internal overviews
+    above :data:`demtool.io.layout.OVERVIEW_MIN_SIDE` pixels, or a Cloud Optimized
+    GeoTIFF under ``demtool --cog``.
 
     Parameters
     ----------
@@ -295,9 +299,13 @@ def write_raster(path: str | os.PathLike, data: np.ndarray, *, transform=None, c
         Dataset tags; non-string values are stored as JSON.  Use
         :meth:`demtool.provenance.Provenance.tags` for the provenance tags.
     band_names : list of str, optional
-        Descriptions of the bands.
+        Descriptions of the bands (masks, counts and classes by name get nearest-value
+        overviews: :func:`demtool.io.layout.overview_resampling`).
+    resampling : str, optional
+        The overviews' resampling (``average``, ``nearest``), instead of the one the
+        band names choose.
     """
-    import rasterio
+    from demtool.io.layout import raster_output
 
     array = np.asarray(data, dtype=np.float32)
     if array.ndim == 2:
@@ -326,22 +334,9 @@ def write_raster(path: str | os.PathLike, data: np.ndarray, *, transform=None, c
         profile.update(blockxsize=256, blockysize=256)
     if width * height * count * 4 > 3.5e9:
         profile["BIGTIFF"] = "YES"
-    from rasterio._err import CPLE_BaseError
-    from rasterio.errors import NotGeoreferencedWarning, RasterioError
-
-    with atomic_path(path, suffix=".tif") as temporary, warnings.catch_warnings():
-        # A unit image-frame transform is "not georeferenced" to GDAL; that is intended.
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        try:
-            with rasterio.open(temporary, "w", **profile) as dst:
-                dst.write(array)
-                if tags:
-                    dst.update_tags(**{k: _tag_value(v) for k, v in tags.items()})
-                if band_names:
-                    for index, name in enumerate(band_names, start=1):
-                        dst.set_band_description(index, name)
-        except (RasterioError, CPLE_BaseError) as exc:  # GDAL's write errors (disk full)
-            raise write_error(path, exc) from None
+    with raster_output(path, profile, band_names=band_names, resampling=resampling,
+                       tags={k: _tag_value(v) for k, v in (tags or {}).items()}) as dst:
+        dst.write(array)
     return Path(path)
 
 
@@ -461,19 +456,18 @@ class RasterBlockWriter:
 @contextlib.contextmanager
 def raster_writer(path: str | os.PathLike, *, height: int, width: int, count: int = 1,
                   transform=None, crs=None, tags: Mapping[str, Any] | None = None,
-                  band_names: list[str] | None = None):
+                  band_names: list[str] | None = None, resampling: str | None = None):
     """Write a float32 GeoTIFF (NaN nodata, tiled, ZSTD) block by block, atomically.
 
     The file is created filled with NaN; the block yields a :class:`RasterBlockWriter`.
     Compression is ZSTD level 1 with the floating-point predictor (about 1.7x faster than
     :func:`write_raster`'s deflate level 1 at the same size on image data; GDAL >= 2.3
-    reads it), since the rasters written this way are the large ones.
+    reads it), since the rasters written this way are the large ones.  Overviews (or
+    the COG layout) as :func:`write_raster`, built once every block is written.
     As :func:`write_raster`, the file appears (inside :func:`output_transaction`: at the
     end of the transaction) only when the block succeeds.
     """
-    import rasterio
-    from rasterio._err import CPLE_BaseError
-    from rasterio.errors import NotGeoreferencedWarning, RasterioError
+    from demtool.io.layout import raster_output
 
     profile = {
         "driver": "GTiff", "dtype": "float32", "nodata": float("nan"), "count": count,
@@ -484,18 +478,9 @@ def raster_writer(path: str | os.PathLike, *, height: int, width: int, count: in
     }
     if width * height * count * 4 > 3.5e9:
         profile["BIGTIFF"] = "YES"
-    with atomic_path(path, suffix=".tif") as temporary, warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        try:
-            with rasterio.open(temporary, "w", **profile) as dst:
-                if tags:
-                    dst.update_tags(**{k: _tag_value(v) for k, v in tags.items()})
-                if band_names:
-                    for index, name in enumerate(band_names, start=1):
-                        dst.set_band_description(index, name)
-                yield RasterBlockWriter(dst)
-        except (RasterioError, CPLE_BaseError) as exc:
-            raise write_error(path, exc) from None
+    with raster_output(path, profile, band_names=band_names, resampling=resampling,
+                       tags={k: _tag_value(v) for k, v in (tags or {}).items()}) as dst:
+        yield RasterBlockWriter(dst)
 
 
 # --------------------------------------------------------------------------------------

@@ -469,21 +469,17 @@ def write_tiled_raster(path: str | os.PathLike, tiling: Tiling, cache: TileCache
     A sequence of bands (and of names) writes a multi-band file, in that order.
 
     The file has the profile of :func:`demtool.io.write_raster` (float32, NaN nodata,
-    deflate with the floating-point predictor, 256 px blocks) and is written
-    atomically, through :func:`demtool.outputs.atomic_path` (so inside an
-    ``output_transaction`` it appears only when the whole transaction succeeds).  Tiles
+    deflate with the floating-point predictor, 256 px blocks, overviews or the COG
+    layout of :func:`demtool.io.layout.raster_output`) and is written atomically,
+    through :func:`demtool.outputs.atomic_path` (so inside an ``output_transaction`` it
+    appears only when the whole transaction succeeds).  Tiles
     are written in index order, with no time stamp: the same cache gives the same bytes.
     Memory: one tile core at a time (plus GDAL's block cache).
     """
-    import warnings
-
-    import rasterio
-    from rasterio._err import CPLE_BaseError
-    from rasterio.errors import NotGeoreferencedWarning, RasterioError
     from rasterio.windows import Window
 
     from demtool import io as dio
-    from demtool.outputs import atomic_path, write_error
+    from demtool.io.layout import raster_output
 
     bands = [band] if isinstance(band, int) else list(band)
     names = [band_name] if isinstance(band_name, str) else list(band_name or [])
@@ -497,20 +493,12 @@ def write_tiled_raster(path: str | os.PathLike, tiling: Tiling, cache: TileCache
         profile.update(blockxsize=BLOCK, blockysize=BLOCK)
     if tiling.width * tiling.height * 4 * len(bands) > 3.5e9:
         profile["BIGTIFF"] = "YES"
-    with atomic_path(path, suffix=".tif") as temporary, warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        try:
-            with rasterio.open(temporary, "w", **profile) as dst:
-                for tile in tiling.tiles:
-                    r0, r1, c0, c1 = tile.core
-                    values = cache.load(tile)[bands]
-                    dst.write(values, window=Window(c0, r0, c1 - c0, r1 - r0))
-                if tags:
-                    dst.update_tags(**{k: dio._tag_value(v) for k, v in tags.items()})
-                for index, name in enumerate(names, start=1):
-                    dst.set_band_description(index, name)
-        except (RasterioError, CPLE_BaseError) as exc:
-            raise write_error(path, exc) from None
+    with raster_output(path, profile, band_names=names,
+                       tags={k: dio._tag_value(v) for k, v in (tags or {}).items()}) as dst:
+        for tile in tiling.tiles:
+            r0, r1, c0, c1 = tile.core
+            values = cache.load(tile)[bands]
+            dst.write(values, window=Window(c0, r0, c1 - c0, r1 - r0))
     return Path(path)
 
 

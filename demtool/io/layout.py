@@ -1,0 +1,190 @@
+"""How demtool lays out the GeoTIFFs it writes: tiled with internal overviews, or COG.
+
+Every raster a stage writes goes through :func:`raster_output` (from
+:func:`demtool.io.write_raster`, :func:`demtool.io.raster_writer` and
+:func:`demtool.tiling.write_tiled_raster`), so every stage's rasters open in GIS tools
+the same way:
+
+* **Tiled** GeoTIFF (256 × 256 blocks when both sides reach a block), as before.
+* **Internal overviews** (reduced-resolution copies inside the file, GDAL's
+  ``BuildOverviews``, what ``gdaladdo`` writes) when the larger side exceeds
+  :data:`OVERVIEW_MIN_SIDE` pixels: factors 2, 4, 8, … until the smallest overview
+  fits in one block, as ``gdaladdo`` chooses levels when given none (GDAL ≥ 3.2).  QGIS
+  and any GDAL reader then draw a zoomed-out view of a 20 000² DEM from a few blocks.
+  Smaller rasters get none: they are read whole in a blink, and their bytes stay as
+  they were.
+* **Overview resampling for the data**: ``average`` (heights, disparities, images,
+  errors: the mean of the valid cells beneath, NaN nodata excluded), ``nearest`` for
+  categorical bands — masks, counts and class labels (:data:`CATEGORICAL_BANDS`, by
+  band name, or ``resampling=`` explicitly) — whose averages would be values no cell
+  holds (a 0.5 "interpolated" flag, a class 2.5).
+* **Cloud Optimized GeoTIFF** with ``demtool --cog STAGE …`` (:func:`raster_layout`):
+  the file is written as above, then copied by GDAL's COG driver (overviews with the
+  same resampling, DEFLATE with the floating-point predictor, 512-px blocks, the
+  image data after the header and the overviews — readable block by block over HTTP
+  range requests).  Tags and band descriptions travel with the copy.
+
+References: GDAL GTiff driver and ``gdaladdo`` (https://gdal.org/programs/gdaladdo.html),
+GDAL COG driver (https://gdal.org/drivers/raster/cog.html).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
+from contextvars import ContextVar
+from pathlib import Path
+from typing import Any
+
+__all__ = ["CATEGORICAL_BANDS", "LAYOUTS", "OVERVIEW_MIN_SIDE", "current_layout",
+           "overview_factors", "overview_resampling", "raster_layout", "raster_output"]
+
+#: Raster layouts: ``gtiff`` (tiled GeoTIFF, internal overviews above a size) or ``cog``.
+LAYOUTS = ("gtiff", "cog")
+#: Block side of tiled GeoTIFFs, pixels.
+BLOCK = 256
+#: Rasters whose larger side is at most this many pixels get no overviews.
+OVERVIEW_MIN_SIDE = 512
+#: Band names (``band_names=`` of the writers) whose overviews take the nearest value.
+CATEGORICAL_BANDS = frozenset({"interpolated", "mask", "count", "class", "label"})
+#: GDAL's COG creation options (https://gdal.org/drivers/raster/cog.html).
+COG_OPTIONS = {"compress": "DEFLATE", "predictor": "YES", "blocksize": 512,
+               "overviews": "IGNORE_EXISTING", "bigtiff": "IF_SAFER"}
+
+_LAYOUT: ContextVar[str] = ContextVar("demtool_raster_layout", default="gtiff")
+
+
+@contextlib.contextmanager
+def raster_layout(layout: str) -> Iterator[None]:
+    """Write every raster inside the block in ``layout`` (one of :data:`LAYOUTS`).
+
+    ``demtool --cog`` enters ``raster_layout("cog")`` for the stage it runs.
+    """
+    if layout not in LAYOUTS:
+        raise ValueError(f"unknown raster layout {layout!r}: should be one of "
+                         + ", ".join(LAYOUTS))
+    token = _LAYOUT.set(layout)
+    try:
+        yield
+    finally:
+        _LAYOUT.reset(token)
+
+
+def current_layout() -> str:
+    """The layout rasters are written in now (``gtiff`` unless :func:`raster_layout`)."""
+    return _LAYOUT.get()
+
+
+def overview_factors(height: int, width: int, *, min_side: int | None = None,
+                     block: int = BLOCK) -> list[int]:
+    """Decimation factors of a raster's internal overviews (empty for small rasters).
+
+    Parameters
+    ----------
+    height, width : int
+        Raster size, pixels.
+    min_side : int, optional
+        No overviews when ``max(height, width) <= min_side`` (default
+        :data:`OVERVIEW_MIN_SIDE`).
+    block : int
+        The levels go on until the smallest overview's larger side is at most a block.
+
+    Returns
+    -------
+    list of int
+        ``[2, 4, …, 2**k]`` with ``ceil(max(height, width) / 2**k) <= block``.
+    """
+    side = max(int(height), int(width))
+    if side <= (OVERVIEW_MIN_SIDE if min_side is None else min_side):
+        return []
+    factors = [2]
+    while -(-side // factors[-1]) > block:
+        factors.append(factors[-1] * 2)
+    return factors
+
+
+def overview_resampling(band_names: Sequence[str] | None) -> str:
+    """``nearest`` when every named band is categorical (:data:`CATEGORICAL_BANDS`), else
+    ``average``."""
+    names = [str(n).lower() for n in band_names or []]
+    if names and all(n in CATEGORICAL_BANDS for n in names):
+        return "nearest"
+    return "average"
+
+
+def _build_overviews(dataset: Any, resampling: str) -> None:
+    from rasterio.enums import Resampling
+
+    factors = overview_factors(dataset.height, dataset.width)
+    if factors:
+        dataset.build_overviews(factors, Resampling[resampling])
+        dataset.update_tags(ns="rio_overview", resampling=resampling)
+
+
+def _copy_as_cog(source: Path, target: Path, resampling: str) -> None:
+    from rasterio.shutil import copy
+
+    copy(str(source), str(target), driver="COG", overview_resampling=resampling.upper(),
+         **COG_OPTIONS)
+
+
+@contextlib.contextmanager
+def raster_output(path: str | os.PathLike, profile: Mapping[str, Any], *,
+                  band_names: Sequence[str] | None = None,
+                  tags: Mapping[str, str] | None = None,
+                  resampling: str | None = None) -> Iterator[Any]:
+    """Open a GeoTIFF for writing; lay it out and move it into place when the block ends.
+
+    Yields the rasterio dataset (mode ``w``) of a temporary file beside ``path``
+    (:func:`demtool.outputs.atomic_path`); the caller writes the pixels.  When the block
+    succeeds, the tags and band descriptions are set, the overviews built and, in the
+    ``cog`` layout, the file copied through GDAL's COG driver; then it is moved into
+    place (inside an output transaction: at its end).  GDAL's write errors (disk full)
+    become one :class:`demtool.errors.OutputError` line naming ``path``; nothing is left
+    behind.
+
+    Parameters
+    ----------
+    path : path-like
+        The final file name.
+    profile : mapping
+        rasterio's creation profile (driver GTiff).
+    band_names : sequence of str, optional
+        Band descriptions; they choose the overviews' resampling unless ``resampling``.
+    tags : mapping of str to str, optional
+        Dataset tags.
+    resampling : {"average", "nearest", ...}, optional
+        The overviews' resampling (rasterio's ``Resampling`` names); default
+        :func:`overview_resampling` of ``band_names``.
+    """
+    import rasterio
+    from rasterio._err import CPLE_BaseError
+    from rasterio.errors import NotGeoreferencedWarning, RasterioError
+
+    from demtool.outputs import atomic_path, write_error
+
+    method = resampling or overview_resampling(band_names)
+    cog = current_layout() == "cog"
+    with atomic_path(path, suffix=".tif") as temporary, warnings.catch_warnings():
+        # A unit image-frame transform is "not georeferenced" to GDAL; that is intended.
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        stage = temporary.with_name(temporary.name + ".gtiff.tif") if cog else temporary
+        try:
+            with rasterio.open(stage, "w", **profile) as dst:
+                yield dst
+                if tags:
+                    dst.update_tags(**tags)
+                for index, name in enumerate(band_names or [], start=1):
+                    dst.set_band_description(index, name)
+                if not cog:
+                    _build_overviews(dst, method)
+            if cog:
+                _copy_as_cog(stage, temporary, method)
+        except (RasterioError, CPLE_BaseError) as exc:  # GDAL's write errors (disk full)
+            raise write_error(path, exc) from None
+        finally:
+            if cog:
+                with contextlib.suppress(OSError):
+                    stage.unlink()

@@ -32,7 +32,8 @@ Models with no body (rover, lander, lab rig, drone: .tsai without a body, camera
 OpenCV/COLMAP pinholes) are triangulated in their own frame and OUT is a DEM on a local
 metric grid (frame=map:local, no CRS): heights along the frame's +Z or --up X,Y,Z
 (e.g. 0,0,-1 when the frame's Z points down), the grid's x axis the frame's X projected
-normal to up; --points-out also writes the points as PLY for tools that grid clouds.
+normal to up.  --points-out (calibrated routes) also writes the points as PLY, LAS or
+LAZ (by its suffix; on a body with the DEM's CRS) for tools that grid clouds.
 Every calibrated route drops points behind either camera and rays that miss by more
 than --max-ray-gap, and says how many.
 Map-projected stereo (line scanners, ASP's route): `demtool dem --disparity D
@@ -74,8 +75,10 @@ sensor-model and map-projected routes write it on the body's map.
 @options.path_option("--error-out", "Sensor-model routes: also write each cell's ray gap, m.")
 @options.vector_option("--up", help_text="Local-frame models: the up direction of heights, "
                        "models' frame (default +Z; 0,0,-1 for a z-down rover frame).")
-@options.path_option("--points-out", "Local-frame models: also write the triangulated "
-                     "points (models' frame, metres) as a PLY point cloud.")
+@options.path_option("--points-out", "Calibrated --disparity routes: also write the "
+                     "triangulated points as a point cloud, PLY, LAS or LAZ by the suffix "
+                     "(on a body: map x, y and height in the DEM's CRS; local-frame models: "
+                     "the models' frame), with each point's ray gap and image brightness.")
 @options.out_file("Output DEM GeoTIFF.")
 @click.pass_context
 def command(ctx: click.Context, points: str | None, disparity: str | None,

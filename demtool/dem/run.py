@@ -225,8 +225,9 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
         if rectify_path or reference_path or cameras_path:
             raise ParameterError("--mapprojected takes no --rectify, --reference or --cameras")
         if up is not None or points_out is not None:
-            raise ParameterError("--up and --points-out belong to the local-frame route, not "
-                                 "to --mapprojected")
+            raise ParameterError("--up belongs to the local-frame route and --points-out to "
+                                 "--disparity with a calibrated rectify.npz, not to "
+                                 "--mapprojected")
         return run_dem_mapprojected(run, params, out, disparity_path=disparity_path,
                                     left_path=mapprojected[0], right_path=mapprojected[1],
                                     mask_path=mask_path, error_path=error_path)
@@ -253,8 +254,8 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
     if up is not None or points_out is not None:
         from demtool.errors import ParameterError
 
-        raise ParameterError("--up and --points-out belong to the local-frame route (--disparity "
-                             "with a calibrated rectify.npz of models without a body)")
+        raise ParameterError("--up belongs to the local-frame route and --points-out to the "
+                             "calibrated ones (--disparity with a calibrated rectify.npz)")
     scene = read_scene_description(scene_path) if scene_path is not None else {}
     if _tile_options(params):  # large images: tiles over the output grid (docs/stages/scale.md)
         tiled = _dem_tiled(run, params, out, disparity_path=disparity_path,

@@ -30,11 +30,11 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
     Writes OUT (heights in metres along ``up``, default the frame's +Z, on a local metric
     grid; no CRS, tag ``frame=map:local`` with the axes), ``--interpolated-mask``,
     ``--error-out`` (median ray gap per cell), ``--points-out`` (the kept points as PLY,
-    the models' frame) and the sidecar.  Returns the sidecar summary.
+    LAS or LAZ by its suffix, the models' frame: :mod:`demtool.dem.point_cloud`) and the
+    sidecar.  Returns the sidecar summary.
     """
     import numpy as np
 
-    from demtool import io as dio
     from demtool.dem.inputs import (
         geometry_from_rectification,
         read_disparity,
@@ -176,9 +176,14 @@ def run_dem_local(run: StageRun, params: DemParams, out, *, disparity_path, rect
                                     error_path=error_path,
                                     side_tags={"frame": "map:local", **frame.tags()})
         if points_out is not None:
-            dio.write_ply(points_out, tri.xyz[keep], {"ray_gap": tri.gap[keep]},
-                          comments=["demtool dem: triangulated points, metres, in the "
-                                    f"frame of the models of {Path(rectify_path).name}"])
+            from demtool.dem.point_cloud import local_points, rectified_brightness
+            from demtool.io.points import write_points
+
+            brightness = rectified_brightness(rectify_path, rows, cols, log)
+            write_points(points_out, **local_points(
+                tri.xyz[keep], tri.gap[keep],
+                None if brightness is None else brightness[keep],
+                source=Path(rectify_path).name))
             outputs.append(Path(points_out))
         prov.write_sidecar(out, summary, outputs=outputs)
     return summary

@@ -51,13 +51,18 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
                              rectify_path=rectify_path, rectification=rectification,
                              left=left, right=right, up=up, mask_path=mask_path,
                              error_path=error_path, points_out=points_out)
-    if up is not None or points_out is not None:
+    if up is not None:
         from demtool.errors import ParameterError
 
-        raise ParameterError(f"{rectify_path}: --up and --points-out belong to local-frame "
-                         f"models; these are on a body ({left.radii[0]:.6g} m), whose DEM "
-                         "is on the body's map")
+        raise ParameterError(f"{rectify_path}: --up belongs to local-frame models; these are "
+                             f"on a body ({left.radii[0]:.6g} m), whose DEM is on the body's "
+                             "map")
     geometry = geometry_from_rectification(rectification, left, right)
+    if points_out is not None and (params.tile_size or params.scheduler or params.dry_run):
+        from demtool.errors import ParameterError
+
+        raise ParameterError("--points-out: the points are written by an untiled run; drop "
+                             "--tile-size/--scheduler/--dry-run")
     if params.tile_size or params.scheduler or params.dry_run:  # docs/stages/scale.md
         tiled = _tiled(run, params, out, disparity_path, rectify_path, rectification,
                        geometry, mask_path, error_path)
@@ -79,8 +84,15 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
         run, params, left, right, (l_line, l_sample), (r_line, r_sample),
         source=disparity_path, range_to_gsd=1.0 / geometry.f_px)
     summary = {"route": "disparity-sensors", **summary, "valid_disparities": int(rows.size)}
+    points = None
+    if points_out is not None:
+        from demtool.dem.point_cloud import map_points, rectified_brightness
+
+        brightness = rectified_brightness(rectify_path, rows, cols, log)
+        points = map_points(result, brightness, source=Path(disparity_path).name)
     write_map_dem(run, params, out, result, summary, body, route="disparity-sensors",
-                  mask_path=mask_path, error_path=error_path)
+                  mask_path=mask_path, error_path=error_path, points_out=points_out,
+                  points=points)
     return summary
 
 
@@ -129,6 +141,8 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     result = dem_on_map(tri.xyz[keep], tri.gap[keep], body, gsd_m=gsd, crs=use_crs,
                         projection=params.projection, left=left, right=right,
                         median_px=params.median)
+    # the gridded points' indices into the correspondences given (for --points-out)
+    result = result._replace(point_index=np.flatnonzero(keep)[result.point_index])
     summary: dict[str, Any] = {
         "body": body.name,
         "crs": result.grid.crs.name,
@@ -153,9 +167,12 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
 
 def write_map_dem(run: StageRun, params: DemParams, out, result, summary: dict[str, Any],
                   body, *, route: str, mask_path: PathLike = None,
-                  error_path: PathLike = None) -> None:
-    """Write a DEM on the body's map (OUT, ``--interpolated-mask``, ``--error-out``, the
-    sidecar) in one transaction."""
+                  error_path: PathLike = None, points_out: PathLike = None,
+                  points: dict[str, Any] | None = None) -> None:
+    """Write a DEM on the body's map (OUT, ``--interpolated-mask``, ``--error-out``,
+    ``--points-out`` with ``points`` — the keyword arguments of
+    :func:`demtool.io.points.write_points` from
+    :func:`demtool.dem.point_cloud.map_points` —, the sidecar) in one transaction."""
 
 
     log, prov = run.log, run.provenance
@@ -173,6 +190,11 @@ def write_map_dem(run: StageRun, params: DemParams, out, result, summary: dict[s
         outputs = write_dem_rasters(run, params, out, result, transform=grid.transform,
                                     crs=grid.crs, tags=tags, mask_path=mask_path,
                                     error_path=error_path, side_tags=body.tags())
+        if points_out is not None and points is not None:
+            from demtool.io.points import write_points
+
+            write_points(points_out, **points)
+            outputs.append(Path(points_out))
         prov.write_sidecar(out, summary, outputs=outputs)
 
 

@@ -201,6 +201,10 @@ class MapDem(NamedTuple):
     overlap : (rows, columns) bool, the stereo overlap
     grid : demtool.maps.MapGrid (CRS and transform)
     report : dict of summary figures
+    points : (N, 3) float64, the gridded points: map x, y (metres, ``grid.crs``) and
+        height above the reference sphere (metres)
+    point_gaps : (N,) float64, their ray gaps, metres
+    point_index : (N,) int, each point's index in the ``xyz`` given to :func:`dem_on_map`
     """
 
     dem: np.ndarray
@@ -209,6 +213,9 @@ class MapDem(NamedTuple):
     overlap: np.ndarray
     grid: Any
     report: dict
+    points: np.ndarray | None = None
+    point_gaps: np.ndarray | None = None
+    point_index: np.ndarray | None = None
 
 
 def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
@@ -248,6 +255,7 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
     xyz, gap = xyz[keep], gap[keep]
     if len(xyz) < 3:
         raise ProcessingError(f"only {len(xyz)} triangulated points: nothing to grid")
+    index = np.flatnonzero(keep)
     grid = grid_from_xyz(body, xyz, gsd_m, projection=projection, crs=crs)
     lon, lat, height = xyz_to_lonlat_height(xyz, radii=body.radius)
     x, y = lonlat_to_map(grid.crs, lon, lat)
@@ -284,4 +292,5 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
         "height_median_m": median_height,
     }
     return MapDem(out.astype(np.float32), error.astype(np.float32), filled, overlap, grid,
-                  report)
+                  report, points=np.column_stack([x, y, height]), point_gaps=gap,
+                  point_index=index)

@@ -46,6 +46,21 @@ def _truth_on(dem_path, scene):
     return dem, height_on_grid(scene, grid), grid, tags
 
 
+def _check_point_cloud(path, dem, grid, gsd):
+    """The LAZ of --points-out: the DEM's CRS, the points the DEM was gridded from."""
+    import laspy
+
+    las = laspy.read(path)
+    assert las.header.parse_crs().equals(grid.crs)
+    assert {"ray_gap", "brightness"} <= set(las.point_format.extra_dimension_names)
+    inverse = ~grid.transform
+    cols, rows = inverse * (np.asarray(las.x), np.asarray(las.y))
+    cells = dem[rows.astype(int), cols.astype(int)]
+    assert len(las.points) > 0.5 * np.isfinite(dem).sum()
+    assert np.nanmedian(np.abs(np.asarray(las.z) - cells)) < 0.3 * gsd
+    assert np.median(las.ray_gap) < 0.05 * gsd and las.intensity.max() > 0
+
+
 @pytest.mark.slow
 def test_calibrated_frame_stereo_matches_truth(frame_scene, tmp_path):
     scene, paths = frame_scene
@@ -64,10 +79,11 @@ def test_calibrated_frame_stereo_matches_truth(frame_scene, tmp_path):
     dem_path, error_path, mask_path = (tmp_path / n for n in ("dem.tif", "err.tif",
                                                               "mask.tif"))
     run = _invoke("dem", "--disparity", disparity, "--rectify", rect / "rectify.npz",
-                  "--error-out", error_path, "--interpolated-mask", mask_path, "--out",
-                  dem_path)
+                  "--error-out", error_path, "--interpolated-mask", mask_path,
+                  "--points-out", tmp_path / "points.laz", "--out", dem_path)
     assert run.exit_code == 0, run.output
     dem, truth, grid, tags = _truth_on(dem_path, scene)
+    _check_point_cloud(tmp_path / "points.laz", dem, grid, scene.gsd_m)
     gsd = scene.gsd_m
     assert grid.gsd[0] == pytest.approx(gsd, rel=0.05)  # auto GSD from the images
     assert body_from_crs(grid.crs).name == "Moon" and tags["body"] == "Moon"

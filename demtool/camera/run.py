@@ -195,14 +195,15 @@ def format_table(report: dict[str, Any]) -> str:
 
 def run_camera(models: Sequence[str | os.PathLike], params: CameraParams | None = None, *,
                out: str | os.PathLike | None = None, as_json: bool = False,
-               stream: TextIO | None = None, resolved: dict[str, Any] | None = None
-               ) -> dict[str, Any]:
+               stream: TextIO | None = None, resolved: dict[str, Any] | None = None,
+               footprints: str | os.PathLike | None = None) -> dict[str, Any]:
     """Report what each model sees, and each pair's stereo geometry.
 
     Reads every MODEL (:func:`demtool.sensors.read_sensors`), calls
     :func:`demtool.camera.info.camera_info`, prints the table (or, with ``as_json``,
     the JSON report) on ``stream`` (default stdout) and, with ``out``, writes the JSON
-    report and its sidecar ``<out>.json``.
+    report and its sidecar ``<out>.json``; with ``footprints``, the footprints and the
+    pairs' overlaps as GeoJSON polygons (:mod:`demtool.camera.footprints`).
 
     Returns
     -------
@@ -216,7 +217,7 @@ def run_camera(models: Sequence[str | os.PathLike], params: CameraParams | None 
 
     params = params or CameraParams()
     run = StageRun("camera", params, resolved=resolved, inputs={"MODEL": list(models)},
-                   outputs={"--out": out,
+                   outputs={"--out": out, "--footprints": footprints,
                             "sidecar": None if out is None else sidecar_path(out)})
     log, provenance = run.log, run.provenance
     body = _named_body(params.body) if params.body is not None else None
@@ -229,10 +230,22 @@ def run_camera(models: Sequence[str | os.PathLike], params: CameraParams | None 
         for note in entry["notes"]:
             log.info("%s: %s", entry["name"], note)
     text = dio.dumps_json(report) if as_json else format_table(report)
-    if out is not None:
+    collection = None
+    if footprints is not None:
+        from demtool.camera.footprints import footprint_collection
+
+        collection = footprint_collection(report, sensors, bodies)
+        for name in collection.get("left_out", []):
+            log.warning("%s: a model in a local frame (no body): no lon/lat footprint in %s",
+                        name, footprints)
+    if out is not None or collection is not None:
         summary = {"cameras": len(report["cameras"]), "pairs": len(report["pairs"])}
         with run.transaction():
-            dio.write_json(out, {**report, "provenance": provenance.record(summary, [out])})
-            provenance.write_sidecar(out, summary)
+            if collection is not None:
+                dio.write_json(footprints, collection)
+            if out is not None:
+                dio.write_json(out, {**report,
+                                     "provenance": provenance.record(summary, [out])})
+                provenance.write_sidecar(out, summary)
     print(text, file=stream or sys.stdout)
     return report

@@ -25,11 +25,14 @@ sidecar).  Keys: docs/stages/camera.md.""")
 @click.option("--json", "as_json", is_flag=True, help="Print the JSON report on stdout "
                                                       "instead of the table.")
 @options.path_option("--out", "Also write the JSON report to this file.")
+@options.path_option("--footprints", "Also write each image's footprint and each pair's "
+                     "overlap as GeoJSON polygons (lon/lat on the body, cut at ±180°) for "
+                     "GIS tools.")
 @click.pass_context
 def command(ctx: click.Context, models: tuple[str, ...], as_json: bool, out: str | None,
-            **values: Any) -> None:
+            footprints: str | None, **values: Any) -> None:
     """Options → CameraParams → :func:`demtool.camera.run.run_camera`."""
     from demtool.camera.run import run_camera
 
     run_camera(models, CameraParams.from_options(values), out=out, as_json=as_json,
-               resolved=options.resolved_params(ctx))
+               resolved=options.resolved_params(ctx), footprints=footprints)

@@ -248,7 +248,7 @@ def stage_page(stage: str) -> str:
     if arguments:
         lines += ["## Arguments", "", *arguments, ""]
     lines += ["## Options", "",
-              "Global options (`--config`, `-v`, `-q`, `--debug`) go before the stage name; "
+              "Global options (`--config`, `-v`, `-q`, `--debug`, `--cog`) go before the stage name; "
               "a `--config` preset's `[" + stage + "]` section sets these options by name, "
               "and the command line overrides it.", "", *options_table(command), ""]
     if params:

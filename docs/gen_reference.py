@@ -248,9 +248,10 @@ def stage_page(stage: str) -> str:
     if arguments:
         lines += ["## Arguments", "", *arguments, ""]
     lines += ["## Options", "",
-              "Global options (`--config`, `-v`, `-q`, `--debug`, `--cog`) go before the stage name; "
-              "a `--config` preset's `[" + stage + "]` section sets these options by name, "
-              "and the command line overrides it.", "", *options_table(command), ""]
+              "Global options (`--config`, `-v`, `-q`, `--debug`, `--cog`) go before the "
+              "stage name; a `--config` preset's `[" + stage + "]` section sets these "
+              "options by name, and the command line overrides it.", "",
+              *options_table(command), ""]
     if params:
         lines += ["Parameter class" + ("es" if len(params) > 1 else "") + ": "
                   + ", ".join(f"`{c.__module__}.{c.__name__}`" for c in params)

@@ -87,7 +87,8 @@ def measure(path: Path, dem: np.ndarray, layout: str) -> dict:
     with np.errstate(invalid="ignore"):
         expected = np.nansum(blocks, axis=(1, 3)) / np.where(count, count, np.nan)
     both = np.isfinite(expected) & np.isfinite(coarse)
-    error = float(np.max(np.abs(coarse[both] - expected[both]))) if both.any() else float("nan")
+    error = float(np.median(np.abs(coarse[both] - expected[both]))) if both.any() \
+        else float("nan")
     return {"write_s": write_s, "mb": path.stat().st_size / 2**20, "factors": factors,
             "full_s": full, "sixteenth_s": sixteenth, "ratio": sixteenth / full,
             "coarse_error_m": error}
@@ -107,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
         for layout in labels:
             results[layout] = measure(Path(folder) / f"{layout}.tif", dem, layout)
     header = (f"{'file':<30} {'write s':>8} {'MiB':>7} {'overviews':<18} {'full read s':>11} "
-              f"{'1/16 read s':>11} {'1/16 ÷ full':>11} {'1/16 vs block mean m':>20}")
+              f"{'1/16 read s':>11} {'1/16 ÷ full':>11} {'vs 16² mean, median m':>21}")
     print(f"{args.size}² float32 DEM")
     print(header)
     rows = []
@@ -116,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         factors = ",".join(str(f) for f in r["factors"]) or "none"
         print(f"{label:<30} {r['write_s']:8.2f} {r['mb']:7.1f} {factors:<18} "
               f"{r['full_s']:11.3f} {r['sixteenth_s']:11.4f} {r['ratio']:11.3f} "
-              f"{r['coarse_error_m']:20.3g}")
+              f"{r['coarse_error_m']:21.3g}")
         rows.append([label, f"{r['write_s']:.2f}", f"{r['mb']:.1f}", factors,
                      f"{r['full_s']:.3f}", f"{r['sixteenth_s']:.4f}", f"{r['ratio']:.3f}",
                      f"{r['coarse_error_m']:.3g}"])
@@ -132,14 +133,19 @@ def main(argv: list[str] | None = None) -> int:
             command=f"python bench/overviews.py --size {args.size}",
             date=datetime.date.today().isoformat(), machine=args.record,
             columns=["file", "write s", "MiB", "overview factors", "full read s",
-                     "1/16 read s", "1/16 ÷ full", "1/16 read vs 16² block mean (m)"],
+                     "1/16 read s", "1/16 ÷ full",
+                     "1/16 read vs 16² block mean, median |Δ| (m)"],
             rows=rows,
             notes=("Issue 48's target: the 1/16-resolution read (what QGIS asks for a "
                    "zoomed-out view) ≤ 1/10 of the full read's time.  Reads are the "
-                   "fastest of 5, each on a freshly opened dataset.  The last column checks "
-                   "that the overview is the average of the valid cells beneath "
-                   "(GDAL's average resampling skips the NaN nodata); without overviews, "
-                   "GDAL decimates by nearest neighbour, hence the larger difference."))
+                   "fastest of 5, each on a freshly opened dataset.  The last column compares "
+                   "the 1/16 read with the mean of the valid cells of each 16² block (relief "
+                   f"{0.1 * args.size:.0f} m): GDAL's average overviews (NaN cells left out) "
+                   "are cascaded 2, 4, 8, 16, so they differ only where holes weight the "
+                   "levels unevenly; without overviews GDAL decimates by nearest neighbour, "
+                   "and the COG's last overview is 1/8 (512-px blocks), read at 1/16 by "
+                   "nearest neighbour.  Write times include GDAL's DEFLATE; the machine was "
+                   "shared (timings vary by tens of percent)."))
     return 0
 
 

@@ -50,8 +50,14 @@ OVERVIEW_MIN_SIDE = 512
 #: Band names (``band_names=`` of the writers) whose overviews take the nearest value.
 CATEGORICAL_BANDS = frozenset({"interpolated", "mask", "count", "class", "label"})
 #: GDAL's COG creation options (https://gdal.org/drivers/raster/cog.html).
-COG_OPTIONS = {"compress": "DEFLATE", "predictor": "YES", "blocksize": 512,
-               "overviews": "IGNORE_EXISTING", "bigtiff": "IF_SAFER"}
+COG_OPTIONS = {"compress": "DEFLATE", "level": 1, "predictor": "YES", "blocksize": 512,
+               "overviews": "IGNORE_EXISTING", "bigtiff": "IF_SAFER",
+               "num_threads": "ALL_CPUS"}
+#: GDAL configuration while building internal overviews: every core, and the DEFLATE
+#: level and predictor of the full-resolution data (GDAL's overview defaults are level 6
+#: and no predictor).
+OVERVIEW_CONFIG = {"GDAL_NUM_THREADS": "ALL_CPUS", "ZLEVEL_OVERVIEW": 1,
+                   "PREDICTOR_OVERVIEW": 3}
 
 _LAYOUT: ContextVar[str] = ContextVar("demtool_raster_layout", default="gtiff")
 
@@ -115,11 +121,13 @@ def overview_resampling(band_names: Sequence[str] | None) -> str:
 
 
 def _build_overviews(dataset: Any, resampling: str) -> None:
+    import rasterio
     from rasterio.enums import Resampling
 
     factors = overview_factors(dataset.height, dataset.width)
     if factors:
-        dataset.build_overviews(factors, Resampling[resampling])
+        with rasterio.Env(**OVERVIEW_CONFIG):
+            dataset.build_overviews(factors, Resampling[resampling])
         dataset.update_tags(ns="rio_overview", resampling=resampling)
 
 

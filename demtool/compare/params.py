@@ -42,6 +42,9 @@ class CompareParams(Parameters):
         cli=False)
     label: str | None = parameter(None, "Name of DEM in the report (default: file stem).")
     plots: bool = parameter(True, "Write the PNG figures.")
+    html: bool = parameter(False, "Also write report.html: one self-contained page with "
+                           "the statistics, the shift, the figures inline and the "
+                           "provenance.")
     seed: int = seed_field()
     # Windowed statistics for DEMs larger than memory (demtool/compare/run_windowed.py).
     tile_size: int = parameter(0, "Compare in windows of this many cells a side, reading "

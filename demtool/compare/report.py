@@ -9,6 +9,7 @@ from typing import Any
 
 REPORT = "report.json"
 DIFFERENCE = "difference.tif"
+HTML = "report.html"  # compare --html (demtool.compare.html)
 
 
 # The shift in metres and in each input's own pixels (demtool.compare.shift_units).
@@ -120,19 +121,27 @@ def assemble_report(reports: Sequence[tuple[str, dict[str, Any]]], *, dem_path, 
 
 
 def write_report(provenance: Any, out: Path, report: dict[str, Any],
-                 figures: dict[str, bytes]) -> None:
-    """``report.json`` (with its figures and provenance), the PNG figures and the sidecar,
+                 figures: dict[str, bytes], *, html: bool = False) -> None:
+    """``report.json`` (with its figures and provenance), the PNG figures, with ``html``
+    the page ``report.html`` (:func:`demtool.compare.html.html_report`) and the sidecar,
     inside the caller's output transaction (``difference.tif`` is the caller's)."""
     from demtool import io as dio
 
     report["figures"] = sorted(figures)
     report_path = out / REPORT
     outputs = [report_path, out / DIFFERENCE, *[out / name for name in figures]]
+    if html:
+        outputs.append(out / HTML)
     report["provenance"] = provenance.record(_headline(report), outputs)
     for name, content in figures.items():
         with dio.atomic_path(out / name, suffix=".png") as temporary:
             temporary.write_bytes(content)
     dio.write_json(report_path, report)
+    if html:
+        from demtool.compare.html import html_report
+
+        with dio.atomic_path(out / HTML, suffix=".html") as temporary:
+            temporary.write_text(html_report(report, figures), encoding="utf-8")
     provenance.write_sidecar(report_path, _headline(report), outputs=outputs)
 
 

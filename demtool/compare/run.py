@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 from demtool.compare.report import (
     DIFFERENCE,
     FIGURES,
+    HTML,
     REPORT,
     _check_profiles,
     assemble_report,
@@ -159,7 +160,8 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     run = StageRun("compare", params, resolved=resolved,
                    inputs={"DEM": dem_path, "REFERENCE": reference_path, "--also": also,
                            "--mask": mask_path}, folders={"--out": out_dir},
-                   outputs={"--out": [Path(out_dir) / n for n in (REPORT, DIFFERENCE, *FIGURES)],
+                   outputs={"--out": [Path(out_dir) / n for n in
+                                      (REPORT, DIFFERENCE, *FIGURES, HTML)],
                             "sidecar": sidecar_path(Path(out_dir) / REPORT)})
     log, provenance = run.log, run.provenance
     grid, align, label = params.grid, params.align, params.label
@@ -246,5 +248,5 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
                          tags=provenance.tags(frame=frame or "unknown", label=label,
                                               quantity="aligned DEM - reference (m)",
                                               shift=report["shift"]))
-        write_report(provenance, out, report, figures)
+        write_report(provenance, out, report, figures, html=params.html)
     return report

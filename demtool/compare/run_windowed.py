@@ -398,5 +398,5 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
                                    main["comparison"].reference, decimated,
                                    (target.spacing[0] * factor, target.spacing[1] * factor),
                                    label)
-        write_report(provenance, out, report, figures)
+        write_report(provenance, out, report, figures, html=params.html)
     return report

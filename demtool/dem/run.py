@@ -212,6 +212,10 @@ def run_dem(out: str | os.PathLike, params: DemParams | None = None, *,
                             "--error-out": error_path, "--points-out": points_out,
                             "sidecar": sidecar_path(out)})
     log, prov = run.log, run.provenance
+    if points_out is not None:
+        from demtool.io.points import check_points_path
+
+        check_points_path(points_out)  # before any work: PLY, LAS or LAZ
     for path in run.input_paths():
         dio.require_file(path, "input file")
     if dense and points_path is None:

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["POINT_FORMATS", "write_las", "write_points"]
+__all__ = ["POINT_FORMATS", "check_points_path", "write_las", "write_points"]
 
 #: File suffixes :func:`write_points` writes.
 POINT_FORMATS = (".ply", ".las", ".laz")
@@ -136,6 +136,18 @@ def write_las(path: str | os.PathLike, xyz: np.ndarray,
     return Path(path)
 
 
+def check_points_path(path: str | os.PathLike) -> str:
+    """The point cloud's format suffix (:data:`POINT_FORMATS`); ParameterError naming the
+    file otherwise."""
+    from demtool.errors import ParameterError
+
+    suffix = Path(path).suffix.lower()
+    if suffix not in POINT_FORMATS:
+        raise ParameterError(f"{path}: a point cloud is written as "
+                             + ", ".join(POINT_FORMATS) + f", not {suffix or 'no suffix'}")
+    return suffix
+
+
 def write_points(path: str | os.PathLike, xyz: np.ndarray,
                  attributes: Mapping[str, np.ndarray] | None = None, *, crs: Any = None,
                  description: str = "", descriptions: Mapping[str, str] | None = None,
@@ -151,12 +163,7 @@ def write_points(path: str | os.PathLike, xyz: np.ndarray,
     ParameterError
         Another suffix.
     """
-    from demtool.errors import ParameterError
-
-    suffix = Path(path).suffix.lower()
-    if suffix not in POINT_FORMATS:
-        raise ParameterError(f"{path}: a point cloud is written as "
-                             + ", ".join(POINT_FORMATS) + f", not {suffix or 'no suffix'}")
+    suffix = check_points_path(path)
     if suffix == ".ply":
         from demtool import io as dio
 

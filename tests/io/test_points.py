@@ -57,3 +57,16 @@ def test_unknown_suffix_is_refused_before_writing(tmp_path):
     with pytest.raises(ParameterError, match=r"points\.xyz: a point cloud is written as"):
         write_points(tmp_path / "points.xyz", np.zeros((3, 3)))
     assert not list(tmp_path.iterdir())
+
+
+def test_dem_refuses_an_unknown_point_format_before_reading_anything(tmp_path):
+    from click.testing import CliRunner
+
+    from demtool.cli import cli
+
+    result = CliRunner().invoke(cli, ["dem", "--disparity", str(tmp_path / "d.tif"),
+                                      "--rectify", str(tmp_path / "r.npz"), "--points-out",
+                                      str(tmp_path / "p.xyz"), "--out", str(tmp_path / "dem.tif")])
+    assert result.exit_code == 1
+    assert "p.xyz: a point cloud is written as .ply, .las, .laz, not .xyz" in result.output
+    assert "Traceback" not in result.output and not list(tmp_path.iterdir())

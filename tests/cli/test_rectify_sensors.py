@@ -54,7 +54,9 @@ def _check_point_cloud(path, dem, grid, gsd):
     assert las.header.parse_crs().equals(grid.crs)
     assert {"ray_gap", "brightness"} <= set(las.point_format.extra_dimension_names)
     inverse = ~grid.transform
-    cols, rows = inverse * (np.asarray(las.x), np.asarray(las.y))
+    x, y = np.asarray(las.x), np.asarray(las.y)
+    cols = inverse.a * x + inverse.b * y + inverse.c
+    rows = inverse.d * x + inverse.e * y + inverse.f
     cells = dem[rows.astype(int), cols.astype(int)]
     assert len(las.points) > 0.5 * np.isfinite(dem).sum()
     assert np.nanmedian(np.abs(np.asarray(las.z) - cells)) < 0.3 * gsd

@@ -96,6 +96,45 @@ def _check_outside(model, path: Path, body: Body, named: bool) -> None:
                          f"{body.name} (radius {a:.6g} m), inside the body: {hint}")
 
 
+def on_tie_point_plane(path: Path, models: dict) -> dict:
+    """The cameras of an unaligned ``bundle.npz`` in a frame whose plane Z = 0 is the
+    plane of its tie points (up towards the cameras); other files' models as they are.
+
+    An unaligned bundle is in COLMAP's arbitrary frame (scale, rotation, origin), where
+    the local frame's ground Z = 0 means nothing and ``pairs`` found no pair (issue 46).
+    The tie points are the ground the bundle measured: their least-squares plane (the
+    singular vector of least variance) is the surface the footprints are taken to, so
+    overlaps, convergence and B/H — all free of the frame's scale — are the block's.
+    """
+    import dataclasses
+    import zipfile
+
+    import numpy as np
+
+    if path.suffix.lower() != ".npz":
+        return models
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            if str(npz["kind"]) != "bundle" or bool(npz["aligned"]):
+                return models
+            points = np.asarray(npz["points"], dtype=np.float64)
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return models
+    points = points[np.isfinite(points).all(axis=1)]
+    if len(points) < 3:
+        return models
+    centre = points.mean(axis=0)
+    _, _, axes = np.linalg.svd(points - centre, full_matrices=False)
+    normal = axes[2]
+    centres = np.array([-m.R.T @ m.t for m in models.values()])
+    if np.mean((centres - centre) @ normal) < 0:
+        normal = -normal
+    east = axes[0]
+    frame = np.array([east, np.cross(normal, east), normal])  # rows: new x, y, z (up)
+    return {name: dataclasses.replace(m, R=m.R @ frame.T, t=m.R @ centre + m.t)
+            for name, m in models.items()}
+
+
 def _sized(model):
     """A pinhole without an image size (a ``.tsai`` carries none) gets the size centred on
     its principal point, with a note."""
@@ -128,7 +167,8 @@ def read_models(paths: Sequence[str | os.PathLike], body: Body | None = None):
     models, bodies, files = {}, {}, {}
     for raw in paths:
         path = Path(raw)
-        found = read_sensors(path, radii=radii, require_surface=False)
+        found = on_tie_point_plane(path, read_sensors(path, radii=radii,
+                                                      require_surface=False))
         for name, model in found.items():
             # a file of one model is named by its file, as given (pairs.txt, the tables):
             # an ISD's internal image id need not match a renamed file (issue 46)

@@ -190,3 +190,41 @@ def test_camera_and_pairs_see_the_overlap_on_the_chains_surface(tmp_path):
     pair = json.loads(result.output)["pairs"][0]
     assert pair["overlap_fraction_first"] > 0.9, pair
     assert pair["convergence_deg"] == pytest.approx(60.0, abs=0.5)
+
+
+def test_an_unaligned_bundle_is_measured_on_its_tie_points(tmp_path):
+    """Issue 46: an unaligned bundle.npz (COLMAP's arbitrary frame) gave pairs no pair: the
+    local frame's ground Z = 0 means nothing there.  Its cameras are measured on the plane
+    of its tie points: the same block moved by a similarity (rotation, scale 0.01,
+    offset) has the overlap and convergence of the metric one."""
+    from scipy.spatial.transform import Rotation
+
+    from demtool.bundle import BundleResult
+    from demtool.sensors import PinholeCamera
+    from tests.cli.test_dem import bundle_points, write_bundle
+    from tests.helpers.dem import BASELINE, nadir_camera
+
+    points = bundle_points(80)
+    metric = write_bundle(tmp_path / "metric.npz", points, nadir_camera(), aligned=True)
+    rotation = Rotation.from_euler("xyz", [40, -70, 15], degrees=True).as_matrix()
+    scale, offset = 0.01, np.array([3.0, -2.0, 7.0])
+    moved_cameras = []
+    for camera in (nadir_camera(), nadir_camera(BASELINE)):
+        # X' = s Q X + o  →  x_cam ∝ R Qᵀ X' + s t − R Qᵀ o  (the same image, scaled frame)
+        R = camera.R @ rotation.T
+        moved_cameras.append(PinholeCamera(K=camera.K, R=R, t=scale * camera.t - R @ offset,
+                                           width=camera.width, height=camera.height))
+    moved = BundleResult(points=scale * points @ rotation.T + offset,
+                         colors=np.zeros(len(points)), track_length=np.full(len(points), 2),
+                         reprojection_error=np.full(len(points), 0.2),
+                         image_names=np.array(["view_00", "view_01"]), cameras=moved_cameras,
+                         distortion=np.zeros((2, 2)), target_index=0, aligned=False)
+    unaligned = dio.write_npz(tmp_path / "unaligned.npz", "bundle", moved.to_arrays())
+    pairs = []
+    for path in (metric, unaligned):
+        result = invoke("camera", path, "--json")
+        assert result.exit_code == 0, result.output
+        pairs.append(json.loads(result.output)["pairs"][0])
+    assert pairs[1]["overlap_fraction_first"] == pytest.approx(
+        pairs[0]["overlap_fraction_first"], abs=0.05)
+    assert pairs[1]["convergence_deg"] == pytest.approx(pairs[0]["convergence_deg"], abs=0.1)

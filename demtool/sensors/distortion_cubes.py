@@ -9,13 +9,21 @@ model       coefficients and definition (``remove``: distorted → undistorted, 
             (``INS<code>_DISTORTION_COEFFS``, ``INS<code>_PIXEL_SIZE``)
 ``lrowac``  ``[k1, k2, k3]``: ISIS ``LroWideAngleCameraDistortionMap``:
             ``u = d (1 + k1 r² + k2 r⁴ + k3 r⁶)`` (mm; the filter's ``INS<code>_OD_K``)
+``cassis``  ``[hx, hy, A1(6), A2(6), A3(6)]``: ISIS ``TgoCassisDistortionMap`` (CaSSIS): with
+            ``χ = (x², xy, y², x, y, 1)`` (mm), ``u = (A1·χ, A2·χ) / A3·χ`` (the IK's
+            ``_OD_A1/2/3_CORR``) on the CCD, ``|x| ≤ hx + 0.2``, ``|y| ≤ hy + 0.2``
+            (``hx, hy`` half the CCD in mm: pitch × ``FILTER_SAMPLES/LINES`` / 2), the
+            identity off it
 ``mocwa``   ``[s, c0, …, c5]``: ISIS ``MocWideAngleDistortionMap``, focal length ``f``
             (the model's): ``y' = y / s``, field angle ``θ = atan(|(x, y')| / f)``,
             ``θ_u = θ (c0 + c1 θ² + … + c5 θ¹⁰)``, ``u = (x, y') f tan θ_u / |(x, y')|``
             (ISIS's constants: red ``s`` 1, blue 1.000452)
 ==========  ==========================================================================
 
-``lrowac`` is ``marci`` with a pitch of 1 mm and ``k0 = 1``.  ``marci``'s ``apply``
+``lrowac`` is ``marci`` with a pitch of 1 mm and ``k0 = 1``.  ``cassis``'s ``apply``
+inverts ``remove`` by Newton–Raphson (to 1e-12 mm): ISIS's ``SetUndistortedFocalPlane``
+evaluates a second, separately fitted rational model (``_OD_A*_DIST``), which inverts
+the correction only to its fit.  ``marci``'s ``apply``
 (undistorted → distorted) solves the radial equation by
 Newton–Raphson to 1e-12 pixel, as ISIS's ``SetUndistortedFocalPlane`` does to 1e-9
 (ISIS starts from a per-filter guess; the converged root is the same); points that do
@@ -25,7 +33,9 @@ fitted polynomial instead, which inverts ``remove`` only to its fit (a round tri
 through ISIS's two maps moves a point), so that one is not used.
 
 References: DOI-USGS/ISIS3 ``isis/src/mro/objs/MarciCamera/MarciDistortionMap.cpp``,
-``isis/src/mgs/objs/MocWideAngleCamera/MocWideAngleDistortionMap.cpp``.
+``isis/src/mgs/objs/MocWideAngleCamera/MocWideAngleDistortionMap.cpp``,
+``isis/src/lro/objs/LroWideAngleCamera/LroWideAngleCameraDistortionMap.cpp``,
+``isis/src/tgo/objs/TgoCassisCamera/TgoCassisDistortionMap.cpp``.
 """
 
 from __future__ import annotations
@@ -106,7 +116,51 @@ def _lrowac_apply(x, y, c, f, tol):
     return _marci_apply(x, y, [1.0, 1.0, *c], f, tol)
 
 
+def _chi_dot(x, y, a):
+    return a[0] * x * x + a[1] * x * y + a[2] * y * y + a[3] * x + a[4] * y + a[5]
+
+
+def _cassis_on_ccd(x, y, c):
+    return (np.abs(x) <= c[0] + 0.2) & (np.abs(y) <= c[1] + 0.2)
+
+
+def _cassis_remove(x, y, c, f, tol):
+    a1, a2, a3 = c[2:8], c[8:14], c[14:20]
+    with np.errstate(all="ignore"):
+        divider = _chi_dot(x, y, a3)
+        ux, uy = _chi_dot(x, y, a1) / divider, _chi_dot(x, y, a2) / divider
+    on = _cassis_on_ccd(x, y, c)
+    return np.where(on, ux, x), np.where(on, uy, y)
+
+
+def _cassis_apply(x, y, c, f, tol):
+    a1, a2, a3 = c[2:8], c[8:14], c[14:20]
+    dx, dy = np.array(x, dtype=np.float64), np.array(y, dtype=np.float64)
+    with np.errstate(all="ignore"):
+        for _ in range(50):
+            q = _chi_dot(dx, dy, a3)
+            p1, p2 = _chi_dot(dx, dy, a1), _chi_dot(dx, dy, a2)
+            fx, fy = p1 / q - x, p2 / q - y
+            # ∂(A·χ)/∂x = 2 a0 x + a1 y + a3, ∂/∂y = a1 x + 2 a2 y + a4
+            qx, qy = 2 * a3[0] * dx + a3[1] * dy + a3[3], a3[1] * dx + 2 * a3[2] * dy + a3[4]
+            j11 = ((2 * a1[0] * dx + a1[1] * dy + a1[3]) * q - p1 * qx) / (q * q)
+            j12 = ((a1[1] * dx + 2 * a1[2] * dy + a1[4]) * q - p1 * qy) / (q * q)
+            j21 = ((2 * a2[0] * dx + a2[1] * dy + a2[3]) * q - p2 * qx) / (q * q)
+            j22 = ((a2[1] * dx + 2 * a2[2] * dy + a2[4]) * q - p2 * qy) / (q * q)
+            det = j11 * j22 - j12 * j21
+            sx, sy = (j22 * fx - j12 * fy) / det, (-j21 * fx + j11 * fy) / det
+            dx, dy = dx - sx, dy - sy
+            if np.all(~(np.abs(sx) > 1e-12) & ~(np.abs(sy) > 1e-12)):
+                break
+        bad = (np.abs(sx) > 1e-9) | (np.abs(sy) > 1e-9)
+    on = _cassis_on_ccd(dx, dy, c)
+    dx, dy = np.where(on, dx, x), np.where(on, dy, y)
+    return np.where(bad & on, np.nan, dx), np.where(bad & on, np.nan, dy)
+
+
 #: Coefficient counts, apply and remove functions of the models above.
-COUNTS = {"marci": (5,), "mocwa": (7,), "lrowac": (3,)}
-APPLY = {"marci": _marci_apply, "mocwa": _mocwa_apply, "lrowac": _lrowac_apply}
-REMOVE = {"marci": _marci_remove, "mocwa": _mocwa_remove, "lrowac": _lrowac_remove}
+COUNTS = {"marci": (5,), "mocwa": (7,), "lrowac": (3,), "cassis": (20,)}
+APPLY = {"marci": _marci_apply, "mocwa": _mocwa_apply, "lrowac": _lrowac_apply,
+         "cassis": _cassis_apply}
+REMOVE = {"marci": _marci_remove, "mocwa": _mocwa_remove, "lrowac": _lrowac_remove,
+          "cassis": _cassis_remove}

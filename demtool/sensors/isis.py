@@ -235,9 +235,6 @@ TAGCAMS_CODES = (-64081, -64082, -64071)
 #: NAIF keyword suffixes through which ISIS camera models describe lens distortion.
 _DISTORTION_KEYS = ("_OD_K", "_OD_T", "_OD_A", "_DECENTER", "_DISTORTION", "_OPENCV", "_PP",
                     "_TRANSX_DIST", "_CD_")
-#: ISIS distortion maps named in refusals, by NAIF code.
-_DISTORTION_MAPS = {-143400: "TgoCassisDistortionMap, rational polynomials in normalised "
-                             "detector coordinates"}
 
 
 def _distortion(path: Path, naif, code: int, focal: float, instrument) -> Distortion | None:
@@ -262,9 +259,8 @@ def _distortion(path: Path, naif, code: int, focal: float, instrument) -> Distor
                   and any(tag in k[len(ins):] for tag in _DISTORTION_KEYS))
     if not keys:
         return None
-    named = f" (ISIS {_DISTORTION_MAPS[code]})" if code in _DISTORTION_MAPS else ""
     raise InputError(f"{path}: the ISIS camera of NAIF code {code} models lens distortion "
-                     f"({keys[0]}{named}) in a way demtool does not apply, and ignoring it "
+                     f"({keys[0]}) in a way demtool does not apply, and ignoring it "
                      "would misplace pixels; pass an ALE ISD of the image (isd_generate)")
 
 

@@ -15,6 +15,9 @@ MESSENGER MDIS  ``MdisCamera``: the Kernels code is the camera's (−236800 WAC,
                 ``TempDependentFocalLength``, read first; summing ``PixelBinningMode``
                 (0 → 1) doubled by FPU binning (``FpuBinningMode`` 1), which also moves
                 the first detector pixel to ``INS<code>_FPUBIN_START_SAMPLE/LINE``
+TGO CaSSIS      ``TgoCassisCamera``: ``INS<code>`` focal length, ``ITRANSS/L`` and boresight
+                (the detector origin), summing ``2 × SummingMode`` (0: none), and
+                ``TgoCassisDistortionMap`` (``_OD_A1/2/3_CORR``, the ``cassis`` model)
 Viking VIS      ``VikingCamera``: focal length by spacecraft and camera (474.398,
                 474.448 mm for VO1 A, B; 474.610, 474.101 mm for VO2 A, B), detector
                 origin (602, 528); ISIS's ``ReseauDistortionMap`` reads the reseau
@@ -22,7 +25,8 @@ Viking VIS      ``VikingCamera``: focal length by spacecraft and camera (474.398
                 is ideal, as ALE's Viking drivers write it (a note says so)
 ==============  ===================================================================
 
-References: DOI-USGS/ISIS3 ``isis/src/messenger/objs/MdisCamera/MdisCamera.cpp``
+References: DOI-USGS/ISIS3 ``isis/src/messenger/objs/MdisCamera/MdisCamera.cpp``,
+``isis/src/tgo/objs/TgoCassisCamera/`` (camera and distortion map)
 (``computeFocalLength``), ``isis/src/base/objs/TaylorCameraDistortionMap``,
 ``isis/src/viking/objs/VikingCamera/VikingCamera.cpp``; DOI-USGS/ale
 ``ale/drivers/viking_drivers.py``, ``ale/drivers/mess_drivers.py``.
@@ -38,6 +42,7 @@ import numpy as np
 from demtool.errors import InputError
 from demtool.sensors.distortion import Distortion
 
+CASSIS_CODE = -143400
 MDIS_WAC_CODE = -236800
 MDIS_NAC_CODE = -236820
 #: VikingCamera's focal lengths (mm) by (SpacecraftName, InstrumentId).
@@ -94,10 +99,12 @@ def _number(path: Path, group, name: str, key: str, default=None) -> float:
 
 
 def mission_interior(path: Path, label, naif, code: int) -> FrameInterior | None:
-    """The interior of an MDIS or Viking frame cube (module docstring); None for another
+    """The interior of an MDIS, CaSSIS or Viking frame cube (module docstring); None for another
     camera (described by its ``INS<code>`` keywords alone)."""
     if code in (MDIS_WAC_CODE, MDIS_NAC_CODE):
         return _mdis(path, label, naif, code)
+    if code == CASSIS_CODE:
+        return _cassis(path, label, naif, code)
     instrument = label["IsisCube"].get("Instrument", {})
     viking = (str(instrument.get("SpacecraftName", "")).upper(),
               str(instrument.get("InstrumentId", "")).upper())
@@ -146,3 +153,21 @@ def _mdis(path: Path, label, naif, code: int) -> FrameInterior:
         center_sample=float(_key(path, naif, f"{ins}_BORESIGHT_SAMPLE", 1)[0]),
         center_line=float(_key(path, naif, f"{ins}_BORESIGHT_LINE", 1)[0]),
         distortion=distortion, start_sample=start_s, start_line=start_l, binning=binning)
+
+
+def _cassis(path: Path, label, naif, code: int) -> FrameInterior:
+    ins = f"INS{code}"
+    instrument = label["IsisCube"].get("Instrument", {})
+    mode = int(_number(path, instrument, "Instrument", "SummingMode", 0))
+    pitch = float(_key(path, naif, f"{ins}_PIXEL_PITCH", 1)[0])
+    half = (0.5 * pitch * float(_key(path, naif, f"{ins}_FILTER_SAMPLES", 1)[0]),
+            0.5 * pitch * float(_key(path, naif, f"{ins}_FILTER_LINES", 1)[0]))
+    terms = [_key(path, naif, f"{ins}_OD_A{i}_CORR", 6) for i in (1, 2, 3)]
+    focal = float(_key(path, naif, f"{ins}_FOCAL_LENGTH", 1)[0])
+    return FrameInterior(
+        focal=focal, itrans_sample=_key(path, naif, f"{ins}_ITRANSS", 3),
+        itrans_line=_key(path, naif, f"{ins}_ITRANSL", 3),
+        center_sample=float(_key(path, naif, f"{ins}_BORESIGHT_SAMPLE", 1)[0]),
+        center_line=float(_key(path, naif, f"{ins}_BORESIGHT_LINE", 1)[0]),
+        distortion=Distortion("cassis", np.concatenate([half, *terms]), focal),
+        binning=float(2 * mode) if mode > 0 else 1.0)

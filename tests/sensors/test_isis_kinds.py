@@ -203,8 +203,6 @@ REFUSED = {
     "rings/rings1proj.cub": r"is a map-projected cube onto the ring plane",
     "miniRFImage/LSZ_04866_1CD_XKU_89N109_V1_lev1.crop.cub": r"synthetic-aperture radar",
     "lo2isis/case04/3083_med_isis2_cropped.cub": r"is an ISIS2 qube",
-    "tgoCassis/tgocassisstitch/CAS-MCO-2016-11-22T16.16.10.833-PAN-00000-B1_crop.cub":
-        r"models lens distortion \(INS-143400_OD_A1_CORR \(ISIS TgoCassisDistortionMap",
     "tgoCassis/tgocassisstitch/CAS-MCO-2016-11-22T16.16.16.833-RED-01006-B1_crop.cub":
         r"names 'Table' for InstrumentPointing.* but the file has no InstrumentPointing",
 }
@@ -401,6 +399,29 @@ def test_lrowac_distortion_is_isis_lro_wide_angle_distortion_map():
     factor = 1 + k[0] * rr + k[1] * rr ** 2 + k[2] * rr ** 3
     u, v = lens.remove(x, y)
     np.testing.assert_allclose(u, x * factor, rtol=1e-14)
+    back_x, back_y = lens.apply(u, v)
+    np.testing.assert_allclose(back_x, x, atol=1e-11)
+    np.testing.assert_allclose(back_y, y, atol=1e-11)
+
+
+def test_cassis_distortion_is_isis_tgo_cassis_distortion_map():
+    # TgoCassisDistortionMap::SetFocalPlane: u = (A1·χ, A2·χ) / A3·χ, χ = (x², xy, y², x,
+    # y, 1) in mm, on the CCD (±10.24 + 0.2 mm); the identity off it.
+    a1 = [0.0037613053094827, -0.013415415606581, -1.86749521007237e-05, 1.0002135268184,
+          -0.000432362371703953, -0.000948065735350123]
+    a2 = [9.9842559363676e-05, 0.0037354370795816, -0.013329991887393,
+          -0.000215311328389359, 0.99529601553729, -0.018354271771078]
+    a3 = [-3.13320167004204e-05, -7.35655125749807e-06, -1.57664245066771e-05,
+          0.0037354946543915, -0.014167194693093, 1.0]
+    lens = Distortion("cassis", [10.24, 10.24, *a1, *a2, *a3], 880.0)
+    x, y = np.array([5.0, -9.0, 12.0]), np.array([-3.0, 8.0, 1.0])
+    chi = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)])
+    u, v = lens.remove(x, y)
+    np.testing.assert_allclose(u[:2], (np.array(a1) @ chi / (np.array(a3) @ chi))[:2],
+                               rtol=1e-14)
+    np.testing.assert_allclose(v[:2], (np.array(a2) @ chi / (np.array(a3) @ chi))[:2],
+                               rtol=1e-14)
+    assert (u[2], v[2]) == (12.0, 1.0)  # off the CCD
     back_x, back_y = lens.apply(u, v)
     np.testing.assert_allclose(back_x, x, atol=1e-11)
     np.testing.assert_allclose(back_y, y, atol=1e-11)

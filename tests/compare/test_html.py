@@ -76,15 +76,15 @@ def test_report_html_renders_in_headless_chromium(report_folder, tmp_path):
               "--disable-background-networking", "--disable-component-update",
               "--disable-sync", "--no-first-run", "--disable-dev-shm-usage",
               f"--user-data-dir={tmp_path / 'profile'}"]
-    dom = subprocess.run([*common, "--dump-dom", url], capture_output=True, text=True,
-                         timeout=120, check=True).stdout
+    shot = tmp_path / "report.png"
+    # one browser start: the DOM after loading on stdout, the rendered page as a PNG
+    dom = subprocess.run([*common, f"--screenshot={shot}", "--window-size=1200,2400",
+                          "--hide-scrollbars", "--dump-dom", url], capture_output=True,
+                         text=True, timeout=120, check=True).stdout
     # the browser parsed the page: its tables and inline images are in the DOM
     assert '<table id="statistics">' in dom and '<table id="shift">' in dom
     images = re.findall(r'<img [^>]*src="data:image/png;base64,', dom)
     assert len(images) == len(dio.read_json(report_folder / "report.json")["figures"])
-    shot = tmp_path / "report.png"
-    subprocess.run([*common, f"--screenshot={shot}", "--window-size=1200,2400",
-                    "--hide-scrollbars", url], capture_output=True, timeout=120, check=True)
     from matplotlib.image import imread
 
     pixels = imread(shot)[..., :3]

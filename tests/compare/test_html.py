@@ -39,6 +39,7 @@ def report_folder(tmp_path_factory):
     return folder / "out"
 
 
+@pytest.mark.slow
 def test_report_html_is_self_contained_with_table_shift_figures_and_provenance(report_folder):
     page = (report_folder / "report.html").read_text(encoding="utf-8")
     report = dio.read_json(report_folder / "report.json")

@@ -240,6 +240,12 @@ def test_older_usgscsm_layout_linescan_matches_usgscsm_1(tmp_path):
                                (999999.67040488799, 0.0, -811.90523782723039), atol=1e-6)
     error, hits = _round_trip(model, *_grid(model, 9))
     assert hits == 81 and error <= 0.01
+    # the corners as the ALE layout of the same fixture sees them (a quaternion read
+    # without its conjugation would swap the image's sides: 1.5 km off)
+    ale = read_sensor(_write(tmp_path, isd, "ale.json"))
+    corners = (np.array([0.5, 0.5, 15.5, 15.5]), np.array([0.5, 15.5, 0.5, 15.5]))
+    np.testing.assert_allclose(model.image_to_ground(*corners), ale.image_to_ground(*corners),
+                               atol=1.0)
 
 
 def test_older_usgscsm_layout_frame(tmp_path):
@@ -248,6 +254,10 @@ def test_older_usgscsm_layout_frame(tmp_path):
     isd = json.loads((DATA / "orbitalFramer.json").read_text())
     model = read_sensor(_write(tmp_path, _legacy(isd)))
     np.testing.assert_allclose(model.image_to_ground(8.0, 8.0), (1e6, 0.0, 0.0), atol=1e-6)
+    ale = read_sensor(_write(tmp_path, isd, "ale.json"))
+    corners = (np.array([0.5, 0.5, 15.5]), np.array([0.5, 15.5, 0.5]))
+    np.testing.assert_allclose(model.image_to_ground(*corners), ale.image_to_ground(*corners),
+                               atol=1e-6)
 
 
 def test_older_layout_without_its_times_is_refused(tmp_path):

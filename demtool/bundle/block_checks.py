@@ -85,9 +85,24 @@ def check_camera_distances(models: Sequence[Any], paths: Sequence[Any]) -> None:
                              f"{radius / 1e3:.6g} km): positions in metres labelled km?")
 
 
+def check_physical_cameras(models: Sequence[Any], paths: Sequence[Any]) -> None:
+    """InputError naming the first model that carries no camera position and attitude to
+    adjust: an RPC is a fit of image coordinates to the ground, with neither (s2p and
+    ASP correct a pair's RPCs by an image-space offset instead; demtool's map-projected
+    route takes it out in ``sgm``)."""
+    from demtool.errors import InputError
+
+    for model, path in zip(models, paths):
+        if getattr(model, "kind", "") == "rpc":
+            raise InputError(f"{path}: is an RPC model, which has no camera position or "
+                             "attitude for bundle to adjust (the RPC route: mapproject --pair-"
+                             "sensor, sgm, dem --mapprojected; docs/tutorials/rpc_pair.md)")
+
+
 def check_block(models: Sequence[Any], paths: Sequence[Any], image_names: Sequence[str],
                 image_paths: Sequence[Any]) -> None:
     """All the checks of a ``--sensors`` block (see the module docstring)."""
+    check_physical_cameras(models, paths)
     check_one_body(models, paths)
     check_models_match_images(models, paths, image_names, image_paths)
     check_camera_distances(models, paths)

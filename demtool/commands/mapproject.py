@@ -37,6 +37,9 @@ later stages (dem --mapprojected, refine) can undo the projection.""")
                      "reference sphere).")
 @options.path_option("--grid-like", "Write OUT on this raster's map grid (CRS, transform, "
                      "size), e.g. the other orthoimage of a stereo pair.")
+@options.path_option("--pair-sensor", "The other image's sensor model of a stereo pair: "
+                     "the new grid's x axis runs along the pair's parallax (an oblique "
+                     "Mercator), so sgm finds it along map x whatever the flight direction.")
 @options.out_file("Orthoimage (GeoTIFF).")
 @options.path_option("--angles-out", "Also write incidence, emission and phase angles "
                      "(degrees, 3 bands) on the same grid.")
@@ -47,12 +50,12 @@ later stages (dem --mapprojected, refine) can undo the projection.""")
                    "across the antimeridian; default: the image's footprint).")
 @click.pass_context
 def command(ctx: click.Context, image: str, sensor: str, dem: str | None, grid_like: str | None,
-            out: str, angles_out: str | None, **values: Any) -> None:
+            pair_sensor: str | None, out: str, angles_out: str | None, **values: Any) -> None:
     """Options -> MapprojectParams -> :func:`demtool.mapproject.run.run_mapproject`."""
     from demtool.mapproject.run import run_mapproject
 
     options.exclusive({"--dem": dem is not None, "--height": values.get("height") is not None},
                       exactly_one=True)
     run_mapproject(image, sensor, out, MapprojectParams.from_options(values), dem_path=dem,
-                   angles_out=angles_out, grid_like=grid_like,
+                   angles_out=angles_out, grid_like=grid_like, pair_sensor=pair_sensor,
                    resolved=options.resolved_params(ctx))

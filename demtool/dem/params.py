@@ -42,6 +42,10 @@ class DemParams(Parameters):
     projection: str = parameter("auto", "Map projection of a DEM triangulated through sensor "
                                 "models (auto: polar stereographic poleward of 70 degrees).",
                                 choices=PROJECTIONS, what="projection")
+    t_srs: str | None = parameter(None, "CRS of a DEM triangulated through sensor models, any "
+                                  "PROJ knows (EPSG:32740, an IAU_2015 projected code, a PROJ "
+                                  "string), as ASP's point2dem --t_srs (default: --projection "
+                                  "on the body, or the orthoimages' CRS).", metavar="CRS")
     max_ray_gap: float | None = parameter(
         None, "Calibrated routes and --dense: drop points whose rays miss each other by "
         "more, metres (an unaligned bundle's model units with --dense; default: median gap + "

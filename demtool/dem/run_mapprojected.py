@@ -78,11 +78,14 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     check_right_cells(disparity_path, right_path, l_cols, r_cols, ri.width)
     if rows.size < 3:
         raise ProcessingError(f"{disparity_path}: fewer than 3 valid disparities")
+    from demtool.mapproject.stereo import row_shift_of
+
+    r_rows = rows + row_shift_of(disparity.tags)  # sgm's shift of the right ortho, if any
     crs = to_pyproj_crs(li.crs)
     l_h = left.heights(*map_cells_xy(li.transform, rows, l_cols))
-    r_h = right.heights(*map_cells_xy(ri.transform, rows, r_cols))
+    r_h = right.heights(*map_cells_xy(ri.transform, r_rows, r_cols))
     l_line, l_sample = raw_coordinates(left.sensor, crs, li.transform, rows, l_cols, l_h)
-    r_line, r_sample = raw_coordinates(right.sensor, crs, ri.transform, rows, r_cols, r_h)
+    r_line, r_sample = raw_coordinates(right.sensor, crs, ri.transform, r_rows, r_cols, r_h)
     seen = np.isfinite(l_line) & np.isfinite(l_sample) & np.isfinite(r_line) & \
         np.isfinite(r_sample)
     log.info("%d valid disparities, %d seen by both sensors", rows.size, int(seen.sum()))
@@ -123,7 +126,6 @@ def _tiled(run: StageRun, params: DemParams, out, disparity_path, left_path, rig
     from demtool import io as dio
     from demtool.dem.tiled_map import ortho
     from demtool.dem.tiled_map_run import dem_map_tiled, mapprojected_job
-    from demtool.maps import to_pyproj_crs
     from demtool.tiling import wants_tiles
 
     info = dio.raster_info(disparity_path, what="disparity")
@@ -136,12 +138,25 @@ def _tiled(run: StageRun, params: DemParams, out, disparity_path, left_path, rig
     result = dem_map_tiled(
         run, params, out, job, inputs=[str(disparity_path), str(left_path), str(right_path)],
         gsd_default=float(np.sqrt(abs(li.transform.a * li.transform.e))),
-        crs=to_pyproj_crs(li.crs), summary={
+        crs=_tiled_crs(params, ortho(str(left_path), "left orthoimage").sensor, li),
+        summary={
             "route": "disparity-mapprojected",
             "surfaces": [ortho(str(p), w).surface for p, w in (
                 (left_path, "left orthoimage"), (right_path, "right orthoimage"))]},
         mask_path=mask_path, error_path=error_path)
     return {"dry_run": result.dry_run} if result.dry_run is not None else result.summary
+
+
+def _tiled_crs(params, sensor, li):
+    """The tiled route's map CRS: ``--t-srs`` (checked), else the orthoimages'."""
+    from demtool.maps import to_pyproj_crs
+
+    if params.t_srs is None:
+        return to_pyproj_crs(li.crs)
+    from demtool.dem.run_sensors import t_srs_body
+    from demtool.mapproject.core import sensor_body
+
+    return t_srs_body(params, sensor_body(sensor))[1]
 
 
 def _pair_precision(run: StageRun, left, right, crs, li, gsd: float) -> dict[str, Any]:
@@ -161,6 +176,8 @@ def _pair_precision(run: StageRun, left, right, crs, li, gsd: float) -> dict[str
     except (ValueError, FloatingPointError):
         return {}
     per_px = found["height_per_px_parallax_factor"] * gsd
+    if not (np.isfinite(per_px) and np.isfinite(found["convergence_deg"])):
+        return {}  # models without a camera position (RPC): no convergence to tell
     run.log.info("convergence %.2f° at the map centre: one pixel (%.3g m) of parallax is "
                  "%.3g m of height", found["convergence_deg"], gsd, per_px)
     return {"convergence_deg": found["convergence_deg"], "height_per_px_parallax_m": per_px}

@@ -136,7 +136,13 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
              int((in_front & ~keep).sum()), max_gap, median_gap, gsd)
     a, b = left.radii
     body = body_from_radii(a, a, b)
+    if getattr(left, "height_reference", "sphere") == "ellipsoid":  # an RPC: geodetic heights
+        from dataclasses import replace
+
+        body = replace(body, height_reference="ellipsoid")
     use_crs = crs if params.projection == "auto" else None
+    if params.t_srs is not None:
+        body, use_crs = t_srs_body(params, body)
     _check_map_size(tri.xyz[keep], body, gsd, gsd_source, params, use_crs, source, log)
     result = dem_on_map(tri.xyz[keep], tri.gap[keep], body, gsd_m=gsd, crs=use_crs,
                         projection=params.projection, left=left, right=right,
@@ -178,12 +184,15 @@ def write_map_dem(run: StageRun, params: DemParams, out, result, summary: dict[s
     log, prov = run.log, run.provenance
     grid = result.grid
     gsd = summary["gsd_m"]
+    reference = (f"the {body.radius / 1e3:.1f} km sphere" if body.height_reference == "sphere"
+                 else f"the ellipsoid a={body.a:.10g} m, c={body.c:.10g} m")
     log.info("DEM %d×%d on %s, GSD %.4g m, %.1f %% of the overlap measured, heights %.4g … "
-             "%.4g m above the %.1f km sphere", grid.width, grid.height, grid.crs.name, gsd,
+             "%.4g m above %s", grid.width, grid.height, grid.crs.name, gsd,
              100 * result.report["measured_fraction_of_overlap"], summary["height_min_m"],
-             summary["height_max_m"], body.radius / 1e3)
-    tags = prov.tags(dem_route=route, gsd_m=gsd,
-                     units="metres above the reference sphere", **body.tags())
+             summary["height_max_m"], reference)
+    units = ("metres above the reference sphere" if body.height_reference == "sphere" else
+             "metres above the ellipsoid (geodetic)")
+    tags = prov.tags(dem_route=route, gsd_m=gsd, units=units, **body.tags())
     from demtool.dem.output import write_dem_rasters
 
     with run.transaction():
@@ -237,6 +246,25 @@ def _tiled(run: StageRun, params: DemParams, out, disparity_path, rectify_path,
 #: peak bytes per map cell of :func:`demtool.dem.sensors.dem_on_map` (gridding moments,
 #: 9 float64; the DEM, weights, masks and filling work arrays)
 DEM_BYTES_PER_CELL = 160
+
+
+def t_srs_body(params: DemParams, body):
+    """(body, CRS) of ``--t-srs``: the CRS checked against the sensors' body, and the body
+    on that CRS's own surface (sphere or ellipsoid), which the heights written are above.
+    ParameterError (one line) for a CRS PROJ does not know, not projected, of another body,
+    or given with a --projection other than auto."""
+    from demtool.errors import ParameterError
+    from demtool.maps import body_from_crs
+    from demtool.maps.crs_option import parse_t_srs
+
+    if params.projection != "auto":
+        raise ParameterError(f"--t-srs {params.t_srs} and --projection {params.projection} "
+                             "each set the map: give one")
+    try:
+        crs = parse_t_srs(params.t_srs, body)
+    except ValueError as exc:
+        raise ParameterError(str(exc)) from None
+    return body_from_crs(crs), crs
 
 
 def _check_map_size(xyz, body, gsd: float, gsd_source: str, params, crs, source, log) -> None:

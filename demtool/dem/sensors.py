@@ -257,7 +257,7 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
         raise ProcessingError(f"only {len(xyz)} triangulated points: nothing to grid")
     index = np.flatnonzero(keep)
     grid = grid_from_xyz(body, xyz, gsd_m, projection=projection, crs=crs)
-    lon, lat, height = xyz_to_lonlat_height(xyz, radii=body.radius)
+    lon, lat, height = xyz_to_lonlat_height(xyz, radii=body.surface)
     x, y = lonlat_to_map(grid.crs, lon, lat)
     t = grid.transform  # north-up: col = (x − c) / a, row = (y − f) / e
     cols = (np.asarray(x) - t.c) / t.a

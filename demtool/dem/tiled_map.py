@@ -91,12 +91,12 @@ def _rectified_pair(stamp: tuple[str, int, int]):
     return left, right, geometry_from_rectification(rectification, left, right)
 
 
-def sphere_radius(model) -> float:
-    """The body's reference sphere radius of a model on a body (metres)."""
-    from demtool.maps import body_from_radii
+def sphere_radius(model):
+    """The surface heights are measured from for a model on a body: the reference
+    sphere's radius (metres), or an RPC's ellipsoid (:attr:`demtool.maps.Body.surface`)."""
+    from demtool.mapproject.core import sensor_body
 
-    a, b = model.radii
-    return body_from_radii(a, a, b).radius
+    return sensor_body(model).surface
 
 
 def split64(values: np.ndarray) -> np.ndarray:
@@ -149,6 +149,7 @@ class MapDemTileJob:
     ring: str = ""
     stage: str = "dem"
     bands: tuple[str, ...] = STEP_BANDS["fill"]
+    row_shift: float = 0.0  # map rows sgm shifted the right ortho by (ROW_SHIFT_TAG)
 
     def at_step(self, step: str, **changes: Any) -> MapDemTileJob:
         """This job for another step (its bands follow)."""
@@ -186,10 +187,11 @@ class MapDemTileJob:
         rows, l_cols, r_cols = disparity_cells(disparity)
         rows_g, l_g, r_g = rows + r0, l_cols + c0, r_cols + c0
         check_right_cells(self.disparity_path, self.right_path, l_g, r_g, ri.width)
+        r_rows = rows_g + self.row_shift  # sgm's shift of the right ortho, if any
         l_h = left.heights(*map_cells_xy(li.transform, rows_g, l_g))
-        r_h = right.heights(*map_cells_xy(ri.transform, rows_g, r_g))
+        r_h = right.heights(*map_cells_xy(ri.transform, r_rows, r_g))
         return (raw_coordinates(left.sensor, crs, li.transform, rows_g, l_g, l_h),
-                raw_coordinates(right.sensor, crs, ri.transform, rows_g, r_g, r_h),
+                raw_coordinates(right.sensor, crs, ri.transform, r_rows, r_g, r_h),
                 rows.astype(np.int64), l_cols.astype(np.int64))
 
     def _raw_rectified(self, disparity, r0, c0):

@@ -296,9 +296,14 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
 def mapprojected_job(disparity_path, left_path, right_path, tile_size: int
                      ) -> MapDemTileJob:
     """The points job of the map-projected route (the orthoimages already checked)."""
+    from demtool import io as dio
+    from demtool.mapproject.stereo import row_shift_of
+
     info = ortho(str(left_path), "left orthoimage").info
+    shift = row_shift_of(dio.raster_info(disparity_path, what="disparity").tags)
     return MapDemTileJob("mapprojected", str(disparity_path), (info.height, info.width),
-                         tile_size, left_path=str(left_path), right_path=str(right_path))
+                         tile_size, left_path=str(left_path), right_path=str(right_path),
+                         row_shift=shift)
 
 
 def rectified_job(disparity_path, rectify_path, tile_size: int,

@@ -54,6 +54,43 @@ def union_grid(specs: Sequence[Any], first: Any):
                                          transform.e, transform.f), first.crs_wkt)
 
 
+def t_srs_grid(text: str, specs: Sequence[Any], first_path):
+    """The grid of ``--t-srs``: the union of the DEMs' extents on that CRS, at the first
+    DEM's spacing (metres), snapped to multiples of it.  ParameterError (one line) for a
+    CRS PROJ does not know, not projected, of another body than the DEMs', or whose
+    surface (sphere or ellipsoid) differs from the first DEM's: the heights would keep
+    their own reference."""
+    from rasterio.crs import CRS as RioCRS
+
+    from demtool.errors import ParameterError
+    from demtool.fuse.tiled import GridSpec
+    from demtool.maps import body_from_crs, crs_surface, degree_pixel_size, snap_grid
+    from demtool.maps.crs_option import parse_t_srs
+
+    first = specs[0]
+    if first.crs_wkt is None:
+        raise ParameterError(f"--t-srs {text}: {first_path} has no CRS to reproject from")
+    try:
+        crs = parse_t_srs(text, body_from_crs(first.crs_wkt))
+    except ValueError as exc:
+        raise ParameterError(str(exc)) from None
+    if crs_surface(crs) != crs_surface(first.crs_wkt):
+        raise ParameterError(f"--t-srs {text}: its surface ({crs_surface(crs)}) is not that "
+                             f"of {first_path} ({crs_surface(first.crs_wkt)}); the heights "
+                             "would keep their own reference")
+    boxes = np.array([bounds_in(s, RioCRS.from_wkt(crs.to_wkt())) for s in specs])
+    t = first.affine()
+    if first.crs().is_geographic:
+        centre = t.f + 0.5 * t.e * first.shape[0]
+        sx, sy = degree_pixel_size(t, centre, body_from_crs(first.crs_wkt).a)
+        gsd = math.sqrt(sx * sy)
+    else:
+        gsd = math.sqrt(abs(t.a * t.e - t.b * t.d))
+    grid = snap_grid(crs, boxes[:, 0].min(), boxes[:, 1].min(), boxes[:, 2].max(),
+                     boxes[:, 3].max(), gsd)
+    return GridSpec(grid.shape, tuple(grid.transform)[:6], crs.to_wkt())
+
+
 def cells_of(spec, target) -> tuple[int, int, int, int] | None:
     """The window (row0, row1, col0, col1) of ``target`` that ``spec``'s extent covers."""
     xmin, ymin, xmax, ymax = bounds_in(spec, target.crs())

@@ -59,6 +59,10 @@ class FuseParams(Parameters):
                                        "of the others (after alignment) exceeds this, "
                                        "metres (default: keep every DEM).", minimum=0.0,
                                        min_open=True)
+    t_srs: str | None = parameter(None, "CRS of the fused grid, any PROJ knows (EPSG:32740, an "
+                                  "IAU_2015 projected code, a PROJ string), at the first "
+                                  "DEM's spacing (default: the first DEM's grid).",
+                                  metavar="CRS")
     coreg_size: int = parameter(1024, "Co-registration window: at most this many cells a "
                                 "side, centred on each DEM's overlap with the reference.",
                                 minimum=64)

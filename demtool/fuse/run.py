@@ -28,6 +28,7 @@ from demtool.fuse.grids import (
     grid_of,
     intersect,
     spacing_of,
+    t_srs_grid,
     union_grid,
 )
 from demtool.stagerun import StageRun, sidecar_path
@@ -166,11 +167,18 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
                              f"({info.height}x{info.width} vs {spec.shape[0]}x{spec.shape[1]})"
                              "; give the error raster the dem stage wrote with this DEM")
         error_specs.append(spec)
-    target = grid_of(extra[-1]) if grid_like else union_grid(specs, specs[0])
+    if params.t_srs is not None:
+        if grid_like:
+            raise ParameterError(f"--t-srs {params.t_srs} and --grid-like {grid_like} each "
+                                 "set the fused grid: give one")
+        target = t_srs_grid(params.t_srs, specs, dem_paths[0])
+    else:
+        target = grid_of(extra[-1]) if grid_like else union_grid(specs, specs[0])
     spacing = target.grid().spacing
     log.info("fused grid: %d x %d cells of %.4g x %.4g (%s)", target.shape[1],
              target.shape[0], spacing[0], spacing[1],
-             "from --grid-like" if grid_like else "union of the DEMs on the first's grid")
+             "from --grid-like" if grid_like else f"on --t-srs {params.t_srs}" if params.t_srs
+             else "union of the DEMs on the first's grid")
     check_size(target, dem_paths, specs, grid_like, wants_tiles(*target.shape, params), out,
                 log)
     windows = []

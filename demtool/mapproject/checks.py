@@ -79,10 +79,10 @@ def check_mapproject_grid(sensor: Any, body: Any, grid: Any, params: Any, *, dem
         log.info("orthoimage grid: %d x %d cells (%s on disk)", grid.width, grid.height,
                  sizes.human_bytes(nbytes))
     if params.bounds is not None:
-        xyz = ground_footprint(sensor, body.radius, height)
+        xyz = ground_footprint(sensor, body.surface, height)
         seen = np.isfinite(xyz).all(axis=1)
         if seen.any():
-            lon, lat, _ = xyz_to_lonlat_height(xyz[seen], radii=body.radius)
+            lon, lat, _ = xyz_to_lonlat_height(xyz[seen], radii=body.surface)
             box = footprint_box(lon, lat)
             if not bounds_overlap(params.bounds, box):
                 raise ParameterError(
@@ -133,9 +133,33 @@ def check_surface_heights(found, dem_path: Any, body: Any) -> None:
                          "body?")
 
 
+def check_rpc_domain(sensor: Any, body: Any, heights: Any, what: str) -> None:
+    """Refuse ground an RPC model is not valid for (:meth:`RpcSensor.domain_problem`):
+    the image's footprint at ``heights`` (the ``--height``, or the DEM's heights under
+    it), which must lie in the RPC's lon/lat/height domain.  ``what`` names the input
+    (``--height 9000``, the DEM's path).  Models without a domain pass."""
+    from demtool.errors import InputError
+    from demtool.mapproject.core import ground_footprint
+    from demtool.maps import xyz_to_lonlat_height
+
+    if not hasattr(sensor, "domain_problem"):
+        return
+    heights = np.asarray(heights, dtype=np.float64)
+    problem = sensor.domain_problem(np.nan, np.nan, heights)
+    if problem is None:
+        with np.errstate(invalid="ignore"):
+            xyz = ground_footprint(sensor, body.surface, np.nanmedian(heights))
+        lon, lat, _ = xyz_to_lonlat_height(xyz, radii=body.surface)
+        problem = sensor.domain_problem(lon, lat, heights)
+    if problem is not None:
+        error = ParameterError if what.startswith("--") else InputError
+        raise error(f"{what}: {problem} of the sensor model {sensor.name or 'RPC'}")
+
+
 def check_height(sensor: Any, body: Any, height: float) -> None:
-    """Refuse a ``--height`` no surface can have: beyond :func:`height_limit`, or above
-    the camera."""
+    """Refuse a ``--height`` no surface can have: beyond :func:`height_limit`, above
+    the camera, or outside an RPC's validity domain."""
+    check_rpc_domain(sensor, body, height, f"--height {height:g}")
     limit = height_limit(body)
     if abs(height) > limit:
         raise ParameterError(f"--height {height:g}: beyond ±{limit:.4g} m of {body.name}'s "
@@ -152,9 +176,10 @@ def check_height(sensor: Any, body: Any, height: float) -> None:
                              "above the sphere)")
 
 
-def model_footprint_box(sensor: Any, radius: float) -> tuple[float, float, float, float] | None:
-    """Lon/lat box (degrees) of a model's footprint on the sphere of ``radius`` (None when
-    no edge point sees it)."""
+def model_footprint_box(sensor: Any, radius: Any) -> tuple[float, float, float, float] | None:
+    """Lon/lat box (degrees) of a model's footprint on the sphere of ``radius`` or the
+    geodetic ellipsoid (a body's :attr:`~demtool.maps.Body.surface`; None when no edge
+    point sees it)."""
     from demtool.mapproject.core import ground_footprint
     from demtool.maps import xyz_to_lonlat_height
 
@@ -177,8 +202,12 @@ def check_pair_overlaps(left: Any, right: Any, left_path: Any, right_path: Any) 
 
     if left.radii is None or right.radii is None:
         return
+    from demtool.mapproject.core import sensor_body
+
     radius = float(left.radii[0])
-    boxes = model_footprint_box(left, radius), model_footprint_box(right, radius)
+    surface = sensor_body(left).surface if getattr(left, "height_reference", "") == \
+        "ellipsoid" else radius
+    boxes = model_footprint_box(left, surface), model_footprint_box(right, surface)
     if boxes[0] is None or boxes[1] is None or bounds_overlap(boxes[1], boxes[0]):
         return
     with np.errstate(all="ignore"):

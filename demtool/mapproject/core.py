@@ -83,8 +83,14 @@ def sensor_body(sensor: Any):
         raise ValueError("the sensor model is in a local frame, not on a body")
     a, b = sensor.radii
     # an ISIS cube names its body (Bennu: PROJ lacks it; the radii are the model's own)
-    return body_from_radii(a, a, b, name=getattr(sensor, "body_name", None),
+    body = body_from_radii(a, a, b, name=getattr(sensor, "body_name", None),
                            naif_id=getattr(sensor, "body_naif_id", None))
+    if getattr(sensor, "height_reference", "sphere") == "ellipsoid":
+        # an RPC's heights are geodetic, above its ellipsoid (WGS 84): so are its maps'
+        from dataclasses import replace
+
+        body = replace(body, height_reference="ellipsoid")
+    return body
 
 
 def _border(lines: int, samples: int, per_edge: int) -> tuple[np.ndarray, np.ndarray]:
@@ -97,17 +103,35 @@ def _border(lines: int, samples: int, per_edge: int) -> tuple[np.ndarray, np.nda
     return line, sample
 
 
-def ground_footprint(sensor: Any, radius: float, height: float = 0.0, *,
+def _on_surface(sensor: Any, line, sample, surface, height) -> np.ndarray:
+    """Ground points of image points on ``surface`` raised by ``height`` (NaN where the
+    ray misses): a sphere (radius) by ray intersection, a geodetic ellipsoid (an RPC's
+    WGS 84) by the model's own image-to-ground at that height."""
+    from demtool.maps.frames import GeodeticEllipsoid
+    from demtool.sensors import ray_ellipsoid_intersection
+
+    if isinstance(surface, GeodeticEllipsoid):
+        with np.errstate(invalid="ignore"):
+            return np.asarray(sensor.image_to_ground(line, sample, height), dtype=np.float64)
+    ray = sensor.image_to_ray(line, sample)
+    xyz, hit = ray_ellipsoid_intersection(ray.origin, ray.direction, surface, surface, height,
+                                          return_hit=True)
+    xyz[~hit] = np.nan
+    return xyz
+
+
+def ground_footprint(sensor: Any, radius: Any, height: float = 0.0, *,
                      per_edge: int = 16) -> np.ndarray:
-    """Ground points of the image's outer edge on the sphere raised by ``height``.
+    """Ground points of the image's outer edge on the body's surface raised by ``height``.
 
     Parameters
     ----------
     sensor : SensorModel
-    radius : float
-        Reference sphere radius, metres.
+    radius : float or GeodeticEllipsoid
+        The body's :attr:`~demtool.maps.Body.surface`: reference sphere radius, metres, or
+        the ellipsoid of geodetic heights (an RPC's WGS 84).
     height : float
-        Metres above the sphere.
+        Metres above that surface.
     per_edge : int
         Points per image edge.
 
@@ -116,36 +140,27 @@ def ground_footprint(sensor: Any, radius: float, height: float = 0.0, *,
     (4 * per_edge, 3) float64
         Body-fixed metres, in order round the image; NaN rows where the ray misses.
     """
-    from demtool.sensors import ray_ellipsoid_intersection
-
     line, sample = _border(sensor.lines, sensor.samples, per_edge)
-    ray = sensor.image_to_ray(line, sample)
-    xyz, hit = ray_ellipsoid_intersection(ray.origin, ray.direction, radius, radius, height,
-                                          return_hit=True)
-    xyz[~hit] = np.nan
-    return xyz
+    return _on_surface(sensor, line, sample, radius, height)
 
 
-def native_gsd(sensor: Any, radius: float, height: float = 0.0) -> float:
+def native_gsd(sensor: Any, radius: Any, height: float = 0.0) -> float:
     """Ground sample distance of the image at its centre, metres.
 
     The geometric mean of the ground distances between the centre pixel and its
-    neighbours along the line and along the sample, on the sphere raised by ``height``.
+    neighbours along the line and along the sample, on the body's surface (``radius``:
+    :attr:`~demtool.maps.Body.surface`) raised by ``height``.
 
     Raises
     ------
     ValueError
-        When the image centre does not see the sphere.
+        When the image centre does not see the surface.
     """
-    from demtool.sensors import ray_ellipsoid_intersection
-
     cl, cs = 0.5 * sensor.lines, 0.5 * sensor.samples
     line = np.array([cl, cl + 1.0, cl])
     sample = np.array([cs, cs, cs + 1.0])
-    ray = sensor.image_to_ray(line, sample)
-    xyz, hit = ray_ellipsoid_intersection(ray.origin, ray.direction, radius, radius, height,
-                                          return_hit=True)
-    if not hit.all():
+    xyz = _on_surface(sensor, line, sample, radius, height)
+    if not np.isfinite(xyz).all():
         raise ValueError("the image centre does not see the body")
     along = float(np.linalg.norm(xyz[1] - xyz[0]))
     across = float(np.linalg.norm(xyz[2] - xyz[0]))
@@ -162,7 +177,8 @@ def ortho_grid(sensor: Any, body: Any, *, height: float = 0.0, gsd: float | None
     sensor : SensorModel
     body : demtool.maps.Body
     height : float
-        Metres above the reference sphere of the surface used for the footprint.
+        Metres above the body's surface (:attr:`~demtool.maps.Body.surface`) of the
+        ground used for the footprint.
     gsd : float, optional
         Pixel size in metres; default: :func:`native_gsd` at the image centre.
     projection : {"auto", "equirectangular", "polar-stereographic"}
@@ -184,18 +200,18 @@ def ortho_grid(sensor: Any, body: Any, *, height: float = 0.0, gsd: float | None
     from demtool.maps import grid_from_lonlat, longitude_span, xyz_to_lonlat_height
 
     if gsd is None:
-        gsd = native_gsd(sensor, body.radius, height)
+        gsd = native_gsd(sensor, body.surface, height)
     if bounds is not None:
         lon_min, lat_min, lon_max, lat_max = (float(v) for v in bounds)
         lon_min, lon_max = longitude_span(lon_min, lon_max)
         lon = np.array([lon_min, lon_max, lon_max, lon_min])
         lat = np.array([lat_min, lat_min, lat_max, lat_max])
     else:
-        xyz = ground_footprint(sensor, body.radius, height)
+        xyz = ground_footprint(sensor, body.surface, height)
         if not np.isfinite(xyz).all():
             raise ValueError("part of the image does not see the body (limb in view); give "
                              "--bounds")
-        lon, lat, _ = xyz_to_lonlat_height(xyz, radii=body.radius)
+        lon, lat, _ = xyz_to_lonlat_height(xyz, radii=body.surface)
     return grid_from_lonlat(body, lon, lat, gsd, projection=projection, crs=crs)
 
 

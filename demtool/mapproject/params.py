@@ -27,6 +27,10 @@ class MapprojectParams(Parameters):
     projection: str = parameter("auto", "Map projection of a new grid (auto: polar "
                                 "stereographic poleward of 70 degrees, else "
                                 "equirectangular).", choices=PROJECTIONS, what="projection")
+    t_srs: str | None = parameter(None, "CRS of a new grid, any PROJ knows (EPSG:32740, an "
+                                  "IAU_2015 projected code, a PROJ string), as ASP's "
+                                  "--t_srs (default: --projection on the body).",
+                                  metavar="CRS")
     bounds: tuple[float, float, float, float] | None = parameter(
         None, "Area to cover, degrees: LON_MIN LAT_MIN LON_MAX LAT_MAX, in −180…180 or "
         "0…360 (LON_MAX < LON_MIN: across the antimeridian; default: the image's "

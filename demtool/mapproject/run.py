@@ -37,35 +37,72 @@ def _footprint_heights(surface: DemSurface | None, height: float, sensor, body):
         return height
     h: Any = 0.0
     for _ in range(2):
-        xyz = ground_footprint(sensor, body.radius, h)
-        lon, lat, _ = xyz_to_lonlat_height(xyz, radii=body.radius)
+        xyz = ground_footprint(sensor, body.surface, h)
+        lon, lat, _ = xyz_to_lonlat_height(xyz, radii=body.surface)
         found = surface.heights_lonlat(lon, lat)
         if not isinstance(h, np.ndarray):  # the first pass: the DEM under the footprint
-            from demtool.mapproject.checks import check_surface_heights
+            from demtool.mapproject.checks import check_rpc_domain, check_surface_heights
 
             check_surface_heights(found, surface.info.path, body)
+            check_rpc_domain(sensor, body, found, str(surface.info.path))
         fallback = float(np.nanmedian(found)) if np.isfinite(found).any() else 0.0
         h = np.where(np.isfinite(found), found, fallback)
     return h
 
 
-def _grid(sensor, body, surface: DemSurface | None, params, log):
-    """The output grid: the DEM's lattice over the footprint, or a new grid."""
+def _chosen_crs(sensor, body, params, pair_sensor_path, edge_h):
+    """The CRS ``--t-srs`` names, or the one ``--pair-sensor`` turns along the pair's
+    parallax (:mod:`demtool.mapproject.parallax`); None: the default projection."""
+    from demtool.errors import InputError, ParameterError
+    from demtool.maps.crs_option import parallax_aligned_crs, parse_t_srs
+
+    if params.t_srs is not None:
+        try:
+            return parse_t_srs(params.t_srs, body)
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
+    if pair_sensor_path is None:
+        return None
+    from demtool.mapproject.core import sensor_body
+    from demtool.mapproject.parallax import parallax_azimuth
+    from demtool.maps import same_body
+    from demtool.sensors import read_sensor
+
+    other = read_sensor(pair_sensor_path)
+    if other.radii is None or not same_body(sensor_body(other), body):
+        raise InputError(f"{pair_sensor_path}: --pair-sensor is not a model of {body.name}")
+    try:
+        lon, lat, azimuth = parallax_azimuth(sensor, other, body, float(np.mean(edge_h)))
+    except ValueError as exc:
+        raise InputError(f"{pair_sensor_path}: --pair-sensor: {exc}") from None
+    return parallax_aligned_crs(body, lon, lat, azimuth)
+
+
+def _grid(sensor, body, surface: DemSurface | None, params, log, pair_sensor_path=None):
+    """The output grid: the DEM's lattice over the footprint, or a new grid (on
+    ``--t-srs``, or along the pair's parallax with ``--pair-sensor``)."""
     from demtool.errors import InputError, ProcessingError
     from demtool.mapproject.core import ground_footprint, ortho_grid
     from demtool.maps import MapGrid, grid_from_lonlat, to_pyproj_crs, xyz_to_lonlat_height
 
     height = params.height if params.height is not None else 0.0
     edge_h = _footprint_heights(surface, height, sensor, body)
+    chosen = _chosen_crs(sensor, body, params, pair_sensor_path, edge_h)
     projected = surface is not None and not surface.geographic
     try:
+        if chosen is not None:
+            gsd = params.gsd
+            if gsd is None and projected:
+                gsd = abs(float(surface.info.transform.a))
+            return ortho_grid(sensor, body, height=float(np.mean(edge_h)), gsd=gsd,
+                              bounds=params.bounds, crs=chosen)
         if projected and params.gsd is None and params.bounds is None:
             info = surface.info
-            xyz = ground_footprint(sensor, body.radius, edge_h)
+            xyz = ground_footprint(sensor, body.surface, edge_h)
             if not np.isfinite(xyz).all():
                 raise ValueError("part of the image does not see the body (limb in view); "
                                  "give --bounds")
-            lon, lat, _ = xyz_to_lonlat_height(xyz, radii=body.radius)
+            lon, lat, _ = xyz_to_lonlat_height(xyz, radii=body.surface)
             box = grid_from_lonlat(body, lon, lat, abs(info.transform.a),
                                    crs=to_pyproj_crs(info.crs))
             inverse = ~info.transform
@@ -115,6 +152,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
                    dem_path: str | os.PathLike | None = None,
                    angles_out: str | os.PathLike | None = None,
                    grid_like: str | os.PathLike | None = None,
+                   pair_sensor: str | os.PathLike | None = None,
                    resolved: dict[str, Any] | None = None) -> dict[str, Any]:
     """Map-project IMAGE through SENSOR onto a DEM (or the sphere raised by ``--height``).
 
@@ -123,7 +161,9 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     ``<out>.json``, and with ``angles_out`` a 3-band raster of incidence, emission and
     phase angles (degrees, relative to the sphere's normal) on the same grid.  With
     ``grid_like`` the grid is that raster's (its CRS, transform and size; a map of the
-    sensor's body), so two orthoimages of a stereo pair share one grid.
+    sensor's body), so two orthoimages of a stereo pair share one grid.  A new grid is on
+    ``params.t_srs`` when given, or, with ``pair_sensor`` (the other image's model), on
+    an oblique Mercator whose x axis follows the pair's parallax.
 
     Returns
     -------
@@ -146,11 +186,16 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     params = params or MapprojectParams()
     run = StageRun("mapproject", params, resolved=resolved,
                    inputs={"IMAGE": image_path, "--sensor": sensor_path, "--dem": dem_path,
-                           "--grid-like": grid_like},
+                           "--grid-like": grid_like, "--pair-sensor": pair_sensor},
                    outputs={"--out": out_path, "--angles-out": angles_out})
     log = run.log
     if (dem_path is None) == (params.height is None):
         raise ParameterError("give exactly one of --dem and --height")
+    chosen = [name for name, given in (("--t-srs", params.t_srs is not None),
+                                       ("--pair-sensor", pair_sensor is not None),
+                                       ("--grid-like", grid_like is not None)) if given]
+    if len(chosen) > 1:
+        raise ParameterError(f"{' and '.join(chosen)} each set the map's CRS: give one")
     sensor = read_sensor(sensor_path)
     if sensor.radii is None:
         raise InputError(f"{sensor_path}: is a camera in a local frame, not on a body; "
@@ -167,7 +212,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
         check_height(sensor, body, float(params.height))
     surface = read_dem_surface(dem_path, sensor_path, body) if dem_path is not None else None
     grid = (_grid_like(grid_like, sensor_path, body, params) if grid_like is not None
-            else _grid(sensor, body, surface, params, log))
+            else _grid(sensor, body, surface, params, log, pair_sensor))
     from demtool.mapproject.checks import check_mapproject_grid
     from demtool.mapproject.hashes import hash_tags
 
@@ -188,7 +233,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
         mapproject_image=str(Path(image_path).resolve()), sensor_name=sensor.name,
         sensor_kind=sensor.kind, image_size=[sensor.lines, sensor.samples])
     try:
-        pixels_per_cell = (gsd / native_gsd(sensor, body.radius)) ** 2
+        pixels_per_cell = (gsd / native_gsd(sensor, body.surface)) ** 2
     except ValueError:
         pixels_per_cell = 1.0
     job = MapprojectTileJob(str(image_path), str(sensor_path),

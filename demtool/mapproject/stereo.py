@@ -35,6 +35,39 @@ MAX_DY_MEDIAN_PX = 0.5
 MAX_DY_SPREAD_PX = 1.0
 #: fewest matches that set a search range
 MIN_MATCHES = 20
+#: the largest constant cross offset (median dy, map cells) that sgm takes out by shifting
+#: the right ortho along map y before matching: the relative pointing error of two
+#: satellite images (a Pléiades pair's RPCs: ~1 px; s2p corrects it the same way, a
+#: translation of the right image from SIFT matches).  Larger offsets are not one pair
+#: on one grid.
+MAX_DY_SHIFT_PX = 3.0
+#: the disparity's tag: map rows the right ortho was shifted by (``y_right = y_left +
+#: shift``); ``dem --mapprojected`` applies it
+ROW_SHIFT_TAG = "ortho_row_shift_px"
+
+
+def row_shift_of(tags) -> float:
+    """The right ortho's row shift a disparity's tags record (0 when none)."""
+    try:
+        return float(tags.get(ROW_SHIFT_TAG, 0.0))
+    except (TypeError, ValueError):
+        return 0.0
+
+
+def shift_rows(image: np.ndarray, shift: float) -> np.ndarray:
+    """``image`` sampled at rows ``r + shift`` (linear between rows; NaN beyond the
+    image or next to NaN), same shape, float32."""
+    image = np.asarray(image, dtype=np.float32)
+    rows = np.arange(image.shape[0], dtype=np.float64) + float(shift)
+    r0 = np.floor(rows).astype(np.int64)
+    t = (rows - r0).astype(np.float32)[:, None]
+    inside = (r0 >= 0) & (r0 + 1 < image.shape[0]) | (t[:, 0] == 0) & (r0 >= 0) & (
+        r0 < image.shape[0])
+    a = image[np.clip(r0, 0, image.shape[0] - 1)]
+    b = image[np.clip(r0 + 1, 0, image.shape[0] - 1)]
+    out = (1 - t) * a + t * b
+    out[~inside] = np.nan
+    return out.astype(np.float32)
 
 
 class OrthoRange(NamedTuple):
@@ -136,7 +169,8 @@ def is_ortho_pair(left, right) -> bool:
         is_cam2map_cube(getattr(right, "path", None))
 
 
-def ortho_pair_matches(left, right, *, stage: str) -> tuple[OrthoRange, str, dict]:
+def ortho_pair_matches(left, right, *, stage: str, allow_shift: bool = False
+                       ) -> tuple[OrthoRange, str, dict]:
     """The search range of two orthoimages as read, checked for a 1-D search along map x.
 
     Parameters
@@ -146,6 +180,9 @@ def ortho_pair_matches(left, right, *, stage: str) -> tuple[OrthoRange, str, dic
         ``path``).
     stage : str
         The matcher (``"sgm"``, ``"match"``), named in the refusal.
+    allow_shift : bool
+        The matcher shifts the right ortho by a constant cross offset up to
+        :data:`MAX_DY_SHIFT_PX` (then ``stats`` holds :data:`ROW_SHIFT_TAG`).
 
     Returns
     -------
@@ -177,14 +214,21 @@ def ortho_pair_matches(left, right, *, stage: str) -> tuple[OrthoRange, str, dic
         raise ProcessingError(f"{left.path} and {right.path}: cannot set the search range "
                               f"from matches ({exc}); give the disparity range "
                               "(--min-disparity and --num-disparities for sgm)") from None
+    stats = {"ortho_matches": found.matches, "ortho_dy_median_px": found.dy_median,
+             "ortho_dy_spread_px": found.dy_spread}
+    if not found.aligned and allow_shift and found.dy_spread <= MAX_DY_SPREAD_PX and \
+            abs(found.dy_median) <= MAX_DY_SHIFT_PX:
+        log.info("the right ortho is offset by %.3f rows (spread %.3f): shifted before "
+                 "matching (relative pointing of the pair)", found.dy_median, found.dy_spread)
+        stats[ROW_SHIFT_TAG] = found.dy_median
+        return found, f"SIFT matches of the orthoimages ({found.matches})", stats
     if not found.aligned:
         raise InputError(
             f"{left.path} and {right.path}: the orthoimages' matches are offset "
             f"north-south by {found.dy_median:.2f} cells (spread {found.dy_spread:.2f}; "
             f"limits {MAX_DY_MEDIAN_PX:g} and {MAX_DY_SPREAD_PX:g}): {stage} searches along "
-            "map x only, the pair needs a 2-D alignment")
-    stats = {"ortho_matches": found.matches, "ortho_dy_median_px": found.dy_median,
-             "ortho_dy_spread_px": found.dy_spread}
+            "map x only, the pair needs a 2-D alignment (mapproject the left one with "
+            "--pair-sensor RIGHT_MODEL to turn the grid along the parallax)")
     return found, f"SIFT matches of the orthoimages ({found.matches})", stats
 
 

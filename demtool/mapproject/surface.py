@@ -94,6 +94,9 @@ def read_dem_surface(dem_path, sensor_path, body) -> DemSurface:
                          "planetary CRS) is needed")
     crs = to_pyproj_crs(info.crs)
     require_same_body(dem_path, crs, body, sensor_path, "a DEM")
+    if body.height_reference == "ellipsoid":  # an RPC's heights: above its ellipsoid
+        return DemSurface(info=info, offset_m=_ellipsoid_offset(dem_path, crs, body),
+                          geographic=crs.is_geographic)
     try:
         radius = crs_radius(crs)
     except ValueError:
@@ -111,6 +114,25 @@ def read_dem_surface(dem_path, sensor_path, body) -> DemSurface:
                                               "are the radii minus %.1f m", dem_path,
                                               body.radius)
     return DemSurface(info=info, offset_m=offset_m, geographic=crs.is_geographic)
+
+
+def _ellipsoid_offset(dem_path, crs, body) -> float:
+    """0 when a DEM's heights are above the body's ellipsoid (the one an RPC's heights
+    are above: a DEM on WGS 84, e.g. UTM or EPSG:4326, for an Earth RPC); InputError
+    for a DEM on a sphere or another ellipsoid, whose heights differ by up to the
+    flattening (21 km on Earth)."""
+    from demtool.errors import InputError
+    from demtool.maps import GeodeticEllipsoid, crs_surface
+
+    surface = crs_surface(crs)
+    if isinstance(surface, GeodeticEllipsoid) and math.isclose(
+            surface.a, body.a, rel_tol=1e-9) and math.isclose(surface.c, body.c, rel_tol=1e-9):
+        return 0.0
+    described = (f"a sphere of radius {surface:.10g} m" if not isinstance(
+        surface, GeodeticEllipsoid) else f"the ellipsoid a={surface.a:.10g}, c={surface.c:.10g} m")
+    raise InputError(f"{dem_path}: DEM heights are above {described}; the sensor's heights are "
+                     f"above the ellipsoid a={body.a:.10g}, c={body.c:.10g} m (reproject the "
+                     "DEM onto it, e.g. EPSG:4326 or UTM on WGS 84)")
 
 
 def orthoimage_on_grid(image_path: str | os.PathLike, sensor, dem) -> np.ndarray:

@@ -33,7 +33,7 @@ def ortho_pair_range(left, right) -> tuple[tuple[int, int], str, dict[str, Any]]
     orthoimages on one map grid (:func:`demtool.mapproject.stereo.ortho_pair_matches`)."""
     from demtool.mapproject.stereo import ortho_pair_matches
 
-    found, source, stats = ortho_pair_matches(left, right, stage="sgm")
+    found, source, stats = ortho_pair_matches(left, right, stage="sgm", allow_shift=True)
     min_disparity = math.floor(found.low)
     return (min_disparity, math.ceil(found.high) - min_disparity + 1), source, stats
 
@@ -163,7 +163,14 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     if num_disparities >= width or max(abs(min_disparity), abs(max_disparity)) >= width:
         raise ParameterError(f"disparity range {min_disparity} … {max_disparity} from {source} "
                              f"is wider than the images ({width} px)")
+    from demtool.mapproject.stereo import ROW_SHIFT_TAG, shift_rows
+
+    row_shift = ortho_stats.get(ROW_SHIFT_TAG)
     if tiling.wants_tiles(*shape, params):  # large images: tiles, Dask (docs/stages/scale.md)
+        if row_shift is not None:
+            raise ParameterError(f"{right_path}: the orthoimages are offset by "
+                                 f"{row_shift:.2f} rows, which untiled runs take out (give a "
+                                 "larger --tile-size)")
         if prior_dem is not None:
             raise ParameterError(f"--prior-dem {prior_dem}: runs untiled (give a larger "
                                  "--tile-size)")
@@ -188,6 +195,8 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     finally:  # also before a refusal's exit: no thread left inside numba's import
         loading.join()
     right_data, prior, summary_prior = right.data, None, {}
+    if row_shift is not None:  # the pair's relative pointing, across map x
+        right_data = shift_rows(right.data, row_shift)
     if prior_dem is not None:
         from demtool.sgm.prior import warp_right
         from demtool.sgm.run_prior import read_prior
@@ -259,7 +268,8 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     frame = left.tags.get("frame", f"image:{Path(left_path).stem}")
     tags = provenance.tags(frame=frame, disparity_convention="x_right = x_left - d",
                            min_disparity=min_disparity, num_disparities=num_disparities,
-                           cost=result.parameters["cost"])
+                           cost=result.parameters["cost"],
+                           **({} if row_shift is None else {ROW_SHIFT_TAG: row_shift}))
     outputs: list[str | os.PathLike] = [out_path]
     with run.transaction():
         dio.write_raster(out_path, disparity, transform=left.transform, crs=left.crs,

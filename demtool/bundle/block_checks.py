@@ -92,7 +92,7 @@ def check_physical_cameras(models: Sequence[Any], paths: Sequence[Any]) -> None:
     route takes it out in ``sgm``)."""
     from demtool.errors import InputError
 
-    for model, path in zip(models, paths):
+    for model, path in zip(models, paths, strict=True):
         if getattr(model, "kind", "") == "rpc":
             raise InputError(f"{path}: is an RPC model, which has no camera position or "
                              "attitude for bundle to adjust (the RPC route: mapproject --pair-"

@@ -9,7 +9,9 @@ Two surfaces are handled:
 * a **body** (:class:`~demtool.maps.Body`): rays meet the body's reference sphere
   (:attr:`Body.radius`), the surface ``synth``, ``mapproject`` and ``dem`` put heights on
   (issue 46: on Mars the ellipsoid lies up to 20 km below the sphere, and two CTX windows
-  of one point "did not overlap" on it); positions are reported as planetocentric,
+  of one point "did not overlap" on it; an RPC's ground is at its height offset above
+  WGS 84, its centre latitude geodetic, as ``mapproject`` and ``dem`` have them);
+  positions are reported as planetocentric,
   east-positive longitude / latitude (degrees); "up" is the radius vector (the local
   east-north-up frame of :func:`demtool.maps.enu_frame`); altitudes are above the
   body's reference sphere (:attr:`Body.radius`); areas are on that sphere, computed in a
@@ -108,6 +110,12 @@ def surface_points(model: SensorModel, line, sample, body: Body | None
         hit = np.isfinite(s) & (s > 0)
         xyz = ray.origin + np.where(hit, s, np.nan)[..., None] * ray.direction
         return xyz, hit
+    if hasattr(model, "domain"):  # an RPC: its ground at its height offset (the terrain it
+        # was fitted around), where mapproject and dem put it too (heights above WGS 84)
+        with np.errstate(invalid="ignore"):
+            xyz = np.asarray(model.image_to_ground(line, sample, model.rpc["height_off"]))
+        hit = np.isfinite(xyz).all(axis=-1)
+        return np.where(hit[..., None], xyz, np.nan), hit
     radius = float(body.radius)
     xyz, hit = ray_ellipsoid_intersection(ray.origin, ray.direction, radius, radius,
                                           return_hit=True)
@@ -263,6 +271,9 @@ def center_geometry(model: SensorModel, body: Body | None) -> dict[str, Any]:
     out["center_xyz_m"] = ground.tolist()
     if body is not None:
         out["center_lon_deg"], out["center_lat_deg"] = _lonlat(ground)
+        if body.height_reference == "ellipsoid":  # geodetic, as the map and the model
+            lon, lat, _ = xyz_to_lonlat_height(ground, radii=body.surface)
+            out["center_lon_deg"], out["center_lat_deg"] = float(lon), float(lat)
         out["center_radius_m"] = float(np.linalg.norm(ground))
     half = np.array([-0.5, 0.5])
     along_line, _ = surface_points(model, lc + half, np.full(2, sc), body)

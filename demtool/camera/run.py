@@ -67,6 +67,10 @@ def _body_of(model, path: Path, named: Body | None) -> Body | None:
         # a cube names its body (TargetName, BODY<code>_RADII): kept when PROJ lacks it
         body = body_from_radii(a, a, b, naif_id=naif or getattr(model, "body_naif_id", None),
                                name=getattr(model, "body_name", None))
+    if getattr(model, "height_reference", "sphere") == "ellipsoid":
+        from dataclasses import replace  # an RPC: geodetic heights above its ellipsoid
+
+        body = replace(body, height_reference="ellipsoid")
     _check_outside(model, path, body, named is not None)
     return body
 

@@ -189,6 +189,22 @@ def _read_sidecar(path: Path) -> tuple[dict, int, int, Path | None]:
     return rpc, 0, 0, None
 
 
+def _size_beside(path: Path) -> tuple[int, int]:
+    """(lines, samples) of the image of the same name beside a model file, or (0, 0)."""
+    import rasterio
+
+    for candidate in sorted(path.parent.glob(path.stem + ".*")):
+        if candidate.suffix.lower() in _IMAGE_SUFFIXES:
+            try:
+                with rasterio.Env(CPL_LOG="OFF"), warnings.catch_warnings():
+                    warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+                    with rasterio.open(candidate) as ds:
+                        return ds.height, ds.width
+            except rasterio.errors.RasterioIOError:
+                continue
+    return 0, 0
+
+
 def _dimap_beside(path: Path) -> Path:
     """The ``DIM_*.XML`` of a Pléiades/SPOT ``RPC_*.XML`` (same product suffix)."""
     suffix = path.name[4:]
@@ -204,9 +220,9 @@ def read_rpc(path: str | Path, *, radii: tuple[float, float] | None = None
                   ) -> RpcSensor:
     """Read an RPC model (see the module docstring for the files).
 
-    The image size is the image's own (GeoTIFF, NITF, DIMAP, the image beside a
-    sidecar); a lone ``.RPB``, ``_RPC.TXT`` or ``.geom`` gives 0 × 0, said in the model's
-    ``notes``.  ``radii`` (metres) replaces WGS 84 for another body.
+    The image size is the image's own (GeoTIFF, NITF, DIMAP, the image of the same
+    name beside a sidecar or ``.geom``); a lone ``.RPB``, ``_RPC.TXT`` or ``.geom`` gives
+    0 × 0, said in the model's ``notes``.  ``radii`` (metres) replaces WGS 84 for another body.
 
     Raises
     ------
@@ -233,7 +249,10 @@ def read_rpc(path: str | Path, *, radii: tuple[float, float] | None = None
         except UnicodeDecodeError:
             raise InputError(f"{p}: not a text OSSIM keyword list") from None
         rpc, offset = parse_geom(text, p)
-        notes.append("an OSSIM keyword list gives no image size")
+        lines, samples = _size_beside(p)  # OTB writes img.geom beside img.tif
+        if (lines, samples) == (0, 0):
+            notes.append("an OSSIM keyword list gives no image size and no image lies "
+                         "beside it")
     elif _SIDECAR.search(p.name) and head[:4] not in _TIFF:
         rpc, lines, samples, image = _read_sidecar(p)
         if image is None:

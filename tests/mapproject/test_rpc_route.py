@@ -165,3 +165,24 @@ def test_bundle_refuses_rpc_models_in_one_line(tmp_path):
     assert len(lines) == 1 and "left.tif: is an RPC model, which has no camera position" \
         in lines[0]
     assert not (tmp_path / "bundle.npz").exists()
+
+
+def test_camera_puts_an_rpc_where_mapproject_does(tmp_path):
+    """camera's ground of an RPC is at its height offset above WGS 84, the centre's
+    latitude geodetic: the model's own image_to_lonlat (issue 46: the sphere elsewhere)."""
+    import json
+
+    from demtool.sensors import read_sensor
+
+    left = ramp_image(tmp_path / "left.tif", small_rpc())
+    right = ramp_image(tmp_path / "right.tif", small_rpc(height_sign=-1.0))
+    result = CliRunner().invoke(cli, ["-q", "camera", str(left), str(right), "--json"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)
+    model = read_sensor(left)
+    lon, lat = model.image_to_lonlat(0.5 * SIZE[0], 0.5 * SIZE[1], 500.0)
+    first = report["cameras"][0]
+    assert first["center_lat_deg"] == pytest.approx(float(lat), abs=1e-9)
+    assert first["center_lon_deg"] == pytest.approx(float(lon), abs=1e-9)
+    pair = report["pairs"][0]
+    assert pair["overlap_fraction_first"] > 0.5

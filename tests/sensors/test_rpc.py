@@ -188,6 +188,8 @@ def test_every_rpc_source_reads_to_gdals_model(tmp_path):
         assert_same_as_gdal(model, rpcs)
     # sizes: the image's own (GeoTIFF, NITF, the image beside the .RPB), none otherwise
     assert [read_sensor(p).image_size for p in sources] == [(100, 80)] * 3 + [(0, 0)] * 4
+    write_tif(tmp_path / "b.tif", size=(30, 20))  # OTB's img.geom beside img.tif
+    assert read_sensor(tmp_path / "b.geom").image_size == (30, 20)
     assert read_sensor(rpb).notes == ["the RPC file gives no image size and no image lies "
                                       "beside it"]
 

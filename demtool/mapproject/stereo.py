@@ -38,9 +38,9 @@ MIN_MATCHES = 20
 #: the largest constant cross offset (median dy, map cells) that sgm takes out by shifting
 #: the right ortho along map y before matching: the relative pointing error of two
 #: satellite images (a Pléiades pair's RPCs: ~1 px; s2p corrects it the same way, a
-#: translation of the right image from SIFT matches).  Larger offsets are not one pair
-#: on one grid.
-MAX_DY_SHIFT_PX = 3.0
+#: translation of the right image from SIFT matches).  Larger offsets are refused (the pair
+#: needs a 2-D alignment, or its models a correction).
+MAX_DY_SHIFT_PX = 2.0
 #: the disparity's tag: map rows the right ortho was shifted by (``y_right = y_left +
 #: shift``); ``dem --mapprojected`` applies it
 ROW_SHIFT_TAG = "ortho_row_shift_px"

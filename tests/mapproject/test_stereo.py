@@ -114,17 +114,17 @@ def test_a_constant_cross_offset_is_shifted_out_for_sgm():
     is measured and handed to sgm as a row shift; match, which does not shift, refuses."""
     from demtool.mapproject.stereo import ROW_SHIFT_TAG, shift_rows
 
-    left, right = _pair(dx=3, dy=2)
+    left, right = _pair(dx=3, dy=1)
     found, _, stats = ortho_pair_matches(_ortho("l.tif", left), _ortho("r.tif", right),
                                          stage="sgm", allow_shift=True)
-    assert stats[ROW_SHIFT_TAG] == pytest.approx(2.0, abs=0.2)
+    assert stats[ROW_SHIFT_TAG] == pytest.approx(1.0, abs=0.2)
     # the shifted right image is the left one moved along x only
-    shifted = shift_rows(right, 2.0)
-    np.testing.assert_array_equal(shifted[:-2, :-3], right[2:, :-3])
-    assert np.isnan(shifted[-2:]).all()
+    shifted = shift_rows(right, 1.0)
+    np.testing.assert_array_equal(shifted[:-1, :-3], left[:-1, 3:])
+    assert np.isnan(shifted[-1:]).all()
     half = shift_rows(np.arange(12, dtype=np.float32).reshape(4, 3), 0.5)
     np.testing.assert_allclose(half[:3, 0], [1.5, 4.5, 7.5])
-    left, right = _pair(dx=3, dy=5)  # beyond a pointing error: not one pair on one grid
-    with pytest.raises(InputError, match="north-south by 5.00 cells"):
+    left, right = _pair(dx=3, dy=3)  # beyond a pointing error (2 cells): refused
+    with pytest.raises(InputError, match="north-south by 3.00 cells"):
         ortho_pair_matches(_ortho("l.tif", left), _ortho("r.tif", right), stage="sgm",
                            allow_shift=True)

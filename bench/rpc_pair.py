@@ -14,8 +14,9 @@ memory:
         --t-srs EPSG:32740 --gsd 0.5 --interpolated-mask mask.tif --out dsm.tif
 
 CARS (``pip install cars``, the ``bench-cars`` extra, or a separate venv named by
-``CARS=/path/to/cars``) gets the same pair, the same 0.5 m UTM 40 S grid and the same
-height prior (a constant 2320 m DEM as its ``initial_elevation``); skipped when absent.
+``CARS=/path/to/cars``) gets the same pair, the same 0.5 m UTM 40 S grid, heights above
+the ellipsoid (``geoid: false``; its default is EGM96) and the same height prior (a
+constant 2320 m DEM as its ``initial_elevation``); skipped when absent.
 
 Both DSMs are compared with s2p's on its valid cells, on its 0.5 m lattice (the grids
 share it: no resampling but the choice of cells): median and NMAD of DSM − s2p,
@@ -111,7 +112,8 @@ def cars_route(cars: str, out: Path) -> tuple[Path, float, float]:
         "input:", "  sensors:", "    left:", f"      image: {PAIR / 'img_01.tif'}",
         "    right:", f"      image: {PAIR / 'img_02.tif'}", "  initial_elevation:",
         f"    dem: {prior}", "  pairing:", "  - - left", "    - right", "output:",
-        f"  directory: {out / 'cars'}", "  resolution: 0.5", "  epsg: 32740", ""]))
+        f"  directory: {out / 'cars'}", "  resolution: 0.5", "  epsg: 32740",
+        "  geoid: false", ""]))  # heights above the ellipsoid, as s2p's and demtool's
     wall, peak = timed([cars, str(config)], out / "cars.log")
     found = sorted((out / "cars").rglob("dsm.tif"))
     if not found:

@@ -124,6 +124,11 @@ def _ellipsoid_offset(dem_path, crs, body) -> float:
     from demtool.errors import InputError
     from demtool.maps import GeodeticEllipsoid, crs_surface
 
+    vertical = [c for c in (crs.sub_crs_list if crs.is_compound else []) if c.is_vertical]
+    if vertical:  # SRTM-like heights above a geoid: not the RPC's heights
+        raise InputError(f"{dem_path}: DEM heights are above {vertical[0].name!r}; the "
+                         "sensor's heights are above the ellipsoid (convert the DEM to "
+                         "ellipsoidal heights, e.g. gdalwarp with a +geoidgrids shift)")
     surface = crs_surface(crs)
     if isinstance(surface, GeodeticEllipsoid) and math.isclose(
             surface.a, body.a, rel_tol=1e-9) and math.isclose(surface.c, body.c, rel_tol=1e-9):

@@ -93,6 +93,7 @@ def test_t_srs_and_its_refusals(tmp_path):
                          "domain -300…1300 m"),
     (("--height", 700, "--grid-like", "ELSEWHERE"), "no map cell sees the image"),
     (("--dem", "DEM"), "DEM has no valid height under the image's footprint"),
+    (("--dem", "GEOID_DEM"), "DEM heights are above 'EGM96 height'"),
 ])
 def test_inputs_that_do_not_go_together_are_one_line(tmp_path, args, message):
     """A height outside the RPC's domain; an image of another place than the grid of its
@@ -109,7 +110,11 @@ def test_inputs_that_do_not_go_together_are_one_line(tmp_path, args, message):
     dem = tmp_path / "dem.tif"  # UTM 32 N near 9° E, 47° N: not under the image
     dio.write_raster(dem, np.full((50, 50), 600.0, np.float32), crs="EPSG:32632",
                      transform=Affine(60.0, 0.0, 500000.0, 0.0, -60.0, 5206000.0))
-    args = [{"ELSEWHERE": elsewhere, "DEM": dem}.get(a, a) for a in args]
+    geoid_dem = tmp_path / "geoid_dem.tif"  # heights above EGM96: refused as read
+    dio.write_raster(geoid_dem, np.full((50, 50), 600.0, np.float32), crs="EPSG:32631+5773",
+                     transform=Affine(200.0, 0.0, 690000.0, 0.0, -200.0, 4990000.0))
+    args = [{"ELSEWHERE": elsewhere, "DEM": dem, "GEOID_DEM": geoid_dem}.get(a, a)
+            for a in args]
     result = invoke("mapproject", image, "--sensor", image, *args, "--out",
                     tmp_path / "o.tif")
     assert result.exit_code in (1, 2), result.output

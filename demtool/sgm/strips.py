@@ -8,6 +8,7 @@ image when it fits ``max_memory_mb``); the down and up sweeps of
 from __future__ import annotations
 
 import math
+import queue
 import threading
 import time
 from collections.abc import Iterator
@@ -174,8 +175,8 @@ def stored_rows_of_pass(height: int, width: int, num_disparities: int, *, worker
 def match_strip(source: tuple, radius: int, guide: np.ndarray, *, n_disp: int, paths: int,
                 p1: int, p2: int, p2_kappa: int, rows: tuple[int, int],
                 out_rows: tuple[int, int], subpixel: str, lr_threshold: float | None,
-                threads: int, timer: PhaseTimer, recompute: int = 0
-                ) -> tuple[np.ndarray, np.ndarray]:
+                threads: int, timer: PhaseTimer, recompute: int = 0,
+                total: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """SGM of the strip ``rows`` (lo, hi); disparity and confidence of ``out_rows``.
 
     The down and up sweeps run in two threads when ``threads`` > 1: each stores its
@@ -189,6 +190,9 @@ def match_strip(source: tuple, radius: int, guide: np.ndarray, *, n_disp: int, p
     the sweep is restarted at the edge and finishes them.  Two threads: S holds
     rows − 2q rows, each sweep recomputes q rows; one thread: rows − q and q rows of the
     down sweep.
+
+    ``total``: a uint16 array of at least the stored rows × W × D to hold S (its contents
+    are overwritten: every row is stored before it is read), or None to map a new one.
     """
     lo, hi = rows
     start, stop = out_rows
@@ -197,8 +201,11 @@ def match_strip(source: tuple, radius: int, guide: np.ndarray, *, n_disp: int, p
     two = threads >= 2 and hi - lo >= 2
     q = int(recompute)
     n_stored = (hi - lo) - (2 * q if two else q)
-    release_free_memory()  # S is mapped fresh: the earlier steps' freed blocks go first
-    total = np.empty((n_stored, width, n_disp), dtype=np.uint16)
+    if total is None:
+        release_free_memory()  # S is mapped fresh: the earlier steps' freed blocks go first
+        total = np.empty((n_stored, width, n_disp), dtype=np.uint16)
+    else:
+        total = total[:n_stored]
     disparity = np.empty((stop - start, width), dtype=np.float32)
     confidence = np.empty((stop - start, width), dtype=np.float32)
     mode = SUBPIXEL_MODES[subpixel]
@@ -308,21 +315,45 @@ def match_pass(pixel_cost: PixelCost, left_valid: np.ndarray, right_valid: np.nd
     guide = np.ascontiguousarray(guide, dtype=np.uint8)
     overlap = STRIP_OVERLAP if len(strips) > 1 else 0
 
+    def bounds(rows: tuple[int, int]) -> tuple[int, int]:
+        return max(0, rows[0] - overlap), min(height, rows[1] + overlap)
+
+    def stored(rows: tuple[int, int]) -> int:
+        lo, hi = bounds(rows)
+        two = threads >= 2 and hi - lo >= 2
+        return (hi - lo) - (2 if two else 1) * recompute_rows(hi - lo, stored_rows, threads)
+
+    # Several strips share their volumes S: one per strip running at once, mapped once
+    # for the pass (each strip's S rows are all stored before they are read, so the
+    # result is the same); a fresh S per strip paid its page faults again (W × D × 2
+    # bytes a row, zeroed by the kernel) in every strip.
+    n_slots = 1 if len(strips) == 1 or concurrent == 1 else min(concurrent, len(strips))
+    largest = max(stored(rows) for rows in strips)
+    release_free_memory()  # S is mapped fresh: the earlier steps' freed blocks go first
+    volumes: queue.SimpleQueue[np.ndarray] = queue.SimpleQueue()
+    for _ in range(n_slots):
+        volumes.put(np.empty((largest, width, num_disparities), dtype=np.uint16))
+
     def run_strip(rows: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-        start, stop = rows
-        lo, hi = max(0, start - overlap), min(height, stop + overlap)
-        return match_strip(source, window // 2, guide, n_disp=num_disparities, paths=paths,
-                            p1=p1, p2=p2, p2_kappa=p2_kappa, rows=(lo, hi), out_rows=rows,
-                            subpixel=subpixel, lr_threshold=lr_threshold, threads=threads,
-                            timer=timer, recompute=recompute_rows(hi - lo, stored_rows,
-                                                                  threads))
+        lo, hi = bounds(rows)
+        total = volumes.get()
+        try:
+            return match_strip(source, window // 2, guide, n_disp=num_disparities,
+                               paths=paths, p1=p1, p2=p2, p2_kappa=p2_kappa, rows=(lo, hi),
+                               out_rows=rows, subpixel=subpixel, lr_threshold=lr_threshold,
+                               threads=threads, timer=timer, total=total,
+                               recompute=recompute_rows(hi - lo, stored_rows, threads))
+        finally:
+            volumes.put(total)
 
     started = time.perf_counter()
-    if len(strips) == 1 or concurrent == 1:
+    if n_slots == 1:
         parts = [run_strip(rows) for rows in strips]
     else:
-        with ThreadPoolExecutor(max_workers=min(concurrent, len(strips))) as pool:
+        with ThreadPoolExecutor(max_workers=n_slots) as pool:
             parts = list(pool.map(run_strip, strips))
+    while not volumes.empty():  # the volumes go before the results are joined
+        volumes.get()
     timer.add("match", time.perf_counter() - started)  # its CPU time: the sweeps add it
     disparity = np.concatenate([p[0] for p in parts], axis=0)
     confidence = np.concatenate([p[1] for p in parts], axis=0)

@@ -216,7 +216,10 @@ def read_ortho(path, *, what: str) -> Ortho:
     from demtool.mapproject.hashes import check_hashes
 
     check_hashes(path, tags)
-    sensor = read_sensor(sensor_path)
+    from demtool.mapproject.tsai_body import ortho_sensor
+
+    sensor = ortho_sensor(read_sensor(sensor_path), sensor_path, info.crs,
+                          info.tag_json("image_size"))
     crs = to_pyproj_crs(info.crs)
     if tags[SURFACE_TAG] == "height" and HEIGHT_TAG in tags:
         try:

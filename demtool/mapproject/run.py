@@ -131,6 +131,22 @@ def _grid(sensor, body, surface: DemSurface | None, params, log, pair_sensor_pat
                               ) from None
 
 
+def _tsai_on_body(sensor, sensor_path, image_path, dem_path, t_srs, grid_like):
+    """A ``.tsai`` camera's body and image size from the other inputs (None for models
+    that carry their own; :mod:`demtool.mapproject.tsai_body`)."""
+    from demtool import io as dio
+    from demtool.mapproject.tsai_body import tsai_on_body
+    from demtool.sensors.tsai import TsaiCamera
+
+    if not isinstance(sensor, TsaiCamera) or sensor.radii is not None:
+        return None
+    info = dio.raster_info(image_path, what="image")
+    dem_crs = None if dem_path is None else dio.raster_info(dem_path, what="DEM").crs
+    grid_crs = None if grid_like is None else dio.raster_info(grid_like, what="grid raster").crs
+    return tsai_on_body(sensor_path, (info.height, info.width), dem_crs=dem_crs, t_srs=t_srs,
+                        grid_like_crs=grid_crs)
+
+
 def _grid_like(path, sensor_path, body, params):
     """The map grid of an existing raster (``--grid-like``)."""
     from demtool import io as dio
@@ -197,6 +213,11 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     if len(chosen) > 1:
         raise ParameterError(f"{' and '.join(chosen)} each set the map's CRS: give one")
     sensor = read_sensor(sensor_path)
+    tsai = _tsai_on_body(sensor, sensor_path, image_path, dem_path, params.t_srs, grid_like)
+    if tsai is not None:
+        from demtool.mapproject.tsai_body import with_image_size
+
+        sensor = with_image_size(read_sensor(sensor_path, radii=tsai.radii), tsai.image_size)
     if sensor.radii is None:
         raise InputError(f"{sensor_path}: is a camera in a local frame, not on a body; "
                          "mapproject needs a planetary sensor model (ISD, cube, .tsai)")
@@ -240,7 +261,9 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
                             None if dem_path is None else str(dem_path), params.height,
                             grid.crs.to_wkt(), tuple(grid.transform)[:6], same_crs,
                             params.step, params.tolerance, params.seed,
-                            angles=angles_out is not None, pixels_per_cell=pixels_per_cell)
+                            angles=angles_out is not None, pixels_per_cell=pixels_per_cell,
+                            sensor_radii=None if tsai is None else tsai.radii,
+                            sensor_image_size=None if tsai is None else tsai.image_size)
     head = {"image": Path(image_path).name, "sensor": sensor.name, "body": body.name,
             "crs": grid.crs.name, "width": grid.width, "height": grid.height, "gsd_m": gsd,
             "transform": list(grid.transform)[:6], "surface": surface_tags[SURFACE_TAG]}

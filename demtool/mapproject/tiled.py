@@ -48,18 +48,22 @@ def engine_tile_size(shape: tuple[int, int], params: Any) -> int:
 
 
 @functools.lru_cache(maxsize=4)
-def _sensor(path: str):
+def _sensor(path: str, radii: tuple[float, float] | None = None,
+            image_size: tuple[int, int] | None = None):
+    from demtool.mapproject.tsai_body import with_image_size
     from demtool.sensors import read_sensor
 
-    return read_sensor(path)
+    return with_image_size(read_sensor(path, radii=radii), image_size)
 
 
 @functools.lru_cache(maxsize=4)
-def _surface(dem_path: str, sensor_path: str):
+def _surface(dem_path: str, sensor_path: str, radii: tuple[float, float] | None = None,
+             image_size: tuple[int, int] | None = None):
     from demtool.mapproject.core import sensor_body
     from demtool.mapproject.surface import read_dem_surface
 
-    return read_dem_surface(dem_path, sensor_path, sensor_body(_sensor(sensor_path)))
+    return read_dem_surface(dem_path, sensor_path,
+                            sensor_body(_sensor(sensor_path, radii, image_size)))
 
 
 @functools.lru_cache(maxsize=4)
@@ -93,6 +97,9 @@ class MapprojectTileJob:
         Also the incidence, emission and phase angles (three more bands).
     pixels_per_cell : float
         Image pixels per map cell (for the memory estimate).
+    sensor_radii, sensor_image_size : tuple or None
+        The body's (a, b) in metres and the image's (lines, samples) for a ``.tsai``
+        file, which carries neither (:mod:`demtool.mapproject.tsai_body`); None otherwise.
     """
 
     image_path: str
@@ -107,6 +114,8 @@ class MapprojectTileJob:
     seed: int
     angles: bool = False
     pixels_per_cell: float = 1.0
+    sensor_radii: tuple[float, float] | None = None
+    sensor_image_size: tuple[int, int] | None = None
     stage: str = "mapproject"
     preload: tuple[str, ...] = ("demtool.mapproject.core",)
 
@@ -129,9 +138,9 @@ class MapprojectTileJob:
             import numba
 
             numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
-        sensor = _sensor(self.sensor_path)
-        surface = (_surface(self.dem_path, self.sensor_path) if self.dem_path is not None
-                   else None)
+        sensor = _sensor(self.sensor_path, self.sensor_radii, self.sensor_image_size)
+        surface = (_surface(self.dem_path, self.sensor_path, self.sensor_radii,
+                            self.sensor_image_size) if self.dem_path is not None else None)
         return project_window(self, sensor, surface, tile.core)
 
     def memory_bytes(self, tile: Tile) -> int:

@@ -109,13 +109,13 @@ def ramp_images(folder, sensor):
     return paths
 
 
-def check_corners(sensor, isd, folder, height, *, gsd=None, tolerance=0.1):
+def check_corners(sensor, isd, folder, height, *, gsd=None, tolerance=0.1, args=()):
     """Mapproject line and sample ramps; at the cells under the image's corners the
     resampled (line, sample) equal the model's projection of the cells' ground points."""
     outs = []
     for ramp in ramp_images(folder, sensor):
         out = folder / f"{ramp.stem}_ortho.tif"
-        extra = ["--gsd", gsd] if gsd else []
+        extra = (["--gsd", gsd] if gsd else []) + list(args)
         result = invoke(ramp, "--sensor", isd, "--height", height, "--out", out, *extra)
         assert result.exit_code == 0, result.output
         outs.append(dio.read_raster(out))

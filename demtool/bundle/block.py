@@ -16,7 +16,13 @@ from typing import Any
 import numpy as np
 
 from demtool.bundle import calibration
-from demtool.bundle.colmap import KnownIntrinsics, SfmOptions, impose_intrinsics, run_sfm
+from demtool.bundle.colmap import (
+    KnownIntrinsics,
+    SfmOptions,
+    impose_intrinsics,
+    mapping_threads,
+    run_sfm,
+)
 from demtool.bundle.model import (
     BundleResult,
     image_report,
@@ -122,14 +128,15 @@ def adjust_block(images: Iterable[tuple[str, np.ndarray]], options: SfmOptions, 
                 f"overlap or lack texture (try more --max-features)")
         model = models[0]
         known = options.intrinsics
+        threads = mapping_threads(options)
         if known and mapping["free_fallback"]:
-            impose_intrinsics(model, known, files, workers=options.workers)
+            impose_intrinsics(model, known, files, workers=threads)
         if known and self_calibration and focal_only and not any(
                 k.refine for k in known.values()):
             # a focal length alone (--focal-px, --focal-mm): the principal point and the
             # lens distortion are still the block's to determine, f held
             intrinsics = {"mode": "known focal length",
-                          **calibration.self_calibrate(model, workers=options.workers,
+                          **calibration.self_calibrate(model, workers=threads,
                                                        focal_known=True)}
         elif known:
             intrinsics = {"mode": "known, imposed after free mapping" if mapping["free_fallback"]
@@ -137,7 +144,7 @@ def adjust_block(images: Iterable[tuple[str, np.ndarray]], options: SfmOptions, 
                                                                 known.values()) else []}
         elif self_calibration:
             intrinsics = {"mode": "estimated",
-                          **calibration.self_calibrate(model, workers=options.workers)}
+                          **calibration.self_calibrate(model, workers=threads)}
         else:
             intrinsics = {"mode": "estimated", "refined": ["f", "k1"]}
         result = reconstruction_to_result(model, files, names, target)

@@ -69,7 +69,16 @@ class SfmOptions:
     seed : int
         Random seed of COLMAP's RANSAC and mapper.
     workers : int
-        Threads (0 = all cores).
+        Threads (0 = all cores) of feature extraction and matching, which give the
+        same features and matches with any number (each image and each pair is one
+        task with its own seeded RANSAC); of mapping and bundle adjustment too when
+        not ``reproducible``.
+    reproducible : bool
+        Map and adjust with one thread, so that the same inputs give the same model
+        bit for bit (:func:`mapping_threads`).  With several threads Ceres sums the
+        normal equations in whatever order the threads finish, and the last bits of
+        the poses differ from run to run, which incremental mapping can amplify (a
+        point triangulated or not, an image registered in another order).
     extra : dict
         ``pycolmap.IncrementalPipelineOptions`` attributes to override (expert use).
     """
@@ -82,7 +91,16 @@ class SfmOptions:
     max_features: int = 8192
     seed: int = 0
     workers: int = 0
+    reproducible: bool = True
     extra: dict[str, Any] = field(default_factory=dict)
+
+
+def mapping_threads(options: SfmOptions) -> int:
+    """Threads of incremental mapping and bundle adjustment (COLMAP's convention: -1 =
+    all cores): one when ``options.reproducible``, else ``options.workers``."""
+    if options.reproducible:
+        return 1
+    return options.workers if options.workers > 0 else -1
 
 
 def colmap_camera_params(model: str, K: np.ndarray) -> str:
@@ -163,6 +181,9 @@ def _pipeline_options(options: SfmOptions, threads: int):
     pipeline = pycolmap.IncrementalPipelineOptions()
     pipeline.random_seed = int(options.seed)
     pipeline.num_threads = threads
+    pipeline.mapper.num_threads = threads
+    pipeline.mapper.random_seed = int(options.seed)
+    pipeline.triangulation.random_seed = int(options.seed)
     pipeline.min_model_size = 2
     if options.intrinsics:
         refine = any(k.refine for k in options.intrinsics.values())
@@ -258,6 +279,12 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
     extraction.sift.max_num_features = int(options.max_features)
     extraction.use_gpu = False
     log.info("extracting SIFT features from %d images", len(files))
+    # Images enter the database one by one in the given order before the threads
+    # extract their features: the threads would otherwise number them in the order
+    # they finish, and COLMAP's mapping depends on the numbering.
+    pycolmap.Database.open(database_path).close()
+    run_in_child(pycolmap.import_images, database_path, image_folder, camera_mode=mode,
+                 image_names=list(files), options=reader)
     run_in_child(pycolmap.extract_features, database_path, image_folder,
                        image_names=list(files), camera_mode=mode, reader_options=reader,
                        extraction_options=extraction, device=pycolmap.Device.cpu)
@@ -265,7 +292,7 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
         _set_known_intrinsics(database_path, options.camera_model, intrinsics, files)
     _match(database_path, files, options, work, threads)
 
-    pipeline = _pipeline_options(options, threads)
+    pipeline = _pipeline_options(options, mapping_threads(options))
     report: dict = {"mapping_passes": 1, "retried": [], "free_fallback": False}
     log.info("incremental mapping and bundle adjustment%s",
              " (known intrinsics, fixed)" if intrinsics else "")
@@ -283,6 +310,7 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
                                   camera_model="SIMPLE_RADIAL", matcher=options.matcher,
                                   pairs=options.pairs, max_features=options.max_features,
                                   seed=options.seed, workers=options.workers,
+                                  reproducible=options.reproducible,
                                   extra=dict(options.extra))
         free_work = work / "free"
         free_work.mkdir()
@@ -318,6 +346,8 @@ def _retry_left_out(model, database_path: Path, image_folder, work: Path, pipeli
     if continued and continued[0].num_reg_images() > model.num_reg_images():
         return continued[0]
     return model
+
+
 def impose_intrinsics(reconstruction, intrinsics: Mapping[str, KnownIntrinsics],
                       file_to_name: Mapping[str, str], *, workers: int = 0) -> None:
     """Replace the cameras' intrinsics by known ones (PINHOLE) and re-run global BA.
@@ -326,7 +356,8 @@ def impose_intrinsics(reconstruction, intrinsics: Mapping[str, KnownIntrinsics],
     narrow fields of view, where the calibrated two-view geometry of a nearly planar
     scene is degenerate): map with free intrinsics, then impose the known ones and
     re-adjust poses and points (focal lengths refined only if asked).  Changes
-    ``reconstruction`` in place.
+    ``reconstruction`` in place.  ``workers``: threads of the adjustment (0 = all
+    cores; 1 for a reproducible result, see :func:`mapping_threads`).
     """
     pycolmap = load_pycolmap()
     refine = any(k.refine for k in intrinsics.values())

@@ -103,6 +103,13 @@ class BundleParams(Parameters):
                                               "deviation of a shot's height, metres, where "
                                               "the table states none (a sigma column).",
                                               minimum=0.0, min_open=True)
+    reproducible: bool = parameter(
+        CORE["reproducible"], "Map and adjust with one thread: the same inputs give the "
+        "same bundle.npz bit for bit (feature extraction and matching still use "
+        "--workers).  --fast-nondeterministic maps with --workers threads too: faster on "
+        "large blocks, but two runs may differ in the last bits of the poses (and, "
+        "through incremental mapping, in which points are triangulated).",
+        flag="--reproducible/--fast-nondeterministic")
     seed: int = seed_field()
     workers: int = workers_field()
 

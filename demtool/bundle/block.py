@@ -144,9 +144,16 @@ def adjust_block(images: Iterable[tuple[str, np.ndarray]], options: SfmOptions, 
                                                                 known.values()) else []}
         elif self_calibration:
             intrinsics = {"mode": "estimated",
-                          **calibration.self_calibrate(model, workers=threads)}
+                          **calibration.self_calibrate(
+                              model, workers=threads,
+                              focal_prior_px=mapping["focal_start_px"])}
         else:
             intrinsics = {"mode": "estimated", "refined": ["f", "k1"]}
+        if not known:
+            intrinsics["focal_prior"] = (
+                {"source": "the first model's focal length (a pass with standard features)",
+                 "value_px": mapping["focal_start_px"]} if mapping["focal_start_px"]
+                else {"source": "1.2 x the larger image side (COLMAP's default)"})
         result = reconstruction_to_result(model, files, names, target)
         per_image = image_report(model, files)
         registered = [str(n) for n in result.image_names]
@@ -155,6 +162,7 @@ def adjust_block(images: Iterable[tuple[str, np.ndarray]], options: SfmOptions, 
             "images_given": names,
             "registered": registered,
             "not_registered": [n for n in names if n not in registered],
+            "unregistered_reasons": mapping.pop("unregistered_reasons"),
             "registered_count": len(registered),
             "image_count": len(names),
             "models": len(models),

@@ -38,6 +38,9 @@ T. S. Huang (eds.), Calibration and Orientation of Cameras in Computer Vision,
 Springer, 2001, pp. 163-193.
 C. S. Fraser, "Digital camera self-calibration", ISPRS Journal of Photogrammetry and
 Remote Sensing 52(4), 149-159, 1997.
+B. Triggs, P. F. McLauchlan, R. I. Hartley, A. W. Fitzgibbon, "Bundle adjustment — a
+modern synthesis", in Vision Algorithms: Theory and Practice, LNCS 1883, Springer,
+2000, pp. 298-372 (robust cost functions, sec. 3.3).
 """
 
 from __future__ import annotations
@@ -69,6 +72,9 @@ MAX_FOCAL_RELATIVE_SIGMA = 0.01
 MAX_POSE_CORRELATION = 0.99
 #: COLMAP's default focal length without EXIF data, in units of the larger image side.
 DEFAULT_FOCAL_FACTOR = 1.2
+#: Scale (pixels) of the Cauchy loss of the self-calibration's adjustments (Triggs et
+#: al. 2000, robust bundle adjustment; COLMAP's ``loss_function_type``).
+ROBUST_LOSS_SCALE_PX = 1.0
 #: RADIAL parameter order in COLMAP: f, cx, cy, k1, k2.
 RADIAL_NAMES = ("f", "cx", "cy", "k1", "k2")
 
@@ -174,6 +180,13 @@ def _adjust(reconstruction, cameras: list[int], free_pp: bool, workers: int,
     options.refine_principal_point = free_pp
     options.refine_extra_params = True
     options.ceres.solver_options.num_threads = workers if workers > 0 else -1
+    # Cauchy loss at ROBUST_LOSS_SCALE_PX: quadratic for the residuals of good matches
+    # (a few tenths of a pixel), so clean blocks adjust as with least squares, while
+    # the pixel-sized residuals of a few false or poorly localised (affine-shaped)
+    # features stop pulling the weak directions: the principal point, and with it the
+    # rotations (templeSparseRing: median rotation error 0.63° → 0.30°).
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    options.ceres.loss_function_scale = ROBUST_LOSS_SCALE_PX
     # The principal point is a weak direction: COLMAP's default gradient tolerance
     # (1e-4) stops the solver pixels short of the minimum along it.
     options.ceres.solver_options.gradient_tolerance = 1e-10

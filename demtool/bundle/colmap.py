@@ -66,6 +66,10 @@ class SfmOptions:
         Image (view) name pairs to match when ``matcher`` is "pairs".
     max_features : int
         Maximum SIFT features per image.
+    features : str
+        "standard" (COLMAP's SIFT), "rich" (:data:`demtool.bundle.register.RICH_SIFT`
+        and guided matching: weak texture, wide angles between views) or "auto"
+        (standard, then a second pass with rich features when views are left out).
     seed : int
         Random seed of COLMAP's RANSAC and mapper.
     workers : int
@@ -89,6 +93,7 @@ class SfmOptions:
     matcher: str = "auto"
     pairs: Sequence[tuple[str, str]] | None = None
     max_features: int = 8192
+    features: str = "auto"
     seed: int = 0
     workers: int = 0
     reproducible: bool = True
@@ -139,12 +144,14 @@ def _set_known_intrinsics(database_path: Path, model: str,
 
 
 def _match(database_path: Path, files: Mapping[str, str], options: SfmOptions,
-           work: Path, threads: int) -> None:
-    """Pairwise matching with geometric verification (the matcher of ``options``)."""
+           work: Path, threads: int, rich: bool = False) -> None:
+    """Pairwise matching with geometric verification (the matcher of ``options``;
+    guided by the verified two-view geometry when ``rich``)."""
     pycolmap = load_pycolmap()
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = threads
     matching.use_gpu = False
+    matching.guided_matching = rich
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = int(options.seed)
     matcher = options.matcher
@@ -232,6 +239,12 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
     planar scene is degenerate) is the block mapped with free intrinsics; the caller
     then imposes the known ones (:func:`impose_intrinsics`).
 
+    With ``options.features`` "auto", a block that leaves views out after the retry
+    is mapped again from scratch with rich features and guided matching
+    (:mod:`demtool.bundle.register`), starting (free intrinsics) from the focal
+    length of the first model; the model with more registered images is kept.  Each
+    view still left out gets the reason (log and report).
+
     Parameters
     ----------
     image_folder : path-like
@@ -248,17 +261,84 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
         Every model COLMAP built, largest (most registered images, then most points)
         first.  Empty if mapping failed.
     report : dict
-        ``mapping_passes`` (1, or 2 when the free-intrinsics fallback ran),
-        ``retried`` (images retried one by one), ``free_fallback`` (bool).
+        Of the pass whose model is kept: ``mapping_passes`` (1, or 2 when the
+        free-intrinsics fallback ran), ``retried`` (images retried one by one),
+        ``free_fallback`` (bool), ``features`` ("standard" or "rich"),
+        ``focal_start_px`` (the focal length the pass started from, from the first
+        pass's model; None: COLMAP's 1.2 × the image size, or the known one); and
+        ``feature_passes`` (the kinds of features tried), ``unregistered_reasons``
+        (:func:`demtool.bundle.register.unregistered_reasons`).
     """
-    pycolmap = load_pycolmap()
+    from demtool.bundle import register
+
     if options.camera_model not in CAMERA_MODELS:
         raise ParameterError(f"unknown camera model {options.camera_model!r}; "
                              f"should be one of {', '.join(CAMERA_MODELS)}")
     if options.matcher not in MATCHERS:
         raise ParameterError(f"unknown matcher {options.matcher!r}; "
                              f"should be one of {', '.join(MATCHERS)}")
+    if options.features not in register.FEATURES:
+        raise ParameterError(f"unknown features {options.features!r}; "
+                             f"should be one of {', '.join(register.FEATURES)}")
     work = Path(work_folder)
+    kinds = ["rich"] if options.features == "rich" else \
+        ["standard", "rich"] if options.features == "auto" else ["standard"]
+    models: list = []
+    report: dict = {}
+    ran = []
+    for kind in kinds:
+        pass_work = work / kind
+        pass_work.mkdir(exist_ok=True)
+        start = None
+        if kind == "rich" and models:
+            log.info("%d of %d images registered: mapping again with rich features "
+                     "(affine-shaped DSP-SIFT, low peak threshold, guided matching)",
+                     models[0].num_reg_images(), len(files))
+            start = _focal_of(models[0], options)
+        pass_models, pass_report = _sfm_pass(image_folder, files, pass_work, options,
+                                             rich=kind == "rich", focal_start=start)
+        ran.append(kind)
+        pass_report.update(features=kind, focal_start_px=start,
+                           database=str(pass_work / "database.db"))
+        if not report or (pass_models and (not models or
+                                           _size(pass_models[0]) > _size(models[0]))):
+            models, report = pass_models, pass_report
+        if models and models[0].num_reg_images() == len(files):
+            break
+    report["feature_passes"] = ran
+    pipeline = _pipeline_options(options, 1)
+    reasons = register.unregistered_reasons(
+        report["database"],
+        models[0] if models else None, files,
+        min_matches=pipeline.min_num_matches,
+        min_inliers=pipeline.mapper.abs_pose_min_num_inliers)
+    report.pop("database", None)
+    report["unregistered_reasons"] = reasons
+    for name, row in reasons.items():
+        log.warning("%s not registered: %s", name, row["reason"])
+    return models, report
+
+
+def _size(model) -> tuple[int, int]:
+    return model.num_reg_images(), model.num_points3D()
+
+
+def _focal_of(model, options: SfmOptions) -> float | None:
+    """The focal length (pixels) a first model found, to start the next pass from:
+    only with free intrinsics and at least three registered images (two views do not
+    determine it)."""
+    if options.intrinsics or model.num_reg_images() < 3:
+        return None
+    camera = model.camera(model.image(model.reg_image_ids()[0]).camera_id)
+    return float(np.mean(np.asarray(camera.params)[camera.focal_length_idxs()]))
+
+
+def _sfm_pass(image_folder, files: Mapping[str, str], work: Path, options: SfmOptions, *,
+              rich: bool, focal_start: float | None) -> tuple[list, dict]:
+    """One pass of :func:`run_sfm`: its own database, features of one kind, mapping."""
+    from demtool.bundle import register
+
+    pycolmap = load_pycolmap()
     database_path = work / "database.db"
     threads = options.workers if options.workers > 0 else -1
     intrinsics = options.intrinsics
@@ -271,6 +351,11 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
     reader.camera_model = options.camera_model
     if intrinsics and shared_known and options.shared_camera:
         reader.camera_params = colmap_camera_params(options.camera_model, matrices[0])
+    elif focal_start is not None and options.shared_camera:
+        width, height = _image_size(Path(image_folder) / next(iter(files)))
+        reader.camera_params = colmap_camera_params(
+            options.camera_model, np.array([[focal_start, 0, (width - 1) / 2],
+                                            [0, focal_start, (height - 1) / 2], [0, 0, 1]]))
     mode = (pycolmap.CameraMode.SINGLE
             if options.shared_camera and (not intrinsics or shared_known)
             else pycolmap.CameraMode.PER_IMAGE)
@@ -278,7 +363,9 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
     extraction.num_threads = threads
     extraction.sift.max_num_features = int(options.max_features)
     extraction.use_gpu = False
-    log.info("extracting SIFT features from %d images", len(files))
+    register.sift_options(extraction, rich)
+    log.info("extracting %sSIFT features from %d images", "rich " if rich else "",
+             len(files))
     # Images enter the database one by one in the given order before the threads
     # extract their features: the threads would otherwise number them in the order
     # they finish, and COLMAP's mapping depends on the numbering.
@@ -290,14 +377,14 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
                        extraction_options=extraction, device=pycolmap.Device.cpu)
     if intrinsics:
         _set_known_intrinsics(database_path, options.camera_model, intrinsics, files)
-    _match(database_path, files, options, work, threads)
+    _match(database_path, files, options, work, threads, rich=rich)
 
     pipeline = _pipeline_options(options, mapping_threads(options))
     report: dict = {"mapping_passes": 1, "retried": [], "free_fallback": False}
     log.info("incremental mapping and bundle adjustment%s",
              " (known intrinsics, fixed)" if intrinsics else "")
     models = _map(database_path, image_folder, work / "sparse", pipeline)
-    if intrinsics and models and models[0].num_reg_images() < len(files):
+    if models and models[0].num_reg_images() < len(files):
         models[0] = _retry_left_out(models[0], database_path, image_folder, work, pipeline,
                                     files, report)
     elif intrinsics and not models:
@@ -309,14 +396,24 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
         free_options = SfmOptions(shared_camera=options.shared_camera,
                                   camera_model="SIMPLE_RADIAL", matcher=options.matcher,
                                   pairs=options.pairs, max_features=options.max_features,
+                                  features="rich" if rich else "standard",
                                   seed=options.seed, workers=options.workers,
                                   reproducible=options.reproducible,
                                   extra=dict(options.extra))
         free_work = work / "free"
         free_work.mkdir()
-        models, _ = run_sfm(image_folder, files, free_work, free_options)
+        models, _ = _sfm_pass(image_folder, files, free_work, free_options, rich=rich,
+                              focal_start=None)
         report.update(mapping_passes=2, free_fallback=True)
     return models, report
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    """(width, height) of an image file."""
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    return int(image.shape[1]), int(image.shape[0])
 
 
 def _retry_left_out(model, database_path: Path, image_folder, work: Path, pipeline,
@@ -325,7 +422,7 @@ def _retry_left_out(model, database_path: Path, image_folder, work: Path, pipeli
 
     The registered images keep their poses while COLMAP tries the others with relaxed
     absolute-pose thresholds (fewer inliers, a larger error); a final global bundle
-    adjustment of the continued model follows in COLMAP.  The known intrinsics stay
+    adjustment of the continued model follows in COLMAP.  Known intrinsics stay
     fixed.  Returns the larger of the two models.
     """
     pycolmap = load_pycolmap()

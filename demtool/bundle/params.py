@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from demtool.bundle.colmap import CAMERA_MODELS, MATCHERS, SfmOptions
+from demtool.bundle.register import FEATURES
 from demtool.parameters import Parameters, core_defaults, parameter, seed_field, workers_field
 
 CORE = core_defaults(SfmOptions)
@@ -51,6 +52,12 @@ class BundleParams(Parameters):
         None, f"SIFT features per image (default: {CORE['max_features']}; with sensor "
         "models one per 64 pixels of image, 8192 to 65536: dense tie points tie the "
         "block to --reference-dem more tightly).", minimum=64, metavar="N")
+    features: str = parameter(
+        CORE["features"], "SIFT features: COLMAP's standard ones; rich ones (affine-shaped "
+        "DSP-SIFT at a third of the peak threshold, guided matching: weak texture, wide "
+        "angles between views; 3-6x slower to extract); auto: standard, then a second "
+        "pass with rich ones when views are left unregistered.",
+        choices=FEATURES, what="features")
     position_sigma: float = parameter(100.0, "With sensor models: standard deviation of the "
                                       "prior sensor positions, metres.", minimum=0.0,
                                       min_open=True)

@@ -169,6 +169,7 @@ def run_bundle(inputs: Sequence[str | os.PathLike] | str | os.PathLike,
         camera_model=params.camera_model or ("PINHOLE" if known else "SIMPLE_RADIAL"),
         matcher=params.matcher,
         max_features=params.max_features or core.SfmOptions.max_features,
+        features=params.features,
         seed=params.seed, workers=params.workers, reproducible=params.reproducible)
     adjusted = core.adjust_block(images(), options, target=block.target, intrinsics=intrinsics,
                                  self_calibration=params.self_calibrate,

@@ -81,7 +81,9 @@ def test_ring_known_intrinsics_register_in_one_pass(ring_dir, tmp_path):
     assert result.exit_code == 0, result.output
     summary = json.loads((tmp_path / "bundle.npz.json").read_text())["summary"]
     assert summary["registered_count"] == summary["image_count"] == 12
-    assert summary["mapping"] == {"mapping_passes": 1, "retried": [], "free_fallback": False}
+    assert {k: summary["mapping"][k] for k in ("mapping_passes", "retried", "free_fallback",
+                                                "feature_passes")} == {
+        "mapping_passes": 1, "retried": [], "free_fallback": False, "feature_passes": ["standard"]}
     assert summary["intrinsics"]["mode"] == "known" and summary["intrinsics"]["refined"] == []
     assert {d["status"] for d in summary["intrinsics"]["decisions"].values()} == {"given"}
     truth = cameras_from_arrays(dio.read_npz(ring_dir / "cameras.npz", "cameras"))

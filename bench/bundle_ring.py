@@ -200,8 +200,7 @@ def main() -> None:
                  "distinct viewpoints). demtool: standard SIFT registers 13 of 16 views "
                  "(before issue 44 the result: 12/15 viewpoints, 0.787° / 0.285 %, "
                  "principal point at the image centre, 18.7 px off, 46 s), so the "
-                 "default features=auto maps again with rich features (most of the "
-                 "time).")
+                 "default features=auto maps again with rich features.")
 
 
 if __name__ == "__main__":

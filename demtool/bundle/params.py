@@ -55,7 +55,7 @@ class BundleParams(Parameters):
     features: str = parameter(
         CORE["features"], "SIFT features: COLMAP's standard ones; rich ones (affine-shaped "
         "DSP-SIFT at a third of the peak threshold, guided matching: weak texture, wide "
-        "angles between views; 3-6x slower to extract); auto: standard, then a second "
+        "angles between views; about 7x slower to extract); auto: standard, then a second "
         "pass with rich ones when views are left unregistered.",
         choices=FEATURES, what="features")
     position_sigma: float = parameter(100.0, "With sensor models: standard deviation of the "

@@ -18,8 +18,9 @@ documentation recommends for such cases (``colmap feature_extractor`` FAQ,
 Features are extracted up to the object's silhouette: the scratch copies hold the
 whole image, no mask drops the edge of a dark background.  Matching then uses guided
 matching (matches re-found along the epipolar lines of the verified two-view
-geometry), every pair of the block (loop closure around a ring).  Extraction is about
-7× slower (templeSparseRing: 115 s instead of 16 s), so ``features="auto"`` uses it only when the standard features leave views
+geometry), every pair of the block (loop closure around a ring).  Extraction is
+about 7× slower (templeSparseRing: 115 s instead of 16 s on a loaded 2-core machine),
+so ``features="auto"`` uses it only when the standard features leave views
 unregistered.
 
 :func:`unregistered_reasons` tells, per view left out, which step failed: no

@@ -137,6 +137,7 @@ def adjust_block(images: Iterable[tuple[str, np.ndarray]], options: SfmOptions, 
             # lens distortion are still the block's to determine, f held
             intrinsics = {"mode": "known focal length",
                           **calibration.self_calibrate(model, workers=threads,
+                                                       robust=mapping["features"] == "rich",
                                                        focal_known=True)}
         elif known:
             intrinsics = {"mode": "known, imposed after free mapping" if mapping["free_fallback"]
@@ -146,7 +147,8 @@ def adjust_block(images: Iterable[tuple[str, np.ndarray]], options: SfmOptions, 
             intrinsics = {"mode": "estimated",
                           **calibration.self_calibrate(
                               model, workers=threads,
-                              focal_prior_px=mapping["focal_start_px"])}
+                              focal_prior_px=mapping["focal_start_px"],
+                              robust=mapping["features"] == "rich")}
         else:
             intrinsics = {"mode": "estimated", "refined": ["f", "k1"]}
         if not known:

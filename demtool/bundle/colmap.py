@@ -314,8 +314,10 @@ def run_sfm(image_folder: str | os.PathLike, files: Mapping[str, str],
         min_inliers=pipeline.mapper.abs_pose_min_num_inliers)
     report.pop("database", None)
     report["unregistered_reasons"] = reasons
+    # a failed block is one error line (the caller's); the reasons then go to -v's log
+    report_level = log.warning if models and models[0].num_reg_images() >= 2 else log.info
     for name, row in reasons.items():
-        log.warning("%s not registered: %s", name, row["reason"])
+        report_level("%s not registered: %s", name, row["reason"])
     return models, report
 
 

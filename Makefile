@@ -55,8 +55,11 @@ install: $(VENV)/.installed
 install-test: $(VENV)/.installed-test
 install-bench: $(VENV)/.installed-bench
 
+# the tests on TEST_JOBS processes (pytest-xdist), a test module's tests in one of them (its
+# module-scoped scenes are made once); TEST_JOBS=0 for one process
+TEST_JOBS ?= 2
 test: $(VENV)/.installed-test
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_JOBS) --dist loadfile
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check demtool tests bench

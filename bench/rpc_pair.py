@@ -2,7 +2,7 @@
 through demtool's documented RPC route, against s2p's own DSM of it, with CNES CARS run
 on the same pair in the same bench when it is installed (issue 42).
 
-demtool's route (docs/tutorials/rpc_pair.md), every step a CLI call timed with its peak
+demtool's route (docs/guides/rpc_pair.md), every step a CLI call timed with its peak
 memory:
 
     demtool mapproject img_01.tif --sensor img_01.tif --pair-sensor img_02.tif \\
@@ -220,7 +220,7 @@ def main() -> None:
         columns=columns, rows=rows,
         notes=("s2p's expected DSM (0.5 m, UTM 40 S, 88.7 % valid) of its test pair "
                "(centreborelli/s2p tests/data/input_pair); demtool's documented route "
-               "(docs/tutorials/rpc_pair.md), wall time and peak memory summed / maxed over "
+               "(docs/guides/rpc_pair.md), wall time and peak memory summed / maxed over "
                "its four CLI steps; no co-registration applied (the median is the vertical "
                "offset left); completeness counts s2p's valid cells the DSM also has "
                "(demtool's interpolated cells also given apart). Targets NMAD ≤ 1.0 m, "

@@ -96,7 +96,7 @@ def check_physical_cameras(models: Sequence[Any], paths: Sequence[Any]) -> None:
         if getattr(model, "kind", "") == "rpc":
             raise InputError(f"{path}: is an RPC model, which has no camera position or "
                              "attitude for bundle to adjust (the RPC route: mapproject --pair-"
-                             "sensor, sgm, dem --mapprojected; docs/tutorials/rpc_pair.md)")
+                             "sensor, sgm, dem --mapprojected; docs/guides/rpc_pair.md)")
 
 
 def check_block(models: Sequence[Any], paths: Sequence[Any], image_names: Sequence[str],

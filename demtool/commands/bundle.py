@@ -11,61 +11,53 @@ from demtool.commands import options
 from demtool.stages import STAGES
 
 HELP = STAGES["bundle"] + """
+Takes any block of images: INPUTS is one selection.json (from `demtool select`; the target first) or
+two or more image files, or --images LIST (one path a line, relative to the list file). Runs COLMAP
+through pycolmap: SIFT features, exhaustive or sequential (strips: neighbours in input order)
+matching with geometric verification, incremental mapping with bundle adjustment. By default all
+images share one camera: COLMAP estimates its focal length and a radial term while mapping, then a
+self-calibration frees the principal point and a second radial term and keeps each only where the
+block determines it (docs/stages/bundle.md); a focal length the block does not determine (a
+near-flat strip trades it for the flying height) is kept at the prior, 1.2 x the image size, with a
+warning. --focal-px, --focal-mm with --pixel-mm (a metric camera: the pitch of the images as given,
+downsampling included) or --cameras give known intrinsics (fixed unless --refine-intrinsics; one
+mapping pass), and with them the relief's scale. The largest model is written to OUT (bundle.npz:
+points, intensities, track lengths, reprojection errors, cameras, target index) with the sidecar
+OUT.json (registered images, per-image observations and residuals, refined intrinsics and their
+standard deviations). --align-cameras maps the model onto known camera centres (similarity, Umeyama
+1991) so that it is metric, in the world frame.
 
-Takes any block of images: INPUTS is one selection.json (from `demtool select`; the
-target first) or two or more image files, or --images LIST (one path a line,
-relative to the list file).  Runs COLMAP through pycolmap: SIFT features,
-exhaustive or sequential (strips: neighbours in input order) matching with geometric
-verification, incremental mapping with bundle adjustment.  By default all images
-share one camera: COLMAP estimates its focal length and a radial term while
-mapping, then a self-calibration frees the principal point and a second radial term
-and keeps each only where the block determines it (docs/stages/bundle.md); a focal length
-the block does not determine (a near-flat strip trades it for the flying height) is
-kept at the prior, 1.2 x the image size, with a warning.  --focal-px, --focal-mm with
---pixel-mm (a metric camera: the pitch of the images as given, downsampling included)
-or --cameras give known intrinsics (fixed unless --refine-intrinsics; one mapping
-pass), and with them the relief's scale.
-The largest model is written to OUT (bundle.npz: points, intensities, track lengths,
-reprojection errors, cameras, target index) with the sidecar OUT.json (registered
-images, per-image observations and residuals, refined intrinsics and their standard
-deviations).  --align-cameras maps the model onto known camera centres (similarity,
-Umeyama 1991) so that it is metric, in the world frame.
+With sensor models (--sensors MODEL, repeated, one per image in the same order: ALE ISD JSON, ISIS
+cube with SPICE, ASP .tsai; ISIS cubes given as the images are their own models) the block is
+adjusted in the body-fixed frame, in metres: SIFT tie points between the pairs of --matcher
+(spatial: overlapping footprints of the models) are triangulated with the prior poses, then each
+image's position and pointing (a constant offset, for line scanners too) and the tie points are
+adjusted with priors weighted by --position-sigma (m) and --pointing-sigma (mrad). No two-view
+initialisation is needed. --adjusted-dir receives the adjusted models in their own format (ISD JSON
+for ISDs and cubes, .tsai for .tsai) for rectify, dem and mapproject; OUT.json reports each image's
+residual, observations, change of position (m) and pointing (mrad) and their standard deviations.
+Tie points fix the block's shape, not its datum (a shift, turn or scale of the whole block), which
+the priors alone only place as well as their mean: --reference-dem DEM (LOLA, MOLA: a DEM on the
+models' body) ties every tie point's height to the DEM's (bilinear, Huber loss; sigma:
+--reference-dem-sigma metres plus the DEM's interpolation error at the point, post^2/8 x its
+curvature and a measured share of post x slope), as ASP's bundle_adjust --heights-from-dem does, so
+the block follows the ground; the prior block is first registered to the DEM by a search of shifts
+within 3 sigmas of the priors (as ASP's pc_align before bundle_adjust), and the adjustment from
+there is kept where it costs less than the one from the priors.
 
-With sensor models (--sensors MODEL, repeated, one per image in the same order: ALE
-ISD JSON, ISIS cube with SPICE, ASP .tsai; ISIS cubes given as the images are their own
-models) the block is adjusted in the body-fixed frame, in metres: SIFT tie points
-between the pairs of --matcher (spatial: overlapping footprints of the models) are
-triangulated with the prior poses, then each image's position and pointing (a constant
-offset, for line scanners too) and the tie points are adjusted with priors weighted by
---position-sigma (m) and --pointing-sigma (mrad).  No two-view initialisation is needed.
---adjusted-dir receives the adjusted models in their own format (ISD JSON for ISDs and
-cubes, .tsai for .tsai) for rectify, dem and mapproject; OUT.json reports each image's
-residual, observations, change of position (m) and pointing (mrad) and their standard
-deviations.  Tie points fix the block's shape, not its datum (a shift, turn or scale of
-the whole block), which the priors alone only place as well as their mean:
---reference-dem DEM (LOLA, MOLA: a DEM on the models' body) ties every tie point's
-height to the DEM's (bilinear, Huber loss; sigma: --reference-dem-sigma metres plus
-the DEM's interpolation error at the point, post^2/8 x its curvature and a measured share
-of post x slope), as ASP's bundle_adjust --heights-from-dem does, so the block follows
-the ground; the prior block
-is first registered to the DEM by a search of shifts within 3 sigmas of the priors (as
-ASP's pc_align before bundle_adjust), and the adjustment from there is kept where it
-costs less than the one from the priors.
-
-With --control-network NET (an ISIS control network, binary or PVL) and --sensors (no
-images needed) the models are adjusted on the network's measures instead, as ISIS jigsaw
-and knoten do: per image the pointing terms of --solve (angles, rates, accelerations:
-polynomial in time) and with --solve-position a position bias, a priori
---pointing-sigma (mrad), --angular-rate-sigma, --angular-acceleration-sigma,
---position-sigma; free points triangulated, constrained points weighted by their a
-priori covariance, fixed points held; measures weighted by --measure-sigma, outliers
-rejected (--rejection-multiplier).  The network's serial numbers are matched to the
-models by their spacecraft clock (or --serials LIST: one serial a line, one per model).
-OUT.bundleout.txt and OUT.points.csv report sigma0, per-image residuals and corrections,
-per-point residuals and the rejected measures (jigsaw's bundleout); --adjusted-network
-receives the adjusted network, --adjusted-dir the adjusted models.  --reference-points
-SHOTS ties the points' heights to laser altimetry (a surface through the shots, within 3
-shot spacings of them; sigma per shot from the table or --reference-points-sigma).
+With --control-network NET (an ISIS control network, binary or PVL) and --sensors (no images needed)
+the models are adjusted on the network's measures instead, as ISIS jigsaw and knoten do: per image
+the pointing terms of --solve (angles, rates, accelerations: polynomial in time) and with
+--solve-position a position bias, a priori --pointing-sigma (mrad), --angular-rate-sigma,
+--angular-acceleration-sigma, --position-sigma; free points triangulated, constrained points
+weighted by their a priori covariance, fixed points held; measures weighted by --measure-sigma,
+outliers rejected (--rejection-multiplier). The network's serial numbers are matched to the models
+by their spacecraft clock (or --serials LIST: one serial a line, one per model). OUT.bundleout.txt
+and OUT.points.csv report sigma0, per-image residuals and corrections, per-point residuals and the
+rejected measures (jigsaw's bundleout); --adjusted-network receives the adjusted network,
+--adjusted-dir the adjusted models. --reference-points SHOTS ties the points' heights to laser
+altimetry (a surface through the shots, within 3 shot spacings of them; sigma per shot from the
+table or --reference-points-sigma).
 """
 
 
@@ -92,8 +84,7 @@ shot spacings of them; sigma per shot from the table or --reference-points-sigma
                      "sensor models).")
 @options.path_option("--control-network", "An ISIS control network (.net, binary or PVL) "
                      "to adjust the --sensors models on.")
-@click.option("--adjusted-network", type=click.Path(dir_okay=False),
-              help="With --control-network: write the adjusted network (.net) here.")
+@options.path_option("--adjusted-network", "With --control-network: the adjusted network (.net).")
 @options.path_option("--reference-points", "With --control-network: laser altimetry shots "
                      "(LOLA RDR, MOLA PEDR, named columns) as ground control of the "
                      "points' heights (sigma: the table's or --reference-points-sigma).")

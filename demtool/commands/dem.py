@@ -11,43 +11,38 @@ from demtool.dem.params import DemParams
 from demtool.stages import STAGES
 
 HELP = STAGES["dem"] + """
-
-Two forms.  From bundle points (BAM route):
-`demtool dem --points bundle.npz [--distance D | --scene scene.json] --out dem.tif`
-projects the points into the target camera; heights come from eq. 2 of the NavCam
-study (depth offset (z/mean(z) - 1)·D, negated) or, for an aligned bundle, are metric.
-Densified BAM DEM: `--dense DISPARITY RECTIFY` (repeatable) adds a matched pair of the
-block, triangulated with the bundle's cameras and merged cell by cell with its points
-(docs/stages/dem.md; match with `sgm --no-fill` so filled occlusions count as gaps).
-From a disparity map (SIAM route):
-`demtool dem --disparity disparity.tif --rectify rectify.npz (--reference REF.tif |
---cameras cameras.npz) --out dem.tif` maps disparities back through the inverse
-rectification and either fits a robust 3-D projective transformation to the
-reference DEM (on the target grid) or triangulates with the known cameras.
-With a calibrated rectify.npz (`rectify --sensor-left/--sensor-right`), neither is
-given: every valid disparity is triangulated through the two sensor models in the
-body-fixed frame and OUT is a DEM on the body's map (heights above the reference
-sphere, the body's IAU CRS, --projection, --gsd, --max-ray-gap, --error-out).
-Models with no body (rover, lander, lab rig, drone: .tsai without a body, cameras.npz,
-OpenCV/COLMAP pinholes) are triangulated in their own frame and OUT is a DEM on a local
-metric grid (frame=map:local, no CRS): heights along the frame's +Z or --up X,Y,Z
-(e.g. 0,0,-1 when the frame's Z points down), the grid's x axis the frame's X projected
-normal to up.  --points-out (calibrated routes) also writes the points as PLY, LAS or
-LAZ (by its suffix; on a body with the DEM's CRS) for tools that grid clouds.
-Every calibrated route drops points behind either camera and rays that miss by more
-than --max-ray-gap, and says how many.
-Map-projected stereo (line scanners, ASP's route): `demtool dem --disparity D
---mapprojected LEFT_ORTHO RIGHT_ORTHO --out dem.tif`, D matched by sgm between two
-orthoimages of demtool mapproject on one grid: each left cell (x, y) and its right
-cell (x - d, y) are mapped back to raw pixels through the surface and sensor model
-named in the orthoimages' tags and triangulated as above (DEM on the orthos' map).
+Two forms. From bundle points (BAM route): `demtool dem --points bundle.npz [--distance D |
+--scene scene.json] --out dem.tif` projects the points into the target camera; heights come from
+eq. 2 of the NavCam study (depth offset (z/mean(z) - 1)·D, negated) or, for an aligned bundle,
+are metric. Densified BAM DEM: `--dense DISPARITY RECTIFY` (repeatable) adds a matched pair of
+the block, triangulated with the bundle's cameras and merged cell by cell with its points
+(docs/stages/dem.md; match with `sgm --no-fill` so filled occlusions count as gaps). From a
+disparity map (SIAM route): `demtool dem --disparity disparity.tif --rectify rectify.npz
+(--reference REF.tif | --cameras cameras.npz) --out dem.tif` maps disparities back through the
+inverse rectification and either fits a robust 3-D projective transformation to the reference
+DEM (on the target grid) or triangulates with the known cameras. With a calibrated rectify.npz
+(`rectify --sensor-left/--sensor-right`), neither is given: every valid disparity is
+triangulated through the two sensor models in the body-fixed frame and OUT is a DEM on the
+body's map (heights above the reference sphere, the body's IAU CRS, --projection, --gsd,
+--max-ray-gap, --error-out). Models with no body (rover, lander, lab rig, drone: .tsai without a
+body, cameras.npz, OpenCV/COLMAP pinholes) are triangulated in their own frame and OUT is a DEM
+on a local metric grid (frame=map:local, no CRS): heights along the frame's +Z or --up X,Y,Z
+(e.g. 0,0,-1 when the frame's Z points down), the grid's x axis the frame's X projected normal
+to up. --points-out (calibrated routes) also writes the points as PLY, LAS or LAZ (by its
+suffix; on a body with the DEM's CRS) for tools that grid clouds. Every calibrated route drops
+points behind either camera and rays that miss by more than --max-ray-gap, and says how many.
+Map-projected stereo (line scanners, ASP's route): `demtool dem --disparity D --mapprojected
+LEFT_ORTHO RIGHT_ORTHO --out dem.tif`, D matched by sgm between two orthoimages of demtool
+mapproject on one grid: each left cell (x, y) and its right cell (x - d, y) are mapped back to
+raw pixels through the surface and sensor model named in the orthoimages' tags and triangulated
+as above (DEM on the orthos' map).
 
 Every route removes outliers with a local median test, fills the gaps with D'Errico's
-spring-metaphor interpolation and optionally median-filters.  The points, --cameras
-and --reference routes write OUT in the target image frame (frame=image:<target>),
-pixel spacing = GSD (--gsd, scene.json gsd_m, the reference's spacing, or estimated
-as distance / focal length), heights in metres positive toward the camera; the
-sensor-model and map-projected routes write it on the body's map.
+spring-metaphor interpolation and optionally median-filters. The points, --cameras and
+--reference routes write OUT in the target image frame (frame=image:<target>), pixel spacing =
+GSD (--gsd, scene.json gsd_m, the reference's spacing, or estimated as distance / focal length),
+heights in metres positive toward the camera; the sensor-model and map-projected routes write it
+on the body's map.
 """
 
 

@@ -44,7 +44,7 @@ from demtool.sensors.base import Detector
 from demtool.sensors.distortion import Distortion
 from demtool.sensors.frame import FrameSensor
 from demtool.sensors.isd import Orientations
-from demtool.sensors.isis_frames import FrameInterior, mission_interior
+from demtool.sensors.isis_frames import FrameInterior, mission_interior, naif_values
 from demtool.sensors.isis_kinds import naif_ik_code
 from demtool.sensors.isis_label import read_label
 
@@ -95,15 +95,6 @@ def _orientations(path, label_table, table, name) -> Orientations:
     return Orientations(times, quats[:, [1, 2, 3, 0]], constant)
 
 
-def _naif(path: Path, naif, key: str, size: int | None = None):
-    if key not in naif:
-        raise InputError(f"{path}: NaifKeywords lacks the key '{key}'")
-    value = np.atleast_1d(np.asarray(naif[key], dtype=np.float64))
-    if size is not None and value.size != size:
-        raise InputError(f"{path}: NaifKeywords '{key}' has {value.size} values, expected {size}")
-    return value
-
-
 def read_cube(path: str | Path) -> FrameSensor:
     """Read an ISIS3 cube with attached SPICE into a :class:`FrameSensor` (line-scan
     cubes: :func:`demtool.sensors.isis_cube.read_isis_cube`).
@@ -146,7 +137,7 @@ def read_cube(path: str | Path) -> FrameSensor:
     body_keys = [k for k in naif.keys() if k.startswith("BODY") and k.endswith("_RADII")]
     if not body_keys:
         raise InputError(f"{p}: NaifKeywords lacks the key 'BODY<code>_RADII'")
-    radii = _naif(p, naif, body_keys[0], 3) * 1000.0
+    radii = naif_values(p, naif, body_keys[0], 3) * 1000.0
     # What the label says the body is (PROJ may not know it: Bennu, 2101955); the radii
     # above are the model's own either way.
     body_naif = re.fullmatch(r"BODY(-?\d+)_RADII", body_keys[0])
@@ -207,16 +198,16 @@ def _generic_interior(p: Path, label, naif, code: int, samples: int,
     ``_CCD_CENTER``; Apollo Metric's image centre), with :func:`_distortion`."""
     ins = f"INS{code}"
     instrument = label["IsisCube"].get("Instrument", {})
-    focal = float(_naif(p, naif, f"{ins}_FOCAL_LENGTH", 1)[0])
+    focal = float(naif_values(p, naif, f"{ins}_FOCAL_LENGTH", 1)[0])
     if code in TAGCAMS_CODES:  # ISIS OsirisRexTagcamsCamera: the IK gives metres
         focal *= 1000.0
-    itrans_s = _naif(p, naif, f"{ins}_ITRANSS", 3)
-    itrans_l = _naif(p, naif, f"{ins}_ITRANSL", 3)
+    itrans_s = naif_values(p, naif, f"{ins}_ITRANSS", 3)
+    itrans_l = naif_values(p, naif, f"{ins}_ITRANSL", 3)
     if f"{ins}_BORESIGHT_SAMPLE" in naif:
-        center_s = float(_naif(p, naif, f"{ins}_BORESIGHT_SAMPLE", 1)[0])
-        center_l = float(_naif(p, naif, f"{ins}_BORESIGHT_LINE", 1)[0])
+        center_s = float(naif_values(p, naif, f"{ins}_BORESIGHT_SAMPLE", 1)[0])
+        center_l = float(naif_values(p, naif, f"{ins}_BORESIGHT_LINE", 1)[0])
     elif f"{ins}_CCD_CENTER" in naif:
-        center_s, center_l = _naif(p, naif, f"{ins}_CCD_CENTER", 2)
+        center_s, center_l = naif_values(p, naif, f"{ins}_CCD_CENTER", 2)
         if code in TAGCAMS_CODES:  # OsirisRexTagcamsCamera: CCD_CENTER is 0-based
             center_s, center_l = center_s + 1.0, center_l + 1.0
     else:  # Apollo Metric: ISIS sets the origin to (ParentSamples / 2, ParentLines / 2)
@@ -248,9 +239,9 @@ def _distortion(path: Path, naif, code: int, focal: float, instrument) -> Distor
     """
     ins = f"INS{code}"
     if code in APOLLO_METRIC_CODES:
-        pp = _naif(path, naif, f"{ins}_PP", 2) if f"{ins}_PP" in naif else np.zeros(2)
-        odk = _naif(path, naif, f"{ins}_OD_K", 3)
-        decenter = _naif(path, naif, f"{ins}_DECENTER", 3)
+        pp = naif_values(path, naif, f"{ins}_PP", 2) if f"{ins}_PP" in naif else np.zeros(2)
+        odk = naif_values(path, naif, f"{ins}_OD_K", 3)
+        decenter = naif_values(path, naif, f"{ins}_DECENTER", 3)
         return Distortion("apollometric", np.concatenate([pp, odk, decenter]))
     model = str(naif.get(f"{ins}_DISTORTION_MODEL", "")).upper()
     if code in TAGCAMS_CODES and model == "OPENCV":
@@ -275,20 +266,20 @@ def _tagcams(path: Path, naif, ins: str, focal: float, instrument) -> Distortion
     model with ``sx = fx (1 + a T) p / f`` and the distortion centre's offset from the
     detector origin, ``(ox, oy) = ((cx − s0) p, −(cy − l0) p)``.
     """
-    itrans_s = _naif(path, naif, f"{ins}_ITRANSS", 3)
-    itrans_l = _naif(path, naif, f"{ins}_ITRANSL", 3)
-    pitch = float(_naif(path, naif, f"{ins}_PIXEL_SIZE", 1)[0]) / 1000.0  # µm → mm
+    itrans_s = naif_values(path, naif, f"{ins}_ITRANSS", 3)
+    itrans_l = naif_values(path, naif, f"{ins}_ITRANSL", 3)
+    pitch = float(naif_values(path, naif, f"{ins}_PIXEL_SIZE", 1)[0]) / 1000.0  # µm → mm
     if not (np.allclose(itrans_s, [0.0, 1.0 / pitch, 0.0], rtol=1e-6)
             and np.allclose(itrans_l, [0.0, 0.0, -1.0 / pitch], rtol=1e-6)):
         raise InputError(f"{path}: NaifKeywords '{ins}_ITRANSS'/'_ITRANSL' are not the "
                          "TAGCAMS detector layout (x along samples, y against lines) the "
                          "OpenCV distortion map assumes")
-    k = _naif(path, naif, f"{ins}_OPENCV_OD_K", 6)
-    p = _naif(path, naif, f"{ins}_OPENCV_OD_P", 2)
-    fxy = _naif(path, naif, f"{ins}_OPENCV_OD_F", 2)
-    cxy = _naif(path, naif, f"{ins}_OPENCV_OD_C", 2)
-    a = float(_naif(path, naif, f"{ins}_OPENCV_OD_A", 1)[0])
-    origin = _naif(path, naif, f"{ins}_CCD_CENTER", 2) + 1.0
+    k = naif_values(path, naif, f"{ins}_OPENCV_OD_K", 6)
+    p = naif_values(path, naif, f"{ins}_OPENCV_OD_P", 2)
+    fxy = naif_values(path, naif, f"{ins}_OPENCV_OD_F", 2)
+    cxy = naif_values(path, naif, f"{ins}_OPENCV_OD_C", 2)
+    a = float(naif_values(path, naif, f"{ins}_OPENCV_OD_A", 1)[0])
+    origin = naif_values(path, naif, f"{ins}_CCD_CENTER", 2) + 1.0
     temperature = instrument.get("CameraHeadTemperature", 0.0)
     temperature = float(getattr(temperature, "value", temperature))
     scale = 1.0 + a * temperature

@@ -76,7 +76,9 @@ class FrameInterior:
     notes: tuple = field(default_factory=tuple)
 
 
-def _key(path: Path, naif, key: str, size: int | None = None) -> np.ndarray:
+def naif_values(path: Path, naif, key: str, size: int | None = None) -> np.ndarray:
+    """A NaifKeywords value as a float64 array (InputError naming the cube and the key
+    when it is absent or has another number of values than ``size``)."""
     if key not in naif:
         raise InputError(f"{path}: NaifKeywords lacks the key '{key}'")
     value = np.atleast_1d(np.asarray(naif[key], dtype=np.float64))
@@ -111,8 +113,8 @@ def mission_interior(path: Path, label, naif, code: int) -> FrameInterior | None
     if viking in VIKING_FOCAL:
         ins = f"INS{code}"
         return FrameInterior(
-            focal=VIKING_FOCAL[viking], itrans_sample=_key(path, naif, f"{ins}_ITRANSS", 3),
-            itrans_line=_key(path, naif, f"{ins}_ITRANSL", 3),
+            focal=VIKING_FOCAL[viking], itrans_sample=naif_values(path, naif, f"{ins}_ITRANSS", 3),
+            itrans_line=naif_values(path, naif, f"{ins}_ITRANSL", 3),
             center_sample=VIKING_ORIGIN[0], center_line=VIKING_ORIGIN[1],
             notes=("Viking reseau distortion not applied (ISIS's ReseauDistortionMap reads "
                    "the $viking reseau files; ALE's drivers write none either)",))
@@ -127,31 +129,32 @@ def _mdis(path: Path, label, naif, code: int) -> FrameInterior:
         filter_number = int(_number(path, cube.get("BandBin", {}), "BandBin", "Number"))
     ins, fn = f"INS{code}", f"INS{code - filter_number}"
     if "TempDependentFocalLength" in naif:
-        focal = float(_key(path, naif, "TempDependentFocalLength", 1)[0])
+        focal = float(naif_values(path, naif, "TempDependentFocalLength", 1)[0])
     elif f"{fn}_FL_TEMP_COEFFS" in naif:
-        coefficients = _key(path, naif, f"{fn}_FL_TEMP_COEFFS")
+        coefficients = naif_values(path, naif, f"{fn}_FL_TEMP_COEFFS")
         temperature = _number(path, instrument, "Instrument", "FocalPlaneTemperature")
         focal = float(np.polynomial.polynomial.polyval(temperature, coefficients))
     else:
-        focal = float(_key(path, naif, f"{fn}_FOCAL_LENGTH", 1)[0])
+        focal = float(naif_values(path, naif, f"{fn}_FOCAL_LENGTH", 1)[0])
     pixel_binning = int(_number(path, instrument, "Instrument", "PixelBinningMode", 0))
     fpu_binning = int(_number(path, instrument, "Instrument", "FpuBinningMode", 0))
     binning = float(max(pixel_binning, 1))
     start_s = start_l = 0.0
     if fpu_binning == 1:
         # ISIS SetStartingDetectorSample/Line (1-based): CSM's first detector pixel − 1
-        start_s = float(_key(path, naif, f"{ins}_FPUBIN_START_SAMPLE", 1)[0]) - 1.0
-        start_l = float(_key(path, naif, f"{ins}_FPUBIN_START_LINE", 1)[0]) - 1.0
+        start_s = float(naif_values(path, naif, f"{ins}_FPUBIN_START_SAMPLE", 1)[0]) - 1.0
+        start_l = float(naif_values(path, naif, f"{ins}_FPUBIN_START_LINE", 1)[0]) - 1.0
         binning *= 2.0
     distortion = None
     if f"{fn}_OD_T_X" in naif or f"{fn}_OD_T_Y" in naif:
         distortion = Distortion("transverse", np.concatenate(
-            [_key(path, naif, f"{fn}_OD_T_X", 10), _key(path, naif, f"{fn}_OD_T_Y", 10)]), focal)
+            [naif_values(path, naif, f"{fn}_OD_T_X", 10),
+             naif_values(path, naif, f"{fn}_OD_T_Y", 10)]), focal)
     return FrameInterior(
-        focal=focal, itrans_sample=_key(path, naif, f"{fn}_ITRANSS", 3),
-        itrans_line=_key(path, naif, f"{fn}_ITRANSL", 3),
-        center_sample=float(_key(path, naif, f"{ins}_BORESIGHT_SAMPLE", 1)[0]),
-        center_line=float(_key(path, naif, f"{ins}_BORESIGHT_LINE", 1)[0]),
+        focal=focal, itrans_sample=naif_values(path, naif, f"{fn}_ITRANSS", 3),
+        itrans_line=naif_values(path, naif, f"{fn}_ITRANSL", 3),
+        center_sample=float(naif_values(path, naif, f"{ins}_BORESIGHT_SAMPLE", 1)[0]),
+        center_line=float(naif_values(path, naif, f"{ins}_BORESIGHT_LINE", 1)[0]),
         distortion=distortion, start_sample=start_s, start_line=start_l, binning=binning)
 
 
@@ -159,15 +162,15 @@ def _cassis(path: Path, label, naif, code: int) -> FrameInterior:
     ins = f"INS{code}"
     instrument = label["IsisCube"].get("Instrument", {})
     mode = int(_number(path, instrument, "Instrument", "SummingMode", 0))
-    pitch = float(_key(path, naif, f"{ins}_PIXEL_PITCH", 1)[0])
-    half = (0.5 * pitch * float(_key(path, naif, f"{ins}_FILTER_SAMPLES", 1)[0]),
-            0.5 * pitch * float(_key(path, naif, f"{ins}_FILTER_LINES", 1)[0]))
-    terms = [_key(path, naif, f"{ins}_OD_A{i}_CORR", 6) for i in (1, 2, 3)]
-    focal = float(_key(path, naif, f"{ins}_FOCAL_LENGTH", 1)[0])
+    pitch = float(naif_values(path, naif, f"{ins}_PIXEL_PITCH", 1)[0])
+    half = (0.5 * pitch * float(naif_values(path, naif, f"{ins}_FILTER_SAMPLES", 1)[0]),
+            0.5 * pitch * float(naif_values(path, naif, f"{ins}_FILTER_LINES", 1)[0]))
+    terms = [naif_values(path, naif, f"{ins}_OD_A{i}_CORR", 6) for i in (1, 2, 3)]
+    focal = float(naif_values(path, naif, f"{ins}_FOCAL_LENGTH", 1)[0])
     return FrameInterior(
-        focal=focal, itrans_sample=_key(path, naif, f"{ins}_ITRANSS", 3),
-        itrans_line=_key(path, naif, f"{ins}_ITRANSL", 3),
-        center_sample=float(_key(path, naif, f"{ins}_BORESIGHT_SAMPLE", 1)[0]),
-        center_line=float(_key(path, naif, f"{ins}_BORESIGHT_LINE", 1)[0]),
+        focal=focal, itrans_sample=naif_values(path, naif, f"{ins}_ITRANSS", 3),
+        itrans_line=naif_values(path, naif, f"{ins}_ITRANSL", 3),
+        center_sample=float(naif_values(path, naif, f"{ins}_BORESIGHT_SAMPLE", 1)[0]),
+        center_line=float(naif_values(path, naif, f"{ins}_BORESIGHT_LINE", 1)[0]),
         distortion=Distortion("cassis", np.concatenate([half, *terms]), focal),
         binning=float(2 * mode) if mode > 0 else 1.0)

@@ -526,8 +526,11 @@ def interrupt_tiled_sgm(folder: Path, out: Path, signame: str, to_group: bool,
     holding = out.with_name(f"{out.name}.holding")
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2]),
            HOLD_ENV: str(holding)}
+    # SIGINT at its default in the child: a shell runs a background job (CI under `&`,
+    # nohup) with SIGINT ignored, and Python then installs no KeyboardInterrupt handler
     process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                               env=env, start_new_session=True)
+                               env=env, start_new_session=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 240
     while time.time() < deadline and process.poll() is None and not holding.exists():
         time.sleep(0.02)

@@ -13,6 +13,12 @@ from demtool import io as dio
 from demtool.cli import cli
 
 
+def _arrays(path) -> dict[str, np.ndarray]:
+    """Every array of an NPZ file, the file closed (an open one warns when collected)."""
+    with np.load(path, allow_pickle=False) as npz:
+        return {key: npz[key] for key in npz.files}
+
+
 @pytest.mark.slow
 def test_bundle_twice_gives_identical_files(strip_dir, tmp_path):
     """Two runs with two threads (extraction and matching in parallel, mapping on one)
@@ -29,9 +35,9 @@ def test_bundle_twice_gives_identical_files(strip_dir, tmp_path):
                                           "--workers", "2", "--features", "standard"])
         assert result.exit_code == 0, result.output
         outputs.append(out)
-    first, second = (np.load(p, allow_pickle=False) for p in outputs)
-    assert sorted(first.files) == sorted(second.files)
-    for key in first.files:
+    first, second = (_arrays(p) for p in outputs)
+    assert sorted(first) == sorted(second)
+    for key in first:
         np.testing.assert_array_equal(first[key], second[key], err_msg=key)
     assert outputs[0].read_bytes() == outputs[1].read_bytes()
     sidecar = json.loads((tmp_path / "first.npz.json").read_text())

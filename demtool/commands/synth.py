@@ -27,9 +27,11 @@ pair's common footprint; linescan renders two views and writes no cameras.npz.""
 @click.option("--sensor-model", "sensor_models", nargs=2, default=None,
               type=click.Path(exists=True, dir_okay=False),
               help="Two real frame or line-scan models (ISD, ISIS cube…): the terrain is "
-                   "placed under their common footprint and rendered through --image-size "
-                   "windows of them; the DEM spacing, size and --gsd are chosen from the "
-                   "windows' GSD.")
+                   "placed under their common footprint and rendered through windows of "
+                   "them, --image-lines × --image-size px centred on it (moved inside "
+                   "the image where they would leave it: a full-width window); the DEM "
+                   "spacing (half the finer GSD, coarser where the DEM would pass 4096 "
+                   "cells a side), size and --gsd are chosen from the windows' GSD.")
 @click.pass_context
 def command(ctx: click.Context, out: str, no_craters: bool, sensor_models, **values: Any
             ) -> None:

@@ -33,7 +33,8 @@ class SceneParams(Parameters):
         ``albedo_correlation_m`` (low frequency).
     Cameras
         ``n_views`` square images of ``image_size`` pixels at ``altitude_m`` above the
-        mean surface; target ground sampling distance ``gsd_m`` (focal length
+        mean surface (line-scan views and ``--sensor-model`` windows: ``image_lines``
+        lines of ``image_size`` samples); target ground sampling distance ``gsd_m`` (focal length
         altitude/gsd in pixels); partner B/H ``partner_bh``; other views from
         ``bh_min`` to ``bh_max``.
     Sensor models and body
@@ -87,6 +88,9 @@ class SceneParams(Parameters):
     n_views: int = parameter(8, "Number of views (target, partner, others).", option="views",
                              minimum=2, maximum=99)
     image_size: int = parameter(512, "Image width and height, pixels.", minimum=16)
+    image_lines: int = parameter(
+        0, "Image height of line-scan views (--sensor linescan) and of --sensor-model "
+        "windows, lines (0: --image-size).", minimum=0)
     altitude_m: float = parameter(1000.0, "Camera height above the mean surface, metres.",
                                   option="altitude", minimum=0, min_open=True)
     gsd_m: float = parameter(0.5, "Target ground sampling distance, metres/pixel.",
@@ -141,6 +145,11 @@ class SceneParams(Parameters):
     bit_depth: int = parameter(12, "Bits per pixel of the quantised images.", minimum=1,
                                maximum=16, cli=False)
 
+    @property
+    def lines(self) -> int:
+        """Lines of a line-scan view or a ``--sensor-model`` window."""
+        return self.image_lines or self.image_size
+
     def check(self) -> None:
         """Raise ParameterError (naming the option) for values that cannot make a scene."""
         super().check()
@@ -149,6 +158,11 @@ class SceneParams(Parameters):
                       f"must not be smaller than {self.label('crater_min_diameter_m')}")
         if self.bh_max < self.bh_min:
             self.fail("bh_max", f"must not be smaller than {self.label('bh_min')}")
+        if self.image_lines and self.sensor == "pinhole":
+            self.fail("image_lines", "is for line-scan views (--sensor linescan) and "
+                      "--sensor-model windows; pinhole views are square (--image-size)")
+        if self.image_lines and 0 < self.image_lines < 16:
+            self.fail("image_lines", f"must be 0 or at least 16, got {self.image_lines}")
         for name in ("cx_offset_px", "cy_offset_px"):
             if not abs(getattr(self, name)) < 0.5 * self.image_size:
                 self.fail(name, f"must lie inside the image (|value| < image size / 2), got "

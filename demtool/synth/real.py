@@ -8,12 +8,17 @@ that a DEM made from the pair can be compared with the truth on the map.
 
 - the scene centre is the centre of the two footprints' intersection
   (:func:`demtool.camera.info.pair_geometry`), on the body's reference sphere;
-- each model is cut to a window of ``image_size`` × ``image_size`` pixels centred on the
-  image of the scene centre (:func:`window`: the same camera with its detector origin
-  and line timing shifted; the windows' origins are logged, and the windows' ISDs are
-  written beside the images);
+- each model is cut to a window of ``image_lines`` × ``image_size`` pixels (lines ×
+  samples; ``image_lines`` 0: square) centred on the image of the scene centre, or
+  moved inside the image where a centred window would leave it (a full-width window)
+  (:func:`window`: the same camera with its detector origin and line timing shifted;
+  the windows' origins are logged, and the windows' ISDs are written beside the
+  images);
 - the DEM cell is half the finer window's ground sampling distance and the DEM 15 %
   larger than both windows' reach on the sphere, plus the renderer's margin (logged);
+  windows that would need more than :data:`MAX_DEM_SIZE` cells a side get coarser
+  cells instead (a full NAC width of 12 000 lines: about 3.7 pixels a cell), so
+  the terrain is smoother than the images' pixels there;
   ``--gsd`` becomes the coarser window's GSD, the spacing of ``truth_dem_map.tif``.
 
 Push-frame windows hold whole framelets (their line count rounded to the framelet
@@ -103,6 +108,22 @@ def _pushframe_window(model, line0: int, detector, lines: int, samples: int):
 #: 50 km orbit converges 0.1° and still measures relief on a synthetic scene.
 MIN_CONVERGENCE_DEG = 0.01
 
+#: the largest DEM side (cells) of a ``--sensor-model`` scene: 4096² cells keep the
+#: terrain, its gradients and the albedo (about 60 bytes a cell) near 1 GB.  Windows
+#: that need more at half the finer GSD get coarser cells (logged, ``dem_spacing_m``
+#: and ``dem_cell_pixels`` in ``scene.json``).
+MAX_DEM_SIZE = 4096
+
+
+def _inside(start: int, length: int, total: int, step: int) -> int:
+    """``start`` moved (by whole ``step``s) so that ``start … start + length`` fits in
+    ``0 … total`` (``length ≤ total``)."""
+    if start < 0:
+        return 0
+    if start + length > total:
+        return ((total - length) // step) * step
+    return start
+
 
 def real_pair(paths, params) -> tuple[Any, dict[str, Any], Any, dict[str, Any]]:
     """Read two models, place the scene under their common footprint and cut windows.
@@ -150,26 +171,31 @@ def real_pair(paths, params) -> tuple[Any, dict[str, Any], Any, dict[str, Any]]:
     lon, lat = pair["overlap_center_lon_deg"], pair["overlap_center_lat_deg"]
     place = placement(body, lon, lat)
     centre = body.radius * unit_vector(lon, lat)
-    size = int(params.image_size)
+    size, lines = int(params.image_size), int(params.lines)
     sensors, description, gsds = {}, {}, []
     for index, (path, model) in enumerate(zip(paths, models, strict=True)):
         line, sample = (float(v) for v in model.ground_to_image(centre))
         if not (np.isfinite(line) and np.isfinite(sample)):
             raise InputError(f"{path}: the scene centre ({lon:.5f}°E, {lat:.5f}°) does not "
                              "project into the image")
-        line0 = int(round(line - 0.5 * size))
+        line0 = int(round(line - 0.5 * lines))
+        size_lines = lines
         if model.kind == "pushframe":  # whole framelets
             h = model.summed_height
-            line0 = int(round((line - 0.5 * size) / h)) * h
-            size_lines = max(h, int(round(size / h)) * h)
-        else:
-            size_lines = size
+            line0 = int(round((line - 0.5 * lines) / h)) * h
+            size_lines = max(h, int(round(lines / h)) * h)
         sample0 = int(round(sample - 0.5 * size))
-        if (line0 < 0 or sample0 < 0 or line0 + size_lines > model.lines
-                or sample0 + size > model.samples):
-            raise InputError(f"{path}: a {size} px window centred on the scene centre (line "
+        if size_lines > model.lines or size > model.samples:
+            what = f"{size} px" if size_lines == size else f"{size_lines} x {size} px"
+            raise InputError(f"{path}: a {what} window centred on the scene centre (line "
                              f"{line:.0f}, sample {sample:.0f}) leaves the {model.lines} x "
-                             f"{model.samples} px image; give a smaller --image-size")
+                             f"{model.samples} px image; give a smaller --image-size"
+                             f"{' or --image-lines' if size_lines != size else ''}")
+        # a window that would leave the image is moved inside it (a full-width window
+        # of a line scanner, the scene centre a pixel off the image's middle column)
+        step = model.summed_height if model.kind == "pushframe" else 1
+        line0 = _inside(line0, size_lines, model.lines, step)
+        sample0 = _inside(sample0, size, model.samples, 1)
         name = f"view_{index:02d}"
         try:
             cut = window(model, line0, sample0, size_lines, size)
@@ -186,16 +212,18 @@ def real_pair(paths, params) -> tuple[Any, dict[str, Any], Any, dict[str, Any]]:
     from demtool.synth.scene import FOOTPRINT_MARGIN
 
     # 15 % beyond the windows' reach on the sphere: oblique views see further over relief
-    dem_size = int(math.ceil(2.3 * reach / (spacing * (1.0 - 2.0 * FOOTPRINT_MARGIN)))) + 8
-    if dem_size > 4096:
-        raise InputError(f"the windows need a {dem_size} x {dem_size} DEM at {spacing:.3g} m "
-                         "(half the finer GSD): give a smaller --image-size")
+    side_m = 2.3 * reach / (1.0 - 2.0 * FOOTPRINT_MARGIN)
+    if int(math.ceil(side_m / spacing)) + 8 > MAX_DEM_SIZE:
+        # large windows: coarser cells keep the DEM (and the renderer's memory) bounded
+        spacing = side_m / (MAX_DEM_SIZE - 8)
+    dem_size = int(math.ceil(side_m / spacing)) + 8
     params = dataclasses.replace(params, spacing_m=spacing, dem_size=dem_size,
                                  gsd_m=max(gsds),
                                  sensor="frame" if models[0].kind == "frame" else "linescan",
                                  center_lon_deg=lon, center_lat_deg=lat)
     description.update(center_lon_deg=lon, center_lat_deg=lat, dem_spacing_m=spacing,
-                       dem_size=dem_size, convergence_deg=pair.get("convergence_deg"))
+                       dem_size=dem_size, convergence_deg=pair.get("convergence_deg"),
+                       dem_cell_pixels=spacing / min(gsds))
     return place, sensors, params, description
 
 

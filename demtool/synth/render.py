@@ -31,6 +31,7 @@ REFINE_TOLERANCE_M = 1e-9  # clearance (vertical metres) or bracket length at th
 SHADOW_BLOCK_CELLS = 8  # sun rays skip blocks of this many cells whose top they clear
 SHADOW_EPSILON_M = 1e-4  # terrain must rise this far above a sun ray to cast a shadow
 RAY_BLOCK_ROWS = 64  # image rows (× 512 pixels of a list) per image_to_ray call
+BLOCK_PIXELS = 1 << 21  # pixels of one block of rows rendered at once (row_blocks)
 
 
 class HeightField(NamedTuple):
@@ -341,8 +342,8 @@ def intersect_rays(field: HeightField, origins: np.ndarray, directions: np.ndarr
     return o + t[:, None] * d
 
 
-def pixel_rays(camera: SensorModel, *, placement=None, pixels: np.ndarray | None = None
-               ) -> tuple[np.ndarray, np.ndarray]:
+def pixel_rays(camera: SensorModel, *, placement=None, pixels: np.ndarray | None = None,
+               rows: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Rays of a sensor model's pixels in the scene's local frame, through the interface.
 
     Parameters
@@ -357,14 +358,19 @@ def pixel_rays(camera: SensorModel, *, placement=None, pixels: np.ndarray | None
     pixels : (N, 2) float, optional
         Pixel positions (u, v) = (column, row) of the pixel centres; default every pixel
         of the image, row by row.
+    rows : (first, stop), optional
+        Only the image rows ``first … stop − 1`` (every pixel of them), when
+        ``pixels`` is None.
 
     Returns
     -------
-    origins, directions : (h, w, 3) (every pixel) or (N, 3) float64
+    origins, directions : (h, w, 3) (every pixel; h = stop − first with ``rows``) or
+        (N, 3) float64
         Local frame, metres; directions unit vectors.
     """
     if pixels is None:
-        rows, cols = np.meshgrid(np.arange(camera.lines, dtype=np.float64),
+        first, stop = (0, camera.lines) if rows is None else rows
+        rows, cols = np.meshgrid(np.arange(first, stop, dtype=np.float64),
                                  np.arange(camera.samples, dtype=np.float64), indexing="ij")
     else:
         uv = np.atleast_2d(np.asarray(pixels, dtype=np.float64))
@@ -421,7 +427,8 @@ class ViewGeometry(NamedTuple):
 
 
 def view_geometry(field: HeightField, albedo: np.ndarray, camera: SensorModel,
-                  sun_vector: np.ndarray, *, placement=None) -> ViewGeometry:
+                  sun_vector: np.ndarray, *, placement=None,
+                  rows: tuple[int, int] | None = None) -> ViewGeometry:
     """Cast every pixel's ray of ``camera`` onto the height field and shade-prepare it.
 
     The rays come from the sensor model's interface (:func:`pixel_rays`), so a pinhole,
@@ -440,8 +447,11 @@ def view_geometry(field: HeightField, albedo: np.ndarray, camera: SensorModel,
         Unit vector toward the sun, local frame.
     placement : demtool.synth.body.Placement, optional
         The local frame on the body, for body-fixed models.
+    rows : (first, stop), optional
+        Only image rows ``first … stop − 1`` (the arrays are then stop − first rows
+        high): large images are rendered in blocks of rows (:func:`row_blocks`).
     """
-    origins, directions = pixel_rays(camera, placement=placement)
+    origins, directions = pixel_rays(camera, placement=placement, rows=rows)
     sun = np.asarray(sun_vector, dtype=np.float64)
     sun = sun / np.linalg.norm(sun)
     axis = getattr(camera, "axis", None) if placement is None else None  # a pinhole's z
@@ -455,6 +465,17 @@ def view_geometry(field: HeightField, albedo: np.ndarray, camera: SensorModel,
         np.ascontiguousarray(albedo, dtype=np.float64), field.x_first, field.y_first,
         field.spacing, field.z_min, field.z_max, sun)
     return ViewGeometry(*result)
+
+
+def row_blocks(lines: int, samples: int, pixels: int = BLOCK_PIXELS) -> list[tuple[int, int]]:
+    """Row ranges ``(first, stop)`` of about ``pixels`` pixels each covering ``lines`` rows
+    (one block for an image of up to ``pixels`` pixels).
+
+    A block's per-pixel geometry takes about 150 bytes a pixel (rays, hits, angles):
+    ``BLOCK_PIXELS`` = 2²¹ keeps it near 300 MB whatever the image size.
+    """
+    step = max(1, pixels // max(1, samples))
+    return [(first, min(first + step, lines)) for first in range(0, lines, step)]
 
 
 def reflectance(geometry: ViewGeometry) -> np.ndarray:

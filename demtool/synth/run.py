@@ -156,14 +156,16 @@ def run_synth(out: str | os.PathLike, params: SceneParams | None = None, *,
     run = StageRun("synth", params, resolved=resolved, folders={"--out": out})
     if real is not None:
         run.log.info("scene at %.5f°E %.5f° under the pair's common footprint; DEM %d × %d "
-                     "at %.3g m (half the finer GSD); windows %s", windows["center_lon_deg"],
+                     "at %.3g m (cells of %.2f pixels of the finer GSD); windows %s",
+                     windows["center_lon_deg"],
                      windows["center_lat_deg"], params.dem_size, params.dem_size,
-                     params.spacing_m, ", ".join(
+                     params.spacing_m, windows["dem_cell_pixels"], ", ".join(
                          f"{n}: {w['model']} from line {w['window_line0']}, sample "
                          f"{w['window_sample0']} ({w['gsd_m']:.3g} m/px)"
                          for n, w in windows.items() if n.startswith("view_")))
     run.log.info("rendering %d views of %d × %d px over a %d × %d DEM (%.2f m cells), "
-                 "seed %d", 2 if real else params.n_views, params.image_size,
+                 "seed %d", 2 if real else params.n_views,
+                 params.lines if real or params.sensor == "linescan" else params.image_size,
                  params.image_size, params.dem_size, params.dem_size, params.spacing_m,
                  params.seed)
     scene = make_scene(params, sensor_models=real)

@@ -224,7 +224,7 @@ def make_sensors(params: SceneParams, cameras: dict[str, PinholeCamera], sun: np
     half = 0.5 * params.convergence_deg
     return place, {view_name(i): synth_sensors.linescan_sensor(
         place, off_nadir_deg=roll, altitude_m=params.altitude_m, gsd_m=params.gsd_m,
-        ground_speed_m_s=params.ground_speed_m_s, lines=params.image_size,
+        ground_speed_m_s=params.ground_speed_m_s, lines=params.lines,
         samples=params.image_size, sun_position=sun_position, name=view_name(i))
         for i, roll in enumerate((-half, half))}
 
@@ -262,6 +262,43 @@ def make_terrain(params: SceneParams) -> tuple[np.ndarray, np.ndarray]:
     return dem, albedo
 
 
+def render_view(field, albedo: np.ndarray, camera, sun: np.ndarray, *, placement, name: str,
+                params: SceneParams, dn_per_reflectance: float, rng: np.random.Generator,
+                heights: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, Any]:
+    """Render one view in blocks of rows (:func:`demtool.synth.render.row_blocks`).
+
+    Returns the image ((h, w) float32 DN), the depth ((h, w) float64), the shadow mask
+    ((h, w) bool) and, when ``heights``, the world Z of the hits ((h, w) float32; else
+    None).  An image of one block is exposed in one draw of ``rng``; larger ones draw
+    block after block (the same seed gives the same image).
+
+    Raises
+    ------
+    ParameterError
+        Rays that miss the DEM (excluded by :func:`check_footprints`; a safeguard).
+    """
+    lines, samples = camera.lines, camera.samples
+    image = np.empty((lines, samples), dtype=np.float32)
+    depth = np.empty((lines, samples))
+    shadow = np.empty((lines, samples), dtype=bool)
+    hit_z = np.empty((lines, samples), dtype=np.float32) if heights else None
+    for first, stop in render.row_blocks(lines, samples):
+        geometry = render.view_geometry(field, albedo, camera, sun, placement=placement,
+                                        rows=(first, stop))
+        if np.isnan(geometry.depth).any():
+            raise ParameterError(f"{name}: {int(np.isnan(geometry.depth).sum())} rays miss "
+                                 f"the DEM; enlarge dem_size")
+        image[first:stop] = render.expose(
+            render.reflectance(geometry), dn_per_reflectance=dn_per_reflectance,
+            gain_e_per_dn=params.gain_e_per_dn, read_noise_dn=params.read_noise_dn,
+            bit_depth=params.bit_depth, noise=params.noise, rng=rng)
+        depth[first:stop] = geometry.depth
+        shadow[first:stop] = geometry.shadow
+        if hit_z is not None:
+            hit_z[first:stop] = geometry.hit[:, :, 2]
+    return image, depth, shadow, hit_z
+
+
 def make_scene(params: SceneParams | None = None, *, dem: np.ndarray | None = None,
                albedo: np.ndarray | None = None, sensor_models=None) -> Scene:
     """Build and render a synthetic scene.
@@ -293,7 +330,8 @@ def make_scene(params: SceneParams | None = None, *, dem: np.ndarray | None = No
     params.check()
     started = time.perf_counter()
     timings: dict[str, float] = {}
-    generated_dem, generated_albedo = make_terrain(params)
+    generated_dem, generated_albedo = make_terrain(params) if dem is None or albedo is None \
+        else (None, None)
     shape = (params.dem_size, params.dem_size)
     for name, given in (("dem", dem), ("albedo", albedo)):
         if given is not None and np.shape(given) != shape:
@@ -302,6 +340,7 @@ def make_scene(params: SceneParams | None = None, *, dem: np.ndarray | None = No
     # Render from the float32 values that are written to disk, so files and images agree.
     dem = (generated_dem if dem is None else np.asarray(dem)).astype(np.float32)
     albedo = (generated_albedo if albedo is None else np.asarray(albedo)).astype(np.float32)
+    del generated_dem, generated_albedo
     transform = dem_transform(params)
     field = render.height_field(dem.astype(np.float64), transform)
     timings["terrain"] = time.perf_counter() - started
@@ -321,25 +360,19 @@ def make_scene(params: SceneParams | None = None, *, dem: np.ndarray | None = No
     noise_seeds = np.random.SeedSequence([params.seed, 1]).spawn(len(views))
     images, depths, shadows = {}, {}, {}
     truth_target = None
+    albedo64 = albedo.astype(np.float64)
     for index, (name, camera) in enumerate(views.items()):
         step_start = time.perf_counter()
-        geometry = render.view_geometry(field, albedo.astype(np.float64), camera, sun,
-                                        placement=place)
-        if np.isnan(geometry.depth).any():  # excluded by check_footprints; a safeguard
-            raise ParameterError(f"{name}: {int(np.isnan(geometry.depth).sum())} rays miss "
-                                 f"the DEM; enlarge dem_size")
-        images[name] = render.expose(
-            render.reflectance(geometry), dn_per_reflectance=dn_scale,
-            gain_e_per_dn=params.gain_e_per_dn, read_noise_dn=params.read_noise_dn,
-            bit_depth=params.bit_depth, noise=params.noise,
-            rng=np.random.default_rng(noise_seeds[index]))
-        depths[name] = geometry.depth
-        shadows[name] = geometry.shadow
+        image, depth, shadow, heights = render_view(
+            field, albedo64, camera, sun, placement=place, name=name, params=params,
+            dn_per_reflectance=dn_scale, rng=np.random.default_rng(noise_seeds[index]),
+            heights=index == 0)
+        images[name], depths[name], shadows[name] = image, depth, shadow
         if index == 0:
-            truth_target = geometry.hit[:, :, 2].astype(np.float32)
+            truth_target = heights
         timings[name] = time.perf_counter() - step_start
         log.info("%s rendered in %.2f s (%.1f %% in shadow)", name, timings[name],
-                  100.0 * geometry.shadow.mean())
+                 100.0 * shadow.mean())
     names = tuple(views)
     return Scene(params=params, dem=dem, dem_transform=transform,
                  albedo=albedo, names=names, target=names[0],

@@ -118,3 +118,43 @@ def test_synth_refuses_one_model_twice(tmp_path):
                                          r"does \(convergence 0°"):
         run_synth(tmp_path / "o", SceneParams(image_size=64), sensor_models=(left, left))
     assert not (tmp_path / "o").exists()
+
+
+def test_windows_of_lines_by_samples_moved_inside_with_a_bounded_dem(tmp_path, monkeypatch):
+    """Issue 47: --image-lines × --image-size windows; a full-width window is moved inside
+    the image; a DEM that would pass MAX_DEM_SIZE gets coarser cells; the truth map's
+    lattice shortcut marks the same cells as projecting every cell."""
+    from demtool.synth import SceneParams, maptruth, real, render
+    from demtool.synth.run import run_synth
+
+    paths = _pair(tmp_path)  # 600 x 400 px, the two centres 91 m apart across track
+    monkeypatch.setattr(real, "MAX_DEM_SIZE", 200)
+    out = tmp_path / "scene"
+    scene = run_synth(out, SceneParams(image_size=400, image_lines=96, crater_count=5,
+                                       boulder_count=0), sensor_models=tuple(paths))
+    for name in scene.names:
+        assert read_sensor(out / f"{name}.json").image_size == (96, 400)
+        # the common footprint's centre is off both middle columns: windows moved inside
+        line, sample = scene.sensors[name].ground_to_image(scene.placement.origin)
+        assert abs(line - 48) <= 1.0 and abs(sample - 200) > 10
+    assert scene.params.dem_size <= 200
+    assert scene.params.spacing_m > 0.6  # coarser than half the ~1 m GSD
+    # rendering in blocks of rows gives the rows of the whole rendering
+    field = render.height_field(scene.dem.astype(np.float64), scene.dem_transform)
+    camera = scene.sensors["view_01"]
+    whole = render.view_geometry(field, scene.albedo.astype(np.float64), camera,
+                                 scene.sun_vector, placement=scene.placement)
+    part = render.view_geometry(field, scene.albedo.astype(np.float64), camera,
+                                scene.sun_vector, placement=scene.placement, rows=(40, 57))
+    np.testing.assert_array_equal(part.depth, whole.depth[40:57])
+    assert render.row_blocks(96, 400, pixels=4000) == [(0, 10), (10, 20), (20, 30), (30, 40),
+                                                       (40, 50), (50, 60), (60, 70), (70, 80),
+                                                       (80, 90), (90, 96)]
+    models = [scene.sensors[n] for n in scene.names]
+    exact = maptruth.truth_map(field, scene.placement, models, scene.gsd_m)
+    monkeypatch.setattr(maptruth, "LATTICE_MIN_CELLS", 0)
+    monkeypatch.setattr(maptruth, "BLOCK_CELLS", 5000)
+    fast = maptruth.truth_map(field, scene.placement, models, scene.gsd_m)
+    assert fast.grid == exact.grid
+    np.testing.assert_array_equal(np.isnan(fast.heights), np.isnan(exact.heights))
+    np.testing.assert_allclose(fast.heights, exact.heights, atol=1e-4)

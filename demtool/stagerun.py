@@ -13,8 +13,9 @@ declaration (:meth:`StageRun.transaction`).
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
-from contextlib import AbstractContextManager
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -75,6 +76,8 @@ class StageRun:
         Started now (its clock times the run).
     log : logging.Logger
         The stage's logger, ``demtool.<stage>``.
+    timings : dict of str to float
+        Seconds per phase timed by :meth:`phase` (for the sidecar's ``timings_s``).
 
     Raises
     ------
@@ -103,6 +106,20 @@ class StageRun:
         self.folders = {k: _paths(v) for k, v in folders.items() if v is not None}
         self.check_outputs()
         self.provenance = Provenance(stage, resolved or params.as_dict(), self.input_paths())
+        self.timings: dict[str, float] = {}
+
+    @contextmanager
+    def phase(self, name: str) -> Iterator[None]:
+        """Time a phase of the run: ``timings[name]`` wall seconds and
+        ``timings[name + "_cpu"]`` CPU seconds of the whole process (every thread), so
+        CPU ÷ wall is the cores the phase kept busy.  A phase timed twice adds up."""
+        wall, cpu = time.perf_counter(), time.process_time()
+        try:
+            yield
+        finally:
+            for key, value in ((name, time.perf_counter() - wall),
+                               (f"{name}_cpu", time.process_time() - cpu)):
+                self.timings[key] = round(self.timings.get(key, 0.0) + value, 3)
 
     def input_paths(self) -> list[Path]:
         """Every input path, in declaration order."""

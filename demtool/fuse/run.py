@@ -118,7 +118,10 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
         in metres and in its own and the reference's pixels — ``shift_m``,
         ``shift_uncertainty_m``, ``shift_input_px`` of
         :func:`demtool.compare.shift_units.shift_in_units` —,
-        consensus NMAD and whether it was used), ``cells``, ``rejected_fraction``.
+        consensus NMAD and whether it was used), ``cells``, ``rejected_fraction``,
+        ``strips`` (row strips the grid was computed in, on threads) and ``timings_s``
+        (wall and CPU seconds per phase: ``coregister``, ``consensus``, ``combine``,
+        ``write``).
 
     Raises
     ------
@@ -128,10 +131,16 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
         left out by ``--max-nmad``.
     """
     from demtool import io as dio
-    from demtool.errors import InputError, ParameterError, ProcessingError
+    from demtool.errors import DemtoolError, InputError, ParameterError, ProcessingError
     from demtool.fuse.core import consensus_nmad, estimate_shift, stack_nmad
     from demtool.fuse.params import FuseParams
-    from demtool.fuse.tiled import FuseTileJob, fuse_tiled, sample_on_grid, single_tile
+    from demtool.fuse.tiled import (
+        FuseTileJob,
+        fuse_tiled,
+        on_threads,
+        sample_on_grid,
+        single_tile,
+    )
     from demtool.tiling import wants_tiles
 
     params = params or FuseParams()
@@ -198,30 +207,49 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
                          "grid; fuse DEMs of one area")
     shifts, records = [], []
     failed: set[int] = set()  # left out: co-registration failed (with --max-nmad)
+
+    def align(i: int) -> tuple[dict[str, Any] | Exception, int]:
+        """DEM i's alignment to the reference, or the error that stops the run (a reading
+        error, wrapped in RuntimeError) or leaves the DEM out (ProcessingError of the
+        co-registration); and the factor of the co-registration grid."""
+        grid, window, factor = coreg_grid(target, centred(overlaps[i], params.coreg_size),
+                                           (spacing_of(specs[i]), spacing_of(ref_spec)),
+                                           params.coreg_size)
+        try:
+            dem = sample_on_grid(dem_paths[i], specs[i], grid, window)
+            ref = sample_on_grid(ref_path, ref_spec, grid, window, what="reference DEM")
+        except DemtoolError as exc:  # raised in the DEMs' order below
+            return RuntimeError(exc), factor
+        try:
+            return estimate_shift(dem, ref, method=params.align,
+                                  spacing=tuple(v / factor for v in spacing),
+                                  label=str(dem_paths[i])), factor
+        except ProcessingError as exc:
+            return exc, factor
+
+    to_align = [i for i, p in enumerate(dem_paths) if not (p == ref_path and not reference)]
+    overlaps = {i: intersect(windows[i], ref_window) for i in to_align}
+    for i, path in ((i, dem_paths[i]) for i in to_align):
+        if overlaps[i] is None:
+            raise InputError(f"{path}: no common overlap with the reference "
+                             f"{ref_path}; fuse DEMs of one area")
+    with run.phase("coregister"):
+        aligned = dict(zip(to_align, on_threads(align, to_align), strict=True))
     for i, path in enumerate(dem_paths):
         record: dict[str, Any] = {"dem": str(path), "error": None if error_paths[i] is None
                                   else str(error_paths[i])}
-        if path == ref_path and not reference:
+        if i not in aligned:
             zero = {"dx_px": 0.0, "dy_px": 0.0, "dz": 0.0}
             record["alignment"] = {"method": "reference", "shift": zero,
                                    **_shift_units(zero, zero, target, specs[i], ref_spec)}
             shifts.append((0.0, 0.0, 0.0))
             records.append(record)
             continue
-        common = intersect(windows[i], ref_window)
-        if common is None:
-            raise InputError(f"{path}: no common overlap with the reference {ref_path}; "
-                             "fuse DEMs of one area")
-        grid, window, factor = coreg_grid(target, centred(common, params.coreg_size),
-                                           (spacing_of(specs[i]), spacing_of(ref_spec)),
-                                           params.coreg_size)
-        dem = sample_on_grid(path, specs[i], grid, window)
-        ref = sample_on_grid(ref_path, ref_spec, grid, window, what="reference DEM")
-        try:
-            alignment = estimate_shift(dem, ref, method=params.align,
-                                       spacing=tuple(v / factor for v in spacing),
-                                       label=str(path))
-        except ProcessingError as exc:
+        alignment, factor = aligned[i]
+        if isinstance(alignment, RuntimeError):
+            raise alignment.args[0]
+        if isinstance(alignment, ProcessingError):
+            exc = alignment
             reason = str(exc).replace("the reference", f"the reference {ref_path}")
             if not reason.startswith(f"{path}:"):
                 reason = (f"{path}: co-registration to the reference {ref_path} failed: "
@@ -268,13 +296,15 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
     scale_floor = 0.0
     if len(dem_paths) >= 2:
         window = centred(ref_window, params.coreg_size)
-        stack = np.stack([sample_on_grid(p, specs[i], target, window, shifts[i])
-                          for i, p in enumerate(dem_paths)])
-        stack[sorted(failed)] = np.nan
-        nmads = consensus_nmad(stack)
-        nmads[sorted(failed)] = np.inf
+        with run.phase("consensus"):
+            stack = np.stack(on_threads(lambda i: sample_on_grid(
+                dem_paths[i], specs[i], target, window, shifts[i]), range(len(dem_paths))))
+            stack[sorted(failed)] = np.nan
+            nmads = consensus_nmad(stack)
+            nmads[sorted(failed)] = np.inf
+            if params.method == "huber":
+                scale_floor = stack_nmad(stack)
         if params.method == "huber":
-            scale_floor = stack_nmad(stack)
             log.info("Huber scale: at least %.3f m (NMAD of the heights against their "
                      "cell's median over the reference's window)", scale_floor)
         for i, value in enumerate(nmads):
@@ -324,10 +354,13 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
                for band, name in enumerate(("dem", "count", "spread", "error"))]
     inputs = [*job.dems, *(e for e in job.errors if e)]
     tile_size = wants_tiles(*target.shape, params)
+    summary["timings_s"] = run.timings
     if tile_size:
         result = fuse_tiled(run, job, tile_size, params, outputs, inputs, summary)
         return {**result.summary, "dry_run": result.dry_run}
-    bands, info = job.compute(single_tile(target.shape), 0)
+    with run.phase("combine"):  # sampling, border weights and combination, in row strips
+        bands, info = job.compute(single_tile(target.shape), 0)
+    summary["strips"] = info["strips"]
     if info["cells"] == 0:
         raise ProcessingError("the fused DEM has no cell with a height")
     summary["cells"] = info["cells"]
@@ -336,8 +369,9 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
     log.info("fused %d DEM(s) into %d cells (%.2f %% of the values rejected as outliers)",
              len(used), info["cells"], 100 * summary["rejected_fraction"])
     with run.transaction():
-        for (path, band, name, tags) in outputs:
-            dio.write_raster(path, bands[band], transform=target.affine(), crs=target.crs(),
-                             tags=tags, band_names=[name])
+        with run.phase("write"):
+            for (path, band, name, tags) in outputs:
+                dio.write_raster(path, bands[band], transform=target.affine(),
+                                 crs=target.crs(), tags=tags, band_names=[name])
         prov.write_sidecar(paths["dem"], summary, outputs=[o[0] for o in outputs])
     return summary

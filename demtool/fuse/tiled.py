@@ -10,6 +10,13 @@ border weights depend on the cells within ``--blend`` of a cell, so a margin of
 the untiled run (which is this job on one tile covering the grid).  Peak memory is one
 tile's outer window × (DEMs × ~8 float64 arrays) per worker, never the grid; 2 workers
 on two 8192² DEMs: bench/fuse_memory.py.
+
+Inside one tile (the untiled run's single tile included) the work runs on every core the
+tile may use (:func:`demtool.tiling.distributed.usable_threads`): a tile of at least
+:data:`THREADED_CELLS` cells is cut into row strips, each with the same margin, computed on
+a pool of threads (numpy, scipy's distance transform, GDAL's reads and the compiled
+sampler release the GIL) and stacked; by the margin argument above the strips give the
+tile's numbers to the last bit.  A smaller tile (the demo's) runs as one strip.
 """
 
 from __future__ import annotations
@@ -17,7 +24,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,6 +34,10 @@ from demtool.tiling import Tile, plan_tiles, read_window
 
 PROCESS_BYTES = 200 * 2**20  # a worker process with numpy, numba, scipy and rasterio
 BYTES_PER_CELL_PER_DEM = 80  # values, weights, errors, EDT, sampling coordinates (float64)
+#: A tile's core with fewer cells runs in one thread: below this the strips' margins and
+#: the pool cost more than the second core saves (the demo's 512² grids).
+THREADED_CELLS = 1 << 20
+STRIPS_PER_THREAD = 1  # strips per thread (each strip recomputes its margins)
 
 
 @dataclass(frozen=True)
@@ -134,9 +145,23 @@ class FuseTileJob:
     bands: tuple[str, ...] = ("dem", "count", "spread", "error")
 
     def compute(self, tile: Tile, threads: int) -> tuple[np.ndarray, dict[str, Any]]:
-        from demtool.fuse.core import border_weights, combine
+        """Fuse ``tile``'s core: ``(4, rows, cols)`` float32 bands and counts; in row
+        strips on threads where the tile is large (see the module docstring)."""
+        from demtool.tiling.distributed import usable_threads
 
         start, cpu = time.perf_counter(), time.process_time()
+        strips = row_strips(tile, self.target.shape, exact_margin(self.blend, self.gap),
+                            usable_threads())
+        parts = on_threads(self._compute_strip, strips)
+        bands = np.concatenate([p[0] for p in parts], axis=1)
+        info = {key: sum(p[1][key] for p in parts) for key in ("cells", "kept", "offered")}
+        info.update({"strips": len(strips), "seconds": time.perf_counter() - start,
+                     "cpu_seconds": time.process_time() - cpu})
+        return bands, info
+
+    def _compute_strip(self, tile: Tile) -> tuple[np.ndarray, dict[str, Any]]:
+        from demtool.fuse.core import border_weights, combine
+
         values, weights, errors = [], [], []
         use_errors = all(e is not None for e in self.errors)
         for i, path in enumerate(self.dems):
@@ -156,9 +181,7 @@ class FuseTileJob:
                          outlier_k=self.outlier_k, min_error=self.min_error,
                          scale_floor=self.scale_floor)
         count = result.count
-        info = {"seconds": time.perf_counter() - start,
-                "cpu_seconds": time.process_time() - cpu,
-                "cells": int(np.count_nonzero(count > 0)),
+        info = {"cells": int(np.count_nonzero(count > 0)),
                 "kept": float(count.sum()),
                 "offered": float(sum(np.count_nonzero(np.isfinite(v)) for v in values))}
         return np.stack([result.dem, result.count, result.spread, result.error]), info
@@ -168,12 +191,75 @@ class FuseTileJob:
         return PROCESS_BYTES + BYTES_PER_CELL_PER_DEM * h * w * len(self.dems)
 
 
+def exact_margin(blend: float, gap: float) -> int:
+    """The border weights' reach, cells (blending length plus the gap closing's two
+    passes) plus two: a tile or strip with this margin gives the untiled numbers."""
+    return int(math.ceil(blend + 2 * gap)) + 2
+
+
 def margin(params: Any) -> int:
-    """The margin of a fuse tile, cells: the border weights' reach (blending length plus
-    the gap closing's two passes) plus two."""
+    """The margin of a fuse tile, cells: ``--tile-overlap``, or :func:`exact_margin`."""
     if params.tile_overlap is not None:
         return int(params.tile_overlap)
-    return int(math.ceil(params.blend + 2 * params.gap)) + 2
+    return exact_margin(params.blend, params.gap)
+
+
+def kernels_run_concurrently() -> bool:
+    """Whether numba's threading layer takes parallel kernels launched from several
+    threads at once (``tbb``, ``omp``; the ``workqueue`` fallback aborts the process)."""
+    import numba
+
+    try:
+        return numba.threading_layer() != "workqueue"
+    except ValueError:  # no parallel kernel has run in this process yet: start the layer
+        from demtool.compare.grids import sample_bilinear
+
+        sample_bilinear(np.zeros((2, 2)), np.zeros((1, 1)), np.zeros((1, 1)))
+        return numba.threading_layer() != "workqueue"
+
+
+def on_threads(function: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
+    """``[function(item) for item in items]``, on a pool of threads (one compiled-kernel
+    thread each) when there are two items or more and cores for them, else in order here.
+
+    For independent jobs of similar size, such as the co-registration of each DEM to the
+    reference: each runs as it would alone, with the same numbers (the compiled
+    reductions sum per row, whatever the thread count).
+    """
+    from demtool.tiling.distributed import usable_threads
+
+    threads = min(usable_threads(), len(items))
+    if threads < 2 or not kernels_run_concurrently():
+        return [function(item) for item in items]
+    from concurrent.futures import ThreadPoolExecutor
+
+    def single_threaded(item: Any) -> Any:
+        import numba
+
+        numba.set_num_threads(1)  # thread-local: this pool thread only
+        return function(item)
+
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        return list(pool.map(single_threaded, items))
+
+
+def row_strips(tile: Tile, shape: tuple[int, int], margin: int, threads: int) -> list[Tile]:
+    """``tile``'s core cut into row strips for ``threads`` threads, each strip's outer
+    window its core ± ``margin`` rows (clipped to the grid ``shape``) and the tile's outer
+    columns; ``[tile]`` itself for one thread or a core under :data:`THREADED_CELLS`."""
+    rows, cols = tile.core_shape
+    if threads < 2 or rows * cols < THREADED_CELLS:
+        return [tile]
+    height = max(4 * max(margin, 1), math.ceil(rows / (STRIPS_PER_THREAD * threads)))
+    count = max(1, math.ceil(rows / height))
+    if count == 1:
+        return [tile]
+    bounds = np.linspace(tile.core[0], tile.core[1], count + 1).round().astype(int)
+    r0, r1, c0, c1 = tile.core
+    return [Tile(tile.index, (int(a), int(b), c0, c1),
+                 (max(0, int(a) - margin), min(shape[0], int(b) + margin), tile.outer[2],
+                  tile.outer[3]))
+            for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
 def single_tile(shape: tuple[int, int]) -> Tile:

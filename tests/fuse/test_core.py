@@ -143,3 +143,18 @@ def test_estimate_shift_recovers_a_known_shift_and_needs_overlap():
     empty = np.full_like(dem, np.nan)
     with pytest.raises(ProcessingError, match="no common overlap"):
         estimate_shift(empty, reference, label="a.tif")
+
+
+def test_nan_median_is_numpys_nanmedian_to_the_bit():
+    from demtool.fuse.core import _nan_median
+
+    rng = np.random.default_rng(3)
+    for count in (1, 2, 3, 4, 7):
+        values = rng.normal(size=(count, 40, 30))
+        valid = rng.random(values.shape) > 0.3
+        got = _nan_median(values, valid)
+        filled = np.where(valid, values, np.nan)
+        some = valid.any(axis=0)
+        expected = np.full(some.shape, np.nan)
+        expected[some] = np.nanmedian(filled[:, some], axis=0)
+        np.testing.assert_array_equal(got, expected)

@@ -164,3 +164,46 @@ def test_every_dem_rejected_as_outlier_is_refused(tmp_path):
     summary = run_fuse([*paths, tmp_path / "d3.tif"], tmp_path / "f.tif",
                        FuseParams(align="none", max_nmad=0.5))
     assert [d["used"] for d in summary["dems"]] == [True, True, True, False]
+
+
+def test_row_strips_on_threads_give_the_single_strip_numbers_to_the_bit(block, monkeypatch):
+    from demtool.fuse import tiled
+    from demtool.tiling.distributed import available_cores, threads_limited
+
+    folder, paths = block
+    dem = dio.read_raster(paths[1])
+    data = dem.data.copy()
+    data[20:24, 30:70] = np.nan  # a hole near a strip's edge: the gap closing matters
+    dio.write_raster(paths[1], data, transform=dem.transform, crs=dem.crs, tags=dem.tags)
+    monkeypatch.setattr(tiled, "THREADED_CELLS", 64)  # the 110² test grid in strips
+    outputs = {}
+    for threads in (1, 2):
+        out = folder / f"fused_{threads}.tif"
+        with threads_limited(threads):
+            summary = run_fuse(paths, out, FuseParams(blend=6, gap=2, method="huber"))
+        assert summary["strips"] == min(threads, available_cores())
+        assert summary["timings_s"]["combine_cpu"] >= 0
+        assert set(summary["timings_s"]) >= {"coregister", "consensus", "combine", "write"}
+        outputs[threads] = {name: dio.read_raster(output_paths(out)[name]).data
+                            for name in ("dem", "count", "spread", "error")}
+        shifts = [d["alignment"]["shift"] for d in summary["dems"]]
+        outputs[threads]["shifts"] = np.array([[s["dx_px"], s["dy_px"], s["dz"]]
+                                               for s in shifts])
+    for name, single in outputs[1].items():
+        np.testing.assert_array_equal(outputs[2][name], single)  # NaN where NaN
+
+
+def test_row_strips_cover_the_core_with_the_margin_clipped_to_the_grid():
+    from demtool.fuse.tiled import THREADED_CELLS, row_strips, single_tile
+    from demtool.tiling import Tile
+
+    side = int(np.sqrt(THREADED_CELLS))  # even
+    grid = (side + 10, side)
+    half = grid[0] // 2
+    strips = row_strips(single_tile(grid), grid, 20, 2)
+    assert [s.core for s in strips] == [(0, half, 0, side), (half, grid[0], 0, side)]
+    assert [s.outer for s in strips] == [(0, half + 20, 0, side), (half - 20, grid[0], 0, side)]
+    assert row_strips(single_tile((100, 100)), (100, 100), 20, 2) == [single_tile((100, 100))]
+    inner = Tile(3, (0, side, 40, 80), (0, side + 10, 20, 100))  # a Dask tile's columns kept
+    assert all(s.outer[2:] == (20, 100) for s in row_strips(inner, grid, 20, 2))
+    assert row_strips(single_tile(grid), grid, 20, 1) == [single_tile(grid)]

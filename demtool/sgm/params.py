@@ -95,8 +95,10 @@ class SgmParams(Parameters):
     # Tiles (demtool.tiling; docs/stages/scale.md): tiled, --workers is the Dask worker count.
     tile_size: int = tile_size_field()
     tile_overlap: int | None = tile_overlap_field(
-        "64 + the cost, census and median windows + the speckle reach; the disparity "
-        "range is added on the sides")
+        "census and ad: SGM's path reach, 4 x P2 / the cost's contrast measured on the "
+        "pair, + the cost's support and the filters' reach; MI costs: 64 + the cost, "
+        "census and median windows + the speckle reach; the disparity range is added on "
+        "the sides")
     scheduler: str | None = scheduler_field()
     dry_run: bool = dry_run_field()
 

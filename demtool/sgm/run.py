@@ -166,7 +166,9 @@ def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,
     from demtool.mapproject.stereo import ROW_SHIFT_TAG, shift_rows
 
     row_shift = ortho_stats.get(ROW_SHIFT_TAG)
-    if tiling.wants_tiles(*shape, params):  # large images: tiles, Dask (docs/stages/scale.md)
+    from demtool.sgm.tiled import sgm_tile_size
+
+    if sgm_tile_size(params, shape, num_disparities):  # large: tiles (docs/stages/scale.md)
         if row_shift is not None:
             raise ParameterError(f"{right_path}: the orthoimages are offset by "
                                  f"{row_shift:.2f} rows, which untiled runs take out (give a "

@@ -40,8 +40,13 @@ class PhaseTimer:
     """Wall-clock seconds per phase, and CPU seconds of the threads that ran it.
 
     ``seconds[phase]`` is wall time; ``seconds[phase + "_cpu"]`` the CPU time (user +
-    system) of the threads that worked on it, which depends less on other processes'
-    load than wall time.
+    system) spent on it, which depends less on other processes' load than wall time:
+    for a block timed by :meth:`measure`, the CPU time of the whole process during the
+    block (its helper threads included: the census codes and the post-processing run
+    in two threads), for the match phase the sum of the sweep threads' own CPU times.
+    ``seconds["match_wait"]``: thread-seconds the sweep threads spent waiting for each
+    other (the meeting in the middle, the end of a strip), the idle part of the match
+    phase that is this process's own (the rest is other processes on the cores).
     """
 
     def __init__(self) -> None:
@@ -62,12 +67,24 @@ class PhaseTimer:
 
     @contextmanager
     def measure(self, phase: str) -> Iterator[None]:
-        """Time a block run by the calling thread (wall and this thread's CPU)."""
-        wall, cpu = time.perf_counter(), time.thread_time()
+        """Time a block (wall, and the CPU of the process: the block's helper threads
+        count, so no other work may run in this process meanwhile)."""
+        wall, cpu = time.perf_counter(), time.process_time()
         try:
             yield
         finally:
-            self.add(phase, time.perf_counter() - wall, time.thread_time() - cpu)
+            self.add(phase, time.perf_counter() - wall, time.process_time() - cpu)
+
+    @contextmanager
+    def waiting(self, phase: str) -> Iterator[None]:
+        """Add the wall time of a block in which a thread waits to ``<phase>_wait``."""
+        wall = time.perf_counter()
+        try:
+            yield
+        finally:
+            with self._lock:
+                key = f"{phase}_wait"
+                self.seconds[key] = self.seconds.get(key, 0.0) + time.perf_counter() - wall
 
 
 def sweep_state_bytes(width: int, num_disparities: int, paths: int, window: int) -> int:
@@ -248,25 +265,29 @@ def match_strip(source: tuple, radius: int, guide: np.ndarray, *, n_disp: int, p
     top = 2 * lo + 2 * q - middle
     barrier = threading.Barrier(2)
 
+    def meet() -> None:
+        with timer.waiting("match"):
+            barrier.wait()
+
     def in_halves(sign: int) -> None:
         state = fresh()
         try:
             if sign > 0:
                 sweep(state, 1, lo, lo + q, MODE_DISCARD, 0)
                 sweep(state, 1, lo + q, middle, MODE_STORE, inner)
-                barrier.wait()
+                meet()
                 sweep(state, 1, middle, hi - q, MODE_FINISH, inner)
                 sweep(state, 1, hi - q, hi, MODE_STORE, bottom)
-                barrier.wait()
+                meet()
                 if q:
                     sweep(fresh(), 1, lo, lo + q, MODE_FINISH, top)
             else:
                 sweep(state, -1, hi - 1, hi - q - 1, MODE_DISCARD, 0)
                 sweep(state, -1, hi - q - 1, middle - 1, MODE_STORE, inner)
-                barrier.wait()
+                meet()
                 sweep(state, -1, middle - 1, lo + q - 1, MODE_FINISH, inner)
                 sweep(state, -1, lo + q - 1, lo - 1, MODE_STORE, top)
-                barrier.wait()
+                meet()
                 if q:
                     sweep(fresh(), -1, hi - 1, hi - q - 1, MODE_FINISH, bottom)
         except BaseException:
@@ -276,7 +297,8 @@ def match_strip(source: tuple, radius: int, guide: np.ndarray, *, n_disp: int, p
     with ThreadPoolExecutor(max_workers=1) as pool:
         future = pool.submit(in_halves, -1)
         in_halves(1)
-        future.result()
+        with timer.waiting("match"):
+            future.result()
     return disparity, confidence
 
 

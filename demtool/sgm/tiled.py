@@ -9,11 +9,12 @@ range of the rectification's matches inside the tile's window widened by a margi
 (:func:`tile_ranges`; the global range where a tile has too few matches), which on a
 pair with a large global range cuts the cost volumes and the false matches.
 
-Default margin: SGM's paths carry the cost along up to the whole image; their influence
-decays within a few times P2 / P1 pixels, so the margin is 64 px plus the cost, census and
-median windows and the speckle filter's reach (about 80 px with the census defaults),
-which keeps the tiled disparity within 0.1 px of the untiled one on ≥ 99.5 % of the
-pixels (tests/test_tiling.py, bench/scale.py).
+Default margin (:mod:`demtool.sgm.margins`): the reach of SGM's paths, ⌈4 · P2 / ΔC̄⌉
+with ΔC̄ the cost's contrast measured on four windows of the pair (census and "ad"; a
+modelled weak texture for the MI costs), plus the cost's support and the filters'
+reach: 57 px on bench/scale_out.py's census pair (87 px before, a fixed 64 + windows),
+where tiled and untiled disparities are identical on all but a few pixels
+(tests/tiling/test_tiling.py, docs/stages/scale.md).
 """
 
 from __future__ import annotations
@@ -28,21 +29,66 @@ import numpy as np
 
 from demtool.tiling import Tile, plan_tiles, read_window, wants_tiles
 
-BASE_MARGIN = 64  # px: SGM path influence (see the module docstring)
 MIN_TILE_MATCHES = 8  # matches a tile needs for its own disparity range
 RANGE_MARGIN = 8  # px added to both ends of a tile's match range (and 25 % of its width)
 PROCESS_BYTES = 250 * 2**20  # a worker process with numpy, numba, rasterio and the kernels
+MIN_DEFAULT_TILE = 512  # px: the smallest default tile core
 
 
-def default_overlap(params: Any) -> int:
-    """The margin of an sgm tile, px: paths + cost / census / median windows + speckles."""
+def default_overlap(params: Any, contrast: dict[str, float] | None = None) -> int:
+    """The margin of an sgm tile, px (:func:`demtool.sgm.margins.tile_margin`)."""
+    from demtool.sgm.margins import tile_margin
+
+    return tile_margin(params, contrast)[0]
+
+
+def measured_contrast(left_path: str | os.PathLike, right_path: str | os.PathLike,
+                      params: Any, shape: tuple[int, int], min_disparity: int,
+                      num_disparities: int) -> dict[str, float]:
+    """ΔC̄ of a census or "ad" run's cost on four windows of the pair
+    (:func:`demtool.sgm.margins.cost_contrast`), by cost name; {} for the other costs or
+    when no sampled pixel can be measured."""
+    from demtool.sgm.margins import cost_contrast, sample_windows
     from demtool.sgm.matcher import CENSUS_WINDOWS, COST_DEFAULTS
 
-    names = {"hmi": ("mi",), "auto": ("mi", "census")}.get(params.cost, (params.cost,))
-    window = params.cost_window or max(COST_DEFAULTS[name].window for name in names)
-    census = max(CENSUS_WINDOWS[params.census_window])
-    speckle = int(math.ceil(math.sqrt(params.speckle_size)))
-    return BASE_MARGIN + window + census + params.median + speckle
+    if params.cost not in ("census", "ad"):
+        return {}
+    name = params.cost
+    window = int(params.cost_window or COST_DEFAULTS[name].window)
+    census_shape = CENSUS_WINDOWS[params.census_window]
+    boxes = sample_windows(*shape, num_disparities, window)
+    pairs = ((read_window(left_path, box, what="left rectified image"),
+              read_window(right_path, box, what="right rectified image")) for box in boxes)
+    value = cost_contrast(pairs, cost=name, window=window, census_shape=census_shape,
+                          min_disparity=min_disparity, num_disparities=num_disparities)
+    return {} if value is None or value <= 0 else {name: value}
+
+
+def sgm_tile_size(params: Any, shape: tuple[int, int], num_disparities: int) -> int:
+    """The tile core of a run (0: untiled; :func:`demtool.tiling.wants_tiles` with
+    :func:`default_tile_size` when ``--tile-size`` is not given)."""
+    if params.tile_size:
+        return wants_tiles(*shape, params)
+    local = params.workers if not params.scheduler and params.workers >= 2 else 1
+    return wants_tiles(*shape, params,
+                       default_size=default_tile_size(params, num_disparities, local))
+
+
+def default_tile_size(params: Any, num_disparities: int, workers: int = 1) -> int:
+    """The tile core a run without ``--tile-size`` uses (``--scheduler``, ``--dry-run``).
+
+    The largest multiple of 256 px whose outer window (core + the modelled margin on
+    every side + the disparity range on one) keeps the aggregated cost S (uint16, 2
+    bytes a cell) of one tile within ``max_memory_mb`` shared by ``workers`` local
+    workers, so a tile is matched in one strip; at least :data:`MIN_DEFAULT_TILE`.
+    Larger tiles spend less of their work on margins (the margin is fixed per tile).
+    """
+    margin = default_overlap(params)
+    budget = params.max_memory_mb * 2**20 / max(1, workers) / (2 * num_disparities)
+    # (t + 2m)(t + 2m + D) ≤ budget, solved for t
+    side = (-num_disparities + math.sqrt(num_disparities**2 + 4 * budget)) / 2
+    core = int((side - 2 * margin) // 256 * 256)
+    return max(MIN_DEFAULT_TILE, core)
 
 
 def tile_ranges(tiles, points_left: np.ndarray, points_right: np.ndarray,
@@ -163,11 +209,23 @@ def sgm_tiled(run: Any, left_path: str | os.PathLike, right_path: str | os.PathL
     demtool.tiling.jobs.TiledResult
     """
     from demtool import io as dio
+    from demtool.sgm.margins import tile_margin
     from demtool.tiling.jobs import TiledOutput, run_tiled
 
     height, width = shape
-    tile_size = wants_tiles(height, width, params)
-    overlap = default_overlap(params) if params.tile_overlap is None else params.tile_overlap
+    tile_size = sgm_tile_size(params, shape, num_disparities)
+    margin_made: dict[str, Any] = {"margin_px": params.tile_overlap, "given": True}
+    if params.tile_overlap is None:
+        contrast = measured_contrast(left_path, right_path, params, shape, min_disparity,
+                                     num_disparities)
+        overlap, margin_made = tile_margin(params, contrast)
+        if "path_reach_px" in margin_made:
+            run.log.info("tile margin %d px: path reach %d px = 4 × P2 %d / the cost's "
+                         "contrast %g (%s) + support and filters", overlap,
+                         margin_made["path_reach_px"], margin_made["p2"],
+                         margin_made["contrast"], margin_made["contrast_source"])
+    else:
+        overlap = params.tile_overlap
     max_disparity = min_disparity + num_disparities - 1
     tiling = plan_tiles(height, width, tile_size, overlap=overlap,
                         extra_left=max(max_disparity, 0), extra_right=max(-min_disparity, 0))
@@ -213,6 +271,7 @@ def sgm_tiled(run: Any, left_path: str | os.PathLike, right_path: str | os.PathL
                 "tile_ranges": [i.get("range") for i in infos],
                 "tiles_widened": sum(1 for i in infos if i.get("widened")),
                 "num_disparities": num_disparities, "disparity_range_source": source,
+                "tile_margin": margin_made,
                 "convention": "x_right = x_left - d, pixels, NaN = invalid"}
 
     inputs = [left_path, right_path] + ([rectify] if rectify is not None else [])

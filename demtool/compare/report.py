@@ -121,10 +121,13 @@ def assemble_report(reports: Sequence[tuple[str, dict[str, Any]]], *, dem_path, 
 
 
 def write_report(provenance: Any, out: Path, report: dict[str, Any],
-                 figures: dict[str, bytes], *, html: bool = False) -> None:
+                 figures: dict[str, bytes], *, html: bool = False,
+                 timings: dict[str, float] | None = None) -> None:
     """``report.json`` (with its figures and provenance), the PNG figures, with ``html``
     the page ``report.html`` (:func:`demtool.compare.html.html_report`) and the sidecar,
-    inside the caller's output transaction (``difference.tif`` is the caller's)."""
+    inside the caller's output transaction (``difference.tif`` is the caller's).
+    ``timings`` (seconds per phase, :meth:`demtool.stagerun.StageRun.phase`) go into the
+    provenance record's summary as ``timings_s``."""
     from demtool import io as dio
 
     report["figures"] = sorted(figures)
@@ -132,7 +135,10 @@ def write_report(provenance: Any, out: Path, report: dict[str, Any],
     outputs = [report_path, out / DIFFERENCE, *[out / name for name in figures]]
     if html:
         outputs.append(out / HTML)
-    report["provenance"] = provenance.record(_headline(report), outputs)
+    headline = _headline(report)
+    if timings:
+        headline["timings_s"] = timings
+    report["provenance"] = provenance.record(headline, outputs)
     for name, content in figures.items():
         with dio.atomic_path(out / name, suffix=".png") as temporary:
             temporary.write_bytes(content)
@@ -142,7 +148,7 @@ def write_report(provenance: Any, out: Path, report: dict[str, Any],
 
         with dio.atomic_path(out / HTML, suffix=".html") as temporary:
             temporary.write_text(html_report(report, figures), encoding="utf-8")
-    provenance.write_sidecar(report_path, _headline(report), outputs=outputs)
+    provenance.write_sidecar(report_path, headline, outputs=outputs)
 
 
 def make_figures(comparisons: Sequence[tuple[str, Any]], reference_values, lines,

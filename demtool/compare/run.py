@@ -174,35 +174,36 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     windowed = _windowed(run, dem_path, reference_path, out_dir, params, mask_path, also)
     if windowed is not None:
         return windowed
-    dem = _read_dem(dem_path, "DEM")
-    reference = _read_dem(reference_path, "reference DEM")
-    extra = [_read_dem(path, "DEM (--also)") for path in also]
-    for raster, what in ((dem, "DEM"), (reference, "reference DEM"),
-                         *((r, "DEM (--also)") for r in extra)):
-        check_magnitude(raster.data, raster.path, what=what)
-    mask_raster = _read_mask_raster(mask_path, dem, reference) if mask_path else None
-    for raster in (dem, *extra):
-        check_same_frame(raster, reference, "compare rasters of one frame (e.g. a "
-                         "target-frame DEM with truth_dem_target.tif)")
-    from demtool.compare.planetary import check_bodies, metric_grid
+    with run.phase("read"):  # reading, and the rasters put on the comparison grid
+        dem = _read_dem(dem_path, "DEM")
+        reference = _read_dem(reference_path, "reference DEM")
+        extra = [_read_dem(path, "DEM (--also)") for path in also]
+        for raster, what in ((dem, "DEM"), (reference, "reference DEM"),
+                             *((r, "DEM (--also)") for r in extra)):
+            check_magnitude(raster.data, raster.path, what=what)
+        mask_raster = _read_mask_raster(mask_path, dem, reference) if mask_path else None
+        for raster in (dem, *extra):
+            check_same_frame(raster, reference, "compare rasters of one frame (e.g. a "
+                             "target-frame DEM with truth_dem_target.tif)")
+        from demtool.compare.planetary import check_bodies, metric_grid
 
-    body_warnings = check_bodies([(r.path, r.crs) for r in (reference, dem, *extra)])
-    if grid == "reference":
-        target = _grid_of(reference)
-        reference_values = reference.data.astype(np.float64)
-        dem_values = _onto(dem, target, "DEM")
-        frame = reference.tags.get("frame")
-    else:
-        target = _grid_of(dem)
-        dem_values = dem.data.astype(np.float64)
-        reference_values = _onto(reference, target, "reference DEM")
-        frame = dem.tags.get("frame")
-    target, degrees = metric_grid(target)  # a degree grid is measured in metres
-    if degrees is not None:
-        reference_values = _onto(reference, target, "reference DEM")
-        dem_values = _onto(dem, target, "DEM")
-    extra_values = [_onto(raster, target, "DEM (--also)") for raster in extra]
-    mask = _read_mask(mask_raster, target) if mask_raster is not None else None
+        body_warnings = check_bodies([(r.path, r.crs) for r in (reference, dem, *extra)])
+        if grid == "reference":
+            target = _grid_of(reference)
+            reference_values = reference.data.astype(np.float64)
+            dem_values = _onto(dem, target, "DEM")
+            frame = reference.tags.get("frame")
+        else:
+            target = _grid_of(dem)
+            dem_values = dem.data.astype(np.float64)
+            reference_values = _onto(reference, target, "reference DEM")
+            frame = dem.tags.get("frame")
+        target, degrees = metric_grid(target)  # a degree grid is measured in metres
+        if degrees is not None:
+            reference_values = _onto(reference, target, "reference DEM")
+            dem_values = _onto(dem, target, "DEM")
+        extra_values = [_onto(raster, target, "DEM (--also)") for raster in extra]
+        mask = _read_mask(mask_raster, target) if mask_raster is not None else None
     sx, sy = target.spacing
     lines = [tuple(float(v) for v in line) for line in params.profiles] or \
         figure_maker.default_profiles(target.shape)
@@ -213,11 +214,12 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     log.info("%s vs %s on the %s grid (%d x %d, %.4g x %.4g m), alignment %s", dem_path,
              reference_path, grid, target.shape[1], target.shape[0], sx, sy, align)
     comparisons = []
-    for name, values in ((label, dem_values), *zip(labels, extra_values, strict=True)):
-        comparison = compare_dems(values, reference_values, spacing=(sx, sy), align=align,
-                                  mask=mask, slope_bins=params.slope_bins,
-                                  icp_scale=params.icp_scale, seed=params.seed)
-        comparisons.append((name, comparison))
+    with run.phase("compare"):  # alignment, statistics, spectrum
+        for name, values in ((label, dem_values), *zip(labels, extra_values, strict=True)):
+            comparison = compare_dems(values, reference_values, spacing=(sx, sy),
+                                      align=align, mask=mask, slope_bins=params.slope_bins,
+                                      icp_scale=params.icp_scale, seed=params.seed)
+            comparisons.append((name, comparison))
     report = assemble_report([(name, c.report) for name, c in comparisons],
                              dem_path=dem_path, reference_path=reference_path, also=also,
                              grid=grid, target=target, frame=frame, degrees=degrees,
@@ -229,9 +231,10 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     dem_cells = dem.data.astype(np.float64)
     if mask_raster is not None:
         dem_cells = np.where(_read_mask(mask_raster, _grid_of(dem)), dem_cells, np.nan)
-    coarse = compare_at_reference_resolution(
-        dem_cells, _grid_of(dem), reference.data, _grid_of(reference), align=align,
-        slope_bins=params.slope_bins, seed=params.seed)
+    with run.phase("coarse"):
+        coarse = compare_at_reference_resolution(
+            dem_cells, _grid_of(dem), reference.data, _grid_of(reference), align=align,
+            slope_bins=params.slope_bins, seed=params.seed)
     if coarse is not None:
         report["at_reference_resolution"] = coarse
         log.info("at the reference's resolution (%s): %s", coarse["what"],
@@ -240,13 +243,16 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
                  f"{coarse['count']} posts")
     main = comparisons[0][1]
 
-    figures = make_figures(comparisons, reference_values, lines, (sx, sy), label) \
-        if params.plots else {}
+    with run.phase("figures"):
+        figures = make_figures(comparisons, reference_values, lines, (sx, sy), label) \
+            if params.plots else {}
     with run.transaction():
-        dio.write_raster(out / DIFFERENCE, main.difference, transform=target.transform,
-                         crs=target.crs,
-                         tags=provenance.tags(frame=frame or "unknown", label=label,
-                                              quantity="aligned DEM - reference (m)",
-                                              shift=report["shift"]))
-        write_report(provenance, out, report, figures, html=params.html)
+        with run.phase("write_difference"):
+            dio.write_raster(out / DIFFERENCE, main.difference, transform=target.transform,
+                             crs=target.crs,
+                             tags=provenance.tags(frame=frame or "unknown", label=label,
+                                                  quantity="aligned DEM - reference (m)",
+                                                  shift=report["shift"]))
+        write_report(provenance, out, report, figures, html=params.html,
+                     timings=run.timings)
     return report

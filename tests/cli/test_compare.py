@@ -78,6 +78,9 @@ def test_compare_writes_the_report_folder(pair, tmp_path):
     assert np.nanstd(difference.data) == pytest.approx(report["std"], rel=1e-3)
     sidecar = dio.read_json(out / "report.json.json")
     assert sidecar["summary"]["rmse"] == pytest.approx(report["rmse"])
+    timings = sidecar["summary"]["timings_s"]  # wall and CPU seconds per phase
+    assert {"read", "compare", "coarse", "figures", "write_difference"} <= set(timings)
+    assert all(timings[f"{phase}_cpu"] >= 0 for phase in ("read", "compare", "figures"))
     assert "count" in result.stderr or "RMSE" in result.stderr  # the console table
 
 

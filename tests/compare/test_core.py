@@ -296,3 +296,26 @@ def test_cubic_sampler_returns_nan_outside():
     values = np.ones((5, 5))
     out = sample_cubic(values, np.array([2.0, -0.5, 2.0]), np.array([2.0, 2.0, 4.5]))
     assert out[0] == 1.0 and np.isnan(out[1:]).all()
+
+
+def test_threaded_comparison_gives_the_one_thread_numbers(truth, displaced, monkeypatch):
+    import json
+
+    from demtool.compare import core
+    from demtool.tiling.distributed import threads_limited
+
+    holed = displaced.copy()
+    holed[40:60, 70:75] = np.nan
+    mask = np.ones(truth.shape, dtype=bool)
+    mask[:, :8] = False
+    monkeypatch.setattr(core, "THREADED_CELLS", 64)  # the 160² grid on two threads
+    runs = []
+    for threads in (1, 2):
+        with threads_limited(threads):
+            assert core._threaded(truth.size) == (threads == 2)
+            runs.append(compare_dems(holed, truth, spacing=2.0, mask=mask))
+    one, two = runs
+    assert json.dumps(one.report, sort_keys=True) == json.dumps(two.report, sort_keys=True)
+    for name in ("aligned", "difference", "coverage", "slope"):
+        np.testing.assert_array_equal(getattr(two, name), getattr(one, name))
+    assert one.report["count"] > 0.85 * truth.size  # the mask, the hole, the shifted border

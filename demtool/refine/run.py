@@ -57,8 +57,6 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     ProcessingError
         Too many DEM gaps, too few lit pixels.
     """
-    import time
-
     import numpy as np
 
     from demtool import io
@@ -133,36 +131,35 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
     if not all(np.isfinite(s) and s > 0 for s in spacing):
         raise InputError(f"{dem.path}: the DEM's transform has no usable pixel spacing "
                          f"({spacing})")
-    started = time.perf_counter()
     try:
-        prepared = prepare_dem(dem.data, median_size=params.median,
-                               spike_threshold=params.spike_threshold,
-                               start_sigma=params.start_sigma,
-                               max_nan_fraction=params.max_nan_fraction)
+        with run.phase("prepare_dem"):
+            prepared = prepare_dem(dem.data, median_size=params.median,
+                                   spike_threshold=params.spike_threshold,
+                                   start_sigma=params.start_sigma,
+                                   max_nan_fraction=params.max_nan_fraction)
     except ProcessingError as exc:
         raise ProcessingError(f"{dem.path}: {exc}") from None
-    prepared_s = time.perf_counter() - started
-    if map_route is not None and map_route.windows is not None:
-        from dataclasses import replace
+    with run.phase("sfs"):
+        if map_route is not None and map_route.windows is not None:
+            from dataclasses import replace
 
-        from demtool.refine.tiles import refine_tiles
+            from demtool.refine.tiles import refine_tiles
 
-        blended, tile_results = refine_tiles(
-            values, prepared.dem, spacing=spacing, windows=map_route.windows,
-            illuminations=map_route.illuminations, parameters=params.sfs(),
-            initial=prepared.initial)
-        centre = tile_results[len(tile_results) // 2]
-        result = replace(centre, dem=blended,
-                         iterations=max(r.iterations for r in tile_results),
-                         converged=all(r.converged for r in tile_results))
-        map_report["tile_iterations"] = [r.iterations for r in tile_results]
-    else:
-        result = refine_heights(values, prepared.dem, spacing=spacing,
-                                illumination=illumination, parameters=params.sfs(),
-                                initial=prepared.initial)
-    sfs_s = time.perf_counter() - started - prepared_s
+            blended, tile_results = refine_tiles(
+                values, prepared.dem, spacing=spacing, windows=map_route.windows,
+                illuminations=map_route.illuminations, parameters=params.sfs(),
+                initial=prepared.initial)
+            centre = tile_results[len(tile_results) // 2]
+            result = replace(centre, dem=blended,
+                             iterations=max(r.iterations for r in tile_results),
+                             converged=all(r.converged for r in tile_results))
+            map_report["tile_iterations"] = [r.iterations for r in tile_results]
+        else:
+            result = refine_heights(values, prepared.dem, spacing=spacing,
+                                    illumination=illumination, parameters=params.sfs(),
+                                    initial=prepared.initial)
     log.info("DEM preparation (gap filling, median) %.1f s, shape from shading %.1f s",
-             prepared_s, sfs_s)
+             run.timings["prepare_dem"], run.timings["sfs"])
     shift = float(np.mean(result.dem, dtype=np.float64) - np.mean(prepared.dem,
                                                                   dtype=np.float64))
     change = result.dem.astype(np.float64) - prepared.dem
@@ -185,7 +182,7 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
         "phase_deg": illumination.phase_deg,
         "spacing_m": list(spacing), "grid": list(dem.data.shape),
         "image_resampled": note,
-        "timings_s": {"prepare_dem": round(prepared_s, 3), "sfs": round(sfs_s, 3)},
+        "timings_s": run.timings,  # wall and CPU seconds: prepare_dem, sfs
     }
     if dem.crs is not None:
         summary["map_route"] = map_report
@@ -198,16 +195,17 @@ def run_refine(image_path: str | os.PathLike, dem_path: str | os.PathLike,
         view_vector_grid=illumination.view.tolist(), reflectance_model=params.model)}
     outputs = [Path(out)]
     with run.transaction():
-        io.write_raster(out, result.dem, transform=dem.transform, crs=dem.crs, tags=tags)
-        if albedo_out is not None:
-            io.write_raster(albedo_out, result.albedo, transform=dem.transform, crs=dem.crs,
-                            tags=prov.tags(frame=dem.tags.get("frame", "unknown"),
-                                           units=f"{image_tags.get('units', 'image unit')} "
-                                                 "per unit reflectance",
-                                           content=f"local albedo (Gaussian σ = "
-                                                   f"{params.albedo_sigma:g} px) of the "
-                                                   "refined DEM"))
-            outputs.append(Path(albedo_out))
+        with run.phase("write"):
+            io.write_raster(out, result.dem, transform=dem.transform, crs=dem.crs, tags=tags)
+            if albedo_out is not None:
+                io.write_raster(albedo_out, result.albedo, transform=dem.transform, crs=dem.crs,
+                                tags=prov.tags(frame=dem.tags.get("frame", "unknown"),
+                                               units=f"{image_tags.get('units', 'image unit')} "
+                                                     "per unit reflectance",
+                                               content=f"local albedo (Gaussian σ = "
+                                                       f"{params.albedo_sigma:g} px) of the "
+                                                       "refined DEM"))
+                outputs.append(Path(albedo_out))
         prov.write_sidecar(out, summary, outputs=outputs)
     log.info("wrote %s (%d iterations, mean height shift %.3g m, RMS change %.3g m)", out,
              result.iterations, shift, summary["rms_height_change_m"])

@@ -66,6 +66,9 @@ def test_refine_writes_a_better_dem_sidecar_and_albedo(tmp_path, scene):
     assert summary["energies_final"]["total"] < summary["energies_initial"]["total"]
     assert sidecar["parameters"]["tau"] == 10.0
     assert io.read_raster(albedo).data.shape == scene.coarse.shape
+    timings = summary["timings_s"]  # wall and CPU seconds per phase
+    assert all(timings[phase] >= 0 and timings[f"{phase}_cpu"] >= 0
+               for phase in ("prepare_dem", "sfs", "write"))
 
 
 def test_sun_from_options_overrides_tags(tmp_path, scene):

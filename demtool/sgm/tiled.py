@@ -144,6 +144,9 @@ class SgmTileJob:
     stage: str = "sgm"
     bands: tuple[str, ...] = ("disparity", "confidence")
     preload: tuple[str, ...] = ("demtool.sgm",)  # imported once by the workers' forkserver
+    # the outputs are written in tile order while the workers compute the later tiles
+    # (demtool.tiling.jobs.run_tiled): compute() writes nothing through demtool.io
+    stream_outputs: bool = True
 
     def compute(self, tile: Tile, threads: int) -> tuple[np.ndarray, dict[str, Any]]:
         from demtool.sgm.widen import sgm_widening

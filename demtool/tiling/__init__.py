@@ -476,8 +476,36 @@ def write_tiled_raster(path: str | os.PathLike, tiling: Tiling, cache: TileCache
     are written in index order, with no time stamp: the same cache gives the same bytes.
     Memory: one tile core at a time (plus GDAL's block cache).
     """
-    from rasterio.windows import Window
+    with tiled_raster_output(path, tiling, band=band, transform=transform, crs=crs,
+                             tags=tags, band_name=band_name) as writer:
+        for tile in tiling.tiles:
+            writer.write(tile, cache)
+    return Path(path)
 
+
+class TiledRasterWriter:
+    """An open output of :func:`tiled_raster_output`: the bands of tile cores go in
+    with :meth:`write`, in index order (see :func:`write_tiled_raster`)."""
+
+    def __init__(self, dataset: Any, bands: list[int]) -> None:
+        self.dataset, self.bands = dataset, bands
+
+    def write(self, tile: Tile, cache: TileCache) -> None:
+        from rasterio.windows import Window
+
+        r0, r1, c0, c1 = tile.core
+        self.dataset.write(cache.load(tile)[self.bands],
+                           window=Window(c0, r0, c1 - c0, r1 - r0))
+
+
+@contextlib.contextmanager
+def tiled_raster_output(path: str | os.PathLike, tiling: Tiling, *,
+                        band: int | Sequence[int] = 0, transform=None, crs=None,
+                        tags: Mapping[str, Any] | None = None,
+                        band_name: str | Sequence[str] | None = None
+                        ) -> Iterator[TiledRasterWriter]:
+    """The output of :func:`write_tiled_raster`, open for tiles written one by one (the
+    caller writes every tile, in index order, for the same bytes as that function's)."""
     from demtool import io as dio
     from demtool.io.layout import raster_output
 
@@ -495,11 +523,7 @@ def write_tiled_raster(path: str | os.PathLike, tiling: Tiling, cache: TileCache
         profile["BIGTIFF"] = "YES"
     with raster_output(path, profile, band_names=names,
                        tags={k: dio._tag_value(v) for k, v in (tags or {}).items()}) as dst:
-        for tile in tiling.tiles:
-            r0, r1, c0, c1 = tile.core
-            values = cache.load(tile)[bands]
-            dst.write(values, window=Window(c0, r0, c1 - c0, r1 - r0))
-    return Path(path)
+        yield TiledRasterWriter(dst, bands)
 
 
 def estimate_text(tiling: Tiling, memory_bytes: int, cores: int, tile_seconds: float,

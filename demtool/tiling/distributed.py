@@ -103,8 +103,10 @@ def compute_tile(job: TileJob, tile: Tile, cache: TileCache, threads: int) -> di
 class Progress:
     """Tiles done / total: a redrawn line on a terminal, a log line per step in batch."""
 
-    def __init__(self, total: int, done: int, log: logging.Logger, what: str) -> None:
+    def __init__(self, total: int, done: int, log: logging.Logger, what: str,
+                 on_tile: Any = None) -> None:
         self.total, self.done, self.log, self.what = total, done, log, what
+        self.on_tile = on_tile  # called (no arguments) in this thread after each tile
         self.step = max(1, total // 10)
         self.start = time.perf_counter()
         self.terminal = sys.stderr.isatty() and log.isEnabledFor(logging.INFO)
@@ -120,6 +122,8 @@ class Progress:
             sys.stderr.flush()
         elif self.done % self.step == 0 or self.done == self.total:
             self.log.info("%s: %d/%d tiles, %.1f s", self.what, self.done, self.total, elapsed)
+        if self.on_tile is not None:
+            self.on_tile()
         if not self.held:
             self.held = True
             hold_for_a_signal()
@@ -150,8 +154,8 @@ def tile_failure(job: TileJob, tile: Tile, exc: BaseException, cache: TileCache,
 
 
 def run_tiles(job: TileJob, tiles: Sequence[Tile], cache: TileCache, *, workers: int = 0,
-              scheduler: str | None = None, log: logging.Logger | None = None
-              ) -> list[dict[str, Any]]:
+              scheduler: str | None = None, log: logging.Logger | None = None,
+              on_tile: Any = None) -> list[dict[str, Any]]:
     """Compute every tile not yet in ``cache``; return the info of all of them.
 
     Parameters
@@ -167,6 +171,9 @@ def run_tiles(job: TileJob, tiles: Sequence[Tile], cache: TileCache, *, workers:
     scheduler : str, optional
         Address of a running ``dask.distributed`` scheduler (overrides ``workers``).
     log : logging.Logger, optional
+    on_tile : callable, optional
+        Called without arguments in this thread once before the tiles are computed and
+        after each one (e.g. to write the finished tiles in order while the others run).
 
     Returns
     -------
@@ -184,7 +191,9 @@ def run_tiles(job: TileJob, tiles: Sequence[Tile], cache: TileCache, *, workers:
     if len(todo) < len(tiles):
         log.info("%d of %d tiles found in %s; computing %d", len(tiles) - len(todo),
                  len(tiles), cache.folder, len(todo))
-    progress = Progress(len(tiles), len(tiles) - len(todo), log, job.stage)
+    progress = Progress(len(tiles), len(tiles) - len(todo), log, job.stage, on_tile)
+    if on_tile is not None:
+        on_tile()  # the tiles found in the cache
     if todo:
         if scheduler:
             _run_on_client(job, todo, cache, progress, scheduler=scheduler, workers=0)

@@ -20,6 +20,7 @@ projecting the tile's corners); then one call to :func:`run_tiled` from the runn
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from collections.abc import Mapping, Sequence
@@ -123,12 +124,19 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
         text = estimate_text(tiling, memory, available_cores(), seconds, cached)
         run.log.info("dry run, nothing written:\n%s", text)
         return TiledResult(tiling, dry_run=text)
-    with output_lock(main):
+    with output_lock(main), contextlib.ExitStack() as streaming:
         start = time.perf_counter()
         if prepare is not None and not all(cache.done(t) for t in tiling.tiles):
             job = prepare(job, cache.folder)
+        writer = None
+        if getattr(job, "stream_outputs", False) and (scheduler or workers >= 2):
+            # the outputs open in the transaction now; each tile is written as soon as it
+            # and every tile before it are done, while the workers compute the rest
+            streaming.enter_context(dio.output_transaction(declared_inputs, declared_outputs))
+            writer = _InOrderWriter(streaming.enter_context(contextlib.ExitStack()), outputs,
+                                    tiling, cache, transform, crs)
         infos = run_tiles(job, tiling.tiles, cache, workers=workers, scheduler=scheduler,
-                          log=run.log)
+                          log=run.log, on_tile=writer.advance if writer else None)
         wall = time.perf_counter() - start
         seconds = [float(i.get("seconds", 0.0)) for i in infos]
         summary = dict(summarize(infos) if summarize else {})
@@ -140,15 +148,57 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
                              "tile_cpu_seconds_sum": round(sum(float(i.get("cpu_seconds", 0))
                                                                for i in infos), 3),
                              "tiles_wall_s": round(wall, 3)}
-        with dio.output_transaction(declared_inputs, declared_outputs):
-            for output in outputs:
-                write_tiled_raster(output.path, tiling, cache, band=output.band,
-                                   transform=transform, crs=crs, tags=output.tags,
-                                   band_name=output.band_name)
+        if writer is not None:
+            tail = time.perf_counter()
+            writer.finish()  # the rasters closed (laid out), then the sidecar
+            summary["tiling"]["write_after_tiles_s"] = round(time.perf_counter() - tail, 3)
             run.provenance.write_sidecar(main, summary, outputs=[o.path for o in outputs])
+            streaming.close()  # the transaction: every output appears now
+        else:
+            with dio.output_transaction(declared_inputs, declared_outputs):
+                for output in outputs:
+                    write_tiled_raster(output.path, tiling, cache, band=output.band,
+                                       transform=transform, crs=crs, tags=output.tags,
+                                       band_name=output.band_name)
+                run.provenance.write_sidecar(main, summary,
+                                             outputs=[o.path for o in outputs])
         cache.remove()
         _remove_stale_caches(work_folder(main), run.log)
     return TiledResult(tiling, infos, summary)
+
+
+class _InOrderWriter:
+    """The outputs of a tiled run, open while its tiles are computed: each call of
+    :meth:`advance` writes the finished tiles that follow the last one written, in index
+    order (the bytes of :func:`demtool.tiling.write_tiled_raster`'s file), so only the
+    tiles after the last to finish and the overviews are left when the workers are done.
+    """
+
+    def __init__(self, stack: Any, outputs: Sequence[TiledOutput], tiling: Tiling,
+                 cache: TileCache, transform: Any, crs: Any) -> None:
+        from demtool.tiling import tiled_raster_output
+
+        self.stack, self.tiling, self.cache = stack, tiling, cache
+        self.writers = [stack.enter_context(tiled_raster_output(
+            o.path, tiling, band=o.band, transform=transform, crs=crs, tags=o.tags,
+            band_name=o.band_name)) for o in outputs]
+        self.next = 0
+
+    def advance(self) -> None:
+        tiles = self.tiling.tiles
+        while self.next < len(tiles) and self.cache.done(tiles[self.next]):
+            for writer in self.writers:
+                writer.write(tiles[self.next], self.cache)
+            self.next += 1
+
+    def finish(self) -> None:
+        """Write the tiles left, then close the rasters (overviews, layout)."""
+        from demtool.errors import ProcessingError
+
+        self.advance()
+        if self.next != len(self.tiling.tiles):  # pragma: no cover - run_tiles' bug
+            raise ProcessingError(f"tile {self.next} is missing from {self.cache.folder}")
+        self.stack.close()
 
 
 def _remove_stale_caches(folder: Path, log: Any) -> None:

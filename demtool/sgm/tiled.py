@@ -253,6 +253,7 @@ def sgm_tiled(run: Any, left_path: str | os.PathLike, right_path: str | os.PathL
                      limits=limits)
     with dio._open_dataset(Path(left_path), "left rectified image") as dataset:
         transform, frame = dataset.transform, dataset.tags().get("frame")
+        crs = dataset.crs  # orthoimages: the disparity is on their map grid
     if transform.is_identity:
         transform = dio.image_frame_transform(1.0)
     tags = run.provenance.tags(frame=frame or f"image:{Path(left_path).stem}",
@@ -281,6 +282,6 @@ def sgm_tiled(run: Any, left_path: str | os.PathLike, right_path: str | os.PathL
     return run_tiled(run, job, tiling, outputs, inputs=inputs,
                      parameters={**params.as_dict(), "min_disparity": min_disparity,
                                  "num_disparities": num_disparities},
-                     transform=transform, workers=params.workers,
+                     transform=transform, crs=crs, workers=params.workers,
                      scheduler=params.scheduler, dry_run=params.dry_run,
                      summarize=summarize)

@@ -1,10 +1,10 @@
-"""Scale-out of `demtool sgm --cost census`: untiled against tiles on 1 and 2 workers.
+"""Scale-out of demtool's stages: untiled against tiles on 1 and 2 workers (issue 47).
 
-Issue 47's first table: the same synthetic pair with exact truth (bench/_scale_pairs.py,
-disparities 18 … 78 px, ``--num-disparities 96``), matched as one child process each:
+For each stage (``--stage``; the cases and how to add one: bench/_scale_cases.py) the
+same inputs, made once (synthetic, with known truth), run as one child process each:
 
-* untiled (the default ``--max-memory-mb`` budget: above about 2400² the aggregated cost
-  does not fit and the pass runs in strips),
+* untiled (the stage's default: for sgm, the default ``--max-memory-mb`` budget, so above
+  about 2400² the aggregated cost does not fit and the pass runs in strips),
 * ``--tile-size T --workers 1`` (tiles in the command's process),
 * ``--tile-size T --workers 2`` (a local Dask cluster of two worker processes).
 
@@ -13,28 +13,28 @@ command and every descendant it waited for (``resource.getrusage(RUSAGE_CHILDREN
 before and after; Dask's forkserver workers may escape it) and the tree sampled every
 50 ms with psutil (bench/scale.py's ``run_measured``; up to 50 ms per process missed);
 peak resident memory of the tree (the sum of its processes' resident sets, same
-sampler); the untiled match phase's cores (its CPU ÷ wall from the output's sidecar);
-bad-2 against the truth; and the efficiency of the tiled runs: untiled CPU ÷ (workers ×
-tiled wall) (1.0: the workers add no work and lose no time; issue 47's target ≥ 75 % on
-2 workers).
+sampler); the untiled run's cores in each of the stage's phases (CPU ÷ wall from the
+output's sidecar ``timings_s``); the stage's quality against the truth; the efficiency
+of the tiled runs: untiled CPU ÷ (workers × tiled wall) (1.0: the workers add no work
+and lose no time; issue 47's target ≥ 75 % on 2 workers); and the agreement of each
+tiled output with the untiled one.
 
-Usage: ``.venv/bin/python bench/scale_out.py [--size 4096] [--tile-size 1024]
-[--record MACHINE]`` (``--size 1024 --tile-size 512`` runs in a few minutes on a quiet
-2-core machine).  Timings depend on the machine's load: compare only numbers from the
-same run.
+Usage: ``.venv/bin/python bench/scale_out.py [--stage sgm-census|sgm-default|mapproject|
+dem|…|all] [--size 4096] [--tile-size T] [--record MACHINE]`` (``--size 1024 --tile-size
+512`` runs in a few minutes on a quiet 2-core machine).  Each stage records its own
+``bench/results/<result>.json`` (sgm census: 53_scale_out.json).  Timings depend on the
+machine's load: compare only numbers from the same run.
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
-import json
+import math
 import resource
 import sys
 import tempfile
 from pathlib import Path
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -46,96 +46,108 @@ def children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def phase_seconds(sidecar: dict) -> dict:
-    """The first mapping in the sidecar that holds the "match" phase's seconds."""
-    stack = [sidecar]
-    while stack:
-        item = stack.pop()
-        if isinstance(item, dict):
-            if "match" in item and "match_cpu" in item:
-                return item
-            stack.extend(item.values())
-        elif isinstance(item, list):
-            stack.extend(item)
-    return {}
+def measure(case, inputs: dict, folder: Path, tile: int) -> list[dict] | None:
+    """The three runs of one case; None (after printing why) when one fails."""
+    from bench._scale_cases import phase_seconds, sidecar
+    from bench.scale import run_measured
+
+    runs = (("untiled", 0, ()),
+            ("tiled, 1 worker", 1, ("--tile-size", str(tile), "--workers", "1")),
+            ("tiled, 2 workers", 2, ("--tile-size", str(tile), "--workers", "2")))
+    results = []
+    for label, workers, options in runs:
+        out = folder / f"{label.replace(' ', '_').replace(',', '')}{case.suffix}"
+        before = children_cpu()
+        result = run_measured([*case.command(inputs, out), *options])
+        cpu = children_cpu() - before
+        if result["code"] != 0:
+            print(f"{case.stage}, {label}: failed\n{result['stderr']}")
+            return None
+        phases = phase_seconds(sidecar(out), case.phases)
+        cores = {p: (phases[f"{p}_cpu"] / phases[p] if phases.get(p) else math.nan)
+                 for p in case.phases}
+        results.append({"run": label, "workers": workers, "out": out,
+                        "wall_s": result["wall_s"], "cpu_s": cpu,
+                        "sampled_cpu_s": result["cpu_s"], "peak_mb": result["peak_mb"],
+                        "cores": cores, "quality": case.quality(inputs, out)})
+    for r in results[1:]:
+        r["agreement"] = case.agreement(inputs, results[0]["out"], r["out"])
+    results[0]["agreement"] = "—"
+    return results
+
+
+def table(case, results: list[dict]) -> tuple[list[str], list[list[str]]]:
+    """The recorded columns and rows (and the printed table)."""
+    untiled = results[0]
+    quality = list(untiled["quality"])
+    columns = ["run", "wall s", "CPU s (waited-for tree)", "CPU s (sampled tree)",
+               "peak MB (tree)",
+               *(f"untiled {p} cores (CPU ÷ wall)" for p in case.phases),
+               "efficiency", "wall ÷ untiled", *quality, "agreement with untiled"]
+    rows = []
+    for r in results:
+        eff = untiled["cpu_s"] / (r["workers"] * r["wall_s"]) if r["workers"] else None
+        cores = [f"{r['cores'][p]:.2f}" if r["workers"] == 0 else "—" for p in case.phases]
+        rows.append([r["run"], f"{r['wall_s']:.1f}", f"{r['cpu_s']:.1f}",
+                     f"{r['sampled_cpu_s']:.1f}", f"{r['peak_mb']:.0f}", *cores,
+                     f"{100 * eff:.0f} %" if eff is not None else "—",
+                     f"{r['wall_s'] / untiled['wall_s']:.2f}",
+                     *(r["quality"].get(q, "—") for q in quality), r["agreement"]])
+    widths = [max(len(c), *(len(row[i]) for row in rows)) for i, c in enumerate(columns)]
+    for line in (columns, *rows):
+        print("  ".join(cell.ljust(w) for cell, w in zip(line, widths, strict=True)))
+    return columns, rows
 
 
 def main(argv: list[str] | None = None) -> int:
-    from bench._scale_pairs import write_pair
-    from bench.scale import bad2, run_measured, sgm_command
-    from demtool import io as dio
+    from bench._scale_cases import CASES
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--stage", choices=[*CASES, "all"], default="sgm-census",
+                        help="the stage's case (bench/_scale_cases.py), or all")
     parser.add_argument("--size", type=int, default=4096, help="image side, px")
-    parser.add_argument("--tile-size", type=int, default=1024)
+    parser.add_argument("--tile-size", type=int, default=None,
+                        help="tile side of the tiled runs (default: the case's)")
     parser.add_argument("--record", metavar="MACHINE", default=None,
-                        help="write bench/results/53_scale_out.json, machine described so")
+                        help="write each stage's bench/results/<result>.json, machine "
+                             "described so")
     parser.add_argument("--note", default="", help="appended to the recorded notes")
     args = parser.parse_args(argv)
+    cases = list(CASES.values()) if args.stage == "all" else [CASES[args.stage]]
+    status = 0
+    for case in cases:
+        tile = args.tile_size or case.tile_size
+        with tempfile.TemporaryDirectory() as work:
+            folder = Path(work) / f"{case.stage}_{args.size}"
+            inputs = case.prepare(folder, args.size)
+            results = measure(case, inputs, folder, tile)
+            if results is None:
+                status = 1
+                continue
+            print(f"\n{case.title(args.size, tile)}, tile {tile}")
+            columns, rows = table(case, results)
+        if args.record:
+            record(case, args, tile, columns, rows)
+    return status
 
-    runs = (("untiled", 0, ()),
-            ("tiled, 1 worker", 1, ("--tile-size", str(args.tile_size), "--workers", "1")),
-            ("tiled, 2 workers", 2, ("--tile-size", str(args.tile_size), "--workers", "2")))
-    results = []
-    with tempfile.TemporaryDirectory() as work:
-        folder = Path(work) / f"pair_{args.size}"
-        write_pair(folder, args.size)
-        truth = np.load(folder / "truth.npy")
-        for label, workers, options in runs:
-            out = folder / f"{label.replace(' ', '_').replace(',', '')}.tif"
-            before = children_cpu()
-            result = run_measured(sgm_command(folder, out, *options))
-            cpu = children_cpu() - before
-            if result["code"] != 0:
-                print(f"{label}: failed\n{result['stderr']}")
-                return 1
-            error, density = bad2(dio.read_raster(out).data, truth)
-            phases = phase_seconds(json.loads(Path(f"{out}.json").read_text()))
-            match_cores = (phases["match_cpu"] / phases["match"]
-                           if phases.get("match") else float("nan"))
-            results.append({"run": label, "workers": workers, "wall_s": result["wall_s"],
-                            "cpu_s": cpu, "sampled_cpu_s": result["cpu_s"],
-                            "peak_mb": result["peak_mb"], "bad2": error,
-                            "density": density, "match_cores": match_cores})
-    untiled = results[0]
-    rows = []
-    print(f"sgm census, {args.size}² × 96, tile {args.tile_size}")
-    print(f"{'run':<17} {'wall s':>7} {'CPU s':>7} {'sampled':>7} {'peak MB':>8} "
-          f"{'match cores':>11} {'eff.':>6} {'bad-2 %':>8}")
-    for r in results:
-        eff = (untiled["cpu_s"] / (r["workers"] * r["wall_s"]) if r["workers"] else None)
-        cores = f"{r['match_cores']:.2f}" if r["workers"] == 0 else "—"
-        eff_text = f"{100 * eff:.0f} %" if eff is not None else "—"
-        print(f"{r['run']:<17} {r['wall_s']:7.1f} {r['cpu_s']:7.1f} {r['sampled_cpu_s']:7.1f} "
-              f"{r['peak_mb']:8.0f} "
-              f"{cores:>11} {eff_text:>6} {100 * r['bad2']:8.2f}")
-        rows.append([r["run"], f"{r['wall_s']:.1f}", f"{r['cpu_s']:.1f}",
-                     f"{r['sampled_cpu_s']:.1f}",
-                     f"{r['peak_mb']:.0f}", cores, eff_text,
-                     f"{r['wall_s'] / untiled['wall_s']:.2f}", f"{100 * r['bad2']:.2f}"])
-    if args.record:
-        from bench.validation_page import write_result
 
-        write_result(
-            "53_scale_out", section="Large images", order=53,
-            title=f"Scale-out of sgm census ({args.size}² × 96): untiled vs tiles on 1 and "
-                  "2 workers",
-            command=f"python bench/scale_out.py --size {args.size} "
-                    f"--tile-size {args.tile_size}",
-            date=datetime.date.today().isoformat(), machine=args.record,
-            columns=["run", "wall s", "CPU s (waited-for tree)", "CPU s (sampled tree)",
-                     "peak MB (tree)",
-                     "untiled match cores (CPU ÷ wall)", "efficiency", "wall ÷ untiled",
-                     "bad-2 %"],
-            rows=rows,
-            notes=("Efficiency: untiled CPU ÷ (workers × tiled wall); issue 47's targets: "
-                   "untiled match phase ≥ 1.8 cores, 2-worker wall ≤ 0.6× untiled, "
-                   "efficiency ≥ 75 %, peak ≤ 2 GB at 4096². CPU: getrusage(RUSAGE_CHILDREN) "
-                   "(the processes the command waited for: Dask's forkserver workers may "
-                   "escape it) beside the tree's CPU sampled every 50 ms with psutil (may "
-                   "miss up to 50 ms per process); peak: sum of the tree's resident sets "
-                   "sampled every 50 ms. " + args.note).strip())
-    return 0
+def record(case, args, tile: int, columns: list[str], rows: list[list[str]]) -> None:
+    from bench.validation_page import write_result
+
+    stage = "" if case.stage == "sgm-census" else f" --stage {case.stage}"
+    write_result(
+        case.result, section="Large images", order=53,
+        title=case.title(args.size, tile),
+        command=f"python bench/scale_out.py{stage} --size {args.size} --tile-size {tile}",
+        date=datetime.date.today().isoformat(), machine=args.record,
+        columns=columns, rows=rows,
+        notes=("Efficiency: untiled CPU ÷ (workers × tiled wall); issue 47's targets: "
+               "untiled phases on every core (sgm's match ≥ 1.8 cores), 2-worker "
+               "efficiency ≥ 75 % (sgm census at 4096²: 2-worker wall ≤ 0.6× untiled, peak "
+               "≤ 2 GB). CPU: getrusage(RUSAGE_CHILDREN) (the processes the command waited "
+               "for: Dask's forkserver workers may escape it) beside the tree's CPU sampled "
+               "every 50 ms with psutil (may miss up to 50 ms per process); peak: sum of "
+               "the tree's resident sets sampled every 50 ms. " + args.note).strip())
 
 
 if __name__ == "__main__":

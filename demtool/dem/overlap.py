@@ -54,6 +54,7 @@ def cells_seen(model, grid, height: float, *, step: int = LATTICE_STEP,
     (rows, columns) bool, the same as projecting every cell (see the module docstring).
     """
     from demtool.mapproject.core import image_coordinates
+    from demtool.mapproject.threads import ground_to_image_threaded
     from demtool.maps import map_to_xyz
 
     rows, cols = grid.shape
@@ -71,5 +72,5 @@ def cells_seen(model, grid, height: float, *, step: int = LATTICE_STEP,
     if near.any():
         x, y = grid.cell_centers()
         xyz = map_to_xyz(grid.crs, x[near], y[near], float(height))
-        seen[near] = inside_image(model, *model.ground_to_image(xyz))
+        seen[near] = inside_image(model, *ground_to_image_threaded(model, xyz))
     return seen

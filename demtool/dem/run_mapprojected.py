@@ -46,9 +46,11 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
         map_cells_xy,
         raw_coordinates,
     )
+    from demtool.mapproject.threads import phase
     from demtool.maps import to_pyproj_crs
 
     log = run.log
+    timings: dict[str, float] = {}
     left = read_ortho(left_path, what="left orthoimage")
     right = read_ortho(right_path, what="right orthoimage")
     li, ri = left.info, right.info
@@ -67,7 +69,8 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
                        mask_path, error_path)
         if tiled is not None:
             return tiled
-    disparity = dio.read_raster(disparity_path, what="disparity")
+    with phase(timings, "read"):
+        disparity = dio.read_raster(disparity_path, what="disparity")
     if (disparity.data.shape != (li.height, li.width) or disparity.transform != li.transform
             or disparity.crs is None or to_pyproj_crs(disparity.crs) != to_pyproj_crs(li.crs)):
         raise InputError(f"{disparity_path}: disparity is not on the grid of the left "
@@ -82,10 +85,12 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
 
     r_rows = rows + row_shift_of(disparity.tags)  # sgm's shift of the right ortho, if any
     crs = to_pyproj_crs(li.crs)
-    l_h = left.heights(*map_cells_xy(li.transform, rows, l_cols))
-    r_h = right.heights(*map_cells_xy(ri.transform, r_rows, r_cols))
-    l_line, l_sample = raw_coordinates(left.sensor, crs, li.transform, rows, l_cols, l_h)
-    r_line, r_sample = raw_coordinates(right.sensor, crs, ri.transform, r_rows, r_cols, r_h)
+    with phase(timings, "coordinates"):
+        l_h = left.heights(*map_cells_xy(li.transform, rows, l_cols))
+        r_h = right.heights(*map_cells_xy(ri.transform, r_rows, r_cols))
+        l_line, l_sample = raw_coordinates(left.sensor, crs, li.transform, rows, l_cols, l_h)
+        r_line, r_sample = raw_coordinates(right.sensor, crs, ri.transform, r_rows, r_cols,
+                                           r_h)
     seen = np.isfinite(l_line) & np.isfinite(l_sample) & np.isfinite(r_line) & \
         np.isfinite(r_sample)
     log.info("%d valid disparities, %d seen by both sensors", rows.size, int(seen.sum()))
@@ -95,11 +100,13 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     gsd = float(np.sqrt(abs(li.transform.a * li.transform.e)))
     summary, result, body = triangulate_to_map(
         run, params, left.sensor, right.sensor, (l_line[seen], l_sample[seen]),
-        (r_line[seen], r_sample[seen]), source=disparity_path, gsd_default=gsd, crs=crs)
+        (r_line[seen], r_sample[seen]), source=disparity_path, gsd_default=gsd, crs=crs,
+        timings=timings)
     summary = {"route": "disparity-mapprojected", **summary,
                "valid_disparities": int(rows.size), "unseen_disparities": int((~seen).sum()),
                "surfaces": [left.surface, right.surface]}
     summary.update(_pair_precision(run, left, right, crs, li, gsd))
+    summary["timings_s"] = timings
     write_map_dem(run, params, out, result, summary, body, route="disparity-mapprojected",
                   mask_path=mask_path, error_path=error_path)
     return summary

@@ -99,7 +99,8 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
 def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
                        right: SensorModel, left_pixels, right_pixels, *, source,
                        range_to_gsd: float | None = None, gsd_default: float | None = None,
-                       crs: Any = None) -> tuple[dict[str, Any], Any, Any]:
+                       crs: Any = None, timings: dict[str, float] | None = None
+                       ) -> tuple[dict[str, Any], Any, Any]:
     """Triangulate correspondences (CSM ``(line, sample)`` arrays of each side) through
     the two models, drop points behind a camera or whose rays miss by more than
     ``--max-ray-gap`` (:func:`demtool.dem.sensors.screen_ray_gaps`), grid
@@ -107,17 +108,22 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
 
     The GSD is ``--gsd``, else ``gsd_default``, else the median left range times
     ``range_to_gsd`` (one pixel's angle).  ``crs``: the map's CRS when
-    ``--projection auto`` (None: a new one).  Returns (summary, MapDem, body).
+    ``--projection auto`` (None: a new one).  ``timings`` (a sidecar's ``timings_s``)
+    gains the wall and CPU seconds of the ``triangulate`` and ``grid`` phases.  Returns
+    (summary, MapDem, body).
     """
     import numpy as np
 
     from demtool.dem.sensors import dem_on_map, screen_ray_gaps, triangulate_sensors
     from demtool.errors import ProcessingError
+    from demtool.mapproject.threads import phase
     from demtool.maps import body_from_radii
 
     log = run.log
+    timings = {} if timings is None else timings
     _check_baseline(left, right, source)
-    tri = triangulate_sensors(left, right, *left_pixels, *right_pixels)
+    with phase(timings, "triangulate"):
+        tri = triangulate_sensors(left, right, *left_pixels, *right_pixels)
     finite = np.isfinite(tri.xyz).all(axis=1)
     in_front = finite & tri.in_front
     if not in_front.any():
@@ -144,9 +150,10 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     if params.t_srs is not None:
         body, use_crs = t_srs_body(params, body)
     _check_map_size(tri.xyz[keep], body, gsd, gsd_source, params, use_crs, source, log)
-    result = dem_on_map(tri.xyz[keep], tri.gap[keep], body, gsd_m=gsd, crs=use_crs,
-                        projection=params.projection, left=left, right=right,
-                        median_px=params.median)
+    with phase(timings, "grid"):
+        result = dem_on_map(tri.xyz[keep], tri.gap[keep], body, gsd_m=gsd, crs=use_crs,
+                            projection=params.projection, left=left, right=right,
+                            median_px=params.median)
     # the gridded points' indices into the correspondences given (for --points-out)
     result = result._replace(point_index=np.flatnonzero(keep)[result.point_index])
     summary: dict[str, Any] = {

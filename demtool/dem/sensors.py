@@ -93,13 +93,19 @@ def triangulate_sensors(left: SensorModel, right: SensorModel, left_line, left_s
     -------
     Triangulation
         Rays from each model's ``image_to_ray``; ``in_front`` False where the closest
-        points lie behind either camera (reject those).
+        points lie behind either camera (reject those).  Computed in batches on every
+        core (:func:`demtool.mapproject.threads.batched`), the same values as one batch.
     """
-    ray_l = left.image_to_ray(np.asarray(left_line, float).ravel(),
-                              np.asarray(left_sample, float).ravel())
-    ray_r = right.image_to_ray(np.asarray(right_line, float).ravel(),
-                               np.asarray(right_sample, float).ravel())
-    return intersect_rays(ray_l.origin, ray_l.direction, ray_r.origin, ray_r.direction)
+    from demtool.mapproject.threads import batched
+
+    def triangulate(l_line, l_sample, r_line, r_sample):
+        ray_l = left.image_to_ray(l_line, l_sample)
+        ray_r = right.image_to_ray(r_line, r_sample)
+        return intersect_rays(ray_l.origin, ray_l.direction, ray_r.origin, ray_r.direction)
+
+    # each correspondence on its own: in batches on every core, the values of one call
+    return Triangulation(*batched(triangulate, *(np.asarray(v, float).ravel() for v in (
+        left_line, left_sample, right_line, right_sample))))
 
 
 #: the largest fraction of the points in front of both cameras a user's --max-ray-gap may
@@ -187,8 +193,11 @@ def overlap_mask(grid, left: SensorModel, right: SensorModel, height: float) -> 
     Returns (rows, columns) bool.
     """
     from demtool.dem.overlap import cells_seen
+    from demtool.mapproject.threads import ordered_map
 
-    return cells_seen(left, grid, float(height)) & cells_seen(right, grid, float(height))
+    seen = list(ordered_map(lambda model: cells_seen(model, grid, float(height)),
+                            (left, right), threads=2))  # the two cameras at once
+    return seen[0] & seen[1]
 
 
 class MapDem(NamedTuple):
@@ -257,8 +266,13 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
         raise ProcessingError(f"only {len(xyz)} triangulated points: nothing to grid")
     index = np.flatnonzero(keep)
     grid = grid_from_xyz(body, xyz, gsd_m, projection=projection, crs=crs)
-    lon, lat, height = xyz_to_lonlat_height(xyz, radii=body.surface)
-    x, y = lonlat_to_map(grid.crs, lon, lat)
+    from demtool.mapproject.threads import batched
+
+    def on_map(points):
+        lon, lat, height = xyz_to_lonlat_height(points, radii=body.surface)
+        return (*lonlat_to_map(grid.crs, lon, lat), height)
+
+    x, y, height = batched(on_map, xyz)  # point by point: in batches on every core
     t = grid.transform  # north-up: col = (x − c) / a, row = (y − f) / e
     cols = (np.asarray(x) - t.c) / t.a
     rows = (np.asarray(y) - t.f) / t.e

@@ -248,7 +248,7 @@ class ImageCoordinates(NamedTuple):
     max_error_px: float
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _interpolate_lattice(node_line, node_sample, levels, heights, step, out_line,
                          out_sample):
     """Bilinear across the node lattice, Lagrange across the height levels.

@@ -17,7 +17,7 @@ from numba import njit, prange
 
 __all__ = ["bicubic_sample", "bilinear_heights", "image_window", "resample_tile"]
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _keys(t):
     """Keys' cubic convolution kernel, a = −0.5 (Keys 1981, eq. 15)."""
     t = abs(t)
@@ -28,7 +28,7 @@ def _keys(t):
     return 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _bicubic_at(image, r, c):
     """Keys bicubic convolution of ``image`` at fractional (row, col), edges clamped."""
     h, w = image.shape
@@ -47,7 +47,7 @@ def _bicubic_at(image, r, c):
     return acc
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _bicubic(image, row, col, out):
     n = row.shape[0]
     for p in prange(n):
@@ -81,7 +81,7 @@ def bicubic_sample(image: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.nd
     return out.reshape(row.shape).astype(np.float32)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _on_image_bounds(line, sample, lines, samples):
     lo_r = np.inf
     hi_r = -np.inf
@@ -115,7 +115,7 @@ def image_window(line: np.ndarray, sample: np.ndarray, lines: int, samples: int,
             min(int(math.floor(hi_c - 0.5)) + margin + 1, samples))
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _bicubic_csm(image, row0, col0, line, sample, lines, samples, out):
     """:func:`_bicubic` at CSM coordinates of a window starting at (row0, col0); NaN off
     the full image [0, lines] × [0, samples]."""
@@ -158,7 +158,7 @@ def resample_tile(image: np.ndarray, offset: tuple[int, int], line: np.ndarray,
     return out.reshape(line.shape).astype(np.float32)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _bilinear(dem, row, col, out):
     h, w = dem.shape
     for p in prange(row.shape[0]):

@@ -309,6 +309,8 @@ def raw_coordinates(sensor, crs, transform, rows: np.ndarray, cols: np.ndarray,
     Returns
     -------
     line, sample : (N,) float64, CSM image coordinates (NaN where unseen or no surface).
+    The map → ground → image steps run in batches on every core
+    (:func:`demtool.mapproject.threads.batched`: the same values).
     """
     from demtool.maps import map_to_xyz
 
@@ -318,7 +320,13 @@ def raw_coordinates(sensor, crs, transform, rows: np.ndarray, cols: np.ndarray,
     sample = np.full(x.shape, np.nan)
     good = np.isfinite(heights) & np.isfinite(x)
     if good.any():
-        xyz = map_to_xyz(crs, x[good], y[good], heights[good])
-        gl, gs = sensor.ground_to_image(np.asarray(xyz).reshape(-1, 3))
+        from demtool.mapproject.threads import batched, warm
+
+        def project(x, y, h):
+            xyz = map_to_xyz(crs, x, y, h)
+            return sensor.ground_to_image(np.asarray(xyz).reshape(-1, 3))
+
+        warm(sensor)
+        gl, gs = batched(project, x[good], y[good], heights[good])
         line[good], sample[good] = gl, gs
     return line, sample

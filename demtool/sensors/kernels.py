@@ -115,7 +115,7 @@ def _pose(time, positions, t0_ephem, dt_ephem, quaternions, t0_quat, dt_quat, qu
             -qx * qx - qy * qy + qz * qz + qw * qw)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def detector_view(lines, xyz, int_lines, int_starts, int_times, positions, t0_ephem,
                   dt_ephem, quaternions, t0_quat, dt_quat, quat_order, focal_length):
     """Undistorted focal-plane coordinates of ground points seen from image lines.
@@ -174,7 +174,7 @@ def detector_view(lines, xyz, int_lines, int_starts, int_times, positions, t0_ep
     return x, y, depth
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def image_rays(lines, u, v, int_lines, int_starts, int_times, positions, t0_ephem, dt_ephem,
                quaternions, t0_quat, dt_quat, quat_order, focal_length):
     """Imaging rays of image lines and undistorted focal-plane points (``image_to_ray``).

@@ -78,6 +78,9 @@ def test_dem_linescan_meets_the_issue_checks(route):
     assert abs(diff[ok].mean()) < 0.2 * gsd  # measured 0.07 GSD
     sidecar = json.loads((route["dem"].parent / "dem_linescan.tif.json").read_text())
     assert sidecar["summary"]["route"] == "disparity-mapprojected"
+    timings = sidecar["summary"]["timings_s"]  # each phase's wall and CPU (issue 47)
+    for phase in ("read", "coordinates", "triangulate", "grid"):
+        assert timings[phase] >= 0 and timings[f"{phase}_cpu"] >= 0, phase
     error = dio.read_raster(route["work"] / "error.tif")
     assert np.nanmedian(error.data) < 0.1 * gsd
     mask = dio.read_raster(route["work"] / "mask.tif")

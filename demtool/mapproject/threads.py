@@ -1,0 +1,170 @@
+"""Every core of one process on the map-projected stages' untiled paths.
+
+``mapproject``'s in-process loop and ``dem --mapprojected``'s raw coordinates run
+independent pieces of work (map tiles; batches of ground points) on a pool of threads,
+each piece with its share of numba's threads.  The compiled kernels they call release
+the GIL (``nogil=True``), numpy's array loops and GDAL's reads and writes do too, so
+the threads overlap in every part of the work, not only inside the parallel kernels.
+Results come back in submission order and each piece is computed exactly as it would
+be alone, so the output does not depend on the number of threads.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any, TypeVar
+
+import numpy as np
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+#: ground points per batch of :func:`ground_to_image_threaded` (below it: one batch)
+MIN_BATCH = 32_768
+
+
+def available_threads() -> int:
+    """Threads the calling thread should use: its numba thread count (by default
+    ``NUMBA_NUM_THREADS``, the cores this process may run on; less in a tile engine's
+    worker that shares the machine, :meth:`demtool.tiling.TileJob.compute`'s
+    ``threads``)."""
+    import numba
+
+    return max(1, int(numba.get_num_threads()))
+
+
+@contextlib.contextmanager
+def numba_threads(count: int) -> Iterator[None]:
+    """Run the block with ``count`` numba threads in the calling thread (numba's setting
+    is per thread), then restore the previous count."""
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(int(count), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
+def ordered_map(function: Callable[[T], R], items: Iterable[T], *,
+                threads: int | None = None) -> Iterator[R]:
+    """``map(function, items)`` on ``threads`` threads, results in the items' order.
+
+    At most ``threads + 1`` items are in flight (the memory of that many pieces), and
+    each call runs with ``max(1, available_threads() // threads)`` numba threads.  With
+    one thread it is a plain loop in the calling thread.  An exception in a call is
+    raised here, after the calls in flight finish.
+    """
+    total = available_threads()
+    threads = total if threads is None else max(1, int(threads))
+    share = max(1, total // threads)
+    if threads == 1:
+        for item in items:
+            yield function(item)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    def call(item: T) -> R:
+        with numba_threads(share):
+            return function(item)
+
+    pending: deque = deque()
+    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="demtool") as pool:
+        for item in items:
+            pending.append(pool.submit(call, item))
+            if len(pending) > threads:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
+
+
+def batched(function: Callable[..., tuple[np.ndarray, ...]], *arrays: np.ndarray,
+            threads: int | None = None, min_batch: int = MIN_BATCH
+            ) -> tuple[np.ndarray, ...]:
+    """``function(*arrays)`` evaluated in batches along the arrays' first axis on every
+    core, the batches' results concatenated.
+
+    For functions that treat each element on its own (a sensor model's ground-to-image:
+    a line scanner's secant search stops point by point; ray intersections), so the
+    result equals one call on all elements.  The batches are ``4 × threads`` (at least
+    ``min_batch`` elements each) so elements that take longer spread over the threads.
+
+    Parameters
+    ----------
+    function : callable
+        Takes the arrays (sliced alike) and returns a tuple of arrays whose first axis
+        is the elements'.
+    *arrays : (N, ...) arrays
+    threads : int, optional
+        Default :func:`available_threads`.
+
+    Returns
+    -------
+    tuple of arrays, as ``function`` returns them for all N elements.
+    """
+    n = len(arrays[0])
+    threads = available_threads() if threads is None else max(1, int(threads))
+    batches = min(4 * threads, n // max(int(min_batch), 1))
+    if threads == 1 or batches < 2:
+        return tuple(function(*arrays))
+    bounds = np.linspace(0, n, batches + 1).astype(np.int64)
+    parts = list(ordered_map(lambda k: tuple(function(*(a[bounds[k]:bounds[k + 1]]
+                                                        for a in arrays))),
+                             range(batches), threads=threads))
+    return tuple(np.concatenate([part[i] for part in parts])
+                 for i in range(len(parts[0])))
+
+
+def ground_to_image_threaded(sensor: Any, xyz: np.ndarray, *, threads: int | None = None,
+                             min_batch: int = MIN_BATCH) -> tuple[np.ndarray, np.ndarray]:
+    """``sensor.ground_to_image(xyz)`` in batches of points on every core (:func:`batched`;
+    the same values as one call).
+
+    Parameters
+    ----------
+    sensor : demtool.sensors.base.SensorModel
+    xyz : (N, 3) float64
+        Body-fixed metres.
+    threads : int, optional
+        Default :func:`available_threads`.
+
+    Returns
+    -------
+    line, sample : (N,) float64, CSM image coordinates (NaN where not seen).
+    """
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    warm(sensor)
+    line, sample = batched(sensor.ground_to_image, xyz, threads=threads, min_batch=min_batch)
+    return line, sample
+
+
+@contextlib.contextmanager
+def phase(timings: dict[str, float], name: str) -> Iterator[None]:
+    """Add the block's wall seconds to ``timings[name]`` and the process's CPU seconds
+    (every thread's) to ``timings[name + "_cpu"]`` (a sidecar's ``timings_s``: their
+    ratio is the cores the phase used)."""
+    import time
+
+    wall, cpu = time.perf_counter(), time.process_time()
+    try:
+        yield
+    finally:
+        timings[name] = round(timings.get(name, 0.0) + time.perf_counter() - wall, 3)
+        key = f"{name}_cpu"
+        timings[key] = round(timings.get(key, 0.0) + time.process_time() - cpu, 3)
+
+
+def warm(sensor: Any) -> None:
+    """Fill a sensor model's lazily cached state (a line scanner's affine first guess)
+    in this thread, before threads share the model."""
+    guess = getattr(sensor, "_affine_guess", None)
+    if callable(guess):
+        with contextlib.suppress(ValueError):
+            guess()
+
+
+__all__ = ["MIN_BATCH", "available_threads", "batched", "ground_to_image_threaded", "numba_threads",
+           "ordered_map", "phase", "warm"]

@@ -236,8 +236,10 @@ class BlockGaussianLowpass:
 #
 # A sliding-window rank structure (Huang, Yang & Tang 1979, on ranks instead of grey
 # levels; two-level histogram as in Perreault & Hébert 2007): the values are replaced
-# by their ranks in the whole padded grid (a stable argsort, so every rank is unique
-# and the median of the ranks is the rank of the median), the window is a bitmap over
+# by their ranks in the whole padded grid (the positions of an argsort: every rank is
+# unique and the median of the ranks is the rank of the median; equal values in either
+# order have the same median, so the argsort need not be stable — introsort takes half
+# the time of the stable sort, 0.35 vs 0.71 s on a 2062² grid), the window is a bitmap over
 # the ranks plus counts per bin of 1024 ranks, and moving one column swaps 2 × size
 # entries.  The median is found by walking the bin counts from the previous median's
 # bin (it moves little) and counting the set bits inside the bin.  Exact, O(size) per
@@ -339,7 +341,7 @@ def median_filter(array: np.ndarray, size: int) -> np.ndarray:
         raise ValueError(f"median window must be odd, got {size}")
     half = size // 2
     padded = np.pad(values, half, mode="symmetric")
-    order = np.argsort(padded, axis=None, kind="stable")
+    order = np.argsort(padded, axis=None)
     ranks = np.empty(order.size, dtype=np.int64)
     ranks[order] = np.arange(order.size)
     bins = (order.size >> _BIN_SHIFT) + 1

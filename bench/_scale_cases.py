@@ -9,7 +9,7 @@ bench/scale.py's ``run_measured`` (wall, CPU and peak of the whole process tree)
 untiled, with ``--tile-size T --workers 1`` and with ``--workers 2`` (a local Dask
 cluster), and records each stage's table in its own ``bench/results/<result>.json``.
 
-Adding a stage's case (refine, fuse, compare …):
+Adding a stage's case (refine, fuse and compare are in bench/_scale_products.py):
 
 1. write ``prepare(folder, size) -> dict`` (paths of its inputs and truth; run any
    upstream stage here, once), ``command(inputs, out) -> list[str]`` (the untiled
@@ -62,9 +62,12 @@ class ScaleCase:
     phases : tuple of str
         Sidecar phases whose cores (CPU ÷ wall) are shown for the untiled run.
     tile_size : int
-        Default ``--tile-size`` of the tiled runs.
+        Default ``--tile-size`` of the tiled runs; 0: the stage has no worker processes,
+        only its untiled run is measured.
     suffix : str
-        The output file's suffix.
+        The output file's suffix ("": the output is a folder).
+    sidecar : str
+        The sidecar's name inside an output folder ("": ``<out>.json``).
     """
 
     stage: str
@@ -77,6 +80,7 @@ class ScaleCase:
     phases: tuple[str, ...] = ()
     tile_size: int = 1024
     suffix: str = ".tif"
+    sidecar: str = ""
 
 
 CASES: dict[str, ScaleCase] = {}
@@ -232,7 +236,10 @@ register(ScaleCase(
     agreement=_dem_agreement, phases=("triangulate", "grid"), tile_size=1024))
 
 
-def sidecar(out: Path) -> dict:
-    """The output's sidecar ``<out>.json`` ({} when missing)."""
-    path = Path(f"{out}.json")
+def sidecar(out: Path, name: str = "") -> dict:
+    """The output's sidecar: ``<out>.json``, or ``out/<name>`` ({} when missing)."""
+    path = Path(out) / name if name else Path(f"{out}.json")
     return json.loads(path.read_text()) if path.exists() else {}
+
+
+import bench._scale_products  # noqa: E402,F401 - the refine, fuse and compare cases

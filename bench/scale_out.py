@@ -20,10 +20,10 @@ and lose no time; issue 47's target ≥ 75 % on 2 workers); and the agreement of
 tiled output with the untiled one.
 
 Usage: ``.venv/bin/python bench/scale_out.py [--stage sgm-census|sgm-default|mapproject|
-dem|…|all] [--size 4096] [--tile-size T] [--record MACHINE]`` (``--size 1024 --tile-size
-512`` runs in a few minutes on a quiet 2-core machine).  Each stage records its own
-``bench/results/<result>.json`` (sgm census: 53_scale_out.json).  Timings depend on the
-machine's load: compare only numbers from the same run.
+dem|refine|fuse|compare|all] [--size 4096] [--tile-size T] [--record MACHINE]``
+(``--size 1024 --tile-size 512`` runs in a few minutes on a quiet 2-core machine).  Each
+stage records its own ``bench/results/<result>.json`` (sgm census: 53_scale_out.json).
+Timings depend on the machine's load: compare only numbers from the same run.
 """
 
 from __future__ import annotations
@@ -54,6 +54,8 @@ def measure(case, inputs: dict, folder: Path, tile: int) -> list[dict] | None:
     runs = (("untiled", 0, ()),
             ("tiled, 1 worker", 1, ("--tile-size", str(tile), "--workers", "1")),
             ("tiled, 2 workers", 2, ("--tile-size", str(tile), "--workers", "2")))
+    if not case.tile_size:
+        runs = runs[:1]  # no worker processes: the untiled run's phases only
     results = []
     for label, workers, options in runs:
         out = folder / f"{label.replace(' ', '_').replace(',', '')}{case.suffix}"
@@ -63,7 +65,7 @@ def measure(case, inputs: dict, folder: Path, tile: int) -> list[dict] | None:
         if result["code"] != 0:
             print(f"{case.stage}, {label}: failed\n{result['stderr']}")
             return None
-        phases = phase_seconds(sidecar(out), case.phases)
+        phases = phase_seconds(sidecar(out, case.sidecar), case.phases)
         cores = {p: (phases[f"{p}_cpu"] / phases[p] if phases.get(p) else math.nan)
                  for p in case.phases}
         results.append({"run": label, "workers": workers, "out": out,
@@ -124,7 +126,8 @@ def main(argv: list[str] | None = None) -> int:
             if results is None:
                 status = 1
                 continue
-            print(f"\n{case.title(args.size, tile)}, tile {tile}")
+            print(f"\n{case.title(args.size, tile)}"
+                  + (f", tile {tile}" if case.tile_size else ""))
             columns, rows = table(case, results)
         if args.record:
             record(case, args, tile, columns, rows)
@@ -138,7 +141,8 @@ def record(case, args, tile: int, columns: list[str], rows: list[list[str]]) -> 
     write_result(
         case.result, section="Large images", order=53,
         title=case.title(args.size, tile),
-        command=f"python bench/scale_out.py{stage} --size {args.size} --tile-size {tile}",
+        command=f"python bench/scale_out.py{stage} --size {args.size}"
+                + (f" --tile-size {tile}" if case.tile_size else ""),
         date=datetime.date.today().isoformat(), machine=args.record,
         columns=columns, rows=rows,
         notes=("Efficiency: untiled CPU ÷ (workers × tiled wall); issue 47's targets: "

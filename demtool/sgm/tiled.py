@@ -143,7 +143,8 @@ class SgmTileJob:
     limits: tuple[int | None, int | None] = (None, None)  # widening limits (calibrated)
     stage: str = "sgm"
     bands: tuple[str, ...] = ("disparity", "confidence")
-    preload: tuple[str, ...] = ("demtool.sgm",)  # imported once by the workers' forkserver
+    # imported once by the workers' forkserver; demtool.sgm.warm loads the kernels there
+    preload: tuple[str, ...] = ("demtool.sgm", "demtool.sgm.warm")
     # the outputs are written in tile order while the workers compute the later tiles
     # (demtool.tiling.jobs.run_tiled): compute() writes nothing through demtool.io
     stream_outputs: bool = True
@@ -213,10 +214,13 @@ def sgm_tiled(run: Any, left_path: str | os.PathLike, right_path: str | os.PathL
     """
     from demtool import io as dio
     from demtool.sgm.margins import tile_margin
+    from demtool.tiling.distributed import prestart_local_workers
     from demtool.tiling.jobs import TiledOutput, run_tiled
 
     height, width = shape
     tile_size = sgm_tile_size(params, shape, num_disparities)
+    # the workers' forkserver imports and loads the kernels while the tiles are planned
+    prestart_local_workers(SgmTileJob, params.workers, params.scheduler, params.dry_run)
     margin_made: dict[str, Any] = {"margin_px": params.tile_overlap, "given": True}
     if params.tile_overlap is None:
         contrast = measured_contrast(left_path, right_path, params, shape, min_disparity,

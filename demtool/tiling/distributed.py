@@ -229,6 +229,36 @@ def _run_here(job: TileJob, todo: Sequence[Tile], cache: TileCache, progress: Pr
         progress.advance()
 
 
+def _forkserver_modules(preload: Sequence[str], job_module: str) -> list[str]:
+    """What the workers' forkserver imports: Dask, the numeric stack and the job's own."""
+    return ["distributed", "numpy", "scipy", "rasterio", "numba", job_module, *preload]
+
+
+def prestart_local_workers(job_class: Any, workers: int, scheduler: str | None = None,
+                           dry_run: bool = False) -> bool:
+    """Start the forkserver of a local cluster's workers now, in the background.
+
+    The server imports the job's modules (and runs what they run at import, e.g.
+    :mod:`demtool.sgm.warm`) while this process goes on planning the tiles; the cluster
+    started later (:func:`_run_on_client`) forks its workers from it.  Nothing for one
+    worker, a ``--scheduler``, a dry run or a platform without forkserver.  Returns
+    True when a server was started (or was running).
+    """
+    import multiprocessing
+
+    if scheduler or dry_run or workers < 2:
+        return False
+    if "forkserver" not in multiprocessing.get_all_start_methods():  # pragma: no cover
+        return False
+    from multiprocessing import forkserver
+
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(_forkserver_modules(getattr(job_class, "preload", ()),
+                                                       job_class.__module__))
+    forkserver.ensure_running()  # returns once the server process is spawned
+    return True
+
+
 def _start_workers_from_a_forkserver(stack: Any, job: TileJob) -> None:
     """Local workers forked from one server process that imported the job's modules once.
 
@@ -246,9 +276,8 @@ def _start_workers_from_a_forkserver(stack: Any, job: TileJob) -> None:
                                          "forkserver"}))
     from distributed.utils import get_mp_context
 
-    modules = ["distributed", "numpy", "scipy", "rasterio", "numba",
-               type(job).__module__, *getattr(job, "preload", ())]
-    get_mp_context().set_forkserver_preload(modules)
+    get_mp_context().set_forkserver_preload(
+        _forkserver_modules(getattr(job, "preload", ()), type(job).__module__))
 
 
 def _run_on_client(job: TileJob, todo: Sequence[Tile], cache: TileCache, progress: Progress,

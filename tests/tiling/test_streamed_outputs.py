@@ -43,3 +43,15 @@ def test_tiles_written_as_they_finish_give_the_same_bytes(tmp_path):
             assert writer.next == expected  # every finished tile before the first gap
         writer.finish()
     assert (tmp_path / "b.tif").read_bytes() == (tmp_path / "a.tif").read_bytes()
+
+
+def test_the_workers_forkserver_starts_early_only_for_local_workers():
+    from demtool.sgm import warm
+    from demtool.sgm.tiled import SgmTileJob
+    from demtool.tiling.distributed import prestart_local_workers
+
+    assert warm.load_kernels()  # what the forkserver runs at import: never raises
+    assert "demtool.sgm.warm" in SgmTileJob.preload
+    assert not prestart_local_workers(SgmTileJob, 1)  # tiles in this process
+    assert not prestart_local_workers(SgmTileJob, 2, scheduler="tcp://127.0.0.1:9")
+    assert not prestart_local_workers(SgmTileJob, 2, dry_run=True)

@@ -266,7 +266,7 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
         raise ProcessingError(f"only {len(xyz)} triangulated points: nothing to grid")
     index = np.flatnonzero(keep)
     grid = grid_from_xyz(body, xyz, gsd_m, projection=projection, crs=crs)
-    from demtool.mapproject.threads import batched
+    from demtool.mapproject.threads import batched, ordered_map
 
     def on_map(points):
         lon, lat, height = xyz_to_lonlat_height(points, radii=body.surface)
@@ -277,8 +277,9 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
     cols = (np.asarray(x) - t.c) / t.a
     rows = (np.asarray(y) - t.f) / t.e
     pixels = np.stack([cols - 0.5, rows - 0.5], axis=-1)
-    dem, counts = splat_median(pixels, height, grid.shape)
-    error, _ = splat_median(pixels, gap, grid.shape)
+    # the heights' and the gaps' medians at once (nogil kernels)
+    (dem, counts), (error, _) = ordered_map(lambda v: splat_median(pixels, v, grid.shape),
+                                            (height, gap), threads=2)
     measured = np.isfinite(dem)
     median_height = float(np.median(height))
     if left is not None and right is not None:

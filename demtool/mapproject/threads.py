@@ -82,7 +82,7 @@ def ordered_map(function: Callable[[T], R], items: Iterable[T], *,
 
 
 def batched(function: Callable[..., tuple[np.ndarray, ...]], *arrays: np.ndarray,
-            threads: int | None = None, min_batch: int = MIN_BATCH
+            threads: int | None = None, min_batch: int | None = None
             ) -> tuple[np.ndarray, ...]:
     """``function(*arrays)`` evaluated in batches along the arrays' first axis on every
     core, the batches' results concatenated.
@@ -100,6 +100,8 @@ def batched(function: Callable[..., tuple[np.ndarray, ...]], *arrays: np.ndarray
     *arrays : (N, ...) arrays
     threads : int, optional
         Default :func:`available_threads`.
+    min_batch : int, optional
+        Default :data:`MIN_BATCH`.
 
     Returns
     -------
@@ -107,6 +109,7 @@ def batched(function: Callable[..., tuple[np.ndarray, ...]], *arrays: np.ndarray
     """
     n = len(arrays[0])
     threads = available_threads() if threads is None else max(1, int(threads))
+    min_batch = MIN_BATCH if min_batch is None else min_batch
     batches = min(4 * threads, n // max(int(min_batch), 1))
     if threads == 1 or batches < 2:
         return tuple(function(*arrays))
@@ -119,7 +122,7 @@ def batched(function: Callable[..., tuple[np.ndarray, ...]], *arrays: np.ndarray
 
 
 def ground_to_image_threaded(sensor: Any, xyz: np.ndarray, *, threads: int | None = None,
-                             min_batch: int = MIN_BATCH) -> tuple[np.ndarray, np.ndarray]:
+                             min_batch: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``sensor.ground_to_image(xyz)`` in batches of points on every core (:func:`batched`;
     the same values as one call).
 

@@ -76,3 +76,35 @@ def test_in_process_mapproject_on_two_threads_writes_what_one_thread_writes(
         b = dio.read_raster(tmp_path / f"{name}_2.tif").data
         assert np.isfinite(a).mean() > 0.5
         assert np.array_equal(a, b, equal_nan=True), name
+
+
+def test_dem_triangulation_and_gridding_on_two_threads_equal_one_thread(monkeypatch):
+    """dem --mapprojected's batched steps (triangulate_sensors, dem_on_map with its
+    overlap) give the values of one batch, batches forced small."""
+    from demtool.dem.sensors import dem_on_map, triangulate_sensors
+    from tests.helpers.linescan import MOON
+
+    # rolled ±8° from tracks 0.2324° east and west of lon 10° (a positive roll looks
+    # east): both views centred on the site
+    left = linescan_sensor(lines=160, samples=140, roll_deg=-8.0, lon0=10.2324)
+    right = linescan_sensor(lines=160, samples=140, roll_deg=8.0, lon0=9.7676)
+    line, sample = np.meshgrid(np.arange(10, 150, 2.0) + 0.5, np.arange(10, 130, 2.0) + 0.5,
+                               indexing="ij")
+    xyz = left.image_to_ground(line.ravel(), sample.ravel(), 0.0)
+    r_line, r_sample = right.ground_to_image(xyz)
+    monkeypatch.setattr(threads, "MIN_BATCH", 200)
+    runs = []
+    for count in (1, 2):
+        monkeypatch.setattr(threads, "available_threads", lambda count=count: count)
+        tri = triangulate_sensors(left, right, line.ravel(), sample.ravel(), r_line, r_sample)
+        ok = np.isfinite(tri.xyz).all(axis=1) & tri.in_front
+        runs.append((tri, dem_on_map(tri.xyz[ok], tri.gap[ok], MOON, gsd_m=2.0,
+                                     left=left, right=right)))
+    (tri1, dem1), (tri2, dem2) = runs
+    assert ((r_line > 0) & (r_line < 160) & (r_sample > 0) & (r_sample < 140)).mean() > 0.5
+    for a, b in zip(tri1, tri2, strict=True):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert np.nanmax(np.abs(tri1.gap)) < 1e-3  # the rays of one ground point meet
+    for name in ("dem", "error", "filled", "overlap", "points"):
+        assert np.array_equal(getattr(dem1, name), getattr(dem2, name), equal_nan=True), name
+    assert np.isfinite(dem1.dem).mean() > 0.3

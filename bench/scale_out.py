@@ -51,7 +51,7 @@ def measure(case, inputs: dict, folder: Path, tile: int) -> list[dict] | None:
     from bench._scale_cases import phase_seconds, sidecar
     from bench.scale import run_measured
 
-    runs = (("untiled", 0, ()),
+    runs = (("untiled", 0, case.untiled_options(tile)),
             ("tiled, 1 worker", 1, ("--tile-size", str(tile), "--workers", "1")),
             ("tiled, 2 workers", 2, ("--tile-size", str(tile), "--workers", "2")))
     if not case.tile_size:

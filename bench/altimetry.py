@@ -12,14 +12,15 @@
 3. The LOLA shots against ISIS's reduced LOLA global DEM (``dems/ldem_4_reduced.cub``,
    0.75° posts): a coarse DEM and one track, so only the vertical shift is determined.
 
-    python bench/altimetry.py
+    python bench/altimetry.py [--record MACHINE]
 
-Parts 2 and 3 need ``../shared/data`` (skipped when absent).  Records
+Parts 2 and 3 need ``../shared/data`` (skipped when absent).  ``--record`` writes
 ``bench/results/77_altimetry.json``.
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 import tempfile
 import time
@@ -102,9 +103,13 @@ def lola() -> list[list[str]]:
     return rows
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     sys.path.insert(0, str(ROOT))
-    from bench.validation_page import write_result
+    from bench._table import add_record_option, report
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_record_option(parser, "77_altimetry")
+    args = parser.parse_args(argv)
 
     rows = []
     with tempfile.TemporaryDirectory() as folder:
@@ -141,13 +146,10 @@ def main() -> int:
     else:
         rows.append(["LOLA data", "../shared/data absent: skipped", "", ""])
     columns = ["check", "demtool", "target / reference", "verdict"]
-    for row in [columns] + rows:
-        print(" | ".join(row))
-    write_result(
-        "77_altimetry", title="Altimetry: DEM against laser shots (synthetic, LOLA)",
+    report(
+        "77_altimetry", columns, rows, record=args.record,
+        title="Altimetry: DEM against laser shots (synthetic, LOLA)",
         section="Comparison", order=77, command="python bench/altimetry.py",
-        date=time.strftime("%Y-%m-%d"), machine="2-core shared VM (CPU)", columns=columns,
-        rows=rows,
         notes=("`compare DEM shots.csv`. Synthetic: 20 m posts, four tracks of 400 shots "
                "(0.5 m noise); the shift the DEM was given is recovered as minus the shift "
                "moving it back (σ formal, shots taken as independent). LOLA: ISIS's "

@@ -16,14 +16,15 @@ usgscsm parameters 6–11), and checks
 * the residuals jigsaw itself left in the network file (the network was adjusted by
   ISIS before knoten published it), for scale.
 
-    python bench/control_network.py
+    python bench/control_network.py [--record MACHINE]
 
-Prints a message and exits 0 when ``../shared/data`` is absent.  Records
+Prints a message and exits 0 when ``../shared/data`` is absent.  ``--record`` writes
 ``bench/results/76_control_network.json``.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import tempfile
@@ -37,14 +38,18 @@ DATA = ROOT / ".." / "shared" / "data" / "sensors" / "ctx_knoten" / "bundle-adju
 KNOTEN_BEFORE, KNOTEN_AFTER = 2.57, 0.92
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    sys.path.insert(0, str(ROOT))
+    from bench._table import add_record_option, report
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_record_option(parser, "76_control_network")
+    args = parser.parse_args(argv)
     if not (DATA / "controlnet.net").exists():
         print(f"{DATA} not found: nothing to run")
         return 0
-    sys.path.insert(0, str(ROOT))
     from click.testing import CliRunner
 
-    from bench.validation_page import write_result
     from demtool.cli import cli
     from demtool.io.controlnet import read_control_network
     from demtool.sensors import read_sensor
@@ -105,15 +110,10 @@ def main() -> int:
         ["iterations / time (s)", f"{summary['iterations']} / {elapsed:.1f}", "3 / –", ""],
     ]
     columns = ["quantity", "demtool", "reference", "check"]
-    width = [max(len(str(r[i])) for r in rows + [columns]) for i in range(4)]
-    for row in [columns] + rows:
-        print("  ".join(str(c).ljust(w) for c, w in zip(row, width, strict=True)))
-    print(f"vᵀPv {vtpv:.2f}, dof {dof} (jigsaw) / {unknowns_only} (knoten)")
-    write_result(
-        "76_control_network", title="Control network: knoten's CTX block on its ISIS network",
+    report(
+        "76_control_network", columns, rows, record=args.record,
+        title="Control network: knoten's CTX block on its ISIS network",
         section="Bundle adjustment", order=76, command="python bench/control_network.py",
-        date=time.strftime("%Y-%m-%d"), machine="2-core shared VM (CPU)", columns=columns,
-        rows=rows,
         notes=("Three MRO CTX ISDs and `controlnet.net` (protobuf V5, 449 free points) from "
                "DOI-USGS/knoten `examples/data/bundle-adjust/`; `bundle --control-network` "
                "solving angles and angular rates per image (a priori 1 mrad, 0.1 mrad/s; "
@@ -123,6 +123,7 @@ def main() -> int:
                " Residuals are recomputed by reading the written ISDs and the adjusted network "
                "back. The network file also holds the residuals of an earlier ISIS jigsaw "
                "run, shown for scale."))
+    print(f"vᵀPv {vtpv:.2f}, dof {dof} (jigsaw) / {unknowns_only} (knoten)")
     return 0
 
 

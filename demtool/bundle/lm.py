@@ -20,14 +20,19 @@ from how the solution moves without each spatial block of tie points.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from demtool.bundle.offsets import PoseOffset
+from demtool.bundle.reduced_system import (
+    NormalEquations,
+    damped_step,
+    reduced_camera_system,
+)
 
 #: forward-difference steps: metres (positions, points) and milliradians (pointing)
 _STEP = 1e-3
+#: added to the damped point blocks' diagonal (a point seen by no image stays invertible)
+_POINT_RIDGE = 1e-12
 
 
 def project(models, pivots, obs, cams, points) -> np.ndarray:
@@ -76,28 +81,15 @@ def _surface_cost(surface, points, threshold: float) -> float:
     return huber_cost(surface.normalised_residuals(points), threshold)
 
 
-@dataclass
-class _Normal:
-    """Normal equations of one iteration: camera blocks ``u`` (N, 6, 6), point blocks
-    ``v`` (P, 3, 3), coupling ``g`` (P, 3, 6N), right-hand sides ``gc`` (N, 6) and
-    ``gp`` (P, 3)."""
-
-    u: np.ndarray
-    v: np.ndarray
-    g: np.ndarray
-    gc: np.ndarray
-    gp: np.ndarray
-
-
 def _normal_equations(models, pivots, obs, cams, points, base, prior_weights, *, huber,
-                      sigma, surface, surface_huber) -> _Normal:
+                      sigma, surface, surface_huber) -> NormalEquations:
     jc, jp = _jacobians(models, pivots, obs, cams, points, base)
     return _assemble(len(models), obs, cams, points, base, jc, jp, prior_weights,
                      huber=huber, sigma=sigma, surface=surface, surface_huber=surface_huber)
 
 
 def _assemble(n, obs, cams, points, base, jc, jp, prior_weights, *, huber, sigma, surface,
-              surface_huber) -> _Normal:
+              surface_huber) -> NormalEquations:
     """The normal equations from the Jacobian blocks of :func:`_jacobians`."""
     n_points = len(points)
     norms = np.linalg.norm(base, axis=1)
@@ -123,26 +115,13 @@ def _assemble(n, obs, cams, points, base, jc, jp, prior_weights, *, huber, sigma
     # G_j (3, 6n): the W blocks of point j's observations, by image
     g = np.zeros((n_points, 3, n, 6))
     np.add.at(g, (obs.point, slice(None), obs.image), np.swapaxes(wm, 1, 2))
-    return _Normal(u, v, g.reshape(n_points, 3, 6 * n), gc, gp)
+    return NormalEquations(u, v, g.reshape(n_points, 3, 6 * n), gc, gp)
 
 
-def _reduced(normal: _Normal, lam: float):
-    """Damped reduced camera system: ``S`` (6N, 6N), its right-hand side (6N,) and the
-    inverted damped point blocks (P, 3, 3)."""
-    n = len(normal.u)
-    ud = normal.u.copy()
-    ud[:, np.arange(6), np.arange(6)] *= 1.0 + lam
-    vd = normal.v.copy()
-    vd[:, np.arange(3), np.arange(3)] *= 1.0 + lam
-    vd[:, np.arange(3), np.arange(3)] += 1e-12
-    v_inv = np.linalg.inv(vd)
-    s = np.zeros((6 * n, 6 * n))
-    for i in range(n):
-        s[6 * i:6 * i + 6, 6 * i:6 * i + 6] = ud[i]
-    vg = v_inv @ normal.g  # (P, 3, 6n)
-    s -= np.einsum("pki,pkj->ij", normal.g, vg)
-    rhs = normal.gc.ravel() - np.einsum("pki,pk->i", vg, normal.gp)
-    return s, rhs, v_inv
+def _reduced(normal: NormalEquations, lam: float):
+    """:func:`~demtool.bundle.reduced_system.reduced_camera_system` with a 1e-12 ridge
+    on the point blocks."""
+    return reduced_camera_system(normal, lam, point_ridge=_POINT_RIDGE)
 
 
 def solve(models, pivots, obs, cams, points, prior_weights, *, huber: float, sigma: float,
@@ -167,34 +146,24 @@ def solve(models, pivots, obs, cams, points, prior_weights, *, huber: float, sig
     base = project(models, pivots, obs, cams, points)
     cost = _cost(base, cams, prior_weights, huber, sigma) + _surface_cost(
         surface, points, surface_huber)
+
+    def trial(dc, dp):  # the step from the current cams and points
+        new_cams, new_points = cams + dc, points + dp
+        new_base = project(models, pivots, obs, new_cams, new_points)
+        new_cost = _cost(new_base, new_cams, prior_weights, huber, sigma) + \
+            _surface_cost(surface, new_points, surface_huber)
+        return new_cost, (new_cams, new_points, new_base)
+
     lam = 1e-3
     for _ in range(iterations):
         normal = _normal_equations(models, pivots, obs, cams, points, base, prior_weights,
                                    **options)
-        stalled = False
-        while True:
-            s, rhs, v_inv = _reduced(normal, lam)
-            try:
-                dc = np.linalg.solve(s, rhs)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            dp = np.einsum("pij,pj->pi", v_inv,
-                           normal.gp - np.einsum("pki,i->pk", normal.g, dc))
-            new_cams = cams + dc.reshape(n, 6)
-            new_points = points + dp
-            new_base = project(models, pivots, obs, new_cams, new_points)
-            new_cost = _cost(new_base, new_cams, prior_weights, huber, sigma) + \
-                _surface_cost(surface, new_points, surface_huber)
-            if new_cost <= cost:
-                lam = max(lam / 10, 1e-9)
-                break
-            lam *= 10
-            if lam > 1e8:
-                stalled = True
-                break
-        if stalled:
+        step = damped_step(normal, lam, cost, trial, min_lambda=1e-9,
+                           point_ridge=_POINT_RIDGE)
+        if step is None:  # stalled
             break
+        lam, new_cost, dc = step.lam, step.cost, step.cameras
+        new_cams, new_points, new_base = step.trial
         converged = cost - new_cost <= 1e-10 * cost
         cams, points, base, cost = new_cams, new_points, new_base, new_cost
         if converged or np.max(np.abs(dc)) < 1e-6:

@@ -59,6 +59,11 @@ from demtool.bundle.network_geometry import (  # noqa: F401  (part of this inter
     project_corrected,
 )
 from demtool.bundle.priors import Observations
+from demtool.bundle.reduced_system import (
+    NormalEquations,
+    damped_step,
+    reduced_camera_system,
+)
 
 #: parameter names per image, in order (knoten/usgscsm's names, jigsaw's groups)
 PARAMETER_NAMES = ("omega", "phi", "kappa", "omega rate", "phi rate", "kappa rate",
@@ -227,24 +232,7 @@ def _normal(problem, frames, theta, points, base, lines, keep):
     g = np.zeros((n_points, 3, n, k))
     np.add.at(g, (obs.point, slice(None), obs.image),
               np.swapaxes(np.einsum("mki,mkj->mij", jc * w[:, None, None], jp), 1, 2))
-    return u, v, g.reshape(n_points, 3, n * k), gc, gp
-
-
-def _step(normal, lam):
-    u, v, g, gc, gp = normal
-    n, k = u.shape[:2]
-    ud = u.copy()
-    ud[:, np.arange(k), np.arange(k)] *= 1.0 + lam
-    vd = v.copy()
-    vd[:, np.arange(3), np.arange(3)] *= 1.0 + lam
-    v_inv = np.linalg.inv(vd)
-    s = np.zeros((n * k, n * k))
-    for i in range(n):
-        s[k * i:k * i + k, k * i:k * i + k] = ud[i]
-    vg = v_inv @ g
-    s -= np.einsum("pki,pkj->ij", g, vg)
-    rhs = gc.ravel() - np.einsum("pki,pk->i", vg, gp)
-    return s, rhs, v_inv
+    return NormalEquations(u, v, g.reshape(n_points, 3, n * k), gc, gp)
 
 
 def _dof(problem, keep) -> int:
@@ -265,32 +253,25 @@ def _solve(problem, frames, theta, points, keep, max_iterations, history):
     base, lines = _residuals(problem, frames, theta, points)
     keep = keep & np.all(np.isfinite(base), axis=1)
     cost = _cost(problem, theta, points, base, keep)
+
+    def trial(dc, dp):  # the step from the current theta and points
+        new_theta, new_points = theta + dc, points + dp
+        new_base, new_lines = _residuals(problem, frames, new_theta, new_points, lines)
+        usable = keep & np.all(np.isfinite(new_base), axis=1)
+        new_cost = _cost(problem, new_theta, new_points, new_base, usable) + \
+            1e6 * np.count_nonzero(keep & ~usable)
+        return new_cost, (new_theta, new_points, new_base, new_lines, usable)
+
     lam = 1e-8  # Gauss–Newton first; damped only when a step fails
     iterations = 0
     for _ in range(max_iterations):
         iterations += 1
         normal = _normal(problem, frames, theta, points, base, lines, keep)
-        while True:
-            s, rhs, v_inv = _step(normal, lam)
-            try:
-                dc = np.linalg.solve(s, rhs)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            dp = np.einsum("pij,pj->pi", v_inv, normal[4] - np.einsum("pki,i->pk", normal[2],
-                                                                       dc))
-            new_theta = theta + dc.reshape(theta.shape)
-            new_points = points + dp
-            new_base, new_lines = _residuals(problem, frames, new_theta, new_points, lines)
-            usable = keep & np.all(np.isfinite(new_base), axis=1)
-            new_cost = _cost(problem, new_theta, new_points, new_base, usable) + \
-                1e6 * np.count_nonzero(keep & ~usable)
-            if new_cost <= cost:
-                lam = max(lam / 10, 1e-12)
-                break
-            lam *= 10
-            if lam > 1e8:
-                return theta, points, base, keep, iterations
+        step = damped_step(normal, lam, cost, trial, min_lambda=1e-12)
+        if step is None:  # stalled
+            return theta, points, base, keep, iterations
+        lam, new_cost = step.lam, step.cost
+        new_theta, new_points, new_base, new_lines, usable = step.trial
         converged = cost - new_cost <= 1e-8 * cost
         theta, points, base, lines, cost = new_theta, new_points, new_base, new_lines, new_cost
         keep = usable
@@ -404,7 +385,7 @@ def _covariances(problem, frames, theta, points, base, keep, sigma0):
     covariances of the points (P, 3, 3; m²): σ₀² × the inverse normal matrix."""
     _, lines = _residuals(problem, frames, theta, points)
     normal = _normal(problem, frames, theta, points, base, lines, keep)
-    s, _, v_inv = _step(normal, 0.0)
+    s, _, v_inv = reduced_camera_system(normal, 0.0)
     n, k = len(problem.models), 12
     try:
         q = np.linalg.inv(s)
@@ -412,8 +393,7 @@ def _covariances(problem, frames, theta, points, base, keep, sigma0):
         q = np.full_like(s, np.nan)
     diag = np.sqrt(np.abs(np.diag(q))).reshape(n, k) * sigma0 * _SCALE
     diag[:, ~problem.solve] = np.nan
-    g = normal[2]
-    vg = v_inv @ g  # (P, 3, nk)
+    vg = v_inv @ normal.g  # (P, 3, nk)
     point_cov = (v_inv + np.einsum("pai,ij,pbj->pab", vg, q, vg)) * sigma0 ** 2
     point_cov[problem.point_kind == 2] = np.nan
     return diag, point_cov

@@ -31,6 +31,30 @@ def block():
     return models, theta, priors
 
 
+@pytest.fixture(scope="module")
+def sensor_options(block, tmp_path_factory) -> list:
+    """``--sensors`` options naming the prior ISDs, written once (read-only)."""
+    models, theta, _ = block
+    folder = tmp_path_factory.mktemp("isds")
+    options = []
+    for name, isd in zip(NAMES, nb.prior_isds(models, theta), strict=True):
+        (folder / f"{name}.json").write_text(json.dumps(isd))
+        options += ["--sensors", folder / f"{name}.json"]
+    return options
+
+
+def _problem(block, **network_options):
+    """The adjustment problem of a synthetic network (:func:`nb.network`'s options) on
+    the prior models, solving angles and rates."""
+    models, _, priors = block
+    network, _ = nb.network(models, **network_options)
+    mapping = match_serials(network.serials(), priors, NAMES)
+    problem, _, _ = build_problem(network, priors, NAMES, mapping,
+                                  solve=solve_mask(["angles", "rates"]), sigmas=SIGMAS,
+                                  pixel_sigma=0.1)
+    return problem
+
+
 def test_corrected_isd_is_the_corrected_model(block):
     models, theta, priors = block
     for model, t, prior in zip(models, theta, priors, strict=True):
@@ -57,13 +81,8 @@ def test_serials_matched_by_clock_and_explicitly(block):
 
 
 def test_known_pointing_error_is_recovered_with_ground_control(block):
-    models, theta, priors = block
-    network, _ = nb.network(models, count=40, fixed=8, noise_px=0.1)
-    mapping = match_serials(network.serials(), priors, NAMES)
-    problem, _, _ = build_problem(network, priors, NAMES, mapping,
-                                  solve=solve_mask(["angles", "rates"]), sigmas=SIGMAS,
-                                  pixel_sigma=0.1)
-    solution = adjust_network(problem)
+    _, theta, _ = block
+    solution = adjust_network(_problem(block, count=40, fixed=8, noise_px=0.1))
     assert solution.initial_sigma0 > 5 * solution.sigma0  # errors of 1-3 px, noise 0.1 px
     assert 0.7 < solution.sigma0 < 1.3  # the measures' noise is their sigma
     error = solution.theta[:, :6] + theta[:, :6]
@@ -72,39 +91,31 @@ def test_known_pointing_error_is_recovered_with_ground_control(block):
     assert np.all(np.abs(error[:, :2]) < 0.15 * np.abs(theta[:, :2]).max())  # omega, phi
 
 
-def _run(args):
+def _bundle(net, out, sensor_options, *options):
+    """``demtool -q bundle --control-network net --out out …``: exit code, output lines."""
+    args = ["-q", "bundle", "--control-network", net, "--out", out, *options, *sensor_options]
     result = CliRunner().invoke(cli, [str(a) for a in args])
     return result.exit_code, result.output.strip().splitlines()
 
 
-def test_network_of_other_images_is_one_line_exit_1(block, tmp_path):
-    models, theta, _ = block
-    paths = []
-    for k, isd in enumerate(nb.prior_isds(models, theta)):
-        paths.append(tmp_path / f"{NAMES[k]}.json")
-        paths[-1].write_text(json.dumps(isd))
+def test_network_of_other_images_is_one_line_exit_1(block, sensor_options, tmp_path):
+    models, _, _ = block
     network, _ = nb.network(models, count=4)
     for point in network.points:
         for m in point.measures:
             m.serial = "MRO/CTX/1234:000"
     net = write_control_network(tmp_path / "other.net", network)
-    code, lines = _run(["-q", "bundle", "--control-network", net, "--out", tmp_path / "b.npz",
-                        *sum((["--sensors", p] for p in paths), [])])
+    code, lines = _bundle(net, tmp_path / "b.npz", sensor_options)
     assert code == 1 and len(lines) == 1 and "matches an image" in lines[0]
     assert not (tmp_path / "b.npz").exists()
 
 
-def test_measure_outside_its_image_is_one_line_exit_1(block, tmp_path):
-    models, theta, _ = block
-    paths = []
-    for k, isd in enumerate(nb.prior_isds(models, theta)):
-        paths.append(tmp_path / f"{NAMES[k]}.json")
-        paths[-1].write_text(json.dumps(isd))
+def test_measure_outside_its_image_is_one_line_exit_1(block, sensor_options, tmp_path):
+    models, _, _ = block
     network, _ = nb.network(models, count=4)
     network.points[2].measures[1].line = 5000.0
     net = write_control_network(tmp_path / "out.net", network)
-    code, lines = _run(["-q", "bundle", "--control-network", net, "--out", tmp_path / "b.npz",
-                        *sum((["--sensors", p] for p in paths), [])])
+    code, lines = _bundle(net, tmp_path / "b.npz", sensor_options)
     assert code == 1 and len(lines) == 1 and "outside its image img1" in lines[0]
 
 
@@ -139,12 +150,8 @@ def test_known_pointing_error_is_recovered_with_altimetry_as_ground_control(bloc
     from demtool.io.altimetry import Shots
     from tests.helpers.linescan import R, terrain
 
-    models, theta, priors = block
-    network, _ = nb.network(models, count=40, noise_px=0.1)
-    mapping = match_serials(network.serials(), priors, NAMES)
-    problem, _, _ = build_problem(network, priors, NAMES, mapping,
-                                  solve=solve_mask(["angles", "rates"]), sigmas=SIGMAS,
-                                  pixel_sigma=0.1)
+    _, theta, _ = block
+    problem = _problem(block, count=40, noise_px=0.1)
     metre = 1.0 / (R * np.radians(1.0))
     lat = np.tile(5.0 + np.linspace(-600, 600, 241) * metre, 121)
     lon = np.repeat(10.0 + np.arange(-60, 61) * 10 * metre / np.cos(np.radians(5.0)), 241)
@@ -160,18 +167,13 @@ def test_known_pointing_error_is_recovered_with_altimetry_as_ground_control(bloc
     assert np.nanmedian(np.abs(dh)) < 1.0
 
 
-def test_reference_points_of_another_body_are_one_line_exit_1(block, tmp_path):
-    models, theta, _ = block
-    paths = []
-    for k, isd in enumerate(nb.prior_isds(models, theta)):
-        paths.append(tmp_path / f"{NAMES[k]}.json")
-        paths[-1].write_text(json.dumps(isd))
+def test_reference_points_of_another_body_are_one_line_exit_1(block, sensor_options,
+                                                               tmp_path):
+    models, _, _ = block
     network, _ = nb.network(models, count=4)
     net = write_control_network(tmp_path / "n.net", network)
     mars = tmp_path / "mars.csv"
     mars.write_text("longitude,latitude,radius_km\n10,5,3396.2\n10.001,5,3396.1\n")
-    code, lines = _run(["-q", "bundle", "--control-network", net, "--out", tmp_path / "b.npz",
-                        "--reference-points", mars,
-                        *sum((["--sensors", p] for p in paths), [])])
+    code, lines = _bundle(net, tmp_path / "b.npz", sensor_options, "--reference-points", mars)
     assert code == 1 and len(lines) == 1 and "another body" in lines[0]
     assert not (tmp_path / "b.npz").exists()

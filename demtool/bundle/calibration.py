@@ -49,7 +49,11 @@ from typing import Any
 
 import numpy as np
 
-from demtool.bundle.runtime import call_interruptibly, load_pycolmap
+from demtool.bundle.runtime import (
+    bundle_adjustment_options,
+    call_interruptibly,
+    load_pycolmap,
+)
 from demtool.logs import get_logger
 
 log = get_logger(__name__)
@@ -175,12 +179,8 @@ def _adjust(reconstruction, cameras: list[int], free_pp: bool, workers: int,
         fixed ones omitted); None when COLMAP could not estimate it.
     """
     pycolmap = load_pycolmap()
-    options = pycolmap.BundleAdjustmentOptions()
-    options.print_summary = False
-    options.refine_focal_length = free_f
-    options.refine_principal_point = free_pp
-    options.refine_extra_params = True
-    options.ceres.solver_options.num_threads = workers if workers > 0 else -1
+    options = bundle_adjustment_options(focal_length=free_f, principal_point=free_pp,
+                                        extra_params=True, workers=workers)
     if robust:
         # Cauchy loss at ROBUST_LOSS_SCALE_PX (rich, affine-shaped features): the
         # pixel-sized residuals of a few poorly localised features stop pulling the

@@ -15,7 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from demtool.bundle.runtime import call_interruptibly, load_pycolmap, run_in_child
+from demtool.bundle.runtime import (
+    bundle_adjustment_options,
+    call_interruptibly,
+    load_pycolmap,
+    run_in_child,
+)
 from demtool.errors import ParameterError
 from demtool.logs import get_logger
 
@@ -466,11 +471,7 @@ def impose_intrinsics(reconstruction, intrinsics: Mapping[str, KnownIntrinsics],
         K = intrinsics[file_to_name[image.name]].K
         camera.model = pycolmap.CameraModelId.PINHOLE
         camera.params = [float(v) for v in colmap_camera_params("PINHOLE", K).split(",")]
-    options = pycolmap.BundleAdjustmentOptions()
-    options.print_summary = False
-    options.refine_focal_length = refine
-    options.refine_principal_point = False
-    options.refine_extra_params = False
-    options.ceres.solver_options.num_threads = workers if workers > 0 else -1
+    options = bundle_adjustment_options(focal_length=refine, principal_point=False,
+                                        extra_params=False, workers=workers)
     call_interruptibly(pycolmap.bundle_adjustment, reconstruction, options, cancellable=False)
     reconstruction.update_point_3d_errors()

@@ -194,3 +194,24 @@ def call_interruptibly(function: Callable[..., Any], *args: Any, cancellable: bo
     if "error" in outcome:
         raise outcome["error"]
     return outcome.get("value")
+
+
+def bundle_adjustment_options(*, focal_length: bool, principal_point: bool,
+                              extra_params: bool, workers: int):
+    """pycolmap's ``BundleAdjustmentOptions``, quiet, refining the named intrinsics.
+
+    Parameters
+    ----------
+    focal_length, principal_point, extra_params : bool
+        Which intrinsics of the free cameras the adjustment refines (``extra_params``:
+        the distortion terms).
+    workers : int
+        Ceres threads; 0: all cores (Ceres's -1).
+    """
+    options = load_pycolmap().BundleAdjustmentOptions()
+    options.print_summary = False
+    options.refine_focal_length = focal_length
+    options.refine_principal_point = principal_point
+    options.refine_extra_params = extra_params
+    options.ceres.solver_options.num_threads = workers if workers > 0 else -1
+    return options

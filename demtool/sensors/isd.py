@@ -79,6 +79,15 @@ class _Keys:
             raise InputError(f"{self.source}: ISD key '{where}{key}' has non-finite values")
         return arr
 
+    def rows(self, block: Mapping, key: str, name: str, width: int,
+             times: np.ndarray) -> np.ndarray:
+        """``{name}.{key}``, (len(times), width): one row per ``{name}.ephemeris_times``."""
+        arr = self.array(block, key, f"{name}.", (-1, width))
+        if len(arr) != len(times):
+            raise InputError(f"{self.source}: ISD key '{name}.{key}' has {len(arr)} rows "
+                             f"but '{name}.ephemeris_times' has {len(times)}")
+        return arr
+
     def unit(self, mapping: Mapping, where: str, default: str = "km") -> float:
         unit = str(mapping.get("unit", default)).lower()
         if unit not in _UNITS:
@@ -115,10 +124,7 @@ class Orientations:
 def _orientations(keys: _Keys, isd: Mapping, name: str) -> Orientations:
     block = keys.get(isd, name)
     times = keys.array(block, "ephemeris_times", f"{name}.", (-1,))
-    quats = keys.array(block, "quaternions", f"{name}.", (-1, 4))
-    if len(quats) != len(times):
-        raise InputError(f"{keys.source}: ISD key '{name}.quaternions' has {len(quats)} rows "
-                         f"but '{name}.ephemeris_times' has {len(times)}")
+    quats = keys.rows(block, "quaternions", name, 4, times)
     constant = None
     if "constant_rotation" in block:
         constant = keys.array(block, "constant_rotation", f"{name}.", (9,)).reshape(3, 3)
@@ -130,10 +136,7 @@ def _states(keys: _Keys, isd: Mapping, name: str):
     absent) of an ALE ``States`` block."""
     block = keys.get(isd, name)
     times = keys.array(block, "ephemeris_times", f"{name}.", (-1,))
-    positions = keys.array(block, "positions", f"{name}.", (-1, 3))
-    if len(positions) != len(times):
-        raise InputError(f"{keys.source}: ISD key '{name}.positions' has {len(positions)} rows "
-                         f"but '{name}.ephemeris_times' has {len(times)}")
+    positions = keys.rows(block, "positions", name, 3, times)
     if len(times) > 1 and np.any(np.diff(times) <= 0):
         raise InputError(f"{keys.source}: ISD key '{name}.ephemeris_times' is not increasing")
     scale = keys.unit(block, f"{name}.")

@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from demtool.bundle.offsets import rotation_matrices
 from demtool.bundle.priors import Observations
 from demtool.sensors.base import Detector
 from demtool.sensors.frame import FrameSensor
+from tests.bundle import frames
 
 RADIUS = 1_737_400.0
 CENTRE_LONLAT = (20.0, 10.0)
@@ -82,24 +82,10 @@ def true_models(*, altitude: float = 100e3, field_deg: float = 60.0, size: int =
 def perturbed(models, *, position_m: float = 50.0, pointing_mrad: float = 0.5,
               seed: int = 1, zero_mean: bool = False) -> list[FrameSensor]:
     """Each model moved by ``position_m`` and turned by ``pointing_mrad`` in random
-    directions (independent; ``zero_mean``: pairwise opposite)."""
-    rng = np.random.default_rng(seed)
-    out = []
-    dp = dw = np.zeros(3)
-    for k, m in enumerate(models):
-        if zero_mean and k % 2:
-            dp, dw = -dp, -dw
-        else:
-            dp = rng.normal(size=3)
-            dp *= position_m / np.linalg.norm(dp)
-            dw = rng.normal(size=3)
-            dw *= pointing_mrad * 1e-3 / np.linalg.norm(dw)
-        out.append(FrameSensor(position=m.position + dp,
-                               rotation=rotation_matrices(dw) @ m.rotation,
-                               focal_length=m.focal_length, detector=m.detector,
-                               lines=m.lines, samples=m.samples, radii=m.radii, sun=m.sun,
-                               name=m.name))
-    return out
+    directions (independent; ``zero_mean``: pairwise opposite), as
+    :func:`tests.bundle.frames.perturbed`."""
+    return frames.perturbed(models, position_m=position_m, pointing_mrad=pointing_mrad,
+                            seed=seed, zero_mean=zero_mean)
 
 
 def ground_points(count: int, *, half_width_m: float = 60e3, amplitude: float = 1000.0,

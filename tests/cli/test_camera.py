@@ -13,21 +13,7 @@ from demtool.cli import cli
 from demtool.maps import enu_frame, lonlat_height_to_xyz
 from demtool.sensors.pinhole import cameras_to_arrays, look_at
 from tests.helpers.camera_isd import MOON_RADIUS, frame_isd, look_at_rotation, write_isd
-
-TSAI = """VERSION_4
-PINHOLE
-fu = 20
-fv = 20
-cu = 5.12
-cv = 5.12
-u_direction = 1 0 0
-v_direction = 0 1 0
-w_direction = 0 0 1
-C = 1837400 0 0
-R = 0 0 -1 1 0 0 0 -1 0
-pitch = 0.01
-NULL
-"""
+from tests.helpers.tsai import NULL_LENS as TSAI
 
 
 @pytest.fixture(scope="module")

@@ -194,11 +194,14 @@ def test_unknown_model_name(tmp_path):
         sensor_from_isd(isd, "x.json")
 
 
-def test_inconsistent_table_lengths():
+@pytest.mark.parametrize("block, table", [("instrument_position", "positions"),
+                                          ("instrument_pointing", "quaternions")])
+def test_inconsistent_table_lengths(block, table):
     isd = load("orbitalLineScan")
-    isd["instrument_position"]["ephemeris_times"] = isd["instrument_position"][
-        "ephemeris_times"][:-1]
-    with pytest.raises(InputError, match="instrument_position"):
+    times = isd[block]["ephemeris_times"]
+    isd[block]["ephemeris_times"] = times[:-1]
+    with pytest.raises(InputError, match=rf"x\.json: ISD key '{block}\.{table}' has "
+                       rf"{len(times)} rows but '{block}\.ephemeris_times' has {len(times) - 1}"):
         sensor_from_isd(isd, "x.json")
 
 

@@ -6,22 +6,9 @@ import pytest
 
 from demtool.errors import InputError
 from demtool.sensors import TsaiCamera, read_sensor, read_tsai
+from tests.helpers.tsai import HEADER
 
 MOON = (1737400.0, 1737400.0)
-# Camera 100 km above (R, 0, 0) looking down −X; image right = +Y, image down = −Z.
-HEADER = """VERSION_4
-PINHOLE
-fu = 20
-fv = 20
-cu = 5.12
-cv = 5.12
-u_direction = 1 0 0
-v_direction = 0 1 0
-w_direction = 0 0 1
-C = 1837400 0 0
-R = 0 0 -1 1 0 0 0 -1 0
-pitch = 0.01
-"""
 
 
 def write(tmp_path, lens="NULL\n", name="cam.tsai", header=HEADER):

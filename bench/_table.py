@@ -1,7 +1,7 @@
 """The tail the benchmarks share: print the table, and record it with ``--record MACHINE``.
 
 A benchmark adds the option with :func:`add_record_option` and ends with
-:func:`report`, which prints the table (columns padded to their widest cell) and, when
+:func:`report_table`, which prints the table (columns padded to their widest cell) and, when
 a machine was named, records it as ``bench/results/<name>.json`` with
 :func:`bench.validation_page.write_result` (``python bench/validation_page.py`` then
 puts it on docs/validation.md).
@@ -31,7 +31,7 @@ def print_table(columns: list[str], rows: list[list[str]]) -> None:
         print("  ".join(str(c).ljust(w) for c, w in zip(row, width, strict=True)).rstrip())
 
 
-def report(name: str, columns: list[str], rows: list[list[str]], *, record: str | None,
+def report_table(name: str, columns: list[str], rows: list[list[str]], *, record: str | None,
            title: str, section: str, order: int, command: str, notes: str = "") -> None:
     """Print the table; with ``record`` (the machine), record it as
     ``bench/results/<name>.json`` (today's date)."""

@@ -105,11 +105,11 @@ def lola() -> list[list[str]]:
 
 def main(argv: list[str] | None = None) -> int:
     sys.path.insert(0, str(ROOT))
-    from bench._table import add_record_option, report
+    from bench._table import add_record_option, report_table
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_record_option(parser, "77_altimetry")
-    args = parser.parse_args(argv)
+    options = parser.parse_args(argv)
 
     rows = []
     with tempfile.TemporaryDirectory() as folder:
@@ -146,8 +146,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         rows.append(["LOLA data", "../shared/data absent: skipped", "", ""])
     columns = ["check", "demtool", "target / reference", "verdict"]
-    report(
-        "77_altimetry", columns, rows, record=args.record,
+    report_table(
+        "77_altimetry", columns, rows, record=options.record,
         title="Altimetry: DEM against laser shots (synthetic, LOLA)",
         section="Comparison", order=77, command="python bench/altimetry.py",
         notes=("`compare DEM shots.csv`. Synthetic: 20 m posts, four tracks of 400 shots "

@@ -40,11 +40,11 @@ KNOTEN_BEFORE, KNOTEN_AFTER = 2.57, 0.92
 
 def main(argv: list[str] | None = None) -> int:
     sys.path.insert(0, str(ROOT))
-    from bench._table import add_record_option, report
+    from bench._table import add_record_option, report_table
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_record_option(parser, "76_control_network")
-    args = parser.parse_args(argv)
+    options = parser.parse_args(argv)
     if not (DATA / "controlnet.net").exists():
         print(f"{DATA} not found: nothing to run")
         return 0
@@ -110,8 +110,8 @@ def main(argv: list[str] | None = None) -> int:
         ["iterations / time (s)", f"{summary['iterations']} / {elapsed:.1f}", "3 / –", ""],
     ]
     columns = ["quantity", "demtool", "reference", "check"]
-    report(
-        "76_control_network", columns, rows, record=args.record,
+    report_table(
+        "76_control_network", columns, rows, record=options.record,
         title="Control network: knoten's CTX block on its ISIS network",
         section="Bundle adjustment", order=76, command="python bench/control_network.py",
         notes=("Three MRO CTX ISDs and `controlnet.net` (protobuf V5, 449 free points) from "

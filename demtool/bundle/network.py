@@ -39,7 +39,8 @@ The adjustment minimises (Triggs et al. 2000, sect. 3 and 4.4; ISIS ``BundleAdju
     Σ_measures |v|² / σ_px²  +  Σ_images Σ_k (θ_k / σ_k)²  +  Σ_constrained (X − X₀)ᵀ Σ₀⁻¹ (X − X₀)
 
 over the image parameters θ and the free and constrained points (fixed points are held),
-by Levenberg–Marquardt on the reduced camera system (Schur complement of the points).
+by Levenberg–Marquardt on the reduced camera system (Schur complement of the points,
+:mod:`demtool.bundle.reduced_system`).
 Its σ₀ is jigsaw's: ``sqrt(vᵀPv / dof)`` with ``dof`` = observations (2 per measure)
 + constrained image and point parameters − unknowns.
 """

@@ -5,10 +5,10 @@ control-network adjustment (:mod:`demtool.bundle.network`: 12 per image) solve t
 normal equations by blocks: the point blocks are eliminated (Schur complement, Triggs
 et al. 2000, "Bundle adjustment — a modern synthesis", sect. 6.1), the reduced camera
 system is solved, the point steps are back-substituted, and Levenberg–Marquardt damps
-both block diagonals by ``1 + λ`` (Triggs et al. 2000, sect. 4.3; Marquardt 1963),
-raising λ tenfold on a singular system or a step that does not lower the cost and
-lowering it tenfold after a step that does.  Each caller keeps its own cost, its own
-starting λ and its own floor for it.
+both block diagonals by ``1 + λ`` (Marquardt 1963, "An algorithm for least-squares
+estimation of nonlinear parameters"), raising λ tenfold on a singular system or a step
+that does not lower the cost and lowering it tenfold after a step that does.  Each
+caller keeps its own cost, its own starting λ and its own floor for it.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ class NormalEquations(NamedTuple):
 
 def reduced_camera_system(normal: NormalEquations, lam: float, *,
                           point_ridge: float = 0.0):
-    """The damped reduced camera system (Triggs et al. 2000, eq. 6.1 … 6.3).
+    """The damped reduced camera system (Triggs et al. 2000, sect. 6.1).
 
     Parameters
     ----------

@@ -11,11 +11,10 @@ synthesis", sect. 3 and 4.4) is
 (ρ the Huber loss; the bracket only with a reference DEM, :mod:`demtool.bundle.surface`),
 minimised on the reduced camera system (Schur complement of the points, Triggs et al.
 2000, sect. 6.1; :mod:`demtool.bundle.reduced_system`) with IRLS weights re-computed
-each iteration.  The inverse of the
-reduced camera matrix at the solution (no damping) is the covariance of the pose
-offsets (Triggs et al. 2000, sect. 10; Förstner & Wrobel 2016, sect. 4.2): how well
-the images, the priors and the DEM determine each image's position and pointing,
-their errors taken as independent; :func:`jackknife_covariance` estimates the same
+each iteration.  The inverse of the reduced camera matrix at the solution (no damping)
+is the covariance of the pose offsets (Triggs et al. 2000, sect. 10; Förstner & Wrobel
+2016, sect. 4.2): how well the images, the priors and the DEM determine each image's
+position and pointing, their errors taken as independent; :func:`jackknife_covariance` estimates the same
 from how the solution moves without each spatial block of tie points.
 """
 

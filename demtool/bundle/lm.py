@@ -14,8 +14,8 @@ minimised on the reduced camera system (Schur complement of the points, Triggs e
 each iteration.  The inverse of the reduced camera matrix at the solution (no damping)
 is the covariance of the pose offsets (Triggs et al. 2000, sect. 10; Förstner & Wrobel
 2016, sect. 4.2): how well the images, the priors and the DEM determine each image's
-position and pointing, their errors taken as independent; :func:`jackknife_covariance` estimates the same
-from how the solution moves without each spatial block of tie points.
+position and pointing, their errors taken as independent; :func:`jackknife_covariance`
+estimates the same from how the solution moves without each spatial block of tie points.
 """
 
 from __future__ import annotations

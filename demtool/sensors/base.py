@@ -128,6 +128,20 @@ class SensorModel(ABC):
         return self.image_to_ray(line, sample).direction
 
 
+class WidthHeightSensor(SensorModel):
+    """A model that keeps its image size as ``width`` and ``height`` (pixels), as the
+    pinhole family's files do (OpenCV, .tsai, CAHV*): ``lines`` is the height and
+    ``samples`` the width."""
+
+    @property
+    def lines(self) -> int:  # type: ignore[override]
+        return self.height
+
+    @property
+    def samples(self) -> int:  # type: ignore[override]
+        return self.width
+
+
 # ---------------------------------------------------------------------------------------
 # Ellipsoid
 # ---------------------------------------------------------------------------------------

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from demtool.sensors.base import Ray, SensorModel
+from demtool.sensors.base import Ray, SensorModel, WidthHeightSensor
 
 #: Newton's iterations stop when the update is below this (radians, or χ units)
 NEWTON_TOLERANCE = 1e-12
@@ -52,7 +52,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
-class CahvoreCamera(SensorModel):
+class CahvoreCamera(WidthHeightSensor):
     """A CAHV / CAHVOR / CAHVORE camera (module docstring).
 
     Attributes
@@ -102,14 +102,6 @@ class CahvoreCamera(SensorModel):
         object.__setattr__(self, "linearity", float(self.linearity))
 
     # -- SensorModel attributes -----------------------------------------------------
-    @property
-    def lines(self) -> int:  # type: ignore[override]
-        return self.height
-
-    @property
-    def samples(self) -> int:  # type: ignore[override]
-        return self.width
-
     @property
     def radii(self):  # type: ignore[override]
         return self.body_radii

@@ -33,12 +33,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from demtool.sensors.base import Ray, SensorModel
+from demtool.sensors.base import Ray, WidthHeightSensor
 from demtool.sensors.distortion import BROWN, Distortion
 
 
 @dataclass(frozen=True, eq=False)
-class PinholeCamera(SensorModel):
+class PinholeCamera(WidthHeightSensor):
     """A pinhole camera, optionally with OpenCV Brown lens distortion.
 
     Attributes
@@ -82,14 +82,6 @@ class PinholeCamera(SensorModel):
                                None if not np.any(coefficients) else coefficients)
 
     # -- SensorModel attributes -----------------------------------------------------
-    @property
-    def lines(self) -> int:  # type: ignore[override]
-        return self.height
-
-    @property
-    def samples(self) -> int:  # type: ignore[override]
-        return self.width
-
     @property
     def lens(self) -> Distortion:
         """The lens distortion as a :class:`Distortion` (model ``none`` when ideal)."""

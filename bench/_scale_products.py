@@ -34,6 +34,10 @@ SUN_AZIMUTH, SUN_ELEVATION = 120.0, 45.0
 REFINE_ITERATIONS = 20
 FUSE_OFFSETS = (0.0, 0.5, 1.0)  # metres added to DEM i
 COMPARE_SHIFT = (-1.3, 0.7, 2.0)  # dx, dy cells (x right, y down) and dz metres of the DEM
+#: Default tile of refine and fuse: each tile recomputes its margin (refine 113 px, fuse
+#: 66 cells with the defaults), 11 % and 7 % more pixels in 2048-px tiles of a 4096² grid
+#: (four tiles, two per worker), 49 % and 28 % in 1024-px interior tiles.
+TILE = 2048
 
 
 def truth_surface(size: int, seed: int = 1) -> np.ndarray:
@@ -118,7 +122,7 @@ register(ScaleCase(
         f"Scale-out of refine ({size}² grid, lunar-Lambert rendering of a known relief, "
         f"{REFINE_ITERATIONS} iterations): untiled vs tiles on 1 and 2 workers"),
     prepare=_refine_prepare, command=_refine_command, quality=_refine_quality,
-    agreement=_refine_agreement, phases=("prepare_dem", "sfs"), tile_size=1024))
+    agreement=_refine_agreement, phases=("prepare_dem", "sfs"), tile_size=TILE))
 
 
 # --- fuse --------------------------------------------------------------------------------
@@ -162,7 +166,7 @@ register(ScaleCase(
         f"Scale-out of fuse (three {size}² DEMs with holes, 0.3 m noise, offsets 0/0.5/1 m; "
         "huber, nuth-kaab): untiled vs tiles on 1 and 2 workers"),
     prepare=_fuse_prepare, command=_fuse_command, quality=_fuse_quality,
-    agreement=_fuse_agreement, phases=("coregister", "combine"), tile_size=1024))
+    agreement=_fuse_agreement, phases=("coregister", "combine"), tile_size=TILE))
 
 
 # --- compare -----------------------------------------------------------------------------

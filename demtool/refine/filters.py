@@ -21,18 +21,24 @@ import numba as nb
 import numpy as np
 import scipy.fft as sfft
 
-#: Threads used by scipy.fft (-1: all cores).
-FFT_WORKERS = -1
+#: Threads used by scipy.fft (None: as many as the compiled kernels of the calling thread,
+#: ``numba.get_num_threads()`` — every core untiled, the worker's share in a Dask tile or
+#: under ``--workers``; -1: all cores).  The transform's numbers do not depend on it.
+FFT_WORKERS: int | None = None
+
+
+def _fft_workers() -> int:
+    return nb.get_num_threads() if FFT_WORKERS is None else FFT_WORKERS
 
 
 def dct2(array: np.ndarray) -> np.ndarray:
     """Orthonormal 2-D DCT-II of ``array`` (dtype kept: float32 stays float32)."""
-    return sfft.dctn(array, type=2, norm="ortho", workers=FFT_WORKERS)
+    return sfft.dctn(array, type=2, norm="ortho", workers=_fft_workers())
 
 
 def idct2(coefficients: np.ndarray) -> np.ndarray:
     """Inverse of :func:`dct2`."""
-    return sfft.idctn(coefficients, type=2, norm="ortho", workers=FFT_WORKERS)
+    return sfft.idctn(coefficients, type=2, norm="ortho", workers=_fft_workers())
 
 
 def dct_frequencies(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:

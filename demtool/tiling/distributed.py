@@ -46,6 +46,14 @@ LOCAL_CLUSTER_OPTIONS = {"dashboard_address": None, "processes": True,
                          "scheduler_kwargs": {"dashboard_address": ":0"},
                          "preload": ["demtool.tiling.worker_signals"],
                          "silence_logs": logging.CRITICAL}
+# Dask's own periodic work that a local cluster of equal tiles does not need: the
+# workers' statistical profiler (a stack sample every 10 ms), the event-loop tick monitor
+# of every server (every 20 ms) and work stealing (tasks are equal, one per worker at a
+# time).  2048², tiles 1024, 2 workers, loaded machine, alternated: CPU of the process
+# tree 8.5 / 9.5 s against 9.3 / 11.3 s with Dask's defaults.
+LOCAL_CLUSTER_CONFIG = {"distributed.worker.profile.enabled": False,
+                        "distributed.admin.tick.interval": "1s",
+                        "distributed.scheduler.work-stealing": False}
 
 
 def available_cores() -> int:
@@ -296,6 +304,9 @@ def _run_on_client(job: TileJob, todo: Sequence[Tile], cache: TileCache, progres
             threads = 0  # the worker's own cores (start workers with --nthreads 1)
         else:
             threads = max(1, available_cores() // workers)
+            import dask
+
+            stack.enter_context(dask.config.set(LOCAL_CLUSTER_CONFIG))
             _start_workers_from_a_forkserver(stack, job)
             cluster = stack.enter_context(LocalCluster(
                 n_workers=workers, memory_limit=0, **LOCAL_CLUSTER_OPTIONS))

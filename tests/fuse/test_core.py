@@ -158,3 +158,33 @@ def test_nan_median_is_numpys_nanmedian_to_the_bit():
         expected = np.full(some.shape, np.nan)
         expected[some] = np.nanmedian(filled[:, some], axis=0)
         np.testing.assert_array_equal(got, expected)
+
+
+def _huber_numpy(values, weights, start, scale, iterations=10, c=1.345):
+    """The whole-array numpy form of Huber's IRLS that the compiled kernel replaced."""
+    present = weights > 0
+    filled = np.where(present, values, 0.0)
+    mu = np.where(np.isfinite(start), start, 0.0)
+    w = weights
+    for _ in range(iterations):
+        u = np.abs(filled - mu) / scale
+        w = np.where(present, weights * np.minimum(1.0, c / np.maximum(u, 1e-12)), 0.0)
+        total = w.sum(axis=0)
+        mu = np.where(total > 0, (w * filled).sum(axis=0) / np.where(total > 0, total, 1.0),
+                      mu)
+    return w
+
+
+def test_compiled_huber_gives_the_numpy_weights_to_the_bit():
+    from demtool.fuse.core import HUBER_C, HUBER_ITERATIONS, _huber, _nan_median
+
+    rng = np.random.default_rng(8)
+    for count in (1, 2, 3, 7):
+        values = rng.normal(size=(count, 30, 20)) + 5 * (rng.random((count, 30, 20)) < 0.1)
+        weights = np.where(rng.random(values.shape) < 0.2, 0.0, rng.random(values.shape))
+        values[weights == 0] = np.nan  # absent values are NaN in combine
+        start = _nan_median(values, weights > 0)  # NaN where no value: mu starts at 0
+        scale = rng.uniform(0.01, 1.0, start.shape)
+        np.testing.assert_array_equal(
+            _huber(values, weights, start, scale),
+            _huber_numpy(values, weights, start, scale, HUBER_ITERATIONS, HUBER_C))

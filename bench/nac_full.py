@@ -32,8 +32,14 @@ Usage::
     python bench/nac_full.py [--lines 12000] [--workers 2] [--tile-size 1024]
         [--keep DIR] [--record MACHINE]
 
-``--lines 2000`` is a quick run (minutes) for development; the recorded number is the
-default full size (about 40–60 min on a quiet 2-core machine).
+``--lines 2000`` is a quick run for development; the recorded number is the default
+full size.  Measured at 2000 lines on the shared 2-core machine (load 10–17): synth 80
+CPU s / 1.5 GB, mapproject 33 + 15 CPU s / 1.1 GB, sgm 415 CPU s / 2.9 GB (its range
+from SIFT matches of the whole orthoimages, then tiles), dem 17 min wall, compare 47
+CPU s; DEM RMSE 0.281 m = 0.46 GSD before alignment, mean −0.036 m, completeness
+99.9 %.  Full size: synth alone 274 CPU s and 3.4 GB peak (rendering in blocks); the
+whole run is expected to take about an hour of a quiet 2-core machine (≈ 6× the
+2000-line CPU, ~4300 CPU s).
 """
 
 from __future__ import annotations

@@ -492,10 +492,12 @@ def median_filter(disparity: np.ndarray, size: int) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _unmatchable(disparity: np.ndarray, right_valid: np.ndarray, out: np.ndarray) -> None:
-    """Copy ``disparity`` to ``out`` with NaN where x − d (rounded) misses valid right data."""
-    height, width = disparity.shape
-    for y in range(height):
+def _unmatchable(disparity: np.ndarray, right_valid: np.ndarray, out: np.ndarray,
+                 start: int, stop: int) -> None:
+    """Copy rows ``start … stop − 1`` of ``disparity`` to ``out`` with NaN where x − d
+    (rounded) misses valid right data."""
+    width = disparity.shape[1]
+    for y in range(start, stop):
         for x in range(width):
             d = disparity[y, x]
             out[y, x] = d
@@ -508,5 +510,7 @@ def _unmatchable(disparity: np.ndarray, right_valid: np.ndarray, out: np.ndarray
 def matchable(disparity: np.ndarray, right_valid: np.ndarray) -> np.ndarray:
     """NaN where the match x − d (rounded) is outside the right image or invalid there."""
     out = np.empty_like(disparity)
-    _unmatchable(disparity, np.ascontiguousarray(right_valid), out)
+    valid = np.ascontiguousarray(right_valid)
+    in_halves(lambda start, stop: _unmatchable(disparity, valid, out, start, stop),
+              disparity.shape[0])  # rows on two threads: each writes its own
     return out

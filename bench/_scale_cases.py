@@ -239,7 +239,7 @@ register(ScaleCase(
         f"Scale-out of dem --mapprojected (two line-scan views {size}² px, B/H 0.44, "
         "their orthoimages and census disparity): untiled vs tiles on 1 and 2 workers"),
     prepare=_dem_prepare, command=_dem_command, quality=_dem_quality,
-    agreement=_dem_agreement, phases=("triangulate", "grid"), tile_size=1024))
+    agreement=_dem_agreement, phases=("coordinates", "triangulate", "grid"), tile_size=1024))
 
 
 def sidecar(out: Path, name: str = "") -> dict:

@@ -19,11 +19,9 @@ MODEL: ALE ISD JSON (frame or line scan), ISIS3 cube with SPICE attached, ASP .t
 frame).  Prints a table (one column per model, then one row per pair) on stdout, or
 the JSON report with --json; --out also writes the JSON report (and its provenance
 sidecar).  Keys: docs/stages/camera.md.""")
-@click.argument("models", nargs=-1, required=True, type=click.Path(dir_okay=False),
-                metavar="MODEL...")
+@options.sensor_models()
 @options.parameter_options(CameraParams)
-@click.option("--json", "as_json", is_flag=True, help="Print the JSON report on stdout "
-                                                      "instead of the table.")
+@options.json_report_option()
 @options.path_option("--out", "Also write the JSON report to this file.")
 @options.path_option("--footprints", "Also write each image's footprint and each pair's "
                      "overlap as GeoJSON polygons (lon/lat on the body, cut at ±180°) for "

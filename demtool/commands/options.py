@@ -35,6 +35,18 @@ def input_file(name: str, **kwargs) -> click.decorators.FC:
     return click.argument(name, type=click.Path(dir_okay=False), **kwargs)
 
 
+def sensor_models() -> click.decorators.FC:
+    """``MODEL...``: one or more sensor model files (the block of `camera` and `pairs`)."""
+    return click.argument("models", nargs=-1, required=True, type=click.Path(dir_okay=False),
+                          metavar="MODEL...")
+
+
+def json_report_option() -> click.decorators.FC:
+    """``--json``: print the JSON report on stdout instead of the table (``as_json``)."""
+    return click.option("--json", "as_json", is_flag=True,
+                        help="Print the JSON report on stdout instead of the table.")
+
+
 def path_option(flag: str, help_text: str, **kwargs) -> click.decorators.FC:
     """A file option (``--rectify PATH``), optional unless ``required=True``; the runner
     checks it.  A required one gets no default: click ≥ 8.3 takes an explicit

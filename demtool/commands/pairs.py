@@ -19,11 +19,9 @@ pair (overlap, convergence, B/H, sun difference, score, kept or why not) on stdo
 the JSON report with --json.  --out writes the kept pairs best first, one per line as
 "LEFT RIGHT" (model names), for a Makefile or a shell loop to run rectify → sgm → dem
 per pair and `demtool fuse` at the end.""")
-@click.argument("models", nargs=-1, required=True, type=click.Path(dir_okay=False),
-                metavar="MODEL...")
+@options.sensor_models()
 @options.parameter_options(PairsParams)
-@click.option("--json", "as_json", is_flag=True, help="Print the JSON report on stdout "
-                                                      "instead of the table.")
+@options.json_report_option()
 @options.path_option("--out", "Write the kept pairs to this file, one \"LEFT RIGHT\" a line.")
 @click.pass_context
 def command(ctx: click.Context, models: tuple[str, ...], as_json: bool, out: str | None,

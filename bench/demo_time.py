@@ -94,9 +94,10 @@ def steps(log: Path) -> dict[str, dict]:
 
 
 def products_table(stdout: str) -> str:
-    """The demo's closing comparison table (the lines after its last header)."""
+    """The demo's closing comparison table (``demtool.compare.summary``'s, on stdout:
+    its header and the lines after it)."""
     lines = stdout.splitlines()
-    heads = [i for i, line in enumerate(lines) if line.startswith("DEM ")]
+    heads = [i for i, line in enumerate(lines) if line.startswith("product ")]
     return "\n".join(lines[heads[-1]:]) if heads else ""
 
 
@@ -151,6 +152,8 @@ def main(argv: list[str] | None = None) -> int:
     same = len(set(tables.values())) == 1
     print(f"load average up to {load:.1f}; products tables "
           f"{'identical' if same else 'DIFFER'} across {', '.join(commits)}")
+    if same and tables[commits[0]]:
+        print(tables[commits[0]])
     if not same:
         for c in commits:
             print(f"--- {c}\n{tables[c]}")

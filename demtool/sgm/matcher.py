@@ -118,23 +118,6 @@ def _check_inputs(left: np.ndarray, right: np.ndarray, min_disparity: int,
                              f"than the image ({width} px)")
 
 
-def _early_census(cost, left, right, left_valid, right_valid, census_shape, workers):
-    """A census run's pixel cost (:func:`demtool.sgm.passes.census_cost`) started in a
-    thread of its own (a future), or None (other costs, one thread)."""
-    if cost != "census" or workers < 2:
-        return None
-    from concurrent.futures import ThreadPoolExecutor
-
-    from demtool.sgm.passes import census_cost
-
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="demtool-census")
-    try:
-        return pool.submit(census_cost, left, right, left_valid, right_valid, census_shape,
-                           workers)
-    finally:
-        pool.shutdown(wait=False)  # the thread ends with its one task
-
-
 def _threads_of_workers(function):
     """Run the matcher with ``workers`` resolved (≤ 0: the cores) and
     :func:`demtool.tiling.distributed.threads_limited` set to it, so its post-processing
@@ -265,21 +248,12 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
         raise ParameterError(f"median size must be odd, got {median}")
     timer = PhaseTimer()
     start = time.perf_counter()
-    census_codes = None
     with timer.measure("prepare"):
         left_valid = np.isfinite(left)
         right_valid = np.isfinite(right)
-        # census: the codes (two threads) meanwhile in a third thread, so the cores stay
-        # busy through the serial stretch, the guide and its noise (the same arrays)
-        early = _early_census(cost, left, right, left_valid, right_valid,
-                              CENSUS_WINDOWS[census_window], workers)
-        try:
-            left_range = costs.robust_range([left], [left_valid])  # shared with MI levels
-            guide = costs.quantize(left, left_valid, 256, left_range)
-            kappa = p2_kappa(guide, left_valid) if adaptive_p2 else 0
-        finally:
-            if early is not None:
-                census_codes = early.result()
+        left_range = costs.robust_range([left], [left_valid])  # shared with the MI levels
+        guide = costs.quantize(left, left_valid, 256, left_range)
+        kappa = p2_kappa(guide, left_valid) if adaptive_p2 else 0
     common = dict(paths=paths, p1=p1, p2=p2, p2_kappa=kappa,
                   workers=workers, max_memory_mb=max_memory_mb,
                   unmatched_fraction=UNMATCHED_FRACTION, timer=timer)
@@ -295,9 +269,7 @@ def sgm(left: np.ndarray, right: np.ndarray, *, min_disparity: int, num_disparit
     fractions: dict[str, Any] = {}
     first = "hmi" if cost == "auto" else cost
     try:
-        disparity, confidence = match_cost(first, window=window, census_codes=census_codes,
-                                           **match)
-        census_codes = None  # held by the pass only
+        disparity, confidence = match_cost(first, window=window, **match)
     except NoMutualInformation as error:  # census can still match: fall back, say so
         log.warning("%s; matching with the census cost instead", error)
         fractions.update(cost_used="census", cost_reason=str(error))

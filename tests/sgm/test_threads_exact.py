@@ -9,7 +9,7 @@ from demtool.sgm.matcher import sgm
 from tests.sgm.test_margins import textured_pair
 
 
-def test_census_started_early_and_two_threads_equal_one_thread():
+def test_census_on_two_threads_equals_one_thread():
     left, right = textured_pair(96, 6.0, seed=5)
     left[10:14, 30:40] = np.nan
     options = dict(min_disparity=0, num_disparities=24, cost="census")

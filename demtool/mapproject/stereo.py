@@ -20,6 +20,7 @@ Pure functions: arrays (or rasters as read) in, arrays out; no file I/O.
 
 from __future__ import annotations
 
+import math
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -35,6 +36,12 @@ MAX_DY_MEDIAN_PX = 0.5
 MAX_DY_SPREAD_PX = 1.0
 #: fewest matches that set a search range
 MIN_MATCHES = 20
+#: orthoimages of more cells are matched in windows (:func:`sift_windows`): SIFT on a
+#: whole 64 Mpx orthoimage (a full-width 12 000-line LRO NAC) holds ~15 GB; on 10.7 Mpx
+#: it peaked at 2.9 GB
+SIFT_WINDOWS_ABOVE_CELLS = 16 * 2**20
+SIFT_WINDOW_CELLS = 1024  # side of a window, cells
+SIFT_WINDOWS = 16  # windows spread evenly over the image (16 Mpx in all)
 #: the largest constant cross offset (median dy, map cells) that sgm takes out by shifting
 #: the right ortho along map y before matching: the relative pointing error of two
 #: satellite images (a Pléiades pair's RPCs: ~1 px; s2p corrects it the same way, a
@@ -98,7 +105,10 @@ def ortho_disparity_range(left: np.ndarray, right: np.ndarray, *, margin: float 
                           ratio: float = 0.8) -> OrthoRange:
     """Search range along map x from SIFT matches between two orthoimages.
 
-    Matches are SIFT keypoints (Lowe 2004) paired by the ratio test and a mutual check;
+    Matches are SIFT keypoints (Lowe 2004) paired by the ratio test and a mutual check
+    (orthoimages of more than ``SIFT_WINDOWS_ABOVE_CELLS`` cells: in
+    :func:`sift_windows` of both, at full resolution, so memory stays bounded; the
+    matcher widens a range that a window missed, :mod:`demtool.sgm.widen`);
     matches more than 5 NMAD (at least 3 cells) away from the median displacement in
     either direction are dropped as gross mismatches, then the range is the 1st–99th
     percentile of ``x_left − x_right`` widened by ``margin`` cells
@@ -124,16 +134,16 @@ def ortho_disparity_range(left: np.ndarray, right: np.ndarray, *, margin: float 
     ProcessingError
         Fewer than :data:`MIN_MATCHES` matches.
     """
-    from demtool.imaging.features import detect_sift, match_descriptors
     from demtool.rectify.core import robust_disparity_range
 
-    a = detect_sift(left, mask=np.isfinite(left))
-    b = detect_sift(right, mask=np.isfinite(right))
-    if len(a.points) < MIN_MATCHES or len(b.points) < MIN_MATCHES:
-        raise ProcessingError(f"only {len(a.points)} and {len(b.points)} SIFT keypoints")
-    pairs = match_descriptors(a.descriptors, b.descriptors, ratio=ratio, mutual=True)
-    pa = a.points[pairs[:, 0]].astype(np.float64)
-    pb = b.points[pairs[:, 1]].astype(np.float64)
+    windows = [(0, 0, left.shape[0], left.shape[1])] if left.size <= SIFT_WINDOWS_ABOVE_CELLS \
+        else sift_windows(left.shape)
+    found = [_window_matches(left, right, w, ratio) for w in windows]
+    counts = np.sum([f[2] for f in found], axis=0)
+    if counts[0] < MIN_MATCHES or counts[1] < MIN_MATCHES:
+        raise ProcessingError(f"only {counts[0]} and {counts[1]} SIFT keypoints")
+    pa = np.concatenate([f[0] for f in found])
+    pb = np.concatenate([f[1] for f in found])
     dx = pa[:, 0] - pb[:, 0]
     dy = pb[:, 1] - pa[:, 1]
     keep = np.ones(dx.size, bool)
@@ -167,6 +177,39 @@ def is_ortho_pair(left, right) -> bool:
         return True
     return is_cam2map_cube(getattr(left, "path", None)) and \
         is_cam2map_cube(getattr(right, "path", None))
+
+
+def sift_windows(shape: tuple[int, int], *, side: int = SIFT_WINDOW_CELLS,
+                 count: int = SIFT_WINDOWS) -> list[tuple[int, int, int, int]]:
+    """About ``count`` windows ``(row0, col0, rows, cols)`` of ``side`` cells spread
+    evenly over an image of ``shape`` (a grid with the image's aspect, first and last
+    windows at the edges), where a large pair of orthoimages is matched."""
+    height, width = shape
+    rows = max(1, min(count, round(math.sqrt(count * height / max(width, 1)))))
+    cols = max(1, count // rows)
+    h, w = min(side, height), min(side, width)
+    r0 = np.linspace(0, height - h, rows).round().astype(int) if rows > 1 else [0]
+    c0 = np.linspace(0, width - w, cols).round().astype(int) if cols > 1 else [0]
+    return [(int(r), int(c), h, w) for r in r0 for c in c0]
+
+
+def _window_matches(left: np.ndarray, right: np.ndarray, window: tuple[int, int, int, int],
+                    ratio: float) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """SIFT matches (left, right points in image cells) of one window of both images,
+    and the two keypoint counts."""
+    from demtool.imaging.features import detect_sift, match_descriptors
+
+    r0, c0, h, w = window
+    part_left, part_right = left[r0:r0 + h, c0:c0 + w], right[r0:r0 + h, c0:c0 + w]
+    a = detect_sift(part_left, mask=np.isfinite(part_left))
+    b = detect_sift(part_right, mask=np.isfinite(part_right))
+    counts = (len(a.points), len(b.points))
+    if min(counts) < 2:
+        return np.empty((0, 2)), np.empty((0, 2)), counts
+    pairs = match_descriptors(a.descriptors, b.descriptors, ratio=ratio, mutual=True)
+    offset = np.array([c0, r0], dtype=np.float64)
+    return (a.points[pairs[:, 0]].astype(np.float64) + offset,
+            b.points[pairs[:, 1]].astype(np.float64) + offset, counts)
 
 
 def ortho_pair_matches(left, right, *, stage: str, allow_shift: bool = False

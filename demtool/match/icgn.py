@@ -50,6 +50,10 @@ from demtool.match.lsm_base import (
     RIGHT_INVALID,
     SINGULAR,
     _cholesky_solve,
+    _cubic_cell,
+    _open_template,
+    _ran_away,
+    _store_solution,
 )
 
 
@@ -120,15 +124,7 @@ def icgn_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4
     (template², 9) float64 scratch array (Jacobian, centred template, weight, the
     resampled right window).
     """
-    height_l, width_l = left.shape
-    height_r, width_r = right.shape
-    result[0] = np.nan
-    result[1] = np.nan
-    result[2] = np.nan
-    result[3] = np.nan
-    result[4] = 0.0
-    if row - half < 0 or row + half >= height_l or col - half < 0 or col + half >= width_l:
-        result[5] = LEFT_INVALID
+    if not _open_template(result, left_ok, row, col, half):
         return
     size = 2 * half + 1
     n = size * size
@@ -195,12 +191,8 @@ def icgn_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4
             for u in range(-half, half + 1):
                 xs = a0 + a1 * u + a2 * v
                 ys = b0 + b1 * u + b2 * v
-                xi = int(np.floor(xs))
-                yi = int(np.floor(ys))
-                if xi < 1 or yi < 1 or xi >= width_r - 2 or yi >= height_r - 2:
-                    result[5] = RIGHT_INVALID
-                    return
-                if not right_ok4[yi, xi]:
+                xi, yi, ok = _cubic_cell(right_ok4, xs, ys)
+                if not ok:
                     result[5] = RIGHT_INVALID
                     return
                 g = _cubic_value(right, xi, yi, xs - xi, ys - yi)
@@ -258,9 +250,7 @@ def icgn_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4
         step_y = nb0 - b0
         a0, a1, a2, b0, b1, b2 = na0, na1, na2, nb0, nb1, nb2
         iteration += 1
-        if (abs(a0 - x0) > max_shift or abs(b0 - y0) > max_shift
-                or abs(a1 - 1.0) > 0.5 or abs(b2 - 1.0) > 0.5
-                or abs(a2) > 0.5 or abs(b1) > 0.5):
+        if _ran_away(a0, a1, a2, b0, b1, b2, x0, y0, max_shift):
             result[5] = DIVERGED
             return
         if abs(step_x) < tolerance and abs(step_y) < tolerance:
@@ -298,12 +288,7 @@ def icgn_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4
         return
     # Grün's residual: the best gain and offset leave Σ w e² = Σ w f̃² (1 − ρ²)
     sigma0_sq = sff * max(1.0 - corr * corr, 0.0) / (n - N_PARAMS)
-    result[0] = a0
-    result[1] = b0
-    result[2] = corr
-    result[3] = np.sqrt(sigma0_sq * max(q[0], 0.0))
-    result[4] = iteration
-    result[5] = CONVERGED
+    _store_solution(result, a0, b0, corr, np.sqrt(sigma0_sq * max(q[0], 0.0)), iteration)
 
 
 @njit(cache=True, parallel=True)

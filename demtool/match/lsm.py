@@ -48,6 +48,10 @@ from demtool.match.lsm_base import (
     RIGHT_INVALID,
     SINGULAR,
     _cholesky_solve,
+    _cubic_cell,
+    _open_template,
+    _ran_away,
+    _store_solution,
 )
 
 #: Gauss–Newton forms of :func:`lsm_match` (the first is the default).
@@ -156,15 +160,8 @@ def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4:
     ``right_ok4[y, x]`` is True when the 4 × 4 cubic-convolution neighbourhood of
     (x + [0, 1), y + [0, 1)) is valid.  See :func:`lsm_match`.
     """
-    height_l, width_l = left.shape
     height_r, width_r = right.shape
-    result[0] = np.nan
-    result[1] = np.nan
-    result[2] = np.nan
-    result[3] = np.nan
-    result[4] = 0.0
-    if row - half < 0 or row + half >= height_l or col - half < 0 or col + half >= width_l:
-        result[5] = LEFT_INVALID
+    if not _open_template(result, left_ok, row, col, half):
         return
     size = 2 * half + 1
     n = size * size
@@ -236,12 +233,8 @@ def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4:
             for u in range(-half, half + 1):
                 xs = p[0] + p[1] * u + p[2] * v
                 ys = p[3] + p[4] * u + p[5] * v
-                xi = int(np.floor(xs))
-                yi = int(np.floor(ys))
-                if xi < 1 or yi < 1 or xi >= width_r - 2 or yi >= height_r - 2:
-                    result[5] = RIGHT_INVALID
-                    return
-                if not right_ok4[yi, xi]:
+                xi, yi, ok = _cubic_cell(right_ok4, xs, ys)
+                if not ok:
                     result[5] = RIGHT_INVALID
                     return
                 g, gx, gy = _cubic_sample(right, xi, yi, xs - xi, ys - yi)
@@ -286,9 +279,7 @@ def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4:
         for i in range(N_PARAMS):
             p[i] += delta[i]
         iteration += 1
-        if (abs(p[0] - x0) > max_shift or abs(p[3] - y0) > max_shift
-                or abs(p[1] - 1.0) > 0.5 or abs(p[5] - 1.0) > 0.5
-                or abs(p[2]) > 0.5 or abs(p[4]) > 0.5 or p[7] <= 0.0):
+        if _ran_away(p[0], p[1], p[2], p[3], p[4], p[5], x0, y0, max_shift) or p[7] <= 0.0:
             result[5] = DIVERGED
             return
         if abs(delta[0]) < tolerance and abs(delta[3]) < tolerance:
@@ -307,12 +298,8 @@ def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4:
         result[5] = SINGULAR
         return
     sigma0_sq = sum_vv / (n - N_PARAMS)
-    result[0] = p[0]
-    result[1] = p[3]
-    result[2] = corr
-    result[3] = np.sqrt(sigma0_sq * max(delta[0], 0.0))
-    result[4] = iteration
-    result[5] = CONVERGED
+    _store_solution(result, p[0], p[3], corr, np.sqrt(sigma0_sq * max(delta[0], 0.0)),
+                    iteration)
     if result.shape[0] >= 10:  # the affine shape a1 a2 b1 b2
         result[6] = p[1]
         result[7] = p[2]

@@ -33,13 +33,13 @@ Usage::
         [--keep DIR] [--record MACHINE]
 
 ``--lines 2000`` is a quick run for development; the recorded number is the default
-full size.  Measured at 2000 lines on the shared 2-core machine (load 10–17): synth 80
-CPU s / 1.5 GB, mapproject 33 + 15 CPU s / 1.1 GB, sgm 415 CPU s / 2.9 GB (its range
-from SIFT matches of the whole orthoimages, then tiles), dem 17 min wall, compare 47
-CPU s; DEM RMSE 0.281 m = 0.46 GSD before alignment, mean −0.036 m, completeness
-99.9 %.  Full size: synth alone 274 CPU s and 3.4 GB peak (rendering in blocks); the
-whole run is expected to take about an hour of a quiet 2-core machine (≈ 6× the
-2000-line CPU, ~4300 CPU s).
+full size.  Measured stage by stage at full size (12 000 lines; ortho 12 545 × 5097
+cells) on the shared 2-core machine at load 3–8, 29 November 2026: synth 274 CPU s,
+3.4 GB (not part of the route); mapproject left 103 s wall, 43 CPU s, 1.1 GB; sgm
+320 s, 239 CPU s, 1.8 GB (range from SIFT in windows, widened in some tiles);
+dem --mapprojected 845 s, 1064 CPU s, 1.9 GB; compare 260 s, 214 CPU s, 0.6 GB; DEM
+RMSE 0.323 m = 0.53 GSD before alignment, mean +0.038 m, completeness 99.98 % (at 2000
+lines: 0.46 GSD, 99.9 %).  A full run takes about 35 min on a quiet 2-core machine.
 """
 
 from __future__ import annotations

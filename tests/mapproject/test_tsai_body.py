@@ -13,24 +13,12 @@ from demtool.cli import cli
 from demtool.dem.inputs import read_ortho
 from demtool.sensors import read_sensor
 from tests.cli.test_mapproject import check_corners, ramp_images
+from tests.helpers.tsai import NULL_LENS
 
 MOON_RADIUS_M = 1737400.0
 #: 100 km above the Moon at (0° E, 0° N), looking down -x; 128 x 128 px of 10 µm, f 20 mm
 #: (2000 px): 50 m a pixel on the ground
-TSAI = """VERSION_4
-PINHOLE
-fu = 20
-fv = 20
-cu = 0.64
-cv = 0.64
-u_direction = 1 0 0
-v_direction = 0 1 0
-w_direction = 0 0 1
-C = 1837400 0 0
-R = 0 0 -1 1 0 0 0 -1 0
-pitch = 0.01
-NULL
-"""
+TSAI = NULL_LENS.replace("cu = 5.12\ncv = 5.12", "cu = 0.64\ncv = 0.64")
 MOON_MAP = "IAU_2015:30110"
 
 

@@ -6,8 +6,8 @@ output untiled, the sidecar phases whose cores (CPU ÷ wall) are reported, the q
 of an output against the truth, and the agreement of a tiled output with the untiled
 one.  bench/scale_out.py runs every case three times, each a child process measured by
 bench/scale.py's ``run_measured`` (wall, CPU and peak of the whole process tree):
-untiled, with ``--tile-size T --workers 1`` and with ``--workers 2`` (a local Dask
-cluster), and records each stage's table in its own ``bench/results/<result>.json``.
+untiled, with ``--tile-size T --workers 1`` and with ``--workers 2`` (threads of the
+command's process; with ``--processes`` also a local Dask cluster), and records each stage's table in its own ``bench/results/<result>.json``.
 
 Adding a stage's case (refine, fuse and compare are in bench/_scale_products.py):
 

@@ -6,7 +6,13 @@ same inputs, made once (synthetic, with known truth), run as one child process e
 * untiled (the stage's default: for sgm, the default ``--max-memory-mb`` budget, so above
   about 2400² the aggregated cost does not fit and the pass runs in strips),
 * ``--tile-size T --workers 1`` (tiles in the command's process),
-* ``--tile-size T --workers 2`` (a local Dask cluster of two worker processes).
+* ``--tile-size T --workers 2``: two tiles at a time on threads of the command's process
+  (demtool/tiling/local_threads.py; a job not declared thread-safe: a local Dask cluster
+  of two worker processes), the row labelled with where the tiles ran (the sidecar's
+  ``tiling.executor``),
+* with ``--processes``, also ``--tile-size T --workers 2`` on a local Dask cluster of two
+  worker processes (``DEMTOOL_TILE_PROCESSES=1``, as before issue 47's threads), for an
+  A/B in one run.
 
 Per run: wall time; CPU seconds of the process tree, two ways: user + system of the
 command and every descendant it waited for (``resource.getrusage(RUSAGE_CHILDREN)``
@@ -20,7 +26,7 @@ and lose no time; issue 47's target ≥ 75 % on 2 workers); and the agreement of
 tiled output with the untiled one.
 
 Usage: ``.venv/bin/python bench/scale_out.py [--stage sgm-census|sgm-default|mapproject|
-dem|refine|fuse|compare|all] [--size 4096] [--tile-size T] [--record MACHINE]``
+dem|refine|fuse|compare|all] [--size 4096] [--tile-size T] [--processes] [--record MACHINE]``
 (``--size 1024 --tile-size 512`` runs in a few minutes on a quiet 2-core machine).  Each
 stage records its own ``bench/results/<result>.json`` (sgm census: 53_scale_out.json).
 Timings depend on the machine's load: compare only numbers from the same run.
@@ -46,26 +52,60 @@ def children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def measure(case, inputs: dict, folder: Path, tile: int) -> list[dict] | None:
-    """The three runs of one case; None (after printing why) when one fails."""
+PROCESSES_ENV = "DEMTOOL_TILE_PROCESSES"  # demtool.tiling.local_threads.PROCESSES_ENV
+
+
+def executor_of(found: dict) -> str | None:
+    """Where a tiled run's tiles ran: the sidecar's ``tiling.executor`` (None: not said)."""
+    stack = [found]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, dict):
+            if isinstance(item.get("tiling"), dict) and "executor" in item["tiling"]:
+                return str(item["tiling"]["executor"])
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
+    return None
+
+
+def measure(case, inputs: dict, folder: Path, tile: int,
+            processes: bool = False) -> list[dict] | None:
+    """The runs of one case; None (after printing why) when one fails."""
+    import os
+
     from bench._scale_cases import phase_seconds, sidecar
     from bench.scale import run_measured
 
-    runs = (("untiled", 0, case.untiled_options(tile)),
-            ("tiled, 1 worker", 1, ("--tile-size", str(tile), "--workers", "1")),
-            ("tiled, 2 workers", 2, ("--tile-size", str(tile), "--workers", "2")))
+    tiled = ("--tile-size", str(tile))
+    runs = [("untiled", 0, case.untiled_options(tile), False),
+            ("tiled, 1 worker", 1, (*tiled, "--workers", "1"), False),
+            ("tiled, 2 workers", 2, (*tiled, "--workers", "2"), False)]
+    if processes:
+        runs.append(("tiled, 2 worker processes", 2, (*tiled, "--workers", "2"), True))
     if not case.tile_size:
         runs = runs[:1]  # no worker processes: the untiled run's phases only
     results = []
-    for label, workers, options in runs:
+    for label, workers, options, on_processes in runs:
         out = folder / f"{label.replace(' ', '_').replace(',', '')}{case.suffix}"
         before = children_cpu()
-        result = run_measured([*case.command(inputs, out), *options])
+        saved = os.environ.pop(PROCESSES_ENV, None)
+        if on_processes:
+            os.environ[PROCESSES_ENV] = "1"
+        try:
+            result = run_measured([*case.command(inputs, out), *options])
+        finally:
+            os.environ.pop(PROCESSES_ENV, None)
+            if saved is not None:
+                os.environ[PROCESSES_ENV] = saved
         cpu = children_cpu() - before
         if result["code"] != 0:
             print(f"{case.stage}, {label}: failed\n{result['stderr']}")
             return None
-        phases = phase_seconds(sidecar(out, case.sidecar), case.phases)
+        found = sidecar(out, case.sidecar)
+        if workers >= 2 and not on_processes:
+            label = f"{label} ({executor_of(found) or 'executor not recorded'})"
+        phases = phase_seconds(found, case.phases)
         cores = {p: (phases[f"{p}_cpu"] / phases[p] if phases.get(p) else math.nan)
                  for p in case.phases}
         results.append({"run": label, "workers": workers, "out": out,
@@ -114,6 +154,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="write each stage's bench/results/<result>.json, machine "
                              "described so")
     parser.add_argument("--note", default="", help="appended to the recorded notes")
+    parser.add_argument("--processes", action="store_true",
+                        help="also run the 2 workers as a local Dask cluster of processes "
+                             "(DEMTOOL_TILE_PROCESSES=1), for an A/B in one run")
     args = parser.parse_args(argv)
     cases = list(CASES.values()) if args.stage == "all" else [CASES[args.stage]]
     status = 0
@@ -122,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory() as work:
             folder = Path(work) / f"{case.stage}_{args.size}"
             inputs = case.prepare(folder, args.size)
-            results = measure(case, inputs, folder, tile)
+            results = measure(case, inputs, folder, tile, args.processes)
             if results is None:
                 status = 1
                 continue
@@ -138,6 +181,7 @@ def record(case, args, tile: int, columns: list[str], rows: list[list[str]]) -> 
     from bench.validation_page import write_result
 
     stage = "" if case.stage == "sgm-census" else f" --stage {case.stage}"
+    stage += " --processes" if args.processes else ""
     write_result(
         case.result, section="Large images", order=53,
         title=case.title(args.size, tile),
@@ -151,7 +195,10 @@ def record(case, args, tile: int, columns: list[str], rows: list[list[str]]) -> 
                "≤ 2 GB). CPU: getrusage(RUSAGE_CHILDREN) (the processes the command waited "
                "for: Dask's forkserver workers may escape it) beside the tree's CPU sampled "
                "every 50 ms with psutil (may miss up to 50 ms per process); peak: sum of "
-               "the tree's resident sets sampled every 50 ms. " + args.note).strip())
+               "the tree's resident sets sampled every 50 ms. 2 workers: threads of the "
+               "command's process (the row says where the tiles ran); 2 worker "
+               "processes: a local Dask cluster (DEMTOOL_TILE_PROCESSES=1). "
+               + args.note).strip())
 
 
 if __name__ == "__main__":

@@ -87,7 +87,7 @@ def _keys_weights(t: float) -> tuple[float, float, float, float]:
     return w0, w1, w2, w3
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _sample_cubic(values, rows, cols, out):
     height, width = values.shape
     flat_rows = rows.ravel()
@@ -126,7 +126,7 @@ def _sample_cubic(values, rows, cols, out):
         flat_out[k] = np.nan if bad else total
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _sample_bilinear(values, rows, cols, out):
     height, width = values.shape
     flat_rows = rows.ravel()
@@ -163,7 +163,7 @@ def _sample_bilinear(values, rows, cols, out):
         flat_out[k] = np.nan if bad else total
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _shift_cubic(values, dx, dy, dz, out):
     # out[r, c] = values[r - dy, c - dx] + dz: the cubic weights are the same for every
     # pixel, so they are computed once.
@@ -221,7 +221,7 @@ def _lanczos_taps(frac: float, lobes: int) -> np.ndarray:
     return weights / weights.sum()
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _convolve_rows(values, offset, weights, out):
     # out[r, c] = sum_k weights[k] values[r, c + offset + k]; NaN taps propagate, taps
     # outside the array give NaN
@@ -239,7 +239,7 @@ def _convolve_rows(values, offset, weights, out):
             out[r, c] = total
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _convolve_columns(values, offset, weights, out):
     # the same along axis 0, accumulating whole rows (contiguous memory)
     height, width = values.shape

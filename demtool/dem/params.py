@@ -53,8 +53,8 @@ class DemParams(Parameters):
     seed: int = seed_field()
     # Tiles over the output grid (demtool.dem.tiled; docs/stages/scale.md): disparity route with
     # --cameras only.
-    workers: int = parameter(0, "Tiled runs: Dask worker processes (0 or 1 = the tiles one "
-                             "after the other in this process).", minimum=0)
+    workers: int = parameter(0, "Tiled runs: tiles computed at a time, on threads of this "
+                             "process (0 or 1 = one after the other).", minimum=0)
     tile_size: int = tile_size_field()
     tile_overlap: int | None = tile_overlap_field(
         "64 px + the median filter's half width, 16 × the coarse solve's decimation when it "

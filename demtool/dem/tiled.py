@@ -42,7 +42,7 @@ import math
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -116,6 +116,9 @@ class DemTileJob:
     work: str = ""
     ring: str = ""  # the work folder's sub-folder of an earlier fill sweep ("" = coarse)
     stage: str = "dem"
+    # local --workers: tiles on threads (demtool.tiling.local_threads; audited: nogil
+    # kernels, the neighbour search on usable_threads(), cameras read-only)
+    thread_safe: ClassVar[bool] = True
     bands: tuple[str, ...] = ("height", "interpolated")
 
     def at_step(self, step: str, **changes: Any) -> DemTileJob:
@@ -319,7 +322,8 @@ def dem_tiled(run: Any, params: Any, out: str | os.PathLike, pair: TiledPair, *,
 
     ``gsd`` (metres) when known (``--gsd``, the scene); else estimated from the median
     depth of the samples (the statistics pass) × the target's pixel angle.  With
-    ``--workers N`` (N ≥ 2) one local cluster runs every pass.
+    ``--workers N`` (N ≥ 2) every pass runs on threads of this process (on one local
+    cluster of processes, started once for every pass, where threads cannot be used).
 
     Returns
     -------
@@ -351,6 +355,7 @@ def _passes(run: Any, params: Any, out: str | os.PathLike, pair: TiledPair, *, m
     from demtool.tiling import cache_key, work_folder
     from demtool.tiling.distributed import run_tiles
     from demtool.tiling.jobs import TiledOutput, run_tiled
+    from demtool.tiling.local_threads import runs_on_threads
 
     if params.mask_band:
         raise ParameterError("--mask-band is not written in tiles: use --interpolated-mask")
@@ -375,7 +380,8 @@ def _passes(run: Any, params: Any, out: str | os.PathLike, pair: TiledPair, *, m
     inputs = [pair.disparity_path, pair.rectify_path, pair.cameras_path]
     parameters = {**params.as_dict(), "gsd": gsd, "coarse_factor": factor}
     workers, scheduler = params.workers, params.scheduler
-    if workers >= 2 and not scheduler and not params.dry_run:  # one cluster, every pass
+    if (workers >= 2 and not scheduler and not params.dry_run
+            and not runs_on_threads(job, workers, None)):  # one cluster, every pass
         scheduler, workers = _local_cluster(stack, job, workers), 0
     stats_infos: list[dict[str, Any]] = []
     stats_cache = None

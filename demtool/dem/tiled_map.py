@@ -42,7 +42,7 @@ import math
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -148,6 +148,9 @@ class MapDemTileJob:
     work: str = ""
     ring: str = ""
     stage: str = "dem"
+    # local --workers: tiles on threads (demtool.tiling.local_threads; audited: nogil
+    # kernels, the cached models and orthoimages read-only)
+    thread_safe: ClassVar[bool] = True
     bands: tuple[str, ...] = STEP_BANDS["fill"]
     row_shift: float = 0.0  # map rows sgm shifted the right ortho by (ROW_SHIFT_TAG)
 

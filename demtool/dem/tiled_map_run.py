@@ -68,8 +68,8 @@ def dem_map_tiled(run: Any, params: Any, out: str | os.PathLike, job: MapDemTile
 
     ``gsd_default``, ``range_to_gsd`` and ``crs`` as in
     :func:`demtool.dem.run_sensors.triangulate_to_map`; ``summary``: route fields of the
-    sidecar (``route`` first).  With ``--workers N`` (N ≥ 2) one local cluster runs every
-    pass.
+    sidecar (``route`` first).  With ``--workers N`` (N ≥ 2) every pass runs on threads
+    (or one local cluster of processes, where threads cannot be used).
 
     Returns
     -------
@@ -187,8 +187,10 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
                          [TiledOutput(out, 0, {}, "height")], inputs=inputs,
                          parameters=params.as_dict(), dry_run=True)
     workers, scheduler = params.workers, params.scheduler
-    if workers >= 2 and not scheduler:  # one cluster, every pass
-        scheduler, workers = _local_cluster(stack, job, workers), 0
+    from demtool.tiling.local_threads import runs_on_threads
+
+    if workers >= 2 and not scheduler and not runs_on_threads(job, workers, None):
+        scheduler, workers = _local_cluster(stack, job, workers), 0  # one, every pass
     # 1. points, outside the lock (as tiled/dem.py's statistics)
     key = cache_key(inputs, params.as_dict(), points_tiling, {"pass": "points"})
     points = TileCache(work_folder(out) / f"{key}-points")

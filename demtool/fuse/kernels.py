@@ -12,7 +12,7 @@ import numba as nb
 import numpy as np
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def huber_rows(values: np.ndarray, weights: np.ndarray, start: np.ndarray, scale: np.ndarray,
                c: float, iterations: int, out: np.ndarray) -> None:  # pragma: no cover
     """Huber weights of every cell into ``out`` (N, H, W).

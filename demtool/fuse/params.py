@@ -66,8 +66,8 @@ class FuseParams(Parameters):
     coreg_size: int = parameter(1024, "Co-registration window: at most this many cells a "
                                 "side, centred on each DEM's overlap with the reference.",
                                 minimum=64)
-    workers: int = parameter(0, "Tiled: Dask worker processes (0 or 1: the tiles one after "
-                             "the other in this process).", minimum=0)
+    workers: int = parameter(0, "Tiled: tiles computed at a time, on threads of this "
+                             "process (0 or 1: one after the other).", minimum=0)
     tile_size: int = tile_size_field()
     tile_overlap: int | None = tile_overlap_field("--blend + 2 × --gap + 2")
     scheduler: str | None = scheduler_field()

@@ -26,7 +26,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -142,6 +142,9 @@ class FuseTileJob:
     min_error: float
     scale_floor: float = 0.0
     stage: str = "fuse"
+    # local --workers: tiles on threads (demtool.tiling.local_threads; audited: nogil
+    # kernels, numba threads per thread, strips on usable_threads())
+    thread_safe: ClassVar[bool] = True
     bands: tuple[str, ...] = ("dem", "count", "spread", "error")
 
     def compute(self, tile: Tile, threads: int) -> tuple[np.ndarray, dict[str, Any]]:

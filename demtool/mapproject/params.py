@@ -45,7 +45,8 @@ class MapprojectParams(Parameters):
     # The tile engine (demtool.mapproject.tiled; docs/stages/scale.md): off by default.
     workers: int = parameter(0, "Run the map tiles on the tile engine (resumable, cached "
                              "in a work folder): 1 = one after the other in this process, "
-                             "N >= 2 = N Dask worker processes; 0 = the in-process loop.",
+                             "N >= 2 = N tiles at a time on threads of this process; 0 = the "
+                             "in-process loop.",
                              minimum=0)
     scheduler: str | None = scheduler_field()
     dry_run: bool = dry_run_field()

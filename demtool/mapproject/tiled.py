@@ -21,7 +21,7 @@ import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -117,6 +117,9 @@ class MapprojectTileJob:
     sensor_radii: tuple[float, float] | None = None
     sensor_image_size: tuple[int, int] | None = None
     stage: str = "mapproject"
+    # local --workers: tiles on threads (demtool.tiling.local_threads; audited: nogil
+    # kernels, numba threads per thread, the cached sensor model and DEM read-only)
+    thread_safe: ClassVar[bool] = True
     preload: tuple[str, ...] = ("demtool.mapproject.core",)
 
     @property

@@ -56,7 +56,8 @@ class MatchParams(Parameters):
     sift: bool = parameter(CORE["use_sift"], "Detect SIFT seed matches (besides Förstner "
                            "corners and --rectify's).")
     workers: int = workers_field()
-    # Tiles (demtool.tiling; docs/stages/scale.md): tiled, --workers is the Dask worker count.
+    # Tiles (demtool.tiling; docs/stages/scale.md): tiled, --workers is the Dask worker count
+    # (processes: the matching kernels hold the GIL, demtool.tiling.local_threads).
     tile_size: int = tile_size_field()
     tile_overlap: int | None = tile_overlap_field(
         "template x 2^(levels-1) + template; the disparity range of --rectify is added on "

@@ -270,7 +270,7 @@ def _toggle(rank: int, sign: int, bitmap: np.ndarray, counts: np.ndarray) -> Non
     counts[rank >> _BIN_SHIFT] += sign
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def _median_ranks(ranks: np.ndarray, sorted_values: np.ndarray, height: int, width: int,
                   size: int, bins: int) -> np.ndarray:
     out = np.empty((height, width), dtype=sorted_values.dtype)

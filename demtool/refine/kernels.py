@@ -26,7 +26,7 @@ COMPILED_MODELS: dict[str, int] = {"lunar-lambert": 0, "lambert": 1}
 _COSINE_FLOOR = 1e-6
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def reflectance_partials(p: np.ndarray, q: np.ndarray, sun: np.ndarray, view: np.ndarray,
                          limb: float, model: int, out_r: np.ndarray, out_rp: np.ndarray,
                          out_rq: np.ndarray) -> None:  # pragma: no cover - compiled
@@ -68,7 +68,7 @@ def reflectance_partials(p: np.ndarray, q: np.ndarray, sun: np.ndarray, view: np
                 + d_mu * (-vy * inv - mu * qq * inv2)
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def central_gradient(z: np.ndarray, aspect: float, gx: np.ndarray,
                      gy: np.ndarray) -> None:  # pragma: no cover - compiled
     """G z into ``gx``, ``gy``: central differences, mirrored borders (``z[−1] = z[0]``);
@@ -86,7 +86,7 @@ def central_gradient(z: np.ndarray, aspect: float, gx: np.ndarray,
             gy[r, c] = half_y * (z[down, c] - z[up, c])
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def slope_step(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.ndarray, R: np.ndarray,
                Rp: np.ndarray, Rq: np.ndarray, normalised: np.ndarray, weight: np.ndarray,
                bp: np.ndarray, bq: np.ndarray, gamma: float, delta: float, damping: float,
@@ -113,7 +113,7 @@ def slope_step(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.ndarray, R: 
             q_out[r, c] = q[r, c] + (by - uq * k) / c_total
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def integrability_adjoint(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.ndarray,
                           aspect: float, out: np.ndarray) -> None:  # pragma: no cover
     """``Gᵀ (p − gx, q − gy)`` into ``out``: the adjoint of :func:`central_gradient` applied
@@ -143,7 +143,7 @@ def integrability_adjoint(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.n
             out[r, c] = half * sx + half_y * sy
 
 
-@nb.njit(parallel=True, cache=True, fastmath=True)
+@nb.njit(parallel=True, cache=True, fastmath=True, nogil=True)
 def energy_sums(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.ndarray,
                 p0: np.ndarray, q0: np.ndarray, bp: np.ndarray, bq: np.ndarray,
                 R: np.ndarray, normalised: np.ndarray, weight: np.ndarray
@@ -174,7 +174,7 @@ def energy_sums(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.ndarray,
     return rows.sum(axis=0)  # (3,); three strided column sums here run 2.5× slower
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def height_update(z_hat: np.ndarray, correction_hat: np.ndarray, laplacian: np.ndarray,
                   anchor_hat: np.ndarray, inverse_denominator: np.ndarray, gamma: float,
                   out: np.ndarray) -> None:  # pragma: no cover - compiled
@@ -187,7 +187,7 @@ def height_update(z_hat: np.ndarray, correction_hat: np.ndarray, laplacian: np.n
                          + anchor_hat[r, c]) * inverse_denominator[r, c]
 
 
-@nb.njit(parallel=True, cache=True, fastmath=True)
+@nb.njit(parallel=True, cache=True, fastmath=True, nogil=True)
 def weighted_square_sum(weight: np.ndarray, a: np.ndarray,
                         b: np.ndarray) -> float:  # pragma: no cover - compiled
     """``Σ weight (a − b)²`` (rows in float32, row sums in float64; Edepth in the DCT
@@ -203,7 +203,7 @@ def weighted_square_sum(weight: np.ndarray, a: np.ndarray,
     return rows.sum()
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def block_mean(values: np.ndarray, reference: np.ndarray, block: int,
                out: np.ndarray) -> None:  # pragma: no cover - compiled
     """Means of ``values − reference`` over ``block × block`` blocks into ``out``
@@ -219,7 +219,7 @@ def block_mean(values: np.ndarray, reference: np.ndarray, block: int,
             out[i, j] = total * scale
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def block_replicate(coarse: np.ndarray, block: int,
                     out: np.ndarray) -> None:  # pragma: no cover - compiled
     """Each pixel takes its block's value: b² times the adjoint of :func:`block_mean`."""

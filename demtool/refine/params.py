@@ -124,10 +124,10 @@ class RefineParams(SfsParameters):
         "model varies by more than this over the DEM, degrees.", minimum=0.0, min_open=True)
     illumination_tile: int = parameter(
         512, "Map route: tile size when refining per tile, px.", minimum=64)
-    # Tiles (demtool.tiling; docs/stages/scale.md): tiled, --workers is the Dask worker count.
-    workers: int = parameter(0, "Tiled: Dask worker processes (0 or 1: the tiles one after "
-                             "the other in this process); untiled: threads of the compiled "
-                             "kernels (0 = all cores).", minimum=0)
+    # Tiles (demtool.tiling; docs/stages/scale.md): tiled, --workers is the tiles at a time.
+    workers: int = parameter(0, "Tiled: tiles computed at a time, on threads of this "
+                             "process (0 or 1: one after the other); untiled: threads of "
+                             "the compiled kernels (0 = all cores).", minimum=0)
     tile_size: int = tile_size_field()
     tile_overlap: int | None = tile_overlap_field(
         "4 × the larger of --lowpass-sigma and --albedo-sigma + --median + 3 × "

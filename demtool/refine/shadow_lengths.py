@@ -57,7 +57,7 @@ class ShadowSegments(NamedTuple):
         return int(self.target.size)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _trace(dark: np.ndarray, lit: np.ndarray, step_row: float, step_col: float,
            max_steps: int, fill: bool, starts: np.ndarray, rows: np.ndarray,
            cols: np.ndarray, steps: np.ndarray) -> tuple[int, int]:  # pragma: no cover
@@ -160,7 +160,7 @@ def shadow_segments(dark: np.ndarray, usable: np.ndarray, spacing: tuple[float, 
                           (trapezoid * per_step_q).astype(np.float32), target)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _residuals(p: np.ndarray, q: np.ndarray, starts: np.ndarray, rows: np.ndarray,
                cols: np.ndarray, coef_p: np.ndarray, coef_q: np.ndarray,
                target: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
@@ -179,7 +179,7 @@ def segment_residuals(p: np.ndarray, q: np.ndarray, segments: ShadowSegments) ->
                       segments.coef_q, segments.target)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _correct(p: np.ndarray, q: np.ndarray, p_new: np.ndarray, q_new: np.ndarray,
              Rp: np.ndarray, Rq: np.ndarray, weight: np.ndarray, c_total: float,
              omega: float, starts: np.ndarray, rows: np.ndarray, cols: np.ndarray,

@@ -27,7 +27,7 @@ def _bilinear(dem: np.ndarray, row: float, col: float) -> float:
     return top * (1.0 - fr) + bottom * fr
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def _march_toward_sun(dem: np.ndarray, step_row: float, step_col: float, rise: float,
                       z_max: float, candidates: np.ndarray) -> np.ndarray:
     """Per candidate pixel, step toward the sun; shadowed if the terrain rises above the

@@ -38,7 +38,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -117,6 +117,9 @@ class RefineTileJob:
     transform: tuple[float, ...] | None = None  # the DEM's (map route per geometry)
     crs_wkt: str | None = None
     stage: str = "refine"
+    # local --workers: tiles on threads (demtool.tiling.local_threads; audited: nogil
+    # kernels, scipy.fft on the thread's numba thread count, read-only cached transfers)
+    thread_safe: ClassVar[bool] = True
     bands: tuple[str, ...] = ("dem", "albedo")
     preload: tuple[str, ...] = ("demtool.refine",)  # imported once by the workers' forkserver
 

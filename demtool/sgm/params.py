@@ -92,7 +92,7 @@ class SgmParams(Parameters):
         minimum=64)
     workers: int = workers_field()
     seed: int = seed_field()
-    # Tiles (demtool.tiling; docs/stages/scale.md): tiled, --workers is the Dask worker count.
+    # Tiles (demtool.tiling; docs/stages/scale.md): tiled, --workers is the tiles at a time.
     tile_size: int = tile_size_field()
     tile_overlap: int | None = tile_overlap_field(
         "census and ad: SGM's path reach, 4 x P2 / the cost's contrast measured on the "

@@ -23,7 +23,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -142,6 +142,9 @@ class SgmTileJob:
     widenings: int = 0  # re-matches of a tile saturated at a bound (demtool.sgm.widen)
     limits: tuple[int | None, int | None] = (None, None)  # widening limits (calibrated)
     stage: str = "sgm"
+    # local --workers: tiles on threads (demtool.tiling.local_threads; audited: nogil
+    # kernels, per-call pools and buffers, no process-wide setting changed)
+    thread_safe: ClassVar[bool] = True
     bands: tuple[str, ...] = ("disparity", "confidence")
     # imported once by the workers' forkserver; demtool.sgm.warm loads the kernels there
     preload: tuple[str, ...] = ("demtool.sgm", "demtool.sgm.warm")

@@ -49,8 +49,8 @@ TILE_FIELDS = ("tile_size", "tile_overlap", "scheduler", "dry_run")
 def tile_size_field() -> Any:
     """``--tile-size``: side of the tile cores (0 = untiled)."""
     return parameter(0, "Side of the square tile cores, px (0 = untiled, unless --scheduler "
-                     "or --dry-run is given: then 1024).  Tiled, --workers is the number of "
-                     "Dask worker processes.", minimum=0)
+                     "or --dry-run is given: then 1024).  Tiled, --workers N computes N tiles "
+                     "at a time on threads of this process.", minimum=0)
 
 
 def tile_overlap_field(default_text: str) -> Any:
@@ -195,7 +195,8 @@ def wants_tiles(height: int, width: int, params: Any, default_size: int = 1024) 
     A run is tiled when ``--tile-size`` is given, or when ``--scheduler`` / ``--dry-run``
     is (then ``default_size``), and the raster is larger than one tile.  ``--workers``
     alone never tiles: untiled, it is the thread count of the compiled kernels, as before;
-    tiled, it is the number of Dask worker processes.  A raster that fits in one tile
+    tiled, it is the number of tiles computed at a time (threads of this process,
+    :mod:`demtool.tiling.local_threads`).  A raster that fits in one tile
     always takes the untiled path (no Dask import, no start-up cost), except a dry run.
 
     Raises

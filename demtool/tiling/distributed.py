@@ -2,9 +2,12 @@
 
 - One worker (``--workers 0`` or ``1``, no ``--scheduler``): the tiles run one after the
   other in this process, the compiled kernels using every core; Dask is not imported.
-- ``--workers N`` (N ≥ 2): a ``dask.distributed.LocalCluster`` of N worker *processes*
-  (one task each at a time, so one tile's memory per process), the compiled kernels of a
-  tile using ``cores // N`` threads.
+- ``--workers N`` (N ≥ 2): N tiles at a time on N threads of this process
+  (:mod:`demtool.tiling.local_threads`), the compiled kernels of a tile using
+  ``cores // N`` threads; for a job not declared ``thread_safe`` (or a numba whose
+  threading layer cannot run kernels from two threads), a
+  ``dask.distributed.LocalCluster`` of N worker *processes* (one task each at a time, so
+  one tile's memory per process), with the same share of the cores.
 - ``--scheduler ADDRESS``: the tiles are submitted to a running scheduler (one started in
   a batch job, or by ``dask-jobqueue``'s ``SLURMCluster``; docs/stages/scale.md); the workers
   must see the input files and the work folder at the same paths (a shared file system).
@@ -175,7 +178,9 @@ def run_tiles(job: TileJob, tiles: Sequence[Tile], cache: TileCache, *, workers:
     cache : TileCache
         Where each finished tile's core is saved (and found again on a resumed run).
     workers : int
-        0 or 1: in this process; N ≥ 2: a local cluster of N processes.
+        0 or 1: one tile after the other in this process; N ≥ 2: N tiles at a time, on
+        threads of this process (:func:`demtool.tiling.local_threads.runs_on_threads`)
+        or on a local cluster of N processes.
     scheduler : str, optional
         Address of a running ``dask.distributed`` scheduler (overrides ``workers``).
     log : logging.Logger, optional
@@ -206,7 +211,12 @@ def run_tiles(job: TileJob, tiles: Sequence[Tile], cache: TileCache, *, workers:
         if scheduler:
             _run_on_client(job, todo, cache, progress, scheduler=scheduler, workers=0)
         elif workers >= 2:
-            _run_on_client(job, todo, cache, progress, scheduler=None, workers=workers)
+            from demtool.tiling.local_threads import run_on_threads, runs_on_threads
+
+            if runs_on_threads(job, workers, None):
+                run_on_threads(job, todo, cache, progress, workers)
+            else:
+                _run_on_client(job, todo, cache, progress, scheduler=None, workers=workers)
         else:
             _run_here(job, todo, cache, progress)
     return [{"index": t.index, **cache.info(t)} for t in tiles]
@@ -249,12 +259,17 @@ def prestart_local_workers(job_class: Any, workers: int, scheduler: str | None =
     The server imports the job's modules (and runs what they run at import, e.g.
     :mod:`demtool.sgm.warm`) while this process goes on planning the tiles; the cluster
     started later (:func:`_run_on_client`) forks its workers from it.  Nothing for one
-    worker, a ``--scheduler``, a dry run or a platform without forkserver.  Returns
+    worker, a ``--scheduler``, a dry run, a job whose tiles run on threads or a platform
+    without forkserver.  Returns
     True when a server was started (or was running).
     """
     import multiprocessing
 
     if scheduler or dry_run or workers < 2:
+        return False
+    from demtool.tiling.local_threads import runs_on_threads
+
+    if runs_on_threads(job_class, workers, scheduler):  # no processes to start
         return False
     if "forkserver" not in multiprocessing.get_all_start_methods():  # pragma: no cover
         return False

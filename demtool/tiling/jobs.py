@@ -103,6 +103,7 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
     from demtool import io as dio
     from demtool.outputs import check_output_paths
     from demtool.tiling.distributed import available_cores, run_tiles
+    from demtool.tiling.local_threads import executor
 
     main = Path(outputs[0].path)
     declared_inputs = {label: path for label, paths in run.inputs.items()
@@ -143,6 +144,7 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
         summary["tiling"] = {"tiles": len(tiling.tiles), "tile_size": tiling.tile_size,
                              "margins_top_bottom_left_right": list(tiling.margins),
                              "workers": workers, "scheduler": scheduler,
+                             "executor": executor(job, workers, scheduler),
                              "tile_seconds_sum": round(sum(seconds), 3),
                              "tile_seconds_max": round(max(seconds), 3),
                              "tile_cpu_seconds_sum": round(sum(float(i.get("cpu_seconds", 0))

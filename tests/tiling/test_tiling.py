@@ -565,12 +565,21 @@ def resumed_from(output: str, cached: int) -> None:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("signame, to_group", [("SIGINT", True), ("SIGTERM", False)])
-def test_interrupting_two_dask_workers_gives_one_line_and_exit_130(pair, tmp_path, signame,
-                                                                   to_group):
+@pytest.mark.parametrize("kind", ["threads", "processes"])
+def test_interrupting_two_local_workers_gives_one_line_and_exit_130(pair, tmp_path, signame,
+                                                                    to_group, kind,
+                                                                    monkeypatch):
     """Issue 31: Ctrl-C (SIGINT to the terminal's process group, workers included) or
-    SIGTERM (to demtool) during a tiled run on 2 local Dask workers: exit 130 within
+    SIGTERM (to demtool) during a tiled run on 2 local workers (threads of demtool's
+    process, or Dask worker processes with DEMTOOL_TILE_PROCESSES): exit 130 within
     seconds (measured 6 s on 2 busy cores), one line, no worker traceback or Dask
     warning, no output; the rerun resumes from the cached tiles."""
+    from demtool.tiling.local_threads import PROCESSES_ENV
+
+    if kind == "processes":
+        monkeypatch.setenv(PROCESSES_ENV, "1")
+    else:
+        monkeypatch.delenv(PROCESSES_ENV, raising=False)
     folder, _ = pair
     out = tmp_path / "d.tif"
     cached = interrupt_tiled_sgm(folder, out, signame, to_group, "--workers", "2")

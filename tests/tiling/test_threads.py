@@ -1,0 +1,145 @@
+"""Local ``--workers N`` on threads of the calling process (demtool.tiling.local_threads):
+the same bytes as the tiles computed one after the other, a failed tile stops the queue
+with its one line, a resumed run computes only the missing tiles."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from demtool import io as dio
+from demtool import tiling
+from demtool.errors import ProcessingError
+from tests.tiling.test_tiling import sgm
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory):
+    """The tiling tests' 160 × 200 smooth-disparity pair."""
+    from tests.helpers.sgm import smooth_disparity_pair
+
+    folder = tmp_path_factory.mktemp("threads_pair")
+    left, right, _ = smooth_disparity_pair(160, 200, seed=4, offset=1.0)
+    dio.write_raster(folder / "left.tif", left, tags={"frame": "image:left_rect"})
+    dio.write_raster(folder / "right.tif", right, tags={"frame": "image:right_rect"})
+    return folder
+
+
+@pytest.fixture(scope="module")
+def one_worker(pair, tmp_path_factory):
+    """Tiles of 64 px one after the other in this process: disparity and confidence."""
+    folder = tmp_path_factory.mktemp("one_worker")
+    out, conf = folder / "d.tif", folder / "c.tif"
+    result = sgm(pair, out, "--tile-size", "64", "--confidence", conf)
+    assert result.exit_code == 0, result.output
+    return read_both(out, conf)
+
+
+def read_both(out: Path, conf: Path) -> tuple[np.ndarray, np.ndarray]:
+    return dio.read_raster(out).data, dio.read_raster(conf).data
+
+
+def same_bits(found: tuple[np.ndarray, ...], expected: tuple[np.ndarray, ...]) -> None:
+    """Equal to the bit, NaNs included (the files' tags differ: they hold --workers)."""
+    for a, b in zip(found, expected, strict=True):
+        assert a.dtype == b.dtype and a.shape == b.shape
+        np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))
+
+
+def test_sgm_tiles_on_two_threads_give_the_same_bytes(pair, one_worker, tmp_path):
+    out, conf = tmp_path / "d.tif", tmp_path / "c.tif"
+    result = sgm(pair, out, "--tile-size", "64", "--confidence", conf, "--workers", "2")
+    assert result.exit_code == 0, result.output
+    same_bits(read_both(out, conf), one_worker)
+    tiles = dio.read_json(Path(f"{out}.json"))["summary"]["tiling"]
+    assert tiles["executor"] == "threads" and tiles["workers"] == 2
+    assert not tiling.work_folder(out).exists()
+
+
+def test_a_failed_tile_on_threads_stops_then_the_run_resumes(pair, one_worker, tmp_path,
+                                                             monkeypatch):
+    from demtool.sgm import tiled as tiled_sgm
+
+    original = tiled_sgm.SgmTileJob.compute
+    calls: list[int] = []
+
+    def failing(self, tile, threads):
+        calls.append(tile.index)
+        if tile.index == 5:
+            raise RuntimeError("worker lost")
+        return original(self, tile, threads)
+
+    monkeypatch.setattr(tiled_sgm.SgmTileJob, "compute", failing)
+    out, conf = tmp_path / "d.tif", tmp_path / "c.tif"
+    result = sgm(pair, out, "--tile-size", "64", "--confidence", conf, "--workers", "2")
+    assert result.exit_code == 1
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and "Traceback" not in result.output, result.output
+    assert "tile 5 (rows 64–128, columns 64–128) failed: worker lost" in errors[0]
+    assert not out.exists() and not conf.exists() and not Path(f"{out}.json").exists()
+    assert not Path(f"{out}.lock").exists()
+    cached = sorted(int(p.stem.split("_")[1]) for p in
+                    tiling.work_folder(out).glob("*/tile_*.npy"))
+    assert f"{len(cached)} finished tiles are cached" in errors[0]
+    assert max(calls) <= 6 and 5 not in cached  # the queue stopped at the failure
+    calls.clear()
+    monkeypatch.setattr(tiled_sgm.SgmTileJob, "compute", lambda self, tile, threads: (
+        calls.append(tile.index), original(self, tile, threads))[1])
+    result = sgm(pair, out, "--tile-size", "64", "--confidence", conf, "--workers", "2")
+    assert result.exit_code == 0, result.output
+    assert sorted(calls) == sorted(set(range(12)) - set(cached))  # only the missing tiles
+    same_bits(read_both(out, conf), one_worker)
+    assert not tiling.work_folder(out).exists()
+
+
+class _Job:
+    """Writes its tile's index; tile ``bad`` raises once ``hold`` (tile 1) is running,
+    and tile 1 finishes after the failure."""
+
+    stage, bands, thread_safe = "test", ("index",), True
+
+    def __init__(self, bad: int | None = 0) -> None:
+        self.bad, self.calls, self.threads = bad, [], []
+        self.running = threading.Event()
+
+    def compute(self, tile, threads):
+        from demtool.tiling.distributed import usable_threads
+
+        self.calls.append(tile.index)
+        self.threads.append((threads, usable_threads()))
+        if tile.index == 1:
+            self.running.set()
+            time.sleep(0.3)  # still running when tile 0 fails
+        if tile.index == self.bad:
+            assert self.running.wait(30)
+            raise ValueError(f"tile {tile.index} is bad")
+        return np.full((1, *tile.core_shape), tile.index, dtype=np.float32), {}
+
+    def memory_bytes(self, tile):
+        return 0
+
+
+def test_run_tiles_on_threads_stops_the_queue_and_keeps_the_running_tile(tmp_path):
+    from demtool.tiling.distributed import run_tiles
+
+    plan = tiling.plan_tiles(40, 200, 20, overlap=0)  # 20 tiles
+    cache = tiling.TileCache(tmp_path / "cache")
+    job = _Job()
+    with pytest.raises(ProcessingError, match=r"^test: tile 0 \(rows 0–20, columns 0–20\) "
+                                              r"failed: tile 0 is bad; 1 finished tiles"):
+        run_tiles(job, plan.tiles, cache, workers=2)
+    assert sorted(job.calls) == [0, 1]  # no queued tile started after the failure
+    assert cache.done(plan.tiles[1]) and not cache.done(plan.tiles[0])
+    job = _Job(bad=None)
+    infos = run_tiles(job, plan.tiles, cache, workers=2)
+    assert sorted(job.calls) == [0, *range(2, 20)]  # resumed: tile 1 came from the cache
+    assert [i["index"] for i in infos] == list(range(20))
+    assert all(cache.load(t)[0, 0, 0] == t.index for t in plan.tiles)
+    from demtool.tiling.distributed import available_cores
+
+    share = max(1, available_cores() // 2)
+    assert set(job.threads) == {(share, share)}  # each tile within its share of the cores

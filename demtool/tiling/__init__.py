@@ -50,7 +50,7 @@ def tile_size_field() -> Any:
     """``--tile-size``: side of the tile cores (0 = untiled)."""
     return parameter(0, "Side of the square tile cores, px (0 = untiled, unless --scheduler "
                      "or --dry-run is given: then 1024).  Tiled, --workers N computes N tiles "
-                     "at a time on threads of this process.", minimum=0)
+                     "at a time on this machine.", minimum=0)
 
 
 def tile_overlap_field(default_text: str) -> Any:

@@ -22,16 +22,22 @@ finished stay cached.  Progress: tiles done / total on a terminal, a log line ev
 
 from __future__ import annotations
 
-import contextvars
 import logging
 import sys
 import time
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from typing import Any
 
 from demtool.errors import ProcessingError
 from demtool.tiling import Tile, TileCache, TileJob
+from demtool.tiling.tasks import (  # noqa: F401 - their home for the stages' imports
+    _interrupted,
+    available_cores,
+    compute_tile,
+    threads_limited,
+    tile_failure,
+    usable_threads,
+)
 
 # A test hook (issue 46): with this set to a file path, the calling process writes that
 # file once the first tile of the run is done and then waits (at most HOLD_SECONDS) for
@@ -57,58 +63,6 @@ LOCAL_CLUSTER_OPTIONS = {"dashboard_address": None, "processes": True,
 LOCAL_CLUSTER_CONFIG = {"distributed.worker.profile.enabled": False,
                         "distributed.admin.tick.interval": "1s",
                         "distributed.scheduler.work-stealing": False}
-
-
-def available_cores() -> int:
-    """CPU cores this process may use."""
-    import os
-
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
-
-
-#: Threads the work of this context may use (0: the process's cores); set by
-#: :func:`threads_limited` from a stage's ``--workers`` and, by :func:`compute_tile`, from
-#: a tile job's threads, so a tile job given one thread (a Dask worker) does not start a
-#: second one.
-_THREAD_LIMIT: contextvars.ContextVar[int] = contextvars.ContextVar("demtool_threads",
-                                                                    default=0)
-
-
-@contextmanager
-def threads_limited(threads: int) -> Iterator[None]:
-    """Within the block, :func:`usable_threads` is at most ``threads`` (≤ 0: no limit)."""
-    token = _THREAD_LIMIT.set(int(threads))
-    try:
-        yield
-    finally:
-        _THREAD_LIMIT.reset(token)
-
-
-def usable_threads() -> int:
-    """Threads the calling work may use: the process's cores, or fewer within
-    :func:`threads_limited`."""
-    cores = available_cores()
-    limit = _THREAD_LIMIT.get()
-    return min(cores, limit) if limit > 0 else cores
-
-
-def compute_tile(job: TileJob, tile: Tile, cache: TileCache, threads: int) -> dict[str, Any]:
-    """Compute one tile and store its core in the cache (the task a worker runs); within
-    the job, :func:`usable_threads` is ``threads`` (0: the process's cores)."""
-    start, cpu = time.perf_counter(), time.process_time()
-    with threads_limited(threads):
-        values, info = job.compute(tile, threads)
-    expected = (len(job.bands), *tile.core_shape)
-    if values.shape != expected:  # pragma: no cover - a stage's bug, not the user's
-        raise ProcessingError(f"{job.stage}: {tile.describe()} gave shape {values.shape}, "
-                              f"expected {expected}")
-    info = {**info, "seconds": round(time.perf_counter() - start, 3),
-            "cpu_seconds": round(time.process_time() - cpu, 3)}  # of the whole process
-    cache.store(tile, values, info)
-    return {"index": tile.index, **info}
 
 
 class Progress:
@@ -153,15 +107,6 @@ def hold_for_a_signal() -> None:
     deadline = time.monotonic() + HOLD_SECONDS
     while time.monotonic() < deadline:
         time.sleep(0.05)
-
-
-def tile_failure(job: TileJob, tile: Tile, exc: BaseException, cache: TileCache,
-                 finished: int) -> ProcessingError:
-    """The one-line error of a failed tile (its bounds, the reason, what was kept)."""
-    reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-    return ProcessingError(
-        f"{job.stage}: {tile.describe()} failed: {reason}; {finished} finished tiles are "
-        f"cached in {cache.folder}, run the same command again to compute only the rest")
 
 
 def run_tiles(job: TileJob, tiles: Sequence[Tile], cache: TileCache, *, workers: int = 0,
@@ -220,18 +165,6 @@ def run_tiles(job: TileJob, tiles: Sequence[Tile], cache: TileCache, *, workers:
         else:
             _run_here(job, todo, cache, progress)
     return [{"index": t.index, **cache.info(t)} for t in tiles]
-
-
-def _interrupted(exc: BaseException) -> bool:
-    """True when ``exc`` is, or was caused by, a KeyboardInterrupt (numba wraps it)."""
-    current: BaseException | None = exc
-    for _ in range(100):
-        if current is None:
-            return False
-        if isinstance(current, KeyboardInterrupt):
-            return True
-        current = current.__cause__ or current.__context__
-    return False
 
 
 def _run_here(job: TileJob, todo: Sequence[Tile], cache: TileCache, progress: Progress) -> None:

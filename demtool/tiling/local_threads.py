@@ -110,12 +110,7 @@ def run_on_threads(job: TileJob, todo: Sequence[Tile], cache: TileCache, progres
     """
     from rasterio.errors import NotGeoreferencedWarning
 
-    from demtool.tiling.distributed import (
-        _interrupted,
-        available_cores,
-        compute_tile,
-        tile_failure,
-    )
+    from demtool.tiling.tasks import _interrupted, available_cores, compute_tile, tile_failure
 
     threads = max(1, available_cores() // workers)
     pending: queue.SimpleQueue[Tile] = queue.SimpleQueue()

@@ -7,7 +7,8 @@ of an output against the truth, and the agreement of a tiled output with the unt
 one.  bench/scale_out.py runs every case three times, each a child process measured by
 bench/scale.py's ``run_measured`` (wall, CPU and peak of the whole process tree):
 untiled, with ``--tile-size T --workers 1`` and with ``--workers 2`` (threads of the
-command's process; with ``--processes`` also a local Dask cluster), and records each stage's table in its own ``bench/results/<result>.json``.
+command's process; with ``--processes`` also a local Dask cluster), and records each
+stage's table in its own ``bench/results/<result>.json``.
 
 Adding a stage's case (refine, fuse and compare are in bench/_scale_products.py):
 

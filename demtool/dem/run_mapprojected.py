@@ -6,7 +6,9 @@ For every valid left cell (row, col) with disparity d, the right cell is
 (row, col − d).  Each cell is raised to the surface its orthoimage was projected on
 (the DEM or constant height named in its tags, :data:`demtool.mapproject.surface.DEM_TAG`
 / :data:`~demtool.mapproject.surface.HEIGHT_TAG`) and projected into its raw image
-through its sensor model (:func:`demtool.mapproject.stereo.raw_coordinates`); the two raw
+through its sensor model (:func:`demtool.mapproject.stereo.raw_coordinates`: exact
+projections on a lattice, interpolated within 0.0001 px,
+:mod:`demtool.mapproject.lattice`); the two raw
 pixels are triangulated as in the calibrated frame route
 (:func:`demtool.dem.run_sensors.triangulate_to_map`).  ASP's map-projected stereo
 does the same (Beyer et al. 2018, §2.3).
@@ -88,9 +90,9 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     with phase(timings, "coordinates"):
         l_h = left.heights(*map_cells_xy(li.transform, rows, l_cols))
         r_h = right.heights(*map_cells_xy(ri.transform, r_rows, r_cols))
-        l_line, l_sample = raw_coordinates(left.sensor, crs, li.transform, rows, l_cols, l_h)
-        r_line, r_sample = raw_coordinates(right.sensor, crs, ri.transform, r_rows, r_cols,
-                                           r_h)
+        l_raw = raw_coordinates(left.sensor, crs, li.transform, rows, l_cols, l_h)
+        r_raw = raw_coordinates(right.sensor, crs, ri.transform, r_rows, r_cols, r_h)
+    (l_line, l_sample), (r_line, r_sample) = l_raw[:2], r_raw[:2]
     seen = np.isfinite(l_line) & np.isfinite(l_sample) & np.isfinite(r_line) & \
         np.isfinite(r_sample)
     log.info("%d valid disparities, %d seen by both sensors", rows.size, int(seen.sum()))
@@ -104,7 +106,9 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
         timings=timings)
     summary = {"route": "disparity-mapprojected", **summary,
                "valid_disparities": int(rows.size), "unseen_disparities": int((~seen).sum()),
-               "surfaces": [left.surface, right.surface]}
+               "surfaces": [left.surface, right.surface],
+               "raw_coordinates_max_error_px": max(l_raw.max_error_px, r_raw.max_error_px),
+               "raw_coordinates_exact": l_raw.exact_points + r_raw.exact_points}
     summary.update(_pair_precision(run, left, right, crs, li, gsd))
     summary["timings_s"] = timings
     write_map_dem(run, params, out, result, summary, body, route="disparity-mapprojected",

@@ -114,7 +114,12 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     """
     import numpy as np
 
-    from demtool.dem.sensors import dem_on_map, screen_ray_gaps, triangulate_sensors
+    from demtool.dem.sensors import (
+        dem_on_map,
+        points_on_map,
+        screen_ray_gaps,
+        triangulate_sensors,
+    )
     from demtool.errors import ProcessingError
     from demtool.mapproject.threads import phase
     from demtool.maps import body_from_radii
@@ -149,11 +154,14 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     use_crs = crs if params.projection == "auto" else None
     if params.t_srs is not None:
         body, use_crs = t_srs_body(params, body)
-    _check_map_size(tri.xyz[keep], body, gsd, gsd_source, params, use_crs, source, log)
+    kept = tri.xyz[keep]
     with phase(timings, "grid"):
-        result = dem_on_map(tri.xyz[keep], tri.gap[keep], body, gsd_m=gsd, crs=use_crs,
+        placed = points_on_map(kept, body, gsd_m=gsd, projection=params.projection,
+                               crs=use_crs)
+        _check_map_size(placed.grid, gsd, gsd_source, source, log)
+        result = dem_on_map(kept, tri.gap[keep], body, gsd_m=gsd, crs=use_crs,
                             projection=params.projection, left=left, right=right,
-                            median_px=params.median)
+                            median_px=params.median, placed=placed)
     # the gridded points' indices into the correspondences given (for --points-out)
     result = result._replace(point_index=np.flatnonzero(keep)[result.point_index])
     summary: dict[str, Any] = {
@@ -274,13 +282,12 @@ def t_srs_body(params: DemParams, body):
     return body_from_crs(crs), crs
 
 
-def _check_map_size(xyz, body, gsd: float, gsd_source: str, params, crs, source, log) -> None:
-    """State the map DEM's size before gridding; refuse one beyond the memory budget,
-    naming --gsd when it was given, else the disparity whose points spread so far."""
+def _check_map_size(grid, gsd: float, gsd_source: str, source, log) -> None:
+    """State the map DEM's size (``grid``, covering the points) before gridding; refuse
+    one beyond the memory budget, naming --gsd when it was given, else the disparity
+    whose points spread so far."""
     from demtool import sizes
-    from demtool.maps.grids import grid_from_xyz
 
-    grid = grid_from_xyz(body, xyz, gsd, projection=params.projection, crs=crs)
     height, width = grid.shape
     if gsd_source == "--gsd":
         option, hint = "--gsd", None

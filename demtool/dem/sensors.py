@@ -227,10 +227,55 @@ class MapDem(NamedTuple):
     point_index: np.ndarray | None = None
 
 
+class MapPoints(NamedTuple):
+    """Body-fixed points placed on a map.
+
+    grid : demtool.maps.MapGrid, the smallest grid of the GSD covering the points
+    x, y : (N,) float64, metres, map coordinates in ``grid.crs``
+    height : (N,) float64, metres above the body's reference surface
+    """
+
+    grid: Any
+    x: np.ndarray
+    y: np.ndarray
+    height: np.ndarray
+
+
+def points_on_map(xyz: np.ndarray, body, *, gsd_m: float, projection: str = "auto",
+                  crs: Any = None) -> MapPoints:
+    """Map coordinates and heights of finite body-fixed points, and the grid covering
+    them: :func:`demtool.maps.grids.grid_from_xyz`'s grid with the points' longitude,
+    latitude, height and map x, y computed once, in batches on every core (the values
+    of one call).
+
+    xyz : (N, 3) float, metres, body-fixed, finite; body, gsd_m, projection, crs as in
+    :func:`dem_on_map`.
+    """
+    from demtool.mapproject.threads import batched
+    from demtool.maps.frames import xyz_to_lonlat_height
+    from demtool.maps.grids import snap_grid
+    from demtool.maps.projections import choose_projection, lonlat_to_map
+
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    lon, lat, height = batched(lambda p: xyz_to_lonlat_height(p, radii=body.surface), xyz)
+    if crs is None:
+        crs = choose_projection(body, lon, lat, projection)
+    x, y = batched(lambda a, b: tuple(lonlat_to_map(crs, a, b)), lon, lat)
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    good = np.isfinite(x) & np.isfinite(y)
+    if not good.any():
+        raise ValueError("footprint cannot be projected in the chosen CRS")
+    grid = snap_grid(crs, x[good].min(), y[good].min(), x[good].max(), y[good].max(), gsd_m)
+    if grid.crs != crs:  # the grid's own CRS object places the points, as dem_on_map did
+        x, y = batched(lambda a, b: tuple(lonlat_to_map(grid.crs, a, b)), lon, lat)
+    return MapPoints(grid, np.asarray(x), np.asarray(y), height)
+
+
 def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
                projection: str = "auto", crs: Any = None,
                left: SensorModel | None = None, right: SensorModel | None = None,
-               fill: bool = True, median_px: int = 0) -> MapDem:
+               fill: bool = True, median_px: int = 0,
+               placed: MapPoints | None = None) -> MapDem:
     """Grid triangulated points as heights above the body's sphere on a map.
 
     Parameters
@@ -248,31 +293,28 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
         Fill gaps (spring metaphor) inside the overlap.
     median_px : int
         Median filter after filling (0 = off; odd), :func:`demtool.dem.grid.fill_and_smooth`.
+    placed : MapPoints, optional
+        :func:`points_on_map` of these ``xyz`` (with the same body, GSD, projection and
+        CRS), when the caller has it already.
 
     Returns
     -------
     MapDem
     """
     from demtool.dem.grid import fill_and_smooth
-    from demtool.maps.frames import xyz_to_lonlat_height
-    from demtool.maps.grids import grid_from_xyz
-    from demtool.maps.projections import lonlat_to_map
+    from demtool.mapproject.threads import ordered_map
 
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
     gap = np.asarray(gap, dtype=np.float64).ravel()
     keep = np.isfinite(xyz).all(axis=1)
-    xyz, gap = xyz[keep], gap[keep]
+    if not keep.all():
+        xyz, gap = xyz[keep], gap[keep]
     if len(xyz) < 3:
         raise ProcessingError(f"only {len(xyz)} triangulated points: nothing to grid")
     index = np.flatnonzero(keep)
-    grid = grid_from_xyz(body, xyz, gsd_m, projection=projection, crs=crs)
-    from demtool.mapproject.threads import batched, ordered_map
-
-    def on_map(points):
-        lon, lat, height = xyz_to_lonlat_height(points, radii=body.surface)
-        return (*lonlat_to_map(grid.crs, lon, lat), height)
-
-    x, y, height = batched(on_map, xyz)  # point by point: in batches on every core
+    if placed is None or placed.x.size != len(xyz):
+        placed = points_on_map(xyz, body, gsd_m=gsd_m, projection=projection, crs=crs)
+    grid, x, y, height = placed
     t = grid.transform  # north-up: col = (x − c) / a, row = (y − f) / e
     cols = (np.asarray(x) - t.c) / t.a
     rows = (np.asarray(y) - t.f) / t.e

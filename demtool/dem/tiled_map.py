@@ -193,8 +193,8 @@ class MapDemTileJob:
         r_rows = rows_g + self.row_shift  # sgm's shift of the right ortho, if any
         l_h = left.heights(*map_cells_xy(li.transform, rows_g, l_g))
         r_h = right.heights(*map_cells_xy(ri.transform, r_rows, r_g))
-        return (raw_coordinates(left.sensor, crs, li.transform, rows_g, l_g, l_h),
-                raw_coordinates(right.sensor, crs, ri.transform, r_rows, r_g, r_h),
+        return (raw_coordinates(left.sensor, crs, li.transform, rows_g, l_g, l_h)[:2],
+                raw_coordinates(right.sensor, crs, ri.transform, r_rows, r_g, r_h)[:2],
                 rows.astype(np.int64), l_cols.astype(np.int64))
 
     def _raw_rectified(self, disparity, r0, c0):

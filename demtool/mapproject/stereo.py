@@ -335,7 +335,7 @@ def check_right_cells(disparity_path: Any, right_path: Any, left_cols: np.ndarra
 
 
 def raw_coordinates(sensor, crs, transform, rows: np.ndarray, cols: np.ndarray,
-                    heights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                    heights: np.ndarray, *, tolerance: float | None = None):
     """Raw image (line, sample) of map cells on a surface, through a sensor model.
 
     Parameters
@@ -348,28 +348,20 @@ def raw_coordinates(sensor, crs, transform, rows: np.ndarray, cols: np.ndarray,
     heights : (N,) float
         The surface the orthoimage was projected on at those cells, metres above the
         body's reference sphere (NaN = none).
+    tolerance : float, optional
+        Largest interpolation error accepted, image pixels (default
+        :data:`demtool.mapproject.lattice.TOLERANCE_PX`; 0: every cell projected exactly).
 
     Returns
     -------
-    line, sample : (N,) float64, CSM image coordinates (NaN where unseen or no surface).
-    The map → ground → image steps run in batches on every core
-    (:func:`demtool.mapproject.threads.batched`: the same values).
+    demtool.mapproject.lattice.PointCoordinates
+        ``line, sample`` (N,) float64, CSM image coordinates (NaN where unseen or no
+        surface), the interpolation error measured and the cells projected exactly.
+        Map → ground → image on a lattice of exact projections per strip of map rows,
+        interpolated within ``tolerance``, the strips on every core
+        (:func:`demtool.mapproject.lattice.points_image_coordinates`).
     """
-    from demtool.maps import map_to_xyz
+    from demtool.mapproject.lattice import TOLERANCE_PX, points_image_coordinates
 
-    x, y = map_cells_xy(transform, rows, cols)
-    heights = np.asarray(heights, dtype=np.float64)
-    line = np.full(x.shape, np.nan)
-    sample = np.full(x.shape, np.nan)
-    good = np.isfinite(heights) & np.isfinite(x)
-    if good.any():
-        from demtool.mapproject.threads import batched, warm
-
-        def project(x, y, h):
-            xyz = map_to_xyz(crs, x, y, h)
-            return sensor.ground_to_image(np.asarray(xyz).reshape(-1, 3))
-
-        warm(sensor)
-        gl, gs = batched(project, x[good], y[good], heights[good])
-        line[good], sample[good] = gl, gs
-    return line, sample
+    return points_image_coordinates(sensor, crs, transform, rows, cols, heights,
+                                    tolerance=TOLERANCE_PX if tolerance is None else tolerance)

@@ -95,13 +95,16 @@ def test_engine_equals_the_in_process_loop(scene, in_process, tmp_path):
     assert not tiling.work_folder(out).exists() and not Path(f"{out}.lock").exists()
 
 
-@pytest.mark.slow
-def test_two_dask_workers_equal_the_in_process_loop(scene, in_process, tmp_path):
+def test_two_workers_on_threads_equal_the_in_process_loop(scene, in_process, tmp_path):
+    """--workers 2: the map tiles on two threads of the command's process
+    (demtool.tiling.local_threads), the orthoimage equal to the bit."""
     out = tmp_path / "ortho.tif"
     result = engine_run(scene, out, "--workers", 2)
     assert result.exit_code == 0, result.output
-    np.testing.assert_array_equal(dio.read_raster(out).data,
-                                  dio.read_raster(in_process[0]).data)
+    found, expected = dio.read_raster(out).data, dio.read_raster(in_process[0]).data
+    np.testing.assert_array_equal(found.view(np.uint32), expected.view(np.uint32))
+    tiles = json.loads(Path(f"{out}.json").read_text())["summary"]["tiling"]
+    assert tiles["executor"] == "threads"
 
 
 def test_failed_tile_is_reported_then_the_run_resumes_byte_identical(scene, tmp_path,

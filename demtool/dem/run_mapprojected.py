@@ -42,12 +42,7 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     from demtool import io as dio
     from demtool.dem.run_sensors import triangulate_to_map, write_map_dem
     from demtool.errors import InputError, ProcessingError
-    from demtool.mapproject.stereo import (
-        check_right_cells,
-        disparity_cells,
-        map_cells_xy,
-        raw_coordinates,
-    )
+    from demtool.mapproject.stereo import check_right_cells, disparity_cells
     from demtool.mapproject.threads import phase
     from demtool.maps import to_pyproj_crs
 
@@ -87,28 +82,26 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
 
     r_rows = rows + row_shift_of(disparity.tags)  # sgm's shift of the right ortho, if any
     crs = to_pyproj_crs(li.crs)
+    from demtool.dem.ortho_rays import ortho_rays
+
     with phase(timings, "coordinates"):
-        l_h = left.heights(*map_cells_xy(li.transform, rows, l_cols))
-        r_h = right.heights(*map_cells_xy(ri.transform, r_rows, r_cols))
-        l_raw = raw_coordinates(left.sensor, crs, li.transform, rows, l_cols, l_h)
-        r_raw = raw_coordinates(right.sensor, crs, ri.transform, r_rows, r_cols, r_h)
-    (l_line, l_sample), (r_line, r_sample) = l_raw[:2], r_raw[:2]
-    seen = np.isfinite(l_line) & np.isfinite(l_sample) & np.isfinite(r_line) & \
-        np.isfinite(r_sample)
+        found = ortho_rays(left, right, crs, rows, l_cols, r_rows, r_cols)
+    seen = found.seen
     log.info("%d valid disparities, %d seen by both sensors", rows.size, int(seen.sum()))
     if seen.sum() < 3:
         raise ProcessingError(f"{disparity_path}: fewer than 3 disparities map back into "
                               "both raw images")
     gsd = float(np.sqrt(abs(li.transform.a * li.transform.e)))
     summary, result, body = triangulate_to_map(
-        run, params, left.sensor, right.sensor, (l_line[seen], l_sample[seen]),
-        (r_line[seen], r_sample[seen]), source=disparity_path, gsd_default=gsd, crs=crs,
-        timings=timings)
+        run, params, left.sensor, right.sensor, None, None, source=disparity_path,
+        gsd_default=gsd, crs=crs, timings=timings, ground_rays=found.rays())
     summary = {"route": "disparity-mapprojected", **summary,
                "valid_disparities": int(rows.size), "unseen_disparities": int((~seen).sum()),
                "surfaces": [left.surface, right.surface],
-               "raw_coordinates_max_error_px": max(l_raw.max_error_px, r_raw.max_error_px),
-               "raw_coordinates_exact": l_raw.exact_points + r_raw.exact_points}
+               "raw_coordinates_max_error_px": found.max_error_px(),
+               "ray_origin_max_miss_m": max(found.left.max_origin_miss_m,
+                                            found.right.max_origin_miss_m),
+               "raw_coordinates_exact": found.left.exact_points + found.right.exact_points}
     summary.update(_pair_precision(run, left, right, crs, li, gsd))
     summary["timings_s"] = timings
     write_map_dem(run, params, out, result, summary, body, route="disparity-mapprojected",

@@ -99,7 +99,8 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
 def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
                        right: SensorModel, left_pixels, right_pixels, *, source,
                        range_to_gsd: float | None = None, gsd_default: float | None = None,
-                       crs: Any = None, timings: dict[str, float] | None = None
+                       crs: Any = None, timings: dict[str, float] | None = None,
+                       ground_rays: tuple | None = None
                        ) -> tuple[dict[str, Any], Any, Any]:
     """Triangulate correspondences (CSM ``(line, sample)`` arrays of each side) through
     the two models, drop points behind a camera or whose rays miss by more than
@@ -109,8 +110,10 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     The GSD is ``--gsd``, else ``gsd_default``, else the median left range times
     ``range_to_gsd`` (one pixel's angle).  ``crs``: the map's CRS when
     ``--projection auto`` (None: a new one).  ``timings`` (a sidecar's ``timings_s``)
-    gains the wall and CPU seconds of the ``triangulate`` and ``grid`` phases.  Returns
-    (summary, MapDem, body).
+    gains the wall and CPU seconds of the ``triangulate`` and ``grid`` phases.
+    ``ground_rays``: the rays instead of the pixels, ``(origin_left, ground_left,
+    origin_right, ground_right)`` (:func:`demtool.dem.sensors.triangulate_ground_rays`;
+    the pixels are then None).  Returns (summary, MapDem, body).
     """
     import numpy as np
 
@@ -118,6 +121,7 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
         dem_on_map,
         points_on_map,
         screen_ray_gaps,
+        triangulate_ground_rays,
         triangulate_sensors,
     )
     from demtool.errors import ProcessingError
@@ -128,7 +132,10 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     timings = {} if timings is None else timings
     _check_baseline(left, right, source)
     with phase(timings, "triangulate"):
-        tri = triangulate_sensors(left, right, *left_pixels, *right_pixels)
+        if ground_rays is not None:
+            tri = triangulate_ground_rays(*ground_rays)
+        else:
+            tri = triangulate_sensors(left, right, *left_pixels, *right_pixels)
     finite = np.isfinite(tri.xyz).all(axis=1)
     in_front = finite & tri.in_front
     if not in_front.any():

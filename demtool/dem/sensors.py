@@ -108,6 +108,41 @@ def triangulate_sensors(left: SensorModel, right: SensorModel, left_line, left_s
         left_line, left_sample, right_line, right_sample))))
 
 
+def triangulate_ground_rays(origin_left, ground_left, origin_right, ground_right
+                            ) -> Triangulation:
+    """Triangulate rays given by their origin and a ground point each passes through.
+
+    The map-projected route knows, for each side, the point on the surface its
+    orthoimage was projected on and the raw pixel that sees it (the ray of that pixel
+    passes through the point, to the projection's precision), so a ray is its origin
+    (``image_to_ray``'s at the pixel) and the direction to the point: the same ray as
+    ``image_to_ray`` gives, without interpolating the sensor's attitude at every point.
+
+    Parameters
+    ----------
+    origin_left, ground_left, origin_right, ground_right : (N, 3) float
+        Body-fixed metres.
+
+    Returns
+    -------
+    Triangulation
+        As :func:`triangulate_sensors`, in batches on every core (the values of one
+        batch).
+    """
+    from demtool.mapproject.threads import batched
+
+    def triangulate(o_l, g_l, o_r, g_r):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            u = g_l - o_l
+            u /= np.linalg.norm(u, axis=1)[:, None]
+            v = g_r - o_r
+            v /= np.linalg.norm(v, axis=1)[:, None]
+        return intersect_rays(o_l, u, o_r, v)
+
+    return Triangulation(*batched(triangulate, *(np.asarray(a, dtype=np.float64).reshape(
+        -1, 3) for a in (origin_left, ground_left, origin_right, ground_right))))
+
+
 #: the largest fraction of the points in front of both cameras a user's --max-ray-gap may
 #: drop: beyond it the DEM is interpolated from a tenth of its measurements or less (the
 #: default threshold, median + max(4 NMAD, 2 GSD), drops less than half by construction)

@@ -174,28 +174,22 @@ class MapDemTileJob:
 
     # ------------------------------------------------------------------ step 1
     def _raw_ortho(self, disparity, r0, c0):
-        """Raw (line, sample) of each side, and the cells, of the map-projected route."""
-        from demtool.mapproject.stereo import (
-            check_right_cells,
-            disparity_cells,
-            map_cells_xy,
-            raw_coordinates,
-        )
+        """Raw (line, sample) of each side, the cells, and the rays
+        (:class:`demtool.dem.ortho_rays.OrthoRays`) of the map-projected route."""
+        from demtool.dem.ortho_rays import ortho_rays
+        from demtool.mapproject.stereo import check_right_cells, disparity_cells
         from demtool.maps import to_pyproj_crs
 
         left = ortho(self.left_path, "left orthoimage")
         right = ortho(self.right_path, "right orthoimage")
-        li, ri = left.info, right.info
-        crs = to_pyproj_crs(li.crs)
+        crs = to_pyproj_crs(left.info.crs)
         rows, l_cols, r_cols = disparity_cells(disparity)
         rows_g, l_g, r_g = rows + r0, l_cols + c0, r_cols + c0
-        check_right_cells(self.disparity_path, self.right_path, l_g, r_g, ri.width)
+        check_right_cells(self.disparity_path, self.right_path, l_g, r_g, right.info.width)
         r_rows = rows_g + self.row_shift  # sgm's shift of the right ortho, if any
-        l_h = left.heights(*map_cells_xy(li.transform, rows_g, l_g))
-        r_h = right.heights(*map_cells_xy(ri.transform, r_rows, r_g))
-        return (raw_coordinates(left.sensor, crs, li.transform, rows_g, l_g, l_h)[:2],
-                raw_coordinates(right.sensor, crs, ri.transform, r_rows, r_g, r_h)[:2],
-                rows.astype(np.int64), l_cols.astype(np.int64))
+        found = ortho_rays(left, right, crs, rows_g, l_g, r_rows, r_g)
+        return (found.left[:2], found.right[:2], rows.astype(np.int64),
+                l_cols.astype(np.int64), found)
 
     def _raw_rectified(self, disparity, r0, c0):
         """Raw (line, sample) of each side, and the cells, of the rectified route."""
@@ -211,17 +205,17 @@ class MapDemTileJob:
         x_right = x_left - disparity[rows, cols]
         return (rect_to_pixels(left, geometry, "left", x_left, y, scene_distance(left)),
                 rect_to_pixels(right, geometry, "right", x_right, y, scene_distance(right)),
-                rows, cols)
+                rows, cols, None)
 
     def _points(self, tile: Tile) -> tuple[np.ndarray, dict[str, Any]]:
-        from demtool.dem.sensors import triangulate_sensors
+        from demtool.dem.sensors import triangulate_ground_rays, triangulate_sensors
         from demtool.maps.frames import xyz_to_lonlat_height
 
         r0, r1, c0, c1 = tile.core
         out = np.full((10, r1 - r0, c1 - c0), np.nan, dtype=np.float32)
         disparity = read_window(self.disparity_path, tile.core, what="disparity")
         raw = self._raw_ortho if self.source == "mapprojected" else self._raw_rectified
-        (l_line, l_sample), (r_line, r_sample), rows, cols = raw(disparity, r0, c0)
+        (l_line, l_sample), (r_line, r_sample), rows, cols, rays = raw(disparity, r0, c0)
         seen = (np.isfinite(l_line) & np.isfinite(l_sample) & np.isfinite(r_line)
                 & np.isfinite(r_sample))
         if self.source == "rectified":  # the untiled route triangulates them all
@@ -231,8 +225,11 @@ class MapDemTileJob:
         if not seen.any():
             return out, info
         left, right = self.sensors()
-        tri = triangulate_sensors(left, right, l_line[seen], l_sample[seen], r_line[seen],
-                                  r_sample[seen])
+        if rays is not None:  # the map-projected route: as untiled
+            tri = triangulate_ground_rays(*rays.rays())
+        else:
+            tri = triangulate_sensors(left, right, l_line[seen], l_sample[seen],
+                                      r_line[seen], r_sample[seen])
         finite = np.isfinite(tri.xyz).all(axis=1)
         front = finite & tri.in_front
         info["behind"] = int((finite & ~tri.in_front).sum())

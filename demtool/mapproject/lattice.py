@@ -51,24 +51,31 @@ class PointCoordinates(NamedTuple):
     exact_points : int
         Points (of N) projected exactly (strips where no lattice met the tolerance,
         points next to a node that does not converge, check points).
+    origin : (N, 3) float64 or None
+        With ``origins``: the origin of each point's imaging ray, body-fixed metres.
+    max_origin_miss_m : float
+        Largest distance of an interpolated origin from the exact ray of its check
+        point, metres (0 without origins).
     """
 
     line: np.ndarray
     sample: np.ndarray
     max_error_px: float
     exact_points: int
+    origin: np.ndarray | None = None
+    max_origin_miss_m: float = 0.0
 
 
 @njit(cache=True, nogil=True)
-def _interpolate_points(node_line, node_sample, levels, rows, cols, heights, step,
-                        out_line, out_sample):
+def _interpolate_points(node_values, levels, rows, cols, heights, step, out):
     """Bilinear across the node lattice, Lagrange across the height levels, at points.
 
-    node_* : (L, nr, nc), node (i, j) at lattice cell (i·step, j·step); levels : (L,);
-    rows, cols : (N,) cells from the lattice origin; heights : (N,); out_* : (N,).
+    node_values : (L, nr, nc, K), node (i, j) at lattice cell (i·step, j·step), K values
+    each (line, sample[, ray origin x, y, z]); levels : (L,); rows, cols : (N,) cells
+    from the lattice origin; heights : (N,); out : (N, K).
     """
     n_levels = levels.shape[0]
-    nr, nc = node_line.shape[1], node_line.shape[2]
+    nr, nc, n_values = node_values.shape[1], node_values.shape[2], node_values.shape[3]
     for p in range(rows.shape[0]):
         z = heights[p]
         fi = rows[p] / step
@@ -77,27 +84,20 @@ def _interpolate_points(node_line, node_sample, levels, rows, cols, heights, ste
         fj = cols[p] / step
         j0 = min(max(int(math.floor(fj)), 0), nc - 2)
         tj = fj - j0
-        acc_l = 0.0
-        acc_s = 0.0
+        for v in range(n_values):
+            out[p, v] = 0.0
         for k in range(n_levels):
             weight = 1.0
             for m in range(n_levels):
                 if m != k:
                     weight *= (z - levels[m]) / (levels[k] - levels[m])
-            a = node_line[k, i0, j0]
-            b = node_line[k, i0, j0 + 1]
-            c = node_line[k, i0 + 1, j0]
-            d = node_line[k, i0 + 1, j0 + 1]
-            acc_l += weight * ((1 - ti) * ((1 - tj) * a + tj * b)
-                               + ti * ((1 - tj) * c + tj * d))
-            a = node_sample[k, i0, j0]
-            b = node_sample[k, i0, j0 + 1]
-            c = node_sample[k, i0 + 1, j0]
-            d = node_sample[k, i0 + 1, j0 + 1]
-            acc_s += weight * ((1 - ti) * ((1 - tj) * a + tj * b)
-                               + ti * ((1 - tj) * c + tj * d))
-        out_line[p] = acc_l
-        out_sample[p] = acc_s
+            for v in range(n_values):
+                a = node_values[k, i0, j0, v]
+                b = node_values[k, i0, j0 + 1, v]
+                c = node_values[k, i0 + 1, j0, v]
+                d = node_values[k, i0 + 1, j0 + 1, v]
+                out[p, v] += weight * ((1 - ti) * ((1 - tj) * a + tj * b)
+                                       + ti * ((1 - tj) * c + tj * d))
 
 
 @njit(cache=True, parallel=True, nogil=True)
@@ -130,28 +130,35 @@ def height_levels(low: float, high: float) -> np.ndarray:
 
 
 def _exact(sensor: Any, crs: Any, transform: Any, rows: np.ndarray, cols: np.ndarray,
-           heights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+           heights: np.ndarray, origins: bool) -> np.ndarray:
+    """(N, 2) exact (line, sample) of cells, or (N, 5) with the origin of the ray
+    through that pixel (``sensor.image_to_ray``)."""
     from demtool.maps import map_to_xyz
 
     t = transform  # the centre of cell (r, c) is at pixel (c + 0.5, r + 0.5)
     x = t.a * (cols + 0.5) + t.b * (rows + 0.5) + t.c
     y = t.d * (cols + 0.5) + t.e * (rows + 0.5) + t.f
     xyz = np.asarray(map_to_xyz(crs, x, y, heights), dtype=np.float64).reshape(-1, 3)
-    return sensor.ground_to_image(xyz)
+    line, sample = sensor.ground_to_image(xyz)
+    if not origins:
+        return np.column_stack([line, sample])
+    with np.errstate(invalid="ignore"):
+        origin = np.asarray(sensor.image_to_ray(line, sample).origin).reshape(-1, 3)
+    return np.column_stack([line, sample, origin])
 
 
 def _strip(sensor: Any, crs: Any, transform: Any, rows: np.ndarray, cols: np.ndarray,
            heights: np.ndarray, *, step: int, tolerance: float, check_points: int,
-           rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float, int]:
-    """(line, sample, max error, exact count) of one strip's points (finite heights)."""
+           rng: np.random.Generator, origins: bool) -> tuple[np.ndarray, float, float, int]:
+    """(values (n, 2 or 5), max error px, max origin miss m, exact count) of one strip's
+    points (finite heights)."""
     n = rows.size
     levels = height_levels(float(heights.min()), float(heights.max()))
     r_origin, c_origin = math.floor(rows.min()), math.floor(cols.min())
     span_r, span_c = rows.max() - r_origin, cols.max() - c_origin
     check = np.unique(rng.integers(0, n, min(check_points, n)))
     exact_check = None
-    error = 0.0
-    while step >= 2:
+    while step >= 2 and tolerance > 0:
         n_r = max(int(math.ceil(span_r / step)) + 1, 2)
         n_c = max(int(math.ceil(span_c / step)) + 1, 2)
         nodes = len(levels) * n_r * n_c
@@ -167,41 +174,56 @@ def _strip(sensor: Any, crs: Any, transform: Any, rows: np.ndarray, cols: np.nda
             all_r.append(rows[check])
             all_c.append(cols[check])
             all_h.append(heights[check])
-        line_all, sample_all = _exact(sensor, crs, transform, np.concatenate(all_r),
-                                      np.concatenate(all_c), np.concatenate(all_h))
+        found = _exact(sensor, crs, transform, np.concatenate(all_r), np.concatenate(all_c),
+                       np.concatenate(all_h), origins)
         if exact_check is None:
-            exact_check = line_all[nodes:], sample_all[nodes:]
-        shape = (len(levels), n_r, n_c)
-        node_line = np.ascontiguousarray(line_all[:nodes].reshape(shape))
-        node_sample = np.ascontiguousarray(sample_all[:nodes].reshape(shape))
+            exact_check = found[nodes:]
+        node_values = np.ascontiguousarray(found[:nodes].reshape(
+            (len(levels), n_r, n_c, found.shape[1])))
         rel_r, rel_c = rows - r_origin, cols - c_origin
-        got_l, got_s = np.empty(check.size), np.empty(check.size)
-        _interpolate_points(node_line, node_sample, levels, rel_r[check], rel_c[check],
-                            heights[check], float(step), got_l, got_s)
-        both = np.isfinite(exact_check[0]) & np.isfinite(got_l)
-        error = float(np.max(np.hypot(got_l - exact_check[0], got_s - exact_check[1])[both],
-                             initial=0.0))
+        got = np.empty((check.size, found.shape[1]))
+        _interpolate_points(node_values, levels, rel_r[check], rel_c[check], heights[check],
+                            float(step), got)
+        both = np.isfinite(exact_check[:, 0]) & np.isfinite(got[:, 0])
+        error = float(np.max(np.hypot(got[both, 0] - exact_check[both, 0],
+                                      got[both, 1] - exact_check[both, 1]), initial=0.0))
         if error <= tolerance:
-            line, sample = np.empty(n), np.empty(n)
-            _interpolate_points(node_line, node_sample, levels, rel_r, rel_c, heights,
-                                float(step), line, sample)
-            line[check], sample[check] = exact_check
+            values = np.empty((n, found.shape[1]))
+            _interpolate_points(node_values, levels, rel_r, rel_c, heights, float(step),
+                                values)
+            values[check] = exact_check
             # next to a node that did not converge: the exact projection decides
-            redo = np.flatnonzero(~(np.isfinite(line) & np.isfinite(sample)))
+            redo = np.flatnonzero(~np.isfinite(values).all(axis=1))
             if redo.size:
-                line[redo], sample[redo] = _exact(sensor, crs, transform, rows[redo],
-                                                  cols[redo], heights[redo])
-            return line, sample, error, int(check.size + redo.size)
+                values[redo] = _exact(sensor, crs, transform, rows[redo], cols[redo],
+                                      heights[redo], origins)
+            return values, error, _origin_miss(sensor, got, exact_check, both), \
+                int(check.size + redo.size)
         step //= 2
-    line, sample = _exact(sensor, crs, transform, rows, cols, heights)
-    return line, sample, 0.0, n
+    return _exact(sensor, crs, transform, rows, cols, heights, origins), 0.0, 0.0, n
+
+
+def _origin_miss(sensor: Any, got: np.ndarray, exact: np.ndarray, both: np.ndarray
+                 ) -> float:
+    """Largest distance (metres) of an interpolated ray origin from the exact ray of its
+    check point (0 without origins)."""
+    if got.shape[1] < 5 or not both.any():
+        return 0.0
+    with np.errstate(invalid="ignore"):
+        ray = sensor.image_to_ray(exact[both, 0], exact[both, 1])
+    direction = np.asarray(ray.direction).reshape(-1, 3)
+    offset = got[both, 2:] - np.asarray(ray.origin).reshape(-1, 3)
+    across = offset - np.sum(offset * direction, axis=1)[:, None] * direction
+    miss = np.linalg.norm(across, axis=1)
+    return float(np.max(miss[np.isfinite(miss)], initial=0.0))
 
 
 def points_image_coordinates(sensor: Any, crs: Any, transform: Any, rows: np.ndarray,
                              cols: np.ndarray, heights: np.ndarray, *,
                              tolerance: float = TOLERANCE_PX, step: int = LATTICE_STEP,
                              strip_rows: int = STRIP_ROWS, check_points: int = CHECK_POINTS,
-                             seed: int = 0, threads: int | None = None) -> PointCoordinates:
+                             seed: int = 0, threads: int | None = None,
+                             origins: bool = False) -> PointCoordinates:
     """Raw image coordinates of map cells on a surface (see the module docstring).
 
     Parameters
@@ -227,6 +249,10 @@ def points_image_coordinates(sensor: Any, crs: Any, transform: Any, rows: np.nda
         Seed of the check points (strip k draws from ``(seed, k)``).
     threads : int, optional
         Strips at once (default: every core).
+    origins : bool
+        Also the origin of each point's imaging ray (``sensor.image_to_ray`` at its
+        pixel: a line scanner's position at the line's exposure), interpolated on the
+        same lattice.
 
     Returns
     -------
@@ -237,11 +263,10 @@ def points_image_coordinates(sensor: Any, crs: Any, transform: Any, rows: np.nda
     rows = np.asarray(rows, dtype=np.float64).ravel()
     cols = np.asarray(cols, dtype=np.float64).ravel()
     heights = np.asarray(heights, dtype=np.float64).ravel()
-    line = np.full(rows.shape, np.nan)
-    sample = np.full(rows.shape, np.nan)
+    values = np.full((rows.size, 5 if origins else 2), np.nan)
     good = np.flatnonzero(np.isfinite(heights) & np.isfinite(rows) & np.isfinite(cols))
     if not good.size:
-        return PointCoordinates(line, sample, 0.0, 0)
+        return _result(values, 0.0, 0.0, 0)
     r = rows[good]
     if r.size > 1 and np.any(r[1:] < r[:-1]):  # a disparity's cells come row by row
         good = good[np.argsort(r, kind="stable")]
@@ -255,19 +280,24 @@ def points_image_coordinates(sensor: Any, crs: Any, transform: Any, rows: np.nda
     def one(piece):
         k, a, b = piece
         index = good[a:b]
-        if tolerance <= 0:
-            found = _exact(sensor, crs, transform, rows[index], cols[index], heights[index])
-            return (*found, 0.0, b - a)
         return _strip(sensor, crs, transform, rows[index], cols[index], heights[index],
                       step=max(int(step), 1), tolerance=tolerance,
-                      check_points=check_points, rng=np.random.default_rng((seed, k)))
+                      check_points=check_points, rng=np.random.default_rng((seed, k)),
+                      origins=origins)
 
-    max_error, exact = 0.0, 0
-    for (_, a, b), (s_line, s_sample, error, n_exact) in zip(
+    max_error, max_miss, exact = 0.0, 0.0, 0
+    for (_, a, b), (found, error, miss, n_exact) in zip(
             pieces, ordered_map(one, pieces, threads=threads), strict=True):
-        line[good[a:b]], sample[good[a:b]] = s_line, s_sample
-        max_error, exact = max(max_error, error), exact + n_exact
-    return PointCoordinates(line, sample, max_error, exact)
+        values[good[a:b]] = found
+        max_error, max_miss = max(max_error, error), max(max_miss, miss)
+        exact += n_exact
+    return _result(values, max_error, max_miss, exact)
+
+
+def _result(values: np.ndarray, error: float, miss: float, exact: int) -> PointCoordinates:
+    origin = np.ascontiguousarray(values[:, 2:]) if values.shape[1] == 5 else None
+    return PointCoordinates(np.ascontiguousarray(values[:, 0]),
+                            np.ascontiguousarray(values[:, 1]), error, exact, origin, miss)
 
 
 __all__ = ["CHECK_POINTS", "LATTICE_STEP", "STRIP_ROWS", "TOLERANCE_PX", "PointCoordinates",

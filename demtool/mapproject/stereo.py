@@ -335,7 +335,8 @@ def check_right_cells(disparity_path: Any, right_path: Any, left_cols: np.ndarra
 
 
 def raw_coordinates(sensor, crs, transform, rows: np.ndarray, cols: np.ndarray,
-                    heights: np.ndarray, *, tolerance: float | None = None):
+                    heights: np.ndarray, *, tolerance: float | None = None,
+                    origins: bool = False):
     """Raw image (line, sample) of map cells on a surface, through a sensor model.
 
     Parameters
@@ -351,6 +352,8 @@ def raw_coordinates(sensor, crs, transform, rows: np.ndarray, cols: np.ndarray,
     tolerance : float, optional
         Largest interpolation error accepted, image pixels (default
         :data:`demtool.mapproject.lattice.TOLERANCE_PX`; 0: every cell projected exactly).
+    origins : bool
+        Also each cell's ray origin (``PointCoordinates.origin``).
 
     Returns
     -------
@@ -364,4 +367,5 @@ def raw_coordinates(sensor, crs, transform, rows: np.ndarray, cols: np.ndarray,
     from demtool.mapproject.lattice import TOLERANCE_PX, points_image_coordinates
 
     return points_image_coordinates(sensor, crs, transform, rows, cols, heights,
-                                    tolerance=TOLERANCE_PX if tolerance is None else tolerance)
+                                    tolerance=TOLERANCE_PX if tolerance is None else tolerance,
+                                    origins=origins)

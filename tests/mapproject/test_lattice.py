@@ -93,3 +93,42 @@ def test_points_on_map_equal_the_grid_and_coordinates_computed_apart():
     x, y = lonlat_to_map(grid.crs, lon, lat)
     assert np.array_equal(placed.x, x) and np.array_equal(placed.y, y)
     assert np.array_equal(placed.height, height)
+
+
+def test_ortho_rays_triangulate_as_the_exact_raw_pixels_rays():
+    """dem --mapprojected's rays (origin interpolated on the lattice, through the cell's
+    ground point) give the points the exact raw pixels' image_to_ray rays give."""
+    from types import SimpleNamespace
+
+    from demtool.dem.ortho_rays import ortho_rays
+    from demtool.dem.sensors import triangulate_ground_rays, triangulate_sensors
+    from demtool.maps.grids import grid_from_xyz
+
+    left = linescan_sensor(lines=160, samples=140, roll_deg=-8.0, lon0=10.2324)
+    right = linescan_sensor(lines=160, samples=140, roll_deg=8.0, lon0=9.7676)
+    grid = grid_from_xyz(MOON, left.image_to_ground(np.array([0.5, 159.5, 0.5, 159.5]),
+                                                    np.array([0.5, 0.5, 139.5, 139.5])), 1.0)
+
+    def heights(x, y):
+        return terrain(*map_to_lonlat(grid.crs, x, y))
+
+    orthos = [SimpleNamespace(info=SimpleNamespace(transform=grid.transform), sensor=s,
+                              heights=heights) for s in (left, right)]
+    rows, cols = np.nonzero(np.ones(grid.shape, bool))
+    rows, cols = rows.astype(np.float64), cols.astype(np.float64)
+    r_cols = cols - np.random.default_rng(1).uniform(-2.0, 6.0, cols.size)
+    found = ortho_rays(*orthos, grid.crs, rows, cols, rows, r_cols)
+    assert found.seen.mean() > 0.5
+    assert found.max_error_px() <= 1e-4 and found.left.exact_points < 0.3 * rows.size
+    got = triangulate_ground_rays(*found.rays())
+    pixels = []
+    for s, c in ((left, cols), (right, r_cols)):
+        x, y = map_cells_xy(grid.transform, rows, c)
+        xyz = np.asarray(map_to_xyz(grid.crs, x, y, heights(x, y))).reshape(-1, 3)
+        line, sample = s.ground_to_image(xyz)
+        pixels += [line[found.seen], sample[found.seen]]
+    want = triangulate_sensors(left, right, *pixels)
+    assert np.isfinite(want.xyz).all()
+    np.testing.assert_allclose(got.xyz, want.xyz, rtol=0, atol=1e-3)  # metres
+    np.testing.assert_allclose(got.gap, want.gap, rtol=0, atol=1e-3)
+    assert np.array_equal(got.in_front, want.in_front)

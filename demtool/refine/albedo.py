@@ -8,6 +8,7 @@ attributed to topography, which is what shape from shading recovers.
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from demtool.refine.filters import masked_gaussian_lowpass
@@ -51,20 +52,53 @@ def estimate_albedo(image: np.ndarray, modelled: np.ndarray, *, sigma: float,
     ValueError
         No pixel with a positive weight.
     """
-    image = np.asarray(image, dtype=np.float32)
-    modelled = np.asarray(modelled, dtype=np.float32)
-    usable = np.isfinite(image) & np.isfinite(modelled) & (modelled > 0)
-    w = usable.astype(np.float32) if weight is None else \
-        np.where(usable, np.asarray(weight, dtype=np.float32), np.float32(0.0))
+    image = np.ascontiguousarray(image, dtype=np.float32)
+    modelled = np.ascontiguousarray(modelled, dtype=np.float32)
+    w = np.empty(image.shape, dtype=np.float32)
+    if weight is None:
+        _usable_weight(image, modelled, np.ones((1, 1), np.float32), False, w)
+    else:
+        _usable_weight(image, modelled, np.ascontiguousarray(weight), True, w)
     if not (w > 0).any():
         raise ValueError("estimate_albedo: no lit, valid pixel to estimate the albedo from")
     smooth_image = masked_gaussian_lowpass(image, w, sigma)
     smooth_model = masked_gaussian_lowpass(modelled, w, sigma)
     floor = np.float32(1e-6 * max(float(np.max(smooth_model)), 1e-12))
-    albedo = smooth_image / np.maximum(smooth_model, floor)
+    albedo = np.empty(image.shape, dtype=np.float32)
+    if not _ratio_is_bad(smooth_image, smooth_model, floor, albedo):
+        return albedo
     bad = ~(albedo > 0)
-    if not bad.any():
-        return albedo.astype(np.float32, copy=False)
     positive = albedo[~bad]
     fallback = np.float32(np.median(positive)) if positive.size else np.float32(1.0)
     return np.where(bad, fallback, albedo).astype(np.float32)
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def _usable_weight(image: np.ndarray, modelled: np.ndarray, weight: np.ndarray,
+                   weighted: bool, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``out`` = the weight (1 when not ``weighted``) where the image and the model are
+    finite and the model positive, else 0 (float32, on every core)."""
+    height, width = image.shape
+    for r in nb.prange(height):
+        for c in range(width):
+            m = modelled[r, c]
+            usable = np.isfinite(image[r, c]) and np.isfinite(m) and m > 0
+            w = np.float32(weight[r, c]) if weighted else np.float32(1.0)
+            out[r, c] = w if usable else np.float32(0.0)
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def _ratio_is_bad(smooth_image: np.ndarray, smooth_model: np.ndarray, floor: np.float32,
+                  out: np.ndarray) -> bool:  # pragma: no cover - compiled
+    """``out = smooth_image / max(smooth_model, floor)`` (NaN kept, as ``np.maximum``);
+    True when some ratio is not positive."""
+    height, width = out.shape
+    bad = np.zeros(height, dtype=np.bool_)
+    for r in nb.prange(height):
+        for c in range(width):
+            m = smooth_model[r, c]
+            ratio = smooth_image[r, c] / (m if not m < floor else floor)
+            out[r, c] = ratio
+            if not ratio > 0:
+                bad[r] = True
+    return bad.any()

@@ -132,17 +132,41 @@ def masked_gaussian_lowpass(array: np.ndarray, weight: np.ndarray, sigma: float,
     -------
     (H, W) float32
     """
-    w = np.asarray(weight, dtype=np.float32)
-    values = np.where(w > 0, np.asarray(array, dtype=np.float32), np.float32(0.0))
+    w = np.ascontiguousarray(weight, dtype=np.float32)
+    weighted = np.empty(w.shape, dtype=np.float32)
+    _masked_product(np.ascontiguousarray(array, dtype=np.float32), w, weighted)
     total = float(w.sum())
     if total <= 0:
         raise ValueError("masked_gaussian_lowpass: the weight is zero everywhere")
-    numerator = gaussian_lowpass(values * w, sigma)
+    numerator = gaussian_lowpass(weighted, sigma)
     denominator = gaussian_lowpass(w, sigma)
-    fallback = np.float32(float((values * w).sum()) / total)
-    safe = denominator > floor
-    return np.where(safe, numerator / np.where(safe, denominator, 1.0), fallback).astype(
-        np.float32)
+    fallback = np.float32(float(weighted.sum()) / total)
+    out = np.empty(w.shape, dtype=np.float32)
+    _ratio_above(numerator, denominator, np.float32(floor), fallback, out)
+    return out
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def _masked_product(values: np.ndarray, weight: np.ndarray,
+                    out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``out = (values where weight > 0, else 0) · weight`` (float32, on every core)."""
+    height, width = values.shape
+    zero = np.float32(0.0)
+    for r in nb.prange(height):
+        for c in range(width):
+            w = weight[r, c]
+            out[r, c] = (values[r, c] if w > 0 else zero) * w
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def _ratio_above(numerator: np.ndarray, denominator: np.ndarray, floor: np.float32,
+                 fallback: np.float32, out: np.ndarray) -> None:  # pragma: no cover
+    """``out = numerator / denominator`` where ``denominator > floor``, else ``fallback``."""
+    height, width = numerator.shape
+    for r in nb.prange(height):
+        for c in range(width):
+            d = denominator[r, c]
+            out[r, c] = numerator[r, c] / d if d > floor else fallback
 
 
 # --------------------------------------------------------------------------------------
@@ -322,12 +346,41 @@ def _median_ranks(ranks: np.ndarray, sorted_values: np.ndarray, height: int, wid
     return out
 
 
+#: Rows of output at least per strip of :func:`median_filter` (below, one strip).
+MEDIAN_STRIP_ROWS = 64
+
+
+@nb.njit(cache=True, nogil=True)
+def _ranks_of(order: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """The inverse permutation of ``order``: each element's rank."""
+    ranks = np.empty(order.size, dtype=np.int64)
+    for rank in range(order.size):
+        ranks[order[rank]] = rank
+    return ranks
+
+
+def _median_of_strip(padded: np.ndarray, size: int) -> np.ndarray:
+    """The median filter's output rows of a (padded) strip: ranks, then the sliding rank
+    window (:func:`_median_ranks`)."""
+    height, width = padded.shape[0] - size + 1, padded.shape[1] - size + 1
+    order = np.argsort(padded, axis=None)  # numpy sorts without the GIL
+    bins = (order.size >> _BIN_SHIFT) + 1
+    return _median_ranks(_ranks_of(order).reshape(padded.shape), padded.ravel()[order],
+                         height, width, size, bins)
+
+
 def median_filter(array: np.ndarray, size: int) -> np.ndarray:
     """Square ``size`` × ``size`` median filter with reflect boundaries (numba, parallel).
 
     Equal to ``scipy.ndimage.median_filter(array, size, mode="reflect")`` for odd
     ``size``; O(size) work per pixel (sliding rank window, see above), about ten times
     faster than a per-pixel selection for the 15 px window of the NavCam study.
+
+    On n threads (numba's count of the calling thread) the rows are cut into n strips,
+    each ranked (sorted) and filtered on its own thread: the sort of one grid-wide rank
+    order was the serial part.  A window's median is the same value whatever the ranks'
+    extent (ranks order values; equal values have the same median either way), so the
+    output does not depend on the strips.
 
     Parameters
     ----------
@@ -345,11 +398,21 @@ def median_filter(array: np.ndarray, size: int) -> np.ndarray:
         return values.copy()
     if size % 2 == 0:
         raise ValueError(f"median window must be odd, got {size}")
-    half = size // 2
-    padded = np.pad(values, half, mode="symmetric")
-    order = np.argsort(padded, axis=None)
-    ranks = np.empty(order.size, dtype=np.int64)
-    ranks[order] = np.arange(order.size)
-    bins = (order.size >> _BIN_SHIFT) + 1
-    return _median_ranks(ranks.reshape(padded.shape), padded.ravel()[order],
-                         values.shape[0], values.shape[1], size, bins)
+    padded = np.pad(values, size // 2, mode="symmetric")
+    height = values.shape[0]
+    strips = max(1, min(nb.get_num_threads(), height // MEDIAN_STRIP_ROWS))
+    if strips == 1:
+        return _median_of_strip(padded, size)
+    from concurrent.futures import ThreadPoolExecutor
+
+    bounds = [height * i // strips for i in range(strips + 1)]
+    out = np.empty(values.shape, dtype=np.float32)
+
+    def strip(i: int) -> None:
+        nb.set_num_threads(1)  # this pool thread's kernels (numba's count is per thread)
+        r0, r1 = bounds[i], bounds[i + 1]
+        out[r0:r1] = _median_of_strip(padded[r0:r1 + size - 1], size)
+
+    with ThreadPoolExecutor(strips) as pool:
+        list(pool.map(strip, range(strips)))
+    return out

@@ -1,0 +1,84 @@
+"""refine on every core (issue 47): the parts that ran on one core — the median filter's
+rank sort, the shadow mask's dilation, the albedo's normalised-convolution arithmetic —
+now run on all, with the same numbers to the bit."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from demtool.refine.albedo import estimate_albedo
+from demtool.refine.filters import gaussian_lowpass, masked_gaussian_lowpass, median_filter
+from demtool.refine.shadows import dilate
+
+
+@pytest.fixture
+def two_threads():
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    yield numba.get_num_threads()
+    numba.set_num_threads(before)
+
+
+@pytest.mark.parametrize("shape", [(300, 257), (129, 64), (64, 700)])
+def test_median_filter_in_strips_is_scipys(shape, two_threads):
+    rng = np.random.default_rng(0)
+    values = rng.normal(size=shape).astype(np.float32)
+    values[::5] = np.round(values[::5], 1)  # ties across the strips' boundary rows
+    for size in (3, 15):
+        expected = ndimage.median_filter(values, size, mode="reflect")
+        assert np.array_equal(median_filter(values, size), expected)
+        numba.set_num_threads(1)
+        assert np.array_equal(median_filter(values, size), expected)
+        numba.set_num_threads(two_threads)
+
+
+def test_dilation_is_scipys():
+    rng = np.random.default_rng(1)
+    for shape in [(1, 1), (1, 9), (9, 1), (50, 37)]:
+        for fraction in (0.01, 0.3):
+            mask = rng.random(shape) < fraction
+            for iterations in (1, 2):
+                assert np.array_equal(dilate(mask, iterations),
+                                      ndimage.binary_dilation(mask, iterations=iterations))
+
+
+def _masked_lowpass_numpy(array, weight, sigma, floor=1e-3):
+    """The numpy formula the kernels replace (f(w·a) / f(w), the weighted mean where
+    f(w) ≤ floor)."""
+    w = np.asarray(weight, dtype=np.float32)
+    values = np.where(w > 0, np.asarray(array, dtype=np.float32), np.float32(0.0))
+    numerator = gaussian_lowpass(values * w, sigma)
+    denominator = gaussian_lowpass(w, sigma)
+    fallback = np.float32(float((values * w).sum()) / float(w.sum()))
+    safe = denominator > floor
+    return np.where(safe, numerator / np.where(safe, denominator, 1.0), fallback)
+
+
+def test_albedo_arithmetic_is_numpys(two_threads):
+    rng = np.random.default_rng(5)
+    shape = (200, 230)
+    image = (800 * rng.random(shape)).astype(np.float32)
+    image[rng.random(shape) < 0.05] = np.nan
+    modelled = rng.normal(0.5, 0.3, shape).astype(np.float32)
+    modelled[rng.random(shape) < 0.01] = np.nan
+    lit = rng.random(shape) < 0.7
+    lit[:70] = False  # no weight within a few σ: the weighted mean
+    weights = (rng.random(shape) * lit).astype(np.float32)
+    x = rng.normal(size=shape).astype(np.float32)
+    assert np.array_equal(masked_gaussian_lowpass(x, weights, 21.0),
+                          _masked_lowpass_numpy(x, weights, 21.0))
+    assert np.array_equal(masked_gaussian_lowpass(x, lit, 5.0, floor=0.3),
+                          _masked_lowpass_numpy(x, lit, 5.0, floor=0.3))
+    for weight in (None, lit):
+        usable = np.isfinite(image) & np.isfinite(modelled) & (modelled > 0)
+        w = usable.astype(np.float32) if weight is None else np.where(usable, weight, 0)
+        smooth_image = _masked_lowpass_numpy(image, w, 21.0)
+        smooth_model = _masked_lowpass_numpy(modelled, w, 21.0)
+        floor = np.float32(1e-6 * float(np.max(smooth_model)))
+        expected = smooth_image / np.maximum(smooth_model, floor)
+        assert (expected > 0).all()
+        assert np.array_equal(estimate_albedo(image, modelled, sigma=21.0, weight=weight),
+                              expected)

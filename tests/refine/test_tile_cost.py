@@ -5,6 +5,7 @@ the tile job reads, refines and crops exactly that window."""
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 
@@ -90,3 +91,38 @@ def test_the_tile_job_refines_and_crops_its_solve_window(tmp_path, monkeypatch):
                            image_median=100.0)
     assert np.array_equal(out[0], whole.dem[r0 - w0:r1 - w0, c0 - v0:c1 - v0])
     assert np.array_equal(out[1], whole.albedo[r0 - w0:r1 - w0, c0 - v0:c1 - v0])
+
+
+def test_tiles_on_threads_match_tiles_one_after_the_other(tmp_path):
+    """Local --workers N runs refine tiles on N threads of one process: a tile's numbers
+    must not depend on what runs beside it (no process-wide state changed per tile)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from demtool import io
+    from demtool.refine.params import RefineParams
+
+    size = 160
+    rng = np.random.default_rng(2)
+    rows, cols = np.indices((size, size), dtype=np.float32)
+    dem = np.sin(rows / 9.0) + np.cos(cols / 7.0) + 0.05 * rng.normal(size=(size, size))
+    image = 100 + 20 * np.cos(cols / 7.0) + rng.normal(size=(size, size))
+    dem_path, image_path = tmp_path / "dem.tif", tmp_path / "image.tif"
+    io.write_raster(dem_path, dem.astype(np.float32), transform=io.image_frame_transform(1.0))
+    io.write_raster(image_path, image.astype(np.float32),
+                    transform=io.image_frame_transform(1.0))
+    params = RefineParams(iterations=3, update_every=2)  # the median and albedo updates
+    options = {k: v for k, v in params.as_dict().items()
+               if k not in ("workers", "tile_size", "tile_overlap", "scheduler", "dry_run")}
+    job = RefineTileJob(str(image_path), str(dem_path), (1.0, 1.0), (0.5, 0.0, 0.866),
+                        (0.0, 0.0, 1.0), 100.0, tuple(sorted(options.items())),
+                        grid=(size, size))
+    tiles = plan_tiles(size, size, 80, overlap=30).tiles
+    before = numba.get_num_threads()
+    alone = [job.compute(tile, 1)[0] for tile in tiles]
+    with ThreadPoolExecutor(2) as pool:
+        beside = list(pool.map(lambda tile: job.compute(tile, 1)[0], tiles))
+    with_cores = [job.compute(tile, 2)[0] for tile in tiles[:1]]  # median in strips
+    for a, b in zip(alone, beside, strict=True):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert np.array_equal(alone[0], with_cores[0], equal_nan=True)
+    assert numba.get_num_threads() == before  # the calling thread's count, restored

@@ -19,8 +19,6 @@ from __future__ import annotations
 import os
 from typing import TYPE_CHECKING, Any
 
-from demtool.dem.inputs import read_ortho
-
 if TYPE_CHECKING:
     from demtool.dem.params import DemParams
     from demtool.stagerun import StageRun
@@ -48,8 +46,11 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
 
     log = run.log
     timings: dict[str, float] = {}
-    left = read_ortho(left_path, what="left orthoimage")
-    right = read_ortho(right_path, what="right orthoimage")
+    from demtool.dem.tiled_map import ortho
+
+    # read once per process (the tiled route's tiles find them in ortho's cache)
+    left = ortho(str(left_path), "left orthoimage")
+    right = ortho(str(right_path), "right orthoimage")
     li, ri = left.info, right.info
     from demtool.mapproject.hashes import check_distinct, check_pair_order
 

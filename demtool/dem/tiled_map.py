@@ -107,13 +107,20 @@ def split64(values: np.ndarray) -> np.ndarray:
     return np.stack([high, (values - high.astype(np.float64)).astype(np.float32)])
 
 
-def stored_points(values: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(lon, lat, height, gap, range_left) (N,) float64 of a cached points tile's points
-    (bands in :func:`split64` pairs)."""
+#: the quantities of a cached points tile, in the order of its :func:`split64` band pairs
+POINT_FIELDS = ("lon", "lat", "height", "gap", "range_left")
+
+
+def stored_points(values: np.ndarray, fields: tuple[str, ...] = POINT_FIELDS
+                  ) -> tuple[np.ndarray, ...]:
+    """The ``fields`` (default all: lon, lat, height, gap, range_left) (N,) float64 of a
+    cached points tile's points (bands in :func:`split64` pairs); only those decoded."""
     ok = np.isfinite(values[4])
-    v = values[:, ok].astype(np.float64)
-    return tuple(v[2 * i] + v[2 * i + 1] for i in range(5))
+    out = []
+    for name in fields:
+        i = POINT_FIELDS.index(name)
+        out.append(values[2 * i][ok].astype(np.float64) + values[2 * i + 1][ok])
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -261,7 +268,8 @@ class MapDemTileJob:
         for ptile, box in zip(ptiles, self.boxes, strict=True):
             if box is None or box[0] >= r1 or box[1] <= r0 or box[2] >= c1 or box[3] <= c0:
                 continue
-            lon, lat, height, gap, _ = stored_points(cache.load(ptile))
+            lon, lat, height, gap = stored_points(cache.load(ptile),
+                                                  ("lon", "lat", "height", "gap"))
             keep = gap <= self.max_gap
             x, y = lonlat_to_map(crs, lon[keep], lat[keep])
             px = (np.asarray(x) - c) / a - 0.5  # as demtool.dem.sensors.dem_on_map

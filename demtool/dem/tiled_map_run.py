@@ -24,17 +24,23 @@ from demtool.tiling import TileCache, plan_tiles
 
 MEDIAN_BINS = 4096  # bins of each refinement pass of streaming_median
 MEDIAN_COLLECT = 1 << 20  # values gathered in memory for the final selection
+#: up to this many values (64 MiB of float64) streaming_median keeps them from its first
+#: pass and selects there (the same median, one pass instead of three or more)
+MEDIAN_IN_MEMORY = 1 << 23
 
 
 def streaming_median(chunks: Callable[[], Iterable[np.ndarray]], *, bins: int = MEDIAN_BINS,
-                     collect: int = MEDIAN_COLLECT) -> float | None:
+                     collect: int = MEDIAN_COLLECT, in_memory: int = MEDIAN_IN_MEMORY
+                     ) -> float | None:
     """The exact median (``np.median``'s) of values given in chunks, in bounded memory.
 
     ``chunks()`` yields the arrays again at each call (one pass each).  A first pass finds
-    the count and the range; then the two middle order statistics are selected by
-    histogram refinement (:class:`demtool.compare.streaming.OrderStatistic`, ``bins``
-    bins a pass, the last ``collect`` values gathered and sorted), both from the same
-    passes.  NaNs are ignored; None when there is no value.
+    the count and the range, keeping the values while there are at most ``in_memory``
+    of them (then the two middle order statistics are selected there: no second pass);
+    otherwise the two middle order statistics are selected by histogram refinement
+    (:class:`demtool.compare.streaming.OrderStatistic`, ``bins`` bins a pass, the last
+    ``collect`` values gathered and sorted), both from the same passes.  NaNs are
+    ignored; None when there is no value.
     """
     from demtool.compare.streaming import OrderStatistic
 
@@ -44,11 +50,21 @@ def streaming_median(chunks: Callable[[], Iterable[np.ndarray]], *, bins: int = 
             yield v[np.isfinite(v)]
 
     count, lo, hi = 0, math.inf, -math.inf
+    kept: list[np.ndarray] | None = []
     for v in finite():
         if v.size:
             count, lo, hi = count + v.size, min(lo, float(v.min())), max(hi, float(v.max()))
+            if kept is not None and count <= in_memory:
+                kept.append(v)
+            else:
+                kept = None
     if count == 0:
         return None
+    if kept is not None:
+        values = np.concatenate(kept)
+        ranks = ((count - 1) // 2, count // 2)
+        values.partition(ranks)
+        return float(0.5 * (values[ranks[0]] + values[ranks[1]]))
     middle = [OrderStatistic(rank, count, lo, hi, bins=bins, gather_limit=collect)
               for rank in ((count - 1) // 2, count // 2)]
     while not all(statistic.done for statistic in middle):
@@ -82,24 +98,24 @@ def dem_map_tiled(run: Any, params: Any, out: str | os.PathLike, job: MapDemTile
 
 def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gsd, log):
     """(gsd, gsd source, threshold, median gap, front, kept, heights' median)."""
-    def band(index: int):
-        return lambda: (stored_points(points.load(t))[index] for t in tiles)
+    def band(name: str):
+        return lambda: (stored_points(points.load(t), (name,))[0] for t in tiles)
 
     front = sum(int(np.isfinite(points.load(t)[4]).sum()) for t in tiles)
     if gsd is None:
-        gsd = streaming_median(band(4)) * range_to_gsd
-    median_gap = streaming_median(band(3))
+        gsd = streaming_median(band("range_left")) * range_to_gsd
+    median_gap = streaming_median(band("gap"))
     if params.max_ray_gap is not None:
         max_gap = float(params.max_ray_gap)
     else:
         from demtool.dem.sensors import GAP_GSDS, GAP_NMADS
 
-        deviation = streaming_median(lambda: (np.abs(g - median_gap) for g in band(3)()))
+        deviation = streaming_median(lambda: (np.abs(g - median_gap) for g in band("gap")()))
         max_gap = median_gap + max(GAP_NMADS * 1.4826 * deviation, GAP_GSDS * gsd)
 
     def kept_heights():
         for t in tiles:
-            _, _, height, gap, _ = stored_points(points.load(t))
+            height, gap = stored_points(points.load(t), ("height", "gap"))
             yield height[gap <= max_gap]
 
     kept = sum(h.size for h in kept_heights())
@@ -127,7 +143,7 @@ def _grid(params, points: TileCache, tiles, body, gsd: float, max_gap: float, cr
     from demtool.maps.projections import lonlat_to_map, make_projection
 
     def kept(t):
-        lon, lat, _, gap, _ = stored_points(points.load(t))
+        lon, lat, gap = stored_points(points.load(t), ("lon", "lat", "gap"))
         return lon[gap <= max_gap], lat[gap <= max_gap]
 
     if crs is None or params.projection != "auto":  # as choose_projection: the mean direction

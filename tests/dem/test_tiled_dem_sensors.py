@@ -321,10 +321,13 @@ def test_streaming_median_is_numpys_median():
         values = np.concatenate([rng.standard_cauchy(size), [np.nan]])  # heavy tails
         chunks = np.array_split(values, 5)
         expected = float(np.median(values[np.isfinite(values)]))
-        assert streaming_median(lambda c=chunks: iter(c), bins=16, collect=8) == expected
+        # by histogram refinement (kept in memory up to 3 values), and kept in memory
+        assert streaming_median(lambda c=chunks: iter(c), bins=16, collect=8,
+                                in_memory=3) == expected
         assert streaming_median(lambda c=chunks: iter(c)) == expected
     ties = [np.full(100, 2.5), np.full(50, 1.0)]
-    assert streaming_median(lambda: iter(ties), bins=4, collect=3) == 2.5
+    assert streaming_median(lambda: iter(ties), bins=4, collect=3, in_memory=0) == 2.5
+    assert streaming_median(lambda: iter(ties)) == 2.5
     assert streaming_median(lambda: iter([np.array([np.nan])])) is None
 
 

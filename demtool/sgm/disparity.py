@@ -433,6 +433,27 @@ def _nine_row(disparity, y, out):
 
 
 @njit(nogil=True, cache=True)
+def insert_sorted(values, count, value):
+    """Insert ``value`` into ``values[:count]``, sorted ascending (insertion sort, for a
+    few values); returns the new count."""
+    j = count
+    while j > 0 and values[j - 1] > value:
+        values[j] = values[j - 1]
+        j -= 1
+    values[j] = value
+    return count + 1
+
+
+@njit(nogil=True, cache=True)
+def sorted_median(values, count):
+    """Median of ``values[:count]`` (sorted ascending, ``count`` ≥ 1): the middle one, or
+    the mean of the middle two."""
+    if count % 2 == 1:
+        return values[count // 2]
+    return 0.5 * (values[count // 2 - 1] + values[count // 2])
+
+
+@njit(nogil=True, cache=True)
 def _median(disparity, radius, out, start, stop):
     """Rows ``start … stop − 1`` of the NaN-aware median (see :func:`median_filter`)."""
     height, width = disparity.shape
@@ -453,18 +474,9 @@ def _median(disparity, radius, out, start, stop):
             for yy in range(max(y - radius, 0), min(y + radius + 1, height)):
                 for xx in range(max(x - radius, 0), min(x + radius + 1, width)):
                     value = disparity[yy, xx]
-                    if np.isfinite(value):
-                        # insertion sort as the window fills (at most 25 values)
-                        j = count
-                        while j > 0 and window[j - 1] > value:
-                            window[j] = window[j - 1]
-                            j -= 1
-                        window[j] = value
-                        count += 1
-            if count % 2 == 1:
-                out[y, x] = window[count // 2]
-            else:
-                out[y, x] = 0.5 * (window[count // 2 - 1] + window[count // 2])
+                    if np.isfinite(value):  # sorted as the window fills (≤ 25 values)
+                        count = insert_sorted(window, count, value)
+            out[y, x] = sorted_median(window, count)
 
 
 def median_filter(disparity: np.ndarray, size: int) -> np.ndarray:

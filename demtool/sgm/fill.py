@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from demtool.sgm.disparity import in_halves
+from demtool.sgm.disparity import in_halves, insert_sorted, sorted_median
 
 INVALID = 0  # no disparity (NaN in the output)
 MATCHED = 1  # passed the left–right check and the filters
@@ -118,21 +118,14 @@ def _fill_rows(occluded, index, found, out, start, stop):
             n = 0
             for k in range(n_dir):
                 value = found[k, i]
-                if np.isfinite(value):  # insertion sort
-                    j = n
-                    while j > 0 and values[j - 1] > value:
-                        values[j] = values[j - 1]
-                        j -= 1
-                    values[j] = value
-                    n += 1
+                if np.isfinite(value):
+                    n = insert_sorted(values, n, value)
             if n == 0:
                 continue
             if occluded[y, x]:  # the background: the second lowest (one outlier allowed)
                 out[y, x] = values[1] if n > 2 else values[0]
-            elif n % 2 == 1:
-                out[y, x] = values[n // 2]
             else:
-                out[y, x] = 0.5 * (values[n // 2 - 1] + values[n // 2])
+                out[y, x] = sorted_median(values, n)
 
 
 @njit(nogil=True, cache=True)
@@ -198,6 +191,22 @@ def fill_invalid(disparity: np.ndarray, occluded: np.ndarray, usable: np.ndarray
 
 
 @njit(nogil=True, cache=True)
+def _next_invalid_run(disparity, usable, flags, y, x):
+    """The first run of usable pixels without a disparity at or after column ``x`` of
+    row ``y``: (start, stop (exclusive), whether ``flags`` is set on any of its pixels);
+    start = stop = W when there is none."""
+    width = disparity.shape[1]
+    while x < width and (not usable[y, x] or np.isfinite(disparity[y, x])):
+        x += 1
+    start = x
+    flagged = False
+    while x < width and usable[y, x] and not np.isfinite(disparity[y, x]):
+        flagged = flagged or flags[y, x]
+        x += 1
+    return start, x, flagged
+
+
+@njit(nogil=True, cache=True)
 def _epipolar_occlusions(disparity, occluded, touched, usable, out, start, stop):
     """Per row (``start … stop − 1``), each run of invalid pixels that holds an occluded
     one: its first ``jump`` pixels are occluded, jump = d(right end) − d(left end) of
@@ -206,14 +215,7 @@ def _epipolar_occlusions(disparity, occluded, touched, usable, out, start, stop)
     for y in range(start, stop):
         x = 0
         while x < width:
-            if not usable[y, x] or np.isfinite(disparity[y, x]):
-                x += 1
-                continue
-            start = x
-            any_occluded = False
-            while x < width and usable[y, x] and not np.isfinite(disparity[y, x]):
-                any_occluded = any_occluded or touched[y, x]
-                x += 1
+            start, x, any_occluded = _next_invalid_run(disparity, usable, touched, y, x)
             stop = x  # exclusive
             if not any_occluded:
                 continue
@@ -241,15 +243,8 @@ def _unfatten(disparity, occluded, usable, out, marked, start, stop):
     for y in range(start, stop):
         x = 0
         while x < width:
-            if not (usable[y, x] and not np.isfinite(disparity[y, x])):
-                x += 1
-                continue
-            start = x
-            any_occluded = False
-            while x < width and usable[y, x] and not np.isfinite(disparity[y, x]):
-                any_occluded = any_occluded or occluded[y, x]
-                x += 1
-            stop = x
+            start, x, any_occluded = _next_invalid_run(disparity, usable, occluded, y, x)
+            stop = x  # exclusive
             if not any_occluded or start == 0 or stop >= width:
                 continue
             left, right = disparity[y, start - 1], disparity[y, stop]

@@ -149,7 +149,7 @@ def test_threads_follow_the_workers_limit(monkeypatch):
     import threading
 
     from demtool.sgm.matcher import sgm
-    from demtool.tiling import distributed
+    from demtool.tiling import distributed, tasks
     from demtool.tiling.distributed import threads_limited
 
     calls: list[tuple[int, int, str]] = []
@@ -180,4 +180,4 @@ def test_threads_follow_the_workers_limit(monkeypatch):
     right = np.roll(left, -4, axis=1)
     sgm(left, right, min_disparity=0, num_disparities=16, cost="census", workers=1)
     assert limits and set(limits) == {1}
-    assert distributed._THREAD_LIMIT.get() == 0  # reset after the call
+    assert tasks._THREAD_LIMIT.get() == 0  # reset after the call

@@ -31,9 +31,11 @@ from demtool.sgm.aggregate import (
 )
 from demtool.sgm.cost import PixelCost
 from demtool.sgm.disparity import SUBPIXEL_MODES
+from demtool.sgm.volumes import current_pool
 from demtool.sizes import release_free_memory
 
 STRIP_OVERLAP = 32  # rows shared by neighbouring strips
+
 
 
 class PhaseTimer:
@@ -351,10 +353,14 @@ def match_pass(pixel_cost: PixelCost, left_valid: np.ndarray, right_valid: np.nd
     # bytes a row, zeroed by the kernel) in every strip.
     n_slots = 1 if len(strips) == 1 or concurrent == 1 else min(concurrent, len(strips))
     largest = max(stored(rows) for rows in strips)
-    release_free_memory()  # S is mapped fresh: the earlier steps' freed blocks go first
+    reuse = current_pool() if n_slots == 1 else None  # tiles: the thread's last S (exact)
     volumes: queue.SimpleQueue[np.ndarray] = queue.SimpleQueue()
-    for _ in range(n_slots):
-        volumes.put(np.empty((largest, width, num_disparities), dtype=np.uint16))
+    if reuse is not None:
+        volumes.put(reuse.take((largest, width, num_disparities)))
+    else:
+        release_free_memory()  # S is mapped fresh: the earlier steps' freed blocks go first
+        for _ in range(n_slots):
+            volumes.put(np.empty((largest, width, num_disparities), dtype=np.uint16))
 
     def run_strip(rows: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = bounds(rows)
@@ -375,7 +381,10 @@ def match_pass(pixel_cost: PixelCost, left_valid: np.ndarray, right_valid: np.nd
         with ThreadPoolExecutor(max_workers=n_slots) as pool:
             parts = list(pool.map(run_strip, strips))
     while not volumes.empty():  # the volumes go before the results are joined
-        volumes.get()
+        volume = volumes.get()
+        if reuse is not None:
+            reuse.keep(volume)
+        volume = None
     timer.add("match", time.perf_counter() - started)  # its CPU time: the sweeps add it
     disparity = np.concatenate([p[0] for p in parts], axis=0)
     confidence = np.concatenate([p[1] for p in parts], axis=0)

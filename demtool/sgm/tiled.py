@@ -217,6 +217,7 @@ def sgm_tiled(run: Any, left_path: str | os.PathLike, right_path: str | os.PathL
     """
     from demtool import io as dio
     from demtool.sgm.margins import tile_margin
+    from demtool.sgm.volumes import reusing_volumes
     from demtool.tiling.distributed import prestart_local_workers
     from demtool.tiling.jobs import TiledOutput, run_tiled
 
@@ -286,9 +287,11 @@ def sgm_tiled(run: Any, left_path: str | os.PathLike, right_path: str | os.PathL
                 "convention": "x_right = x_left - d, pixels, NaN = invalid"}
 
     inputs = [left_path, right_path] + ([rectify] if rectify is not None else [])
-    return run_tiled(run, job, tiling, outputs, inputs=inputs,
-                     parameters={**params.as_dict(), "min_disparity": min_disparity,
-                                 "num_disparities": num_disparities},
-                     transform=transform, crs=crs, workers=params.workers,
-                     scheduler=params.scheduler, dry_run=params.dry_run,
-                     summarize=summarize)
+    # tiles computed in this process (in turn or on threads) reuse their thread's S
+    with reusing_volumes():
+        return run_tiled(run, job, tiling, outputs, inputs=inputs,
+                         parameters={**params.as_dict(), "min_disparity": min_disparity,
+                                     "num_disparities": num_disparities},
+                         transform=transform, crs=crs, workers=params.workers,
+                         scheduler=params.scheduler, dry_run=params.dry_run,
+                         summarize=summarize)

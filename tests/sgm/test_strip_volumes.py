@@ -7,6 +7,7 @@ import pytest
 from demtool.sgm import cost as costs
 from demtool.sgm import strips
 from demtool.sgm.strips import PhaseTimer, match_pass, plan_strips, sweep_state_bytes
+from demtool.sgm.volumes import reusing_volumes
 
 
 def _pass(workers: int, budget_rows: int, paths: int):
@@ -50,3 +51,34 @@ def test_strips_sharing_volumes_match_strips_with_fresh_ones(workers, paths, mon
     assert np.array_equal(disparity, expected, equal_nan=True)
     assert np.array_equal(confidence, expected_confidence, equal_nan=True)
     assert np.isfinite(disparity).mean() > 0.5
+
+
+def _one_strip(seed: int, height: int):
+    """One pass of a small pair that fits one strip (single-strip passes use the pool)."""
+    rng = np.random.default_rng(seed)
+    width, n_disp = 48, 16
+    base = rng.integers(0, 255, size=(height, width + n_disp)).astype(np.float32)
+    left, right = base[:, n_disp:], base[:, n_disp - 6:-6]
+    valid = np.ones((height, width), dtype=bool)
+    return match_pass(
+        costs.census_pixel_cost(left, right, (5, 5)), valid, valid,
+        costs.quantize(left, valid, 256), min_disparity=0, num_disparities=n_disp,
+        window=3, p1=5, p2=60, paths=8, p2_kappa=8, subpixel="equiangular",
+        lr_threshold=1.0, workers=2, max_memory_mb=64.0, unmatched_fraction=0.5,
+        timer=PhaseTimer())
+
+
+def test_passes_reusing_their_thread_volume_match_fresh_volumes():
+    # tiles of a run reuse their thread's S (issue 47): a smaller pass gets the larger
+    # volume of the one before, holding its sums; a larger one maps a new volume
+    cases = [(1, 120), (2, 80), (3, 150), (4, 150)]
+    expected = [_one_strip(*case) for case in cases]
+    with reusing_volumes() as pool:
+        reused = [_one_strip(*case) for case in cases]
+        assert pool.mapped == 2
+    assert not pool._held  # dropped at the end of the block
+    for (disparity, confidence), (want, want_confidence) in zip(reused, expected,
+                                                                strict=True):
+        assert np.isfinite(want).mean() > 0.5
+        assert np.array_equal(disparity, want, equal_nan=True)
+        assert np.array_equal(confidence, want_confidence, equal_nan=True)

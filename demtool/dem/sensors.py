@@ -359,15 +359,22 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
                                             (height, gap), threads=2)
     measured = np.isfinite(dem)
     median_height = float(np.median(height))
-    if left is not None and right is not None:
-        overlap = overlap_mask(grid, left, right, median_height)
-    else:
-        overlap = np.ones(grid.shape, dtype=bool)
+
+    def overlap_cells():
+        if left is not None and right is not None:
+            return overlap_mask(grid, left, right, median_height)
+        return np.ones(grid.shape, dtype=bool)
+
+    def filled_grid():
+        return fill_and_smooth(dem, median_px=median_px).dem if fill and measured.any() \
+            else None
+
+    # the stereo overlap (two cameras, two threads) beside the gap fill (one): independent
+    overlap, full = ordered_map(lambda task: task(), (overlap_cells, filled_grid), threads=2)
     overlap |= measured
     filled = np.zeros(grid.shape, dtype=bool)
     out = dem.copy()
-    if fill and measured.any():
-        full = fill_and_smooth(dem, median_px=median_px).dem
+    if full is not None:
         filled = overlap & ~measured
         out = np.where(filled | (median_px > 1), full, dem)
     out[~overlap] = np.nan

@@ -160,12 +160,12 @@ def shadow_segments(dark: np.ndarray, usable: np.ndarray, spacing: tuple[float, 
                           (trapezoid * per_step_q).astype(np.float32), target)
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def _residuals(p: np.ndarray, q: np.ndarray, starts: np.ndarray, rows: np.ndarray,
                cols: np.ndarray, coef_p: np.ndarray, coef_q: np.ndarray,
                target: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     out = np.empty(target.size, dtype=np.float64)
-    for s in range(target.size):
+    for s in nb.prange(target.size):  # each segment's sum in order: as serial
         total = 0.0
         for j in range(starts[s], starts[s + 1]):
             total += coef_p[j] * p[rows[j], cols[j]] + coef_q[j] * q[rows[j], cols[j]]

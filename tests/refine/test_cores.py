@@ -82,3 +82,25 @@ def test_albedo_arithmetic_is_numpys(two_threads):
         assert (expected > 0).all()
         assert np.array_equal(estimate_albedo(image, modelled, sigma=21.0, weight=weight),
                               expected)
+
+
+def test_segment_residuals_on_every_core_are_the_serial_sums(two_threads):
+    from demtool.refine.shadow_lengths import ShadowSegments, segment_residuals
+
+    rng = np.random.default_rng(3)
+    p, q = (rng.normal(size=(40, 50)).astype(np.float32) for _ in range(2))
+    lengths = rng.integers(1, 9, 200)
+    starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    n = int(starts[-1])
+    segments = ShadowSegments(starts, rng.integers(0, 40, n), rng.integers(0, 50, n),
+                              rng.normal(size=n).astype(np.float32),
+                              rng.normal(size=n).astype(np.float32),
+                              rng.normal(size=200).astype(np.float32))
+    expected = np.empty(200)
+    for s in range(200):
+        total = 0.0
+        for j in range(starts[s], starts[s + 1]):
+            r, c = segments.rows[j], segments.cols[j]  # float32 terms, float64 sum
+            total += float(segments.coef_p[j] * p[r, c] + segments.coef_q[j] * q[r, c])
+        expected[s] = total - float(segments.target[s])
+    assert np.array_equal(segment_residuals(p, q, segments), expected)

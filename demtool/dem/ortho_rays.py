@@ -36,9 +36,10 @@ class OrthoRays(NamedTuple):
 
     def rays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(origin_left, ground_left, origin_right, ground_right) of the cells seen."""
-        s = self.seen
-        return (self.left.origin[s], self.ground_left[s], self.right.origin[s],
-                self.ground_right[s])
+        arrays = (self.left.origin, self.ground_left, self.right.origin, self.ground_right)
+        if self.seen.all():  # usually: no copies
+            return arrays
+        return tuple(a[self.seen] for a in arrays)
 
     def max_error_px(self) -> float:
         return max(self.left.max_error_px, self.right.max_error_px)

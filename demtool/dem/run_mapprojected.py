@@ -93,16 +93,18 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
         raise ProcessingError(f"{disparity_path}: fewer than 3 disparities map back into "
                               "both raw images")
     gsd = float(np.sqrt(abs(li.transform.a * li.transform.e)))
+    route = {"route": "disparity-mapprojected"}
+    counts = {"valid_disparities": int(rows.size), "unseen_disparities": int((~seen).sum()),
+              "surfaces": [left.surface, right.surface],
+              "raw_coordinates_max_error_px": found.max_error_px(),
+              "ray_origin_max_miss_m": max(found.left.max_origin_miss_m,
+                                           found.right.max_origin_miss_m),
+              "raw_coordinates_exact": found.left.exact_points + found.right.exact_points}
+    rays, found = [found.rays()], None  # held by the call alone: freed once triangulated
     summary, result, body = triangulate_to_map(
         run, params, left.sensor, right.sensor, None, None, source=disparity_path,
-        gsd_default=gsd, crs=crs, timings=timings, ground_rays=found.rays())
-    summary = {"route": "disparity-mapprojected", **summary,
-               "valid_disparities": int(rows.size), "unseen_disparities": int((~seen).sum()),
-               "surfaces": [left.surface, right.surface],
-               "raw_coordinates_max_error_px": found.max_error_px(),
-               "ray_origin_max_miss_m": max(found.left.max_origin_miss_m,
-                                            found.right.max_origin_miss_m),
-               "raw_coordinates_exact": found.left.exact_points + found.right.exact_points}
+        gsd_default=gsd, crs=crs, timings=timings, ground_rays=rays.pop())
+    summary = {**route, **summary, **counts}
     summary.update(_pair_precision(run, left, right, crs, li, gsd))
     summary["timings_s"] = timings
     write_map_dem(run, params, out, result, summary, body, route="disparity-mapprojected",

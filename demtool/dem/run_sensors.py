@@ -134,6 +134,7 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     with phase(timings, "triangulate"):
         if ground_rays is not None:
             tri = triangulate_ground_rays(*ground_rays)
+            ground_rays = None  # the caller's only reference: free the rays
         else:
             tri = triangulate_sensors(left, right, *left_pixels, *right_pixels)
     finite = np.isfinite(tri.xyz).all(axis=1)

@@ -68,3 +68,41 @@ def test_a_strided_figure_looks_like_the_full_one(monkeypatch):
         assert fast.shape == slow.shape
         changed = np.abs(fast - slow).max(axis=-1) > 0.1
         assert changed.mean() < 0.01
+
+
+def test_fixed_margins_keep_every_label_inside_the_figure(monkeypatch):
+    """The figures are laid out with fixed margins (no layout engine): every title, tick
+    label, axis label and legend lies inside the picture, and no panel's labels reach
+    into a neighbouring panel."""
+    drawn = []
+    monkeypatch.setattr(plots, "_png", lambda figure: drawn.append(figure) or b"")
+    field = smooth_field(300) * 100.0 - 1500.0  # heights of four digits and a sign
+    reference = field + 0.5
+    spacing = (2.0, 2.0)
+    stats = {"rmse": 0.123, "nmad": 0.1, "mean": -0.000287, "median": 0.0, "count": 81000,
+             "le90": 0.2}
+    plots.difference_figure(field - reference, spacing, title="dem_linescan_refined − ref",
+                            stats=stats)
+    plots.dems_figure([("dem", field), ("other", field), ("reference", reference)], spacing)
+    plots.profiles_figure([("reference", reference), ("dem", field)],
+                          plots.default_profiles(field.shape), spacing)
+    plots.histogram_figure(field - reference + np.random.default_rng(0).normal(
+        0, 0.1, field.shape), stats=stats, title="dem − reference")
+    plots.completeness_figure(np.isfinite(field), spacing, percent=95.0, title="dem")
+    frequency = np.geomspace(1e-3, 0.25, 50)
+    plots.coherence_figure(frequency, np.linspace(1, 0, 50), cutoff_per_m=0.05, title="dem")
+    assert len(drawn) == 6
+    for figure in drawn:
+        renderer = figure.canvas.get_renderer()
+        figure.draw(renderer)
+        bounds = figure.bbox
+        for axis in figure.axes:  # its drawn ticks, labels, title and legend
+            box = axis.get_tightbbox(renderer)
+            assert box.x0 >= bounds.x0 - 1 and box.x1 <= bounds.x1 + 1, axis.get_title()
+            assert box.y0 >= bounds.y0 - 1 and box.y1 <= bounds.y1 + 1, axis.get_title()
+        panels = [a for a in figure.axes if a.get_label() != "<colorbar>"]
+        for axis in panels:
+            labels = axis.get_tightbbox(renderer)
+            for other in panels:
+                if other is not axis:
+                    assert not labels.overlaps(other.get_window_extent(renderer))

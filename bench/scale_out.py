@@ -162,6 +162,10 @@ def main(argv: list[str] | None = None) -> int:
     status = 0
     for case in cases:
         tile = args.tile_size or case.tile_size
+        if case.tile_size and not args.tile_size and tile >= args.size:
+            tile = args.size // 2  # one tile would take the untiled path: no tiles to measure
+            print(f"{case.stage}: tiles of {tile} px (the case's {case.tile_size} px would "
+                  f"cover the {args.size}² image in one tile, run untiled)")
         with tempfile.TemporaryDirectory() as work:
             folder = Path(work) / f"{case.stage}_{args.size}"
             inputs = case.prepare(folder, args.size)

@@ -19,7 +19,8 @@ stay cached) before the one-line failure is raised.  After Ctrl-C/SIGTERM (raise
 the calling thread) no queued tile starts and the running ones are abandoned: the pool
 threads are daemons, so the process exits at once; a tile finishing meanwhile lands in
 the cache complete (:meth:`demtool.tiling.TileCache.store` renames a finished file) and
-the outputs, written only in the run's output transaction, are rolled back.
+the outputs, written only in the run's output transaction, are rolled back.  Any other
+failure of the calling thread (the in-order writer's) waits for the running tiles too.
 
 A job runs here only if its class says ``thread_safe = True`` (audited: no process-wide
 state changed by its compute, no GIL held for long); others, and every job when
@@ -155,8 +156,15 @@ def run_on_threads(job: TileJob, todo: Sequence[Tile], cache: TileCache, progres
                     raise tile_failure(job, tile, exc, cache, finished) from exc
                 finished += 1
                 progress.advance()
+        except BaseException as exc:
+            stop.set()  # queued tiles never start
+            if not _interrupted(exc):
+                # a failure here (the in-order writer's full disk): the running tiles end
+                # before the run's transaction, lock and volumes go, not behind them
+                _finish_running(done, pool)
+            raise
         finally:
-            stop.set()  # queued tiles never start; running ones are left to finish
+            stop.set()
 
 
 def _numba_threads(threads: int) -> None:

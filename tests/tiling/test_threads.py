@@ -165,3 +165,28 @@ def test_fuse_tiles_on_two_threads_give_the_same_bits(tmp_path):
         a = dio.read_raster(output_paths(one)[name]).data
         b = dio.read_raster(output_paths(two)[name]).data
         np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))
+
+
+def test_a_failure_of_the_writer_waits_for_the_running_tiles(tmp_path):
+    """The calling thread failing (the in-order writer's disk full) must not leave tile
+    threads computing and storing after run_tiles has raised (and the run's output
+    transaction, lock and volumes are gone)."""
+    from demtool.tiling.distributed import run_tiles
+
+    plan = tiling.plan_tiles(20, 60, 20, overlap=0)  # 3 tiles
+    cache = tiling.TileCache(tmp_path / "cache")
+    job = _Job(bad=None)  # tile 1 sleeps 0.3 s
+    calls = []
+
+    def on_tile():
+        calls.append(1)
+        if len(calls) == 2:  # the first tile finished: writing it fails
+            raise OSError("No space left on device")
+
+    with pytest.raises(OSError, match="No space"):
+        run_tiles(job, plan.tiles, cache, workers=2, on_tile=on_tile)
+    running = [t.name for t in threading.enumerate() if t.name.startswith("demtool-tile-")]
+    assert running == []
+    stored = sorted(p.name for p in cache.folder.iterdir())
+    time.sleep(0.4)
+    assert sorted(p.name for p in cache.folder.iterdir()) == stored

@@ -53,11 +53,30 @@ def usable_threads() -> int:
     return min(cores, limit) if limit > 0 else cores
 
 
+@contextmanager
+def numba_threads_at_most(threads: int) -> Iterator[None]:
+    """Within the block, the calling thread's numba thread count is ``threads`` (≤ 0:
+    unchanged); restored after it (numba keeps the count per thread)."""
+    if threads <= 0:
+        yield
+        return
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
 def compute_tile(job: TileJob, tile: Tile, cache: TileCache, threads: int) -> dict[str, Any]:
     """Compute one tile and store its core in the cache (the task a worker runs); within
-    the job, :func:`usable_threads` is ``threads`` (0: the process's cores)."""
+    the job, :func:`usable_threads` and numba's thread count are ``threads`` (0: the
+    process's cores; a job ignoring ``threads``, or sizing its pools from numba's count,
+    stays within a Dask worker's share of the cores)."""
     start, cpu = time.perf_counter(), time.process_time()
-    with threads_limited(threads):
+    with threads_limited(threads), numba_threads_at_most(threads):
         values, info = job.compute(tile, threads)
     expected = (len(job.bands), *tile.core_shape)
     if values.shape != expected:  # pragma: no cover - a stage's bug, not the user's

@@ -190,3 +190,40 @@ def test_a_failure_of_the_writer_waits_for_the_running_tiles(tmp_path):
     stored = sorted(p.name for p in cache.folder.iterdir())
     time.sleep(0.4)
     assert sorted(p.name for p in cache.folder.iterdir()) == stored
+
+
+class _NumbaJob:
+    """Records the numba thread count its compute sees (jobs such as dem's ignore
+    ``threads`` and size their pools from numba's count)."""
+
+    stage, bands = "test", ("index",)
+
+    def __init__(self) -> None:
+        self.seen: list[int] = []
+
+    def compute(self, tile, threads):
+        import numba
+
+        self.seen.append(numba.get_num_threads())
+        return np.zeros((1, *tile.core_shape), dtype=np.float32), {}
+
+    def memory_bytes(self, tile):
+        return 0
+
+
+def test_a_tile_task_keeps_numba_within_its_share_and_restores_it(tmp_path):
+    """A Dask worker process's task (compute_tile with threads = cores // N) runs the
+    job's kernels on that many numba threads, not on every core of the machine, and
+    leaves the worker thread's own count as it was."""
+    import numba
+
+    from demtool.tiling.tasks import compute_tile
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one numba thread: nothing to bound")
+    plan = tiling.plan_tiles(20, 20, 20, overlap=0)
+    job = _NumbaJob()
+    before = numba.get_num_threads()
+    compute_tile(job, plan.tiles[0], tiling.TileCache(tmp_path / "cache"), 1)
+    assert job.seen == [1]
+    assert numba.get_num_threads() == before

@@ -59,7 +59,10 @@ STEP_BANDS = {"points": tuple(f"{name}_{part}" for name in ("lon", "lat", "heigh
 
 
 def _stamp(path: str) -> tuple[str, int, int]:
-    stat = os.stat(path)
+    try:
+        stat = os.stat(path)
+    except OSError:  # not there: the reader says so (an error is never cached)
+        return str(path), -1, -1
     return str(path), stat.st_mtime_ns, stat.st_size
 
 

@@ -197,7 +197,6 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
         mapproject_tiled,
     )
     from demtool.maps import to_pyproj_crs
-    from demtool.sensors import read_sensor
 
     setup = time.perf_counter(), time.process_time()
     params = params or MapprojectParams()
@@ -213,12 +212,13 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
                                        ("--grid-like", grid_like is not None)) if given]
     if len(chosen) > 1:
         raise ParameterError(f"{' and '.join(chosen)} each set the map's CRS: give one")
-    sensor = read_sensor(sensor_path)
+    from demtool.mapproject.tiled import _sensor as cached_sensor
+
+    # read through the tile job's cache: its tiles, in this process, find the model there
+    sensor = cached_sensor(str(sensor_path))
     tsai = _tsai_on_body(sensor, sensor_path, image_path, dem_path, params.t_srs, grid_like)
     if tsai is not None:
-        from demtool.mapproject.tsai_body import with_image_size
-
-        sensor = with_image_size(read_sensor(sensor_path, radii=tsai.radii), tsai.image_size)
+        sensor = cached_sensor(str(sensor_path), tsai.radii, tsai.image_size)
     if sensor.radii is None:
         raise InputError(f"{sensor_path}: is a camera in a local frame, not on a body; "
                          "mapproject needs a planetary sensor model (ISD, cube, .tsai)")

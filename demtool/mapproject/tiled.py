@@ -47,23 +47,46 @@ def engine_tile_size(shape: tuple[int, int], params: Any) -> int:
     return 0
 
 
-@functools.lru_cache(maxsize=4)
+def _stamp(path: str) -> tuple[str, int, int]:
+    """A file's path, modification time and size: a cache key that a rewritten file
+    misses."""
+    try:
+        stat = os.stat(path)
+    except OSError:  # not there: the reader says so (an error is never cached)
+        return str(path), -1, -1
+    return str(path), stat.st_mtime_ns, stat.st_size
+
+
 def _sensor(path: str, radii: tuple[float, float] | None = None,
             image_size: tuple[int, int] | None = None):
+    """The sensor model of ``path``, read once per process and file version (the runner
+    and its tiles share it; read-only)."""
+    return _sensor_of(_stamp(path), radii, image_size)
+
+
+@functools.lru_cache(maxsize=4)
+def _sensor_of(stamp: tuple[str, int, int], radii: tuple[float, float] | None,
+               image_size: tuple[int, int] | None):
     from demtool.mapproject.tsai_body import with_image_size
     from demtool.sensors import read_sensor
 
-    return with_image_size(read_sensor(path, radii=radii), image_size)
+    return with_image_size(read_sensor(stamp[0], radii=radii), image_size)
+
+
+def _surface(dem_path: str, sensor_path: str, radii: tuple[float, float] | None = None,
+             image_size: tuple[int, int] | None = None):
+    """The DEM surface, read once per process and file versions."""
+    return _surface_of(_stamp(dem_path), _stamp(sensor_path), radii, image_size)
 
 
 @functools.lru_cache(maxsize=4)
-def _surface(dem_path: str, sensor_path: str, radii: tuple[float, float] | None = None,
-             image_size: tuple[int, int] | None = None):
+def _surface_of(dem: tuple[str, int, int], sensor: tuple[str, int, int],
+                radii: tuple[float, float] | None, image_size: tuple[int, int] | None):
     from demtool.mapproject.core import sensor_body
     from demtool.mapproject.surface import read_dem_surface
 
-    return read_dem_surface(dem_path, sensor_path,
-                            sensor_body(_sensor(sensor_path, radii, image_size)))
+    return read_dem_surface(dem[0], sensor[0],
+                            sensor_body(_sensor(sensor[0], radii, image_size)))
 
 
 @functools.lru_cache(maxsize=4)

@@ -328,12 +328,15 @@ def lanczos_shift(values: np.ndarray, dx_px: float, dy_px: float, *, lobes: int 
 
 
 def _prepare(values: np.ndarray, rows: np.ndarray, cols: np.ndarray):
+    """The raster as C-contiguous float64, the positions flattened (one signature per
+    kernel to compile, whatever the positions' shape: the kernels read them flat) and the
+    flat output; the caller reshapes the output to ``rows.shape``."""
     data = np.ascontiguousarray(values, dtype=np.float64)
     r = np.ascontiguousarray(rows, dtype=np.float64)
     c = np.ascontiguousarray(cols, dtype=np.float64)
     if r.shape != c.shape:
         raise ValueError(f"rows and cols differ in shape: {r.shape} vs {c.shape}")
-    return data, r, c, np.empty(r.shape, dtype=np.float64)
+    return data, r.reshape(-1), c.reshape(-1), np.empty(r.size, dtype=np.float64)
 
 
 def sample_cubic(values: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -354,7 +357,7 @@ def sample_cubic(values: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.n
     """
     data, r, c, out = _prepare(values, rows, cols)
     _sample_cubic(data, r, c, out)
-    return out
+    return out.reshape(np.shape(rows))
 
 
 def sample_bilinear(values: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -364,7 +367,7 @@ def sample_bilinear(values: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> n
     """
     data, r, c, out = _prepare(values, rows, cols)
     _sample_bilinear(data, r, c, out)
-    return out
+    return out.reshape(np.shape(rows))
 
 
 def shift_dem(dem: np.ndarray, dx_px: float, dy_px: float, dz: float = 0.0, *,

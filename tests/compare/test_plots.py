@@ -106,3 +106,20 @@ def test_fixed_margins_keep_every_label_inside_the_figure(monkeypatch):
             for other in panels:
                 if other is not axis:
                     assert not labels.overlaps(other.get_window_extent(renderer))
+
+
+def test_profiles_and_grids_share_one_compiled_sampler():
+    """sample_bilinear reads its positions flat: a profile's 1-D positions and a grid's
+    2-D ones use one compiled signature (each more costs a fresh clone a compile), with
+    the values of the same positions sampled either way."""
+    from demtool.compare import grids
+
+    values = smooth_field(40)
+    rows, cols = np.meshgrid(np.linspace(2, 30, 7), np.linspace(1, 35, 5), indexing="ij")
+    on_grid = grids.sample_bilinear(values, rows, cols)
+    along = grids.sample_bilinear(values, rows.ravel(), cols.ravel())
+    single = grids.sample_bilinear(values, np.float64(rows[2, 3]), np.float64(cols[2, 3]))
+    assert on_grid.shape == rows.shape and along.shape == (rows.size,) and single.shape == ()
+    assert np.array_equal(on_grid.ravel(), along, equal_nan=True)
+    assert single == on_grid[2, 3]
+    assert len(grids._sample_bilinear.signatures) == 1

@@ -11,8 +11,16 @@ back, then the chains, so that each pair of numbers saw the same load; on a shar
 machine judge by CPU seconds, not by wall time.  The comparison tables the demos print
 are checked to be identical across refs.
 
+With ``--kernels``, every process of the chain logs numba's compile events
+(``numba.core.event``, kind ``numba:compile``: a kernel compiled, not read from the cache)
+through a ``sitecustomize`` module put on ``PYTHONPATH``, and a table lists each kernel
+compiled: the CPU seconds of its compile (the compiling thread's, kernels it calls
+compiled inside it included), in how many processes and for how many type signatures
+(more than one of either is a compile a fresh clone pays more than once), whether it is
+``parallel=True``, and the stages that compiled it.
+
 Usage: ``.venv/bin/python bench/demo_time.py [--ref REF ...] [--jobs N] [--goal GOAL]
-[--keep DIR] [--record MACHINE]`` (``--record`` writes bench/results/03_demo_time.json;
+[--keep DIR] [--kernels] [--record MACHINE]`` (``--record`` writes bench/results/03_demo_time.json;
 then ``python bench/validation_page.py``).  ``--goal`` builds another make goal instead
 of ``demo`` (a quick check: ``--goal work/demo/scene/scene.json``).
 """
@@ -45,6 +53,62 @@ with open(os.environ["DEMO_TIME_LOG"], "a") as log:
 sys.exit(code)
 """
 
+# PYTHONPATH's sitecustomize with --kernels: once numba.core.event is imported, a listener
+# appends one JSON line per compile (not per cache load) to $DEMO_KERNEL_LOG.
+KERNEL_HOOK = """import importlib.abc, importlib.util, json, os, sys, time
+
+
+def _listen():
+    from numba.core import event
+
+    started = []
+
+    class Compiles(event.Listener):
+        def on_start(self, ev):
+            started.append((time.perf_counter(), time.thread_time()))
+
+        def on_end(self, ev):
+            wall, cpu = started.pop()
+            data = ev.data or {}
+            function = getattr(data.get("dispatcher"), "py_func", None)
+            options = getattr(data.get("dispatcher"), "targetoptions", {})
+            row = {"pid": os.getpid(), "stage": next((a for a in sys.argv[1:] if a in
+                                                       STAGES), "?"),
+                   "kernel": getattr(function, "__module__", "?") + "."
+                   + getattr(function, "__qualname__", "?"),
+                   "signature": str(data.get("args")), "nested": len(started),
+                   "wall_s": time.perf_counter() - wall, "cpu_s": time.thread_time() - cpu,
+                   "parallel": bool(options.get("parallel"))}
+            with open(os.environ["DEMO_KERNEL_LOG"], "a") as log:
+                log.write(json.dumps(row) + "\\n")
+
+    event.register("numba:compile", Compiles())
+
+
+STAGES = {STAGES!r}
+
+
+class _Finder(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name != "numba.core.event":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(name)
+        run = spec.loader.exec_module
+
+        def exec_module(module):
+            run(module)
+            sys.modules[name] = module
+            _listen()
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
+if os.environ.get("DEMO_KERNEL_LOG"):
+    sys.meta_path.insert(0, _Finder())
+"""
+
 
 def step_name(command: str) -> str | None:
     """A short name for a recipe (``sgm stereo_frame/disparity_sgm.tif``); None for the
@@ -65,9 +129,14 @@ def step_name(command: str) -> str | None:
     return " ".join(words[:4])[:60]
 
 
-def run_logged(args: list[str], cwd: Path, log: Path) -> dict:
-    """Run ``args`` (a make command) in ``cwd``; its wall and CPU time and stdout."""
+def run_logged(args: list[str], cwd: Path, log: Path, kernel_log: Path | None = None) -> dict:
+    """Run ``args`` (a make command) in ``cwd``; its wall and CPU time and stdout.  With
+    ``kernel_log``, numba's compiles are logged there (:data:`KERNEL_HOOK`)."""
     env = dict(os.environ, DEMO_TIME_LOG=str(log))
+    if kernel_log is not None:
+        env["DEMO_KERNEL_LOG"] = str(kernel_log)
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(kernel_log.parent / "hook"),
+                                                          env.get("PYTHONPATH")]))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True)
@@ -93,6 +162,32 @@ def steps(log: Path) -> dict[str, dict]:
     return out
 
 
+def kernel_table(log: Path) -> list[list]:
+    """The kernels compiled in a chain (the log of :data:`KERNEL_HOOK`), most CPU first:
+    [kernel, compile CPU s, compile wall s, processes, signatures, parallel, stages]."""
+    rows = [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
+    by_kernel: dict[str, list[dict]] = {}
+    for row in rows:
+        if not row["nested"]:  # callees compile inside their caller's time
+            by_kernel.setdefault(row["kernel"], []).append(row)
+    table = [[name, sum(r["cpu_s"] for r in group), sum(r["wall_s"] for r in group),
+              len({r["pid"] for r in group}), len({r["signature"] for r in group}),
+              group[0]["parallel"], ",".join(sorted({r["stage"] for r in group}))]
+             for name, group in by_kernel.items()]
+    return sorted(table, key=lambda row: -row[1])
+
+
+def print_kernels(commit: str, table: list[list]) -> None:
+    """Print :func:`kernel_table`'s rows and their total."""
+    print(f"\nnumba kernels compiled in {commit}'s chain: {len(table)}, "
+          f"{sum(r[1] for r in table):.1f} CPU s ({sum(r[2] for r in table):.1f} s wall)")
+    print(f"{'kernel':<64} {'CPU s':>6} {'wall s':>7} {'procs':>5} {'sigs':>4} {'par':>3} "
+          "stages")
+    for name, cpu, wall, procs, sigs, parallel, stages in table:
+        print(f"{name[-64:]:<64} {cpu:6.1f} {wall:7.1f} {procs:5d} {sigs:4d} "
+              f"{'yes' if parallel else '':>3} {stages}")
+
+
 def products_table(stdout: str) -> str:
     """The demo's closing comparison table (``demtool.compare.summary``'s, on stdout:
     its header and the lines after it)."""
@@ -108,6 +203,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--jobs", type=int, help="DEMO_JOBS (default: the Makefile's)")
     parser.add_argument("--goal", default="demo", help="make goal (default demo)")
     parser.add_argument("--keep", type=Path, help="clone into this folder and keep it")
+    parser.add_argument("--kernels", action="store_true",
+                        help="log numba's compiles in the chain and list the kernels")
     parser.add_argument("--record", metavar="MACHINE",
                         help="write bench/results/03_demo_time.json, naming the machine")
     args = parser.parse_args(argv)
@@ -119,6 +216,13 @@ def main(argv: list[str] | None = None) -> int:
     wrapper = base / "timed_shell"
     wrapper.write_text(WRAPPER.format(python=sys.executable))
     wrapper.chmod(0o755)
+    if args.kernels:
+        sys.path.insert(0, str(ROOT))
+        from demtool.stages import STAGES
+
+        (base / "hook").mkdir(exist_ok=True)
+        (base / "hook" / "sitecustomize.py").write_text(
+            KERNEL_HOOK.replace("{STAGES!r}", repr(sorted(STAGES))))
     make = ["make", f"SHELL={wrapper}"] + ([f"DEMO_JOBS={args.jobs}"] if args.jobs else [])
     clones = {}
     for commit in commits:
@@ -130,7 +234,8 @@ def main(argv: list[str] | None = None) -> int:
     load = os.getloadavg()[0]
     install = {c: run_logged(make + [".venv/.installed"], clones[c], base / f"{c}.install")
                for c in commits}
-    chain = {c: run_logged(make + [args.goal], clones[c], base / f"{c}.chain")
+    chain = {c: run_logged(make + [args.goal], clones[c], base / f"{c}.chain",
+                           base / f"{c}.kernels" if args.kernels else None)
              for c in commits}
     load = max(load, os.getloadavg()[0])
     tables = {c: products_table(chain[c]["stdout"]) for c in commits}
@@ -157,6 +262,9 @@ def main(argv: list[str] | None = None) -> int:
     if not same:
         for c in commits:
             print(f"--- {c}\n{tables[c]}")
+    if args.kernels:
+        for c in commits:
+            print_kernels(c, kernel_table(base / f"{c}.kernels"))
     if args.record:
         import datetime
 

@@ -82,6 +82,23 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
               correlation_out: str | os.PathLike | None = None,
               sigma_out: str | os.PathLike | None = None,
               resolved: dict[str, Any] | None = None):
+    """Match a stereo pair (:func:`_run_match`) with ``params.workers`` numba threads in
+    the calling thread for the run, restored after it (numba's count is per thread; an
+    in-process caller keeps its own)."""
+    from demtool.tiling.tasks import numba_threads_at_most
+
+    with numba_threads_at_most(int((params or MatchParams()).workers or 0)):
+        return _run_match(left_path, right_path, out, params, rectify=rectify,
+                          correlation_out=correlation_out, sigma_out=sigma_out,
+                          resolved=resolved)
+
+
+def _run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
+               out: str | os.PathLike, params: MatchParams | None = None, *,
+               rectify: str | os.PathLike | None = None,
+               correlation_out: str | os.PathLike | None = None,
+               sigma_out: str | os.PathLike | None = None,
+               resolved: dict[str, Any] | None = None):
     """Match a stereo pair; write the disparity GeoTIFF (+ correlation, sigma, sidecar).
 
     ``left_path``/``right_path`` are a rectified pair (as written by ``demtool
@@ -116,11 +133,6 @@ def run_match(left_path: str | os.PathLike, right_path: str | os.PathLike,
     log, provenance = run.log, run.provenance
     out_path = Path(out)
     template, threshold, grid_spacing = params.template, params.threshold, params.grid_spacing
-    if params.workers:
-        import numba
-
-        numba.set_num_threads(min(int(params.workers), numba.config.NUMBA_NUM_THREADS))
-
     from demtool import tiling
 
     shape = tiling.raster_shape(left_path, "left image")

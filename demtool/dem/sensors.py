@@ -228,10 +228,10 @@ def overlap_mask(grid, left: SensorModel, right: SensorModel, height: float) -> 
     Returns (rows, columns) bool.
     """
     from demtool.dem.overlap import cells_seen
-    from demtool.mapproject.threads import ordered_map
+    from demtool.mapproject.threads import available_threads, ordered_map
 
     seen = list(ordered_map(lambda model: cells_seen(model, grid, float(height)),
-                            (left, right), threads=2))  # the two cameras at once
+                            (left, right), threads=min(2, available_threads())))
     return seen[0] & seen[1]
 
 
@@ -337,7 +337,7 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
     MapDem
     """
     from demtool.dem.grid import fill_and_smooth
-    from demtool.mapproject.threads import ordered_map
+    from demtool.mapproject.threads import available_threads, ordered_map
 
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
     gap = np.asarray(gap, dtype=np.float64).ravel()
@@ -356,7 +356,7 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
     pixels = np.stack([cols - 0.5, rows - 0.5], axis=-1)
     # the heights' and the gaps' medians at once (nogil kernels)
     (dem, counts), (error, _) = ordered_map(lambda v: splat_median(pixels, v, grid.shape),
-                                            (height, gap), threads=2)
+                                            (height, gap), threads=min(2, available_threads()))
     measured = np.isfinite(dem)
     median_height = float(np.median(height))
 
@@ -370,7 +370,8 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
             else None
 
     # the stereo overlap (two cameras, two threads) beside the gap fill (one): independent
-    overlap, full = ordered_map(lambda task: task(), (overlap_cells, filled_grid), threads=2)
+    overlap, full = ordered_map(lambda task: task(), (overlap_cells, filled_grid),
+                                 threads=min(2, available_threads()))
     overlap |= measured
     filled = np.zeros(grid.shape, dtype=bool)
     out = dem.copy()

@@ -254,3 +254,19 @@ def test_refine_on_the_synthetic_scene(small_scene_dir, tmp_path):
     refined = io.read_raster(out).data
     assert rmse(refined, truth.data) < 0.7 * rmse(coarse, truth.data)
     assert abs(float(np.mean(refined - coarse))) < 0.1 * truth.spacing[0]
+
+
+def test_refine_workers_leave_the_callers_numba_threads_as_they_were(tmp_path, scene):
+    """``refine --workers 1`` bounds numba's threads for its own run only: an in-process
+    caller (a CliRunner, a notebook, a chain of stages) keeps its count after it."""
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one numba thread: nothing to restore")
+    image, dem = write_inputs(tmp_path, scene)
+    before = numba.get_num_threads()
+    result = invoke(image, dem, "--out", tmp_path / "r.tif", "--median", "0",
+                    "--iterations", "3", "--workers", "1")
+    assert result.exit_code == 0, result.output
+    assert io.read_raster(tmp_path / "r.tif").data.shape == scene.coarse.shape
+    assert numba.get_num_threads() == before

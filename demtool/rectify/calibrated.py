@@ -242,9 +242,10 @@ def match_residuals(left: SensorModel, right: SensorModel, R_rect: np.ndarray, f
 
 
 def _robust_inliers(residuals: np.ndarray, floor_px: float) -> np.ndarray:
-    med = np.median(residuals)
-    mad = 1.4826 * np.median(np.abs(residuals - med))
-    return np.abs(residuals - med) <= max(floor_px, 4.0 * mad)
+    """:func:`demtool.rectify.robust.robust_inliers`, a NaN residual leaving no inlier."""
+    from demtool.rectify.robust import robust_inliers
+
+    return robust_inliers(residuals, floor_px, skip_nan=False)
 
 
 def fit_pointing_correction(right: SensorModel, R_rect: np.ndarray, f_px: float,

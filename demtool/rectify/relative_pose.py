@@ -35,11 +35,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from demtool.rectify.robust import ROBUST_NMADS, robust_inliers
 from demtool.sensors.arrays import rotate_pointing, rotation_vector_matrix
 from demtool.sensors.base import SensorModel
-
-#: matches whose row residual is beyond max(floor, 4 NMAD) of the median are left out
-ROBUST_NMADS = 4.0
 
 
 class RelativePoseFit(NamedTuple):
@@ -73,11 +71,8 @@ class RelativePoseFit(NamedTuple):
 
 
 def _inliers(residuals: np.ndarray, floor_px: float) -> np.ndarray:
-    finite = np.isfinite(residuals)
-    med = np.median(residuals[finite])
-    mad = 1.4826 * np.median(np.abs(residuals[finite] - med))
-    with np.errstate(invalid="ignore"):
-        return finite & (np.abs(residuals - med) <= max(floor_px, ROBUST_NMADS * mad))
+    """:func:`demtool.rectify.robust.robust_inliers`, NaN residuals outliers."""
+    return robust_inliers(residuals, floor_px, skip_nan=True, nmads=ROBUST_NMADS)
 
 
 def fit_relative_pose(left: SensorModel, right: SensorModel, R_rect: np.ndarray,

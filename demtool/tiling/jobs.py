@@ -126,7 +126,7 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
         run.log.info("dry run, nothing written:\n%s", text)
         return TiledResult(tiling, dry_run=text)
     with output_lock(main), contextlib.ExitStack() as streaming:
-        start = time.perf_counter()
+        start, process_cpu = time.perf_counter(), time.process_time()
         if prepare is not None and not all(cache.done(t) for t in tiling.tiles):
             job = prepare(job, cache.folder)
         writer = None
@@ -139,16 +139,22 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
         infos = run_tiles(job, tiling.tiles, cache, workers=workers, scheduler=scheduler,
                           log=run.log, on_tile=writer.advance if writer else None)
         wall = time.perf_counter() - start
+        process_cpu = time.process_time() - process_cpu
         seconds = [float(i.get("seconds", 0.0)) for i in infos]
+        where = executor(job, workers, scheduler)
+        # a tile's "cpu_seconds" is its process's CPU while it ran: tiles on threads of
+        # this process overlap, so their sum would count the run N times; there the run's
+        # own process CPU is the tiles' CPU (workers' processes report their tiles')
+        tile_cpu = (process_cpu if where in ("this process", "threads")
+                    else sum(float(i.get("cpu_seconds", 0)) for i in infos))
         summary = dict(summarize(infos) if summarize else {})
         summary["tiling"] = {"tiles": len(tiling.tiles), "tile_size": tiling.tile_size,
                              "margins_top_bottom_left_right": list(tiling.margins),
                              "workers": workers, "scheduler": scheduler,
-                             "executor": executor(job, workers, scheduler),
+                             "executor": where,
                              "tile_seconds_sum": round(sum(seconds), 3),
                              "tile_seconds_max": round(max(seconds), 3),
-                             "tile_cpu_seconds_sum": round(sum(float(i.get("cpu_seconds", 0))
-                                                               for i in infos), 3),
+                             "tile_cpu_seconds_sum": round(tile_cpu, 3),
                              "tiles_wall_s": round(wall, 3)}
         if writer is not None:
             tail = time.perf_counter()

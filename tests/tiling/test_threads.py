@@ -51,12 +51,19 @@ def same_bits(found: tuple[np.ndarray, ...], expected: tuple[np.ndarray, ...]) -
 
 
 def test_sgm_tiles_on_two_threads_give_the_same_bytes(pair, one_worker, tmp_path):
+    import time
+
     out, conf = tmp_path / "d.tif", tmp_path / "c.tif"
+    cpu = time.process_time()
     result = sgm(pair, out, "--tile-size", "64", "--confidence", conf, "--workers", "2")
+    cpu = time.process_time() - cpu
     assert result.exit_code == 0, result.output
     same_bits(read_both(out, conf), one_worker)
     tiles = dio.read_json(Path(f"{out}.json"))["summary"]["tiling"]
     assert tiles["executor"] == "threads" and tiles["workers"] == 2
+    # the tiles' CPU is this process's, counted once (not each overlapping tile's view
+    # of the whole process's CPU summed)
+    assert 0 < tiles["tile_cpu_seconds_sum"] <= cpu
     assert not tiling.work_folder(out).exists()
 
 

@@ -12,7 +12,9 @@ step resumable in the work folder:
 1. **points** (tiles of the disparity grid, no margin): each disparity cell
    triangulated once; its longitude, latitude, height above the sphere, ray gap and
    left range cached in float64 (:func:`split64`; NaN where no point, or behind a
-   camera);
+   camera), and its map x, y when the map's CRS is known up front (the orthoimages'
+   or ``--t-srs``), so that the points are projected once, not again for the grid's
+   extent and for each output tile they meet;
 2. **statistics** (the runner, one cached tile at a time): exact medians
    (:func:`demtool.dem.tiled_map_run.streaming_median`) for the GSD, the gap threshold
    ``median + max(4 NMAD, 2 GSD)`` (:func:`demtool.dem.sensors.default_max_ray_gap`) and
@@ -51,9 +53,13 @@ from demtool.dem.tiled_grids import fill_core, read_cached_window
 from demtool.tiling import Tile, TileCache, plan_tiles, read_window
 
 POINT_BYTES = 400  # per disparity cell: raw coordinates, rays, points
-STEP_BANDS = {"points": tuple(f"{name}_{part}" for name in ("lon", "lat", "height", "gap",
-                                                              "range_left")
+#: the quantities of a cached points tile, in the order of its :func:`split64` band pairs
+#: (x, y: map coordinates, only when the map's CRS is known up front)
+POINT_FIELDS = ("lon", "lat", "height", "gap", "range_left", "x", "y")
+STEP_BANDS = {"points": tuple(f"{name}_{part}" for name in POINT_FIELDS[:5]
                               for part in ("high", "low")),
+              "points_xy": tuple(f"{name}_{part}" for name in POINT_FIELDS
+                                 for part in ("high", "low")),
               "measure": ("measured", "ray_gap", "overlap"),
               "fill": ("height", "interpolated", "ray_gap")}
 
@@ -110,14 +116,18 @@ def split64(values: np.ndarray) -> np.ndarray:
     return np.stack([high, (values - high.astype(np.float64)).astype(np.float32)])
 
 
-#: the quantities of a cached points tile, in the order of its :func:`split64` band pairs
-POINT_FIELDS = ("lon", "lat", "height", "gap", "range_left")
+def load_points(cache: TileCache, tile: Tile) -> np.ndarray:
+    """A cached points tile ``(B, h, w)`` float32, memory-mapped: only the bands
+    :func:`stored_points` decodes are read (the statistics' passes read 3 of its bands,
+    not all of them)."""
+    return np.load(cache.path(tile), mmap_mode="r", allow_pickle=False)
 
 
-def stored_points(values: np.ndarray, fields: tuple[str, ...] = POINT_FIELDS
+def stored_points(values: np.ndarray, fields: tuple[str, ...] = POINT_FIELDS[:5]
                   ) -> tuple[np.ndarray, ...]:
-    """The ``fields`` (default all: lon, lat, height, gap, range_left) (N,) float64 of a
-    cached points tile's points (bands in :func:`split64` pairs); only those decoded."""
+    """The ``fields`` (default lon, lat, height, gap, range_left; x, y where cached)
+    (N,) float64 of a cached points tile's points (bands in :func:`split64` pairs); only
+    those decoded."""
     ok = np.isfinite(values[4])
     out = []
     for name in fields:
@@ -148,6 +158,7 @@ class MapDemTileJob:
     shape: tuple[int, int] = (0, 0)
     grid_transform: tuple[float, ...] = ()
     crs_wkt: str = ""
+    points_crs_wkt: str = ""  # the CRS the points pass also maps x, y in ("": none)
     points: str = ""  # the points pass's cache folder
     boxes: tuple = ()  # per points tile: (row0, row1, col0, col1) output cells, or None
     max_gap: float = math.inf
@@ -166,7 +177,14 @@ class MapDemTileJob:
 
     def at_step(self, step: str, **changes: Any) -> MapDemTileJob:
         """This job for another step (its bands follow)."""
-        return replace(self, step=step, bands=STEP_BANDS[step], **changes)
+        bands = STEP_BANDS["points_xy" if step == "points" and changes.get(
+            "points_crs_wkt", self.points_crs_wkt) else step]
+        return replace(self, step=step, bands=bands, **changes)
+
+    @property
+    def cached_xy(self) -> bool:
+        """Whether the points tiles hold map x, y in the output grid's CRS."""
+        return bool(self.points_crs_wkt) and self.points_crs_wkt == self.crs_wkt
 
     def sensors(self):
         """The (left, right) sensor models."""
@@ -222,7 +240,7 @@ class MapDemTileJob:
         from demtool.maps.frames import xyz_to_lonlat_height
 
         r0, r1, c0, c1 = tile.core
-        out = np.full((10, r1 - r0, c1 - c0), np.nan, dtype=np.float32)
+        out = np.full((len(self.bands), r1 - r0, c1 - c0), np.nan, dtype=np.float32)
         disparity = read_window(self.disparity_path, tile.core, what="disparity")
         raw = self._raw_ortho if self.source == "mapprojected" else self._raw_rectified
         (l_line, l_sample), (r_line, r_sample), rows, cols, rays = raw(disparity, r0, c0)
@@ -246,9 +264,15 @@ class MapDemTileJob:
         if not front.any():
             return out, info
         lon, lat, height = xyz_to_lonlat_height(tri.xyz[front], radii=sphere_radius(left))
-        values = np.stack([lon, lat, height, tri.gap[front], tri.range_left[front]])
-        out[:, rows[seen][front], cols[seen][front]] = split64(values).transpose(
-            1, 0, 2).reshape(10, -1)
+        values = [lon, lat, height, tri.gap[front], tri.range_left[front]]
+        if self.points_crs_wkt:  # as demtool.dem.sensors.points_on_map: once per point
+            from pyproj import CRS
+
+            from demtool.maps.projections import lonlat_to_map
+
+            values.extend(lonlat_to_map(CRS.from_wkt(self.points_crs_wkt), lon, lat))
+        out[:, rows[seen][front], cols[seen][front]] = split64(np.stack(values)).transpose(
+            1, 0, 2).reshape(len(out), -1)
         return out, info
 
     # ------------------------------------------------------------------ step 3
@@ -271,10 +295,16 @@ class MapDemTileJob:
         for ptile, box in zip(ptiles, self.boxes, strict=True):
             if box is None or box[0] >= r1 or box[1] <= r0 or box[2] >= c1 or box[3] <= c0:
                 continue
-            lon, lat, height, gap = stored_points(cache.load(ptile),
-                                                  ("lon", "lat", "height", "gap"))
-            keep = gap <= self.max_gap
-            x, y = lonlat_to_map(crs, lon[keep], lat[keep])
+            if self.cached_xy:
+                x, y, height, gap = stored_points(load_points(cache, ptile),
+                                                  ("x", "y", "height", "gap"))
+                keep = gap <= self.max_gap
+                x, y = x[keep], y[keep]
+            else:
+                lon, lat, height, gap = stored_points(load_points(cache, ptile),
+                                                      ("lon", "lat", "height", "gap"))
+                keep = gap <= self.max_gap
+                x, y = lonlat_to_map(crs, lon[keep], lat[keep])
             px = (np.asarray(x) - c) / a - 0.5  # as demtool.dem.sensors.dem_on_map
             py = (np.asarray(y) - f) / e - 0.5
             inside = (px > c0 - 0.5) & (px < c1 - 0.5) & (py > r0 - 0.5) & (py < r1 - 0.5)

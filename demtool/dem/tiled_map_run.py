@@ -19,7 +19,7 @@ import numpy as np
 from demtool.dem import tiled as tiled_dem
 from demtool.dem.tiled import coarse_factor, default_overlap
 from demtool.dem.tiled_grids import prepare_fill
-from demtool.dem.tiled_map import MapDemTileJob, ortho, rectified_pair, stored_points
+from demtool.dem.tiled_map import MapDemTileJob, load_points, ortho, rectified_pair, stored_points
 from demtool.tiling import TileCache, plan_tiles
 
 MEDIAN_BINS = 4096  # bins of each refinement pass of streaming_median
@@ -99,9 +99,9 @@ def dem_map_tiled(run: Any, params: Any, out: str | os.PathLike, job: MapDemTile
 def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gsd, log):
     """(gsd, gsd source, threshold, median gap, front, kept, heights' median)."""
     def band(name: str):
-        return lambda: (stored_points(points.load(t), (name,))[0] for t in tiles)
+        return lambda: (stored_points(load_points(points, t), (name,))[0] for t in tiles)
 
-    front = sum(int(np.isfinite(points.load(t)[4]).sum()) for t in tiles)
+    front = sum(int(np.isfinite(load_points(points, t)[4]).sum()) for t in tiles)
     if gsd is None:
         gsd = streaming_median(band("range_left")) * range_to_gsd
     median_gap = streaming_median(band("gap"))
@@ -115,7 +115,7 @@ def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gs
 
     def kept_heights():
         for t in tiles:
-            height, gap = stored_points(points.load(t), ("height", "gap"))
+            height, gap = stored_points(load_points(points, t), ("height", "gap"))
             yield height[gap <= max_gap]
 
     kept = sum(h.size for h in kept_heights())
@@ -136,14 +136,16 @@ def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gs
     return gsd, max_gap, median_gap, front, kept, streaming_median(kept_heights)
 
 
-def _grid(params, points: TileCache, tiles, body, gsd: float, max_gap: float, crs):
-    """The output MapGrid and each points tile's box of output cells (None: no point)."""
+def _grid(params, points: TileCache, tiles, body, gsd: float, max_gap: float, crs,
+          cached_xy: bool = False):
+    """The output MapGrid and each points tile's box of output cells (None: no point);
+    ``cached_xy``: the points tiles hold their map x, y in ``crs`` (not projected again)."""
     from demtool.maps.frames import unit_vector, xyz_to_lonlat_height
     from demtool.maps.grids import snap_grid
     from demtool.maps.projections import lonlat_to_map, make_projection
 
     def kept(t):
-        lon, lat, gap = stored_points(points.load(t), ("lon", "lat", "gap"))
+        lon, lat, gap = stored_points(load_points(points, t), ("lon", "lat", "gap"))
         return lon[gap <= max_gap], lat[gap <= max_gap]
 
     if crs is None or params.projection != "auto":  # as choose_projection: the mean direction
@@ -155,9 +157,12 @@ def _grid(params, points: TileCache, tiles, body, gsd: float, max_gap: float, cr
         crs = make_projection(body, params.projection, float(center_lon), float(center_lat))
     extents = []
     for t in tiles:
-        lon, lat = kept(t)
-        x, y = lonlat_to_map(crs, lon, lat)
-        x, y = np.asarray(x), np.asarray(y)
+        if cached_xy:
+            x, y, gap = stored_points(load_points(points, t), ("x", "y", "gap"))
+            x, y = x[gap <= max_gap], y[gap <= max_gap]
+        else:
+            x, y = lonlat_to_map(crs, *kept(t))
+            x, y = np.asarray(x), np.asarray(y)
         good = np.isfinite(x) & np.isfinite(y)
         extents.append((x[good].min(), x[good].max(), y[good].min(), y[good].max())
                        if good.any() else None)
@@ -192,6 +197,10 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     if overlap is not None and params.median > 1 and overlap < params.median // 2:
         raise ParameterError(f"--tile-overlap must be >= {params.median // 2} px (half the "
                              f"--median window), got {overlap}")
+    if crs is not None and params.projection == "auto":  # the map known up front
+        from demtool.maps import to_pyproj_crs
+
+        job = replace(job, points_crs_wkt=to_pyproj_crs(crs).to_wkt())
     source = job.disparity_path
     tile_size = job.tile_size
     points_tiling = plan_tiles(*job.disparity_shape, tile_size, overlap=0)
@@ -208,7 +217,8 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     if workers >= 2 and not scheduler and not runs_on_threads(job, workers, None):
         scheduler, workers = _local_cluster(stack, job, workers), 0  # one, every pass
     # 1. points, outside the lock (as tiled/dem.py's statistics)
-    key = cache_key(inputs, params.as_dict(), points_tiling, {"pass": "points"})
+    key = cache_key(inputs, params.as_dict(), points_tiling,
+                    {"pass": "points", "map_xy": job.points_crs_wkt})
     points = TileCache(work_folder(out) / f"{key}-points")
     infos = run_tiles(job.at_step("points"), points_tiles, points, workers=workers,
                       scheduler=scheduler, log=run.log)
@@ -230,7 +240,7 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
         gsd, gsd_source = float(gsd_default), "orthoimage"
     else:
         gsd, gsd_source = None, "estimated"
-    if sum(int(np.isfinite(points.load(t)[4]).any()) for t in points_tiles) == 0:
+    if sum(int(np.isfinite(load_points(points, t)[4]).any()) for t in points_tiles) == 0:
         raise refuse(f"{source}: no disparity triangulates in front of both cameras")
     gsd, max_gap, median_gap, front, kept, overlap_height = _statistics(
         params, points, points_tiles, gsd, range_to_gsd, run.log)
@@ -239,7 +249,8 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     left, _ = job.sensors()
     a, b = left.radii
     body = body_from_radii(a, a, b)
-    grid, boxes = _grid(params, points, points_tiles, body, gsd, max_gap, crs)
+    grid, boxes = _grid(params, points, points_tiles, body, gsd, max_gap, crs,
+                        cached_xy=bool(job.points_crs_wkt))
     from demtool import sizes
 
     # tiled: memory is the tiles'; the file (DEM, mask, error: 4 bytes a cell each) must fit

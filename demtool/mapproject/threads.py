@@ -35,20 +35,6 @@ def available_threads() -> int:
     return max(1, int(numba.get_num_threads()))
 
 
-@contextlib.contextmanager
-def numba_threads(count: int) -> Iterator[None]:
-    """Run the block with ``count`` numba threads in the calling thread (numba's setting
-    is per thread), then restore the previous count."""
-    import numba
-
-    before = numba.get_num_threads()
-    numba.set_num_threads(max(1, min(int(count), numba.config.NUMBA_NUM_THREADS)))
-    try:
-        yield
-    finally:
-        numba.set_num_threads(before)
-
-
 def ordered_map(function: Callable[[T], R], items: Iterable[T], *,
                 threads: int | None = None) -> Iterator[R]:
     """``map(function, items)`` on ``threads`` threads, results in the items' order.
@@ -67,8 +53,10 @@ def ordered_map(function: Callable[[T], R], items: Iterable[T], *,
         return
     from concurrent.futures import ThreadPoolExecutor
 
+    from demtool.tiling.tasks import numba_threads_at_most
+
     def call(item: T) -> R:
-        with numba_threads(share):
+        with numba_threads_at_most(share):
             return function(item)
 
     pending: deque = deque()
@@ -169,5 +157,5 @@ def warm(sensor: Any) -> None:
             guess()
 
 
-__all__ = ["MIN_BATCH", "available_threads", "batched", "ground_to_image_threaded", "numba_threads",
+__all__ = ["MIN_BATCH", "available_threads", "batched", "ground_to_image_threaded",
            "ordered_map", "phase", "warm"]

@@ -219,3 +219,24 @@ def reference_aggregation(cost, guide, paths: int, kappa: float, p1: int, p2: in
         directions += [(1, 2), (1, -2), (2, 1), (2, -1)]
     directions += [(-dy, -dx) for dy, dx in directions]
     return sum(path(dy, dx) for dy, dx in directions)
+
+
+def count_sgm_tiles(monkeypatch, *, fail_at: int | None = None) -> list[int]:
+    """Record the index of every sgm tile computed from now on (the list returned),
+    raising ``RuntimeError("worker lost")`` in tile ``fail_at``; each call patches the
+    true :meth:`SgmTileJob.compute` again (not an earlier patch)."""
+    from demtool.sgm import tiled as tiled_sgm
+
+    original = tiled_sgm.SgmTileJob.__dict__["compute"]
+    original = getattr(original, "__wrapped_tile_compute__", original)
+    calls: list[int] = []
+
+    def counted(self, tile, threads):
+        calls.append(tile.index)
+        if tile.index == fail_at:
+            raise RuntimeError("worker lost")
+        return original(self, tile, threads)
+
+    counted.__wrapped_tile_compute__ = original
+    monkeypatch.setattr(tiled_sgm.SgmTileJob, "compute", counted)
+    return calls

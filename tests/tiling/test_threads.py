@@ -14,6 +14,7 @@ import pytest
 from demtool import io as dio
 from demtool import tiling
 from demtool.errors import ProcessingError
+from tests.helpers.sgm import count_sgm_tiles
 from tests.tiling.test_tiling import sgm
 
 
@@ -69,18 +70,7 @@ def test_sgm_tiles_on_two_threads_give_the_same_bytes(pair, one_worker, tmp_path
 
 def test_a_failed_tile_on_threads_stops_then_the_run_resumes(pair, one_worker, tmp_path,
                                                              monkeypatch):
-    from demtool.sgm import tiled as tiled_sgm
-
-    original = tiled_sgm.SgmTileJob.compute
-    calls: list[int] = []
-
-    def failing(self, tile, threads):
-        calls.append(tile.index)
-        if tile.index == 5:
-            raise RuntimeError("worker lost")
-        return original(self, tile, threads)
-
-    monkeypatch.setattr(tiled_sgm.SgmTileJob, "compute", failing)
+    calls = count_sgm_tiles(monkeypatch, fail_at=5)
     out, conf = tmp_path / "d.tif", tmp_path / "c.tif"
     result = sgm(pair, out, "--tile-size", "64", "--confidence", conf, "--workers", "2")
     assert result.exit_code == 1
@@ -93,9 +83,7 @@ def test_a_failed_tile_on_threads_stops_then_the_run_resumes(pair, one_worker, t
                     tiling.work_folder(out).glob("*/tile_*.npy"))
     assert f"{len(cached)} finished tiles are cached" in errors[0]
     assert max(calls) <= 6 and 5 not in cached  # the queue stopped at the failure
-    calls.clear()
-    monkeypatch.setattr(tiled_sgm.SgmTileJob, "compute", lambda self, tile, threads: (
-        calls.append(tile.index), original(self, tile, threads))[1])
+    calls = count_sgm_tiles(monkeypatch)
     result = sgm(pair, out, "--tile-size", "64", "--confidence", conf, "--workers", "2")
     assert result.exit_code == 0, result.output
     assert sorted(calls) == sorted(set(range(12)) - set(cached))  # only the missing tiles

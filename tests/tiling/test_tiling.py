@@ -19,7 +19,7 @@ from demtool import io as dio
 from demtool import tiling
 from demtool.cli import cli
 from demtool.errors import InputError, ParameterError, ProcessingError
-from tests.helpers.sgm import error_rates, smooth_disparity_pair
+from tests.helpers.sgm import count_sgm_tiles, error_rates, smooth_disparity_pair
 
 SGM = ["--cost", "census", "--min-disparity", "-8", "--num-disparities", "24"]
 
@@ -151,24 +151,13 @@ def test_tiled_sgm_agrees_with_untiled(pair, untiled, tmp_path):
 
 def test_failed_tile_is_reported_then_the_run_resumes_byte_identical(pair, tmp_path,
                                                                      monkeypatch):
-    from demtool.sgm import tiled as tiled_sgm
-
     folder, _ = pair
     out, conf = tmp_path / "run" / "d.tif", tmp_path / "run" / "c.tif"
     assert sgm(folder, out, "--tile-size", "64", "--confidence", conf).exit_code == 0
     reference = out.read_bytes(), conf.read_bytes()  # the uninterrupted run's files
     for path in (out, conf, Path(f"{out}.json")):
         path.unlink()
-    original = tiled_sgm.SgmTileJob.compute
-    calls: list[int] = []
-
-    def failing(self, tile, threads):
-        calls.append(tile.index)
-        if tile.index == 5:
-            raise RuntimeError("worker lost")
-        return original(self, tile, threads)
-
-    monkeypatch.setattr(tiled_sgm.SgmTileJob, "compute", failing)
+    calls = count_sgm_tiles(monkeypatch, fail_at=5)
     result = sgm(folder, out, "--tile-size", "64", "--confidence", conf)
     assert result.exit_code == 1
     assert "tile 5 (rows 64–128, columns 64–128) failed: worker lost" in result.output
@@ -177,9 +166,7 @@ def test_failed_tile_is_reported_then_the_run_resumes_byte_identical(pair, tmp_p
     assert not Path(f"{out}.json").exists() and not Path(f"{out}.lock").exists()
     cached = sorted(tiling.work_folder(out).glob("*/tile_*.npy"))
     assert len(cached) == 5
-    calls.clear()
-    monkeypatch.setattr(tiled_sgm.SgmTileJob, "compute", lambda self, tile, threads: (
-        calls.append(tile.index), original(self, tile, threads))[1])
+    calls = count_sgm_tiles(monkeypatch)
     result = sgm(folder, out, "--tile-size", "64", "--confidence", conf)
     assert result.exit_code == 0, result.output
     assert calls == list(range(5, 12))  # only the missing tiles

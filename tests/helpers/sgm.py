@@ -240,3 +240,14 @@ def count_sgm_tiles(monkeypatch, *, fail_at: int | None = None) -> list[int]:
     counted.__wrapped_tile_compute__ = original
     monkeypatch.setattr(tiled_sgm.SgmTileJob, "compute", counted)
     return calls
+
+
+def write_tiling_pair(folder) -> np.ndarray:
+    """The tiling tests' 160 × 200 smooth-disparity pair (disparities −4 … 7 px) written
+    as ``left.tif`` / ``right.tif`` in ``folder``; returns the truth."""
+    from demtool import io as dio
+
+    left, right, truth = smooth_disparity_pair(160, 200, seed=4, offset=1.0)
+    dio.write_raster(folder / "left.tif", left, tags={"frame": "image:left_rect"})
+    dio.write_raster(folder / "right.tif", right, tags={"frame": "image:right_rect"})
+    return truth

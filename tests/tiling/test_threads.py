@@ -14,19 +14,15 @@ import pytest
 from demtool import io as dio
 from demtool import tiling
 from demtool.errors import ProcessingError
-from tests.helpers.sgm import count_sgm_tiles
+from tests.helpers.sgm import count_sgm_tiles, write_tiling_pair
 from tests.tiling.test_tiling import sgm
 
 
 @pytest.fixture(scope="module")
 def pair(tmp_path_factory):
     """The tiling tests' 160 × 200 smooth-disparity pair."""
-    from tests.helpers.sgm import smooth_disparity_pair
-
     folder = tmp_path_factory.mktemp("threads_pair")
-    left, right, _ = smooth_disparity_pair(160, 200, seed=4, offset=1.0)
-    dio.write_raster(folder / "left.tif", left, tags={"frame": "image:left_rect"})
-    dio.write_raster(folder / "right.tif", right, tags={"frame": "image:right_rect"})
+    write_tiling_pair(folder)
     return folder
 
 

@@ -19,7 +19,7 @@ from demtool import io as dio
 from demtool import tiling
 from demtool.cli import cli
 from demtool.errors import InputError, ParameterError, ProcessingError
-from tests.helpers.sgm import count_sgm_tiles, error_rates, smooth_disparity_pair
+from tests.helpers.sgm import count_sgm_tiles, error_rates, write_tiling_pair
 
 SGM = ["--cost", "census", "--min-disparity", "-8", "--num-disparities", "24"]
 
@@ -28,10 +28,7 @@ SGM = ["--cost", "census", "--min-disparity", "-8", "--num-disparities", "24"]
 def pair(tmp_path_factory):
     """A 160 × 200 smooth-disparity pair (disparities −4 … 7 px) and its truth."""
     folder = tmp_path_factory.mktemp("tiled_pair")
-    left, right, truth = smooth_disparity_pair(160, 200, seed=4, offset=1.0)
-    dio.write_raster(folder / "left.tif", left, tags={"frame": "image:left_rect"})
-    dio.write_raster(folder / "right.tif", right, tags={"frame": "image:right_rect"})
-    return folder, truth
+    return folder, write_tiling_pair(folder)
 
 
 def sgm(pair_folder: Path, out: Path, *options: str):

@@ -143,6 +143,9 @@ class MapprojectTileJob:
     # local --workers: tiles on threads (demtool.tiling.local_threads; audited: nogil
     # kernels, numba threads per thread, the cached sensor model and DEM read-only)
     thread_safe: ClassVar[bool] = True
+    # the outputs are written in tile order while the workers compute the later tiles
+    # (demtool.tiling.jobs.run_tiled): compute() writes nothing through demtool.io
+    stream_outputs: ClassVar[bool] = True
     preload: tuple[str, ...] = ("demtool.mapproject.core",)
 
     @property

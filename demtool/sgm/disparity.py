@@ -197,21 +197,23 @@ def select_disparities(total: np.ndarray, *, min_disparity: int, left_valid: np.
 
 #: Fewest rows (or directions' pixels) worth a second thread in :func:`in_halves`.
 MIN_SPLIT_ROWS = 64
-_HELPER: dict[int, object] = {}  # process id -> the one-thread pool of in_halves
-_HELPER_LOCK = threading.Lock()
+# the one-thread pool of in_halves, one per calling thread: tiles on threads
+# (demtool.tiling.local_threads) each split their rows at once, and a pool shared by the
+# process would queue one tile's second half behind another's
+_HELPER = threading.local()
 
 
 def _helper_pool():
-    """The thread that runs the second halves: started once per process (a new one
-    after a fork, whose child has no threads), not once per call (~1.5 ms each here)."""
+    """The calling thread's helper thread, which runs its second halves: started on the
+    thread's first split (~1.5 ms) and kept while the thread lives (its pool goes with
+    the thread's locals, and its worker with it); a new one after a fork, whose child has
+    no threads."""
     from concurrent.futures import ThreadPoolExecutor
 
-    with _HELPER_LOCK:
-        pool = _HELPER.get(os.getpid())
-        if pool is None:
-            _HELPER.clear()
-            pool = _HELPER[os.getpid()] = ThreadPoolExecutor(
-                max_workers=1, thread_name_prefix="demtool-halves")
+    pid, pool = getattr(_HELPER, "pool", (None, None))
+    if pool is None or pid != os.getpid():
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="demtool-halves")
+        _HELPER.pool = (os.getpid(), pool)
     return pool
 
 
@@ -223,8 +225,11 @@ def in_halves(work: Callable[[int, int], object], count: int,
     (numba ``nogil``): each half writes only its own rows, so the result is the one
     thread's, bit for bit.  One call ``work(0, count)`` when there is one core (or
     :func:`demtool.tiling.distributed.threads_limited` allows one thread) or fewer than
-    ``min_split`` items (default :data:`MIN_SPLIT_ROWS`).  ``work`` must not call
-    :func:`in_halves` itself (the second halves share one thread).
+    ``min_split`` items (default :data:`MIN_SPLIT_ROWS`).  Each calling thread (each tile
+    thread of a tiled run) has its own helper thread for the second halves, so
+    concurrent callers never wait for one another's.  ``work`` should not call
+    :func:`in_halves` itself (its first half's split would queue behind the second half on
+    the thread's one helper).
     """
     min_split = MIN_SPLIT_ROWS if min_split is None else min_split
     if count < min_split or usable_threads() < 2:

@@ -181,3 +181,34 @@ def test_threads_follow_the_workers_limit(monkeypatch):
     sgm(left, right, min_disparity=0, num_disparities=16, cost="census", workers=1)
     assert limits and set(limits) == {1}
     assert tasks._THREAD_LIMIT.get() == 0  # reset after the call
+
+
+def test_concurrent_callers_run_their_second_halves_at_once(monkeypatch):
+    """Tile threads split their rows at once: each has its own helper thread, so the two
+    second halves run together (with one helper for the process, the second waited for
+    the first, and the barrier below broke)."""
+    import threading
+
+    monkeypatch.setattr(disparity, "usable_threads", lambda: 2)
+    both_second_halves = threading.Barrier(2, timeout=10)
+    helpers: set[int] = set()
+    errors: list[BaseException] = []
+
+    def work(start: int, stop: int) -> None:
+        if start > 0:  # a second half: waits until the other caller's runs too
+            helpers.add(threading.get_ident())
+            both_second_halves.wait()
+
+    def caller() -> None:
+        try:
+            in_halves(work, 200, min_split=2)
+        except BaseException as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=caller) for _ in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(30)
+    assert not errors, errors
+    assert len(helpers) == 2  # two helper threads, one per caller

@@ -160,6 +160,48 @@ def test_nan_median_is_numpys_nanmedian_to_the_bit():
         np.testing.assert_array_equal(got, expected)
 
 
+def test_nan_median_with_ties_and_signed_zeros_is_numpys():
+    """The compiled median against numpy's, on values with ties (rounded) and zeros of
+    both signs: equal numbers (numpy's sort does not order −0 and +0 either)."""
+    from demtool.fuse.core import _nan_median
+
+    rng = np.random.default_rng(11)
+    for count in (1, 2, 3, 5, 8):
+        values = np.round(rng.normal(size=(count, 25, 20)), 1)
+        valid = rng.random(values.shape) > 0.25
+        got = _nan_median(values, valid)
+        filled = np.where(valid, values, np.nan)
+        some = valid.any(axis=0)
+        expected = np.full(some.shape, np.nan)
+        expected[some] = np.nanmedian(filled[:, some], axis=0)
+        np.testing.assert_array_equal(got, expected)
+    flat = _nan_median(np.array([[1.0, 4.0], [3.0, 2.0], [2.0, 9.0]]), np.ones((3, 2), bool))
+    np.testing.assert_array_equal(flat, [2.0, 4.0])  # (N, M) stacks too
+
+
+def test_compiled_distances_are_scipys_edt_to_the_bit():
+    """The border weights' distance transform against scipy's exact EDT: random masks,
+    a column and a row without background, holes in a large valid area."""
+    from scipy.ndimage import binary_dilation, distance_transform_edt
+
+    from demtool.fuse.core import _distances
+
+    rng = np.random.default_rng(5)
+    masks = [rng.random((int(h), int(w))) < rng.uniform(0.3, 0.99)
+             for h, w in rng.integers(1, 50, size=(60, 2))]
+    lined = np.ones((30, 40), bool)
+    lined[7, 3] = False  # one background cell: every other column has none
+    holes = ~binary_dilation(rng.random((300, 260)) < 5e-4, iterations=6)
+    holes[:, :20] = False
+    for mask in [*masks, lined, holes]:
+        if mask.all():
+            mask[0, 0] = False
+        expected = distance_transform_edt(mask)
+        got = _distances(mask)
+        assert got.dtype == np.float64
+        assert np.array_equal(got.view(np.uint64), expected.view(np.uint64))
+
+
 def _huber_numpy(values, weights, start, scale, iterations=10, c=1.345):
     """The whole-array numpy form of Huber's IRLS that the compiled kernel replaced."""
     present = weights > 0

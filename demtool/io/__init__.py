@@ -24,7 +24,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,6 +43,7 @@ from demtool.io.npz import (  # noqa: F401
     validate_npz,
     write_npz,
 )
+from demtool.io.quiet import ignoring
 
 # Atomic writes, output transactions and output path checks live in demtool.outputs;
 # they are part of this module's interface (io.output_transaction, io.atomic_path ...).
@@ -122,8 +122,7 @@ def _open_dataset(path: Path, what: str):
 
     require_file(path, what)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with ignoring(NotGeoreferencedWarning):
             return rasterio.open(path)
     except RasterioIOError as exc:
         raise InputError(f"{path}: cannot read {what}: {_first_line(exc)}") from None
@@ -170,8 +169,7 @@ def _read_bands(path: Path, what: str, bands: list[int] | None = None):
     dataset = _open_dataset(path, what)
     with dataset:
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with ignoring(NotGeoreferencedWarning):
                 indexes = bands or list(range(1, dataset.count + 1))
                 data = dataset.read(indexes, masked=True)
         except (RasterioError, ValueError) as exc:
@@ -232,10 +230,9 @@ def read_raster_pair(first: str | os.PathLike, second: str | os.PathLike, *,
 
     from rasterio.errors import NotGeoreferencedWarning
 
-    # each read sets and restores its warning filters; with two at once they could
-    # restore each other's, so the filter they set also holds around both
-    with warnings.catch_warnings(), ThreadPoolExecutor(max_workers=1) as pool:
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+    # each read holds the filter (demtool.io.quiet: threads may hold it at once); held
+    # here too, it stays in place from the first read to the last
+    with ignoring(NotGeoreferencedWarning), ThreadPoolExecutor(max_workers=1) as pool:
         later = pool.submit(read_raster, second, what=what[1])
         return read_raster(first, what=what[0]), later.result()
 
@@ -402,8 +399,7 @@ def read_window(path: str | os.PathLike, window: tuple[int, int, int, int], *,
     r0, r1, c0, c1 = (int(v) for v in window)
     with _open_dataset(p, what) as dataset:
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with ignoring(NotGeoreferencedWarning):
                 data = dataset.read([band], window=Window(c0, r0, c1 - c0, r1 - r0),
                                     masked=True)
         except (RasterioError, ValueError) as exc:
@@ -426,8 +422,7 @@ def read_decimated(path: str | os.PathLike, *, max_side: int = 256, band: int = 
         step = max(1, -(-max(dataset.height, dataset.width) // max_side))
         shape = (1, max(1, dataset.height // step), max(1, dataset.width // step))
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with ignoring(NotGeoreferencedWarning):
                 data = dataset.read([band], out_shape=shape, masked=True,
                                     resampling=Resampling.nearest)
         except (RasterioError, ValueError) as exc:

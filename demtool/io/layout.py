@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from contextvars import ContextVar
 from pathlib import Path
@@ -171,13 +170,15 @@ def raster_output(path: str | os.PathLike, profile: Mapping[str, Any], *,
     from rasterio._err import CPLE_BaseError
     from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
+    from demtool.io.quiet import ignoring
     from demtool.outputs import atomic_path, write_error
 
     method = resampling or overview_resampling(band_names)
     cog = current_layout() == "cog"
-    with atomic_path(path, suffix=".tif") as temporary, warnings.catch_warnings():
-        # A unit image-frame transform is "not georeferenced" to GDAL; that is intended.
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+    # A unit image-frame transform is "not georeferenced" to GDAL; that is intended.
+    # (demtool.io.quiet, not catch_warnings: a streamed output is written while tiles
+    # read on other threads)
+    with atomic_path(path, suffix=".tif") as temporary, ignoring(NotGeoreferencedWarning):
         stage = temporary.with_name(temporary.name + ".gtiff.tif") if cog else temporary
         try:
             with rasterio.open(stage, "w", **profile) as dst:

@@ -255,18 +255,16 @@ def read_decimated(path: str | os.PathLike, shape: tuple[int, int], cells: int, 
                    what: str = "DEM"):
     """The raster decimated (nearest) to at most ``cells`` cells, as a demtool.io.Raster
     whose transform is scaled to match (the sensor geometry's coarse DEM)."""
-    import warnings
-
     from affine import Affine
     from rasterio.errors import NotGeoreferencedWarning
 
     from demtool import io as dio
+    from demtool.io.quiet import ignoring
 
     height, width = shape
     factor = max(1, math.ceil(math.sqrt(height * width / cells)))
     rows, cols = max(1, height // factor), max(1, width // factor)
-    with dio._open_dataset(Path(path), what) as dataset, warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+    with dio._open_dataset(Path(path), what) as dataset, ignoring(NotGeoreferencedWarning):
         data = dataset.read([1], out_shape=(1, rows, cols), masked=True)
         values = dio.physical_values(data, [dataset.scales[0]], [dataset.offsets[0]])[0]
         transform = dataset.transform @ Affine.scale(width / cols, height / rows)

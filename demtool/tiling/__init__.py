@@ -434,17 +434,15 @@ def read_window(path: str | os.PathLike, window: tuple[int, int, int, int], *,
     The same values :func:`demtool.io.read_raster` gives for those pixels (scale and
     offset applied, nodata and ±inf as NaN), without reading the rest of the file.
     """
-    import warnings
-
     from rasterio.errors import NotGeoreferencedWarning, RasterioError
     from rasterio.windows import Window
 
     from demtool import io as dio
+    from demtool.io.quiet import ignoring
 
     r0, r1, c0, c1 = window
     dataset = dio._open_dataset(Path(path), what)
-    with dataset, warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+    with dataset, ignoring(NotGeoreferencedWarning):  # not catch_warnings: tiles' threads
         try:
             data = dataset.read([band], window=Window(c0, r0, c1 - c0, r1 - r0), masked=True)
         except (RasterioError, ValueError) as exc:

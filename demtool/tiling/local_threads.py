@@ -35,7 +35,6 @@ import contextvars
 import logging
 import queue
 import threading
-import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -111,6 +110,7 @@ def run_on_threads(job: TileJob, todo: Sequence[Tile], cache: TileCache, progres
     """
     from rasterio.errors import NotGeoreferencedWarning
 
+    from demtool.io.quiet import ignoring
     from demtool.tiling.tasks import _interrupted, available_cores, compute_tile, tile_failure
 
     threads = max(1, available_cores() // workers)
@@ -139,11 +139,10 @@ def run_on_threads(job: TileJob, todo: Sequence[Tile], cache: TileCache, progres
     pool = [threading.Thread(target=work, name=f"demtool-tile-{i}", daemon=True)
             for i in range(min(workers, len(todo)))]
     finished = progress.done
-    # warnings.catch_warnings (GDAL's NotGeoreferencedWarning on every image-frame read)
-    # swaps the process's one filter list: threads entering and leaving it at once may
-    # restore each other's lists, so the run keeps the filter in place for all of them
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+    # GDAL's NotGeoreferencedWarning on every image-frame read: the readers hold the
+    # filter with demtool.io.quiet.ignoring (threads may hold it at once, no filter list
+    # is swapped); held here too, it stays in place for the whole run
+    with ignoring(NotGeoreferencedWarning):
         try:
             for thread in pool:
                 thread.start()

@@ -153,10 +153,7 @@ class FuseTileJob:
         from demtool.tiling.distributed import usable_threads
 
         start, cpu = time.perf_counter(), time.process_time()
-        if threads:  # a Dask worker's share of the cores: the compiled kernels too
-            import numba
-
-            numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+        # numba's count and usable_threads(): a worker's share, set by tiling's compute_tile
         strips = row_strips(tile, self.target.shape, exact_margin(self.blend, self.gap),
                             usable_threads())
         parts = on_threads(self._compute_strip, strips)

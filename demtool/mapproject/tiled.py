@@ -163,10 +163,7 @@ class MapprojectTileJob:
         return Affine(*self.transform)
 
     def compute(self, tile: Tile, threads: int) -> tuple[np.ndarray, dict[str, Any]]:
-        if threads > 0:
-            import numba
-
-            numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+        # numba's thread count: the caller's (tiling.tasks.compute_tile sets a worker's)
         sensor = _sensor(self.sensor_path, self.sensor_radii, self.sensor_image_size)
         surface = (_surface(self.dem_path, self.sensor_path, self.sensor_radii,
                             self.sensor_image_size) if self.dem_path is not None else None)

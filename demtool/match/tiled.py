@@ -50,10 +50,7 @@ class MatchTileJob:
         from demtool.errors import ParameterError, ProcessingError
         from demtool.match import match
 
-        if threads:
-            import numba
-
-            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+        # numba's thread count: a worker's share, set by tiling.tasks.compute_tile
         r0, r1, c0, c1 = tile.outer
         left = read_window(self.left_path, tile.outer, what="left image")
         right = read_window(self.right_path, tile.outer, what="right image")

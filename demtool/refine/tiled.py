@@ -135,19 +135,9 @@ class RefineTileJob:
         return RefineParams(**dict(self.options))
 
     def compute(self, tile: Tile, threads: int) -> tuple[np.ndarray, dict[str, Any]]:
-        """The tile's core of refined heights and albedo, on ``threads`` kernel threads
-        (numba's count is the calling thread's own, restored on return; 0: as set)."""
-        import numba
-
-        before = numba.get_num_threads()
-        if threads:
-            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-        try:
-            return self._compute(tile)
-        finally:
-            numba.set_num_threads(before)
-
-    def _compute(self, tile: Tile) -> tuple[np.ndarray, dict[str, Any]]:
+        """The tile's core of refined heights and albedo, on the calling thread's numba
+        thread count (a worker's share: :func:`demtool.tiling.tasks.compute_tile` sets it
+        for the tile and restores it after)."""
         from demtool.errors import ProcessingError
         from demtool.refine import make_illumination, refine_heights
         from demtool.refine.prepare import prepare_dem

@@ -232,7 +232,12 @@ class TileJob(Protocol):
     bands: tuple[str, ...]
 
     def compute(self, tile: Tile, threads: int) -> tuple[np.ndarray, dict[str, Any]]:
-        """The tile's core: ``(len(bands), *tile.core_shape)`` float32, and a small info dict."""
+        """The tile's core: ``(len(bands), *tile.core_shape)`` float32, and a small info dict.
+
+        Called within :func:`demtool.tiling.tasks.compute_tile`, which sets
+        :func:`~demtool.tiling.tasks.usable_threads` and numba's thread count to
+        ``threads`` for the call (0: the process's cores); a job does not set them again.
+        """
 
     def memory_bytes(self, tile: Tile) -> int:
         """Estimated peak bytes of computing ``tile``."""

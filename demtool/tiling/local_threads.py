@@ -122,7 +122,6 @@ def run_on_threads(job: TileJob, todo: Sequence[Tile], cache: TileCache, progres
     context = contextvars.copy_context()
 
     def work() -> None:
-        _numba_threads(threads)
         while not stop.is_set():
             try:
                 tile = pending.get_nowait()
@@ -164,13 +163,6 @@ def run_on_threads(job: TileJob, todo: Sequence[Tile], cache: TileCache, progres
             raise
         finally:
             stop.set()
-
-
-def _numba_threads(threads: int) -> None:
-    """numba's thread count of the calling thread (numba keeps it per thread)."""
-    import numba
-
-    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
 
 
 def _next_result(done: queue.SimpleQueue, pool: list[threading.Thread]

@@ -19,7 +19,6 @@ from demtool.mapproject.surface import (
     SENSOR_TAG,
     SURFACE_TAG,
     DemSurface,
-    read_dem_surface,
     require_same_body,
 )
 from demtool.stagerun import StageRun
@@ -29,25 +28,29 @@ if TYPE_CHECKING:
 
 
 def _footprint_heights(surface: DemSurface | None, height: float, sensor, body):
-    """Heights along the image's outer edge, from the DEM where given (two passes)."""
+    """Heights along the image's outer edge, from the DEM where given (two passes), and
+    the surface holding the DEM under the footprint in memory (:meth:`DemSurface.holding`:
+    read once for the second pass and the tiles)."""
     from demtool.mapproject.core import ground_footprint
     from demtool.maps import xyz_to_lonlat_height
 
     if surface is None:
-        return height
+        return height, surface
     h: Any = 0.0
     for _ in range(2):
         xyz = ground_footprint(sensor, body.surface, h)
         lon, lat, _ = xyz_to_lonlat_height(xyz, radii=body.surface)
-        found = surface.heights_lonlat(lon, lat)
         if not isinstance(h, np.ndarray):  # the first pass: the DEM under the footprint
+            surface = surface.holding(lon, lat)
+        found = surface.heights_lonlat(lon, lat)
+        if not isinstance(h, np.ndarray):
             from demtool.mapproject.checks import check_rpc_domain, check_surface_heights
 
             check_surface_heights(found, surface.info.path, body)
             check_rpc_domain(sensor, body, found, str(surface.info.path))
         fallback = float(np.nanmedian(found)) if np.isfinite(found).any() else 0.0
         h = np.where(np.isfinite(found), found, fallback)
-    return h
+    return h, surface
 
 
 def _chosen_crs(sensor, body, params, pair_sensor_path, edge_h):
@@ -80,13 +83,20 @@ def _chosen_crs(sensor, body, params, pair_sensor_path, edge_h):
 
 def _grid(sensor, body, surface: DemSurface | None, params, log, pair_sensor_path=None):
     """The output grid: the DEM's lattice over the footprint, or a new grid (on
-    ``--t-srs``, or along the pair's parallax with ``--pair-sensor``)."""
+    ``--t-srs``, or along the pair's parallax with ``--pair-sensor``); and the surface,
+    holding the DEM under the footprint (:func:`_footprint_heights`)."""
+    height = params.height if params.height is not None else 0.0
+    edge_h, surface = _footprint_heights(surface, height, sensor, body)
+    return _grid_on(sensor, body, surface, params, log, pair_sensor_path, edge_h), surface
+
+
+def _grid_on(sensor, body, surface: DemSurface | None, params, log, pair_sensor_path,
+             edge_h):
+    """:func:`_grid`'s grid, from the heights ``edge_h`` along the image's outer edge."""
     from demtool.errors import InputError, ProcessingError
     from demtool.mapproject.core import ground_footprint, ortho_grid
     from demtool.maps import MapGrid, grid_from_lonlat, to_pyproj_crs, xyz_to_lonlat_height
 
-    height = params.height if params.height is not None else 0.0
-    edge_h = _footprint_heights(surface, height, sensor, body)
     chosen = _chosen_crs(sensor, body, params, pair_sensor_path, edge_h)
     projected = surface is not None and not surface.geographic
     try:
@@ -191,9 +201,11 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     from demtool.logs import progress
     from demtool.mapproject.core import native_gsd, sensor_body
     from demtool.mapproject.params import MapprojectParams
+    from demtool.mapproject.threads import warm
     from demtool.mapproject.tiled import (
         MapprojectTileJob,
         engine_tile_size,
+        holding_surface,
         mapproject_tiled,
     )
     from demtool.maps import to_pyproj_crs
@@ -213,6 +225,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     if len(chosen) > 1:
         raise ParameterError(f"{' and '.join(chosen)} each set the map's CRS: give one")
     from demtool.mapproject.tiled import _sensor as cached_sensor
+    from demtool.mapproject.tiled import _surface as cached_surface
 
     # read through the tile job's cache: its tiles, in this process, find the model there
     sensor = cached_sensor(str(sensor_path))
@@ -232,9 +245,15 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
         from demtool.mapproject.checks import check_height
 
         check_height(sensor, body, float(params.height))
-    surface = read_dem_surface(dem_path, sensor_path, body) if dem_path is not None else None
-    grid = (_grid_like(grid_like, sensor_path, body, params) if grid_like is not None
-            else _grid(sensor, body, surface, params, log, pair_sensor))
+    radii = None if tsai is None else tsai.radii
+    image_size = None if tsai is None else tsai.image_size
+    # read through the tile job's cache too (the DEM's checks once per process)
+    surface = (cached_surface(str(dem_path), str(sensor_path), radii, image_size)
+               if dem_path is not None else None)
+    if grid_like is not None:
+        grid = _grid_like(grid_like, sensor_path, body, params)
+    else:
+        grid, surface = _grid(sensor, body, surface, params, log, pair_sensor)
     from demtool.mapproject.checks import check_mapproject_grid
     from demtool.mapproject.hashes import hash_tags
 
@@ -263,17 +282,18 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
                             grid.crs.to_wkt(), tuple(grid.transform)[:6], same_crs,
                             params.step, params.tolerance, params.seed,
                             angles=angles_out is not None, pixels_per_cell=pixels_per_cell,
-                            sensor_radii=None if tsai is None else tsai.radii,
-                            sensor_image_size=None if tsai is None else tsai.image_size)
+                            sensor_radii=radii, sensor_image_size=image_size)
     head = {"image": Path(image_path).name, "sensor": sensor.name, "body": body.name,
             "crs": grid.crs.name, "width": grid.width, "height": grid.height, "gsd_m": gsd,
             "transform": list(grid.transform)[:6], "surface": surface_tags[SURFACE_TAG]}
     engine_size = engine_tile_size(grid.shape, params)
     if engine_size:
         inputs = [p for p in (image_path, sensor_path, dem_path, grid_like) if p is not None]
-        result = mapproject_tiled(run, job, grid, engine_size, params, out_path=out_path,
-                                  angles_out=angles_out, tags=tags, inputs=inputs,
-                                  extra_summary=head)
+        warm(sensor)  # the model's lazily cached state, before tiles on threads share it
+        with holding_surface(job, surface):  # tiles on threads slice the DEM held in memory
+            result = mapproject_tiled(run, job, grid, engine_size, params, out_path=out_path,
+                                      angles_out=angles_out, tags=tags, inputs=inputs,
+                                      extra_summary=head)
         if result.dry_run is not None:
             return {**head, "dry_run": result.dry_run}
         summary = result.summary

@@ -21,49 +21,96 @@ DEM_TAG = "mapproject_dem"
 HEIGHT_TAG = "mapproject_height_m"
 
 
+#: Most DEM cells :meth:`DemSurface.holding` keeps in memory (float32: 64 MiB); a larger
+#: window stays on disk, read tile by tile
+HOLD_MAX_CELLS = 16 * 2**20
+#: Cells added on each side of the window :meth:`DemSurface.holding` keeps (the map
+#: grid is the DEM's lattice over the footprint snapped outward, and each window read
+#: reaches 1–3 cells past its points)
+HOLD_MARGIN = 8
+
+
 class DemSurface(NamedTuple):
     """A DEM read in windows: its :class:`demtool.io.RasterInfo` and the offset (metres)
-    from its own sphere's heights to heights above the body's reference sphere."""
+    from its own sphere's heights to heights above the body's reference sphere.
+
+    ``held``: a window ``(row0, row1, col0, col1)`` of the DEM and its values
+    (:func:`demtool.io.read_window`'s float32), kept in memory by :meth:`holding`;
+    windows inside it are sliced from it instead of read again (the same values)."""
 
     info: Any
     offset_m: float
     geographic: bool
+    held: tuple[tuple[int, int, int, int], np.ndarray] | None = None
 
-    def heights_lonlat(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
-        """Heights (metres above the body's sphere) at lon/lat (degrees), bilinear."""
+    def map_xy(self, lon: np.ndarray, lat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Coordinates in the DEM's own CRS of lon/lat (degrees)."""
         from demtool.maps import lonlat_to_map, wrap_longitude
 
-        crs = self.info.crs
         if self.geographic:
             t = self.info.transform
             center = t.c + t.a * 0.5 * self.info.width
-            x, y = wrap_longitude(lon, center), np.asarray(lat, dtype=np.float64)
-        else:
-            x, y = lonlat_to_map(crs, lon, lat)
-        return self.heights_xy(x, y)
+            return wrap_longitude(lon, center), np.asarray(lat, dtype=np.float64)
+        return lonlat_to_map(self.info.crs, lon, lat)
 
-    def heights_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Heights at map coordinates of the DEM's own CRS (NaN off the DEM)."""
-        from demtool import io as dio
-        from demtool.mapproject.core import bilinear_heights
+    def heights_lonlat(self, lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+        """Heights (metres above the body's sphere) at lon/lat (degrees), bilinear."""
+        return self.heights_xy(*self.map_xy(lon, lat))
 
+    def _positions(self, x: np.ndarray, y: np.ndarray):
+        """Fractional (row, col) of map x, y and the window of cells their bilinear
+        interpolation reads (None: no finite position on the DEM)."""
         inv = ~self.info.transform
         x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
         col = inv.a * x + inv.b * y + inv.c - 0.5
         row = inv.d * x + inv.e * y + inv.f - 0.5
         good = np.isfinite(col) & np.isfinite(row)
-        out = np.full(np.shape(col), np.nan)
         if not good.any():
-            return out
+            return row, col, None
         r0 = max(int(math.floor(row[good].min())) - 1, 0)
         r1 = min(int(math.floor(row[good].max())) + 3, self.info.height)
         c0 = max(int(math.floor(col[good].min())) - 1, 0)
         c1 = min(int(math.floor(col[good].max())) + 3, self.info.width)
         if r1 <= r0 or c1 <= c0:
-            return out
-        data = dio.read_window(self.info.path, (r0, r1, c0, c1), what="DEM")
-        out = bilinear_heights(data, row - r0, col - c0)
+            return row, col, None
+        return row, col, (r0, r1, c0, c1)
+
+    def heights_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Heights at map coordinates of the DEM's own CRS (NaN off the DEM)."""
+        from demtool.mapproject.core import bilinear_heights
+
+        row, col, window = self._positions(x, y)
+        if window is None:
+            return np.full(np.shape(col), np.nan)
+        r0, _, c0, _ = window
+        out = bilinear_heights(self._window(window), row - r0, col - c0)
         return out + self.offset_m
+
+    def _window(self, window: tuple[int, int, int, int]) -> np.ndarray:
+        """The DEM's values in ``window``: sliced from the held window when inside it."""
+        r0, r1, c0, c1 = window
+        if self.held is not None:
+            (h0, h1, g0, g1), values = self.held
+            if h0 <= r0 and r1 <= h1 and g0 <= c0 and c1 <= g1:
+                return values[r0 - h0:r1 - h0, c0 - g0:c1 - g0]
+        from demtool import io as dio
+
+        return dio.read_window(self.info.path, window, what="DEM")
+
+    def holding(self, lon: np.ndarray, lat: np.ndarray, *, margin: int = HOLD_MARGIN,
+                max_cells: int = HOLD_MAX_CELLS) -> DemSurface:
+        """This surface with the DEM's window under the points (lon/lat, degrees), widened
+        by ``margin`` cells, held in memory (read once; itself when that window has more
+        than ``max_cells`` cells or no point falls on the DEM)."""
+        _, _, window = self._positions(*self.map_xy(lon, lat))
+        if window is None:
+            return self
+        r0, r1, c0, c1 = window
+        window = (max(r0 - margin, 0), min(r1 + margin, self.info.height),
+                  max(c0 - margin, 0), min(c1 + margin, self.info.width))
+        if (window[1] - window[0]) * (window[3] - window[2]) > max_cells:
+            return self
+        return self._replace(held=(window, self._window(window)))
 
 
 def require_same_body(path: str | os.PathLike, crs: Any, body: Any,

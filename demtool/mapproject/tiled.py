@@ -17,8 +17,10 @@ a work folder so a killed run resumes; N ≥ 2 = a local Dask cluster), ``--sche
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -73,10 +75,35 @@ def _sensor_of(stamp: tuple[str, int, int], radii: tuple[float, float] | None,
     return with_image_size(read_sensor(stamp[0], radii=radii), image_size)
 
 
+#: surfaces a runner holds in memory (:meth:`demtool.mapproject.surface.DemSurface.holding`)
+#: while its tiles run in this process (:func:`holding_surface`), by :func:`_surface`'s key
+_HELD: dict[tuple, Any] = {}
+
+
 def _surface(dem_path: str, sensor_path: str, radii: tuple[float, float] | None = None,
              image_size: tuple[int, int] | None = None):
-    """The DEM surface, read once per process and file versions."""
-    return _surface_of(_stamp(dem_path), _stamp(sensor_path), radii, image_size)
+    """The DEM surface, read once per process and file versions (within
+    :func:`holding_surface`: the runner's, with the DEM under the footprint in memory)."""
+    key = (_stamp(dem_path), _stamp(sensor_path), radii, image_size)
+    held = _HELD.get(key)
+    return held if held is not None else _surface_of(*key)
+
+
+@contextlib.contextmanager
+def holding_surface(job: MapprojectTileJob, surface: Any) -> Iterator[None]:
+    """Within the block, ``job``'s tiles computed in this process get ``surface`` (the
+    runner's, holding the DEM under the footprint: the same values as read from the file;
+    worker processes read the file)."""
+    if job.dem_path is None or surface is None or surface.held is None:
+        yield
+        return
+    key = (_stamp(job.dem_path), _stamp(job.sensor_path), job.sensor_radii,
+           job.sensor_image_size)
+    _HELD[key] = surface
+    try:
+        yield
+    finally:
+        _HELD.pop(key, None)
 
 
 @functools.lru_cache(maxsize=4)
@@ -272,10 +299,11 @@ def mapproject_tiled(run: Any, job: MapprojectTileJob, grid: Any, tile_size: int
     from demtool.tiling.jobs import TiledOutput, run_tiled
 
     tiling = plan_tiles(grid.height, grid.width, tile_size, overlap=0)
-    outputs = [TiledOutput(out_path, 0, tags, "ortho")]
+    # ZSTD, as the untiled path's demtool.io.raster_writer (deflate costs ~1.5x the CPU)
+    outputs = [TiledOutput(out_path, 0, tags, "ortho", "zstd")]
     if angles_out is not None:
         outputs.append(TiledOutput(angles_out, (1, 2, 3), {**tags, "bands": list(ANGLE_BANDS)},
-                                   list(ANGLE_BANDS)))
+                                   list(ANGLE_BANDS), "zstd"))
     cells = grid.width * grid.height
 
     def summarize(infos: list[dict[str, Any]]) -> dict[str, Any]:

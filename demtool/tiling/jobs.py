@@ -43,12 +43,14 @@ from demtool.tiling import (
 @dataclass
 class TiledOutput:
     """One raster a tiled run writes: a band of the job's tiles (or several, for a
-    multi-band file), its tags and name(s)."""
+    multi-band file), its tags and name(s), and its compression (a key of
+    :data:`demtool.tiling.COMPRESSIONS`: the one the stage's untiled path writes)."""
 
     path: str | os.PathLike
     band: int | Sequence[int]
     tags: Mapping[str, Any]
     band_name: str | Sequence[str]
+    compress: str = "deflate"
 
 
 @dataclass
@@ -167,7 +169,8 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
                 for output in outputs:
                     write_tiled_raster(output.path, tiling, cache, band=output.band,
                                        transform=transform, crs=crs, tags=output.tags,
-                                       band_name=output.band_name)
+                                       band_name=output.band_name,
+                                       compress=output.compress)
                 run.provenance.write_sidecar(main, summary,
                                              outputs=[o.path for o in outputs])
         cache.remove()
@@ -189,7 +192,7 @@ class _InOrderWriter:
         self.stack, self.tiling, self.cache = stack, tiling, cache
         self.writers = [stack.enter_context(tiled_raster_output(
             o.path, tiling, band=o.band, transform=transform, crs=crs, tags=o.tags,
-            band_name=o.band_name)) for o in outputs]
+            band_name=o.band_name, compress=o.compress)) for o in outputs]
         self.next = 0
 
     def advance(self) -> None:

@@ -84,6 +84,9 @@ def test_engine_equals_the_in_process_loop(scene, in_process, tmp_path):
     with rasterio.open(angles) as dataset:
         assert dataset.count == 3
         assert dataset.descriptions == ("incidence_deg", "emission_deg", "phase_deg")
+    for path, reference in ((out, in_process[0]), (angles, in_process[1])):
+        with rasterio.open(path) as dataset, rasterio.open(reference) as untiled:
+            assert dataset.compression == untiled.compression  # the untiled path's ZSTD
     summary = json.loads(Path(f"{out}.json").read_text())["summary"]
     base = json.loads(Path(f"{in_process[0]}.json").read_text())["summary"]
     rows, cols = got.data.shape

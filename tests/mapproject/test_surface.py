@@ -1,0 +1,46 @@
+"""The DEM surface held in memory (DemSurface.holding, issue 47): the footprint's second
+pass and the map tiles slice the window read once instead of reading the file again,
+with the same heights to the bit; windows outside it are read from the file."""
+
+import numpy as np
+
+from demtool.mapproject.core import ortho_grid
+from demtool.mapproject.surface import read_dem_surface
+from demtool.maps import grid_lonlat, snap_grid
+from tests.helpers.linescan import MOON, linescan_sensor, write_truth_dem
+
+
+def test_held_window_gives_the_files_heights_to_the_bit(tmp_path, monkeypatch):
+    sensor = linescan_sensor(lines=120, samples=90)
+    grid = ortho_grid(sensor, MOON, height=0.0)
+    grid = snap_grid(grid.crs, *grid.bounds(), 2.0)
+    dem_path = write_truth_dem(tmp_path / "dem.tif", grid)
+    surface = read_dem_surface(dem_path, "sensor.json", MOON)
+    lon, lat = grid_lonlat(grid)
+    rows, cols = lon.shape
+    centre = (slice(rows // 4, 3 * rows // 4), slice(cols // 4, 3 * cols // 4))
+    held = surface.holding(lon[centre], lat[centre], margin=2)
+    (r0, r1, c0, c1), values = held.held
+    assert values.shape == (r1 - r0, c1 - c0) and 0 < r0 and r1 < rows  # a window only
+    # inside the held window: no file read, heights equal to the file's to the bit
+    from demtool import io as dio
+
+    reads = []
+    original = dio.read_window
+    monkeypatch.setattr(dio, "read_window", lambda *a, **k: (reads.append(a[1]),
+                                                             original(*a, **k))[1])
+    inner = (slice(rows // 3, rows // 2), slice(cols // 3, cols // 2))
+    x = grid.transform.c + (np.arange(cols)[inner[1]] + 0.37) * grid.transform.a
+    y = grid.transform.f + (np.arange(rows)[inner[0]] + 0.61) * grid.transform.e
+    xx, yy = np.meshgrid(x, y)
+    found = held.heights_xy(xx, yy)
+    assert reads == []
+    expected = surface.heights_xy(xx, yy)
+    assert len(reads) == 1
+    assert np.isfinite(expected).all()
+    np.testing.assert_array_equal(found.view(np.uint64), expected.view(np.uint64))
+    # the whole grid reaches past the held window: read from the file, the same heights
+    np.testing.assert_array_equal(held.heights_lonlat(lon, lat), surface.heights_lonlat(lon, lat))
+    assert len(reads) == 3
+    # a window over the cap stays on disk
+    assert surface.holding(lon, lat, max_cells=10).held is None

@@ -14,7 +14,9 @@ References are ``"module:name"`` strings: ``core_defaults("demtool.sgm.matcher:s
 from __future__ import annotations
 
 import ast
+import functools
 import importlib
+import importlib.machinery
 import importlib.util
 import sys
 from pathlib import Path
@@ -34,11 +36,31 @@ def _split(ref: str) -> tuple[str, str]:
     return module, name
 
 
+def _find_spec(module: str) -> importlib.machinery.ModuleSpec | None:
+    """``module``'s spec without importing its parent packages (``importlib.util.find_spec``
+    imports them: ``demtool.maps``'s ``__init__`` loads every map module)."""
+    parent, _, _ = module.rpartition(".")
+    if not parent or parent in sys.modules:
+        return importlib.util.find_spec(module)
+    outer = _find_spec(parent)
+    if outer is None or outer.submodule_search_locations is None:
+        return None
+    return importlib.machinery.PathFinder.find_spec(module, outer.submodule_search_locations)
+
+
 def _tree(module: str) -> ast.Module:
-    spec = importlib.util.find_spec(module)
+    spec = _find_spec(module)
     if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
         raise _NotStatic(module)
-    return ast.parse(Path(spec.origin).read_text(encoding="utf-8"))
+    path = Path(spec.origin)
+    return _parse(path, path.stat().st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=32)
+def _parse(path: Path, mtime_ns: int) -> ast.Module:
+    """The syntax tree of a source file, parsed once per version of it (a parameter module
+    reads several defaults and constants of one core module; callers never modify it)."""
+    return ast.parse(path.read_text(encoding="utf-8"))
 
 
 def _constants(tree: ast.Module) -> dict[str, Any]:
@@ -82,7 +104,43 @@ def _static_defaults(module: str, name: str) -> dict[str, Any]:
             pairs += [(a, d) for a, d in zip(args.kwonlyargs, args.kw_defaults, strict=True)
                       if d is not None]
             return {arg.arg: _value(default, constants) for arg, default in pairs}
-    raise _NotStatic(name)  # a class (dataclass fields), or defined elsewhere
+        if isinstance(node, ast.ClassDef) and node.name == name:
+            return _dataclass_defaults(node, constants)
+    raise _NotStatic(name)  # defined elsewhere
+
+
+def _dataclass_defaults(node: ast.ClassDef, constants: dict[str, Any]) -> dict[str, Any]:
+    """The defaults of a plain ``@dataclass``'s fields (``name: type = literal``, or
+    ``field(default=literal)``), which are its ``__init__``'s.  A ``default_factory`` field
+    is left out (its default is made per instance).  Anything else (a base class, another
+    decorator, ``ClassVar``/``InitVar``, other ``field`` arguments alone) only the import
+    can give."""
+    def is_dataclass(decorator: ast.expr) -> bool:
+        target = decorator.func if isinstance(decorator, ast.Call) else decorator
+        return ast.unparse(target) in ("dataclass", "dataclasses.dataclass")
+
+    if node.bases or node.keywords or len(node.decorator_list) != 1 or not is_dataclass(
+            node.decorator_list[0]):
+        raise _NotStatic(node.name)
+    found = {}
+    for item in node.body:
+        if isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name):
+            if "ClassVar" in ast.unparse(item.annotation) or "InitVar" in ast.unparse(
+                    item.annotation):
+                raise _NotStatic(node.name)
+            value = item.value
+            if isinstance(value, ast.Call) and ast.unparse(value.func) in (
+                    "field", "dataclasses.field") and not value.args:
+                given = {k.arg: k.value for k in value.keywords}
+                if "default" in given:
+                    value = given["default"]
+                elif "default_factory" in given:
+                    continue  # made per instance: no value to read (nor to index)
+                else:
+                    raise _NotStatic(node.name)
+            if value is not None:
+                found[item.target.id] = _value(value, constants)
+    return found
 
 
 class _Defaults(dict):

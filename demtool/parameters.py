@@ -16,6 +16,7 @@ A field's option is ``--<field name>`` with dashes, unless ``option=`` gives ano
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import types
 import typing
@@ -102,14 +103,71 @@ def workers_field() -> Any:
     return parameter(0, "Parallel workers (0 = all cores).", minimum=0)
 
 
+# The tiled stages' fields (demtool.tiling runs the tiles; docs/stages/scale.md).  They live
+# here, not in demtool.tiling, so that a parameter module stays light: every command run
+# with --config imports the parameters of each stage its preset names.
+TILE_FIELDS = ("tile_size", "tile_overlap", "scheduler", "dry_run")
+
+
+def tile_size_field() -> Any:
+    """``--tile-size``: side of the tile cores (0 = untiled)."""
+    return parameter(0, "Side of the square tile cores, px (0 = untiled, unless --scheduler "
+                     "or --dry-run is given: then 1024).  Tiled, --workers N computes N tiles "
+                     "at a time on this machine.", minimum=0)
+
+
+def tile_overlap_field(default_text: str) -> Any:
+    """``--tile-overlap``: margin around each core; ``default_text`` says the stage's default."""
+    return parameter(None, f"Margin computed around each tile core and cropped, px "
+                     f"[default: {default_text}].", minimum=0)
+
+
+def scheduler_address_problem(address: Any) -> str | None:
+    """What is wrong with a ``--scheduler`` address (None when it is one).
+
+    An address is ``[protocol://]host:port`` with a port 1 … 65535 (Dask's
+    ``parse_address``; ``tcp://`` when no protocol is given).
+    """
+    import re
+
+    text = str(address).strip()
+    match = re.fullmatch(r"(?:(tcp|tls|inproc|ucx|ws|wss)://)?(\[[0-9a-fA-F:]+\]|[^\s/:]+)"
+                         r":(\d+)", text)
+    if match is None or not 0 < int(match.group(3)) < 65536:
+        return (f"{text!r} is not a scheduler address: expected [tcp://]host:port "
+                "(e.g. tcp://127.0.0.1:8786)")
+    return None
+
+
+def scheduler_field() -> Any:
+    """``--scheduler``: address of a running dask.distributed scheduler."""
+    return parameter(None, "Address of a running dask.distributed scheduler "
+                     "(tcp://host:8786) to run the tiles on.", metavar="ADDRESS",
+                     check=scheduler_address_problem)
+
+
+def dry_run_field() -> Any:
+    """``--dry-run``: plan and calibrate, write nothing."""
+    return parameter(False, "Print the tiling, the estimated peak memory per worker and a "
+                     "time estimate from one calibration tile; write nothing.",
+                     flag="--dry-run")
+
+
 def option_name(field: dataclasses.Field) -> str:
     """The option of a field, without dashes and with underscores (click's param name)."""
     return (field.metadata.get("option") or field.name).replace("-", "_")
 
 
+@functools.cache
+def _type_hints(cls: type) -> dict[str, Any]:
+    """``typing.get_type_hints(cls)``, evaluated once per class (it evaluates every field's
+    annotation, and a command asks for each field's: 20 fields cost 400 evaluations)."""
+    return typing.get_type_hints(cls)
+
+
 def value_kind(cls: type, field: dataclasses.Field) -> type:
     """The scalar type of a field (``int``, ``float``, ``bool`` or ``str``), Optional removed."""
-    hint = typing.get_type_hints(cls)[field.name]
+    hint = _type_hints(cls)[field.name]
     if typing.get_origin(hint) in (typing.Union, types.UnionType):
         hint = next(a for a in typing.get_args(hint) if a is not type(None))
     return hint if hint in (int, float, bool, str) else str

@@ -17,9 +17,12 @@ ROOT = Path(__file__).resolve().parents[1]
 # command run with a preset naming [dem], before dem.grid imported its solver lazily)
 HEAVY = ("numba", "cv2", "pycolmap", "scipy", "matplotlib")
 REFS = ["demtool.sgm.matcher:sgm", "demtool.match.dense:match", "demtool.rectify.core:rectify_pair",
-        "demtool.compare.core:compare_dems"]
+        "demtool.compare.core:compare_dems", "demtool.select.core:compare_with_target",
+        "demtool.imaging.features:detect_sift", "demtool.dem.routes:OutlierOptions"]
 CONSTANTS = ["demtool.sgm.disparity:SUBPIXEL_MODES", "demtool.sgm.matcher:CENSUS_WINDOWS",
-             "demtool.sgm.matcher:COSTS", "demtool.compare.align:ALIGN_METHODS"]
+             "demtool.sgm.matcher:COSTS", "demtool.compare.align:ALIGN_METHODS",
+             "demtool.maps.projections:PROJECTIONS", "demtool.bundle.colmap:CAMERA_MODELS",
+             "demtool.bundle.colmap:MATCHERS", "demtool.bundle.register:FEATURES"]
 
 
 def _run(code: str) -> dict:
@@ -64,6 +67,78 @@ def test_non_literal_defaults_fall_back_to_the_import(tmp_path, monkeypatch):
     assert core_source.core_constant("corefake:LIMIT") == 3
     with pytest.raises(ValueError, match="module:name"):
         core_source.core_defaults("corefake")
+
+
+def test_dataclass_defaults_are_read_from_the_source(tmp_path, monkeypatch):
+    """A plain dataclass's field defaults are its constructor's; a default_factory field has
+    no value to read, and anything the source cannot say falls back to the import."""
+    from demtool.bundle.colmap import SfmOptions
+
+    static = core_source._static_defaults("demtool.bundle.colmap", "SfmOptions")
+    real = dict(imported_defaults(SfmOptions))
+    assert "extra" not in static and real.pop("extra") is not None  # field(default_factory=dict)
+    assert static == real
+    (tmp_path / "coredc.py").write_text(
+        "import dataclasses\nfrom dataclasses import dataclass, field\n"
+        "from typing import ClassVar\n"
+        "N = 4\n"
+        "@dataclass(frozen=True)\nclass A:\n    a: int\n    b: int = N\n"
+        "    c: tuple = field(default=(1, 2))\n    d: list = field(default_factory=list)\n"
+        "@dataclasses.dataclass(frozen=True)\nclass B(A):\n    e: int = 1\n"
+        "@dataclass\nclass C:\n    k: ClassVar[int] = 3\n    f: int = 2\n"
+        "@dataclass\nclass D:\n    g: float = float('inf')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "coredc", raising=False)
+    assert dict(core_source.core_defaults("coredc:A")) == {"b": 4, "c": (1, 2)}
+    assert "coredc" not in sys.modules
+    for name in "BCD":  # a base class, a ClassVar, a call: from the import
+        with pytest.raises(core_source._NotStatic):
+            core_source._static_defaults("coredc", name)
+    assert dict(core_source.core_defaults("coredc:C")) == {"f": 2}
+    assert dict(core_source.core_defaults("coredc:D")) == {"g": float("inf")}
+
+
+def test_source_reads_import_no_package():
+    """Reading ``demtool.maps.projections`` does not run ``demtool.maps``'s ``__init__``
+    (``importlib.util.find_spec`` would import the parent package)."""
+    found = _run(
+        "import json, sys\n"
+        "from demtool.core_source import core_constant\n"
+        "value = core_constant('demtool.maps.projections:PROJECTIONS')\n"
+        "print(json.dumps([value, sorted(m for m in sys.modules if m.startswith('demtool.'))]))\n")
+    assert found[0] == ["auto", "equirectangular", "polar-stereographic"]
+    assert not [m for m in found[1] if m.startswith("demtool.maps")]
+
+
+# what checking a preset may import besides each named stage's command, package and params
+PRESET_MODULES = {"demtool.core_source", "demtool.lazy", "demtool.parameters",
+                  "demtool.imaging", "demtool.imaging.reflectance"}  # refine's model names
+
+
+def test_presets_import_only_the_parameter_modules():
+    """Every command run with ``--config`` checks the preset's sections against each named
+    stage's parameters: those modules read their cores' defaults from source and import no
+    core, sensor, map or tiling module (about 0.3 CPU s of every demo step otherwise)."""
+    presets = sorted(str(p) for p in (ROOT / "configs").glob("*.toml"))
+    found = _run(
+        "import json, sys\n"
+        "from click.testing import CliRunner\n"
+        "from demtool.cli import cli\n"
+        "assert CliRunner().invoke(cli, ['pairs', '--help']).exit_code == 0\n"
+        "before = set(sys.modules)\n"
+        "found = {}\n"
+        f"for preset in {presets!r}:\n"
+        "    result = CliRunner().invoke(cli, ['--config', preset, 'pairs', '--help'])\n"
+        "    assert result.exit_code == 0, (preset, result.output)\n"
+        "    found[preset] = sorted(m for m in set(sys.modules) - before\n"
+        "                           if m.startswith('demtool.'))\n"
+        "print(json.dumps(found))\n")
+    allowed = set(PRESET_MODULES)
+    for stage in STAGES:
+        allowed |= {f"demtool.commands.{stage}", f"demtool.{stage}", f"demtool.{stage}.params"}
+    assert {preset: sorted(set(mods) - allowed) for preset, mods in found.items()} == {
+        preset: [] for preset in found}
+    assert any("demtool.sgm.params" in mods for mods in found.values())
 
 
 def test_help_of_every_stage_and_every_preset_loads_no_heavy_library():

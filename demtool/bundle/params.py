@@ -8,11 +8,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from demtool.bundle.colmap import CAMERA_MODELS, MATCHERS, SfmOptions
-from demtool.bundle.register import FEATURES
-from demtool.parameters import Parameters, core_defaults, parameter, seed_field, workers_field
+from demtool.core_source import core_constant, core_defaults
+from demtool.parameters import Parameters, parameter, seed_field, workers_field
 
-CORE = core_defaults(SfmOptions)
+# Read from the core's source (bundle.colmap and bundle.register are the SfM runners), as
+# every command run with a preset naming [bundle] reads them.
+CORE = core_defaults("demtool.bundle.colmap:SfmOptions")
+CAMERA_MODELS = core_constant("demtool.bundle.colmap:CAMERA_MODELS")
+MATCHERS = core_constant("demtool.bundle.colmap:MATCHERS")
+FEATURES = core_constant("demtool.bundle.register:FEATURES")
 
 
 @dataclass(frozen=True)

@@ -7,16 +7,26 @@ read from the core's :class:`OutlierOptions`, so each is written once.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from demtool.dem.routes import OutlierOptions
-from demtool.maps.projections import PROJECTIONS
-from demtool.parameters import Parameters, core_default, parameter, seed_field
-from demtool.tiling import (
+from demtool.core_source import core_constant, core_defaults
+from demtool.parameters import (
+    Parameters,
     dry_run_field,
+    parameter,
     scheduler_field,
+    seed_field,
     tile_overlap_field,
     tile_size_field,
 )
+
+if TYPE_CHECKING:
+    from demtool.dem.routes import OutlierOptions
+
+# Read from the cores' source (dem.routes imports the DEM solvers, maps.projections pyproj's
+# helpers), which every command run with a preset naming [dem] would import otherwise.
+OUTLIERS = core_defaults("demtool.dem.routes:OutlierOptions")
+PROJECTIONS = core_constant("demtool.maps.projections:PROJECTIONS")
 
 
 @dataclass(frozen=True)
@@ -31,10 +41,10 @@ class DemParams(Parameters):
                                   "metadata or estimated).", minimum=0.0, min_open=True)
     median: int = parameter(0, "Median filter after filling, odd size in px (0 = off).",
                             minimum=0, odd=True)
-    outlier_neighbours: int = parameter(core_default(OutlierOptions, "neighbours"),
+    outlier_neighbours: int = parameter(OUTLIERS["neighbours"],
                                         "Neighbours of the local median outlier test.",
                                         minimum=3)
-    outlier_threshold: float = parameter(core_default(OutlierOptions, "threshold"),
+    outlier_threshold: float = parameter(OUTLIERS["threshold"],
                                          "Outlier threshold in local NMADs (0 = no outlier "
                                          "removal).", minimum=0.0)
     mask_band: bool = parameter(False, "Write the interpolation mask as a second band of OUT.",
@@ -64,5 +74,7 @@ class DemParams(Parameters):
 
     def outliers(self) -> OutlierOptions:
         """The outlier test of the core."""
+        from demtool.dem.routes import OutlierOptions
+
         return OutlierOptions(neighbours=self.outlier_neighbours,
                               threshold=self.outlier_threshold)

@@ -9,13 +9,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from demtool.core_source import core_defaults
-from demtool.parameters import Parameters, parameter, workers_field
-from demtool.tiling import (
+from demtool.parameters import (
     TILE_FIELDS,
+    Parameters,
     dry_run_field,
+    parameter,
     scheduler_field,
     tile_overlap_field,
     tile_size_field,
+    workers_field,
 )
 
 CORE = core_defaults("demtool.match.dense:match")  # from the source: --help loads no numba

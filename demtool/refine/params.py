@@ -9,9 +9,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from demtool.imaging.reflectance import MODELS
-from demtool.parameters import Parameters, parameter
-from demtool.tiling import (
+from demtool.parameters import (
+    Parameters,
     dry_run_field,
+    parameter,
     scheduler_field,
     tile_overlap_field,
     tile_size_field,

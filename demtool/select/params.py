@@ -8,12 +8,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from demtool.imaging.features import detect_sift
-from demtool.parameters import Parameters, core_defaults, parameter, seed_field, workers_field
-from demtool.select.core import compare_with_target
+from demtool.core_source import core_defaults
+from demtool.parameters import Parameters, parameter, seed_field, workers_field
 
-CORE = core_defaults(compare_with_target)
-SIFT = core_defaults(detect_sift)
+# Read from the cores' source: the core imports the sensor models, which every command run
+# with a preset naming [select] would import otherwise.
+CORE = core_defaults("demtool.select.core:compare_with_target")
+SIFT = core_defaults("demtool.imaging.features:detect_sift")
 
 
 @dataclass(frozen=True)

@@ -63,7 +63,14 @@ def _edge_offset(disparity, image, step, y, p, sign, foreground, radius, min_ste
     return best_k
 
 
-@njit(nogil=True, cache=True)
+# One compiled version for both passes: the row pass gives C-ordered arrays, the column pass
+# their transposed views (F-ordered); arrays of any layout ("A", ``[:, :]``) take both, where
+# compiling on first use made one version per layout (1.9 CPU s each in a fresh clone).
+_LINES_SIGNATURE = ("void(float32[:, :], float32[:, :], float32[:, :], boolean[:, :], int64, "
+                    "float64, float64, float32[:, :], boolean[:, :], int64, int64)")
+
+
+@njit(_LINES_SIGNATURE, nogil=True, cache=True)
 def _snap_lines(disparity, image, step, occluded, radius, jump, min_step, out, moved, start,
                 stop):
     """Lines ``start … stop − 1`` along the last axis (see :func:`snap_edges`);

@@ -9,13 +9,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from demtool.core_source import core_constant, core_defaults
-from demtool.parameters import Parameters, parameter, seed_field, workers_field
-from demtool.tiling import (
+from demtool.parameters import (
     TILE_FIELDS,
+    Parameters,
     dry_run_field,
+    parameter,
     scheduler_field,
+    seed_field,
     tile_overlap_field,
     tile_size_field,
+    workers_field,
 )
 
 # Read from the core's source: `demtool sgm --help` does not load numba.

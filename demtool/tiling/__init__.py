@@ -13,8 +13,9 @@ killed run resumes), and :func:`write_tiled_raster` assembles the cores window b
 into a tiled, deflate-compressed GeoTIFF inside the stage's output transaction.  Peak
 memory is one tile per worker (plus one tile in the writing process), never the image.
 
-This module imports neither Dask nor rasterio at import time (parameter modules import
-it for :func:`tile_fields`).
+This module imports neither Dask nor rasterio at import time.  The tiled stages' option
+fields (:func:`~demtool.parameters.tile_size_field` and the others re-exported here) live
+in :mod:`demtool.parameters`, so that the parameter modules do not import this one.
 """
 
 from __future__ import annotations
@@ -34,7 +35,14 @@ from typing import Any, Protocol
 import numpy as np
 
 from demtool.errors import InputError, ParameterError
-from demtool.parameters import parameter
+from demtool.parameters import (  # noqa: F401 - re-exported: fuse and mapproject params
+    TILE_FIELDS,
+    dry_run_field,
+    scheduler_address_problem,
+    scheduler_field,
+    tile_overlap_field,
+    tile_size_field,
+)
 
 BLOCK = 256  # GeoTIFF block side of every demtool raster (as demtool.io.write_raster)
 #: GDAL creation options of a tiled run's outputs, by name: ``deflate`` is
@@ -46,53 +54,6 @@ CACHE_FORMAT = 1  # bump when the cache layout changes (old caches are then igno
 
 # Parameters that change how tiles are run, never what they contain (not in cache keys).
 EXECUTION_FIELDS = ("workers", "scheduler", "dry_run")
-
-
-TILE_FIELDS = ("tile_size", "tile_overlap", "scheduler", "dry_run")
-
-
-def tile_size_field() -> Any:
-    """``--tile-size``: side of the tile cores (0 = untiled)."""
-    return parameter(0, "Side of the square tile cores, px (0 = untiled, unless --scheduler "
-                     "or --dry-run is given: then 1024).  Tiled, --workers N computes N tiles "
-                     "at a time on this machine.", minimum=0)
-
-
-def tile_overlap_field(default_text: str) -> Any:
-    """``--tile-overlap``: margin around each core; ``default_text`` says the stage's default."""
-    return parameter(None, f"Margin computed around each tile core and cropped, px "
-                     f"[default: {default_text}].", minimum=0)
-
-
-def scheduler_address_problem(address: Any) -> str | None:
-    """What is wrong with a ``--scheduler`` address (None when it is one).
-
-    An address is ``[protocol://]host:port`` with a port 1 … 65535 (Dask's
-    ``parse_address``; ``tcp://`` when no protocol is given).
-    """
-    import re
-
-    text = str(address).strip()
-    match = re.fullmatch(r"(?:(tcp|tls|inproc|ucx|ws|wss)://)?(\[[0-9a-fA-F:]+\]|[^\s/:]+)"
-                         r":(\d+)", text)
-    if match is None or not 0 < int(match.group(3)) < 65536:
-        return (f"{text!r} is not a scheduler address: expected [tcp://]host:port "
-                "(e.g. tcp://127.0.0.1:8786)")
-    return None
-
-
-def scheduler_field() -> Any:
-    """``--scheduler``: address of a running dask.distributed scheduler."""
-    return parameter(None, "Address of a running dask.distributed scheduler "
-                     "(tcp://host:8786) to run the tiles on.", metavar="ADDRESS",
-                     check=scheduler_address_problem)
-
-
-def dry_run_field() -> Any:
-    """``--dry-run``: plan and calibrate, write nothing."""
-    return parameter(False, "Print the tiling, the estimated peak memory per worker and a "
-                     "time estimate from one calibration tile; write nothing.",
-                     flag="--dry-run")
 
 
 # ------------------------------------------------------------------------------ the plan

@@ -7,6 +7,7 @@ from demtool import blas, jitcache
 blas.configure()  # before numpy loads OpenBLAS: its workers sleep instead of spinning
 blas.defer_numba_probe()  # before numba starts: its BLAS probe skips scipy.linalg's import
 jitcache.configure()  # before any demtool module imports numba: the compiled kernels' cache
+jitcache.defer_compile_lock()  # concurrent processes compile a kernel once, not each
 
 try:
     __version__ = version("demtool")

@@ -160,3 +160,153 @@ def cached_kernels() -> list[tuple[str, bool]]:
                 entries = {}
             found.append((f"{name}.{attr}", bool(entries)))
     return sorted(set(found))
+
+
+# ---------------------------------------------------------------- one compile per kernel
+# Processes started together (``make -j2 demo``, a batch of jobs, Dask workers) often need
+# the same kernel while numba's cache holds none of it: each compiled it (a fresh clone's
+# demo compiled dem's ``_cell_medians`` in two processes at once, 2 x 9.7 CPU s).  With the
+# lock, a process that misses the cache takes a file lock beside the kernel's cache index
+# (``<index>.nbi.lock``) and looks again once it holds it: the process that compiled in the
+# meantime has saved its result, which is loaded instead of compiled.  The locks are
+# ``flock`` locks, which the system drops when their process ends (a killed process leaves
+# no lock behind; the lock files themselves stay, empty).  Where no lock can be taken (a
+# cache folder this user cannot write, no ``fcntl``, a file system without locks), or after
+# :data:`LOCK_WAIT_S`, the process compiles as numba alone would.
+
+#: Longest wait for another process's compile of a kernel, s (a large parallel kernel on a
+#: loaded 2-core machine took 200 s); then this process compiles it too.
+LOCK_WAIT_S = 600.0
+LOCK_SUFFIX = ".lock"
+_held: dict[str, int] = {}  # lock file -> descriptor, held by this process
+
+
+def lock_path(cache: object) -> str | None:
+    """The lock file of a numba cache object (``dispatcher._cache``): beside its index;
+    None for a kernel without an on-disk cache (``cache=False``)."""
+    index = getattr(getattr(cache, "_cache_file", None), "_index_path", None)
+    return index + LOCK_SUFFIX if isinstance(index, str) else None
+
+
+def acquire(path: str, wait_s: float | None = None) -> bool:
+    """Take the exclusive lock ``path`` for this process, waiting at most ``wait_s``
+    (default :data:`LOCK_WAIT_S`); False when it cannot be taken (no folder, no rights, no
+    locks on this file system, still held after the wait)."""
+    import time
+
+    try:
+        import fcntl
+    except ImportError:  # not a POSIX system
+        return False
+    try:
+        descriptor = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+    except OSError:
+        return False
+    deadline = time.monotonic() + (LOCK_WAIT_S if wait_s is None else wait_s)
+    pause = 0.01
+    while True:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            if time.monotonic() >= deadline:
+                break
+            time.sleep(pause)
+            pause = min(2 * pause, 0.2)
+            continue
+        except OSError:  # ENOLCK and the like: no locks here
+            break
+        _held[path] = descriptor
+        return True
+    os.close(descriptor)
+    return False
+
+
+def release(path: str) -> None:
+    """Release the lock ``path`` if this process holds it (closing its descriptor drops it)."""
+    descriptor = _held.pop(path, None)
+    if descriptor is not None:
+        os.close(descriptor)
+
+
+def install_compile_lock() -> bool:
+    """Make numba take :func:`acquire`'s lock around each compile of a cached kernel.
+
+    Wraps ``numba.core.caching.Cache.load_overload`` (on a miss: lock, then look again)
+    and ``numba.core.dispatcher.Dispatcher.compile`` (the lock is released once the result
+    is saved, or the compile failed); both run under numba's own compiler lock, so the
+    threads of a process never wait for each other's file locks.  Returns False when this
+    numba lacks either (nothing is changed).
+    """
+    from numba.core import caching, dispatcher
+    from numba.core.compiler_lock import global_compiler_lock
+
+    load, compile_ = caching.Cache.load_overload, dispatcher.Dispatcher.compile
+    if getattr(compile_, "_demtool_lock", False):
+        return True
+    if not (callable(load) and callable(compile_)):
+        return False
+
+    def load_overload(self, sig, target_context):
+        found = load(self, sig, target_context)
+        path = lock_path(self)
+        if found is not None or path is None or path in _held:
+            return found
+        if acquire(path):  # another process may have saved it while we waited
+            found = load(self, sig, target_context)
+            if found is not None:
+                release(path)
+        return found
+
+    def compile(self, sig):
+        with global_compiler_lock:  # re-entrant: kernels called by a kernel compile inside
+            path = lock_path(getattr(self, "_cache", None))
+            held_before = path in _held
+            try:
+                return compile_(self, sig)
+            finally:
+                if path is not None and not held_before:
+                    release(path)
+
+    compile._demtool_lock = True
+    caching.Cache.load_overload = load_overload
+    dispatcher.Dispatcher.compile = compile
+    return True
+
+
+class _NumbaFinder:
+    """Installs the compile lock once numba's dispatcher module has been imported."""
+
+    @classmethod
+    def find_spec(cls, name, path=None, target=None):
+        if name != "numba.core.dispatcher":
+            return None
+        import importlib.machinery
+
+        sys.meta_path[:] = [f for f in sys.meta_path if f is not cls]
+        spec = importlib.machinery.PathFinder.find_spec(name, path, target)
+        if spec is None or spec.loader is None:
+            return spec
+        run = spec.loader.exec_module
+
+        def exec_module(module):
+            run(module)
+            sys.modules[name] = module  # install_compile_lock imports it by name
+            try:
+                install_compile_lock()
+            except Exception:  # noqa: BLE001 - an unknown numba: it compiles as before
+                pass
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
+def defer_compile_lock() -> None:
+    """Install :func:`install_compile_lock` now if numba is loaded, else when it is (called
+    on ``import demtool``: importing numba here would cost every command half a second)."""
+    if "numba.core.dispatcher" in sys.modules:
+        try:
+            install_compile_lock()
+        except Exception:  # noqa: BLE001 - an unknown numba: it compiles as before
+            pass
+    elif _NumbaFinder not in sys.meta_path:
+        sys.meta_path.insert(0, _NumbaFinder)

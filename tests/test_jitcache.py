@@ -150,3 +150,90 @@ def test_every_command_warns_of_an_unwritable_cache_folder(tmp_path, monkeypatch
     result = CliRunner().invoke(cli, ["sgm", "--help"])
     assert result.exit_code == 0
     assert f"NUMBA_CACHE_DIR={blocker / 'cache'} cannot be written" in result.output
+
+
+# ------------------------------------------------------------- one compile per kernel
+KERNEL_MODULE = """
+from numba import njit
+
+
+@njit(cache=True)
+def kernel(x):
+    total = 0.0
+    for i in range(10):
+        total += x * i
+    return total
+"""
+
+# a process of the chain: times its first call of the kernel and counts numba's compiles
+CALLER = """
+import json, os, sys, time
+import demtool
+from demtool import jitcache
+from numba.core import event
+import kernels
+
+compiles = []
+event.register("numba:compile", type("Count", (event.Listener,), {
+    "on_start": lambda self, ev: compiles.append(1), "on_end": lambda self, ev: None})())
+path = jitcache.lock_path(kernels.kernel._cache)
+if sys.argv[1] == "hold":  # lock, compile, say so, keep the lock a while
+    assert jitcache.acquire(path)
+    kernels.kernel(1.0)
+    print("locked", flush=True)
+    time.sleep(float(sys.argv[2]))
+elif sys.argv[1] == "die":  # lock, then be killed holding it
+    assert jitcache.acquire(path)
+    print("locked", flush=True)
+    os.kill(os.getpid(), 9)
+start = time.perf_counter()
+value = kernels.kernel(1.0)
+print(json.dumps({"value": value, "compiles": len(compiles),
+                  "waited": time.perf_counter() - start, "path": path}))
+"""
+
+
+def _caller(tmp_path, *args):
+    import subprocess
+    import sys
+
+    (tmp_path / "kernels.py").write_text(KERNEL_MODULE)
+    (tmp_path / "caller.py").write_text(CALLER)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"),
+               PYTHONPATH=os.pathsep.join([str(tmp_path), str(Path(jitcache.__file__).parents[1]),
+                                           os.environ.get("PYTHONPATH", "")]))
+    return subprocess.Popen([sys.executable, str(tmp_path / "caller.py"), *args], env=env,
+                            stdout=subprocess.PIPE, text=True)
+
+
+@pytest.mark.slow
+def test_a_kernel_compiled_by_another_process_is_waited_for_and_loaded(tmp_path):
+    """A process killed holding a kernel's lock leaves none (flock locks die with their
+    process).  While another process compiles the kernel (holding its lock), a process
+    that needs it waits, then loads the saved result instead of compiling it again."""
+    import json
+
+    dead = _caller(tmp_path, "die")
+    assert dead.stdout.readline().strip() == "locked"
+    dead.communicate(timeout=60)
+    first = _caller(tmp_path, "hold", "1.5")  # would wait LOCK_WAIT_S for a stale lock
+    assert first.stdout.readline().strip() == "locked"
+    second = _caller(tmp_path, "use")
+    found = json.loads(second.communicate(timeout=120)[0].splitlines()[-1])
+    first.communicate(timeout=120)
+    assert found["value"] == 45.0 and found["compiles"] == 0  # loaded from the cache
+    assert found["waited"] > 0.5  # it waited for the first process's lock
+    assert found["path"].startswith(str(tmp_path / "cache")) and found["path"].endswith(
+        ".nbi.lock")
+
+
+def test_no_lock_where_none_can_be_taken(tmp_path):
+    """A cache folder that is missing or not writable, or a kernel without a disk cache:
+    no lock, and the process compiles as numba alone would."""
+    assert not jitcache.acquire(str(tmp_path / "missing" / "k.nbi.lock"), wait_s=0)
+    assert jitcache.lock_path(object()) is None
+    path = str(tmp_path / "k.nbi.lock")
+    assert jitcache.acquire(path, wait_s=0)
+    jitcache.release(path)
+    assert jitcache.acquire(path, wait_s=0)  # released: free again
+    jitcache.release(path)

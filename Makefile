@@ -294,7 +294,8 @@ $(WORK)/reports/%/report.json: $(WORK)/%.tif
 
 # The products are independent chains (one scene each, or one product of a shared one):
 # a sub-make builds DEMO_JOBS of them at once (two cores: -j2 halves the wait; the
-# numba cache takes concurrent writers).  DEMO_JOBS=1 for one at a time.
+# numba cache takes concurrent writers, and a kernel two of them need at once is compiled by
+# one and loaded by the other: demtool.jitcache's compile lock).  DEMO_JOBS=1 for one at a time.
 DEMO_JOBS ?= 2
 DEMO_REPORTS := $(foreach p,$(PRODUCTS),$(WORK)/reports/$(p)/report.json)
 

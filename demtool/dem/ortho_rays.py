@@ -65,20 +65,26 @@ def ortho_rays(left, right, crs, rows: np.ndarray, left_cols: np.ndarray,
     OrthoRays
     """
     from demtool.mapproject.stereo import map_cells_xy, raw_coordinates
-    from demtool.mapproject.threads import batched
+    from demtool.mapproject.threads import available_threads, batched, ordered_map
     from demtool.maps import map_to_xyz
 
     def ground(x, y, h):
         return (np.asarray(map_to_xyz(crs, x, y, h), dtype=np.float64).reshape(-1, 3),)
 
-    sides = []
-    for ortho, r, c in ((left, rows, left_cols), (right, right_rows, right_cols)):
+    def side(task):
+        ortho, r, c = task
         x, y = map_cells_xy(ortho.info.transform, r, c)
         h = np.asarray(ortho.heights(x, y), dtype=np.float64)
         raw = raw_coordinates(ortho.sensor, crs, ortho.info.transform, r, c, h,
                               origins=True)
-        sides.append((raw, batched(ground, x, y, h)[0]))
-    (l_raw, l_ground), (r_raw, r_ground) = sides
+        return raw, batched(ground, x, y, h)[0]
+
+    # the two sides at once, each on its share of the threads: their serial steps (the
+    # cells' map x, y and heights, the strips' assembly) overlap too; each value is
+    # computed as on one thread (strips and batches alone), so the same numbers
+    (l_raw, l_ground), (r_raw, r_ground) = ordered_map(
+        side, ((left, rows, left_cols), (right, right_rows, right_cols)),
+        threads=min(2, available_threads()))
     seen = (np.isfinite(l_raw.line) & np.isfinite(l_raw.sample) & np.isfinite(r_raw.line)
             & np.isfinite(r_raw.sample))
     return OrthoRays(l_raw, r_raw, l_ground, r_ground, seen)

@@ -123,16 +123,20 @@ def load_points(cache: TileCache, tile: Tile) -> np.ndarray:
     return np.load(cache.path(tile), mmap_mode="r", allow_pickle=False)
 
 
-def stored_points(values: np.ndarray, fields: tuple[str, ...] = POINT_FIELDS[:5]
-                  ) -> tuple[np.ndarray, ...]:
+def stored_points(values: np.ndarray, fields: tuple[str, ...] = POINT_FIELDS[:5],
+                  chosen: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """The ``fields`` (default lon, lat, height, gap, range_left; x, y where cached)
     (N,) float64 of a cached points tile's points (bands in :func:`split64` pairs); only
-    those decoded."""
-    ok = np.isfinite(values[4])
+    those decoded.  ``chosen``: indices among those N points, only those decoded
+    ((len(chosen),) each)."""
+    ok = np.flatnonzero(np.isfinite(values[4]).ravel())
+    if chosen is not None:
+        ok = ok[chosen]
     out = []
     for name in fields:
         i = POINT_FIELDS.index(name)
-        out.append(values[2 * i][ok].astype(np.float64) + values[2 * i + 1][ok])
+        high = values[2 * i].reshape(-1)[ok]
+        out.append(high.astype(np.float64) + values[2 * i + 1].reshape(-1)[ok])
     return tuple(out)
 
 
@@ -172,6 +176,10 @@ class MapDemTileJob:
     # local --workers: tiles on threads (demtool.tiling.local_threads; audited: nogil
     # kernels, the cached models and orthoimages read-only)
     thread_safe: ClassVar[bool] = True
+    # the outputs are written in tile order while the workers compute the later fill
+    # tiles (demtool.tiling.jobs.run_tiled; the bytes of the end-of-run write): compute()
+    # writes nothing through demtool.io
+    stream_outputs: ClassVar[bool] = True
     bands: tuple[str, ...] = STEP_BANDS["fill"]
     row_shift: float = 0.0  # map rows sgm shifted the right ortho by (ROW_SHIFT_TAG)
 
@@ -282,6 +290,7 @@ class MapDemTileJob:
 
         from demtool.dem.grid import splat_median
         from demtool.dem.sensors import overlap_mask
+        from demtool.mapproject.threads import available_threads, ordered_map
         from demtool.maps.grids import MapGrid
         from demtool.maps.projections import lonlat_to_map
 
@@ -295,29 +304,35 @@ class MapDemTileJob:
         for ptile, box in zip(ptiles, self.boxes, strict=True):
             if box is None or box[0] >= r1 or box[1] <= r0 or box[2] >= c1 or box[3] <= c0:
                 continue
-            if self.cached_xy:
-                x, y, height, gap = stored_points(load_points(cache, ptile),
-                                                  ("x", "y", "height", "gap"))
+            values = load_points(cache, ptile)
+            if self.cached_xy:  # the cells first: only the points inside are decoded
+                gap, x, y = stored_points(values, ("gap", "x", "y"))
                 keep = gap <= self.max_gap
                 x, y = x[keep], y[keep]
             else:
-                lon, lat, height, gap = stored_points(load_points(cache, ptile),
-                                                      ("lon", "lat", "height", "gap"))
+                lon, lat, gap = stored_points(values, ("lon", "lat", "gap"))
                 keep = gap <= self.max_gap
                 x, y = lonlat_to_map(crs, lon[keep], lat[keep])
             px = (np.asarray(x) - c) / a - 0.5  # as demtool.dem.sensors.dem_on_map
             py = (np.asarray(y) - f) / e - 0.5
             inside = (px > c0 - 0.5) & (px < c1 - 0.5) & (py > r0 - 0.5) & (py < r1 - 0.5)
+            if not inside.any():
+                continue
             pixels.append(np.column_stack([px[inside] - c0, py[inside] - r0]))
-            heights.append(height[keep][inside])
-            gaps.append(gap[keep][inside])
+            chosen = np.flatnonzero(keep)[inside]  # among the tile's points
+            heights.append(stored_points(values, ("height",), chosen)[0])
+            gaps.append(gap[chosen])
         out = np.full((3, h, w), np.nan, dtype=np.float32)
         points = 0
         if pixels:
             p = np.concatenate(pixels)
             points = len(p)
-            out[0] = splat_median(p, np.concatenate(heights), (h, w))[0]
-            out[1] = splat_median(p, np.concatenate(gaps), (h, w))[0]
+            # the heights' and the gaps' medians at once where the tile has two threads
+            # (nogil kernels), as demtool.dem.sensors.dem_on_map
+            out[0], out[1] = (found[0] for found in ordered_map(
+                lambda v: splat_median(p, v, (h, w)),
+                (np.concatenate(heights), np.concatenate(gaps)),
+                threads=min(2, available_threads())))
         grid = MapGrid(crs, Affine(*self.grid_transform[:6]) @ Affine.translation(c0, r0),
                        w, h)
         measured = np.isfinite(out[0])

@@ -98,10 +98,21 @@ def dem_map_tiled(run: Any, params: Any, out: str | os.PathLike, job: MapDemTile
 
 def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gsd, log):
     """(gsd, gsd source, threshold, median gap, front, kept, heights' median)."""
-    def band(name: str):
-        return lambda: (stored_points(load_points(points, t), (name,))[0] for t in tiles)
-
     front = sum(int(np.isfinite(load_points(points, t)[4]).sum()) for t in tiles)
+    # up to MEDIAN_IN_MEMORY points, each tile's gaps and heights are decoded once and
+    # kept for the passes below (the same values as decoding them at each pass)
+    held: dict[tuple[str, int], np.ndarray] | None = {} if front <= MEDIAN_IN_MEMORY \
+        else None
+
+    def decoded(name: str, t) -> np.ndarray:
+        if held is None or name not in ("gap", "height"):
+            return stored_points(load_points(points, t), (name,))[0]
+        if (name, t.index) not in held:
+            held[name, t.index] = stored_points(load_points(points, t), (name,))[0]
+        return held[name, t.index]
+
+    def band(name: str):
+        return lambda: (decoded(name, t) for t in tiles)
     if gsd is None:
         gsd = streaming_median(band("range_left")) * range_to_gsd
     median_gap = streaming_median(band("gap"))
@@ -115,8 +126,7 @@ def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gs
 
     def kept_heights():
         for t in tiles:
-            height, gap = stored_points(load_points(points, t), ("height", "gap"))
-            yield height[gap <= max_gap]
+            yield decoded("height", t)[decoded("gap", t) <= max_gap]
 
     kept = sum(h.size for h in kept_heights())
     from demtool.dem.sensors import MAX_DROPPED_FRACTION

@@ -356,3 +356,38 @@ def test_a_disparity_with_two_values_is_refused_in_tiles_leaving_nothing(pair, t
     assert f"{sparse}: fewer than 3 valid disparities" in result.output
     assert result.output.count("\n") == 1
     assert list(out.parent.iterdir()) == []  # no output, no work folder
+
+
+def test_two_tile_threads_stream_the_rasters_of_the_end_of_run_write(pair, tmp_path):
+    """--workers 2 (tiles on threads) writes each finished fill tile while the others
+    are computed (stream_outputs): the DEM, mask and ray-gap rasters of the one-worker
+    run's end-of-run write (values, grid and tags but the parameters')."""
+    out = tmp_path / "dem.tif"
+    paths = {"dem": out, "mask": tmp_path / "mask.tif", "error": tmp_path / "error.tif"}
+    result = tiled_dem(pair, out, "--workers", "2", "--error-out", paths["error"],
+                       "--interpolated-mask", paths["mask"])
+    assert result.exit_code == 0, result.output
+    tiling = json.loads(out.with_suffix(".tif.json").read_text())["summary"]["tiling"]
+    assert tiling["executor"] == "threads" and "write_after_tiles_s" in tiling  # streamed
+    for key, path in paths.items():
+        one, two = read(pair["tiled"][key]), read(path)
+        assert np.array_equal(one.data, two.data, equal_nan=True), key
+        assert one.transform == two.transform and one.crs == two.crs
+        assert ({k: v for k, v in one.tags.items() if k != "demtool_params"}
+                == {k: v for k, v in two.tags.items() if k != "demtool_params"})
+
+
+def test_stored_points_decode_a_chosen_subset_as_the_whole():
+    from demtool.dem.tiled_map import POINT_FIELDS, split64, stored_points
+
+    rng = np.random.default_rng(3)
+    values = rng.normal(1e6, 1e3, (len(POINT_FIELDS), 9, 7))
+    values[:, rng.random((9, 7)) < 0.3] = np.nan  # cells without a point
+    stored = split64(values).transpose(1, 0, 2, 3).reshape(-1, 9, 7)
+    whole = stored_points(stored, POINT_FIELDS)
+    chosen = np.array([0, 3, 4, whole[0].size - 1])
+    part = stored_points(stored, ("y", "height"), chosen)
+    assert np.array_equal(part[0], whole[-1][chosen])
+    assert np.array_equal(part[1], whole[2][chosen])
+    ok = np.isfinite(values[4])
+    assert np.array_equal(whole[2], values[2][ok])  # split64's pair is the float64 value

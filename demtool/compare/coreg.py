@@ -242,8 +242,16 @@ def _gradient_sums(grad_x, grad_y, dh, usable, params, centre, halfwidth):
             acc[7] += gy * d
             acc[8] -= d
             acc[9] += d * d
-        partial[r] = acc
-    return partial.sum(axis=0)
+        for k in range(10):
+            partial[r, k] = acc[k]
+    # the rows' partials added in row order, as partial.sum(axis=0) does (the same sums,
+    # to the bit); written out, like the row's copy above: numba's slice assignment and
+    # sum over an axis brought their error messages' string code into the compile
+    total = np.zeros(10)
+    for r in range(rows):
+        for k in range(10):
+            total[k] += partial[r, k]
+    return total
 
 
 def _solve_sums(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, int]:

@@ -277,19 +277,35 @@ def _solve_sums(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, int]:
     return params, sigma, variance, count
 
 
+def _eroded(mask: np.ndarray, iterations: int) -> np.ndarray:
+    """``scipy.ndimage.binary_erosion(mask, iterations=...)``: each pass keeps a cell
+    where it and its four neighbours are True, outside the array counting as False
+    (scipy's cross-shaped default structure and ``border_value=0``); the same booleans,
+    without importing scipy.ndimage (0.5 CPU s of every fuse and compare process)."""
+    out = np.asarray(mask, dtype=bool)
+    for _ in range(iterations):
+        kept = out.copy()
+        kept[1:] &= out[:-1]
+        kept[:-1] &= out[1:]
+        kept[:, 1:] &= out[:, :-1]
+        kept[:, :-1] &= out[:, 1:]
+        kept[0] = kept[-1] = False
+        kept[:, 0] = kept[:, -1] = False
+        out = kept
+    return out
+
+
 def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
                   shift: np.ndarray, *, sigma_px: float, max_iterations: int,
                   tolerance_px: float, max_step_px: float
                   ) -> tuple[np.ndarray, int, bool, dict[str, Any]]:
-    from scipy.ndimage import binary_erosion
-
     reference = gaussian_shift(reference, 0.0, 0.0, sigma_px)
     grad_y, grad_x = np.gradient(reference)  # metres per pixel, y down, x right
     # Fix the pixel set for the level: where the DEM, shifted as it starts, is valid,
     # eroded by 2 px, so that holes and edges moving with the shift do not change the
     # objective from one iteration to the next (which would stall convergence).
     start = np.isfinite(gaussian_shift(dem, shift[0], shift[1], sigma_px))
-    usable = np.ascontiguousarray(usable & binary_erosion(start, iterations=2))
+    usable = np.ascontiguousarray(usable & _eroded(start, 2))
     converged = False
     last: dict[str, Any] = {}
     iteration = 0

@@ -89,6 +89,73 @@ def _error_rasters(dems: Sequence[Path], errors: Sequence[PathLike] | None, meth
     return found
 
 
+def coreg_samples(plans: dict[int, tuple[Any, tuple[int, int, int, int], int]],
+                  dems: dict[int, tuple[Path, Any]], reference: tuple[PathLike, Any]
+                  ) -> dict[int, tuple[np.ndarray | Exception, np.ndarray | Exception]]:
+    """The co-registration's samples: each DEM and the reference on the DEM's window.
+
+    Parameters
+    ----------
+    plans : {i: (grid, window, factor)}
+        DEM i's co-registration grid (:func:`demtool.fuse.grids.coreg_grid`), its cells
+        (row0, row1, col0, col1) and the grid's refinement factor.
+    dems : {i: (path, GridSpec)}
+    reference : (path, GridSpec)
+
+    Returns
+    -------
+    {i: (dem, reference)}
+        float64 samples (:func:`demtool.fuse.tiled.sample_on_grid`), or the
+        :class:`demtool.errors.DemtoolError` its reading raised.  The reference is read
+        once for the DEMs whose windows (on one grid) together cover no more cells than
+        apart, on their windows' union, and each DEM's window cut from it: a cell's
+        sample does not depend on the window it is read in, so these are the numbers of
+        one read per DEM.  Every read (GDAL's decoding, the compiled sampler) runs on
+        the threads of :func:`demtool.fuse.tiled.on_threads`.
+    """
+    from demtool.errors import DemtoolError
+    from demtool.fuse.tiled import on_threads, sample_on_grid
+
+    def area(w):
+        return (w[1] - w[0]) * (w[3] - w[2])
+
+    groups: list[list[Any]] = []  # [factor, grid, union of the windows, DEMs]
+    for i, (grid, window, factor) in plans.items():
+        for group in groups:
+            union = (min(group[2][0], window[0]), max(group[2][1], window[1]),
+                     min(group[2][2], window[2]), max(group[2][3], window[3]))
+            if group[0] == factor and area(union) <= area(group[2]) + area(window):
+                group[2] = union
+                group[3].append(i)
+                break
+        else:
+            groups.append([factor, grid, window, [i]])
+
+    def read(task: tuple[str, int]) -> np.ndarray | Exception:
+        kind, key = task
+        try:
+            if kind == "dem":
+                grid, window, _ = plans[key]
+                return sample_on_grid(dems[key][0], dems[key][1], grid, window)
+            _, grid, window, _ = groups[key]
+            return sample_on_grid(reference[0], reference[1], grid, window,
+                                  what="reference DEM")
+        except DemtoolError as exc:
+            return exc
+
+    tasks = [("dem", i) for i in plans] + [("reference", g) for g in range(len(groups))]
+    read_ = dict(zip(tasks, on_threads(read, tasks), strict=True))
+    samples = {}
+    for g, (_, _, union, members) in enumerate(groups):
+        ref = read_[("reference", g)]
+        for i in members:
+            r0, r1, c0, c1 = plans[i][1]
+            cut = ref if isinstance(ref, Exception) else np.ascontiguousarray(
+                ref[r0 - union[0]:r1 - union[0], c0 - union[2]:c1 - union[2]])
+            samples[i] = (read_[("dem", i)], cut)
+    return samples
+
+
 def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None = None, *,
              errors: Sequence[PathLike] | None = None, reference: PathLike | None = None,
              grid_like: PathLike | None = None, resolved: dict[str, Any] | None = None
@@ -134,13 +201,7 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
     from demtool.errors import DemtoolError, InputError, ParameterError, ProcessingError
     from demtool.fuse.core import consensus_nmad, estimate_shift, stack_nmad
     from demtool.fuse.params import FuseParams
-    from demtool.fuse.tiled import (
-        FuseTileJob,
-        fuse_tiled,
-        on_threads,
-        sample_on_grid,
-        single_tile,
-    )
+    from demtool.fuse.tiled import FuseTileJob, fuse_tiled, on_threads, sample_on_grid, single_tile
     from demtool.tiling import wants_tiles
 
     params = params or FuseParams()
@@ -212,14 +273,11 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
         """DEM i's alignment to the reference, or the error that stops the run (a reading
         error, wrapped in RuntimeError) or leaves the DEM out (ProcessingError of the
         co-registration); and the factor of the co-registration grid."""
-        grid, window, factor = coreg_grid(target, centred(overlaps[i], params.coreg_size),
-                                           (spacing_of(specs[i]), spacing_of(ref_spec)),
-                                           params.coreg_size)
-        try:
-            dem = sample_on_grid(dem_paths[i], specs[i], grid, window)
-            ref = sample_on_grid(ref_path, ref_spec, grid, window, what="reference DEM")
-        except DemtoolError as exc:  # raised in the DEMs' order below
-            return RuntimeError(exc), factor
+        factor = plans[i][2]
+        dem, ref = samples[i]
+        for sample in (dem, ref):
+            if isinstance(sample, DemtoolError):  # raised in the DEMs' order below
+                return RuntimeError(sample), factor
         try:
             return estimate_shift(dem, ref, method=params.align,
                                   spacing=tuple(v / factor for v in spacing),
@@ -233,7 +291,12 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
         if overlaps[i] is None:
             raise InputError(f"{path}: no common overlap with the reference "
                              f"{ref_path}; fuse DEMs of one area")
+    plans = {i: coreg_grid(target, centred(overlaps[i], params.coreg_size),
+                           (spacing_of(specs[i]), spacing_of(ref_spec)), params.coreg_size)
+             for i in to_align}
     with run.phase("coregister"):
+        samples = coreg_samples(plans, {i: (dem_paths[i], specs[i]) for i in to_align},
+                                (ref_path, ref_spec))
         aligned = dict(zip(to_align, on_threads(align, to_align), strict=True))
     for i, path in enumerate(dem_paths):
         record: dict[str, Any] = {"dem": str(path), "error": None if error_paths[i] is None

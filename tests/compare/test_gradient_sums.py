@@ -1,6 +1,6 @@
 """Nuth & Kääb's normal-equation sums (compare.coreg._gradient_sums) against their
 definition: per row in column order, then the rows added in row order (as the kernel's
-former ``partial.sum(axis=0)``), to the bit."""
+former ``partial.sum(axis=0)``), to the bit; and the fit's erosion against scipy's."""
 
 from __future__ import annotations
 
@@ -45,3 +45,18 @@ def test_gradient_sums_are_the_row_ordered_sums_to_the_bit(halfwidth):
     expected = _by_definition(grad_x, grad_y, dh, usable, params, 0.05, halfwidth)
     assert np.array_equal(got.view(np.uint64), expected.view(np.uint64))
     assert 0 < got[5] < dh.size  # some pixels used, some left out
+
+
+def test_the_fit_erosion_is_scipys_binary_erosion():
+    from scipy.ndimage import binary_erosion
+
+    from demtool.compare.coreg import _eroded
+
+    rng = np.random.default_rng(4)
+    for shape in [(1, 1), (1, 7), (6, 1), (3, 3), (40, 31)]:
+        mask = rng.random(shape) < 0.8
+        for iterations in (1, 2, 3):
+            assert np.array_equal(_eroded(mask, iterations),
+                                  binary_erosion(mask, iterations=iterations))
+    assert np.array_equal(_eroded(np.ones((9, 9), bool), 2),
+                          binary_erosion(np.ones((9, 9), bool), iterations=2))

@@ -207,3 +207,34 @@ def test_row_strips_cover_the_core_with_the_margin_clipped_to_the_grid():
     inner = Tile(3, (0, side, 40, 80), (0, side + 10, 20, 100))  # a Dask tile's columns kept
     assert all(s.outer[2:] == (20, 100) for s in row_strips(inner, grid, 20, 2))
     assert row_strips(single_tile(grid), grid, 20, 1) == [single_tile(grid)]
+
+
+def test_the_reference_read_once_gives_each_dems_window_to_the_bit(block, monkeypatch):
+    """coreg_samples reads the reference once for windows that overlap, on their union,
+    and cuts each DEM's window from it: the numbers of one read per window."""
+    from demtool.fuse import tiled
+    from demtool.fuse.grids import grid_of, union_grid
+    from demtool.fuse.run import coreg_samples
+
+    _, paths = block
+    specs = [grid_of(dio.raster_info(p)) for p in paths]
+    target = union_grid(specs, specs[0])
+    plans = {1: (target, (20, 70, 25, 80), 1), 2: (target, (35, 75, 10, 70), 1)}
+    reads: list[tuple] = []
+    original = tiled.sample_on_grid
+
+    def counted(path, *args, **kwargs):
+        reads.append((path, args[2]))
+        return original(path, *args, **kwargs)
+
+    monkeypatch.setattr(tiled, "sample_on_grid", counted)
+    samples = coreg_samples(plans, {i: (paths[i], specs[i]) for i in plans},
+                            (paths[0], specs[0]))
+    assert [w for p, w in reads if p == paths[0]] == [(20, 75, 10, 80)]  # once, the union
+    for i, (_, window, _) in plans.items():
+        dem, ref = samples[i]
+        assert np.array_equal(dem, original(paths[i], specs[i], target, window),
+                              equal_nan=True)
+        alone = original(paths[0], specs[0], target, window)
+        assert ref.flags.c_contiguous and np.isfinite(ref).any()
+        assert np.array_equal(ref.view(np.uint64), alone.view(np.uint64))

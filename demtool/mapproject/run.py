@@ -7,7 +7,9 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import threading
 import time
+from concurrent.futures import Future
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -141,6 +143,24 @@ def _grid_on(sensor, body, surface: DemSurface | None, params, log, pair_sensor_
                               ) from None
 
 
+def _hash_tags_aside(image_path, sensor_path, dem_path) -> Future:
+    """:func:`demtool.mapproject.hashes.hash_tags` computed on a thread beside the sensor
+    read and the grid (file reads and SHA-256 release the GIL; the hashes are cached per
+    process, so the tile cache's key reuses them): its future."""
+    from demtool.mapproject.hashes import hash_tags
+
+    future: Future = Future()
+
+    def work() -> None:
+        try:
+            future.set_result(hash_tags(image_path, sensor_path, dem_path))
+        except BaseException as exc:  # raised where the tags are needed
+            future.set_exception(exc)
+
+    threading.Thread(target=work, name="demtool-hashes", daemon=True).start()
+    return future
+
+
 def _tsai_on_body(sensor, sensor_path, image_path, dem_path, t_srs, grid_like):
     """A ``.tsai`` camera's body and image size from the other inputs (None for models
     that carry their own; :mod:`demtool.mapproject.tsai_body`)."""
@@ -227,6 +247,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     from demtool.mapproject.tiled import _sensor as cached_sensor
     from demtool.mapproject.tiled import _surface as cached_surface
 
+    hashes = _hash_tags_aside(image_path, sensor_path, dem_path)
     # read through the tile job's cache: its tiles, in this process, find the model there
     sensor = cached_sensor(str(sensor_path))
     tsai = _tsai_on_body(sensor, sensor_path, image_path, dem_path, params.t_srs, grid_like)
@@ -255,7 +276,6 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     else:
         grid, surface = _grid(sensor, body, surface, params, log, pair_sensor)
     from demtool.mapproject.checks import check_mapproject_grid
-    from demtool.mapproject.hashes import hash_tags
 
     check_mapproject_grid(sensor, body, grid, params, dem_path=dem_path, out_path=out_path,
                           bands=1 + (3 if angles_out is not None else 0), log=log)
@@ -270,7 +290,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     tags = run.provenance.tags(
         frame="map", **body.tags(), **surface_tags,
         **{SENSOR_TAG: str(Path(sensor_path).resolve())},
-        **hash_tags(image_path, sensor_path, dem_path),
+        **hashes.result(),
         mapproject_image=str(Path(image_path).resolve()), sensor_name=sensor.name,
         sensor_kind=sensor.kind, image_size=[sensor.lines, sensor.samples])
     try:

@@ -12,9 +12,10 @@ step resumable in the work folder:
 1. **points** (tiles of the disparity grid, no margin): each disparity cell
    triangulated once; its longitude, latitude, height above the sphere, ray gap and
    left range cached in float64 (:func:`split64`; NaN where no point, or behind a
-   camera), and its map x, y when the map's CRS is known up front (the orthoimages'
-   or ``--t-srs``), so that the points are projected once, not again for the grid's
-   extent and for each output tile they meet;
+   camera); when the map's CRS is known up front (the orthoimages' or ``--t-srs``) its
+   map x, y instead of longitude and latitude (and the range only where the GSD is
+   estimated from it: :func:`point_fields`), so that the points are projected once,
+   not again for the grid's extent and for each output tile they meet;
 2. **statistics** (the runner, one cached tile at a time): exact medians
    (:func:`demtool.dem.tiled_map_run.streaming_median`) for the GSD, the gap threshold
    ``median + max(4 NMAD, 2 GSD)`` (:func:`demtool.dem.sensors.default_max_ray_gap`) and
@@ -53,14 +54,12 @@ from demtool.dem.tiled_grids import fill_core, read_cached_window
 from demtool.tiling import Tile, TileCache, plan_tiles, read_window
 
 POINT_BYTES = 400  # per disparity cell: raw coordinates, rays, points
-#: the quantities of a cached points tile, in the order of its :func:`split64` band pairs
-#: (x, y: map coordinates, only when the map's CRS is known up front)
+#: the quantities a cached points tile may hold as :func:`split64` band pairs (x, y: map
+#: coordinates, when the map's CRS is known up front)
 POINT_FIELDS = ("lon", "lat", "height", "gap", "range_left", "x", "y")
-STEP_BANDS = {"points": tuple(f"{name}_{part}" for name in POINT_FIELDS[:5]
-                              for part in ("high", "low")),
-              "points_xy": tuple(f"{name}_{part}" for name in POINT_FIELDS
-                                 for part in ("high", "low")),
-              "measure": ("measured", "ray_gap", "overlap"),
+#: those a points tile holds without map x, y (the order of its band pairs)
+LONLAT_FIELDS = POINT_FIELDS[:5]
+STEP_BANDS = {"measure": ("measured", "ray_gap", "overlap"),
               "fill": ("height", "interpolated", "ray_gap")}
 
 
@@ -123,18 +122,33 @@ def load_points(cache: TileCache, tile: Tile) -> np.ndarray:
     return np.load(cache.path(tile), mmap_mode="r", allow_pickle=False)
 
 
-def stored_points(values: np.ndarray, fields: tuple[str, ...] = POINT_FIELDS[:5],
-                  chosen: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
-    """The ``fields`` (default lon, lat, height, gap, range_left; x, y where cached)
-    (N,) float64 of a cached points tile's points (bands in :func:`split64` pairs); only
-    those decoded.  ``chosen``: indices among those N points, only those decoded
-    ((len(chosen),) each)."""
-    ok = np.flatnonzero(np.isfinite(values[4]).ravel())
+def point_fields(map_xy: bool, range_left: bool = True) -> tuple[str, ...]:
+    """The fields a points tile holds, in the order of its band pairs: with map x, y
+    (``map_xy``: the map's CRS known up front) only what the later passes read (height,
+    gap, x, y; ``range_left`` where the GSD is estimated from it), else
+    :data:`LONLAT_FIELDS`."""
+    if not map_xy:
+        return LONLAT_FIELDS
+    return ("height", "gap", *(("range_left",) if range_left else ()), "x", "y")
+
+
+def point_count(values: np.ndarray, layout: tuple[str, ...] = LONLAT_FIELDS) -> int:
+    """Points of a cached points tile (cells with a point)."""
+    return int(np.isfinite(values[2 * layout.index("height")]).sum())
+
+
+def stored_points(values: np.ndarray, fields: tuple[str, ...] = LONLAT_FIELDS,
+                  chosen: np.ndarray | None = None,
+                  layout: tuple[str, ...] = LONLAT_FIELDS) -> tuple[np.ndarray, ...]:
+    """The ``fields`` (N,) float64 of a cached points tile's N points, whose band pairs
+    (:func:`split64`) hold ``layout`` (:func:`point_fields`); only those decoded.
+    ``chosen``: indices among those N points, only those decoded ((len(chosen),) each)."""
+    ok = np.flatnonzero(np.isfinite(values[2 * layout.index("height")]).ravel())
     if chosen is not None:
         ok = ok[chosen]
     out = []
     for name in fields:
-        i = POINT_FIELDS.index(name)
+        i = layout.index(name)
         high = values[2 * i].reshape(-1)[ok]
         out.append(high.astype(np.float64) + values[2 * i + 1].reshape(-1)[ok])
     return tuple(out)
@@ -182,17 +196,23 @@ class MapDemTileJob:
     stream_outputs: ClassVar[bool] = True
     bands: tuple[str, ...] = STEP_BANDS["fill"]
     row_shift: float = 0.0  # map rows sgm shifted the right ortho by (ROW_SHIFT_TAG)
+    #: the points tiles' fields, in the order of their band pairs (:func:`point_fields`)
+    point_layout: tuple[str, ...] = LONLAT_FIELDS
 
     def at_step(self, step: str, **changes: Any) -> MapDemTileJob:
         """This job for another step (its bands follow)."""
-        bands = STEP_BANDS["points_xy" if step == "points" and changes.get(
-            "points_crs_wkt", self.points_crs_wkt) else step]
-        return replace(self, step=step, bands=bands, **changes)
+        job = replace(self, step=step, **changes)
+        bands = (tuple(f"{name}_{part}" for name in job.point_layout
+                       for part in ("high", "low")) if step == "points"
+                 else STEP_BANDS[step])
+        return replace(job, bands=bands)
 
     @property
     def cached_xy(self) -> bool:
-        """Whether the points tiles hold map x, y in the output grid's CRS."""
-        return bool(self.points_crs_wkt) and self.points_crs_wkt == self.crs_wkt
+        """Whether the points tiles hold map x, y in the output grid's CRS (the runner
+        builds the grid in ``points_crs_wkt`` when it is set:
+        :func:`demtool.dem.tiled_map_run._grid`)."""
+        return bool(self.points_crs_wkt) and "x" in self.point_layout
 
     def sensors(self):
         """The (left, right) sensor models."""
@@ -272,15 +292,19 @@ class MapDemTileJob:
         if not front.any():
             return out, info
         lon, lat, height = xyz_to_lonlat_height(tri.xyz[front], radii=sphere_radius(left))
-        values = [lon, lat, height, tri.gap[front], tri.range_left[front]]
+        values = {"lon": lon, "lat": lat, "height": height, "gap": tri.gap[front],
+                  "range_left": tri.range_left[front]}
         if self.points_crs_wkt:  # as demtool.dem.sensors.points_on_map: once per point
             from pyproj import CRS
 
             from demtool.maps.projections import lonlat_to_map
 
-            values.extend(lonlat_to_map(CRS.from_wkt(self.points_crs_wkt), lon, lat))
-        out[:, rows[seen][front], cols[seen][front]] = split64(np.stack(values)).transpose(
-            1, 0, 2).reshape(len(out), -1)
+            values["x"], values["y"] = lonlat_to_map(CRS.from_wkt(self.points_crs_wkt),
+                                                     lon, lat)
+        cells = out.reshape(len(out), -1)  # a view
+        at = rows[seen][front] * (c1 - c0) + cols[seen][front]
+        for k, name in enumerate(self.point_layout):  # split64's pair, field by field
+            cells[2 * k:2 * k + 2, at] = split64(values[name])
         return out, info
 
     # ------------------------------------------------------------------ step 3
@@ -305,12 +329,13 @@ class MapDemTileJob:
             if box is None or box[0] >= r1 or box[1] <= r0 or box[2] >= c1 or box[3] <= c0:
                 continue
             values = load_points(cache, ptile)
+            layout = self.point_layout
             if self.cached_xy:  # the cells first: only the points inside are decoded
-                gap, x, y = stored_points(values, ("gap", "x", "y"))
+                gap, x, y = stored_points(values, ("gap", "x", "y"), layout=layout)
                 keep = gap <= self.max_gap
                 x, y = x[keep], y[keep]
             else:
-                lon, lat, gap = stored_points(values, ("lon", "lat", "gap"))
+                lon, lat, gap = stored_points(values, ("lon", "lat", "gap"), layout=layout)
                 keep = gap <= self.max_gap
                 x, y = lonlat_to_map(crs, lon[keep], lat[keep])
             px = (np.asarray(x) - c) / a - 0.5  # as demtool.dem.sensors.dem_on_map
@@ -320,7 +345,7 @@ class MapDemTileJob:
                 continue
             pixels.append(np.column_stack([px[inside] - c0, py[inside] - r0]))
             chosen = np.flatnonzero(keep)[inside]  # among the tile's points
-            heights.append(stored_points(values, ("height",), chosen)[0])
+            heights.append(stored_points(values, ("height",), chosen, layout)[0])
             gaps.append(gap[chosen])
         out = np.full((3, h, w), np.nan, dtype=np.float32)
         points = 0

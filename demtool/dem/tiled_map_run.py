@@ -19,7 +19,16 @@ import numpy as np
 from demtool.dem import tiled as tiled_dem
 from demtool.dem.tiled import coarse_factor, default_overlap
 from demtool.dem.tiled_grids import prepare_fill
-from demtool.dem.tiled_map import MapDemTileJob, load_points, ortho, rectified_pair, stored_points
+from demtool.dem.tiled_map import (
+    LONLAT_FIELDS,
+    MapDemTileJob,
+    load_points,
+    ortho,
+    point_count,
+    point_fields,
+    rectified_pair,
+    stored_points,
+)
 from demtool.tiling import TileCache, plan_tiles
 
 MEDIAN_BINS = 4096  # bins of each refinement pass of streaming_median
@@ -96,19 +105,26 @@ def dem_map_tiled(run: Any, params: Any, out: str | os.PathLike, job: MapDemTile
                        dict(summary or {}), mask_path, error_path, stack)
 
 
-def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gsd, log):
-    """(gsd, gsd source, threshold, median gap, front, kept, heights' median)."""
-    front = sum(int(np.isfinite(load_points(points, t)[4]).sum()) for t in tiles)
-    # up to MEDIAN_IN_MEMORY points, each tile's gaps and heights are decoded once and
-    # kept for the passes below (the same values as decoding them at each pass)
-    held: dict[tuple[str, int], np.ndarray] | None = {} if front <= MEDIAN_IN_MEMORY \
-        else None
+def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gsd, log,
+                layout: tuple[str, ...] = LONLAT_FIELDS):
+    """(gsd, gsd source, threshold, median gap, front, kept, heights' median); the points
+    tiles' fields in ``layout`` (:func:`demtool.dem.tiled_map.point_fields`)."""
+    from demtool.mapproject.threads import ordered_map
+
+    front = sum(point_count(load_points(points, t), layout) for t in tiles)
+    # up to MEDIAN_IN_MEMORY points, each tile's gaps and heights are decoded once, the
+    # tiles on every core, and kept for the passes below (the values each pass decoded)
+    held: dict[tuple[str, int], np.ndarray] | None = None
+    if front <= MEDIAN_IN_MEMORY:
+        held = {}
+        for t, (gap, height) in zip(tiles, ordered_map(
+                lambda t: stored_points(load_points(points, t), ("gap", "height"),
+                                        layout=layout), tiles), strict=True):
+            held["gap", t.index], held["height", t.index] = gap, height
 
     def decoded(name: str, t) -> np.ndarray:
         if held is None or name not in ("gap", "height"):
-            return stored_points(load_points(points, t), (name,))[0]
-        if (name, t.index) not in held:
-            held[name, t.index] = stored_points(load_points(points, t), (name,))[0]
+            return stored_points(load_points(points, t), (name,), layout=layout)[0]
         return held[name, t.index]
 
     def band(name: str):
@@ -147,15 +163,18 @@ def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gs
 
 
 def _grid(params, points: TileCache, tiles, body, gsd: float, max_gap: float, crs,
-          cached_xy: bool = False):
+          cached_xy: bool = False, layout: tuple[str, ...] = LONLAT_FIELDS):
     """The output MapGrid and each points tile's box of output cells (None: no point);
-    ``cached_xy``: the points tiles hold their map x, y in ``crs`` (not projected again)."""
+    ``cached_xy``: the points tiles hold their map x, y in ``crs`` (not projected again);
+    ``layout``: their fields (:func:`demtool.dem.tiled_map.point_fields`)."""
+    from demtool.mapproject.threads import ordered_map
     from demtool.maps.frames import unit_vector, xyz_to_lonlat_height
     from demtool.maps.grids import snap_grid
     from demtool.maps.projections import lonlat_to_map, make_projection
 
     def kept(t):
-        lon, lat, gap = stored_points(load_points(points, t), ("lon", "lat", "gap"))
+        lon, lat, gap = stored_points(load_points(points, t), ("lon", "lat", "gap"),
+                                      layout=layout)
         return lon[gap <= max_gap], lat[gap <= max_gap]
 
     if crs is None or params.projection != "auto":  # as choose_projection: the mean direction
@@ -165,17 +184,20 @@ def _grid(params, points: TileCache, tiles, body, gsd: float, max_gap: float, cr
             total, count = total + unit_vector(lon, lat).sum(axis=0), count + lon.size
         center_lon, center_lat, _ = xyz_to_lonlat_height(total / count, radii=1.0)
         crs = make_projection(body, params.projection, float(center_lon), float(center_lat))
-    extents = []
-    for t in tiles:
+
+    def extent(t):
         if cached_xy:
-            x, y, gap = stored_points(load_points(points, t), ("x", "y", "gap"))
+            x, y, gap = stored_points(load_points(points, t), ("x", "y", "gap"),
+                                      layout=layout)
             x, y = x[gap <= max_gap], y[gap <= max_gap]
         else:
             x, y = lonlat_to_map(crs, *kept(t))
             x, y = np.asarray(x), np.asarray(y)
         good = np.isfinite(x) & np.isfinite(y)
-        extents.append((x[good].min(), x[good].max(), y[good].min(), y[good].max())
-                       if good.any() else None)
+        return ((x[good].min(), x[good].max(), y[good].min(), y[good].max())
+                if good.any() else None)
+
+    extents = list(ordered_map(extent, tiles))  # the tiles on every core
     present = [b for b in extents if b is not None]
     grid = snap_grid(crs, min(b[0] for b in present), min(b[2] for b in present),
                      max(b[1] for b in present), max(b[3] for b in present), gsd)
@@ -211,6 +233,15 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
         from demtool.maps import to_pyproj_crs
 
         job = replace(job, points_crs_wkt=to_pyproj_crs(crs).to_wkt())
+    if params.gsd is not None:
+        gsd, gsd_source = float(params.gsd), "--gsd"
+    elif gsd_default is not None:
+        gsd, gsd_source = float(gsd_default), "orthoimage"
+    else:
+        gsd, gsd_source = None, "estimated"
+    # the fields the later passes read (no longitude, latitude with the map's x, y)
+    job = replace(job, point_layout=point_fields(bool(job.points_crs_wkt), gsd is None))
+    layout = job.point_layout
     source = job.disparity_path
     tile_size = job.tile_size
     points_tiling = plan_tiles(*job.disparity_shape, tile_size, overlap=0)
@@ -228,7 +259,7 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
         scheduler, workers = _local_cluster(stack, job, workers), 0  # one, every pass
     # 1. points, outside the lock (as tiled/dem.py's statistics)
     key = cache_key(inputs, params.as_dict(), points_tiling,
-                    {"pass": "points", "map_xy": job.points_crs_wkt})
+                    {"pass": "points", "map_xy": job.points_crs_wkt, "fields": layout})
     points = TileCache(work_folder(out) / f"{key}-points")
     infos = run_tiles(job.at_step("points"), points_tiles, points, workers=workers,
                       scheduler=scheduler, log=run.log)
@@ -244,23 +275,17 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     if seen < 3:
         raise refuse(f"{source}: fewer than 3 disparities map back into both raw images")
     # 2. statistics and the output grid
-    if params.gsd is not None:
-        gsd, gsd_source = float(params.gsd), "--gsd"
-    elif gsd_default is not None:
-        gsd, gsd_source = float(gsd_default), "orthoimage"
-    else:
-        gsd, gsd_source = None, "estimated"
-    if sum(int(np.isfinite(load_points(points, t)[4]).any()) for t in points_tiles) == 0:
+    if sum(point_count(load_points(points, t), layout) for t in points_tiles) == 0:
         raise refuse(f"{source}: no disparity triangulates in front of both cameras")
     gsd, max_gap, median_gap, front, kept, overlap_height = _statistics(
-        params, points, points_tiles, gsd, range_to_gsd, run.log)
+        params, points, points_tiles, gsd, range_to_gsd, run.log, layout)
     if kept < 3:
         raise refuse(f"only {kept} triangulated points: nothing to grid")
     left, _ = job.sensors()
     a, b = left.radii
     body = body_from_radii(a, a, b)
     grid, boxes = _grid(params, points, points_tiles, body, gsd, max_gap, crs,
-                        cached_xy=bool(job.points_crs_wkt))
+                        cached_xy=bool(job.points_crs_wkt), layout=layout)
     from demtool import sizes
 
     # tiled: memory is the tiles'; the file (DEM, mask, error: 4 bytes a cell each) must fit

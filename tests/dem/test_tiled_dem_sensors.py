@@ -378,16 +378,19 @@ def test_two_tile_threads_stream_the_rasters_of_the_end_of_run_write(pair, tmp_p
 
 
 def test_stored_points_decode_a_chosen_subset_as_the_whole():
-    from demtool.dem.tiled_map import POINT_FIELDS, split64, stored_points
+    from demtool.dem.tiled_map import point_count, point_fields, split64, stored_points
 
+    layout = point_fields(True)  # height, gap, range_left, x, y
+    assert "lon" not in layout and point_fields(True, False) == ("height", "gap", "x", "y")
     rng = np.random.default_rng(3)
-    values = rng.normal(1e6, 1e3, (len(POINT_FIELDS), 9, 7))
+    values = rng.normal(1e6, 1e3, (len(layout), 9, 7))
     values[:, rng.random((9, 7)) < 0.3] = np.nan  # cells without a point
     stored = split64(values).transpose(1, 0, 2, 3).reshape(-1, 9, 7)
-    whole = stored_points(stored, POINT_FIELDS)
+    whole = stored_points(stored, layout, layout=layout)
+    assert point_count(stored, layout) == whole[0].size
     chosen = np.array([0, 3, 4, whole[0].size - 1])
-    part = stored_points(stored, ("y", "height"), chosen)
+    part = stored_points(stored, ("y", "height"), chosen, layout)
     assert np.array_equal(part[0], whole[-1][chosen])
-    assert np.array_equal(part[1], whole[2][chosen])
-    ok = np.isfinite(values[4])
-    np.testing.assert_allclose(whole[2], values[2][ok], rtol=1e-13)  # split64: ~1e-14
+    assert np.array_equal(part[1], whole[0][chosen])
+    ok = np.isfinite(values[0])
+    np.testing.assert_allclose(whole[0], values[0][ok], rtol=1e-13)  # split64: ~1e-14

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
-from contextlib import nullcontext
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,6 +15,7 @@ from demtool.compare.stats import (
     slope_class_statistics,
     slope_degrees,
 )
+from demtool.compare.threads import Side, threaded
 from demtool.errors import ParameterError, ProcessingError
 from demtool.imaging.spectral import CoherenceSpectrum, coherence_spectrum, cutoff_from_curve
 from demtool.logs import get_logger
@@ -26,9 +25,6 @@ __all__ = ["DEFAULT_SLOPE_BINS", "Comparison", "compare_dems", "summarize"]
 log = get_logger(__name__)
 
 DEFAULT_SLOPE_BINS = (0.0, 5.0, 10.0, 20.0, 30.0, 90.0)
-#: Grids of fewer cells are compared on one thread (the demo's 512² and smaller): below
-#: this a second thread saves less than it costs.
-THREADED_CELLS = 1 << 20
 
 
 @dataclass
@@ -168,34 +164,19 @@ def compare_dems(dem: np.ndarray, reference: np.ndarray, *,
     if not common.any():
         raise ProcessingError("the DEM and the reference have no common valid pixel"
                               + (" inside the mask" if mask is not None else ""))
-    with ThreadPoolExecutor(max_workers=1) if _threaded(dem.size) else nullcontext() as side:
+    with Side(threaded(dem.size)) as side:
         return _compare(side, dem, reference, mask, align, (sx, sy), bins, icp_scale,
                         coherence_threshold, seed)
-
-
-def _threaded(cells: int) -> bool:
-    """Whether a comparison of ``cells`` cells runs its independent parts on two threads."""
-    from demtool.tiling.distributed import usable_threads
-
-    return cells >= THREADED_CELLS and usable_threads() >= 2
-
-
-def _later(side: ThreadPoolExecutor | None, function: Callable[[], Any]) -> Future:
-    """``function()`` on the side thread, or now on this one (no side thread)."""
-    if side is not None:
-        return side.submit(function)
-    done: Future = Future()
-    done.set_result(function())
-    return done
 
 
 def _compare(side, dem, reference, mask, align, spacing, bins, icp_scale,
              coherence_threshold, seed) -> Comparison:
     """:func:`compare_dems` after its checks; what does not need the alignment (the
-    completeness, the statistics before it, the slopes) runs on the ``side`` thread while
-    this one aligns, and the coherence spectrum while this one measures the aligned
-    difference (numpy and the FFT release the GIL; the same functions on the same arrays
-    give the same numbers)."""
+    completeness, the statistics before it, the slopes) runs on the ``side`` thread
+    (:class:`demtool.compare.threads.Side`) while this one aligns, and the coherence
+    spectrum (itself on two threads) while this one measures the aligned difference
+    (numpy and the FFT release the GIL; the same functions on the same arrays give the
+    same numbers)."""
     sx, sy = spacing
 
     def unaligned() -> tuple[Any, ...]:
@@ -203,7 +184,7 @@ def _compare(side, dem, reference, mask, align, spacing, bins, icp_scale,
                                                                            mask),
                 slope_degrees(reference, (sx, sy)))
 
-    independent = _later(side, unaligned)
+    independent = side.later(unaligned)
     try:
         aligned, alignment = coregister(dem, reference, method=align, spacing=(sx, sy),
                                         mask=mask, icp_scale=icp_scale, seed=seed)
@@ -218,13 +199,14 @@ def _compare(side, dem, reference, mask, align, spacing, bins, icp_scale,
         try:
             masked_aligned = aligned if mask is None else np.where(mask, aligned, np.nan)
             spectrum = coherence_spectrum(masked_aligned, reference,
-                                          spacing=float(np.sqrt(sx * sy)))
+                                          spacing=float(np.sqrt(sx * sy)),
+                                          threads=2 if threaded(reference.size) else 1)
             return spectrum, effective_resolution(spectrum, float(np.sqrt(sx * sy)),
                                                   coherence_threshold), None
         except ProcessingError as exc:
             return None, None, str(exc)
 
-    spectral_parts = _later(side, spectral)
+    spectral_parts = side.later(spectral)
     difference = aligned - reference
     if mask is not None:
         difference = np.where(mask, difference, np.nan)

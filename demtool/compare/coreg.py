@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from demtool.compare.grids import gaussian_shift
 from demtool.errors import ProcessingError
@@ -106,28 +106,33 @@ def _block_ids(shape: tuple[int, int], n_target: int = 64) -> np.ndarray:
 
 
 @njit(nogil=True, cache=True)
-def _block_normal_equations(design, target, block, n_blocks):
-    """Per block, Σ design_i · design_j and Σ design_i · target over its samples, added in
-    sample order (as ``np.bincount`` adds its weights): (n_blocks, p·p), (n_blocks, p)."""
+def _block_normal_equations(design, target, block, part, parts, normal, rhs):
+    """Per block ``b`` with ``b % parts == part``, Σ design_i · design_j and
+    Σ design_i · target over its samples into ``normal[b]`` (p·p) and ``rhs[b]`` (p), added
+    in sample order (as ``np.bincount`` adds its weights): threads given the other parts
+    fill the other blocks, each block's sums the same."""
     n_params = design.shape[1]
-    normal = np.zeros((n_blocks, n_params * n_params))
-    rhs = np.zeros((n_blocks, n_params))
     for row in range(design.shape[0]):
         b = block[row]
+        if b % parts != part:
+            continue
         for i in range(n_params):
             for j in range(n_params):
                 normal[b, i * n_params + j] += design[row, i] * design[row, j]
             rhs[b, i] += design[row, i] * target[row]
-    return normal, rhs
 
 
 def _bootstrap_sigma(design: np.ndarray, target: np.ndarray, blocks: np.ndarray, *,
-                     replicates: int = 300, seed: int = 0) -> np.ndarray:
+                     replicates: int = 300, seed: int = 0, threads: bool = False
+                     ) -> np.ndarray:
     """Std of least-squares solutions when whole blocks are resampled with replacement.
 
     ``blocks``: non-negative block ids (:func:`_block_ids`); the normal equations of each
-    block are summed once, so each replicate costs one sum over blocks.
+    block are summed once (``threads``: the even and the odd blocks on two threads, the
+    same sums), so each replicate costs one sum over blocks.
     """
+    from demtool.compare.threads import both
+
     # the blocks present, and each sample's index among them (np.unique's, without a sort)
     ids = np.flatnonzero(np.bincount(blocks))
     n_params = design.shape[1]
@@ -135,9 +140,15 @@ def _bootstrap_sigma(design: np.ndarray, target: np.ndarray, blocks: np.ndarray,
         return np.full(n_params, np.nan)
     position = np.zeros(int(ids[-1]) + 1, dtype=np.int64)
     position[ids] = np.arange(ids.size)
-    normal, rhs = _block_normal_equations(np.ascontiguousarray(design, dtype=np.float64),
-                                          np.ascontiguousarray(target, dtype=np.float64),
-                                          position[blocks], ids.size)
+    normal = np.zeros((ids.size, n_params * n_params))
+    rhs = np.zeros((ids.size, n_params))
+    args = (np.ascontiguousarray(design, dtype=np.float64),
+            np.ascontiguousarray(target, dtype=np.float64), position[blocks])
+    if threads:
+        both(lambda: _block_normal_equations(*args, 0, 2, normal, rhs),
+             lambda: _block_normal_equations(*args, 1, 2, normal, rhs), on=True)
+    else:
+        _block_normal_equations(*args, 0, 1, normal, rhs)
     rng = np.random.default_rng(seed)
     draws = rng.integers(0, ids.size, size=(replicates, ids.size))
     weights = np.zeros((replicates, ids.size))
@@ -211,14 +222,15 @@ def vertical_offset(dem: np.ndarray, reference: np.ndarray, *,
 # --------------------------------------------------------------------------------------
 
 
-@njit(cache=True)  # serial: parallel compiled in 13 CPU s against 3.7, ran no faster on 2000²
-def _gradient_sums(grad_x, grad_y, dh, usable, params, centre, halfwidth):
+@njit(cache=True, nogil=True)  # serial (parallel compiled in 13 CPU s against 3.7); the
+def _gradient_rows(grad_x, grad_y, dh, usable, params, centre, halfwidth, first, stop,
+                   partial):  # caller splits the rows over threads (_gradient_sums)
     # Normal equations of dh = p0 gx + p1 gy - p2 over usable pixels with finite dh,
     # optionally only where |dh - model(params) - centre| <= halfwidth (halfwidth > 0).
-    # Returns per-row sums of: gx², gx gy, -gx, gy², -gy, 1, gx dh, gy dh, -dh, dh².
-    rows, cols = dh.shape
-    partial = np.zeros((rows, 10))
-    for r in prange(rows):
+    # partial[r] for rows first..stop-1: the row's sums of gx², gx gy, -gx, gy², -gy, 1,
+    # gx dh, gy dh, -dh, dh².
+    cols = dh.shape[1]
+    for r in range(first, stop):
         acc = np.zeros(10)
         for c in range(cols):
             if not usable[r, c]:
@@ -242,16 +254,27 @@ def _gradient_sums(grad_x, grad_y, dh, usable, params, centre, halfwidth):
             acc[7] += gy * d
             acc[8] -= d
             acc[9] += d * d
-        for k in range(10):
-            partial[r, k] = acc[k]
-    # the rows' partials added in row order, as partial.sum(axis=0) does (the same sums,
-    # to the bit); written out, like the row's copy above: numba's slice assignment and
-    # sum over an axis brought their error messages' string code into the compile
-    total = np.zeros(10)
-    for r in range(rows):
-        for k in range(10):
-            total[k] += partial[r, k]
-    return total
+        for k in range(10):  # written out: numba's slice assignment compiles its
+            partial[r, k] = acc[k]  # error messages' string code (seconds in a fresh cache)
+
+
+def _gradient_sums(grad_x, grad_y, dh, usable, params, centre, halfwidth, *,
+                   threads: bool = False) -> np.ndarray:
+    """The ten sums of :func:`_gradient_rows` over the grid: each row's sums, then their
+    sum over the rows in row order, so one thread or two (``threads``: the halves of the
+    rows at once) give the same numbers."""
+    from demtool.compare.threads import both
+
+    rows = dh.shape[0]
+    partial = np.zeros((rows, 10))
+    half = rows // 2
+    args = (grad_x, grad_y, dh, usable, np.asarray(params, dtype=np.float64), float(centre),
+            float(halfwidth))
+    both(lambda: _gradient_rows(*args, 0, half, partial),
+         lambda: _gradient_rows(*args, half, rows, partial), on=threads)
+    # numpy sums axis 0 of a C-ordered array row after row: the rows added in row order,
+    # as the one-kernel version did (the same sums, to the bit; tested)
+    return partial.sum(axis=0)
 
 
 def _solve_sums(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, int]:
@@ -299,8 +322,13 @@ def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
                   shift: np.ndarray, *, sigma_px: float, max_iterations: int,
                   tolerance_px: float, max_step_px: float
                   ) -> tuple[np.ndarray, int, bool, dict[str, Any]]:
+    from demtool.compare.threads import both, threaded
+
+    two = threaded(dem.size)
     reference = gaussian_shift(reference, 0.0, 0.0, sigma_px)
-    grad_y, grad_x = np.gradient(reference)  # metres per pixel, y down, x right
+    # metres per pixel, y down, x right (each axis as np.gradient(reference) has it)
+    grad_y, grad_x = both(lambda: np.gradient(reference, axis=0),
+                          lambda: np.gradient(reference, axis=1), on=two)
     # Fix the pixel set for the level: where the DEM, shifted as it starts, is valid,
     # eroded by 2 px, so that holes and edges moving with the shift do not change the
     # objective from one iteration to the next (which would stall convergence).
@@ -313,7 +341,8 @@ def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
     for iteration in range(1, max_iterations + 1):  # noqa: B007 - used after the loop
         aligned = gaussian_shift(dem, shift[0], shift[1], sigma_px) + shift[2]
         dh = aligned - reference
-        sums = _gradient_sums(grad_x, grad_y, dh, usable, np.zeros(3), 0.0, 0.0)
+        sums = _gradient_sums(grad_x, grad_y, dh, usable, np.zeros(3), 0.0, 0.0,
+                              threads=two)
         if sums[5] < MIN_PIXELS:
             raise ProcessingError(f"only {int(sums[5])} common valid pixels (need "
                                   f"{MIN_PIXELS}) after shifting by ({shift[0]:.2f}, "
@@ -327,7 +356,8 @@ def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
         centre = float(np.median(residual)) if residual.size else 0.0
         halfwidth = 4.0 * nmad(residual, median=centre) if residual.size else 0.0
         if halfwidth > 0:
-            sums = _gradient_sums(grad_x, grad_y, dh, usable, params, centre, halfwidth)
+            sums = _gradient_sums(grad_x, grad_y, dh, usable, params, centre, halfwidth,
+                                  threads=two)
             params, sigma, variance, count = _solve_sums(sums)
         else:
             params, sigma, variance, count = _solve_sums(sums)
@@ -345,7 +375,10 @@ def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
 
 
 def _final_bootstrap(last: dict[str, Any], blocks: np.ndarray, seed: int) -> np.ndarray:
-    """Block-bootstrap sigmas of the last Gauss–Newton increment."""
+    """Block-bootstrap sigmas of the last Gauss–Newton increment (its sums on two threads
+    on a large grid: :func:`demtool.compare.threads.threaded`)."""
+    from demtool.compare.threads import threaded
+
     dh, gx, gy = last["dh"], last["grad_x"], last["grad_y"]
     params = last["params"]
     keep = last["usable"] & np.isfinite(dh) & np.isfinite(gx) & np.isfinite(gy)
@@ -354,7 +387,8 @@ def _final_bootstrap(last: dict[str, Any], blocks: np.ndarray, seed: int) -> np.
         with np.errstate(invalid="ignore"):
             keep &= np.abs(dh - model - last["centre"]) <= last["halfwidth"]
     design = np.column_stack([gx[keep], gy[keep], -np.ones(int(keep.sum()))])
-    return _bootstrap_sigma(design, dh[keep], blocks[keep], seed=seed)
+    return _bootstrap_sigma(design, dh[keep], blocks[keep], seed=seed,
+                            threads=threaded(dh.size))
 
 
 def nuth_kaab(dem: np.ndarray, reference: np.ndarray, *, mask: np.ndarray | None = None,

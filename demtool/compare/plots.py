@@ -86,10 +86,12 @@ def display_stride(shape: tuple[int, int], samples: int = DISPLAY_SAMPLES) -> in
 
 
 def _map_image(axis, values: np.ndarray, spacing: tuple[float, float], stride: int,
-               **style):
+               shown: np.ndarray | None = None, **style):
     """``imshow`` of every ``stride``-th cell of ``values`` (cell i·stride standing for the
-    cells i·stride … (i + 1)·stride − 1), the axes limited to the whole grid."""
-    shown = values[::stride, ::stride]
+    cells i·stride … (i + 1)·stride − 1; ``shown``: those cells, when the caller has
+    them), the axes limited to the whole grid."""
+    if shown is None:
+        shown = values[::stride, ::stride]
     image = axis.imshow(shown, extent=_extent(shown.shape, (spacing[0] * stride,
                                                             spacing[1] * stride)),
                         interpolation="nearest", **style)
@@ -98,14 +100,37 @@ def _map_image(axis, values: np.ndarray, spacing: tuple[float, float], stride: i
     return image
 
 
+def _gradient_at(values: np.ndarray, stride: int, axis: int) -> np.ndarray:
+    """``np.gradient(values, axis=axis)`` at the cells ``[::stride, ::stride]``, computed
+    there only: the same differences of the same neighbours (central, halved, inside;
+    one-sided at the first and last cell), so the same numbers."""
+    other = (slice(None), slice(None, None, stride)) if axis == 0 else \
+        (slice(None, None, stride), slice(None))
+    lines = values[other]  # every cell along ``axis``, every stride-th across it
+    count = lines.shape[axis]
+    at = np.arange(0, count, stride)
+    after = np.take(lines, np.minimum(at + 1, count - 1), axis=axis)
+    before = np.take(lines, np.maximum(at - 1, 0), axis=axis)
+    divisor = np.where((at == 0) | (at == count - 1), 1.0, 2.0)  # np.gradient's 2 h, h
+    return (after - before) / (divisor[:, None] if axis == 0 else divisor[None, :])
+
+
 def hillshade(dem: np.ndarray, spacing: tuple[float, float] = (1.0, 1.0), *,
-              azimuth_deg: float = 315.0, altitude_deg: float = 45.0) -> np.ndarray:
+              azimuth_deg: float = 315.0, altitude_deg: float = 45.0,
+              stride: int = 1) -> np.ndarray:
     """Lambertian hillshade in [0, 1] (NaN at holes), light from ``azimuth_deg``.
 
     Azimuth is clockwise from up (north for a north-up grid); the grid's y axis points
-    down (row order).
+    down (row order).  With ``stride`` > 1, the shade of the cells
+    ``[::stride, ::stride]`` only (each from its neighbours on the whole grid: the
+    values of the whole grid's shade there), for a map drawn from those cells.
     """
-    grad_row, grad_col = np.gradient(np.asarray(dem, dtype=np.float64))
+    values = np.asarray(dem, dtype=np.float64)
+    if stride > 1 and min(values.shape) >= 2:
+        grad_row, grad_col = _gradient_at(values, stride, 0), _gradient_at(values, stride, 1)
+    else:
+        grad_row, grad_col = np.gradient(values)
+        grad_row, grad_col = grad_row[::stride, ::stride], grad_col[::stride, ::stride]
     dzdx = grad_col / spacing[0]
     dzdy_up = -grad_row / spacing[1]
     az, alt = np.radians(azimuth_deg), np.radians(altitude_deg)
@@ -151,7 +176,8 @@ def dems_figure(dems: Sequence[tuple[str, np.ndarray]], spacing: tuple[float, fl
     NavCam study's figure 4 style).
     """
     finite = np.concatenate([d[np.isfinite(d)] for _, d in dems])
-    low, high = (float(np.percentile(finite, 0.5)), float(np.percentile(finite, 99.5))) \
+    # both order statistics from one partition (the same values as two calls)
+    low, high = (float(v) for v in np.percentile(finite, [0.5, 99.5])) \
         if finite.size else (0.0, 1.0)
     if high <= low:
         high = low + 1e-6
@@ -161,9 +187,11 @@ def dems_figure(dems: Sequence[tuple[str, np.ndarray]], spacing: tuple[float, fl
     image = None
     for axis, (name, dem) in zip(axes[0], dems, strict=True):
         stride = display_stride(dem.shape)
-        shade = hillshade(dem, spacing)  # of every cell: the shown ones keep their relief
+        # the shown cells' shade from their neighbours on the whole grid: they keep
+        # their relief (4.4 CPU s of a 4096² figure when every cell was shaded)
+        shade = hillshade(dem, spacing, stride=stride)
         axis.set_facecolor("0.85")
-        _map_image(axis, shade, spacing, stride, cmap="gray", vmin=0, vmax=1)
+        _map_image(axis, dem, spacing, stride, shown=shade, cmap="gray", vmin=0, vmax=1)
         image = _map_image(axis, dem, spacing, stride, cmap="terrain", vmin=low,
                            vmax=high, alpha=0.55)
         shown = dem[::stride, ::stride]

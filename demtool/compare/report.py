@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -154,28 +154,43 @@ def write_report(provenance: Any, out: Path, report: dict[str, Any],
 def make_figures(comparisons: Sequence[tuple[str, Any]], reference_values, lines,
                  spacing: tuple[float, float], label: str) -> dict[str, bytes]:
     """The PNG figures of a comparison: name -> bytes (``comparisons[0]`` is the main DEM's
-    :class:`demtool.compare.Comparison`, the others the ``--also`` DEMs')."""
+    :class:`demtool.compare.Comparison`, the others the ``--also`` DEMs').
+
+    On a grid of :data:`demtool.compare.threads.THREADED_CELLS` cells or more, two
+    figures are drawn at a time on two threads (each its own matplotlib ``Figure`` on
+    the Agg canvas, no pyplot state; matplotlib keeps its fonts per thread; numpy's
+    percentiles and gradients and Agg's rasterising run outside the GIL): the same PNG
+    bytes as one at a time."""
     from demtool.compare import plots as figure_maker
+    from demtool.compare.threads import carried, threaded
 
     main = comparisons[0][1]
     stats = main.report
-    figures: dict[str, bytes] = {}
-    figures["difference.png"] = figure_maker.difference_figure(
-        main.difference, spacing, title=f"{label} − reference", stats=stats)
-    figures["dems.png"] = figure_maker.dems_figure(
-        [(label, main.aligned), *[(n, c.aligned) for n, c in comparisons[1:]],
-         ("reference", reference_values)], spacing)
-    figures["profiles.png"] = figure_maker.profiles_figure(
-        [("reference", reference_values), (label, main.aligned),
-         *[(n, c.aligned) for n, c in comparisons[1:]]], lines, spacing)
-    figures["histogram.png"] = figure_maker.histogram_figure(main.difference, stats=stats,
-                                                             title=f"{label} − reference")
-    figures["completeness.png"] = figure_maker.completeness_figure(
-        main.coverage, spacing, percent=main.report["completeness"], title=label)
+    makers: dict[str, Callable[[], bytes]] = {
+        "difference.png": lambda: figure_maker.difference_figure(
+            main.difference, spacing, title=f"{label} − reference", stats=stats),
+        "dems.png": lambda: figure_maker.dems_figure(
+            [(label, main.aligned), *[(n, c.aligned) for n, c in comparisons[1:]],
+             ("reference", reference_values)], spacing),
+        "profiles.png": lambda: figure_maker.profiles_figure(
+            [("reference", reference_values), (label, main.aligned),
+             *[(n, c.aligned) for n, c in comparisons[1:]]], lines, spacing),
+        "histogram.png": lambda: figure_maker.histogram_figure(
+            main.difference, stats=stats, title=f"{label} − reference"),
+        "completeness.png": lambda: figure_maker.completeness_figure(
+            main.coverage, spacing, percent=main.report["completeness"], title=label),
+    }
     resolution = main.report["effective_resolution"]
     if main.spectrum is not None and resolution is not None:
-        figures["coherence.png"] = figure_maker.coherence_figure(
+        makers["coherence.png"] = lambda: figure_maker.coherence_figure(
             main.spectrum.frequency, main.spectrum.coherence,
             cutoff_per_m=resolution["coherent_frequency_per_m"],
             threshold=resolution["threshold"], title=f"{label} vs reference")
-    return figures
+    if not threaded(main.difference.size):
+        return {name: make() for name, make in makers.items()}
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=2) as pool:  # the largest (dems.png) first
+        order = sorted(makers, key=lambda name: name != "dems.png")
+        drawn = {name: pool.submit(carried(makers[name])) for name in order}
+        return {name: drawn[name].result() for name in makers}

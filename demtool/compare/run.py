@@ -41,6 +41,31 @@ def _read_dem(path: str | os.PathLike, what: str):
     return raster
 
 
+def _read_dems(dem_path: str | os.PathLike, reference_path: str | os.PathLike):
+    """The DEM and the reference (:func:`_read_dem`), read at once on two threads when
+    this work may use two (GDAL decodes with the GIL released); an error names the first
+    file that fails, as two reads in turn would."""
+    import warnings
+
+    from rasterio.errors import NotGeoreferencedWarning
+
+    import demtool.compare.planetary
+    import demtool.io
+    import demtool.maps
+    import demtool.sensors.isis_map  # noqa: F401 - imported here, not by two threads at once
+    from demtool.compare.threads import both
+    from demtool.tiling.tasks import usable_threads
+
+    # each read sets and restores its warning filters; with two at once they could
+    # restore each other's, so the filter they set also holds around both
+    # (demtool.io.read_raster_pair)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        return both(lambda: _read_dem(dem_path, "DEM"),
+                    lambda: _read_dem(reference_path, "reference DEM"),
+                    on=usable_threads() >= 2)
+
+
 def _grid_of(raster):
     from demtool.compare.grids import Grid
 
@@ -149,7 +174,9 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     from demtool.compare import compare_dems
     from demtool.compare import plots as figure_maker
     from demtool.compare.params import CompareParams
+    from demtool.compare.threads import both
     from demtool.imaging.checks import check_magnitude
+    from demtool.tiling.tasks import usable_threads
 
     params = params or CompareParams()
     from demtool.compare.run_altimetry import is_shot_table, run_compare_shots
@@ -175,12 +202,14 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     if windowed is not None:
         return windowed
     with run.phase("read"):  # reading, and the rasters put on the comparison grid
-        dem = _read_dem(dem_path, "DEM")
-        reference = _read_dem(reference_path, "reference DEM")
+        dem, reference = _read_dems(dem_path, reference_path)
         extra = [_read_dem(path, "DEM (--also)") for path in also]
-        for raster, what in ((dem, "DEM"), (reference, "reference DEM"),
-                             *((r, "DEM (--also)") for r in extra)):
-            check_magnitude(raster.data, raster.path, what=what)
+        two = usable_threads() >= 2
+        both(lambda: check_magnitude(dem.data, dem.path, what="DEM"),
+             lambda: check_magnitude(reference.data, reference.path, what="reference DEM"),
+             on=two)
+        for raster in extra:
+            check_magnitude(raster.data, raster.path, what="DEM (--also)")
         mask_raster = _read_mask_raster(mask_path, dem, reference) if mask_path else None
         for raster in (dem, *extra):
             check_same_frame(raster, reference, "compare rasters of one frame (e.g. a "
@@ -190,13 +219,15 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
         body_warnings = check_bodies([(r.path, r.crs) for r in (reference, dem, *extra)])
         if grid == "reference":
             target = _grid_of(reference)
-            reference_values = reference.data.astype(np.float64)
-            dem_values = _onto(dem, target, "DEM")
+            reference_values, dem_values = both(
+                lambda: reference.data.astype(np.float64),
+                lambda: _onto(dem, target, "DEM"), on=two)
             frame = reference.tags.get("frame")
         else:
             target = _grid_of(dem)
-            dem_values = dem.data.astype(np.float64)
-            reference_values = _onto(reference, target, "reference DEM")
+            dem_values, reference_values = both(
+                lambda: dem.data.astype(np.float64),
+                lambda: _onto(reference, target, "reference DEM"), on=two)
             frame = dem.tags.get("frame")
         target, degrees = metric_grid(target)  # a degree grid is measured in metres
         if degrees is not None:

@@ -168,13 +168,45 @@ def _taper(shape: tuple[int, int], window: str, alpha: float) -> np.ndarray:
     return np.outer(rows, cols)
 
 
-def _detrend(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Subtract the least-squares plane of the valid pixels; invalid pixels become 0."""
+class _PlaneBasis(NamedTuple):
+    """The valid pixels' coordinates, centred, and their normal matrix (one for both
+    DEMs of a spectrum: they share the valid pixels)."""
+
+    row_offsets: np.ndarray  # (n,) row − mean row of each valid pixel
+    col_offsets: np.ndarray  # (n,) col − mean col
+    mean_row: float
+    mean_col: float
+    normal: np.ndarray  # (3, 3) of the basis [1, row − mean row, col − mean col]
+
+
+def _plane_basis(valid: np.ndarray) -> _PlaneBasis:
     rows, cols = np.nonzero(valid)
-    design = np.column_stack([np.ones(rows.size), rows, cols]).astype(np.float64)
-    coef, *_ = np.linalg.lstsq(design, values[valid].astype(np.float64), rcond=None)
-    r, c = np.indices(values.shape)
-    plane = coef[0] + coef[1] * r + coef[2] * c
+    mean_row, mean_col = float(rows.mean()), float(cols.mean())
+    dr, dc = rows - mean_row, cols - mean_col
+    sr, sc = float(dr.sum()), float(dc.sum())  # ~0: kept, the fit stays exact
+    normal = np.array([[rows.size, sr, sc],
+                       [sr, float(dr @ dr), float(dr @ dc)],
+                       [sc, float(dr @ dc), float(dc @ dc)]])
+    return _PlaneBasis(dr, dc, mean_row, mean_col, normal)
+
+
+def _detrend(values: np.ndarray, valid: np.ndarray, basis: _PlaneBasis | None = None
+             ) -> np.ndarray:
+    """Subtract the least-squares plane of the valid pixels; invalid pixels become 0.
+
+    The plane is solved from its normal equations in coordinates centred on the valid
+    pixels (their normal matrix is then diagonal but for the rows' and columns'
+    correlation, well conditioned at any size): the least-squares plane to float
+    rounding, without the SVD of an (n, 3) design (3.5 CPU s of each 4096² spectrum).
+    ``basis``: :func:`_plane_basis` of ``valid``, when the caller has it."""
+    if basis is None:
+        basis = _plane_basis(valid)
+    z = values[valid].astype(np.float64)
+    rhs = np.array([z.sum(), basis.row_offsets @ z, basis.col_offsets @ z])
+    coef = np.linalg.lstsq(basis.normal, rhs, rcond=None)[0]  # 3 x 3: any rank
+    rows = np.arange(values.shape[0])[:, None] - basis.mean_row
+    cols = np.arange(values.shape[1])[None, :] - basis.mean_col
+    plane = coef[0] + coef[1] * rows + coef[2] * cols
     return np.where(valid, values - plane, 0.0)
 
 
@@ -193,8 +225,8 @@ def _select_window(valid: np.ndarray, nan_policy: str) -> tuple[int, int, int, i
 
 def coherence_spectrum(dem: np.ndarray, reference: np.ndarray, *, spacing: float = 1.0,
                        window: str = "hann", tukey_alpha: float = 0.25,
-                       nan_policy: str = "auto", bin_width: float | None = None
-                       ) -> CoherenceSpectrum:
+                       nan_policy: str = "auto", bin_width: float | None = None,
+                       threads: int = 1) -> CoherenceSpectrum:
     """Radially averaged coherence and power spectra of a DEM against a reference.
 
     Parameters
@@ -212,6 +244,10 @@ def coherence_spectrum(dem: np.ndarray, reference: np.ndarray, *, spacing: float
     bin_width : float, optional
         Width of the frequency annuli (cycles per unit); default ``1 / (n * spacing)``
         with ``n`` the shorter side of the analysed window (one FFT bin).
+    threads : int
+        With 2 or more, the reference is detrended and transformed on a second thread
+        while this one does the DEM (numpy's least squares and FFT release the GIL); the
+        same operations on the same arrays, so the same numbers.
 
     Returns
     -------
@@ -243,15 +279,29 @@ def coherence_spectrum(dem: np.ndarray, reference: np.ndarray, *, spacing: float
                               f"{r1 - r0} x {c1 - c0})")
     valid = valid[r0:r1, c0:c1]
     taper = _taper(valid.shape, window, tukey_alpha)
-    spectra = []
-    for values in (a[r0:r1, c0:c1], b[r0:r1, c0:c1]):
-        detrended = _detrend(values, valid) * taper
+    basis = _plane_basis(valid)  # one for both: they share the valid pixels
+
+    def spectrum_of(values: np.ndarray) -> np.ndarray | None:
+        """The FFT of the detrended, tapered values; None for a plane."""
+        detrended = _detrend(values, valid, basis) * taper
         scale = np.ptp(values[valid]) if valid.any() else 0.0
         if not np.abs(detrended).max() > 1e-9 * max(scale, 1e-30):
-            raise ProcessingError("a DEM is a plane over the common valid area: its "
-                                  "coherence is undefined")
-        spectra.append(np.fft.rfft2(detrended))
-    spec_a, spec_b = spectra
+            return None
+        return np.fft.rfft2(detrended)
+
+    if threads >= 2:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=1) as side:
+            later = side.submit(spectrum_of, b[r0:r1, c0:c1])
+            spec_a = spectrum_of(a[r0:r1, c0:c1])
+            spec_b = later.result()
+    else:
+        spec_a = spectrum_of(a[r0:r1, c0:c1])
+        spec_b = spectrum_of(b[r0:r1, c0:c1]) if spec_a is not None else None
+    if spec_a is None or spec_b is None:
+        raise ProcessingError("a DEM is a plane over the common valid area: its "
+                              "coherence is undefined")
     rows, cols = valid.shape
     fy = np.fft.fftfreq(rows, d=spacing)[:, None]
     fx = np.fft.rfftfreq(cols, d=spacing)[None, :]

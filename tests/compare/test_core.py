@@ -301,18 +301,18 @@ def test_cubic_sampler_returns_nan_outside():
 def test_threaded_comparison_gives_the_one_thread_numbers(truth, displaced, monkeypatch):
     import json
 
-    from demtool.compare import core
+    from demtool.compare import threads as compare_threads
     from demtool.tiling.distributed import threads_limited
 
     holed = displaced.copy()
     holed[40:60, 70:75] = np.nan
     mask = np.ones(truth.shape, dtype=bool)
     mask[:, :8] = False
-    monkeypatch.setattr(core, "THREADED_CELLS", 64)  # the 160² grid on two threads
+    monkeypatch.setattr(compare_threads, "THREADED_CELLS", 64)  # the 160² grid, 2 threads
     runs = []
     for threads in (1, 2):
         with threads_limited(threads):
-            assert core._threaded(truth.size) == (threads == 2)
+            assert compare_threads.threaded(truth.size) == (threads == 2)
             runs.append(compare_dems(holed, truth, spacing=2.0, mask=mask))
     one, two = runs
     assert json.dumps(one.report, sort_keys=True) == json.dumps(two.report, sort_keys=True)

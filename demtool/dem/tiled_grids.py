@@ -80,16 +80,37 @@ def read_cached_window(folder: str | os.PathLike, tile_size: int, shape: tuple[i
 def coarse_measured(folder: str | os.PathLike, tiles, shape: tuple[int, int],
                     factor: int) -> np.ndarray:
     """The cached measured grid block-averaged by ``factor`` (NaN where no cell measured)."""
+    from demtool.mapproject.threads import ordered_map
+
     coarse_shape = (math.ceil(shape[0] / factor), math.ceil(shape[1] / factor))
-    sums, counts = np.zeros(coarse_shape), np.zeros(coarse_shape)
-    for tile in tiles:
+    size = coarse_shape[0] * coarse_shape[1]
+
+    def tile_sums(tile):
+        """(True, sums, counts) of one core's measured cells over the flat coarse grid
+        when the core starts on a coarse cell's edge (no earlier core shares its coarse
+        cells), else (False, flat coarse cells, values)."""
         core = np.load(_cache_path(Path(folder), tile.index), mmap_mode="r",
                        allow_pickle=False)[0]
         r0, _, c0, _ = tile.core
         rows, cols = np.nonzero(np.isfinite(core))
-        cells = (rows + r0) // factor, (cols + c0) // factor
-        np.add.at(sums, cells, np.asarray(core[rows, cols], dtype=np.float64))
-        np.add.at(counts, cells, 1.0)
+        cells = ((rows + r0) // factor) * coarse_shape[1] + (cols + c0) // factor
+        values = np.asarray(core[rows, cols], dtype=np.float64)
+        if r0 % factor or c0 % factor:
+            return False, cells, values
+        # bincount adds each coarse cell's values in their order from 0, as np.add.at
+        return True, np.bincount(cells, values, size), np.bincount(cells, minlength=size)
+
+    sums, counts = np.zeros(size), np.zeros(size)
+    # the cores on every core, added in tile order: each coarse cell's sum in the order
+    # of np.add.at over the tiles one after the other (the same sums)
+    for own, a, b in ordered_map(tile_sums, tiles):
+        if own:  # its coarse cells are still 0: 0 + its sums, exactly
+            sums += a
+            counts += b
+        else:  # shares coarse cells with an earlier core: after it, in order
+            np.add.at(sums, a, b)
+            np.add.at(counts, a, 1.0)
+    sums, counts = sums.reshape(coarse_shape), counts.reshape(coarse_shape)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
 

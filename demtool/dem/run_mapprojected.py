@@ -35,31 +35,23 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     Returns the sidecar summary.  With the tile options on a grid larger than one tile,
     in tiles (:mod:`demtool.dem.tiled_map`).
     """
-    import warnings
-
     import numpy as np
-    from rasterio.errors import NotGeoreferencedWarning
 
     from demtool import io as dio
     from demtool.dem.run_sensors import triangulate_to_map, write_map_dem
     from demtool.dem.tiled_map import ortho
     from demtool.errors import InputError, ProcessingError
     from demtool.mapproject.stereo import check_right_cells, disparity_cells
-    from demtool.mapproject.threads import available_threads, ordered_map, phase
+    from demtool.mapproject.threads import phase
     from demtool.maps import to_pyproj_crs
 
     log = run.log
     timings: dict[str, float] = {}
-    # read once per process (the tiled route's tiles find them in ortho's cache), the two
-    # at once (each sensor model's reading and check); the left one's error first.  The
-    # readers' warnings.catch_warnings (GDAL's NotGeoreferencedWarning) swap the
-    # process's one filter list: the filter stays in place while both threads run
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        left, right = ordered_map(lambda side: ortho(*side),
-                                  ((str(left_path), "left orthoimage"),
-                                   (str(right_path), "right orthoimage")),
-                                  threads=min(2, available_threads()))
+    # read once per process (the tiled route's tiles find them in ortho's cache); one
+    # after the other: on two threads they ran no faster (the reading, the imports and
+    # numba's first kernel load hold the GIL)
+    left = ortho(str(left_path), "left orthoimage")
+    right = ortho(str(right_path), "right orthoimage")
     li, ri = left.info, right.info
     from demtool.mapproject.hashes import check_distinct, check_pair_order
 

@@ -108,10 +108,10 @@ def coreg_samples(plans: dict[int, tuple[Any, tuple[int, int, int, int], int]],
         float64 samples (:func:`demtool.fuse.tiled.sample_on_grid`), or the
         :class:`demtool.errors.DemtoolError` its reading raised.  The reference is read
         once for the DEMs whose windows (on one grid) together cover no more cells than
-        apart, on their windows' union, and each DEM's window cut from it: a cell's
-        sample does not depend on the window it is read in, so these are the numbers of
-        one read per DEM.  Every read (GDAL's decoding, the compiled sampler) runs on
-        the threads of :func:`demtool.fuse.tiled.on_threads`.
+        apart, on their windows' union (in two halves of rows), and each DEM's window cut
+        from it: a cell's sample does not depend on the window it is read in, so these
+        are the numbers of one read per DEM.  Every read (GDAL's decoding, the compiled
+        sampler) runs on the threads of :func:`demtool.fuse.tiled.on_threads`.
     """
     from demtool.errors import DemtoolError
     from demtool.fuse.tiled import on_threads, sample_on_grid
@@ -131,28 +131,35 @@ def coreg_samples(plans: dict[int, tuple[Any, tuple[int, int, int, int], int]],
         else:
             groups.append([factor, grid, window, [i]])
 
-    def read(task: tuple[str, int]) -> np.ndarray | Exception:
-        kind, key = task
+    def read(task: tuple[str, int, int]) -> np.ndarray | Exception:
+        kind, key, half = task
         try:
             if kind == "dem":
                 grid, window, _ = plans[key]
                 return sample_on_grid(dems[key][0], dems[key][1], grid, window)
-            _, grid, window, _ = groups[key]
-            return sample_on_grid(reference[0], reference[1], grid, window,
+            _, grid, (r0, r1, c0, c1), _ = groups[key]
+            middle = (r0 + r1) // 2
+            rows = (r0, middle) if half == 0 else (middle, r1)
+            return sample_on_grid(reference[0], reference[1], grid, (*rows, c0, c1),
                                   what="reference DEM")
         except DemtoolError as exc:
             return exc
 
-    tasks = [("dem", i) for i in plans] + [("reference", g) for g in range(len(groups))]
+    # the reference in two halves of rows: with one read per DEM, the threads' reads
+    # balance (one DEM's and the reference's window on three threads would not)
+    tasks = [("dem", i, 0) for i in plans] + [("reference", g, half) for g in
+                                               range(len(groups)) for half in (0, 1)]
     read_ = dict(zip(tasks, on_threads(read, tasks), strict=True))
     samples = {}
     for g, (_, _, union, members) in enumerate(groups):
-        ref = read_[("reference", g)]
+        halves = [read_[("reference", g, half)] for half in (0, 1)]
+        failed = [h for h in halves if isinstance(h, Exception)]
+        ref = failed[0] if failed else np.concatenate(halves, axis=0)
         for i in members:
             r0, r1, c0, c1 = plans[i][1]
             cut = ref if isinstance(ref, Exception) else np.ascontiguousarray(
                 ref[r0 - union[0]:r1 - union[0], c0 - union[2]:c1 - union[2]])
-            samples[i] = (read_[("dem", i)], cut)
+            samples[i] = (read_[("dem", i, 0)], cut)
     return samples
 
 

@@ -100,6 +100,7 @@ def test_tiles_on_threads_match_tiles_one_after_the_other(tmp_path):
 
     from demtool import io
     from demtool.refine.params import RefineParams
+    from demtool.tiling.tasks import numba_threads_at_most
 
     size = 160
     rng = np.random.default_rng(2)
@@ -118,10 +119,15 @@ def test_tiles_on_threads_match_tiles_one_after_the_other(tmp_path):
                         grid=(size, size))
     tiles = plan_tiles(size, size, 80, overlap=30).tiles
     before = numba.get_num_threads()
-    alone = [job.compute(tile, 1)[0] for tile in tiles]
+
+    def computed(tile, threads):  # as tiling.tasks.compute_tile scopes the thread count
+        with numba_threads_at_most(threads):
+            return job.compute(tile, threads)[0]
+
+    alone = [computed(tile, 1) for tile in tiles]
     with ThreadPoolExecutor(2) as pool:
-        beside = list(pool.map(lambda tile: job.compute(tile, 1)[0], tiles))
-    with_cores = [job.compute(tile, 2)[0] for tile in tiles[:1]]  # median in strips
+        beside = list(pool.map(lambda tile: computed(tile, 1), tiles))
+    with_cores = [computed(tile, 2) for tile in tiles[:1]]  # median in strips
     for a, b in zip(alone, beside, strict=True):
         assert np.array_equal(a, b, equal_nan=True)
     assert np.array_equal(alone[0], with_cores[0], equal_nan=True)

@@ -163,6 +163,36 @@ def coreg_samples(plans: dict[int, tuple[Any, tuple[int, int, int, int], int]],
     return samples
 
 
+def write_outputs(outputs: Sequence[tuple[Path, int, str, dict[str, Any]]],
+                  bands: np.ndarray, target: Any) -> None:
+    """Write each (path, band, name, tags) of ``outputs``: ``bands[band]`` on ``target``'s
+    grid (:func:`demtool.io.write_raster`), the files on threads at once (GDAL's
+    compression and overviews release the GIL), each in the caller's context (its output
+    transaction and layout); a failure is raised once the others have ended, the first
+    in the outputs' order."""
+    import contextvars
+    from concurrent.futures import ThreadPoolExecutor
+
+    from demtool import io as dio
+    from demtool.tiling.distributed import usable_threads
+
+    def write(output: tuple[Path, int, str, dict[str, Any]]) -> None:
+        path, band, name, tags = output
+        dio.write_raster(path, bands[band], transform=target.affine(), crs=target.crs(),
+                         tags=tags, band_names=[name])
+
+    threads = min(usable_threads(), len(outputs))
+    if threads < 2:
+        for output in outputs:
+            write(output)
+        return
+    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="demtool-write") as pool:
+        futures = [pool.submit(contextvars.copy_context().run, write, output)
+                   for output in outputs]
+    for future in futures:
+        future.result()
+
+
 def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None = None, *,
              errors: Sequence[PathLike] | None = None, reference: PathLike | None = None,
              grid_like: PathLike | None = None, resolved: dict[str, Any] | None = None
@@ -440,8 +470,6 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
              len(used), info["cells"], 100 * summary["rejected_fraction"])
     with run.transaction():
         with run.phase("write"):
-            for (path, band, name, tags) in outputs:
-                dio.write_raster(path, bands[band], transform=target.affine(),
-                                 crs=target.crs(), tags=tags, band_names=[name])
+            write_outputs(outputs, bands, target)
         prov.write_sidecar(paths["dem"], summary, outputs=[o[0] for o in outputs])
     return summary

@@ -239,3 +239,44 @@ def test_the_reference_read_once_gives_each_dems_window_to_the_bit(block, monkey
         alone = original(paths[0], specs[0], target, window)
         assert ref.flags.c_contiguous and np.isfinite(ref).any()
         assert np.array_equal(ref.view(np.uint64), alone.view(np.uint64))
+
+
+def test_outputs_written_on_threads_inside_the_transaction(tmp_path, monkeypatch):
+    """write_outputs writes the rasters at once on threads, each inside the caller's
+    output transaction: they appear at its end, with their pixels, and a failed write
+    leaves none."""
+    import threading
+
+    from demtool.errors import OutputError
+    from demtool.fuse.run import write_outputs
+    from demtool.fuse.tiled import GridSpec
+    from demtool.outputs import output_transaction
+    from demtool.tiling import distributed
+
+    monkeypatch.setattr(distributed, "usable_threads", lambda: 2)
+    target = GridSpec((6, 5), (1.0, 0.0, 0.0, 0.0, -1.0, 0.0))
+    bands = np.arange(4 * 30, dtype=np.float32).reshape(4, 6, 5)
+    outputs = [(tmp_path / f"{name}.tif", band, name, {}) for band, name in
+               enumerate(("dem", "count", "spread", "error"))]
+    writers: set[str] = set()
+    original = dio.write_raster
+
+    def recorded(path, *args, **kwargs):
+        writers.add(threading.current_thread().name)
+        if "spread" in str(path) and fail:
+            raise OutputError(f"{path}: disk full")
+        return original(path, *args, **kwargs)
+
+    monkeypatch.setattr(dio, "write_raster", recorded)
+    fail = False
+    with output_transaction():
+        write_outputs(outputs, bands, target)
+        assert not any(path.exists() for path, *_ in outputs)  # renamed at the end
+    for path, band, _, _ in outputs:
+        assert np.array_equal(dio.read_raster(path).data, bands[band])
+    assert writers and all(n.startswith("demtool-write") for n in writers)  # not here
+    fail = True
+    moved = [(tmp_path / "again" / path.name, *rest) for path, *rest in outputs]
+    with pytest.raises(OutputError, match="disk full"), output_transaction():
+        write_outputs(moved, bands, target)
+    assert not (tmp_path / "again").exists()

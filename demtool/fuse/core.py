@@ -359,12 +359,15 @@ def stack_nmad(values: np.ndarray) -> float:
     return float(NMAD_SCALE * np.median(residual))
 
 
-def consensus_nmad(values: np.ndarray) -> np.ndarray:
+def consensus_nmad(values: np.ndarray, mapper=None) -> np.ndarray:
     """Each DEM's NMAD against the median of the others, on common cells.
 
     Parameters
     ----------
     values : (N, H, W) float array, metres, NaN = no value (N >= 2)
+    mapper : callable, optional
+        ``mapper(function, items) -> list``, the DEMs' computations (independent) mapped
+        over, e.g. on threads (:func:`demtool.fuse.tiled.on_threads`); default in turn.
 
     Returns
     -------
@@ -374,12 +377,16 @@ def consensus_nmad(values: np.ndarray) -> np.ndarray:
     """
     values = np.asarray(values, dtype=np.float64)
     valid = np.isfinite(values)
-    out = np.full(len(values), np.nan)
-    for i in range(len(values)):
+
+    def one(i: int) -> float:
         others = np.delete(np.arange(len(values)), i)
         consensus = _nan_median(values[others], valid[others])
         diff = values[i] - consensus
         diff = diff[np.isfinite(diff)]
-        if diff.size:
-            out[i] = NMAD_SCALE * np.median(np.abs(diff - np.median(diff)))
-    return out
+        if not diff.size:
+            return np.nan
+        return NMAD_SCALE * np.median(np.abs(diff - np.median(diff)))
+
+    indices = range(len(values))
+    return np.array(mapper(one, indices) if mapper else [one(i) for i in indices],
+                    dtype=np.float64)

@@ -400,7 +400,7 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
             stack = np.stack(on_threads(lambda i: sample_on_grid(
                 dem_paths[i], specs[i], target, window, shifts[i]), range(len(dem_paths))))
             stack[sorted(failed)] = np.nan
-            nmads = consensus_nmad(stack)
+            nmads = consensus_nmad(stack, on_threads)  # one DEM per thread
             nmads[sorted(failed)] = np.inf
             if params.method == "huber":
                 scale_floor = stack_nmad(stack)

@@ -125,6 +125,10 @@ def test_consensus_nmad_singles_out_the_noisy_dem():
     nmad = consensus_nmad(stack)
     assert nmad[3] == pytest.approx(2.0, rel=0.1)
     assert nmad[:3].max() < 0.15
+    from demtool.fuse.tiled import on_threads  # the run maps the DEMs on threads
+
+    stack[1, :20] = np.nan
+    assert np.array_equal(consensus_nmad(stack, on_threads), consensus_nmad(stack))
 
 
 def test_estimate_shift_recovers_a_known_shift_and_needs_overlap():

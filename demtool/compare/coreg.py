@@ -375,20 +375,34 @@ def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
 
 
 def _final_bootstrap(last: dict[str, Any], blocks: np.ndarray, seed: int) -> np.ndarray:
-    """Block-bootstrap sigmas of the last Gauss–Newton increment (its sums on two threads
-    on a large grid: :func:`demtool.compare.threads.threaded`)."""
-    from demtool.compare.threads import threaded
+    """Block-bootstrap sigmas of the last Gauss–Newton increment.  On a large grid
+    (:func:`demtool.compare.threads.threaded`) the samples of the top and the bottom half
+    of the rows are picked on two threads and put one after the other (the whole grid's
+    samples in the same order) and the blocks' sums run on two threads: the same sigmas."""
+    from demtool.compare.threads import both, threaded
 
     dh, gx, gy = last["dh"], last["grad_x"], last["grad_y"]
     params = last["params"]
-    keep = last["usable"] & np.isfinite(dh) & np.isfinite(gx) & np.isfinite(gy)
-    if last["halfwidth"] > 0:
-        model = params[0] * gx + params[1] * gy - params[2]
-        with np.errstate(invalid="ignore"):
-            keep &= np.abs(dh - model - last["centre"]) <= last["halfwidth"]
-    design = np.column_stack([gx[keep], gy[keep], -np.ones(int(keep.sum()))])
-    return _bootstrap_sigma(design, dh[keep], blocks[keep], seed=seed,
-                            threads=threaded(dh.size))
+
+    def samples(rows: slice) -> tuple[np.ndarray, ...]:
+        d, x, y = dh[rows], gx[rows], gy[rows]
+        keep = last["usable"][rows] & np.isfinite(d) & np.isfinite(x) & np.isfinite(y)
+        if last["halfwidth"] > 0:
+            model = params[0] * x + params[1] * y - params[2]
+            with np.errstate(invalid="ignore"):
+                keep &= np.abs(d - model - last["centre"]) <= last["halfwidth"]
+        return x[keep], y[keep], d[keep], blocks[rows][keep]
+
+    two = threaded(dh.size)
+    if two:
+        half = dh.shape[0] // 2
+        top, bottom = both(lambda: samples(slice(0, half)),
+                           lambda: samples(slice(half, None)), on=True)
+        x, y, d, block = (np.concatenate(pair) for pair in zip(top, bottom, strict=True))
+    else:
+        x, y, d, block = samples(slice(None))
+    design = np.column_stack([x, y, -np.ones(x.size)])
+    return _bootstrap_sigma(design, d, block, seed=seed, threads=two)
 
 
 def nuth_kaab(dem: np.ndarray, reference: np.ndarray, *, mask: np.ndarray | None = None,

@@ -14,6 +14,7 @@ References are ``"module:name"`` strings: ``core_defaults("demtool.sgm.matcher:s
 from __future__ import annotations
 
 import ast
+import copy
 import functools
 import importlib
 import importlib.machinery
@@ -48,19 +49,45 @@ def _find_spec(module: str) -> importlib.machinery.ModuleSpec | None:
     return importlib.machinery.PathFinder.find_spec(module, outer.submodule_search_locations)
 
 
-def _tree(module: str) -> ast.Module:
+def _source(module: str) -> Path:
     spec = _find_spec(module)
     if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
         raise _NotStatic(module)
-    path = Path(spec.origin)
-    return _parse(path, path.stat().st_mtime_ns)
+    return Path(spec.origin)
+
+
+def _tree(module: str) -> ast.Module:
+    return ast.parse(_source(module).read_text(encoding="utf-8"))
+
+
+def _values(module: str) -> tuple[dict[str, Any], dict[str, ast.stmt]]:
+    """The module's literal constants, and its top-level functions and classes by name
+    (slimmed: a function's arguments, a class's decorators, bases and annotated fields),
+    read once per version of the file."""
+    path = _source(module)
+    return _read_values(path, path.stat().st_mtime_ns)
 
 
 @functools.lru_cache(maxsize=32)
-def _parse(path: Path, mtime_ns: int) -> ast.Module:
-    """The syntax tree of a source file, parsed once per version of it (a parameter module
-    reads several defaults and constants of one core module; callers never modify it)."""
-    return ast.parse(path.read_text(encoding="utf-8"))
+def _read_values(path: Path, mtime_ns: int) -> tuple[dict[str, Any], dict[str, ast.stmt]]:
+    """:func:`_values` of a source file.  The syntax tree itself is not kept: that of a
+    500-line module is some 10^4 objects that every later garbage collection (the one at
+    exit too) would walk."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    definitions: dict[str, ast.stmt] = {}
+    for node in tree.body:
+        name = getattr(node, "name", None)
+        if name is None or name in definitions:
+            continue  # not a definition, or a later one of a name (the first is read)
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            definitions[node.name] = ast.FunctionDef(name=node.name, args=node.args, body=[],
+                                                     decorator_list=[])
+        elif isinstance(node, ast.ClassDef):
+            definitions[node.name] = ast.ClassDef(
+                name=node.name, bases=node.bases, keywords=node.keywords,
+                decorator_list=node.decorator_list,
+                body=[item for item in node.body if isinstance(item, ast.AnnAssign)])
+    return _constants(tree), definitions
 
 
 def _constants(tree: ast.Module) -> dict[str, Any]:
@@ -92,20 +119,24 @@ def _value(node: ast.expr, constants: dict[str, Any]) -> Any:
         raise _NotStatic(ast.dump(node)) from None
 
 
+def _function_defaults(node: ast.FunctionDef | ast.AsyncFunctionDef,
+                       constants: dict[str, Any]) -> dict[str, Any]:
+    args = node.args
+    positional = [*args.posonlyargs, *args.args]
+    pairs = list(zip(positional[len(positional) - len(args.defaults):], args.defaults,
+                     strict=True))
+    pairs += [(a, d) for a, d in zip(args.kwonlyargs, args.kw_defaults, strict=True)
+              if d is not None]
+    return {arg.arg: _value(default, constants) for arg, default in pairs}
+
+
 def _static_defaults(module: str, name: str) -> dict[str, Any]:
-    tree = _tree(module)
-    constants = _constants(tree)
-    for node in tree.body:
-        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.name == name:
-            args = node.args
-            positional = [*args.posonlyargs, *args.args]
-            pairs = list(zip(positional[len(positional) - len(args.defaults):], args.defaults,
-                             strict=True))
-            pairs += [(a, d) for a, d in zip(args.kwonlyargs, args.kw_defaults, strict=True)
-                      if d is not None]
-            return {arg.arg: _value(default, constants) for arg, default in pairs}
-        if isinstance(node, ast.ClassDef) and node.name == name:
-            return _dataclass_defaults(node, constants)
+    constants, definitions = _values(module)
+    node = definitions.get(name)
+    if isinstance(node, ast.ClassDef):
+        return _dataclass_defaults(node, constants)
+    if isinstance(node, ast.FunctionDef):
+        return _function_defaults(node, constants)
     raise _NotStatic(name)  # defined elsewhere
 
 
@@ -180,9 +211,9 @@ def core_constant(ref: str) -> Any:
     module, name = _split(ref)
     if module not in sys.modules:
         try:
-            constants = _constants(_tree(module))
+            constants = _values(module)[0]
             if name in constants:
-                return constants[name]
+                return copy.deepcopy(constants[name])
         except (_NotStatic, OSError, SyntaxError):
             pass
     return getattr(importlib.import_module(module), name)

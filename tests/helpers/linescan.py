@@ -229,3 +229,31 @@ def copy_raster(src, dst, *, data=None, tags=None, transform=None):
                      transform=transform or raster.transform, crs=raster.crs,
                      tags=raster.tags if tags is None else tags)
     return dst
+
+
+def ortho_ray_case(lines: int, samples: int):
+    """A ±8° line-scan pair over :func:`terrain` on a 1 m map grid, as ``dem --mapprojected``
+    sees it: ``(left, right, grid, orthos, heights, rows, cols, r_cols)``, with ``orthos``
+    the two orthoimage stand-ins ``dem.ortho_rays.ortho_rays`` reads (transform, sensor,
+    heights), every grid cell's row and column, and right columns offset by a random
+    disparity of -2..6 px (float64, cells)."""
+    from types import SimpleNamespace
+
+    from demtool.maps import map_to_lonlat
+    from demtool.maps.grids import grid_from_xyz
+
+    left = linescan_sensor(lines=lines, samples=samples, roll_deg=-8.0, lon0=10.2324)
+    right = linescan_sensor(lines=lines, samples=samples, roll_deg=8.0, lon0=9.7676)
+    corners_line = np.array([0.5, lines - 0.5, 0.5, lines - 0.5])
+    corners_sample = np.array([0.5, 0.5, samples - 0.5, samples - 0.5])
+    grid = grid_from_xyz(MOON, left.image_to_ground(corners_line, corners_sample), 1.0)
+
+    def heights(x, y):
+        return terrain(*map_to_lonlat(grid.crs, x, y))
+
+    orthos = [SimpleNamespace(info=SimpleNamespace(transform=grid.transform), sensor=s,
+                              heights=heights) for s in (left, right)]
+    rows, cols = np.nonzero(np.ones(grid.shape, bool))
+    rows, cols = rows.astype(np.float64), cols.astype(np.float64)
+    r_cols = cols - np.random.default_rng(1).uniform(-2.0, 6.0, cols.size)
+    return left, right, grid, orthos, heights, rows, cols, r_cols

@@ -12,7 +12,7 @@ from demtool.mapproject import threads
 from demtool.mapproject.lattice import points_image_coordinates
 from demtool.mapproject.stereo import map_cells_xy, raw_coordinates
 from demtool.maps import map_to_lonlat, map_to_xyz, snap_grid
-from tests.helpers.linescan import MOON, linescan_sensor, terrain
+from tests.helpers.linescan import MOON, linescan_sensor, ortho_ray_case, terrain
 
 
 @pytest.fixture(scope="module")
@@ -98,25 +98,10 @@ def test_points_on_map_equal_the_grid_and_coordinates_computed_apart():
 def test_ortho_rays_triangulate_as_the_exact_raw_pixels_rays():
     """dem --mapprojected's rays (origin interpolated on the lattice, through the cell's
     ground point) give the points the exact raw pixels' image_to_ray rays give."""
-    from types import SimpleNamespace
-
     from demtool.dem.ortho_rays import ortho_rays
     from demtool.dem.sensors import triangulate_ground_rays, triangulate_sensors
-    from demtool.maps.grids import grid_from_xyz
 
-    left = linescan_sensor(lines=160, samples=140, roll_deg=-8.0, lon0=10.2324)
-    right = linescan_sensor(lines=160, samples=140, roll_deg=8.0, lon0=9.7676)
-    grid = grid_from_xyz(MOON, left.image_to_ground(np.array([0.5, 159.5, 0.5, 159.5]),
-                                                    np.array([0.5, 0.5, 139.5, 139.5])), 1.0)
-
-    def heights(x, y):
-        return terrain(*map_to_lonlat(grid.crs, x, y))
-
-    orthos = [SimpleNamespace(info=SimpleNamespace(transform=grid.transform), sensor=s,
-                              heights=heights) for s in (left, right)]
-    rows, cols = np.nonzero(np.ones(grid.shape, bool))
-    rows, cols = rows.astype(np.float64), cols.astype(np.float64)
-    r_cols = cols - np.random.default_rng(1).uniform(-2.0, 6.0, cols.size)
+    left, right, grid, orthos, heights, rows, cols, r_cols = ortho_ray_case(160, 140)
     found = ortho_rays(*orthos, grid.crs, rows, cols, rows, r_cols)
     assert found.seen.mean() > 0.5
     assert found.max_error_px() <= 1e-4 and found.left.exact_points < 0.3 * rows.size

@@ -177,18 +177,22 @@ compiles = []
 event.register("numba:compile", type("Count", (event.Listener,), {
     "on_start": lambda self, ev: compiles.append(1), "on_end": lambda self, ev: None})())
 path = jitcache.lock_path(kernels.kernel._cache)
-if sys.argv[1] == "hold":  # lock, compile, say so, keep the lock a while
+if sys.argv[1] == "hold":  # lock, say so, compile once stdin closes, then let go
     assert jitcache.acquire(path)
-    kernels.kernel(1.0)
     print("locked", flush=True)
-    time.sleep(float(sys.argv[2]))
+    sys.stdin.read()
+    kernels.kernel(1.0)  # compiled and saved to the cache while holding the lock
+    print(json.dumps({"released": time.time(), "compiles": len(compiles)}), flush=True)
+    jitcache.release(path)
+    sys.exit(0)
 elif sys.argv[1] == "die":  # lock, then be killed holding it
     assert jitcache.acquire(path)
     print("locked", flush=True)
     os.kill(os.getpid(), 9)
+print("ready", flush=True)
 start = time.perf_counter()
 value = kernels.kernel(1.0)
-print(json.dumps({"value": value, "compiles": len(compiles),
+print(json.dumps({"value": value, "compiles": len(compiles), "loaded": time.time(),
                   "waited": time.perf_counter() - start, "path": path}))
 """
 
@@ -203,26 +207,33 @@ def _caller(tmp_path, *args):
                PYTHONPATH=os.pathsep.join([str(tmp_path), str(Path(jitcache.__file__).parents[1]),
                                            os.environ.get("PYTHONPATH", "")]))
     return subprocess.Popen([sys.executable, str(tmp_path / "caller.py"), *args], env=env,
-                            stdout=subprocess.PIPE, text=True)
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
 
 
 @pytest.mark.slow
 def test_a_kernel_compiled_by_another_process_is_waited_for_and_loaded(tmp_path):
     """A process killed holding a kernel's lock leaves none (flock locks die with their
-    process).  While another process compiles the kernel (holding its lock), a process
-    that needs it waits, then loads the saved result instead of compiling it again."""
+    process).  While another process holds a kernel's lock (to compile it), a process that
+    misses the kernel in the cache waits, then loads the saved result instead of compiling
+    it again."""
     import json
+    import time
 
     dead = _caller(tmp_path, "die")
     assert dead.stdout.readline().strip() == "locked"
     dead.communicate(timeout=60)
-    first = _caller(tmp_path, "hold", "1.5")  # would wait LOCK_WAIT_S for a stale lock
+    first = _caller(tmp_path, "hold")  # would wait LOCK_WAIT_S for a stale lock
     assert first.stdout.readline().strip() == "locked"
     second = _caller(tmp_path, "use")
+    assert second.stdout.readline().strip() == "ready"  # imported: about to call the kernel
+    time.sleep(1.0)  # it is waiting on the lock now (however slow its start-up was)
+    assert second.poll() is None  # still waiting for the lock: nothing is cached yet
+    held = json.loads(first.communicate("", timeout=120)[0].splitlines()[-1])
     found = json.loads(second.communicate(timeout=120)[0].splitlines()[-1])
-    first.communicate(timeout=120)
+    assert held["compiles"] == 1  # the holder compiled it, the waiter did not
     assert found["value"] == 45.0 and found["compiles"] == 0  # loaded from the cache
-    assert found["waited"] > 0.5  # it waited for the first process's lock
+    assert found["loaded"] >= held["released"]  # only once the first process let go
+    assert found["waited"] > 0.9
     assert found["path"].startswith(str(tmp_path / "cache")) and found["path"].endswith(
         ".nbi.lock")
 

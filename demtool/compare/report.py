@@ -162,7 +162,8 @@ def make_figures(comparisons: Sequence[tuple[str, Any]], reference_values, lines
     percentiles and gradients and Agg's rasterising run outside the GIL): the same PNG
     bytes as one at a time."""
     from demtool.compare import plots as figure_maker
-    from demtool.compare.threads import carried, threaded
+    from demtool.compare.threads import threaded
+    from demtool.tiling.tasks import carried
 
     main = comparisons[0][1]
     stats = main.report

@@ -6,20 +6,20 @@ DEM's is computed, half the rows of the Nuth & Kääb sums…) on two threads wh
 is large enough (:data:`THREADED_CELLS`) and the caller may use two
 (:func:`demtool.tiling.tasks.usable_threads`: the cores, or a ``threads_limited``
 block's limit).  The side thread runs each function as if on the calling thread
-(:func:`carried`): in a copy of its context (so a ``threads_limited`` limit holds there
-too) and with its numba thread count (numba keeps the count per thread: a new thread
-would get every core).  numpy, the FFT, LAPACK and demtool's ``nogil`` kernels release
-the GIL; the same functions on the same arrays give the same numbers on one thread or two.
+(:func:`demtool.tiling.tasks.carried`): in a copy of its context (so a
+``threads_limited`` limit holds there too) and with its numba thread count (numba keeps
+the count per thread: a new thread would get every core).  numpy, the FFT, LAPACK and
+demtool's ``nogil`` kernels release the GIL; the same functions on the same arrays give
+the same numbers on one thread or two.
 """
 
 from __future__ import annotations
 
-import contextvars
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, TypeVar
 
-__all__ = ["THREADED_CELLS", "Side", "both", "carried", "threaded"]
+__all__ = ["THREADED_CELLS", "Side", "both", "threaded"]
 
 T = TypeVar("T")
 U = TypeVar("U")
@@ -34,24 +34,6 @@ def threaded(cells: int) -> bool:
     from demtool.tiling.tasks import usable_threads
 
     return cells >= THREADED_CELLS and usable_threads() >= 2
-
-
-def carried(function: Callable[[], T]) -> Callable[[], T]:
-    """``function`` to be called on another thread as on this one: in a copy of this
-    thread's context (:func:`demtool.tiling.tasks.threads_limited`'s limit) and within
-    this thread's numba thread count (:func:`demtool.tiling.tasks.numba_threads_at_most`)."""
-    import numba
-
-    from demtool.tiling.tasks import numba_threads_at_most
-
-    context = contextvars.copy_context()
-    count = numba.get_num_threads()
-
-    def run() -> T:
-        with numba_threads_at_most(count):
-            return context.run(function)
-
-    return run
 
 
 class Side:
@@ -69,8 +51,11 @@ class Side:
             self._pool.shutdown(wait=True)
 
     def later(self, function: Callable[[], T]) -> Future[T]:
-        """``function()`` on the side thread (:func:`carried`), or now on this one."""
+        """``function()`` on the side thread (:func:`demtool.tiling.tasks.carried`), or
+        now on this one."""
         if self._pool is not None:
+            from demtool.tiling.tasks import carried
+
             return self._pool.submit(carried(function))
         done: Future[T] = Future()
         done.set_result(function())

@@ -167,14 +167,13 @@ def write_outputs(outputs: Sequence[tuple[Path, int, str, dict[str, Any]]],
                   bands: np.ndarray, target: Any) -> None:
     """Write each (path, band, name, tags) of ``outputs``: ``bands[band]`` on ``target``'s
     grid (:func:`demtool.io.write_raster`), the files on threads at once (GDAL's
-    compression and overviews release the GIL), each in the caller's context (its output
-    transaction and layout); a failure is raised once the others have ended, the first
-    in the outputs' order."""
-    import contextvars
+    compression and overviews release the GIL), each as on the calling thread
+    (:func:`demtool.tiling.tasks.carried`: its output transaction and layout); a failure
+    is raised once the others have ended, the first in the outputs' order."""
     from concurrent.futures import ThreadPoolExecutor
 
     from demtool import io as dio
-    from demtool.tiling.distributed import usable_threads
+    from demtool.tiling.tasks import carried, usable_threads
 
     def write(output: tuple[Path, int, str, dict[str, Any]]) -> None:
         path, band, name, tags = output
@@ -187,7 +186,7 @@ def write_outputs(outputs: Sequence[tuple[Path, int, str, dict[str, Any]]],
             write(output)
         return
     with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="demtool-write") as pool:
-        futures = [pool.submit(contextvars.copy_context().run, write, output)
+        futures = [pool.submit(carried(lambda output=output: write(output)))
                    for output in outputs]
     for future in futures:
         future.result()

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import contextvars
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, TypeVar
 
 from demtool.errors import ProcessingError
 from demtool.tiling import Tile, TileCache, TileJob
+
+T = TypeVar("T")
 
 
 def available_cores() -> int:
@@ -68,6 +70,23 @@ def numba_threads_at_most(threads: int) -> Iterator[None]:
         yield
     finally:
         numba.set_num_threads(before)
+
+
+def carried(function: Callable[[], T]) -> Callable[[], T]:
+    """``function`` to be called on another thread as on this one: in a copy of this
+    thread's context (:func:`threads_limited`'s limit, an output transaction, the layout)
+    and within this thread's numba thread count (numba keeps the count per thread: a new
+    thread would get every core)."""
+    import numba
+
+    context = contextvars.copy_context()
+    count = numba.get_num_threads()
+
+    def run() -> T:
+        with numba_threads_at_most(count):
+            return context.run(function)
+
+    return run
 
 
 def compute_tile(job: TileJob, tile: Tile, cache: TileCache, threads: int) -> dict[str, Any]:

@@ -12,15 +12,13 @@ float32 pixels, NaN = invalid.
 
 from __future__ import annotations
 
-import os
-import threading
 from collections.abc import Callable
 
 import numpy as np
 from numba import njit
 
 from demtool.sgm.simd import best_two, right_minima
-from demtool.tiling.distributed import usable_threads
+from demtool.tiling.rows import on_row_parts
 
 SUBPIXEL_MODES = {"none": 0, "parabola": 1, "equiangular": 2}
 #: Confidence :func:`select_row` gives a pixel the left–right check rejects as occluded
@@ -197,26 +195,6 @@ def select_disparities(total: np.ndarray, *, min_disparity: int, left_valid: np.
 
 #: Fewest rows (or directions' pixels) worth a second thread in :func:`in_halves`.
 MIN_SPLIT_ROWS = 64
-# the one-thread pool of in_halves, one per calling thread: tiles on threads
-# (demtool.tiling.local_threads) each split their rows at once, and a pool shared by the
-# process would queue one tile's second half behind another's
-_HELPER = threading.local()
-
-
-def _helper_pool():
-    """The calling thread's helper thread, which runs its second halves: started on the
-    thread's first split (~1.5 ms) and kept while the thread lives (its pool goes with
-    the thread's locals, and its worker with it); a new one after a fork, whose child has
-    no threads."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    pid, pool = getattr(_HELPER, "pool", (None, None))
-    if pool is None or pid != os.getpid():
-        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="demtool-halves")
-        _HELPER.pool = (os.getpid(), pool)
-    return pool
-
-
 def in_halves(work: Callable[[int, int], object], count: int,
               min_split: int | None = None) -> None:
     """Run ``work(start, stop)`` over ``0 … count`` in two halves on two threads.
@@ -225,22 +203,13 @@ def in_halves(work: Callable[[int, int], object], count: int,
     (numba ``nogil``): each half writes only its own rows, so the result is the one
     thread's, bit for bit.  One call ``work(0, count)`` when there is one core (or
     :func:`demtool.tiling.distributed.threads_limited` allows one thread) or fewer than
-    ``min_split`` items (default :data:`MIN_SPLIT_ROWS`).  Each calling thread (each tile
-    thread of a tiled run) has its own helper thread for the second halves, so
-    concurrent callers never wait for one another's.  ``work`` should not call
-    :func:`in_halves` itself (its first half's split would queue behind the second half on
-    the thread's one helper).
+    ``min_split`` items (default :data:`MIN_SPLIT_ROWS`).  The second half runs on the
+    calling thread's helper (:func:`demtool.tiling.rows.on_row_parts`), so concurrent
+    callers (the tiles of a tiled run) never wait for one another's.  ``work`` should
+    not call :func:`in_halves` itself.
     """
     min_split = MIN_SPLIT_ROWS if min_split is None else min_split
-    if count < min_split or usable_threads() < 2:
-        work(0, count)
-        return
-    middle = count // 2
-    future = _helper_pool().submit(work, middle, count)
-    try:
-        work(0, middle)
-    finally:
-        future.result()
+    on_row_parts(work, count, min_rows=max(1, min_split // 2), max_parts=2)
 
 
 @njit(nogil=True, cache=True)

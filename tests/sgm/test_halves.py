@@ -189,7 +189,9 @@ def test_concurrent_callers_run_their_second_halves_at_once(monkeypatch):
     the first, and the barrier below broke)."""
     import threading
 
-    monkeypatch.setattr(disparity, "usable_threads", lambda: 2)
+    from demtool.tiling import rows
+
+    monkeypatch.setattr(rows, "usable_threads", lambda: 2)
     both_second_halves = threading.Barrier(2, timeout=10)
     helpers: set[int] = set()
     errors: list[BaseException] = []

@@ -15,7 +15,10 @@ step resumable in the work folder:
    camera); when the map's CRS is known up front (the orthoimages' or ``--t-srs``) its
    map x, y instead of longitude and latitude (and the range only where the GSD is
    estimated from it: :func:`point_fields`), so that the points are projected once,
-   not again for the grid's extent and for each output tile they meet;
+   not again for the grid's extent and for each output tile they meet; the tiles a
+   process computes it also keeps decoded (:func:`hold_points`, up to
+   :data:`HELD_POINTS_MAX` points): its later passes take them from memory rather than
+   decode the cache three times (the same numbers, :func:`tile_points`);
 2. **statistics** (the runner, one cached tile at a time): exact medians
    (:func:`demtool.dem.tiled_map_run.streaming_median`) for the GSD, the gap threshold
    ``median + max(4 NMAD, 2 GSD)`` (:func:`demtool.dem.sensors.default_max_ray_gap`) and
@@ -43,6 +46,7 @@ from __future__ import annotations
 import functools
 import math
 import os
+import threading
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar
@@ -51,7 +55,7 @@ import numpy as np
 
 from demtool.dem.tiled import CELL_BYTES, PROCESS_BYTES
 from demtool.dem.tiled_grids import fill_core, read_cached_window
-from demtool.tiling import Tile, TileCache, plan_tiles, read_window
+from demtool.tiling import Tile, TileCache, Tiling, plan_tiles, read_window
 
 POINT_BYTES = 400  # per disparity cell: raw coordinates, rays, points
 #: the quantities a cached points tile may hold as :func:`split64` band pairs (x, y: map
@@ -115,11 +119,84 @@ def split64(values: np.ndarray) -> np.ndarray:
     return np.stack([high, (values - high.astype(np.float64)).astype(np.float32)])
 
 
+def points_tiling(height: int, width: int, tile_size: int) -> Tiling:
+    """The tiles of the points pass over a ``height × width`` disparity grid: rows of
+    the whole width, as many as ``tile_size²`` cells make (at least), equally tall and
+    that height rounded up to whole strips of the raw-coordinates lattice
+    (:data:`demtool.mapproject.lattice.STRIP_ROWS` rows) once it is that tall, else
+    :func:`demtool.tiling.plan_tiles`' squares where one row is more than ``tile_size²``
+    cells.  The points of a cell do not depend on its tile but for the
+    lattice's check points (within its 0.0001 px); whole-width rows cut the lattice
+    into as few strips as the untiled route's, where squares added a strip (and its
+    check points, each projected exactly) at every tile column.
+    """
+    from demtool.mapproject.lattice import STRIP_ROWS
+
+    count = math.ceil(height * width / tile_size**2)
+    rows = math.ceil(height / count)
+    if rows >= STRIP_ROWS:
+        rows = math.ceil(rows / STRIP_ROWS) * STRIP_ROWS
+    if width > tile_size**2:
+        return plan_tiles(height, width, tile_size, overlap=0)
+    tiles = tuple(Tile(i, (r0, min(r0 + rows, height), 0, width),
+                       (r0, min(r0 + rows, height), 0, width))
+                  for i, r0 in enumerate(range(0, height, rows)))
+    return Tiling(height, width, tile_size, (0, 0, 0, 0), tiles)
+
+
 def load_points(cache: TileCache, tile: Tile) -> np.ndarray:
     """A cached points tile ``(B, h, w)`` float32, memory-mapped: only the bands
     :func:`stored_points` decodes are read (the statistics' passes read 3 of its bands,
     not all of them)."""
     return np.load(cache.path(tile), mmap_mode="r", allow_pickle=False)
+
+
+#: most points a process keeps decoded from its points passes (4 to 5 float64 fields:
+#: 256 to 320 MiB), as :data:`demtool.dem.tiled_map_run.MEDIAN_IN_MEMORY`
+HELD_POINTS_MAX = 1 << 23
+_HELD: dict[tuple[str, int], dict[str, np.ndarray]] = {}
+_HELD_LOCK = threading.Lock()
+
+
+def hold_points(folder: str, tile: Tile, values: np.ndarray,
+                layout: tuple[str, ...]) -> None:
+    """Keep a points tile just computed (``values`` as it is cached) decoded in this
+    process, for the later passes (:func:`tile_points`): :func:`stored_points` of it, so
+    the very numbers a pass decoding the cached file gets, decoded once, on the tile's
+    thread.  Nothing is kept past :data:`HELD_POINTS_MAX` points in all."""
+    decoded = dict(zip(layout, stored_points(values, layout, layout=layout), strict=True))
+    count = decoded[layout[0]].size
+    with _HELD_LOCK:
+        held = sum(d[layout[0]].size for (f, _), d in _HELD.items() if f == folder)
+        if held + count <= HELD_POINTS_MAX:
+            _HELD[folder, tile.index] = decoded
+
+
+def release_points(folder: str) -> None:
+    """Forget the points tiles :func:`hold_points` kept of the cache ``folder``."""
+    with _HELD_LOCK:
+        for key in [k for k in _HELD if k[0] == folder]:
+            del _HELD[key]
+
+
+def tile_points(cache: TileCache, tile: Tile, fields: tuple[str, ...],
+                chosen: np.ndarray | None = None,
+                layout: tuple[str, ...] = LONLAT_FIELDS) -> tuple[np.ndarray, ...]:
+    """:func:`stored_points` of a cached points tile: from what this process holds
+    (:func:`hold_points`) when it computed the tile, else decoded from the cache."""
+    held = _HELD.get((str(cache.folder), tile.index))
+    if held is None:
+        return stored_points(load_points(cache, tile), fields, chosen, layout)
+    return tuple(held[name] if chosen is None else held[name][chosen] for name in fields)
+
+
+def tile_point_count(cache: TileCache, tile: Tile,
+                     layout: tuple[str, ...] = LONLAT_FIELDS) -> int:
+    """:func:`point_count` of a cached points tile (held, or read from the cache)."""
+    held = _HELD.get((str(cache.folder), tile.index))
+    if held is None:
+        return point_count(load_points(cache, tile), layout)
+    return int(held[layout[0]].size)
 
 
 def point_fields(map_xy: bool, range_left: bool = True) -> tuple[str, ...]:
@@ -303,8 +380,14 @@ class MapDemTileJob:
                                                      lon, lat)
         cells = out.reshape(len(out), -1)  # a view
         at = rows[seen][front] * (c1 - c0) + cols[seen][front]
+        dense = np.empty(cells.shape[1])
         for k, name in enumerate(self.point_layout):  # split64's pair, field by field
-            cells[2 * k:2 * k + 2, at] = split64(values[name])
+            dense.fill(np.nan)  # one scatter a field, then split64 on whole bands (as
+            dense[at] = values[name]  # split64 of the points: the same two float32s)
+            cells[2 * k] = dense
+            cells[2 * k + 1] = dense - cells[2 * k].astype(np.float64)
+        if self.points:  # the later passes of this process take them decoded
+            hold_points(self.points, tile, out, self.point_layout)
         return out, info
 
     # ------------------------------------------------------------------ step 3
@@ -322,20 +405,20 @@ class MapDemTileJob:
         h, w = r1 - r0, c1 - c0
         crs = CRS.from_wkt(self.crs_wkt)
         a, _, c, _, e, f = self.grid_transform[:6]
-        ptiles = plan_tiles(*self.disparity_shape, self.tile_size, overlap=0).tiles
+        ptiles = points_tiling(*self.disparity_shape, self.tile_size).tiles
         cache = TileCache(self.points)
         pixels, heights, gaps = [], [], []
         for ptile, box in zip(ptiles, self.boxes, strict=True):
             if box is None or box[0] >= r1 or box[1] <= r0 or box[2] >= c1 or box[3] <= c0:
                 continue
-            values = load_points(cache, ptile)
             layout = self.point_layout
             if self.cached_xy:  # the cells first: only the points inside are decoded
-                gap, x, y = stored_points(values, ("gap", "x", "y"), layout=layout)
+                gap, x, y = tile_points(cache, ptile, ("gap", "x", "y"), layout=layout)
                 keep = gap <= self.max_gap
                 x, y = x[keep], y[keep]
             else:
-                lon, lat, gap = stored_points(values, ("lon", "lat", "gap"), layout=layout)
+                lon, lat, gap = tile_points(cache, ptile, ("lon", "lat", "gap"),
+                                            layout=layout)
                 keep = gap <= self.max_gap
                 x, y = lonlat_to_map(crs, lon[keep], lat[keep])
             px = (np.asarray(x) - c) / a - 0.5  # as demtool.dem.sensors.dem_on_map
@@ -345,7 +428,7 @@ class MapDemTileJob:
                 continue
             pixels.append(np.column_stack([px[inside] - c0, py[inside] - r0]))
             chosen = np.flatnonzero(keep)[inside]  # among the tile's points
-            heights.append(stored_points(values, ("height",), chosen, layout)[0])
+            heights.append(tile_points(cache, ptile, ("height",), chosen, layout)[0])
             gaps.append(gap[chosen])
         out = np.full((3, h, w), np.nan, dtype=np.float32)
         points = 0

@@ -22,12 +22,13 @@ from demtool.dem.tiled_grids import prepare_fill
 from demtool.dem.tiled_map import (
     LONLAT_FIELDS,
     MapDemTileJob,
-    load_points,
     ortho,
-    point_count,
     point_fields,
+    points_tiling,
     rectified_pair,
-    stored_points,
+    release_points,
+    tile_point_count,
+    tile_points,
 )
 from demtool.tiling import TileCache, plan_tiles
 
@@ -111,20 +112,20 @@ def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gs
     tiles' fields in ``layout`` (:func:`demtool.dem.tiled_map.point_fields`)."""
     from demtool.mapproject.threads import ordered_map
 
-    front = sum(point_count(load_points(points, t), layout) for t in tiles)
+    front = sum(tile_point_count(points, t, layout) for t in tiles)
     # up to MEDIAN_IN_MEMORY points, each tile's gaps and heights are decoded once, the
     # tiles on every core, and kept for the passes below (the values each pass decoded)
     held: dict[tuple[str, int], np.ndarray] | None = None
     if front <= MEDIAN_IN_MEMORY:
         held = {}
         for t, (gap, height) in zip(tiles, ordered_map(
-                lambda t: stored_points(load_points(points, t), ("gap", "height"),
-                                        layout=layout), tiles), strict=True):
+                lambda t: tile_points(points, t, ("gap", "height"), layout=layout),
+                tiles), strict=True):
             held["gap", t.index], held["height", t.index] = gap, height
 
     def decoded(name: str, t) -> np.ndarray:
         if held is None or name not in ("gap", "height"):
-            return stored_points(load_points(points, t), (name,), layout=layout)[0]
+            return tile_points(points, t, (name,), layout=layout)[0]
         return held[name, t.index]
 
     def band(name: str):
@@ -173,8 +174,7 @@ def _grid(params, points: TileCache, tiles, body, gsd: float, max_gap: float, cr
     from demtool.maps.projections import lonlat_to_map, make_projection
 
     def kept(t):
-        lon, lat, gap = stored_points(load_points(points, t), ("lon", "lat", "gap"),
-                                      layout=layout)
+        lon, lat, gap = tile_points(points, t, ("lon", "lat", "gap"), layout=layout)
         return lon[gap <= max_gap], lat[gap <= max_gap]
 
     if crs is None or params.projection != "auto":  # as choose_projection: the mean direction
@@ -187,8 +187,7 @@ def _grid(params, points: TileCache, tiles, body, gsd: float, max_gap: float, cr
 
     def extent(t):
         if cached_xy:
-            x, y, gap = stored_points(load_points(points, t), ("x", "y", "gap"),
-                                      layout=layout)
+            x, y, gap = tile_points(points, t, ("x", "y", "gap"), layout=layout)
             x, y = x[gap <= max_gap], y[gap <= max_gap]
         else:
             x, y = lonlat_to_map(crs, *kept(t))
@@ -244,12 +243,12 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     layout = job.point_layout
     source = job.disparity_path
     tile_size = job.tile_size
-    points_tiling = plan_tiles(*job.disparity_shape, tile_size, overlap=0)
-    points_tiles = points_tiling.tiles
+    tiling_of_points = points_tiling(*job.disparity_shape, tile_size)
+    points_tiles = tiling_of_points.tiles
     if params.dry_run:  # the output grid comes from the points: plan and time the points pass
         run.log.info("dry run: the points pass over the disparity grid (the output map "
                      "grid, about as large, is known after it)")
-        return run_tiled(run, job.at_step("points"), points_tiling,
+        return run_tiled(run, job.at_step("points"), tiling_of_points,
                          [TiledOutput(out, 0, {}, "height")], inputs=inputs,
                          parameters=params.as_dict(), dry_run=True)
     workers, scheduler = params.workers, params.scheduler
@@ -258,11 +257,14 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     if workers >= 2 and not scheduler and not runs_on_threads(job, workers, None):
         scheduler, workers = _local_cluster(stack, job, workers), 0  # one, every pass
     # 1. points, outside the lock (as tiled/dem.py's statistics)
-    key = cache_key(inputs, params.as_dict(), points_tiling,
+    key = cache_key(inputs, params.as_dict(), tiling_of_points,
                     {"pass": "points", "map_xy": job.points_crs_wkt, "fields": layout})
     points = TileCache(work_folder(out) / f"{key}-points")
-    infos = run_tiles(job.at_step("points"), points_tiles, points, workers=workers,
-                      scheduler=scheduler, log=run.log)
+    # the tiles this process computes are also kept decoded for the passes below (those
+    # a resumed run finds cached are read from the cache): forgotten when the run ends
+    stack.callback(release_points, str(points.folder))
+    infos = run_tiles(job.at_step("points", points=str(points.folder)), points_tiles,
+                      points, workers=workers, scheduler=scheduler, log=run.log)
     valid = sum(int(i.get("valid", 0)) for i in infos)
     seen = sum(int(i.get("seen", 0)) for i in infos)
 
@@ -275,7 +277,7 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     if seen < 3:
         raise refuse(f"{source}: fewer than 3 disparities map back into both raw images")
     # 2. statistics and the output grid
-    if sum(point_count(load_points(points, t), layout) for t in points_tiles) == 0:
+    if sum(tile_point_count(points, t, layout) for t in points_tiles) == 0:
         raise refuse(f"{source}: no disparity triangulates in front of both cameras")
     gsd, max_gap, median_gap, front, kept, overlap_height = _statistics(
         params, points, points_tiles, gsd, range_to_gsd, run.log, layout)

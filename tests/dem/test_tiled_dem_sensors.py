@@ -394,3 +394,81 @@ def test_stored_points_decode_a_chosen_subset_as_the_whole():
     assert np.array_equal(part[1], whole[0][chosen])
     ok = np.isfinite(values[0])
     np.testing.assert_allclose(whole[0], values[0][ok], rtol=1e-13)  # split64: ~1e-14
+
+
+def test_points_held_in_the_process_are_the_cached_points_decoded(tmp_path, monkeypatch):
+    """What a points tile's later passes take from memory (the tile computed in this
+    process) is bit for bit what they would decode from its cached file, the chosen
+    subsets and the count too; past HELD_POINTS_MAX points the cache is read."""
+    from demtool.dem import tiled_map
+    from demtool.dem.tiled_map import (
+        hold_points,
+        point_count,
+        point_fields,
+        release_points,
+        split64,
+        stored_points,
+        tile_point_count,
+        tile_points,
+    )
+    from demtool.tiling import Tile, TileCache
+
+    layout = point_fields(True, False)
+    rng = np.random.default_rng(5)
+    cache = TileCache(tmp_path / "points")
+    tiles = [Tile(i, (0, 9, 0, 7), (0, 9, 0, 7)) for i in range(2)]
+    stored = []
+    for tile in tiles:
+        values = rng.normal(1e5, 1e3, (len(layout), 9, 7))
+        values[:, rng.random((9, 7)) < 0.3] = np.nan
+        stored.append(split64(values).transpose(1, 0, 2, 3).reshape(-1, 9, 7))
+        cache.store(tile, stored[-1], {})
+    monkeypatch.setattr(tiled_map, "HELD_POINTS_MAX", point_count(stored[0], layout))
+    folder = str(cache.folder)
+    try:
+        for tile, values in zip(tiles, stored, strict=True):
+            hold_points(folder, tile, values, layout)  # the second one is past the cap
+        assert (folder, 0) in tiled_map._HELD and (folder, 1) not in tiled_map._HELD
+        for tile, values in zip(tiles, stored, strict=True):
+            whole = stored_points(values, layout, layout=layout)
+            assert tile_point_count(cache, tile, layout) == whole[0].size
+            for got, want in zip(tile_points(cache, tile, layout, layout=layout), whole,
+                                 strict=True):
+                assert got.dtype == np.float64 and np.array_equal(got, want)
+            chosen = np.array([0, 2, whole[0].size - 1])
+            got = tile_points(cache, tile, ("y", "gap"), chosen, layout)
+            assert np.array_equal(got[0], whole[3][chosen])
+            assert np.array_equal(got[1], whole[1][chosen])
+    finally:
+        release_points(folder)
+    assert not any(key[0] == folder for key in tiled_map._HELD)
+
+
+@pytest.mark.parametrize("height, width, tile_size", [
+    (1999, 2102, 1024), (300, 200, 64), (5000, 700, 512), (40, 9000, 64), (100, 90, 1024)])
+def test_points_tiles_are_whole_rows_of_whole_lattice_strips(height, width, tile_size):
+    """The points pass's tiles partition the grid in row order; whole-width rows, equally
+    tall (the last one shorter), a multiple of the lattice's strip once that tall, about
+    tile_size² cells each; squares where one row is more than tile_size² cells."""
+    from demtool.dem.tiled_map import points_tiling
+    from demtool.mapproject.lattice import STRIP_ROWS
+    from demtool.tiling import plan_tiles
+
+    tiling = points_tiling(height, width, tile_size)
+    covered = np.zeros((height, width), dtype=np.int64)
+    for i, tile in enumerate(tiling.tiles):
+        r0, r1, c0, c1 = tile.core
+        assert tile.index == i and tile.outer == tile.core
+        covered[r0:r1, c0:c1] += 1
+    assert (covered == 1).all()
+    if width > tile_size**2:
+        assert tiling.tiles == plan_tiles(height, width, tile_size, overlap=0).tiles
+        return
+    rows = [t.core[1] - t.core[0] for t in tiling.tiles]
+    assert all(t.core[2:] == (0, width) for t in tiling.tiles)
+    assert len(set(rows[:-1])) <= 1 and rows[-1] <= rows[0]
+    assert len(rows) == -(-height * width // tile_size**2) or rows[0] % STRIP_ROWS == 0
+    if rows[0] >= STRIP_ROWS:
+        assert rows[0] % STRIP_ROWS == 0 and (rows[0] - STRIP_ROWS) * width < tile_size**2
+    else:
+        assert rows[0] * width <= tile_size**2 or len(rows) == 1

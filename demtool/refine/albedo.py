@@ -12,6 +12,7 @@ import numba as nb
 import numpy as np
 
 from demtool.refine.filters import masked_gaussian_lowpass
+from demtool.tiling.rows import on_row_parts
 
 
 def estimate_albedo(image: np.ndarray, modelled: np.ndarray, *, sigma: float,
@@ -73,13 +74,20 @@ def estimate_albedo(image: np.ndarray, modelled: np.ndarray, *, sigma: float,
     return np.where(bad, fallback, albedo).astype(np.float32)
 
 
-@nb.njit(parallel=True, cache=True, nogil=True)
 def _usable_weight(image: np.ndarray, modelled: np.ndarray, weight: np.ndarray,
-                   weighted: bool, out: np.ndarray) -> None:  # pragma: no cover - compiled
+                   weighted: bool, out: np.ndarray) -> None:
     """``out`` = the weight (1 when not ``weighted``) where the image and the model are
-    finite and the model positive, else 0 (float32, on every core)."""
-    height, width = image.shape
-    for r in nb.prange(height):
+    finite and the model positive, else 0 (float32, rows on every core:
+    :func:`demtool.tiling.rows.on_row_parts`)."""
+    on_row_parts(lambda start, stop: _usable_weight_rows(image, modelled, weight, weighted,
+                                                         out, start, stop), image.shape[0])
+
+
+@nb.njit(cache=True, nogil=True)
+def _usable_weight_rows(image, modelled, weight, weighted, out, start,
+                        stop):  # pragma: no cover - compiled
+    width = image.shape[1]
+    for r in range(start, stop):
         for c in range(width):
             m = modelled[r, c]
             usable = np.isfinite(image[r, c]) and np.isfinite(m) and m > 0
@@ -87,18 +95,26 @@ def _usable_weight(image: np.ndarray, modelled: np.ndarray, weight: np.ndarray,
             out[r, c] = w if usable else np.float32(0.0)
 
 
-@nb.njit(parallel=True, cache=True, nogil=True)
 def _ratio_is_bad(smooth_image: np.ndarray, smooth_model: np.ndarray, floor: np.float32,
-                  out: np.ndarray) -> bool:  # pragma: no cover - compiled
+                  out: np.ndarray) -> bool:
     """``out = smooth_image / max(smooth_model, floor)`` (NaN kept, as ``np.maximum``);
     True when some ratio is not positive."""
-    height, width = out.shape
-    bad = np.zeros(height, dtype=np.bool_)
-    for r in nb.prange(height):
+    bad = np.zeros(out.shape[0], dtype=np.bool_)
+    on_row_parts(lambda start, stop: _ratio_rows(smooth_image, smooth_model, floor, out, bad,
+                                                 start, stop), out.shape[0])
+    return bool(bad.any())
+
+
+@nb.njit(cache=True, nogil=True)
+def _ratio_rows(smooth_image, smooth_model, floor, out, bad, start,
+                stop):  # pragma: no cover - compiled
+    """Rows ``start … stop − 1`` of :func:`_ratio_is_bad`; ``bad[r]`` True when a ratio of
+    row r is not positive."""
+    width = out.shape[1]
+    for r in range(start, stop):
         for c in range(width):
             m = smooth_model[r, c]
             ratio = smooth_image[r, c] / (m if not m < floor else floor)
             out[r, c] = ratio
             if not ratio > 0:
                 bad[r] = True
-    return bad.any()

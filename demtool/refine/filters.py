@@ -146,24 +146,40 @@ def masked_gaussian_lowpass(array: np.ndarray, weight: np.ndarray, sigma: float,
     return out
 
 
-@nb.njit(parallel=True, cache=True, nogil=True)
-def _masked_product(values: np.ndarray, weight: np.ndarray,
-                    out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``out = (values where weight > 0, else 0) · weight`` (float32, on every core)."""
-    height, width = values.shape
+def _masked_product(values: np.ndarray, weight: np.ndarray, out: np.ndarray) -> None:
+    """``out = (values where weight > 0, else 0) · weight`` (float32, rows on every core:
+    :func:`demtool.tiling.rows.on_row_parts`)."""
+    from demtool.tiling.rows import on_row_parts
+
+    on_row_parts(lambda start, stop: _masked_product_rows(values, weight, out, start, stop),
+                 values.shape[0])
+
+
+@nb.njit(cache=True, nogil=True)
+def _masked_product_rows(values, weight, out, start, stop):  # pragma: no cover - compiled
+    width = values.shape[1]
     zero = np.float32(0.0)
-    for r in nb.prange(height):
+    for r in range(start, stop):
         for c in range(width):
             w = weight[r, c]
             out[r, c] = (values[r, c] if w > 0 else zero) * w
 
 
-@nb.njit(parallel=True, cache=True, nogil=True)
 def _ratio_above(numerator: np.ndarray, denominator: np.ndarray, floor: np.float32,
-                 fallback: np.float32, out: np.ndarray) -> None:  # pragma: no cover
+                 fallback: np.float32, out: np.ndarray) -> None:
     """``out = numerator / denominator`` where ``denominator > floor``, else ``fallback``."""
-    height, width = numerator.shape
-    for r in nb.prange(height):
+    from demtool.tiling.rows import on_row_parts
+
+    on_row_parts(lambda start, stop: _ratio_above_rows(numerator, denominator, floor,
+                                                       fallback, out, start, stop),
+                 numerator.shape[0])
+
+
+@nb.njit(cache=True, nogil=True)
+def _ratio_above_rows(numerator, denominator, floor, fallback, out, start,
+                      stop):  # pragma: no cover - compiled
+    width = numerator.shape[1]
+    for r in range(start, stop):
         for c in range(width):
             d = denominator[r, c]
             out[r, c] = numerator[r, c] / d if d > floor else fallback
@@ -294,55 +310,55 @@ def _toggle(rank: int, sign: int, bitmap: np.ndarray, counts: np.ndarray) -> Non
     counts[rank >> _BIN_SHIFT] += sign
 
 
-@nb.njit(parallel=True, cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True)
 def _median_ranks(ranks: np.ndarray, sorted_values: np.ndarray, height: int, width: int,
-                  size: int, bins: int) -> np.ndarray:
+                  size: int, bins: int) -> np.ndarray:  # pragma: no cover - compiled
+    # serial: median_filter runs one strip per thread (a parallel=True loop here compiled
+    # for 6 s in a fresh install and ran on one thread inside the strips anyway)
     out = np.empty((height, width), dtype=sorted_values.dtype)
     target = size * size // 2
-    chunk = 8
-    for block in nb.prange((height + chunk - 1) // chunk):
-        bitmap = np.zeros(bins * _WORDS_PER_BIN, dtype=np.uint64)
-        counts = np.zeros(bins, dtype=np.int64)
-        for r in range(block * chunk, min(height, block * chunk + chunk)):
-            for j in range(size):
+    bitmap = np.zeros(bins * _WORDS_PER_BIN, dtype=np.uint64)  # emptied after each row
+    counts = np.zeros(bins, dtype=np.int64)
+    for r in range(height):
+        for j in range(size):
+            for i in range(size):
+                _toggle(ranks[r + i, j], 1, bitmap, counts)
+        pivot = 0  # bin of the median; ``below`` = entries in bins before it
+        below = 0
+        for c in range(width):
+            if c > 0:
                 for i in range(size):
-                    _toggle(ranks[r + i, j], 1, bitmap, counts)
-            pivot = 0  # bin of the median; ``below`` = entries in bins before it
-            below = 0
-            for c in range(width):
-                if c > 0:
-                    for i in range(size):
-                        old = ranks[r + i, c - 1]
-                        _toggle(old, -1, bitmap, counts)
-                        if (old >> _BIN_SHIFT) < pivot:
-                            below -= 1
-                        new = ranks[r + i, c + size - 1]
-                        _toggle(new, 1, bitmap, counts)
-                        if (new >> _BIN_SHIFT) < pivot:
-                            below += 1
-                while below > target:
-                    pivot -= 1
-                    below -= counts[pivot]
-                while below + counts[pivot] <= target:
-                    below += counts[pivot]
-                    pivot += 1
-                # the (target − below)-th set bit of the pivot bin
-                remaining = target - below
-                word_index = pivot * _WORDS_PER_BIN
+                    old = ranks[r + i, c - 1]
+                    _toggle(old, -1, bitmap, counts)
+                    if (old >> _BIN_SHIFT) < pivot:
+                        below -= 1
+                    new = ranks[r + i, c + size - 1]
+                    _toggle(new, 1, bitmap, counts)
+                    if (new >> _BIN_SHIFT) < pivot:
+                        below += 1
+            while below > target:
+                pivot -= 1
+                below -= counts[pivot]
+            while below + counts[pivot] <= target:
+                below += counts[pivot]
+                pivot += 1
+            # the (target − below)-th set bit of the pivot bin
+            remaining = target - below
+            word_index = pivot * _WORDS_PER_BIN
+            word = bitmap[word_index]
+            bits = _popcount(word)
+            while remaining >= bits:
+                remaining -= bits
+                word_index += 1
                 word = bitmap[word_index]
                 bits = _popcount(word)
-                while remaining >= bits:
-                    remaining -= bits
-                    word_index += 1
-                    word = bitmap[word_index]
-                    bits = _popcount(word)
-                for _ in range(remaining):
-                    word &= word - np.uint64(1)
-                lowest = (word & (~word + np.uint64(1))) - np.uint64(1)
-                out[r, c] = sorted_values[word_index * 64 + _popcount(lowest)]
-            for j in range(width - 1, width + size - 1):  # empty the window
-                for i in range(size):
-                    _toggle(ranks[r + i, j], -1, bitmap, counts)
+            for _ in range(remaining):
+                word &= word - np.uint64(1)
+            lowest = (word & (~word + np.uint64(1))) - np.uint64(1)
+            out[r, c] = sorted_values[word_index * 64 + _popcount(lowest)]
+        for j in range(width - 1, width + size - 1):  # empty the window
+            for i in range(size):
+                _toggle(ranks[r + i, j], -1, bitmap, counts)
     return out
 
 
@@ -370,7 +386,7 @@ def _median_of_strip(padded: np.ndarray, size: int) -> np.ndarray:
 
 
 def median_filter(array: np.ndarray, size: int) -> np.ndarray:
-    """Square ``size`` × ``size`` median filter with reflect boundaries (numba, parallel).
+    """Square ``size`` × ``size`` median filter with reflect boundaries (numba, in strips).
 
     Equal to ``scipy.ndimage.median_filter(array, size, mode="reflect")`` for odd
     ``size``; O(size) work per pixel (sliding rank window, see above), about ten times

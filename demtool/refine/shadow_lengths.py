@@ -160,23 +160,29 @@ def shadow_segments(dark: np.ndarray, usable: np.ndarray, spacing: tuple[float, 
                           (trapezoid * per_step_q).astype(np.float32), target)
 
 
-@nb.njit(parallel=True, cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True)
 def _residuals(p: np.ndarray, q: np.ndarray, starts: np.ndarray, rows: np.ndarray,
                cols: np.ndarray, coef_p: np.ndarray, coef_q: np.ndarray,
-               target: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    out = np.empty(target.size, dtype=np.float64)
-    for s in nb.prange(target.size):  # each segment's sum in order: as serial
+               target: np.ndarray, out: np.ndarray, first: int,
+               stop: int) -> None:  # pragma: no cover - compiled
+    for s in range(first, stop):  # each segment's sum in order
         total = 0.0
         for j in range(starts[s], starts[s + 1]):
             total += coef_p[j] * p[rows[j], cols[j]] + coef_q[j] * q[rows[j], cols[j]]
         out[s] = total - target[s]
-    return out
 
 
 def segment_residuals(p: np.ndarray, q: np.ndarray, segments: ShadowSegments) -> np.ndarray:
-    """``aᵀ(p, q) − t`` per segment (x-pixel units), (S,) float64."""
-    return _residuals(p, q, segments.starts, segments.rows, segments.cols, segments.coef_p,
-                      segments.coef_q, segments.target)
+    """``aᵀ(p, q) − t`` per segment (x-pixel units), (S,) float64; the segments in
+    contiguous parts on every core (:func:`demtool.tiling.rows.on_row_parts`), each
+    segment's sum in order as on one thread."""
+    from demtool.tiling.rows import on_row_parts
+
+    out = np.empty(segments.count, dtype=np.float64)
+    on_row_parts(lambda first, stop: _residuals(
+        p, q, segments.starts, segments.rows, segments.cols, segments.coef_p,
+        segments.coef_q, segments.target, out, first, stop), segments.count)
+    return out
 
 
 @nb.njit(cache=True, nogil=True)

@@ -12,6 +12,7 @@ import numba as nb
 import numpy as np
 
 from demtool.refine.shading import Illumination, cosine, slopes
+from demtool.tiling.rows import on_row_parts
 
 
 @nb.njit(cache=True, inline="always")
@@ -26,14 +27,22 @@ def _bilinear(dem: np.ndarray, row: float, col: float) -> float:
     return top * (1.0 - fr) + bottom * fr
 
 
-@nb.njit(parallel=True, cache=True, nogil=True)
 def _march_toward_sun(dem: np.ndarray, step_row: float, step_col: float, rise: float,
                       z_max: float, candidates: np.ndarray) -> np.ndarray:
     """Per candidate pixel, step toward the sun; shadowed if the terrain rises above the
-    ray."""
+    ray.  (H, W) bool; rows on every core (:func:`demtool.tiling.rows.on_row_parts`)."""
+    shadow = np.zeros(dem.shape, dtype=np.bool_)
+    on_row_parts(lambda start, stop: _march_rows(dem, step_row, step_col, rise, z_max,
+                                                 candidates, shadow, start, stop),
+                 dem.shape[0])
+    return shadow
+
+
+@nb.njit(cache=True, nogil=True)
+def _march_rows(dem, step_row, step_col, rise, z_max, candidates, shadow, start,
+                stop):  # pragma: no cover - compiled
     height, width = dem.shape
-    shadow = np.zeros((height, width), dtype=np.bool_)
-    for r in nb.prange(height):
+    for r in range(start, stop):
         for c in range(width):
             if not candidates[r, c]:
                 continue
@@ -50,15 +59,20 @@ def _march_toward_sun(dem: np.ndarray, step_row: float, step_col: float, rise: f
                 if _bilinear(dem, row, col) > ray:
                     shadow[r, c] = True
                     break
-    return shadow
 
 
-@nb.njit(parallel=True, cache=True, nogil=True)
-def _dilate_cross(mask: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
+def _dilate_cross(mask: np.ndarray, out: np.ndarray) -> None:
     """One binary dilation by the 3 × 3 cross (4-neighbours), outside the grid False:
-    ``scipy.ndimage.binary_dilation(mask)`` with its default structure, on every core."""
+    ``scipy.ndimage.binary_dilation(mask)`` with its default structure, rows on every
+    core."""
+    on_row_parts(lambda start, stop: _dilate_cross_rows(mask, out, start, stop),
+                 mask.shape[0])
+
+
+@nb.njit(cache=True, nogil=True)
+def _dilate_cross_rows(mask, out, start, stop):  # pragma: no cover - compiled
     height, width = mask.shape
-    for r in nb.prange(height):
+    for r in range(start, stop):
         for c in range(width):
             out[r, c] = (mask[r, c] or (r > 0 and mask[r - 1, c])
                          or (r + 1 < height and mask[r + 1, c])
@@ -68,7 +82,7 @@ def _dilate_cross(mask: np.ndarray, out: np.ndarray) -> None:  # pragma: no cove
 def dilate(mask: np.ndarray, iterations: int) -> np.ndarray:
     """``mask`` grown by ``iterations`` pixels along rows and columns (the 4-neighbour
     cross applied ``iterations`` times; ``scipy.ndimage.binary_dilation(mask,
-    iterations=iterations)``, parallel)."""
+    iterations=iterations)``, rows on every core)."""
     current = np.ascontiguousarray(mask, dtype=np.bool_)
     for _ in range(int(iterations)):
         grown = np.empty_like(current)

@@ -104,3 +104,63 @@ def test_segment_residuals_on_every_core_are_the_serial_sums(two_threads):
             total += float(segments.coef_p[j] * p[r, c] + segments.coef_q[j] * q[r, c])
         expected[s] = total - float(segments.target[s])
     assert np.array_equal(segment_residuals(p, q, segments), expected)
+
+
+def test_row_kernels_on_two_threads_are_one_threads(two_threads):
+    """The solver's kernels run in row parts (demtool.tiling.rows.on_row_parts): each
+    part writes only its rows and the sums add the row sums in row order, so the
+    outputs do not depend on the thread count, to the bit."""
+    from demtool.refine import kernels
+    from demtool.refine.shading import Illumination
+    from demtool.refine.shadows import cast_shadows
+
+    rng = np.random.default_rng(11)
+    shape = (260, 97)  # two parts of 130 rows on two threads
+    p, q, gx, gy, p0, q0, bp, bq, R, normalised = (
+        rng.normal(0, 0.3, shape).astype(np.float32) for _ in range(10))
+    weight = rng.random(shape).astype(np.float32)
+    sun = np.array([0.6, -0.3, 0.74]) / np.linalg.norm([0.6, -0.3, 0.74])
+    dem = np.cumsum(rng.normal(size=shape), axis=1)
+
+    def outputs():
+        out = {}
+        for code in (0, 1):
+            arrays = [np.empty(shape, np.float32) for _ in range(3)]
+            kernels.reflectance_partials(p, q, sun, np.array([0.0, 0.1, 0.995]), 0.7, code,
+                                         *arrays)
+            out[f"reflectance {code}"] = arrays
+        arrays = [np.empty(shape, np.float32) for _ in range(5)]
+        kernels.central_gradient(p, 0.8, arrays[0], arrays[1])
+        kernels.slope_step(p, q, gx, gy, R, bp, bq, normalised, weight, p0, q0,
+                           np.float32(0.3), np.float32(0.2), np.float32(0.0), arrays[2],
+                           arrays[3])
+        kernels.integrability_adjoint(p, q, gx, gy, 0.8, arrays[4])
+        out["operators"] = arrays
+        update = np.empty(shape, np.float32)
+        kernels.height_update(p, q, gx, gy, weight, np.float32(0.4), update)
+        coarse = np.empty((130, 48), np.float32)
+        kernels.block_mean(np.ascontiguousarray(p[:, :96]), np.ascontiguousarray(q[:, :96]),
+                           2, coarse)
+        replicated = np.empty((260, 96), np.float32)
+        kernels.block_replicate(coarse, 2, replicated)
+        out["blocks"] = [update, coarse, replicated]
+        out["sums"] = [kernels.energy_sums(p, q, gx, gy, p0, q0, bp, bq, R, normalised,
+                                           weight),
+                       np.float64(kernels.weighted_square_sum(weight, p, q))]
+        out["shadows"] = [cast_shadows(dem, (1.0, 1.0), Illumination(sun, np.array(
+            [0.0, 0.0, 1.0])))]
+        return out
+
+    both = outputs()
+    numba.set_num_threads(1)
+    one = outputs()
+    numba.set_num_threads(two_threads)
+    for name, arrays in one.items():
+        for a, b in zip(arrays, both[name], strict=True):
+            assert np.array_equal(a, b), name
+    # the row sums in float64, in row order
+    rows = np.empty(shape[0])
+    kernels._weighted_square_sum_rows(weight, p, q, rows, 0, shape[0])
+    assert one["sums"][1] == np.cumsum(rows)[-1]
+    assert np.isclose(one["sums"][1], np.sum(weight * (p - q).astype(np.float64) ** 2),
+                      rtol=1e-5)

@@ -31,7 +31,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -140,35 +140,45 @@ def _grid(info: Any):
     return Grid(shape=(info.height, info.width), transform=info.transform, crs=info.crs)
 
 
-def _decimate(values: np.ndarray, window: tuple[int, int, int, int], factor: int
-              ) -> tuple[np.ndarray, slice, slice]:
-    """The window's cells on the decimated grid (global rows and columns ≡ 0 mod f)."""
-    r0, _, c0, _ = window
-    local = values[(-r0) % factor::factor, (-c0) % factor::factor]
-    rows = slice(-(-r0 // factor), -(-r0 // factor) + local.shape[0])
-    cols = slice(-(-c0 // factor), -(-c0 // factor) + local.shape[1])
-    return local, rows, cols
-
-
-def _align(sources, tiles, params, target, factor, log):
-    """Pass 0: the decimated DEM, reference and mask; the co-registration on them."""
-    from demtool.compare.align import coregister
+def _read_pass(sources, shape, tiles, factor, grid, two):
+    """Pass 0: the DEM, the reference and the mask core by core (on two threads with
+    ``two``), checked, decimated for the alignment and kept in ``grid`` (a
+    :class:`demtool.compare.window_passes.Grid`, or None)."""
+    from demtool.compare.threads import in_order
+    from demtool.compare.window_passes import decimate
     from demtool.imaging.checks import check_magnitude
 
-    rows, cols = -(-target.shape[0] // factor), -(-target.shape[1] // factor)
+    rows, cols = -(-shape[0] // factor), -(-shape[1] // factor)
     dem = np.full((rows, cols), np.nan)
     ref = np.full((rows, cols), np.nan)
     mask = None if sources["mask"] is None else np.zeros((rows, cols), dtype=bool)
-    for tile in tiles:
+
+    def read(tile):
         core = tile.core
-        for name, array in (("dem", dem), ("reference", ref)):
+        got = []
+        for name in ("dem", "reference"):
             values = sources[name].read(core)
             check_magnitude(values, sources[name].path, what=sources[name].what)
-            part, rs, cs = _decimate(values, core, factor)
-            array[rs, cs] = part
+            got.append(values)
         if mask is not None:
-            part, rs, cs = _decimate(_mask_values(sources["mask"].read(core)), core, factor)
-            mask[rs, cs] = part
+            got.append(_mask_values(sources["mask"].read(core)))
+        return core, got
+
+    for core, got in in_order(read, tiles, on=two):
+        arrays = (dem, ref) if mask is None else (dem, ref, mask)
+        for array, values in zip(arrays, got, strict=True):
+            part, rs, cs = decimate(values, core, factor)
+            array[rs, cs] = part
+        if grid is not None:
+            grid.put(core, *got[:2], None if mask is None else got[2])
+    return dem, ref, mask
+
+
+def _align(decimated, params, target, factor, log):
+    """The co-registration on the decimated grid (:func:`_read_pass`)."""
+    from demtool.compare.align import coregister
+
+    dem, ref, mask = decimated
     common = np.isfinite(dem) & np.isfinite(ref)
     if mask is not None:
         common &= mask
@@ -199,12 +209,27 @@ def _mask_values(values: np.ndarray) -> np.ndarray:
         return np.isfinite(values) & (np.abs(values) > 0.5)
 
 
+def _kernels_run_concurrently() -> bool:
+    from demtool.tiling.local_threads import kernels_run_concurrently
+
+    return kernels_run_concurrently()
+
+
+def _no_phase(name: str) -> contextlib.AbstractContextManager[None]:
+    return contextlib.nullcontext()
+
+
 def compare_one(sources: dict[str, Source | None], target: Any, params: Any, tile_size: int,
-                log: Any, *, open_writer: Any = None) -> dict[str, Any]:
+                log: Any, *, open_writer: Any = None,
+                phase: Callable[[str], contextlib.AbstractContextManager[None]] = _no_phase
+                ) -> dict[str, Any]:
     """The windowed comparison of ``sources["dem"]`` with ``sources["reference"]``.
 
     ``open_writer(shift)``, when given, opens the block writer of ``difference.tif``
-    (its tags carry the shift), written in the first pass.
+    (its tags carry the shift), written in the first pass.  ``phase(name)`` times the
+    phases (``read``, ``align``, ``statistics``, ``spectrum``;
+    :meth:`demtool.stagerun.StageRun.phase`).  What is kept between passes, and the
+    threads: :mod:`demtool.compare.window_passes`.
 
     Returns
     -------
@@ -214,84 +239,120 @@ def compare_one(sources: dict[str, Source | None], target: Any, params: Any, til
         decimated grid, for the figures) and ``factor`` (the decimation).
     """
     from demtool.compare.core import Comparison, effective_resolution
-    from demtool.compare.streaming import StreamStatistics
+    from demtool.compare.threads import in_order, threaded
+    from demtool.compare.window_passes import (
+        GRID_BYTES_PER_CELL,
+        KEPT_BYTES_PER_CELL,
+        Grid,
+        Streams,
+        check_slope_bins,
+        window_result,
+    )
     from demtool.compare.windowed import shift_margin, window_values
     from demtool.imaging.spectral import coherence_spectrum
     from demtool.tiling import plan_tiles
 
+    check_slope_bins(params.slope_bins)
     height, width = target.shape
     sx, sy = target.spacing
-    budget_cells = params.max_memory_mb * 2**20 / ALIGN_BYTES_PER_CELL
-    factor = max(1, math.ceil(math.sqrt(height * width / min(ALIGN_CELLS, budget_cells))))
-    cores = plan_tiles(height, width, tile_size, overlap=0).tiles
-    alignment = _align(sources, cores, params, target, factor, log)
+    budget = params.max_memory_mb * 2**20
+    factor = max(1, math.ceil(math.sqrt(height * width / min(ALIGN_CELLS,
+                                                              budget / ALIGN_BYTES_PER_CELL))))
+    rows, cols = -(-height // factor), -(-width // factor)
+    room = budget - rows * cols * ALIGN_BYTES_PER_CELL  # what the alignment leaves
+    keep_grid = height * width * (GRID_BYTES_PER_CELL + KEPT_BYTES_PER_CELL) <= room
+    two = threaded(height * width) and _kernels_run_concurrently()
+    grid = Grid(target.shape, sources["mask"] is not None) if keep_grid else None
+    with phase("read"):
+        decimated = _read_pass(sources, target.shape,
+                               plan_tiles(height, width, tile_size, overlap=0).tiles, factor,
+                               grid, two)
+    with phase("align"):
+        alignment = _align(decimated, params, target, factor, log)
+    del decimated
     shift = alignment.shift
     method = params.align if alignment.method == params.align else "none"
     tiles = plan_tiles(height, width, tile_size,
                        overlap=shift_margin(shift["dx_px"], shift["dy_px"])).tiles
-    after, before = StreamStatistics(), StreamStatistics()
-    classes = [StreamStatistics() for _ in params.slope_bins[1:]]
-    rows, cols = -(-height // factor), -(-width // factor)
+    # the windows whose differences are kept for the later passes: in order, while the
+    # room holds their cores at KEPT_BYTES_PER_CELL (all of them when the grid is kept)
+    keep, used = [], 0
+    for tile in tiles:
+        used += tile.core_shape[0] * tile.core_shape[1] * KEPT_BYTES_PER_CELL
+        keep.append(grid is not None or used <= room)
+    bins = params.slope_bins
+    streams = Streams(len(bins) - 1)
     figures = {k: np.full((rows, cols), np.nan) for k in ("aligned", "reference", "difference")}
     figures["coverage"] = np.full((rows, cols), np.nan, dtype=np.float32)
     figures["mask"] = np.zeros((rows, cols), dtype=bool)
+
+    def compute(tile, *, first: bool):
+        if grid is not None:
+            dem, reference, mask = grid.window(tile.outer)
+        else:
+            mask = (None if sources["mask"] is None
+                    else _mask_values(sources["mask"].read(tile.outer)))
+            dem, reference = (sources["dem"].read(tile.outer),
+                              sources["reference"].read(tile.outer))
+        values = window_values(dem, reference, mask, tile.crop, method=method, shift=shift,
+                               spacing=(sx, sy))
+        return window_result(values, None if mask is None else mask[tile.crop], tile.core,
+                             bins, factor, first=first, keep=first and keep[tile.index],
+                             difference=first and open_writer is not None)
+
     considered = covered = 0
-    passes = 0
-    with contextlib.ExitStack() as stack:
-        writer = stack.enter_context(open_writer(shift)) if open_writer else None
-        while True:
+    kept = []
+    with phase("statistics"):
+        with contextlib.ExitStack() as stack:
+            writer = stack.enter_context(open_writer(shift)) if open_writer else None
+            for result in in_order(lambda tile: compute(tile, first=True), tiles, on=two):
+                streams.merge_first(result)
+                considered += result.considered
+                covered += result.covered
+                if writer is not None:
+                    writer.write(result.difference, result.core[0], result.core[2])
+                for name, (part, rs, cs) in result.figures.items():
+                    figures[name][rs, cs] = part
+                if result.kept is not None:
+                    kept.append(result.kept)
+        streams.end_pass()
+        grid = None  # the later passes read what was not kept
+        again = [tile for tile in tiles if not keep[tile.index]]
+        passes = 1
+        while not streams.done:
             passes += 1
-            for tile in tiles:
-                mask = (None if sources["mask"] is None
-                        else _mask_values(sources["mask"].read(tile.outer)))
-                values = window_values(sources["dem"].read(tile.outer),
-                                       sources["reference"].read(tile.outer), mask, tile.crop,
-                                       method=method, shift=shift, spacing=(sx, sy))
-                after.add(values.difference[np.isfinite(values.difference)])
-                before.add(values.before[np.isfinite(values.before)])
-                for stream, part in zip(classes, values.slope_classes(params.slope_bins),
-                                        strict=True):
-                    stream.add(part)
-                if passes == 1:
-                    considered += values.considered
-                    covered += values.covered
-                    if writer is not None:
-                        writer.write(values.difference.astype(np.float32), tile.core[0],
-                                     tile.core[2])
-                    for name in ("aligned", "reference", "difference", "coverage"):
-                        part, rs, cs = _decimate(getattr(values, name), tile.core, factor)
-                        figures[name][rs, cs] = part
-                    if mask is not None:
-                        part, rs, cs = _decimate(mask[tile.crop], tile.core, factor)
-                        figures["mask"][rs, cs] = part
-            for stream in (after, before, *classes):
-                stream.end_pass()
-            if all(s.done for s in (after, before, *classes)):
-                break
-    log.info("windowed comparison: %d windows of %d cells, %d passes, alignment on every "
-             "%d cell(s)", len(tiles), tile_size, passes, factor)
+            streams.add_kept(kept, two)
+            for result in in_order(lambda tile: compute(tile, first=False), again, on=two):
+                streams.add_pieces(result)
+            streams.end_pass()
+    log.info("windowed comparison: %d windows of %d cells, %d passes (%d reading the "
+             "rasters again), alignment on every %d cell(s)%s", len(tiles), tile_size,
+             passes, len(again), factor, "; the grid read once" if keep_grid else "")
     warnings = list(alignment.warnings)
     resolution = spectrum = None
     spacing = float(np.sqrt(sx * sy)) * factor
-    try:
-        spectrum = coherence_spectrum(figures["aligned"] if sources["mask"] is None
-                                      else np.where(figures["mask"], figures["aligned"],
-                                                    np.nan),
-                                      figures["reference"], spacing=spacing)
-        resolution = effective_resolution(spectrum, spacing, 0.5)
-    except ProcessingError as exc:
-        warnings.append(f"no effective resolution: {exc}")
+    with phase("spectrum"):
+        try:
+            spectrum = coherence_spectrum(
+                figures["aligned"] if sources["mask"] is None
+                else np.where(figures["mask"], figures["aligned"], np.nan),
+                figures["reference"], spacing=spacing,
+                threads=2 if threaded(rows * cols) else 1)
+            resolution = effective_resolution(spectrum, spacing, 0.5)
+        except ProcessingError as exc:
+            warnings.append(f"no effective resolution: {exc}")
     edges = params.slope_bins
-    result = after.result()
+    result = streams.after.result()
     reads = [n for s in sources.values() if s is not None for n in s.reads]
     report: dict[str, Any] = {
         **{k: result[k] for k in ("count", "mean", "median", "std", "rmse", "nmad", "le90",
                                   "min", "max")},
         "completeness": 100.0 * covered / considered if considered else float("nan"),
         "shift": dict(alignment.shift), "shift_uncertainty": dict(alignment.shift_uncertainty),
-        "alignment": alignment.as_dict(), "before_alignment": before.result(),
+        "alignment": alignment.as_dict(), "before_alignment": streams.before.result(),
         "slope_classes": [{"slope_min_deg": float(lo), "slope_max_deg": float(hi),
-                           **s.result()} for lo, hi, s in zip(edges[:-1], edges[1:], classes,
+                           **s.result()} for lo, hi, s in zip(edges[:-1], edges[1:],
+                                                              streams.classes,
                                                               strict=True)],
         "effective_resolution": resolution,
         "grid": {"shape": [height, width], "spacing_m": [sx, sy]},
@@ -370,7 +431,7 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
 
             results.append((name, compare_one(sources, target, params, tile_size, log,
                                               open_writer=open_writer if index == 0
-                                              else None)))
+                                              else None, phase=run.phase)))
         main = results[0][1]
         factor = main["factor"]
         report = assemble_report([(name, r["report"]) for name, r in results],
@@ -394,9 +455,11 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
         figures = {}
         if params.plots:
             decimated = [tuple(v / factor for v in line) for line in lines]
-            figures = make_figures([(n, r["comparison"]) for n, r in results],
-                                   main["comparison"].reference, decimated,
-                                   (target.spacing[0] * factor, target.spacing[1] * factor),
-                                   label)
-        write_report(provenance, out, report, figures, html=params.html)
+            with run.phase("figures"):
+                figures = make_figures([(n, r["comparison"]) for n, r in results],
+                                       main["comparison"].reference, decimated,
+                                       (target.spacing[0] * factor,
+                                        target.spacing[1] * factor), label)
+        write_report(provenance, out, report, figures, html=params.html,
+                     timings=run.timings)
     return report

@@ -20,6 +20,12 @@
 
 Memory: 4096 bin counts per order statistic and at most ``gather_limit`` values in its
 last pass; passes: typically 2–3 for the median and LE90, then 2–3 for NMAD.
+
+A pass over a piece is one compiled loop (:func:`_narrow`, :func:`_gather`; numba,
+``nogil``, so pieces of different statistics go on different threads): the value (or its
+``|x|``, ``|x − m|``) is counted below the interval or put in its bin, found from its
+position and checked against the explicit edges, so it lands in the bin
+``np.searchsorted(edges, x, side="right") − 1`` gives, without the temporaries.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ import math
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from demtool.imaging.robust import NMAD_FACTOR
 
@@ -35,6 +42,68 @@ __all__ = ["BINS", "GATHER_LIMIT", "Moments", "OrderStatistic", "StreamStatistic
 
 BINS = 4096  # histogram bins of one narrowing pass
 GATHER_LIMIT = 1 << 18  # values kept (and sorted) in an order statistic's last pass
+
+#: what an order statistic selects among (the piece's values as given, their absolute
+#: values, or their absolute deviations from a centre): the ``mode`` of the kernels
+AS_GIVEN, ABSOLUTE, DEVIATION = 0, 1, 2
+
+
+@njit(cache=True, nogil=True)
+def _value_of(x, mode, centre):
+    if mode == 1:
+        return abs(x)
+    if mode == 2:
+        return abs(x - centre)
+    return x
+
+
+@njit(cache=True, nogil=True)
+def _narrow(values, mode, centre, low, high, edges, counts):
+    """Count the values (``mode``: as given, ``|x|``, ``|x − centre|``) below ``low``
+    (returned) and add those in ``[low, high)`` to ``counts``, bin ``i`` holding
+    ``edges[i] <= x < edges[i + 1]`` (``edges`` strictly increasing, ``low`` and ``high``
+    its ends)."""
+    last = edges.size - 2  # the last bin
+    scale = (last + 1) / (high - low)
+    guess = np.isfinite(scale)
+    below = 0
+    for k in range(values.size):
+        x = _value_of(values[k], mode, centre)
+        if x < low:
+            below += 1
+        elif x < high:
+            if guess:
+                i = int(min(max((x - low) * scale, 0.0), float(last)))
+                while i > 0 and edges[i] > x:
+                    i -= 1
+                while i < last and edges[i + 1] <= x:
+                    i += 1
+            else:  # pragma: no cover - an interval too narrow for its width in doubles
+                i = np.searchsorted(edges, x, side="right") - 1
+            counts[i] += 1
+    return below
+
+
+@njit(cache=True, nogil=True)
+def _gather(values, mode, centre, low, high):
+    """The count below ``low`` and the values in ``[low, high)`` (``mode`` as
+    :func:`_narrow`), in the order given."""
+    below = 0
+    inside = 0
+    for k in range(values.size):
+        x = _value_of(values[k], mode, centre)
+        if x < low:
+            below += 1
+        elif x < high:
+            inside += 1
+    kept = np.empty(inside)
+    j = 0
+    for k in range(values.size):
+        x = _value_of(values[k], mode, centre)
+        if low <= x < high:
+            kept[j] = x
+            j += 1
+    return below, kept
 
 
 class Moments:
@@ -50,22 +119,36 @@ class Moments:
 
     def add(self, values: np.ndarray) -> None:
         """Merge a batch of finite float64 values (Chan et al. 1983, eq. 2.1b)."""
+        self.merge(self.of(values))
+
+    @staticmethod
+    def of(values: np.ndarray) -> tuple[int, float, float, float, float, float] | None:
+        """A batch's own count, sum, M2, sum of squares, min and max (None when empty),
+        for :meth:`merge`: batches summarised on several threads and merged in their
+        order give the numbers :meth:`add` in that order gives, to the bit."""
         n = int(values.size)
         if n == 0:
-            return
+            return None
         total = float(values.sum())
         mean = total / n
-        m2 = float(((values - mean) ** 2).sum())
+        return (n, total, float(((values - mean) ** 2).sum()),
+                float((values * values).sum()), float(values.min()), float(values.max()))
+
+    def merge(self, batch: tuple[int, float, float, float, float, float] | None) -> None:
+        """Merge a batch summarised by :meth:`of`."""
+        if batch is None:
+            return
+        n, total, m2, squares, low, high = batch
         if self.count:
-            delta = mean - self.total / self.count
+            delta = total / n - self.total / self.count
             self.m2 += m2 + delta * delta * self.count * n / (self.count + n)
         else:
             self.m2 = m2
         self.count += n
         self.total += total
-        self.squares += float((values * values).sum())
-        self.min = min(self.min, float(values.min()))
-        self.max = max(self.max, float(values.max()))
+        self.squares += squares
+        self.min = min(self.min, low)
+        self.max = max(self.max, high)
 
     def summary(self) -> dict[str, float]:
         """``mean``, ``std`` (population), ``rmse``, ``min``, ``max`` (NaN when empty)."""
@@ -116,17 +199,19 @@ class OrderStatistic:
         self._counts = np.zeros(edges.size - 1, dtype=np.int64)
         self._below = 0
 
-    def add(self, values: np.ndarray) -> None:
-        """One piece of this pass's values (float64, finite)."""
+    def add(self, values: np.ndarray, mode: int = AS_GIVEN, centre: float = 0.0) -> None:
+        """One piece of this pass's values (float64, finite): the values as given, or
+        (``mode``) their absolute values, or their absolute deviations from ``centre``."""
         if self.value is not None or values.size == 0:
             return
-        self._below += int(np.count_nonzero(values < self.low))
-        inside = values[(values >= self.low) & (values < self.high)]
+        values = np.ascontiguousarray(values, dtype=np.float64).ravel()
         if self._gather:
-            self._kept.append(inside.copy())
-            return
-        index = np.searchsorted(self._edges, inside, side="right") - 1
-        self._counts += np.bincount(index, minlength=self._counts.size)[:self._counts.size]
+            below, kept = _gather(values, mode, float(centre), self.low, self.high)
+            self._kept.append(kept)
+        else:
+            below = _narrow(values, mode, float(centre), self.low, self.high, self._edges,
+                            self._counts)
+        self._below += int(below)
 
     def end_pass(self) -> None:
         """Narrow the interval (or pick the value from the gathered ones)."""
@@ -197,13 +282,26 @@ class StreamStatistics:
         if self.passes == 0:
             self.moments.add(values)
             return
+        self.add_again(values)
+
+    def add_moments(self, batch: tuple[int, float, float, float, float, float] | None
+                    ) -> None:
+        """Pass 1's :meth:`add` of a piece summarised by :meth:`Moments.of` (on
+        another thread, say); merged in the pieces' order, the same numbers."""
+        if self.passes:
+            raise RuntimeError("moments are added in the first pass only")
+        self.moments.merge(batch)
+
+    def add_again(self, values: np.ndarray) -> None:
+        """A further pass's :meth:`add` (the order statistics): the pieces may come in
+        any order and cut anyhow (counts, and the k-th of the values kept), as long as
+        each pass sees every value once."""
+        values = np.ascontiguousarray(values, dtype=np.float64).ravel()
         for name, group in self._order.items():
-            if all(s.done for s in group):
-                continue
-            piece = (values if name == "median" else np.abs(values) if name == "abs"
-                     else np.abs(values - self._median))
+            mode = {"median": AS_GIVEN, "abs": ABSOLUTE, "deviation": DEVIATION}[name]
+            centre = self._median if name == "deviation" else 0.0
             for statistic in group:
-                statistic.add(piece)
+                statistic.add(values, mode, centre)
 
     def end_pass(self) -> None:
         self.passes += 1

@@ -63,15 +63,23 @@ class WindowValues:
         """The finite differences in each slope class (as
         :func:`demtool.compare.stats.slope_class_statistics`: the last class includes its
         upper edge)."""
+        return self.slope_parts(bins)[0]
+
+    def slope_parts(self, bins: Sequence[float]) -> tuple[list[np.ndarray], np.ndarray]:
+        """:meth:`slope_classes`, and the finite differences in none of them (a slope
+        outside the bins or unknown); ``bins`` increasing, so each finite difference is
+        in exactly one of the arrays."""
         edges = np.asarray(bins, dtype=np.float64)
         finite = np.isfinite(self.difference)
+        unclassified = finite.copy()
         out = []
         for index, (low, high) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
             with np.errstate(invalid="ignore"):
                 upper = self.slope <= high if index == len(edges) - 2 else self.slope < high
                 in_class = (self.slope >= low) & upper & finite
             out.append(self.difference[in_class])
-        return out
+            unclassified &= ~in_class
+        return out, self.difference[unclassified]
 
 
 def window_values(dem: np.ndarray, reference: np.ndarray, mask: np.ndarray | None,

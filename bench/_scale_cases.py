@@ -73,6 +73,8 @@ class ScaleCase:
         The output file's suffix ("": the output is a folder).
     sidecar : str
         The sidecar's name inside an output folder ("": ``<out>.json``).
+    untiled_label : str
+        The first run's name in the table (compare's windowed case: "windowed").
     """
 
     stage: str
@@ -87,6 +89,7 @@ class ScaleCase:
     untiled_options: Callable[[int], tuple[str, ...]] = lambda tile: ()
     suffix: str = ".tif"
     sidecar: str = ""
+    untiled_label: str = "untiled"
 
 
 CASES: dict[str, ScaleCase] = {}

@@ -19,7 +19,14 @@ Inputs, all synthetic with known truth, made once per run at ``--size``² cells 
 * **compare**: the truth shifted by (−1.3, +0.7) cells and 2.0 m, with 0.05 m noise,
   compared with the truth; quality: the recovered shift and the NMAD.  compare has no
   worker processes (its ``--tile-size`` streams windows through one process to bound
-  memory), so only its untiled row is measured.
+  memory), so only its untiled row is measured;
+* **compare-windowed** (compare's windowed path, the one bench/nac_full.py's route
+  takes): the truth (``--size``² cells of 2 m, on an equirectangular map of the Moon)
+  NaN outside the DEM's footprint, and a DEM of 1 m cells on another equirectangular
+  map (another central meridian and true-scale latitude: PROJ transforms every cell),
+  2·size × size cells over the truth's middle half, sampled (cubic) from the truth
+  shifted by (−1.3, +0.7) truth cells and 2 m, with 0.05 m noise; ``compare
+  --tile-size`` 1024 (half the grid's side below 2048); one row, its phases.
 """
 
 from __future__ import annotations
@@ -206,3 +213,82 @@ register(ScaleCase(
     prepare=_compare_prepare, command=_compare_command, quality=_compare_quality,
     agreement=lambda inputs, untiled, tiled: "—", phases=("read", "compare", "figures"),
     tile_size=0, suffix="", sidecar="report.json.json"))
+
+
+# --- compare's windowed path -----------------------------------------------------------
+
+WINDOW = 1024  # bench/nac_full.py's --tile-size
+
+
+def _windowed_prepare(folder: Path, size: int) -> dict:
+    from affine import Affine
+    from pyproj import Transformer
+    from scipy import ndimage
+
+    from demtool import io as dio
+    from demtool.maps import body_by_name
+    from demtool.maps.projections import make_projection
+
+    folder.mkdir(parents=True, exist_ok=True)
+    moon = body_by_name("Moon")
+    truth_crs = make_projection(moon, "equirectangular", 0.0, 20.0)
+    dem_crs = make_projection(moon, "equirectangular", 0.01, 20.2)
+    truth = truth_surface(size)  # on 2 m cells, x from −size to size metres
+    truth_transform = Affine(2.0, 0, -float(size), 0, -2.0, float(size))
+    to_dem = Transformer.from_crs(truth_crs, dem_crs, always_xy=True)
+    x0, y0 = to_dem.transform(-size / 2.0, float(size))
+    rows, cols = 2 * size, size
+    dem_transform = Affine(1.0, 0, x0, 0, -1.0, y0)
+    dx, dy, dz = COMPARE_SHIFT
+    dem = np.empty((rows, cols), dtype=np.float32)
+    noise = np.random.default_rng(4)
+    for start in range(0, rows, 1024):  # DEM cells -> truth cells, in blocks of rows
+        stop = min(rows, start + 1024)
+        c, r = np.meshgrid(np.arange(cols) + 0.5, np.arange(start, stop) + 0.5)
+        x, y = to_dem.transform(x0 + c, y0 - r, direction="INVERSE")
+        at = [(size - y) / 2.0 - 0.5 - dy, (x + size) / 2.0 - 0.5 - dx]
+        dem[start:stop] = ndimage.map_coordinates(truth, at, order=3, mode="nearest") + dz \
+            + noise.normal(0.0, 0.05, c.shape)
+    c, r = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
+    x, y = to_dem.transform(-size + 2.0 * c, size - 2.0 * r)
+    inside = (x > x0 + 8) & (x < x0 + cols - 8) & (y < y0 - 8) & (y > y0 - rows + 8)
+    truth = np.where(inside, truth, np.nan)
+    dio.write_raster(folder / "dem.tif", dem, transform=dem_transform, crs=dem_crs.to_wkt())
+    dio.write_raster(folder / "truth.tif", truth.astype(np.float32),
+                     transform=truth_transform, crs=truth_crs.to_wkt())
+    return {"dem": folder / "dem.tif", "truth": folder / "truth.tif",
+            "window": WINDOW if size >= 2 * WINDOW else max(16, size // 2)}
+
+
+def _windowed_command(inputs: dict, out: Path) -> list[str]:
+    return [DEMTOOL, "compare", str(inputs["dem"]), str(inputs["truth"]), "--tile-size",
+            str(inputs["window"]), "--out", str(out)]
+
+
+def _windowed_quality(inputs: dict, out: Path) -> dict[str, str]:
+    import json
+
+    report = json.loads((out / "report.json").read_text())
+    windowed = report.get("windowed", {})
+    shift = report["shift"]
+    return {"windows, passes": f"{windowed.get('windows', '—')}, "
+                               f"{windowed.get('passes', '—')}",
+            "shift found (dx, dy truth cells, dz)": f"{shift['dx_px']:+.3f}, "
+                                                    f"{shift['dy_px']:+.3f}, "
+                                                    f"{shift['dz']:+.3f}",
+            "shift applied": ", ".join(f"{-v:+.3f}" for v in COMPARE_SHIFT),
+            "NMAD (m)": f"{report['nmad']:.4f}", "completeness %":
+            f"{report['completeness']:.2f}"}
+
+
+register(ScaleCase(
+    stage="compare-windowed", result="53_scale_out_compare_windowed",
+    title=lambda size, tile: (
+        f"compare's windowed path on every core ({size}² truth of 2 m against a "
+        f"{2 * size} × {size} DEM of 1 m on another map projection, shifted −1.3/+0.7 "
+        f"truth cells and +2 m, windows of {WINDOW if size >= 2 * WINDOW else size // 2}):"
+        " its phases"),
+    prepare=_windowed_prepare, command=_windowed_command, quality=_windowed_quality,
+    agreement=lambda inputs, untiled, tiled: "—",
+    phases=("read", "align", "statistics", "figures"), tile_size=0, suffix="",
+    sidecar="report.json.json", untiled_label="windowed"))

@@ -78,7 +78,7 @@ def measure(case, inputs: dict, folder: Path, tile: int,
     from bench.scale import run_measured
 
     tiled = ("--tile-size", str(tile))
-    runs = [("untiled", 0, case.untiled_options(tile), False),
+    runs = [(case.untiled_label, 0, case.untiled_options(tile), False),
             ("tiled, 1 worker", 1, (*tiled, "--workers", "1"), False),
             ("tiled, 2 workers", 2, (*tiled, "--workers", "2"), False)]
     if processes:
@@ -124,7 +124,7 @@ def table(case, results: list[dict]) -> tuple[list[str], list[list[str]]]:
     quality = list(untiled["quality"])
     columns = ["run", "wall s", "CPU s (waited-for tree)", "CPU s (sampled tree)",
                "peak MB (tree)",
-               *(f"untiled {p} cores (CPU ÷ wall)" for p in case.phases),
+               *(f"{case.untiled_label} {p} cores (CPU ÷ wall)" for p in case.phases),
                "efficiency", "wall ÷ untiled", *quality, "agreement with untiled"]
     rows = []
     for r in results:

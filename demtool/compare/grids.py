@@ -9,6 +9,7 @@ bilinear, two for cubic).
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Any
 
@@ -450,6 +451,34 @@ def _reprojects(src: Grid, dst: Grid) -> bool:
     return src.crs is not None and dst.crs is not None and src.crs != dst.crs
 
 
+#: pyproj transformers made (about 0.2 s each), by the WKT of their two CRSs
+_TRANSFORMERS: dict[tuple[str, str], Any] = {}
+_TRANSFORMERS_LOCK = threading.Lock()
+_TRANSFORMERS_KEPT = 8
+
+
+def _transformer(from_crs: Any, to_crs: Any) -> Any:
+    """The pyproj ``Transformer`` (``always_xy``) between two CRSs, made once per pair:
+    a raster resampled window by window (or block by block) transforms many windows
+    between the same two CRSs, and making the transformer costs more than transforming
+    a million points.  pyproj (>= 3.1) makes a Transformer safe on several threads (each
+    thread gets its own PROJ object on first use)."""
+    key = (from_crs.to_wkt(), to_crs.to_wkt())
+    with _TRANSFORMERS_LOCK:
+        found = _TRANSFORMERS.get(key)
+    if found is not None:
+        return found
+    from pyproj import Transformer
+
+    from demtool.maps import to_pyproj_crs
+
+    made = Transformer.from_crs(to_pyproj_crs(from_crs), to_pyproj_crs(to_crs), always_xy=True)
+    with _TRANSFORMERS_LOCK:
+        while len(_TRANSFORMERS) >= _TRANSFORMERS_KEPT:
+            del _TRANSFORMERS[next(iter(_TRANSFORMERS))]
+        return _TRANSFORMERS.setdefault(key, made)
+
+
 def source_pixels(src: Grid, dst: Grid, window: tuple[int, int, int, int]
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Where the centres of ``dst``'s cells in ``window`` fall in ``src``, pixels.
@@ -473,12 +502,7 @@ def source_pixels(src: Grid, dst: Grid, window: tuple[int, int, int, int]
     cc, rr = np.meshgrid(np.arange(c0, c1, dtype=np.float64) + 0.5,
                          np.arange(r0, r1, dtype=np.float64) + 0.5)
     if _reprojects(src, dst):
-        from pyproj import Transformer
-
-        from demtool.maps import to_pyproj_crs
-
-        transformer = Transformer.from_crs(to_pyproj_crs(dst.crs), to_pyproj_crs(src.crs),
-                                           always_xy=True)
+        transformer = _transformer(dst.crs, src.crs)
         t = dst.transform
         x, y = transformer.transform(t.a * cc + t.b * rr + t.c, t.d * cc + t.e * rr + t.f)
         x, y = np.asarray(x), np.asarray(y)

@@ -50,6 +50,7 @@ class CompareParams(Parameters):
     tile_size: int = parameter(0, "Compare in windows of this many cells a side, reading "
                                "both rasters window by window (0 = in memory unless the "
                                "grid needs more than --max-memory-mb).", minimum=0)
-    max_memory_mb: float = parameter(4096.0, "Memory budget of an in-memory comparison, "
-                                     "MiB; a larger grid is compared in windows.",
-                                     minimum=1.0)
+    max_memory_mb: float = parameter(4096.0, "Memory budget of a comparison, MiB; a grid "
+                                     "whose in-memory comparison needs more is compared in "
+                                     "windows, which keep the grid between passes while it "
+                                     "fits.", minimum=1.0)

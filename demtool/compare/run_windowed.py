@@ -9,21 +9,27 @@ bilinear sampler and the same cell coordinates as the in-memory path
 (:func:`demtool.compare.grids.source_pixels`, :func:`~demtool.compare.grids.sample_bilinear`;
 a raster already on the grid is read as is), so every cell gets the in-memory value.
 
-1. **Alignment** on the grid decimated by ``f`` (every f-th cell in both directions, ``f``
-   the smallest integer keeping it under :data:`ALIGN_CELLS` cells, or the memory
-   budget): :func:`demtool.compare.align.coregister`; the shift is scaled back by ``f``.
-   With ``f = 1`` (a grid of at most 2 M cells) the alignment is the in-memory one.
-   ``icp`` and ``nuth-kaab+icp`` are refused (their rotation and scale are applied
-   through the whole grid); the effective resolution and the figures come from the
-   decimated grid too.
-2. **Statistics**, exact (:class:`demtool.compare.streaming.StreamStatistics`): pass 1
+1. **Read pass**: each window's core of the DEM, the reference and the mask, checked
+   and decimated by ``f`` (every f-th cell in both directions, ``f`` the smallest integer
+   keeping it under :data:`ALIGN_CELLS` cells, or the memory budget); the whole grid is
+   kept too when it fits (:mod:`demtool.compare.window_passes`).
+2. **Alignment** on the decimated grid: :func:`demtool.compare.align.coregister`; the
+   shift is scaled back by ``f``.  With ``f = 1`` (a grid of at most 2 M cells) the
+   alignment is the in-memory one.  ``icp`` and ``nuth-kaab+icp`` are refused (their
+   rotation and scale are applied through the whole grid); the effective resolution and
+   the figures come from the decimated grid too.
+3. **Statistics**, exact (:class:`demtool.compare.streaming.StreamStatistics`): pass 1
    accumulates the moments and the completeness counts and writes ``difference.tif``
-   window by window; further passes (typically 4–6) find the median, LE90 and NMAD
-   exactly by bucket narrowing.  Count, mean, RMSE and std equal the in-memory figures to
-   rounding (~1e-15 relative); median, NMAD and LE90 are the same order statistics.
+   window by window (the windows with their margins from the kept grid, or read again);
+   further passes (typically 4–6) find the median, LE90 and NMAD exactly by bucket
+   narrowing, on the differences pass 1 kept (windows that did not fit are read and
+   computed again).  Count, mean, RMSE and std equal the in-memory figures to rounding
+   (~1e-15 relative); median, NMAD and LE90 are the same order statistics.
 
-Peak memory: one window with its margins (a few arrays of ``(tile + 2m)²`` float64), the
-decimated grid, and the order statistics' buffers (≤ 2 MiB each), not the DEM.
+Peak memory: within ``--max-memory-mb``: the alignment on the decimated grid, then what
+it leaves for the kept grid (17 bytes a cell) and differences (at most 16 bytes a cell);
+beyond that, one window with its margins (a few arrays of ``(tile + 2m)²`` float64, two
+at a time on two threads) and the order statistics' buffers (≤ 2 MiB each), not the DEM.
 """
 
 from __future__ import annotations
@@ -164,13 +170,14 @@ def _read_pass(sources, shape, tiles, factor, grid, two):
             got.append(_mask_values(sources["mask"].read(core)))
         return core, got
 
-    for core, got in in_order(read, tiles, on=two):
-        arrays = (dem, ref) if mask is None else (dem, ref, mask)
-        for array, values in zip(arrays, got, strict=True):
-            part, rs, cs = decimate(values, core, factor)
-            array[rs, cs] = part
-        if grid is not None:
-            grid.put(core, *got[:2], None if mask is None else got[2])
+    with contextlib.closing(in_order(read, tiles, on=two)) as results:
+        for core, got in results:
+            arrays = (dem, ref) if mask is None else (dem, ref, mask)
+            for array, values in zip(arrays, got, strict=True):
+                part, rs, cs = decimate(values, core, factor)
+                array[rs, cs] = part
+            if grid is not None:
+                grid.put(core, *got[:2], None if mask is None else got[2])
     return dem, ref, mask
 
 
@@ -305,7 +312,9 @@ def compare_one(sources: dict[str, Source | None], target: Any, params: Any, til
     with phase("statistics"):
         with contextlib.ExitStack() as stack:
             writer = stack.enter_context(open_writer(shift)) if open_writer else None
-            for result in in_order(lambda tile: compute(tile, first=True), tiles, on=two):
+            results = stack.enter_context(contextlib.closing(
+                in_order(lambda tile: compute(tile, first=True), tiles, on=two)))
+            for result in results:
                 streams.merge_first(result)
                 considered += result.considered
                 covered += result.covered
@@ -322,8 +331,10 @@ def compare_one(sources: dict[str, Source | None], target: Any, params: Any, til
         while not streams.done:
             passes += 1
             streams.add_kept(kept, two)
-            for result in in_order(lambda tile: compute(tile, first=False), again, on=two):
-                streams.add_pieces(result)
+            with contextlib.closing(in_order(lambda tile: compute(tile, first=False), again,
+                                             on=two)) as results:
+                for result in results:
+                    streams.add_pieces(result)
             streams.end_pass()
     log.info("windowed comparison: %d windows of %d cells, %d passes (%d reading the "
              "rasters again), alignment on every %d cell(s)%s", len(tiles), tile_size,

@@ -312,9 +312,11 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
                   "crs": job.crs_wkt, "shape": list(shape), "coarse_factor": factor}
 
     def prepare(fill_job: MapDemTileJob, folder: Path) -> MapDemTileJob:
-        return prepare_fill(fill_job.at_step("measure"), fill_job, tiling.tiles, shape,
-                            factor, folder, workers=workers, scheduler=scheduler,
-                            log=run.log, sweeps=tiled_dem.SWEEPS)
+        prepared = prepare_fill(fill_job.at_step("measure"), fill_job, tiling.tiles, shape,
+                                factor, folder, workers=workers, scheduler=scheduler,
+                                log=run.log, sweeps=tiled_dem.SWEEPS)
+        release_points(str(points.folder))  # measured: the fill reads no point
+        return prepared
 
     prov = run.provenance
     route = route_summary.get("route", "")

@@ -34,13 +34,14 @@ import warnings
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from demtool.logs import get_logger
 from demtool.match.icgn import _cubic_value, _gradient
 from demtool.match.lsm import cubic_support_mask, template_weights
 from demtool.match.lsm_base import _FASTMATH
 from demtool.match.ncc import integral_invalid
+from demtool.tiling.rows import on_row_parts
 
 log = get_logger(__name__)
 
@@ -132,17 +133,26 @@ def spread_nodes(nodes: np.ndarray, weights: np.ndarray, corners: np.ndarray,
     return out.reshape(smooth.shape + nodes.shape[2:])
 
 
-@njit(cache=True, parallel=True)
-def _gradients(left: np.ndarray, left_ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Barron four-point x and y derivatives of ``left`` at every valid pixel (0 elsewhere)."""
-    height, width = left.shape
-    gx = np.zeros((height, width))
-    gy = np.zeros((height, width))
-    for r in prange(height):
+@njit(cache=True, nogil=True)
+def _gradients(left: np.ndarray, left_ok: np.ndarray, gx: np.ndarray, gy: np.ndarray,
+               start: int, stop: int) -> None:
+    """Barron four-point x and y derivatives of ``left`` at the valid pixels of rows
+    ``start … stop − 1`` into ``gx``, ``gy`` (zeros: left at 0 elsewhere)."""
+    width = left.shape[1]
+    for r in range(start, stop):
         for c in range(width):
             if left_ok[r, c]:
                 gx[r, c] = _gradient(left, left_ok, r, c, 0, 1)
                 gy[r, c] = _gradient(left, left_ok, r, c, 1, 0)
+
+
+def gradients(left: np.ndarray, left_ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Barron four-point x and y derivatives (per pixel) of ``left`` (H, W) float64 at
+    every ``left_ok`` pixel, 0 elsewhere: two (H, W) float64 arrays."""
+    gx = np.zeros(left.shape)
+    gy = np.zeros(left.shape)
+    on_row_parts(lambda start, stop: _gradients(left, left_ok, gx, gy, start, stop),
+                 left.shape[0])
     return gx, gy
 
 
@@ -254,10 +264,12 @@ def _refine_one(left, left_table, gx, gy, right, right_table4, row, col, x0, y0,
     result[3] = 1.0
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _refine_batch(left, left_table, gx, gy, right, right_table4, rows, cols, x0, y0, affine,
-                  half, iterations, weights, out):
-    for k in prange(rows.shape[0]):
+                  half, iterations, weights, out, start, stop):
+    """:func:`_refine_one` over templates ``start … stop − 1``; run over row parts by
+    :func:`demtool.tiling.rows.on_row_parts`."""
+    for k in range(start, stop):
         _refine_one(left, left_table, gx, gy, right, right_table4, rows[k], cols[k], x0[k],
                     y0[k], affine[k, 0], affine[k, 1], affine[k, 2], affine[k, 3], half,
                     iterations, weights, out[k])
@@ -332,17 +344,18 @@ def refine_translation(left: np.ndarray, right: np.ndarray, rows: np.ndarray,
     n = np.asarray(rows).shape[0]
     out = np.empty((n, 4), dtype=np.float64)
     if n:
-        gx, gy = _gradients(left_filled, left_ok)
+        gx, gy = gradients(left_filled, left_ok)
 
         def f64(a):
             return np.ascontiguousarray(a, dtype=np.float64)
 
-        _refine_batch(left_filled, integral_invalid(left_ok), gx, gy, right_filled,
-                      integral_invalid(cubic_support_mask(right_ok)),
-                      np.ascontiguousarray(rows, dtype=np.int64),
-                      np.ascontiguousarray(cols, dtype=np.int64), f64(x_start), f64(y_start),
-                      f64(affine).reshape(n, 4), template // 2, int(iterations),
-                      template_weights(template, weighting), out)
+        args = (left_filled, integral_invalid(left_ok), gx, gy, right_filled,
+                integral_invalid(cubic_support_mask(right_ok)),
+                np.ascontiguousarray(rows, dtype=np.int64),
+                np.ascontiguousarray(cols, dtype=np.int64), f64(x_start), f64(y_start),
+                f64(affine).reshape(n, 4), template // 2, int(iterations),
+                template_weights(template, weighting), out)
+        on_row_parts(lambda start, stop: _refine_batch(*args, start, stop), n)
     return Refined(x_right=out[:, 0], y_right=out[:, 1], correlation=out[:, 2],
                    ok=out[:, 3] > 0.5)
 

@@ -38,7 +38,7 @@ Grün, A. (1985). Adaptive least squares correlation: a powerful image matching
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from demtool.match.lsm_base import (
     _FASTMATH,
@@ -291,13 +291,13 @@ def icgn_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4
     _store_solution(result, a0, b0, corr, np.sqrt(sigma0_sq * max(q[0], 0.0)), iteration)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def icgn_batch(left, left_ok, right, right_ok4, rows, cols, x0, y0, half, max_iterations,
-               tolerance, max_shift, give_up_below, weights, out):
-    """:func:`icgn_one` over N templates in parallel (``out``: (N, 6) float64)."""
+               tolerance, max_shift, give_up_below, weights, out, start, stop):
+    """:func:`icgn_one` over templates ``start … stop − 1`` (``out``: (N, 6) float64);
+    run over row parts by :func:`demtool.tiling.rows.on_row_parts`."""
     n = (2 * half + 1) ** 2
-    for k in prange(rows.shape[0]):
-        work = np.empty((n, 9))
+    work = np.empty((n, 9))
+    for k in range(start, stop):
         icgn_one(left, left_ok, right, right_ok4, rows[k], cols[k], x0[k], y0[k], half,
                  max_iterations, tolerance, max_shift, give_up_below, weights, work, out[k])
-

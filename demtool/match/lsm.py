@@ -36,7 +36,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from demtool.match.lsm_base import (
     _FASTMATH,
@@ -53,6 +53,7 @@ from demtool.match.lsm_base import (
     _ran_away,
     _store_solution,
 )
+from demtool.tiling.rows import on_row_parts
 
 #: Gauss–Newton forms of :func:`lsm_match` (the first is the default).
 LSM_METHODS = ("forward", "inverse")
@@ -307,10 +308,13 @@ def lsm_one(left: np.ndarray, left_ok: np.ndarray, right: np.ndarray, right_ok4:
         result[9] = p[5]
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _lsm_batch(left, left_ok, right, right_ok4, rows, cols, x0, y0, half, max_iterations,
-               tolerance, max_shift, give_up_below, weights, out):
-    for k in prange(rows.shape[0]):
+               tolerance, max_shift, give_up_below, weights, out, start, stop):
+    """:func:`lsm_one` over templates ``start … stop − 1`` (``out``: (N, 10) float64);
+    run over row parts by :func:`demtool.tiling.rows.on_row_parts` (a serial ``nogil``
+    kernel compiles in a fraction of a ``parallel=True`` one's time)."""
+    for k in range(start, stop):
         lsm_one(left, left_ok, right, right_ok4, rows[k], cols[k], x0[k], y0[k], half,
                 max_iterations, tolerance, max_shift, give_up_below, weights, out[k])
 
@@ -429,10 +433,11 @@ def lsm_match(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.nd
             from demtool.match.icgn import icgn_batch as batch
         else:
             batch = _lsm_batch
-        batch(left_filled, left_ok, right_filled, cubic_support_mask(right_ok), rows, cols,
-              x_start, y_start, half, int(max_iterations), float(tolerance),
-              float(half if max_shift is None else max_shift), float(give_up_below),
-              template_weights(template, weighting), out)
+        args = (left_filled, left_ok, right_filled, cubic_support_mask(right_ok), rows, cols,
+                x_start, y_start, half, int(max_iterations), float(tolerance),
+                float(half if max_shift is None else max_shift), float(give_up_below),
+                template_weights(template, weighting), out)
+        on_row_parts(lambda start, stop: batch(*args, start, stop), rows.shape[0])
     return LSMResult(x_right=out[:, 0], y_right=out[:, 1], correlation=out[:, 2],
                      sigma_x=out[:, 3], iterations=out[:, 4].astype(np.int32),
                      status=out[:, 5].astype(np.int8), affine=out[:, 6:])

@@ -23,7 +23,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from demtool.tiling.rows import on_row_parts
 
 
 class NCCResult(NamedTuple):
@@ -63,11 +65,13 @@ def _window_clean(table: np.ndarray, row: int, col: int, half: int) -> bool:
     return table[r1, c1] - table[r0, c1] - table[r1, c0] + table[r0, c0] == 0
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _ncc_batch(left, left_table, right, right_table, rows, cols, d_low, d_high, half,
-               out_d, out_c):
+               out_d, out_c, start, stop):
+    """The NCC search of templates ``start … stop − 1`` (see :func:`ncc_search`); run
+    over row parts by :func:`demtool.tiling.rows.on_row_parts`."""
     n = (2 * half + 1) ** 2
-    for k in prange(rows.shape[0]):
+    for k in range(start, stop):
         row = rows[k]
         col = cols[k]
         out_d[k] = np.nan
@@ -163,11 +167,12 @@ def ncc_search(left: np.ndarray, right: np.ndarray, rows: np.ndarray, cols: np.n
     out_d = np.empty(rows.shape[0])
     out_c = np.empty(rows.shape[0])
     if rows.shape[0]:
-        _ncc_batch(np.where(left_ok, left, 0.0), integral_invalid(left_ok),
-                   np.where(right_ok, right, 0.0), integral_invalid(right_ok), rows,
-                   np.ascontiguousarray(cols, dtype=np.int64),
-                   np.ascontiguousarray(d_low, dtype=np.int64),
-                   np.ascontiguousarray(d_high, dtype=np.int64), half, out_d, out_c)
+        args = (np.where(left_ok, left, 0.0), integral_invalid(left_ok),
+                np.where(right_ok, right, 0.0), integral_invalid(right_ok), rows,
+                np.ascontiguousarray(cols, dtype=np.int64),
+                np.ascontiguousarray(d_low, dtype=np.int64),
+                np.ascontiguousarray(d_high, dtype=np.int64), half, out_d, out_c)
+        on_row_parts(lambda start, stop: _ncc_batch(*args, start, stop), rows.shape[0])
     return NCCResult(out_d, out_c)
 
 

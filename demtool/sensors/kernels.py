@@ -6,8 +6,8 @@ the sensor position and the sensor-to-body quaternion at that time by usgscsm's
 Lagrange interpolation, and the projection of a ground point onto the undistorted
 focal plane.  It computes exactly what :meth:`LineScanSensor.line_time`,
 :meth:`~LineScanSensor.position_at`, :meth:`~LineScanSensor.rotation_at` and
-:meth:`~LineScanSensor._detector_view` compute with numpy (up to rounding), one point
-per thread.
+:meth:`~LineScanSensor._detector_view` compute with numpy (up to rounding), the points in parts
+on the calling thread and its helpers (:func:`demtool.tiling.rows.on_row_parts`).
 
 Reference: DOI-USGS/usgscsm ``src/Utilities.cpp`` (``lagrangeInterp``) and
 ``src/UsgsAstroLsSensorModel.cpp`` (``getImageTime``, ``computeDetectorView``).
@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 
 @njit(cache=True)
@@ -115,7 +115,6 @@ def _pose(time, positions, t0_ephem, dt_ephem, quaternions, t0_quat, dt_quat, qu
             -qx * qx - qy * qy + qz * qz + qw * qw)
 
 
-@njit(parallel=True, cache=True, nogil=True)
 def detector_view(lines, xyz, int_lines, int_starts, int_times, positions, t0_ephem,
                   dt_ephem, quaternions, t0_quat, dt_quat, quat_order, focal_length):
     """Undistorted focal-plane coordinates of ground points seen from image lines.
@@ -146,11 +145,27 @@ def detector_view(lines, xyz, int_lines, int_starts, int_times, positions, t0_ep
         ``c_z`` signed so that it is positive for points on the body's side of the
         focal plane (see ``LineScanSensor.image_to_ray``).
     """
+    from demtool.tiling.rows import on_row_parts
+
     n = lines.shape[0]
     x = np.empty(n)
     y = np.empty(n)
     depth = np.empty(n)
-    for i in prange(n):
+    on_row_parts(lambda start, stop: _detector_view_rows(
+        lines, xyz, int_lines, int_starts, int_times, positions, t0_ephem, dt_ephem,
+        quaternions, t0_quat, dt_quat, quat_order, focal_length, x, y, depth, start, stop),
+        n)
+    return x, y, depth
+
+
+@njit(cache=True, nogil=True)
+def _detector_view_rows(lines, xyz, int_lines, int_starts, int_times, positions, t0_ephem,
+                        dt_ephem, quaternions, t0_quat, dt_quat, quat_order, focal_length,
+                        x, y, depth, start, stop):
+    """:func:`detector_view` of points ``start … stop − 1`` into ``x``, ``y``, ``depth``
+    (run over row parts by :func:`demtool.tiling.rows.on_row_parts`: a serial ``nogil``
+    kernel compiles in a fraction of a ``parallel=True`` one's time)."""
+    for i in range(start, stop):
         line = lines[i]
         if not math.isfinite(line):
             x[i] = np.nan
@@ -171,10 +186,8 @@ def detector_view(lines, xyz, int_lines, int_starts, int_times, positions, t0_ep
         x[i] = cx * scale
         y[i] = cy * scale
         depth[i] = toward * cz
-    return x, y, depth
 
 
-@njit(parallel=True, cache=True, nogil=True)
 def image_rays(lines, u, v, int_lines, int_starts, int_times, positions, t0_ephem, dt_ephem,
                quaternions, t0_quat, dt_quat, quat_order, focal_length):
     """Imaging rays of image lines and undistorted focal-plane points (``image_to_ray``).
@@ -197,10 +210,24 @@ def image_rays(lines, u, v, int_lines, int_starts, int_times, positions, t0_ephe
         Unit look vectors ``R (−u, −v, −f)``, body-fixed, turned toward the body (the
         sign rule of ``LineScanSensor.image_to_ray``); NaN where the line is not finite.
     """
+    from demtool.tiling.rows import on_row_parts
+
     n = lines.shape[0]
     origin = np.empty((n, 3))
     direction = np.empty((n, 3))
-    for i in prange(n):
+    on_row_parts(lambda start, stop: _image_rays_rows(
+        lines, u, v, int_lines, int_starts, int_times, positions, t0_ephem, dt_ephem,
+        quaternions, t0_quat, dt_quat, quat_order, focal_length, origin, direction, start,
+        stop), n)
+    return origin, direction
+
+
+@njit(cache=True, nogil=True)
+def _image_rays_rows(lines, u, v, int_lines, int_starts, int_times, positions, t0_ephem,
+                     dt_ephem, quaternions, t0_quat, dt_quat, quat_order, focal_length,
+                     origin, direction, start, stop):
+    """:func:`image_rays` of points ``start … stop − 1`` into ``origin``, ``direction``."""
+    for i in range(start, stop):
         line = lines[i]
         if not math.isfinite(line):
             for c in range(3):
@@ -220,4 +247,3 @@ def image_rays(lines, u, v, int_lines, int_starts, int_times, positions, t0_ephe
         direction[i, 0] = look0 * scale
         direction[i, 1] = look1 * scale
         direction[i, 2] = look2 * scale
-    return origin, direction

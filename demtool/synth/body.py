@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from demtool.maps import Body, body_by_name, enu_frame, unit_vector
 
@@ -110,14 +110,14 @@ def placement(body: str | Body = "Moon", center_lon: float = 0.0,
     return Placement(the_body, float(center_lon), float(center_lat))
 
 
-@njit(cache=True, parallel=True)
-def _radial_heights(ux, uy, uz, radius, dem, x_first, y_first, spacing, iterations):
+@njit(cache=True, nogil=True)
+def _radial_heights(ux, uy, uz, radius, dem, x_first, y_first, spacing, iterations, out,
+                    start, stop):
     """Distance s along unit local directions u from the body centre (0, 0, −R) to the
-    height field, minus R; NaN outside the DEM or for directions away from the scene."""
-    count = ux.shape[0]
-    out = np.empty(count)
+    height field, minus R, into ``out[start:stop]``; NaN outside the DEM or for
+    directions away from the scene."""
     rows, cols = dem.shape
-    for i in prange(count):
+    for i in range(start, stop):
         if uz[i] <= 0.0:
             out[i] = np.nan
             continue
@@ -136,7 +136,6 @@ def _radial_heights(ux, uy, uz, radius, dem, x_first, y_first, spacing, iteratio
                  + (dem[r0 + 1, c0] * (1.0 - a) + dem[r0 + 1, c0 + 1] * a) * b)
             s = (radius + h) / uz[i]
         out[i] = s - radius
-    return out
 
 
 def surface_height(place: Placement, field, lon_deg, lat_deg) -> np.ndarray:
@@ -166,9 +165,13 @@ def surface_height(place: Placement, field, lon_deg, lat_deg) -> np.ndarray:
     u = place.directions_to_local(unit_vector(lon_deg, lat_deg))
     shape = u.shape[:-1]
     flat = np.ascontiguousarray(u.reshape(-1, 3))
-    heights = _radial_heights(flat[:, 0].copy(), flat[:, 1].copy(), flat[:, 2].copy(),
-                              place.radius, field.dem, field.x_first, field.y_first,
-                              field.spacing, SURFACE_ITERATIONS)
+    from demtool.tiling.rows import on_row_parts
+
+    ux, uy, uz = flat[:, 0].copy(), flat[:, 1].copy(), flat[:, 2].copy()
+    heights = np.empty(flat.shape[0])
+    on_row_parts(lambda start, stop: _radial_heights(
+        ux, uy, uz, place.radius, field.dem, field.x_first, field.y_first, field.spacing,
+        SURFACE_ITERATIONS, heights, start, stop), flat.shape[0])
     return heights.reshape(shape)
 
 

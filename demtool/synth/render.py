@@ -20,10 +20,11 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from demtool.imaging.reflectance import lunar_lambert
 from demtool.sensors.base import SensorModel
+from demtool.tiling.rows import on_row_parts
 
 MARCH_STEP_CELLS = 0.5  # horizontal ray-marching step, in cells
 REFINE_ITERATIONS = 100
@@ -228,18 +229,14 @@ def _in_shadow(px, py, pz, sx, sy, sz, dem, block_max, x_first, y_first, spacing
             u += 0.25 * step if u < fine_until else step
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _render_geometry(origins, directions, depth_axis, along_axis, dem, block_max, grad_x,
-                     grad_y, albedo, x_first, y_first, spacing, z_min, z_max, sun):
-    height, width = origins.shape[0], origins.shape[1]
-    depth = np.full((height, width), np.nan)
-    hit = np.full((height, width, 3), np.nan)
-    mu0 = np.full((height, width), np.nan)
-    mu = np.full((height, width), np.nan)
-    phase = np.full((height, width), np.nan)
-    rho = np.full((height, width), np.nan)
-    shadow = np.zeros((height, width), dtype=np.bool_)
-    for r in prange(height):
+                     grad_y, albedo, x_first, y_first, spacing, z_min, z_max, sun, depth, hit,
+                     mu0, mu, phase, rho, shadow, start, stop):
+    """Rows ``start … stop − 1`` of :func:`view_geometry`'s arrays (``depth`` … ``shadow``,
+    filled with NaN / False before: a pixel whose ray misses keeps them)."""
+    width = origins.shape[1]
+    for r in range(start, stop):
         for c in range(width):
             ox, oy, oz = origins[r, c, 0], origins[r, c, 1], origins[r, c, 2]
             dx, dy, dz = directions[r, c, 0], directions[r, c, 1], directions[r, c, 2]
@@ -275,20 +272,19 @@ def _render_geometry(origins, directions, depth_axis, along_axis, dem, block_max
             shadow[r, c] = cos_i <= 0.0 or _in_shadow(x, y, z, sun[0], sun[1], sun[2], dem,
                                                       block_max, x_first, y_first, spacing,
                                                       z_max)
-    return depth, hit, mu0, mu, phase, rho, shadow
 
 
-@njit(cache=True, parallel=True)
-def _cast_rays(origins, directions, dem, x_first, y_first, spacing, z_min, z_max):
-    count = origins.shape[0]
-    t = np.empty(count)
-    for i in prange(count):
+@njit(cache=True, nogil=True)
+def _cast_rays(origins, directions, dem, x_first, y_first, spacing, z_min, z_max, t, start,
+               stop):
+    """Ray parameters ``t[start:stop]`` of the first hits (NaN: a miss), per unit of
+    ``directions``' length."""
+    for i in range(start, stop):
         d = directions[i]
         norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
         t[i] = _intersect(origins[i, 0], origins[i, 1], origins[i, 2], d[0] / norm,
                           d[1] / norm, d[2] / norm, dem, x_first, y_first, spacing, z_min,
                           z_max) / norm
-    return t
 
 
 def _run_kernel(kernel, *args):
@@ -337,8 +333,10 @@ def intersect_rays(field: HeightField, origins: np.ndarray, directions: np.ndarr
     o = np.ascontiguousarray(np.atleast_2d(origins), dtype=np.float64)
     d = np.ascontiguousarray(np.atleast_2d(directions), dtype=np.float64)
     o = np.broadcast_to(o, d.shape).copy() if o.shape != d.shape else o
-    t = _run_kernel(_cast_rays, o, d, field.dem, field.x_first, field.y_first, field.spacing,
-                    field.z_min, field.z_max)
+    t = np.empty(o.shape[0])
+    _run_kernel(on_row_parts, lambda start, stop: _cast_rays(
+        o, d, field.dem, field.x_first, field.y_first, field.spacing, field.z_min,
+        field.z_max, t, start, stop), o.shape[0])
     return o + t[:, None] * d
 
 
@@ -458,12 +456,17 @@ def view_geometry(field: HeightField, albedo: np.ndarray, camera: SensorModel,
     if axis is None and getattr(camera, "boresight", None) is not None:  # a frame camera's
         axis = camera.boresight if placement is None else \
             placement.directions_to_local(camera.boresight)
-    result = _run_kernel(
-        _render_geometry, origins, directions,
-        np.zeros(3) if axis is None else np.ascontiguousarray(axis, dtype=np.float64),
-        axis is not None, field.dem, field.block_max, field.grad_x, field.grad_y,
-        np.ascontiguousarray(albedo, dtype=np.float64), field.x_first, field.y_first,
-        field.spacing, field.z_min, field.z_max, sun)
+    height, width = origins.shape[0], origins.shape[1]
+    result = (np.full((height, width), np.nan), np.full((height, width, 3), np.nan),
+              *(np.full((height, width), np.nan) for _ in range(4)),
+              np.zeros((height, width), dtype=np.bool_))
+    args = (origins, directions,
+            np.zeros(3) if axis is None else np.ascontiguousarray(axis, dtype=np.float64),
+            axis is not None, field.dem, field.block_max, field.grad_x, field.grad_y,
+            np.ascontiguousarray(albedo, dtype=np.float64), field.x_first, field.y_first,
+            field.spacing, field.z_min, field.z_max, sun, *result)
+    _run_kernel(on_row_parts, lambda start, stop: _render_geometry(*args, start, stop),
+                height)
     return ViewGeometry(*result)
 
 

@@ -68,3 +68,23 @@ def test_image_rays_kernel_matches_numpy(name):
     ref = model._image_to_ray_numpy(3.5, 7.5)
     assert np.abs(ray.origin[1] - ref.origin).max() <= 1e-9
     assert _ray_angle(ray.direction[1], ref.direction) <= 1e-12
+
+
+def test_kernels_in_parts_are_the_one_thread_values(monkeypatch):
+    from tests.helpers.row_parts import whole_and_split
+
+    model = read_isd(DATA / "orbitalLineScan.json")
+    rng = np.random.default_rng(5)
+    lines = rng.uniform(0.5, model.lines - 0.5, 400)
+    samples = rng.uniform(0.5, model.samples - 0.5, 400)
+    lines[7] = np.nan
+    ground = model.image_to_ground(np.nan_to_num(lines, nan=8.5), samples)
+
+    def compute():
+        ray = model.image_to_ray(lines, samples)
+        return (ray.origin, ray.direction, *model._detector_view_fast(lines, ground))
+
+    whole, split, seen = whole_and_split(monkeypatch, compute)
+    assert len(seen) == 2 and all(len(parts) == 3 for parts in seen)
+    for a, b in zip(whole, split, strict=True):
+        np.testing.assert_array_equal(a, b)

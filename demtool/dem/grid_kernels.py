@@ -21,11 +21,11 @@ temporary arrays of the samples: 1.7 s of a 2048² ``dem``.  This kernel adds th
 terms in the same order (per corner, samples in their order, each corner's sums then
 added to the total), so the moments are the same bit for bit.  :func:`cell_medians`: the
 median of the samples of each cell (:func:`demtool.dem.grid.splat_median`), from a
-counting sort by cell and a stable sort within each cell, instead of a lexsort of all
-samples: the same sorted values, so the same medians.
+counting sort by cell and a stable sort within each cell (:func:`_stable_sort`),
+instead of a lexsort of all samples: the same sorted values, so the same medians.
 
-The kernels share :func:`_insertion_sort` and live in one file so that numba's cache,
-keyed by the file, never keeps one compiled against an older version of it.
+The kernels live in one file so that numba's cache, keyed by the file, never keeps one
+compiled against an older version of a helper they share.
 """
 
 from __future__ import annotations
@@ -105,7 +105,9 @@ def _sort_into_buckets(xs, ys, x0, y0, side, nx, ny):
         starts[bucket[i] + 1] += 1
     for b in range(nx * ny):
         starts[b + 1] += starts[b]
-    fill = starts[:-1].copy()
+    fill = np.empty(nx * ny, dtype=np.int64)  # (a loop: a slice's copy compiles longer)
+    for b in range(nx * ny):
+        fill[b] = starts[b]
     order = np.empty(count, dtype=np.int64)
     for i in range(count):
         order[fill[bucket[i]]] = i
@@ -175,17 +177,14 @@ def _neighbour_statistics(xs, ys, values, queries, k, x0, y0, side, nx, ny, star
         ring = 0
         while True:
             for r in range(max(row - ring, 0), min(row + ring, ny - 1) + 1):
-                if r == row - ring or r == row + ring:  # the ring's first and last rows
-                    for c in range(max(column - ring, 0), min(column + ring, nx - 1) + 1):
+                # the ring's first and last rows: all its columns; its rows between: the
+                # first and last column (one call of the inlined scan: compiled once)
+                edge = r == row - ring or r == row + ring
+                first = max(column - ring, 0) if edge else column - ring
+                for c in range(first, min(column + ring, nx - 1) + 1, 1 if edge else 2 * ring):
+                    if c >= 0:
                         found = _scan_bucket(xs, ys, qx, qy, query, starts, order,
                                              r * nx + c, best_d, best_i, found, k)
-                else:  # its rows between: the first and last columns
-                    if column - ring >= 0:
-                        found = _scan_bucket(xs, ys, qx, qy, query, starts, order,
-                                             r * nx + column - ring, best_d, best_i, found, k)
-                    if column + ring < nx:
-                        found = _scan_bucket(xs, ys, qx, qy, query, starts, order,
-                                             r * nx + column + ring, best_d, best_i, found, k)
             # unvisited buckets lie at least ring · side away: none can be nearer (or
             # as near: ties go to the lower index, and such a sample might have one)
             bound = ring * side
@@ -318,28 +317,70 @@ def bilinear_moments(x: np.ndarray, y: np.ndarray, z: np.ndarray,
     return moments
 
 
+# Cells of more samples than this are sorted by merging sorted runs of this many.
+SORT_RUN = 64
+
+
+@njit(nogil=True, cache=True)
+def _stable_sort(values, lo, hi, scratch):
+    """Sort ``values[lo:hi]`` in place, stably: insertion-sorted runs of :data:`SORT_RUN`,
+    then merged pairwise (bottom-up, through ``scratch[:hi - lo]``).
+
+    Equal values keep their order, as in ``np.argsort(kind="mergesort")``, so the sorted
+    values are the same bit for bit (+0.0 and −0.0 included).  Loops only: numba's
+    argsort and the fancy indexing around it were most of the kernel's compile.
+    """
+    for start in range(lo, hi, SORT_RUN):
+        stop = min(start + SORT_RUN, hi)
+        for i in range(start + 1, stop):
+            value = values[i]
+            j = i
+            while j > start and values[j - 1] > value:
+                values[j] = values[j - 1]
+                j -= 1
+            values[j] = value
+    width = SORT_RUN
+    while width < hi - lo:
+        for left in range(lo, hi, 2 * width):
+            middle, right = min(left + width, hi), min(left + 2 * width, hi)
+            i, j = left, middle
+            for k in range(right - left):
+                # the left run's value first when equal: stable
+                if j >= right or (i < middle and values[i] <= values[j]):
+                    scratch[k] = values[i]
+                    i += 1
+                else:
+                    scratch[k] = values[j]
+                    j += 1
+            for k in range(right - left):
+                values[left + k] = scratch[k]
+        width *= 2
+
+
 @njit(nogil=True, cache=True)
 def _cell_medians(cells, values, counts, grid):
     """``grid[c]`` = median of ``values[cells == c]`` (0.5 · (lower + upper) middle values)
     for every cell with ``counts[c]`` > 0."""
     starts = np.zeros(len(counts) + 1, dtype=np.int64)
+    largest = 0
     for c in range(len(counts)):
         starts[c + 1] = starts[c] + counts[c]
-    fill = starts[:-1].copy()
+        largest = max(largest, counts[c])
+    fill = np.empty(len(counts), dtype=np.int64)
+    for c in range(len(counts)):
+        fill[c] = starts[c]
     bucket = np.empty(len(values))
     for j in range(len(values)):  # in sample order: each cell's values stay in that order
         bucket[fill[cells[j]]] = values[j]
         fill[cells[j]] += 1
+    scratch = np.empty(largest if largest > SORT_RUN else 0)  # merges only above a run
     for c in range(len(counts)):
         size = counts[c]
         if size == 0:
             continue
-        segment = bucket[starts[c]:starts[c + 1]]
-        if size <= 64:
-            _insertion_sort(segment)
-        else:
-            segment[:] = segment[np.argsort(segment, kind="mergesort")]
-        grid[c] = 0.5 * (segment[(size - 1) // 2] + segment[size // 2])
+        lo = starts[c]
+        _stable_sort(bucket, lo, lo + size, scratch)
+        grid[c] = 0.5 * (bucket[lo + (size - 1) // 2] + bucket[lo + size // 2])
 
 
 def cell_medians(cells: np.ndarray, values: np.ndarray, counts: np.ndarray) -> np.ndarray:

@@ -107,10 +107,6 @@ class Kept:
     bounds: np.ndarray
     before: np.ndarray
 
-    @property
-    def nbytes(self) -> int:
-        return self.grouped.nbytes + self.before.nbytes
-
 
 @dataclass
 class WindowResult:
@@ -118,7 +114,7 @@ class WindowResult:
 
     ``moments``: :meth:`~demtool.compare.streaming.Moments.of` of its finite differences
     after alignment, before it and in each slope class (the first pass); ``pieces``:
-    those arrays (the later passes, when not ``kept``); ``kept``: :class:`Kept` or None;
+    those arrays (a later pass's window computed again); ``kept``: :class:`Kept` or None;
     ``difference``: float32 core of ``difference.tif``; ``figures``: the decimated
     cells of each figure grid, with their rows and columns; ``considered``,
     ``covered``: the completeness counts.
@@ -162,7 +158,7 @@ def window_result(values: Any, mask: np.ndarray | None, core: tuple[int, int, in
             figures[name] = decimate(getattr(values, name), core, factor)
         if mask is not None:
             figures["mask"] = decimate(mask, core, factor)
-    return WindowResult(core=core, moments=moments, pieces=None if keep else pieces,
+    return WindowResult(core=core, moments=moments, pieces=None if keep or first else pieces,
                         kept=kept, difference=(values.difference.astype(np.float32)
                                                if difference else None),
                         figures=figures, considered=values.considered if first else 0,

@@ -83,7 +83,7 @@ def _usable_weight(image: np.ndarray, modelled: np.ndarray, weight: np.ndarray,
                                                          out, start, stop), image.shape[0])
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _usable_weight_rows(image, modelled, weight, weighted, out, start,
                         stop):  # pragma: no cover - compiled
     width = image.shape[1]
@@ -105,7 +105,7 @@ def _ratio_is_bad(smooth_image: np.ndarray, smooth_model: np.ndarray, floor: np.
     return bool(bad.any())
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _ratio_rows(smooth_image, smooth_model, floor, out, bad, start,
                 stop):  # pragma: no cover - compiled
     """Rows ``start … stop − 1`` of :func:`_ratio_is_bad`; ``bad[r]`` True when a ratio of

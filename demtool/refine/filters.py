@@ -155,7 +155,7 @@ def _masked_product(values: np.ndarray, weight: np.ndarray, out: np.ndarray) -> 
                  values.shape[0])
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _masked_product_rows(values, weight, out, start, stop):  # pragma: no cover - compiled
     width = values.shape[1]
     zero = np.float32(0.0)
@@ -175,7 +175,7 @@ def _ratio_above(numerator: np.ndarray, denominator: np.ndarray, floor: np.float
                  numerator.shape[0])
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _ratio_above_rows(numerator, denominator, floor, fallback, out, start,
                       stop):  # pragma: no cover - compiled
     width = numerator.shape[1]
@@ -310,7 +310,7 @@ def _toggle(rank: int, sign: int, bitmap: np.ndarray, counts: np.ndarray) -> Non
     counts[rank >> _BIN_SHIFT] += sign
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _median_ranks(ranks: np.ndarray, sorted_values: np.ndarray, height: int, width: int,
                   size: int, bins: int) -> np.ndarray:  # pragma: no cover - compiled
     # serial: median_filter runs one strip per thread (a parallel=True loop here compiled

@@ -9,9 +9,10 @@ share under ``--workers``).  Each part writes only its own rows, so the outputs 
 thread's, bit for bit, whatever the thread count; the sums are kept per row and added
 in row order afterwards (also independent of the thread count).  numba's
 ``parallel=True`` gave the same loops on the same cores but made a fresh install compile
-them for ~4× longer (its parfor pass and gufunc wrapper: 27 → 7 CPU s for this module).
-Frame and units as in :mod:`demtool.refine.sfs`: x = columns, y = up (−rows), heights
-in units of the x pixel spacing, slopes dimensionless.
+them for several times longer (its parfor pass and gufunc wrapper).  The row kernels use
+numpy's error model, as numba's parfor loops did: with Python's, every division checks
+for zero and raises, and the loops no longer vectorise (``reflectance_partials`` 4×
+slower).
 
 The photometric kernel evaluates the reflectance models of
 :mod:`demtool.imaging.reflectance` with their analytic partial derivatives (McEwen 1991,
@@ -51,7 +52,7 @@ def reflectance_partials(p: np.ndarray, q: np.ndarray, sun: np.ndarray, view: np
         p, q, sun, view, limb, model, out_r, out_rp, out_rq, start, stop), p.shape[0])
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _reflectance_partials_rows(p, q, sun, view, limb, model, out_r, out_rp, out_rq,
                                start, stop):  # pragma: no cover - compiled
     width = p.shape[1]
@@ -91,7 +92,7 @@ def central_gradient(z: np.ndarray, aspect: float, gx: np.ndarray, gy: np.ndarra
                  z.shape[0])
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _central_gradient_rows(z, aspect, gx, gy, start, stop):  # pragma: no cover - compiled
     height, width = z.shape
     half = np.float32(0.5)
@@ -122,7 +123,7 @@ def slope_step(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.ndarray, R: 
         q_out, start, stop), p.shape[0])
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _slope_step_rows(p, q, gx, gy, R, Rp, Rq, normalised, weight, bp, bq, gamma, delta,
                      damping, p_out, q_out, start, stop):  # pragma: no cover - compiled
     width = p.shape[1]
@@ -148,7 +149,7 @@ def integrability_adjoint(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.n
         p, q, gx, gy, aspect, out, start, stop), p.shape[0])
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _integrability_adjoint_rows(p, q, gx, gy, aspect, out, start,
                                 stop):  # pragma: no cover - compiled
     height, width = p.shape
@@ -192,7 +193,7 @@ def energy_sums(p: np.ndarray, q: np.ndarray, gx: np.ndarray, gy: np.ndarray,
     return np.cumsum(rows, axis=0)[-1]  # in row order (a sum would add pairwise)
 
 
-@nb.njit(cache=True, fastmath=True, nogil=True)
+@nb.njit(cache=True, fastmath=True, nogil=True, error_model="numpy")
 def _energy_sums_rows(p, q, gx, gy, p0, q0, bp, bq, R, normalised, weight, rows, start,
                       stop):  # pragma: no cover - compiled
     width = p.shape[1]
@@ -222,7 +223,7 @@ def height_update(z_hat: np.ndarray, correction_hat: np.ndarray, laplacian: np.n
         start, stop), z_hat.shape[0])
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _height_update_rows(z_hat, correction_hat, laplacian, anchor_hat, inverse_denominator,
                         gamma, out, start, stop):  # pragma: no cover - compiled
     width = z_hat.shape[1]
@@ -241,7 +242,7 @@ def weighted_square_sum(weight: np.ndarray, a: np.ndarray, b: np.ndarray) -> flo
     return float(np.cumsum(rows)[-1])  # in row order (a sum would add pairwise)
 
 
-@nb.njit(cache=True, fastmath=True, nogil=True)
+@nb.njit(cache=True, fastmath=True, nogil=True, error_model="numpy")
 def _weighted_square_sum_rows(weight, a, b, rows, start, stop):  # pragma: no cover
     width = a.shape[1]
     for r in range(start, stop):
@@ -261,7 +262,7 @@ def block_mean(values: np.ndarray, reference: np.ndarray, block: int,
                  min_rows=max(1, 64 // max(1, block)))
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _block_mean_rows(values, reference, block, out, start,
                      stop):  # pragma: no cover - compiled
     cols_out = out.shape[1]
@@ -281,7 +282,7 @@ def block_replicate(coarse: np.ndarray, block: int, out: np.ndarray) -> None:
                  out.shape[0])
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _block_replicate_rows(coarse, block, out, start, stop):  # pragma: no cover - compiled
     width = out.shape[1]
     for r in range(start, stop):

@@ -160,7 +160,7 @@ def shadow_segments(dark: np.ndarray, usable: np.ndarray, spacing: tuple[float, 
                           (trapezoid * per_step_q).astype(np.float32), target)
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _residuals(p: np.ndarray, q: np.ndarray, starts: np.ndarray, rows: np.ndarray,
                cols: np.ndarray, coef_p: np.ndarray, coef_q: np.ndarray,
                target: np.ndarray, out: np.ndarray, first: int,

@@ -38,7 +38,7 @@ def _march_toward_sun(dem: np.ndarray, step_row: float, step_col: float, rise: f
     return shadow
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _march_rows(dem, step_row, step_col, rise, z_max, candidates, shadow, start,
                 stop):  # pragma: no cover - compiled
     height, width = dem.shape
@@ -69,7 +69,7 @@ def _dilate_cross(mask: np.ndarray, out: np.ndarray) -> None:
                  mask.shape[0])
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _dilate_cross_rows(mask, out, start, stop):  # pragma: no cover - compiled
     height, width = mask.shape
     for r in range(start, stop):

@@ -37,8 +37,9 @@ from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
 
-__all__ = ["CATEGORICAL_BANDS", "LAYOUTS", "OVERVIEW_MIN_SIDE", "current_layout",
-           "overview_factors", "overview_resampling", "raster_layout", "raster_output"]
+__all__ = ["CATEGORICAL_BANDS", "COMPRESSION_CONFIG", "LAYOUTS", "OVERVIEW_MIN_SIDE",
+           "THREADED_COMPRESSION_PIXELS", "current_layout", "overview_factors",
+           "overview_resampling", "raster_layout", "raster_output"]
 
 #: Raster layouts: ``gtiff`` (tiled GeoTIFF, internal overviews above a size) or ``cog``.
 LAYOUTS = ("gtiff", "cog")
@@ -57,6 +58,16 @@ COG_OPTIONS = {"compress": "DEFLATE", "level": 1, "predictor": "YES", "blocksize
 #: and no predictor).
 OVERVIEW_CONFIG = {"GDAL_NUM_THREADS": "ALL_CPUS", "ZLEVEL_OVERVIEW": 1,
                    "PREDICTOR_OVERVIEW": 3}
+
+#: Rasters of at least this many pixels are compressed on every core: GDAL's GTiff driver
+#: reads ``GDAL_NUM_THREADS`` (the default of its ``NUM_THREADS`` creation option) when the
+#: dataset is created, and then compresses its blocks and builds its overviews on worker
+#: threads instead of the writing thread, with the same bytes (on a 12 545 × 5 097 LRO NAC
+#: orthoimage the writing thread's work after the last tile fell from 2.5 to 0.7 s).
+#: Below it the worker threads' start and hand-over cost more than they save.
+THREADED_COMPRESSION_PIXELS = 2048 * 2048
+#: GDAL's configuration while a large raster is created (:data:`THREADED_COMPRESSION_PIXELS`).
+COMPRESSION_CONFIG = {"GDAL_NUM_THREADS": "ALL_CPUS"}
 
 _LAYOUT: ContextVar[str] = ContextVar("demtool_raster_layout", default="gtiff")
 
@@ -130,6 +141,17 @@ def _build_overviews(dataset: Any, resampling: str) -> None:
         dataset.update_tags(ns="rio_overview", resampling=resampling)
 
 
+def _compression_threads(profile: Mapping[str, Any]) -> contextlib.AbstractContextManager:
+    """:data:`COMPRESSION_CONFIG` for a raster of at least
+    :data:`THREADED_COMPRESSION_PIXELS` pixels (a no-op below)."""
+    import rasterio
+
+    pixels = int(profile.get("width", 0)) * int(profile.get("height", 0))
+    if pixels < THREADED_COMPRESSION_PIXELS:
+        return contextlib.nullcontext()
+    return rasterio.Env(**COMPRESSION_CONFIG)
+
+
 def _copy_as_cog(source: Path, target: Path, resampling: str) -> None:
     from rasterio.shutil import copy
 
@@ -181,7 +203,9 @@ def raster_output(path: str | os.PathLike, profile: Mapping[str, Any], *,
     with atomic_path(path, suffix=".tif") as temporary, ignoring(NotGeoreferencedWarning):
         stage = temporary.with_name(temporary.name + ".gtiff.tif") if cog else temporary
         try:
-            with rasterio.open(stage, "w", **profile) as dst:
+            with _compression_threads(profile):  # read when the file is created
+                dst = rasterio.open(stage, "w", **profile)
+            with dst:
                 yield dst
                 if tags:
                     dst.update_tags(**tags)

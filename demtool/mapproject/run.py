@@ -221,7 +221,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     from demtool.logs import progress
     from demtool.mapproject.core import native_gsd, sensor_body
     from demtool.mapproject.params import MapprojectParams
-    from demtool.mapproject.threads import compressing_on_every_core, warm
+    from demtool.mapproject.threads import warm
     from demtool.mapproject.tiled import (
         MapprojectTileJob,
         engine_tile_size,
@@ -310,7 +310,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     if engine_size:
         inputs = [p for p in (image_path, sensor_path, dem_path, grid_like) if p is not None]
         warm(sensor)  # the model's lazily cached state, before tiles on threads share it
-        with holding_surface(job, surface), compressing_on_every_core():
+        with holding_surface(job, surface):
             # (tiles on threads slice the DEM held in memory)
             result = mapproject_tiled(run, job, grid, engine_size, params, out_path=out_path,
                                       angles_out=angles_out, tags=tags, inputs=inputs,
@@ -337,12 +337,7 @@ def _project_in_process(run, job, sensor, surface, grid, tags, head, params, out
     from demtool import io as dio
     from demtool.errors import InputError
     from demtool.mapproject.core import tile_windows
-    from demtool.mapproject.threads import (
-        available_threads,
-        compressing_on_every_core,
-        ordered_map,
-        warm,
-    )
+    from demtool.mapproject.threads import available_threads, ordered_map, warm
     from demtool.mapproject.tiled import ANGLE_BANDS, project_window, summarize_tiles
 
     windows = tile_windows(grid.shape, params.tile_size)
@@ -350,15 +345,14 @@ def _project_in_process(run, job, sensor, surface, grid, tags, head, params, out
     started, started_cpu = time.perf_counter(), time.process_time()
     outputs = [out_path] + ([angles_out] if angles_out is not None else [])
     with dio.output_transaction(), contextlib.ExitStack() as stack:
-        with compressing_on_every_core():  # read when the files are created
-            ortho = stack.enter_context(dio.raster_writer(
-                out_path, height=grid.height, width=grid.width, transform=grid.transform,
-                crs=grid.crs, tags=tags))
-            angle_writer = None if angles_out is None else stack.enter_context(
-                dio.raster_writer(angles_out, height=grid.height, width=grid.width, count=3,
-                                  transform=grid.transform, crs=grid.crs,
-                                  tags={**tags, "bands": list(ANGLE_BANDS)},
-                                  band_names=list(ANGLE_BANDS)))
+        ortho = stack.enter_context(dio.raster_writer(
+            out_path, height=grid.height, width=grid.width, transform=grid.transform,
+            crs=grid.crs, tags=tags))
+        angle_writer = None if angles_out is None else stack.enter_context(
+            dio.raster_writer(angles_out, height=grid.height, width=grid.width, count=3,
+                              transform=grid.transform, crs=grid.crs,
+                              tags={**tags, "bands": list(ANGLE_BANDS)},
+                              band_names=list(ANGLE_BANDS)))
         warm(sensor)
         tiles = ordered_map(lambda window: (window, project_window(job, sensor, surface,
                                                                    window)), windows,

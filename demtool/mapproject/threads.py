@@ -148,32 +148,6 @@ def phase(timings: dict[str, float], name: str) -> Iterator[None]:
         timings[key] = round(timings.get(key, 0.0) + time.process_time() - cpu, 3)
 
 
-#: GDAL's configuration while mapproject creates its outputs: the GTiff driver compresses
-#: their blocks (the tiles as they are written, the overviews at the end) on worker
-#: threads instead of the writing thread (``GDAL_NUM_THREADS``, read when a dataset is
-#: created, is the default of the creation option ``NUM_THREADS``:
-#: https://gdal.org/drivers/raster/gtiff.html).  The bytes are the same (the blocks are
-#: written in order).
-COMPRESSION_CONFIG = {"GDAL_NUM_THREADS": "ALL_CPUS"}
-
-
-@contextlib.contextmanager
-def compressing_on_every_core() -> Iterator[None]:
-    """GeoTIFFs created inside the block compress on every core (:data:`COMPRESSION_CONFIG`).
-
-    Without it the thread that writes an output compresses every block of it, and builds
-    its overviews (decompressing the full-resolution blocks, compressing the reduced
-    ones) alone after the last tile: on a 12 545 × 5 097 LRO NAC orthoimage that was
-    2.5 s of one core after the tiles (0.7 s with it).  GDAL's configuration is
-    process-wide: readers on other threads meanwhile may decode on worker threads too
-    (the same values).
-    """
-    import rasterio
-
-    with rasterio.Env(**COMPRESSION_CONFIG):
-        yield
-
-
 def warm(sensor: Any) -> None:
     """Fill a sensor model's lazily cached state (a line scanner's affine first guess)
     in this thread, before threads share the model."""
@@ -183,6 +157,6 @@ def warm(sensor: Any) -> None:
             guess()
 
 
-__all__ = ["COMPRESSION_CONFIG", "MIN_BATCH", "available_threads", "batched",
-           "compressing_on_every_core", "ground_to_image_threaded", "ordered_map", "phase",
+__all__ = ["MIN_BATCH", "available_threads", "batched",
+           "ground_to_image_threaded", "ordered_map", "phase",
            "warm"]

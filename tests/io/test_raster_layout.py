@@ -114,3 +114,44 @@ def test_cog_option_of_the_command_line_applies_to_that_run_only(tmp_path):
     with rasterio.open(tmp_path / "fused_count.tif") as src:
         assert src.tags(ns="IMAGE_STRUCTURE")["LAYOUT"] == "COG"
         assert set(np.unique(src.read(1, out_shape=(150, 300)))) <= {0.0, 1.0}
+
+
+def test_large_rasters_are_compressed_on_every_core_with_the_same_bytes(tmp_path,
+                                                                          monkeypatch):
+    """A raster of at least THREADED_COMPRESSION_PIXELS is created with GDAL's compression
+    threads (its blocks and overviews compressed off the writing thread): the file's
+    bytes are those written on one thread, and GDAL's configuration is back after it."""
+    import contextlib
+
+    from rasterio._env import get_gdal_config
+
+    from demtool.io import layout
+
+    rng = np.random.default_rng(3)
+    values = rng.normal(0.5, 0.1, (700, 900)).astype(np.float32)  # > 512 px: overviews
+    values[100:180, 200:260] = np.nan
+    seen = []
+    opened = rasterio.open
+
+    def spying_open(*args, **kwargs):
+        seen.append(get_gdal_config("GDAL_NUM_THREADS"))
+        return opened(*args, **kwargs)
+
+    monkeypatch.setattr(rasterio, "open", spying_open)
+
+    def write(path, threshold):
+        monkeypatch.setattr(layout, "THREADED_COMPRESSION_PIXELS", threshold)
+        with dio.output_transaction(), contextlib.ExitStack() as stack:
+            out = stack.enter_context(dio.raster_writer(path, height=700, width=900))
+            for r0 in range(0, 700, 256):
+                out.write(values[r0:r0 + 256], r0, 0)
+        return path.read_bytes()
+
+    before = get_gdal_config("GDAL_NUM_THREADS")
+    plain = write(tmp_path / "a.tif", 10 ** 9)
+    threaded = write(tmp_path / "b.tif", 700 * 900)
+    assert seen[0] == before and seen[-1] == "ALL_CPUS"  # only the large one threaded
+    assert get_gdal_config("GDAL_NUM_THREADS") == before
+    assert threaded == plain
+    monkeypatch.setattr(rasterio, "open", opened)
+    assert dio.read_raster(tmp_path / "b.tif").data.tobytes() == values.tobytes()

@@ -4,7 +4,6 @@ a line scanner's ground-to-image in batches equal to one call, and mapproject's
 in-process loop on two threads writing the same orthoimage and angles as on one, with
 its phases' wall and CPU seconds in the sidecar."""
 
-import contextlib
 import json
 
 import numpy as np
@@ -109,30 +108,3 @@ def test_dem_triangulation_and_gridding_on_two_threads_equal_one_thread(monkeypa
     for name in ("dem", "error", "filled", "overlap", "points"):
         assert np.array_equal(getattr(dem1, name), getattr(dem2, name), equal_nan=True), name
     assert np.isfinite(dem1.dem).mean() > 0.3
-
-
-def test_outputs_compressed_on_every_core_have_the_same_bytes(tmp_path):
-    """GeoTIFFs created inside compressing_on_every_core (GDAL's compression threads:
-    the blocks and the overviews) are byte for byte the files written without it, and
-    GDAL's configuration is back as it was after the block."""
-    from rasterio._env import get_gdal_config
-
-    rng = np.random.default_rng(3)
-    values = rng.normal(0.5, 0.1, (700, 900)).astype(np.float32)  # > 512 px: overviews
-    values[100:180, 200:260] = np.nan
-
-    def write(path, threaded):
-        with dio.output_transaction(), contextlib.ExitStack() as stack:
-            with (threads.compressing_on_every_core() if threaded
-                  else contextlib.nullcontext()):
-                assert (get_gdal_config("GDAL_NUM_THREADS") == "ALL_CPUS") == threaded
-                out = stack.enter_context(dio.raster_writer(path, height=700, width=900))
-            for r0 in range(0, 700, 256):  # written after the block that created it
-                out.write(values[r0:r0 + 256], r0, 0)
-        return path.read_bytes()
-
-    before = get_gdal_config("GDAL_NUM_THREADS")
-    plain, threaded = write(tmp_path / "a.tif", False), write(tmp_path / "b.tif", True)
-    assert get_gdal_config("GDAL_NUM_THREADS") == before
-    assert threaded == plain
-    assert dio.read_raster(tmp_path / "b.tif").data.tobytes() == values.tobytes()

@@ -462,6 +462,38 @@ def test_a_damaged_cached_tile_is_recomputed(tmp_path, caplog, damage):
     np.testing.assert_array_equal(fresh.load(plan.tiles[1]), np.full((1, 20, 20), 1.0))
 
 
+def test_a_stored_tile_is_np_saves_bytes_and_not_hashed_again_by_its_writer(tmp_path,
+                                                                               monkeypatch):
+    """store writes np.save's bytes from the array itself (a Fortran-ordered float64 tile
+    included) and the same cache then trusts its own file without reading it again; a
+    fresh cache (another process, a resumed run) still checks it, and a file changed
+    since is checked again."""
+    import io
+    from pathlib import Path
+
+    plan = tiling.plan_tiles(40, 40, 20, overlap=0)
+    values = np.asfortranarray(np.random.default_rng(0).normal(size=(2, 20, 20)))
+    cache = tiling.TileCache(tmp_path / "c")
+    cache.store(plan.tiles[0], values, {"seconds": 1.0})
+    expected = io.BytesIO()
+    np.save(expected, np.ascontiguousarray(values, dtype=np.float32))  # as before
+    assert cache.path(plan.tiles[0]).read_bytes() == expected.getvalue()
+    read = []
+    original = Path.read_bytes
+
+    def spying(self):
+        read.append(self.name)
+        return original(self)
+
+    monkeypatch.setattr(Path, "read_bytes", spying)
+    assert cache.done(plan.tiles[0]) and not read
+    assert tiling.TileCache(tmp_path / "c").done(plan.tiles[0]) and read
+    path = cache.path(plan.tiles[0])
+    monkeypatch.setattr(Path, "read_bytes", original)
+    path.write_bytes(path.read_bytes()[:-4] + np.float32(7.0).tobytes())
+    assert not cache.done(plan.tiles[0])  # changed since: checked, and refused
+
+
 @pytest.mark.parametrize("address, ok", [
     ("tcp://127.0.0.1:8786", True), ("localhost:8786", True), ("tls://[::1]:8786", True),
     ("not an address", False), ("tcp://", False), ("localhost:99999", False),

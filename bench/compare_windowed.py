@@ -6,9 +6,14 @@ as a child process, in memory and with `--tile-size 512`, and its peak resident 
 (``ru_maxrss`` of the child, from ``os.wait4``) and wall time are printed beside the
 statistics of both runs (count, RMSE, NMAD; exactly equal where the alignment ran on the
 whole grid, i.e. grids up to 2 M cells, and within the decimated alignment's effect
-above).  The target: the windowed peak flat in the DEM size.
+above).  The windowed run keeps the grid and the differences in memory between its passes
+while they fit in ``--max-memory-mb`` (4096 MiB by default: each raster read once); a third
+run with ``--max-memory-mb 600`` shows the peak a small budget keeps flat in the DEM size
+(every pass reads its windows again).
 
-Usage: ``.venv/bin/python bench/compare_windowed.py [--sizes 1024 2048 4096] [--windows-only]``
+Usage: ``.venv/bin/python bench/compare_windowed.py [--sizes 1024 2048 4096] [--windows-only]
+[--record MACHINE]`` (``--record`` writes bench/results/51_scale_compare.json; then
+``python bench/validation_page.py``)
 (timings depend on the machine's load: compare numbers from the same run only).
 """
 
@@ -73,6 +78,8 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1024, 2048, 4096])
     parser.add_argument("--windows-only", action="store_true",
                         help="Skip the in-memory runs (sizes that do not fit).")
+    parser.add_argument("--record", metavar="MACHINE", default=None,
+                        help="Record the table into bench/results/51_scale_compare.json.")
     options = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -80,7 +87,8 @@ def main() -> None:
             folder = Path(tmp) / str(size)
             folder.mkdir()
             dem, reference = make_pair(folder, size)
-            modes = [("in memory", []), ("windows 512", ["--tile-size", "512"])]
+            modes = [("in memory", []), ("windows 512", ["--tile-size", "512"]),
+                     ("windows, 600 MiB", ["--tile-size", "512", "--max-memory-mb", "600"])]
             for mode, extra in modes[1:] if options.windows_only else modes:
                 out = folder / mode.replace(" ", "_")
                 wall, peak = run([DEMTOOL, "-q", "compare", str(dem), str(reference), "--out",
@@ -90,11 +98,42 @@ def main() -> None:
                 rows.append((size, mode, wall, peak, report["count"], report["rmse"],
                              report["nmad"], windowed.get("passes", "—"),
                              windowed.get("alignment_decimation", "—")))
-    print(f"{'size':>6} {'mode':<13} {'wall s':>7} {'peak MiB':>9} {'count':>10} "
+    print(f"{'size':>6} {'mode':<17} {'wall s':>7} {'peak MiB':>9} {'count':>10} "
           f"{'RMSE m':>10} {'NMAD m':>10} {'passes':>6} {'align f':>7}")
     for size, mode, wall, peak, count, rmse, nmad, passes, factor in rows:
-        print(f"{size:>6} {mode:<13} {wall:7.1f} {peak:9.0f} {count:>10d} {rmse:10.6f} "
+        print(f"{size:>6} {mode:<17} {wall:7.1f} {peak:9.0f} {count:>10d} {rmse:10.6f} "
               f"{nmad:10.6f} {passes!s:>6} {factor!s:>7}")
+    if options.record:
+        record(rows, options)
+
+
+def record(rows: list[tuple], options: argparse.Namespace) -> None:
+    """bench/results/51_scale_compare.json: one row per DEM size."""
+    from bench.validation_page import write_result
+
+    cells: dict[int, dict[str, str]] = {}
+    for size, mode, wall, peak, _, rmse, _, passes, factor in rows:
+        text = f"{wall:.1f} s, {peak:.0f} MiB"
+        if mode != "in memory":
+            text += f", {passes} passes, f = {factor} (RMSE {rmse:.5f} m)"
+        cells.setdefault(size, {})[mode] = text
+    modes = ["in memory", "windows 512", "windows, 600 MiB"]
+    write_result(
+        "51_scale_compare", title="`compare` in windows", section="Large images", order=51,
+        command="python bench/compare_windowed.py --sizes "
+                + " ".join(str(s) for s in options.sizes)
+                + (" --windows-only" if options.windows_only else "")
+                + " (fractal DEM displaced by (1.3, −0.7) px and 2 m, --align nuth-kaab "
+                  "--no-plots, windows of 512)",
+        date=time.strftime("%Y-%m-%d"), machine=options.record,
+        columns=["DEM", "in memory: wall, peak", "windows 512: wall, peak, passes, "
+                 "alignment on 1 in f²", "windows 512, --max-memory-mb 600"],
+        rows=[[f"{size}²", *(cells[size].get(m, "—") for m in modes)] for size in cells],
+        notes="The windowed run keeps the comparison grid and the differences between its "
+              "passes while they fit in --max-memory-mb (default 4096 MiB): each raster is "
+              "read once.  With a budget too small for them (600 MiB) every pass reads its "
+              "windows again and the peak is the imports plus the alignment on the "
+              "decimated grid (≤ 2 M cells) plus one window, flat in the DEM size.")
 
 
 if __name__ == "__main__":

@@ -274,24 +274,17 @@ def _define_sweep_rows(callee_digest: str):
                     col = x + PAD
                     for g in range(n_groups):
                         j = 4 * g
-                        # literal flags: two specialisations, the first without the load of out
-                        if g == 0:
-                            _four_paths(buf, mins, 0, slot, col,
-                                        previous_slot[0], col + column_step[0], penalty[0, x],
-                                        previous_slot[1], col + column_step[1], penalty[1, x],
-                                        previous_slot[2], col + column_step[2], penalty[2, x],
-                                        previous_slot[3], col + column_step[3], penalty[3, x],
-                                        running, x, p1s, out, False)
-                        else:
-                            _four_paths(buf, mins, j, slot, col,
-                                        previous_slot[j], col + column_step[j], penalty[j, x],
-                                        previous_slot[j + 1], col + column_step[j + 1],
-                                        penalty[j + 1, x],
-                                        previous_slot[j + 2], col + column_step[j + 2],
-                                        penalty[j + 2, x],
-                                        previous_slot[j + 3], col + column_step[j + 3],
-                                        penalty[j + 3, x],
-                                        running, x, p1s, out, True)
+                        # group 0 writes, the others add (a run-time flag: literal flags
+                        # compiled _four_paths twice, 1-1.5 CPU s more on a fresh install)
+                        _four_paths(buf, mins, j, slot, col,
+                                    previous_slot[j], col + column_step[j], penalty[j, x],
+                                    previous_slot[j + 1], col + column_step[j + 1],
+                                    penalty[j + 1, x],
+                                    previous_slot[j + 2], col + column_step[j + 2],
+                                    penalty[j + 2, x],
+                                    previous_slot[j + 3], col + column_step[j + 3],
+                                    penalty[j + 3, x],
+                                    running, x, p1s, out, g > 0)
             if mode == MODE_ADD:
                 stored = total[y - total_base]
                 for x in range(width):

@@ -223,11 +223,14 @@ def absolute_difference_table(levels: int, truncation: int) -> np.ndarray:
 #
 # The kernels take the pixelwise cost as one tuple ``source`` (see
 # :meth:`PixelCost.kernel_source`): (kind, left codes, right codes, left levels, right
-# levels, table, volume, left valid, right valid, min_disparity, unmatched cost), with
-# kind 0 = census codes, 1 = grey levels through a cost table, 2 = a given volume of
-# pixel costs (``volume[y]``, used to aggregate an arbitrary cost volume), 3 = the
-# truncated absolute difference of grey levels, computed (the table holds only the
-# truncation, at [0, 0]).
+# levels, table, volume, left valid, right valid, min_disparity, unmatched cost,
+# truncation), with kind 0 = census codes, 1 = grey levels through a cost table, 2 = a
+# given volume of pixel costs (``volume[y]``, used to aggregate an arbitrary cost
+# volume), 3 = the truncated absolute difference of grey levels, computed (truncation).
+# The slots a kind does not use are None, so that numba compiles every kernel that takes
+# a ``source`` once per kind, with only that kind's row kernel: :func:`_pixel_cost_row`
+# branches on the slots being None, which numba resolves before typing (a fresh
+# install's compile of the sweep kernel, which held all four, was 3-4 CPU s longer).
 
 KIND_CENSUS, KIND_TABLE, KIND_VOLUME, KIND_ABSOLUTE_DIFFERENCE = 0, 1, 2, 3
 
@@ -329,22 +332,23 @@ def _mask_right_invalid(left_valid, right_valid, y, min_disparity, invalid_cost,
 
 
 @njit(nogil=True, cache=True)
-def _pixel_cost_row(source, y, out):
-    """Pixelwise costs of image row ``y`` into ``out`` (W, D) uint16."""
-    (kind, left_codes, right_codes, left_levels, right_levels, table, volume, left_valid,
-     right_valid, min_disparity, invalid_cost) = source
+def _pixel_cost_row(y, out, kind, left_codes, right_codes, left_levels, right_levels, table,
+                    volume, left_valid, right_valid, min_disparity, invalid_cost, truncation):
+    """Pixelwise costs of image row ``y`` into ``out`` (W, D) uint16; the other arguments
+    are a ``source`` tuple's slots (``_pixel_cost_row(y, out, *source)``), of which the
+    kind's own one is not None (the others' branches are dropped before typing)."""
     width, n_disp = out.shape
-    if kind == KIND_VOLUME:
+    if volume is not None:
         for x in range(width):
             for k in range(n_disp):
                 out[x, k] = volume[y, x, k]
         return
-    if kind == KIND_CENSUS:
+    if left_codes is not None:
         _census_row(left_codes, right_codes, left_valid, y, min_disparity, invalid_cost, out)
-    elif kind == KIND_ABSOLUTE_DIFFERENCE:
-        _absolute_difference_row(left_levels, right_levels, table[0, 0], left_valid, y,
+    if truncation is not None:
+        _absolute_difference_row(left_levels, right_levels, truncation, left_valid, y,
                                  min_disparity, invalid_cost, out)
-    else:
+    if table is not None:
         _table_row(left_levels, right_levels, table, left_valid, y, min_disparity,
                    invalid_cost, out)
     for x in range(width):
@@ -391,21 +395,25 @@ def advance_window(source, y, sign, radius, ring, running, pixel, window_state):
     """
     height = source[7].shape[0]
     size = 2 * radius + 1
-    if window_state[1] == 0:
-        ring[:] = 0
-        running[:] = 0
-        for j in range(size):
-            yy = min(max(y + sign * (j - radius), 0), height - 1)
-            _pixel_cost_row(source, yy, pixel)
-            _push_window_row(pixel, radius, ring, j, running)
-        window_state[0] = 0
-        window_state[1] = 1
-        return
-    yy = min(max(y + sign * radius, 0), height - 1)
-    _pixel_cost_row(source, yy, pixel)
-    oldest = window_state[0]
-    _push_window_row(pixel, radius, ring, oldest, running)
-    window_state[0] = (oldest + 1) % size
+    starting = window_state[1] == 0
+    if starting:
+        # loops, not ``ring[:] = 0``: slice assignment compiles a second longer
+        for x in range(running.shape[0]):
+            for k in range(running.shape[1]):
+                running[x, k] = 0
+                for j in range(size):
+                    ring[j, x, k] = 0
+    # the window's rows j = 0 … size − 1 when starting, else its newest, j = size − 1
+    # (one call of each kernel: LLVM inlines a callee at every call site, and the
+    # sweep kernel then compiles each copy again)
+    count = size if starting else 1
+    for i in range(count):
+        j = size - count + i
+        yy = min(max(y + sign * (j - radius), 0), height - 1)
+        _pixel_cost_row(yy, pixel, *source)
+        _push_window_row(pixel, radius, ring, j if starting else window_state[0], running)
+    window_state[0] = 0 if starting else (window_state[0] + 1) % size
+    window_state[1] = 1
 
 
 @njit(nogil=True, cache=True)
@@ -463,22 +471,21 @@ class PixelCost:
             Pixel cost of a correspondence outside the right image or on a NaN pixel,
             as a fraction of :attr:`max_cost` (see :func:`unmatched_cost`).
         """
-        no_codes = np.zeros((1, 1), dtype=np.uint32)  # the type of 5×5 census codes
-        no_levels = np.zeros((1, 1), dtype=np.uint8)
-        no_volume = np.zeros((1, 1, 1), dtype=np.uint16)
-        table = self.table
         if self.is_census:
-            kind, codes, levels = KIND_CENSUS, (self.left, self.right), (no_levels, no_levels)
+            kind, codes, levels, table, truncation = (KIND_CENSUS, (self.left, self.right),
+                                                      (None, None), None, None)
         elif self.truncation >= 0:
-            kind, codes, levels = (KIND_ABSOLUTE_DIFFERENCE, (no_codes, no_codes),
-                                   (self.left, self.right))
-            table = np.full((1, 1), self.truncation, dtype=np.uint16)
+            kind, codes, levels, table, truncation = (
+                KIND_ABSOLUTE_DIFFERENCE, (None, None), (self.left, self.right), None,
+                np.uint16(self.truncation))
         else:
-            kind, codes, levels = KIND_TABLE, (no_codes, no_codes), (self.left, self.right)
-        return (kind, *codes, *levels, table, no_volume,
+            kind, codes, levels, table, truncation = (KIND_TABLE, (None, None),
+                                                      (self.left, self.right), self.table,
+                                                      None)
+        return (kind, *codes, *levels, table, None,
                 np.ascontiguousarray(left_valid, dtype=np.bool_),
                 np.ascontiguousarray(right_valid, dtype=np.bool_), int(min_disparity),
-                np.uint16(unmatched_cost(self, unmatched_fraction)))
+                np.uint16(unmatched_cost(self, unmatched_fraction)), truncation)
 
 
 def census_pixel_cost(left: np.ndarray, right: np.ndarray, window: tuple[int, int], *,
@@ -531,12 +538,9 @@ def unmatched_cost(pixel_cost: PixelCost, fraction: float = 0.5) -> int:
 
 def volume_source(volume: np.ndarray) -> tuple:
     """The kernels' ``source`` tuple for a given (H, W, D) uint16 volume of pixel costs."""
-    no_codes = np.zeros((1, 1), dtype=np.uint32)
-    no_levels = np.zeros((1, 1), dtype=np.uint8)
     valid = np.ones(volume.shape[:2], dtype=np.bool_)
-    return (KIND_VOLUME, no_codes, no_codes, no_levels, no_levels,
-            np.zeros((1, 1), dtype=np.uint16), np.ascontiguousarray(volume, dtype=np.uint16),
-            valid, valid, 0, np.uint16(0))
+    return (KIND_VOLUME, None, None, None, None, None,
+            np.ascontiguousarray(volume, dtype=np.uint16), valid, valid, 0, np.uint16(0), None)
 
 
 def windowed_cost_volume(pixel_cost: PixelCost, left_valid: np.ndarray,

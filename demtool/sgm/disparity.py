@@ -444,7 +444,7 @@ def _median(disparity, radius, out, start, stop):
             if fast and 0 < x < width - 1 and np.isfinite(nine[x]):  # all nine valid
                 out[y, x] = nine[x]
                 continue
-            count = 0
+            count = np.int64(0)  # not a literal 0: one compile of the helpers, not two
             for yy in range(max(y - radius, 0), min(y + radius + 1, height)):
                 for xx in range(max(x - radius, 0), min(x + radius + 1, width)):
                     value = disparity[yy, xx]

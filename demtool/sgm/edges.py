@@ -77,6 +77,8 @@ def _snap_lines(disparity, image, step, occluded, radius, jump, min_step, out, m
     ``occluded`` marks the invalid pixels the check found occluded.  The column pass
     gives transposed views (no copies)."""
     length = disparity.shape[1]
+    # the directions as int64, not literals: one compile of _edge_offset, not two
+    rightwards, leftwards = np.int64(1), np.int64(-1)
     for y in range(start, stop):
         for x in range(length - 1):
             a = disparity[y, x]
@@ -85,17 +87,20 @@ def _snap_lines(disparity, image, step, occluded, radius, jump, min_step, out, m
                 continue
             if not np.isfinite(a):
                 if occluded[y, x]:  # an occlusion, then the foreground: NaN, occluded
-                    k = _edge_offset(disparity, image, step, y, x, 1, b, radius, min_step)
+                    k = _edge_offset(disparity, image, step, y, x, rightwards, b, radius,
+                                     min_step)
                     for i in range(1, k + 1):
                         out[y, x + i] = np.nan
                         moved[y, x + i] = True
             elif b - a > jump:  # the foreground on the right
-                k = _edge_offset(disparity, image, step, y, x, 1, b, radius, min_step)
+                k = _edge_offset(disparity, image, step, y, x, rightwards, b, radius,
+                                 min_step)
                 for i in range(1, k + 1):
                     out[y, x + i] = a
                     moved[y, x + i] = True
             elif a - b > jump:  # the foreground on the left
-                k = _edge_offset(disparity, image, step, y, x + 1, -1, a, radius, min_step)
+                k = _edge_offset(disparity, image, step, y, x + 1, leftwards, a, radius,
+                                 min_step)
                 for i in range(1, k + 1):
                     out[y, x + 1 - i] = b
                     moved[y, x + 1 - i] = True

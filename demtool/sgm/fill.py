@@ -115,7 +115,7 @@ def _fill_rows(occluded, index, found, out, start, stop):
             i = index[y, x]
             if i < 0:
                 continue
-            n = 0
+            n = np.int64(0)  # not a literal 0: one compile of insert_sorted, not two
             for k in range(n_dir):
                 value = found[k, i]
                 if np.isfinite(value):
@@ -213,7 +213,7 @@ def _epipolar_occlusions(disparity, occluded, touched, usable, out, start, stop)
     the run."""
     width = disparity.shape[1]
     for y in range(start, stop):
-        x = 0
+        x = np.int64(0)  # not a literal 0: one compile of _next_invalid_run, not two
         while x < width:
             start, x, any_occluded = _next_invalid_run(disparity, usable, touched, y, x)
             stop = x  # exclusive
@@ -241,7 +241,7 @@ def _unfatten(disparity, occluded, usable, out, marked, start, stop):
     ``marked``."""
     width = disparity.shape[1]
     for y in range(start, stop):
-        x = 0
+        x = np.int64(0)  # not a literal 0: one compile of _next_invalid_run, not two
         while x < width:
             start, x, any_occluded = _next_invalid_run(disparity, usable, occluded, y, x)
             stop = x  # exclusive

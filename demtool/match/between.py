@@ -133,7 +133,7 @@ def spread_nodes(nodes: np.ndarray, weights: np.ndarray, corners: np.ndarray,
     return out.reshape(smooth.shape + nodes.shape[2:])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _gradients(left: np.ndarray, left_ok: np.ndarray, gx: np.ndarray, gy: np.ndarray,
                start: int, stop: int) -> None:
     """Barron four-point x and y derivatives of ``left`` at the valid pixels of rows

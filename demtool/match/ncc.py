@@ -65,7 +65,7 @@ def _window_clean(table: np.ndarray, row: int, col: int, half: int) -> bool:
     return table[r1, c1] - table[r0, c1] - table[r1, c0] + table[r0, c0] == 0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ncc_batch(left, left_table, right, right_table, rows, cols, d_low, d_high, half,
                out_d, out_c, start, stop):
     """The NCC search of templates ``start … stop − 1`` (see :func:`ncc_search`); run

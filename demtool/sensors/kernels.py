@@ -158,7 +158,7 @@ def detector_view(lines, xyz, int_lines, int_starts, int_times, positions, t0_ep
     return x, y, depth
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _detector_view_rows(lines, xyz, int_lines, int_starts, int_times, positions, t0_ephem,
                         dt_ephem, quaternions, t0_quat, dt_quat, quat_order, focal_length,
                         x, y, depth, start, stop):
@@ -222,7 +222,7 @@ def image_rays(lines, u, v, int_lines, int_starts, int_times, positions, t0_ephe
     return origin, direction
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _image_rays_rows(lines, u, v, int_lines, int_starts, int_times, positions, t0_ephem,
                      dt_ephem, quaternions, t0_quat, dt_quat, quat_order, focal_length,
                      origin, direction, start, stop):

@@ -110,7 +110,7 @@ def placement(body: str | Body = "Moon", center_lon: float = 0.0,
     return Placement(the_body, float(center_lon), float(center_lat))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _radial_heights(ux, uy, uz, radius, dem, x_first, y_first, spacing, iterations, out,
                     start, stop):
     """Distance s along unit local directions u from the body centre (0, 0, −R) to the

@@ -231,7 +231,7 @@ def _in_shadow(px, py, pz, sx, sy, sz, dem, block_max, x_first, y_first, spacing
             u += 0.25 * step if u < fine_until else step
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _render_geometry(origins, directions, depth_axis, along_axis, dem, block_max, grad_x,
                      grad_y, albedo, x_first, y_first, spacing, z_min, z_max, sun, depth, hit,
                      mu0, mu, phase, rho, shadow, start, stop):
@@ -276,7 +276,7 @@ def _render_geometry(origins, directions, depth_axis, along_axis, dem, block_max
                                                       z_max)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _cast_rays(origins, directions, dem, x_first, y_first, spacing, z_min, z_max, t, start,
                stop):
     """Ray parameters ``t[start:stop]`` of the first hits (NaN: a miss), per unit of

@@ -46,3 +46,11 @@ def test_rays_and_radial_heights_in_parts_are_the_one_thread_values(monkeypatch)
     whole, split, seen = whole_and_split(monkeypatch, compute)
     assert np.isfinite(whole[0]).mean() > 0.8 and np.isfinite(whole[1]).mean() > 0.8
     _assert_parts_and_identical(whole, split, seen)
+
+
+def test_a_zero_direction_is_a_miss_not_an_error():
+    # the row kernels keep the parfor loops' numpy error model (no ZeroDivisionError)
+    field = plane_field()
+    hits = render.intersect_rays(field, np.array([[0.0, 0.0, 100.0]] * 2),
+                                 np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -1.0]]))
+    assert np.isnan(hits[0]).all() and np.allclose(hits[1], [0.0, 0.0, 0.0])

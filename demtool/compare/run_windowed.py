@@ -150,9 +150,9 @@ def _read_pass(sources, shape, tiles, factor, grid, two):
     """Pass 0: the DEM, the reference and the mask core by core (on two threads with
     ``two``), checked, decimated for the alignment and kept in ``grid`` (a
     :class:`demtool.compare.window_passes.Grid`, or None)."""
-    from demtool.compare.threads import in_order
     from demtool.compare.window_passes import decimate
     from demtool.imaging.checks import check_magnitude
+    from demtool.tiling.rows import ordered_map
 
     rows, cols = -(-shape[0] // factor), -(-shape[1] // factor)
     dem = np.full((rows, cols), np.nan)
@@ -170,7 +170,7 @@ def _read_pass(sources, shape, tiles, factor, grid, two):
             got.append(_mask_values(sources["mask"].read(core)))
         return core, got
 
-    with contextlib.closing(in_order(read, tiles, on=two)) as results:
+    with contextlib.closing(ordered_map(read, tiles, threads=2 if two else 1)) as results:
         for core, got in results:
             arrays = (dem, ref) if mask is None else (dem, ref, mask)
             for array, values in zip(arrays, got, strict=True):
@@ -246,7 +246,7 @@ def compare_one(sources: dict[str, Source | None], target: Any, params: Any, til
         decimated grid, for the figures) and ``factor`` (the decimation).
     """
     from demtool.compare.core import Comparison, effective_resolution
-    from demtool.compare.threads import in_order, threaded
+    from demtool.compare.threads import threaded
     from demtool.compare.window_passes import (
         GRID_BYTES_PER_CELL,
         KEPT_BYTES_PER_CELL,
@@ -258,6 +258,7 @@ def compare_one(sources: dict[str, Source | None], target: Any, params: Any, til
     from demtool.compare.windowed import shift_margin, window_values
     from demtool.imaging.spectral import coherence_spectrum
     from demtool.tiling import plan_tiles
+    from demtool.tiling.rows import ordered_map
 
     check_slope_bins(params.slope_bins)
     height, width = target.shape
@@ -313,7 +314,8 @@ def compare_one(sources: dict[str, Source | None], target: Any, params: Any, til
         with contextlib.ExitStack() as stack:
             writer = stack.enter_context(open_writer(shift)) if open_writer else None
             results = stack.enter_context(contextlib.closing(
-                in_order(lambda tile: compute(tile, first=True), tiles, on=two)))
+                ordered_map(lambda tile: compute(tile, first=True), tiles,
+                            threads=2 if two else 1)))
             for result in results:
                 streams.merge_first(result)
                 considered += result.considered
@@ -331,8 +333,8 @@ def compare_one(sources: dict[str, Source | None], target: Any, params: Any, til
         while not streams.done:
             passes += 1
             streams.add_kept(kept, two)
-            with contextlib.closing(in_order(lambda tile: compute(tile, first=False), again,
-                                             on=two)) as results:
+            with contextlib.closing(ordered_map(lambda tile: compute(tile, first=False), again,
+                                                threads=2 if two else 1)) as results:
                 for result in results:
                     streams.add_pieces(result)
             streams.end_pass()

@@ -15,12 +15,11 @@ the same numbers on one thread or two.
 
 from __future__ import annotations
 
-from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, TypeVar
 
-__all__ = ["THREADED_CELLS", "Side", "both", "in_order", "threaded"]
+__all__ = ["THREADED_CELLS", "Side", "both", "threaded"]
 
 T = TypeVar("T")
 U = TypeVar("U")
@@ -77,38 +76,3 @@ def both(first: Callable[[], T], second: Callable[[], U], *, on: bool) -> tuple[
             raise
         return value, later.result()
 
-
-def in_order(function: Callable[[T], U], items: Iterable[T], *, on: bool,
-             ahead: int = 3) -> Iterator[U]:
-    """``function(item)`` for each item, yielded in the items' order; with ``on``,
-    computed on two pool threads (:func:`demtool.tiling.tasks.carried`, each with one
-    numba thread: two at once fill the two cores), at most ``ahead`` items started and
-    not yet taken (memory), while the caller works on what it took.
-
-    An item's exception is raised where its result would have been yielded (after
-    the items before it, as in turn); leaving the loop early cancels what has not
-    started and waits for what has.
-    """
-    if not on:
-        for item in items:
-            yield function(item)
-        return
-    from demtool.tiling.tasks import carried, numba_threads_at_most
-
-    def alone(item: T) -> U:
-        with numba_threads_at_most(1):
-            return function(item)
-
-    pending: deque[Future[U]] = deque()
-    source = iter(items)
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        try:
-            for item in source:
-                pending.append(pool.submit(carried(lambda item=item: alone(item))))
-                if len(pending) >= ahead:
-                    yield pending.popleft().result()
-            while pending:
-                yield pending.popleft().result()
-        finally:
-            for future in pending:
-                future.cancel()

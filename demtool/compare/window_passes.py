@@ -20,7 +20,7 @@ the passes only need each window's differences, so:
   not fit;
 * **threads** (when :func:`demtool.compare.threads.threaded`: a large grid and two
   usable threads, and numba's threading layer runs kernels from two threads): the
-  windows are read and computed on two threads (:func:`demtool.compare.threads.in_order`)
+  windows are read and computed on two threads (:func:`demtool.tiling.rows.ordered_map`)
   while this one merges their results in the windows' order, and a later pass feeds the
   statistics on two threads, each statistic on one.
 

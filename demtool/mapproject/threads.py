@@ -12,14 +12,12 @@ be alone, so the output does not depend on the number of threads.
 from __future__ import annotations
 
 import contextlib
-from collections import deque
-from collections.abc import Callable, Iterable, Iterator
-from typing import Any, TypeVar
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import numpy as np
 
-T = TypeVar("T")
-R = TypeVar("R")
+from demtool.tiling.rows import ordered_map  # noqa: F401 - the stages' import of it
 
 #: ground points per batch of :func:`ground_to_image_threaded` (below it: one batch)
 MIN_BATCH = 32_768
@@ -33,40 +31,6 @@ def available_threads() -> int:
     import numba
 
     return max(1, int(numba.get_num_threads()))
-
-
-def ordered_map(function: Callable[[T], R], items: Iterable[T], *,
-                threads: int | None = None) -> Iterator[R]:
-    """``map(function, items)`` on ``threads`` threads, results in the items' order.
-
-    At most ``threads + 1`` items are in flight (the memory of that many pieces), and
-    each call runs with ``max(1, available_threads() // threads)`` numba threads.  With
-    one thread it is a plain loop in the calling thread.  An exception in a call is
-    raised here, after the calls in flight finish.
-    """
-    total = available_threads()
-    threads = total if threads is None else max(1, int(threads))
-    share = max(1, total // threads)
-    if threads == 1:
-        for item in items:
-            yield function(item)
-        return
-    from concurrent.futures import ThreadPoolExecutor
-
-    from demtool.tiling.tasks import numba_threads_at_most
-
-    def call(item: T) -> R:
-        with numba_threads_at_most(share):
-            return function(item)
-
-    pending: deque = deque()
-    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="demtool") as pool:
-        for item in items:
-            pending.append(pool.submit(call, item))
-            if len(pending) > threads:
-                yield pending.popleft().result()
-        while pending:
-            yield pending.popleft().result()
 
 
 def batched(function: Callable[..., tuple[np.ndarray, ...]], *arrays: np.ndarray,

@@ -1,4 +1,6 @@
-"""Rows of one array on the calling thread and its helper threads.
+"""Work on threads of this process: rows of one array on the calling thread and its
+helper threads (:func:`on_row_parts`), and independent pieces in order on a pool
+(:func:`ordered_map`).
 
 A compiled kernel that works row by row and releases the GIL (numba ``nogil=True``)
 is run over ``0 … count`` in contiguous parts, one per usable thread, by
@@ -19,9 +21,14 @@ from __future__ import annotations
 
 import os
 import threading
-from collections.abc import Callable
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from typing import TypeVar
 
 from demtool.tiling.tasks import available_cores, usable_threads
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 #: Fewest rows worth a second thread (a part's start costs ~0.1 ms).
 MIN_ROWS_PER_PART = 64
@@ -93,3 +100,47 @@ def on_row_parts(work: Callable[[int, int], object], count: int, *,
     for error in errors:
         if error is not None:
             raise error
+
+
+def ordered_map(function: Callable[[T], R], items: Iterable[T], *,
+                threads: int | None = None) -> Iterator[R]:
+    """``map(function, items)`` on ``threads`` threads, results in the items' order.
+
+    For independent pieces of work (map tiles, batches of ground points, a comparison's
+    windows) whose compiled kernels, numpy loops and GDAL reads release the GIL.  At
+    most ``threads + 1`` items are in flight (the memory of that many pieces); each
+    call runs as on the calling thread (:func:`demtool.tiling.tasks.carried`: its
+    context, so a ``threads_limited`` limit or an output transaction holds there too)
+    with ``max(1, numba's count // threads)`` numba threads (default ``threads``:
+    numba's count of the calling thread).  With one thread it is a plain loop in the
+    calling thread.  An exception in a call is raised where its result would have been
+    yielded, after the calls in flight finish; leaving the loop early cancels the calls
+    not yet started and waits for the others.
+    """
+    total = _numba_threads()
+    threads = total if threads is None else max(1, int(threads))
+    share = max(1, total // threads)
+    if threads == 1:
+        for item in items:
+            yield function(item)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    from demtool.tiling.tasks import carried, numba_threads_at_most
+
+    def call(item: T) -> R:
+        with numba_threads_at_most(share):
+            return function(item)
+
+    pending: deque = deque()
+    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="demtool") as pool:
+        try:
+            for item in items:
+                pending.append(pool.submit(carried(lambda item=item: call(item))))
+                if len(pending) > threads:
+                    yield pending.popleft().result()
+            while pending:
+                yield pending.popleft().result()
+        finally:
+            for future in pending:
+                future.cancel()

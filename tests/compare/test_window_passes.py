@@ -23,6 +23,7 @@ from demtool.compare.streaming import (
     _gather,
     _narrow,
 )
+from demtool.tiling.rows import ordered_map
 from tests.helpers.compare import fractal
 
 REFERENCE_GSD = 2.0
@@ -66,7 +67,7 @@ def test_moments_summarised_apart_and_merged_in_order_are_added_in_order():
     assert vars(added) == vars(merged)  # to the bit
 
 
-def test_in_order_yields_in_order_and_raises_in_place():
+def test_windows_on_two_threads_come_in_order_and_raise_in_place():
     def slow_first(item):
         time.sleep(0.05 if item == 0 else 0.0)
         if item == 3:
@@ -75,10 +76,10 @@ def test_in_order_yields_in_order_and_raises_in_place():
 
     got = []
     with pytest.raises(ValueError, match="item 3"):
-        for value in threads.in_order(slow_first, range(6), on=True):
+        for value in ordered_map(slow_first, range(6), threads=2):
             got.append(value)
     assert got == [0, 10, 20]
-    assert list(threads.in_order(lambda i: -i, range(5), on=False)) == [0, -1, -2, -3, -4]
+    assert list(ordered_map(lambda i: -i, range(5), threads=1)) == [0, -1, -2, -3, -4]
 
 
 @pytest.fixture(scope="module")

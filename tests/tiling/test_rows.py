@@ -4,14 +4,15 @@ and its helpers, within the caller's thread limits."""
 from __future__ import annotations
 
 import threading
+import time
 
 import numba
 import numpy as np
 import pytest
 
 from demtool.tiling import rows
-from demtool.tiling.rows import on_row_parts, row_parts
-from demtool.tiling.tasks import numba_threads_at_most, threads_limited
+from demtool.tiling.rows import on_row_parts, ordered_map, row_parts
+from demtool.tiling.tasks import numba_threads_at_most, threads_limited, usable_threads
 
 
 @numba.njit(nogil=True, cache=True)
@@ -75,3 +76,26 @@ def test_a_failing_part_is_raised_after_every_part_ended(monkeypatch):
     with pytest.raises(ValueError, match="rows 50-100 failed"):
         on_row_parts(work, 100, min_rows=1)
     assert ended == [0]
+
+
+def test_ordered_map_runs_each_call_in_the_callers_context():
+    """A pool thread of ordered_map sees the calling thread's threads_limited limit (a
+    fresh thread would see none) and leaving the loop early cancels what has not
+    started."""
+    started = []
+
+    def call(item):
+        started.append(item)
+        return item, usable_threads(), threading.current_thread().name
+
+    with threads_limited(2):
+        got = list(ordered_map(call, range(6), threads=2))
+    assert [item for item, _, _ in got] == list(range(6))
+    assert {limit for _, limit, _ in got} == {min(2, usable_threads())}
+    assert all(name.startswith("demtool") for _, _, name in got)
+    started.clear()
+    results = ordered_map(lambda item: (time.sleep(0.02), started.append(item)), range(50),
+                          threads=2)
+    next(results)
+    results.close()
+    assert len(started) < 50

@@ -111,12 +111,16 @@ def sphere_radius(model):
     return sensor_body(model).surface
 
 
-def split64(values: np.ndarray) -> np.ndarray:
+def split64(values: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """float64 values as two float32 bands, ``high + low`` (float32 tile caches keep
-    them to ~1e-14 relative): (2, ...) float32."""
+    them to ~1e-14 relative): (2, ...) float32, written into ``out`` when given (a
+    (2, ...) float32 view of a tile being filled)."""
     values = np.asarray(values, dtype=np.float64)
-    high = values.astype(np.float32)
-    return np.stack([high, (values - high.astype(np.float64)).astype(np.float32)])
+    if out is None:
+        out = np.empty((2, *values.shape), dtype=np.float32)
+    out[0] = values
+    out[1] = values - out[0].astype(np.float64)
+    return out
 
 
 def points_tiling(height: int, width: int, tile_size: int) -> Tiling:
@@ -382,10 +386,9 @@ class MapDemTileJob:
         at = rows[seen][front] * (c1 - c0) + cols[seen][front]
         dense = np.empty(cells.shape[1])
         for k, name in enumerate(self.point_layout):  # split64's pair, field by field
-            dense.fill(np.nan)  # one scatter a field, then split64 on whole bands (as
-            dense[at] = values[name]  # split64 of the points: the same two float32s)
-            cells[2 * k] = dense
-            cells[2 * k + 1] = dense - cells[2 * k].astype(np.float64)
+            dense.fill(np.nan)  # one scatter a field, then split64 on whole bands (the
+            dense[at] = values[name]  # same two float32s as split64 of the points)
+            split64(dense, out=cells[2 * k:2 * k + 2])
         if self.points:  # the later passes of this process take them decoded
             hold_points(self.points, tile, out, self.point_layout)
         return out, info

@@ -108,7 +108,16 @@ def gaussian_lowpass(array: np.ndarray, sigma: float) -> np.ndarray:
     values = np.asarray(array, dtype=np.float32)
     if sigma <= 0:
         return values.copy()
-    return idct2(dct2(values) * gaussian_transfer(values.shape, float(sigma)))
+    from demtool.tiling.rows import on_row_parts
+
+    coefficients = dct2(values)
+    transfer = gaussian_transfer(values.shape, float(sigma))
+    # the product in place, rows on every core (the DCTs are pocketfft's threads)
+    on_row_parts(lambda start, stop: np.multiply(coefficients[start:stop],
+                                                 transfer[start:stop],
+                                                 out=coefficients[start:stop]),
+                 values.shape[0])
+    return idct2(coefficients)
 
 
 def masked_gaussian_lowpass(array: np.ndarray, weight: np.ndarray, sigma: float,
@@ -230,12 +239,22 @@ def border_taper(shape: tuple[int, int], width: float) -> np.ndarray:
     height, width_px = shape
     if width <= 0:
         return np.ones(shape, dtype=np.float32)
+    from demtool.tiling.rows import on_row_parts
+
     rows = np.arange(height)
     cols = np.arange(width_px)
-    distance = np.minimum(np.minimum(rows, height - 1 - rows)[:, None],
-                          np.minimum(cols, width_px - 1 - cols)[None, :])
-    ramp = np.clip(distance / width, 0.0, 1.0)
-    return (np.sin(0.5 * np.pi * ramp) ** 2).astype(np.float32)
+    from_side = np.minimum(cols, width_px - 1 - cols)[None, :]
+    taper = np.empty(shape, dtype=np.float32)
+
+    def part(start: int, stop: int) -> None:  # rows on every core
+        part_rows = rows[start:stop]
+        distance = np.minimum(np.minimum(part_rows, height - 1 - part_rows)[:, None],
+                              from_side)
+        ramp = np.clip(distance / width, 0.0, 1.0)
+        taper[start:stop] = np.sin(0.5 * np.pi * ramp) ** 2
+
+    on_row_parts(part, height)
+    return taper
 
 
 #: Egrad's low-pass runs on blocks of this many pixels per σ_f / 5 (σ_f = 21 px: 4 × 4).

@@ -76,10 +76,13 @@ from demtool.refine.params import SfsParameters
 from demtool.refine.shading import Illumination, reflectance_and_gradient
 from demtool.refine.shadow_lengths import (
     correct_slope_step,
+    independent_splits,
     segment_residuals,
     shadow_segments,
 )
 from demtool.refine.shadows import dark_pixels, shadow_mask
+from demtool.tiling.rows import on_row_parts
+from demtool.tiling.tasks import available_cores
 
 log = get_logger(__name__)
 
@@ -183,8 +186,15 @@ class _Solver:
         self.mean_height = float(np.mean(dem, dtype=np.float64))
         self.z0 = self.to_pixel_units(dem)
         self.valid = valid
-        self.image = np.where(valid, image, 0.0).astype(np.float32)
-        self.image_nan = np.where(valid, image, np.nan).astype(np.float32)
+        self.image = np.empty(self.shape, dtype=np.float32)
+        self.image_nan = np.empty(self.shape, dtype=np.float32)
+
+        def images(start: int, stop: int) -> None:
+            rows, usable = image[start:stop], valid[start:stop]
+            self.image[start:stop] = np.where(usable, rows, 0.0)
+            self.image_nan[start:stop] = np.where(usable, rows, np.nan)
+
+        on_row_parts(images, self.shape[0])
         if image_median is None:
             image_median = float(np.median(image[valid])) if valid.any() else 0.0
         self.image_median = float(image_median)
@@ -199,18 +209,35 @@ class _Solver:
         self.q0 = np.empty_like(self.z0)
         kernels.central_gradient(self.z0, self.aspect, self.p0, self.q0)
         gamma, tau = np.float32(params.gamma), np.float32(params.tau)
-        denominator = gamma * self.laplacian + tau * self.g2
-        self.inverse_denominator = np.where(denominator > 0, 1.0 / np.where(
-            denominator > 0, denominator, 1.0), 0.0).astype(np.float32)
-        self.anchor_hat = (tau * self.g2 * self.z0_hat).astype(np.float32)
+        self.inverse_denominator = np.empty(self.shape, dtype=np.float32)
+        self.anchor_hat = np.empty(self.shape, dtype=np.float32)
+
+        def height_step_terms(start: int, stop: int) -> None:
+            g2 = self.g2[start:stop]
+            denominator = gamma * self.laplacian[start:stop] + tau * g2
+            self.inverse_denominator[start:stop] = np.where(denominator > 0, 1.0 / np.where(
+                denominator > 0, denominator, 1.0), 0.0)
+            self.anchor_hat[start:stop] = tau * g2 * self.z0_hat[start:stop]
+
+        on_row_parts(height_step_terms, self.shape[0])
         self.segments = shadow_segments(
             dark_pixels(self.image_nan, params.shadow_threshold, median=self.image_median),
             valid, self.spacing, illumination)
+        # groups of shadow crossings without a common pixel: corrected on every core
+        self.segment_splits = independent_splits(self.segments, available_cores())
 
     def to_pixel_units(self, heights: np.ndarray) -> np.ndarray:
-        """Heights in metres → pixel units about the coarse DEM's mean, C-ordered float32."""
-        return np.ascontiguousarray((np.asarray(heights, dtype=np.float64) - self.mean_height)
-                                    / self.spacing[0], dtype=np.float32)
+        """Heights in metres → pixel units about the coarse DEM's mean, C-ordered float32
+        (row parts on every core)."""
+        heights = np.asarray(heights)
+        out = np.empty(heights.shape, dtype=np.float32)
+
+        def part(start: int, stop: int) -> None:
+            out[start:stop] = (np.asarray(heights[start:stop], dtype=np.float64)
+                               - self.mean_height) / self.spacing[0]
+
+        on_row_parts(part, heights.shape[0])
+        return out
 
     def state_from_heights(self, heights: np.ndarray) -> _State:
         """The state with z from ``heights`` (metres; the mean is reset to the coarse
@@ -235,7 +262,22 @@ class _Solver:
         return R, Rp, Rq
 
     def heights_metres(self, z: np.ndarray) -> np.ndarray:
-        return (z.astype(np.float64) * self.spacing[0] + self.mean_height).astype(np.float32)
+        """Pixel units → metres, float32 (row parts on every core)."""
+        out = np.empty(z.shape, dtype=np.float32)
+
+        def part(start: int, stop: int) -> None:
+            out[start:stop] = (z[start:stop].astype(np.float64) * self.spacing[0]
+                               + self.mean_height)
+
+        on_row_parts(part, z.shape[0])
+        return out
+
+    def normalised(self, albedo: np.ndarray) -> np.ndarray:
+        """I/ρ, float32 (row parts on every core)."""
+        out = np.empty(self.shape, dtype=np.float32)
+        on_row_parts(lambda start, stop: np.divide(self.image[start:stop], albedo[start:stop],
+                                                   out=out[start:stop]), self.shape[0])
+        return out
 
     def photometry(self, state: _State) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Shadow mask, albedo and intensity weight for the current DEM."""
@@ -243,18 +285,29 @@ class _Solver:
         shadow = shadow_mask(self.heights_metres(state.z), self.image_nan, self.spacing,
                              self.illumination, threshold=p.shadow_threshold,
                              use_dem=p.cast_shadows, median=self.image_median)
-        lit = self.valid & ~shadow
-        if lit.mean() < MIN_LIT_FRACTION:
+        # lit pixels, the albedo's weight and the intensity weight, on row parts
+        albedo_weight = np.empty(self.shape, dtype=bool)
+        weight = np.empty(self.shape, dtype=np.float32)
+        lit_rows = np.zeros(self.shape[0], dtype=np.int64)
+
+        def lit_part(start: int, stop: int) -> None:
+            lit = self.valid[start:stop] & ~shadow[start:stop]
+            lit_rows[start] = np.count_nonzero(lit)
+            np.logical_and(lit, self.inner[start:stop], out=albedo_weight[start:stop])
+            np.multiply(self.taper[start:stop], lit, out=weight[start:stop])
+
+        on_row_parts(lit_part, self.shape[0])
+        lit_fraction = int(lit_rows.sum()) / self.count  # = lit.mean(): an exact count
+        if lit_fraction < MIN_LIT_FRACTION:
             raise ProcessingError(
-                f"only {100 * lit.mean():.1f}% of the grid is lit and covered by the image "
+                f"only {100 * lit_fraction:.1f}% of the grid is lit and covered by the image "
                 f"(at least {100 * MIN_LIT_FRACTION:.0f}% needed): check the sun direction "
                 "and --shadow-threshold")
         modelled = self.photometric_terms(state.gx, state.gy)[0]
         # the outermost ring has mirrored (halved) slopes: its modelled reflectance is
         # wrong, so it is left out of the albedo (the taper is 0 there)
         albedo = estimate_albedo(self.image, modelled, sigma=p.albedo_sigma,
-                                 weight=lit & self.inner)
-        weight = (self.taper * lit).astype(np.float32)
+                                 weight=albedo_weight)
         return shadow, albedo, weight
 
     def energies(self, state: _State, normalised: np.ndarray, weight: np.ndarray) -> Energies:
@@ -285,7 +338,7 @@ class _Solver:
                      np.float32(prm.delta), np.float32(damping), p, q)
         correct_slope_step(state.p, state.q, p, q, state.Rp, state.Rq, weight,
                            np.float32(prm.gamma) + np.float32(prm.delta) + np.float32(damping),
-                           prm.shadow_weight, self.segments)
+                           prm.shadow_weight, self.segments, self.segment_splits)
         # heights: (γ DᵀD + τ fᵀf) z = γ (DᵀD z_k + Gᵀ(p − G z_k)) + τ fᵀf z0
         correction = np.empty_like(p)
         k.integrability_adjoint(p, q, state.gx, state.gy, self.aspect, correction)
@@ -363,7 +416,7 @@ def refine_heights(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, 
     solver = _Solver(image, dem, spacing, illumination, params, usable, image_median)
     state = solver.state_from_heights(dem if initial is None else initial)
     shadow, albedo, weight = solver.photometry(state)
-    normalised = solver.image / albedo
+    normalised = solver.normalised(albedo)
     energy = solver.energies(state, normalised, weight)
     initial = energy
     log.info("sun elevation %.1f°, azimuth %.1f°, phase %.1f°; %.1f%% of the grid in "
@@ -401,12 +454,12 @@ def refine_heights(image: np.ndarray, dem: np.ndarray, *, spacing: tuple[float, 
             break
         if iteration % params.update_every == 0:
             shadow, albedo, weight = solver.photometry(state)
-            normalised = solver.image / albedo
+            normalised = solver.normalised(albedo)
             energy = solver.energies(state, normalised, weight)
             log.debug("iteration %d: albedo and shadows updated (%.1f%% shadow), %s",
                       iteration, 100 * shadow.mean(), energy)
     shadow, albedo, weight = solver.photometry(state)
-    normalised = solver.image / albedo
+    normalised = solver.normalised(albedo)
     final = solver.energies(state, normalised, weight)
     lit = weight > 0
     residual = (normalised - state.R)[lit]

@@ -222,19 +222,69 @@ def _correct(p: np.ndarray, q: np.ndarray, p_new: np.ndarray, q_new: np.ndarray,
             q_new[r, c] -= factor * (aq - uq * k) / c_total
 
 
+def independent_splits(segments: ShadowSegments, parts: int) -> np.ndarray:
+    """Cuts of the segments into at most ``parts`` contiguous groups that share no pixel,
+    as close to equal counts as such cuts allow: ``(G + 1,)`` int64 segment indices from
+    0 to S.
+
+    :func:`correct_slope_step` applies the segments in order, each one reading and
+    updating the slope step at its pixels; groups with no pixel in common do not read
+    what another writes, so they may run at the same time with the same numbers, to the
+    bit, as one after the other.  A cut at k is allowed when no pixel belongs both to a
+    segment before k and to one from k on.
+    """
+    count = segments.count
+    parts = max(1, min(int(parts), count))
+    if parts == 1:
+        return np.array([0, count], np.int64)
+    owner = np.repeat(np.arange(count, dtype=np.int64), np.diff(segments.starts))
+    pixel = segments.rows * (int(segments.cols.max()) + 1) + segments.cols
+    order = np.lexsort((owner, pixel))  # by pixel, then segment
+    pixel, owner = pixel[order], owner[order]
+    first_of_pixel = np.flatnonzero(np.r_[True, pixel[1:] != pixel[:-1]])
+    last_of_pixel = np.r_[first_of_pixel[1:], pixel.size] - 1
+    first, last = owner[first_of_pixel], owner[last_of_pixel]
+    shared = last > first
+    # a pixel of segments first … last forbids the cuts first + 1 … last
+    blocked = np.zeros(count + 2, np.int64)
+    np.add.at(blocked, first[shared] + 1, 1)
+    np.add.at(blocked, last[shared] + 1, -1)
+    allowed = np.flatnonzero(np.cumsum(blocked)[:count + 1] == 0)  # always 0 and count
+    cuts = [0]
+    for i in range(1, parts):
+        best = int(allowed[np.argmin(np.abs(allowed - count * i // parts))])
+        if cuts[-1] < best < count:
+            cuts.append(best)
+    cuts.append(count)
+    return np.array(cuts, np.int64)
+
+
 def correct_slope_step(p: np.ndarray, q: np.ndarray, p_new: np.ndarray, q_new: np.ndarray,
                        Rp: np.ndarray, Rq: np.ndarray, weight: np.ndarray, c_total: float,
-                       omega: float, segments: ShadowSegments) -> None:
+                       omega: float, segments: ShadowSegments,
+                       splits: np.ndarray | None = None) -> None:
     """Add ``ω Σ (aᵀ(p, q) − t)²`` to the slope step ``(p, q) → (p_new, q_new)`` in place.
 
     With M the per-pixel Gauss–Newton matrix ``c I + w u uᵀ`` of
     :func:`demtool.refine.kernels.slope_step` and Δ0 its step, the step of the energy
     with one more segment is ``Δ = Δ0 − M⁻¹a · ω (r + aᵀΔ0) / (1 + ω aᵀM⁻¹a)``
     (Sherman–Morrison), r the segment's current residual.  Exact for disjoint segments;
-    segments sharing an end pixel are applied one after the other.
+    segments sharing an end pixel are applied one after the other.  ``splits``
+    (:func:`independent_splits`) cuts the segments into groups with no pixel in common,
+    which run at once on every core (:func:`demtool.tiling.rows.on_row_parts`), each in
+    order: the same numbers as one thread (default: one group).
     """
     if segments.count == 0 or omega <= 0:
         return
-    _correct(p, q, p_new, q_new, Rp, Rq, weight, float(c_total), float(omega),
-             segments.starts, segments.rows, segments.cols, segments.coef_p,
-             segments.coef_q, segments.target)
+    if splits is None:
+        splits = np.array([0, segments.count], np.int64)
+
+    def groups(first: int, stop: int) -> None:
+        begin, end = int(splits[first]), int(splits[stop])
+        _correct(p, q, p_new, q_new, Rp, Rq, weight, float(c_total), float(omega),
+                 segments.starts[begin:end + 1], segments.rows, segments.cols,
+                 segments.coef_p, segments.coef_q, segments.target[begin:end])
+
+    from demtool.tiling.rows import on_row_parts
+
+    on_row_parts(groups, len(splits) - 1, min_rows=1)

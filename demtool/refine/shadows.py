@@ -118,12 +118,12 @@ def cast_shadows(dem: np.ndarray, spacing: tuple[float, float],
     shadow : (H, W) bool
         True where the pixel does not see the sun.
     """
-    z = np.ascontiguousarray(dem, dtype=np.float64)
+    z, z_max = _as_float64(dem)
     sx, sy, sz = (float(v) for v in illumination.sun)
     horizontal = np.hypot(sx, sy)
-    p, q = slopes(z, spacing)
-    attached = cosine(p, q, illumination.sun) <= 0.0
     if horizontal < 1e-9 or z.shape[0] < 2 or z.shape[1] < 2:
+        attached = np.zeros(z.shape, dtype=np.bool_)
+        _or_attached(z, spacing, illumination.sun, attached)
         return attached
     # displacement toward the sun per metre of horizontal travel, in pixels
     per_metre_col = sx / horizontal / spacing[0]
@@ -133,8 +133,47 @@ def cast_shadows(dem: np.ndarray, spacing: tuple[float, float],
     march = np.ones(z.shape, dtype=bool) if candidates is None else \
         np.ascontiguousarray(candidates, dtype=bool)
     shadow = _march_toward_sun(z, per_metre_row * metres_per_step,
-                               per_metre_col * metres_per_step, rise, float(z.max()), march)
-    return shadow | attached
+                               per_metre_col * metres_per_step, rise, z_max, march)
+    _or_attached(z, spacing, illumination.sun, shadow)
+    return shadow
+
+
+def _as_float64(dem: np.ndarray) -> tuple[np.ndarray, float]:
+    """``dem`` as a C-ordered float64 array and its maximum (the copy and the maximum by
+    row parts on every core; a maximum of the parts' maxima is the same number)."""
+    dem = np.asarray(dem)
+    if dem.ndim != 2 or dem.shape[0] < 2 or dem.size == 0:
+        z = np.ascontiguousarray(dem, dtype=np.float64)
+        return z, float(z.max()) if z.size else float("nan")
+    z = dem if dem.dtype == np.float64 and dem.flags.c_contiguous else \
+        np.empty(dem.shape, dtype=np.float64)
+    maxima = np.full(dem.shape[0], -np.inf)
+
+    def part(start: int, stop: int) -> None:
+        if z is not dem:
+            z[start:stop] = dem[start:stop]
+        maxima[start] = z[start:stop].max()
+
+    on_row_parts(part, dem.shape[0])
+    return z, float(maxima.max())
+
+
+def _or_attached(z: np.ndarray, spacing: tuple[float, float], sun: np.ndarray,
+                 shadow: np.ndarray) -> None:
+    """``shadow |= `` the attached shadow of ``z`` (μ0 ≤ 0: the surface faces away from
+    the sun): :func:`~demtool.refine.shading.slopes` and
+    :func:`~demtool.refine.shading.cosine`, evaluated on row parts on every core (each
+    part with the rows next to it, mirrored at the grid's edges as ``slopes`` does; the
+    same arithmetic per pixel, so the same bits)."""
+    height = z.shape[0]
+
+    def part(start: int, stop: int) -> None:
+        top, bottom = max(start - 1, 0), min(stop + 1, height)
+        p, q = slopes(z[top:bottom], spacing)
+        inner = slice(start - top, stop - top)  # the halo rows' own slopes are dropped
+        shadow[start:stop] |= cosine(p[inner], q[inner], sun) <= 0.0
+
+    on_row_parts(part, height)
 
 
 def dark_pixels(image: np.ndarray, threshold: float, valid: np.ndarray | None = None,
@@ -158,6 +197,20 @@ def dark_pixels(image: np.ndarray, threshold: float, valid: np.ndarray | None = 
         True for dark (shadowed) pixels.
     """
     values = np.asarray(image, dtype=np.float32)
+    if threshold > 0 and median is not None and values.ndim == 2:
+        # no selection to make: the test on row parts on every core (without a valid
+        # pixel it is False everywhere, as below)
+        level = threshold * median
+        dark = np.empty(values.shape, dtype=bool)
+
+        def part(start: int, stop: int) -> None:
+            rows = values[start:stop]
+            usable = np.isfinite(rows) if valid is None else \
+                np.asarray(valid)[start:stop] & np.isfinite(rows)
+            np.logical_and(usable, rows < level, out=dark[start:stop])
+
+        on_row_parts(part, values.shape[0])
+        return dark
     valid = np.isfinite(values) if valid is None else valid & np.isfinite(values)
     if threshold <= 0 or not valid.any():
         return np.zeros(values.shape, dtype=bool)

@@ -164,3 +164,76 @@ def test_row_kernels_on_two_threads_are_one_threads(two_threads):
     assert one["sums"][1] == np.cumsum(rows)[-1]
     assert np.isclose(one["sums"][1], np.sum(weight * (p - q).astype(np.float64) ** 2),
                       rtol=1e-5)
+
+
+def test_shadow_corrections_in_groups_without_common_pixels_are_the_serial_ones(two_threads):
+    """correct_slope_step applies the crossings in order; cut where no pixel is shared
+    (independent_splits), the groups run on two threads with the same numbers."""
+    from demtool.refine.shadow_lengths import (
+        ShadowSegments,
+        correct_slope_step,
+        independent_splits,
+    )
+
+    rng = np.random.default_rng(8)
+    shape = (40, 50)
+    lengths = rng.integers(2, 7, 120)
+    starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    n = int(starts[-1])
+    # segments in bands of 4 rows (20 per band) that share pixels inside a band only
+    band = np.repeat(np.arange(120) // 20, lengths)
+    rows = (4 * band + rng.integers(0, 4, n)).astype(np.int64)
+    cols = rng.integers(0, 6, n).astype(np.int64)  # crowded: many shared pixels
+    segments = ShadowSegments(starts, rows, cols, rng.normal(size=n).astype(np.float32),
+                              rng.normal(size=n).astype(np.float32),
+                              rng.normal(size=120).astype(np.float32))
+    splits = independent_splits(segments, 2)
+    assert len(splits) == 3 and splits[0] == 0 and splits[-1] == 120
+    assert abs(splits[1] - 60) <= 20  # the band boundary nearest the middle
+    pixels = [set(zip(rows[starts[a]:starts[b]], cols[starts[a]:starts[b]], strict=True))
+              for a, b in zip(splits[:-1], splits[1:], strict=True)]
+    assert not pixels[0] & pixels[1]
+    p, q, Rp, Rq = (rng.normal(0, 0.3, shape).astype(np.float32) for _ in range(4))
+    weight = rng.random(shape).astype(np.float32)
+    step = rng.normal(0, 0.3, (2, *shape)).astype(np.float32)
+    serial, grouped = step.copy(), step.copy()
+    correct_slope_step(p, q, *serial, Rp, Rq, weight, 0.25, 0.5, segments)
+    correct_slope_step(p, q, *grouped, Rp, Rq, weight, 0.25, 0.5, segments, splits)
+    assert np.array_equal(serial, grouped)
+    assert not np.array_equal(serial, step)
+    # every pixel shared by neighbouring segments: no cut, one group
+    chained = ShadowSegments(  # segment i covers columns i and i + 1 of row 0
+        np.arange(0, 61, 2), np.zeros(60, np.int64),
+        np.stack([np.arange(30), np.arange(1, 31)], axis=1).ravel(),
+        np.ones(60, np.float32), np.ones(60, np.float32), np.zeros(30, np.float32))
+    assert independent_splits(chained, 2).tolist() == [0, 30]
+
+
+def test_solver_arrays_on_row_parts_are_one_threads(two_threads):
+    """The solver's numpy work between the kernels (images, DCT-domain terms, heights in
+    pixel units and back, I/ρ, the lit weights, the dark and attached shadows, the
+    Gaussian low-pass's product) runs on row parts: the refined DEM, albedo, shadows and
+    energies of two threads equal one thread's, to the bit."""
+    from demtool.refine import refine_heights
+    from demtool.refine.params import SfsParameters
+    from demtool.refine.shading import make_illumination, render_dem, sun_from_angles
+
+    rng = np.random.default_rng(4)
+    truth = ndimage.gaussian_filter(rng.normal(size=(160, 90)), 3.0) * 30
+    light = make_illumination(sun_from_angles(100.0, 20.0))  # low sun: shadows
+    image = render_dem(truth, (1.0, 1.2), light) * (1 + 0.01 * rng.normal(size=truth.shape))
+    image[3:9, 10:30] = np.nan
+    coarse = ndimage.gaussian_filter(truth, 2.0)
+
+    def refined():
+        return refine_heights(image, coarse, spacing=(1.0, 1.2), illumination=light,
+                              parameters=SfsParameters(iterations=6, update_every=2))
+
+    both = refined()
+    numba.set_num_threads(1)
+    one = refined()
+    numba.set_num_threads(two_threads)
+    assert 0.02 < one.shadow.mean() < 0.6
+    for name in ("dem", "albedo", "shadow"):
+        assert np.array_equal(getattr(one, name), getattr(both, name)), name
+    assert one.history == both.history and one.energies == both.energies

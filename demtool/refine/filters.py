@@ -21,14 +21,19 @@ import numba as nb
 import numpy as np
 import scipy.fft as sfft
 
-#: Threads used by scipy.fft (None: as many as the compiled kernels of the calling thread,
-#: ``numba.get_num_threads()`` — every core untiled, the worker's share in a Dask tile or
-#: under ``--workers``; -1: all cores).  The transform's numbers do not depend on it.
+#: Threads used by scipy.fft (None: as many as the row kernels of the calling thread,
+#: ``numba.get_num_threads()`` within :func:`demtool.tiling.tasks.usable_threads` — every
+#: core untiled, the worker's share in a tile or under ``--workers``; -1: all cores).  The
+#: transform's numbers do not depend on it.
 FFT_WORKERS: int | None = None
 
 
 def _fft_workers() -> int:
-    return nb.get_num_threads() if FFT_WORKERS is None else FFT_WORKERS
+    if FFT_WORKERS is not None:
+        return FFT_WORKERS
+    from demtool.tiling.tasks import usable_threads
+
+    return max(1, min(nb.get_num_threads(), usable_threads()))
 
 
 def dct2(array: np.ndarray) -> np.ndarray:

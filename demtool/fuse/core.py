@@ -44,7 +44,8 @@ import numpy as np
 from demtool.errors import ProcessingError
 
 __all__ = ["METHODS", "NMAD_SCALE", "FuseResult", "border_weights", "combine",
-           "consensus_nmad", "estimate_shift", "stack_nmad"]
+           "consensus_nmad", "estimate_shift", "nmad_against_others",
+           "stack_nmad"]
 
 METHODS = ("median", "mean", "huber")
 HUBER_C = 1.345  # Huber's tuning constant: 95 % efficiency for Gaussian errors
@@ -372,21 +373,42 @@ def consensus_nmad(values: np.ndarray, mapper=None) -> np.ndarray:
     Returns
     -------
     (N,) float64
-        ``1.4826 median |h_i − median_{j≠i} h_j − their median|`` over the cells where
-        DEM i and some other DEM have a value; NaN where there is no such cell.
+        :func:`nmad_against_others` of each DEM; NaN where there is no common cell.
     """
     values = np.asarray(values, dtype=np.float64)
     valid = np.isfinite(values)
+    indices = range(len(values))
 
     def one(i: int) -> float:
-        others = np.delete(np.arange(len(values)), i)
-        consensus = _nan_median(values[others], valid[others])
-        diff = values[i] - consensus
-        diff = diff[np.isfinite(diff)]
-        if not diff.size:
-            return np.nan
-        return NMAD_SCALE * np.median(np.abs(diff - np.median(diff)))
+        return nmad_against_others(values, i, valid)
 
-    indices = range(len(values))
     return np.array(mapper(one, indices) if mapper else [one(i) for i in indices],
                     dtype=np.float64)
+
+
+def nmad_against_others(values: np.ndarray, i: int, valid: np.ndarray | None = None
+                        ) -> float:
+    """DEM ``i``'s NMAD against the median of the others, on common cells.
+
+    Parameters
+    ----------
+    values : (N, H, W) float64 array, metres, NaN = no value (N >= 2)
+    i : int
+        The DEM.
+    valid : (N, H, W) bool, optional
+        ``np.isfinite(values)``, when the caller has it.
+
+    Returns
+    -------
+    float
+        ``1.4826 median |h_i − median_{j≠i} h_j − their median|`` over the cells where
+        DEM i and some other DEM have a value (metres); NaN where there is no such cell.
+    """
+    valid = np.isfinite(values) if valid is None else valid
+    others = np.delete(np.arange(len(values)), i)
+    consensus = _nan_median(values[others], valid[others])
+    diff = values[i] - consensus
+    diff = diff[np.isfinite(diff)]
+    if not diff.size:
+        return np.nan
+    return NMAD_SCALE * np.median(np.abs(diff - np.median(diff)))

@@ -163,6 +163,64 @@ def coreg_samples(plans: dict[int, tuple[Any, tuple[int, int, int, int], int]],
     return samples
 
 
+def consensus_stack(dems: Sequence[tuple[Path, Any, Sequence[float]]], target: Any,
+                    window: tuple[int, int, int, int]) -> np.ndarray:
+    """The DEMs, each shifted by its co-registration, on cells ``window`` of ``target``.
+
+    Parameters
+    ----------
+    dems : sequence of (path, GridSpec, (dx_px, dy_px, dz))
+    target : GridSpec
+    window : (row0, row1, col0, col1)
+
+    Returns
+    -------
+    (N, rows, cols) float64
+        :func:`demtool.fuse.tiled.sample_on_grid` of each DEM.  Each DEM is read in two
+        halves of rows, the 2 N halves on the threads of
+        :func:`demtool.fuse.tiled.on_threads` (N = 3 DEMs on two threads would leave one
+        idle for the last); a cell's sample does not depend on the window it is read in,
+        so these are the numbers of one read per DEM.
+    """
+    from demtool.fuse.tiled import on_threads, sample_on_grid
+
+    r0, r1, c0, c1 = window
+    middle = (r0 + r1) // 2
+    halves = ((r0, middle, c0, c1), (middle, r1, c0, c1))
+    parts = on_threads(lambda task: sample_on_grid(*dems[task[0]][:2], target,
+                                                   halves[task[1]], dems[task[0]][2]),
+                       [(i, half) for i in range(len(dems)) for half in (0, 1)])
+    return np.stack([np.concatenate(parts[2 * i:2 * i + 2], axis=0)
+                     for i in range(len(dems))])
+
+
+def consensus_figures(stack: np.ndarray, *, scale: bool) -> tuple[np.ndarray, float]:
+    """Each DEM's NMAD against the others' median (:func:`demtool.fuse.core.consensus_nmad`)
+    and, with ``scale``, the stack's NMAD (:func:`demtool.fuse.core.stack_nmad`; else 0).
+
+    The N + 1 independent figures run on the threads of
+    :func:`demtool.fuse.tiled.on_threads`, the stack's (two to three DEMs' worth) second:
+    one thread takes it while the other takes the DEMs in turn, and the in-order map's
+    bound (a result is awaited before the item two places after it is taken) never
+    holds a DEM back behind it, so the threads end together.  Before, the N = 3 DEMs
+    on two threads left one idle for the last, and the stack's NMAD ran after them on
+    one.  The numbers of the functions above.
+    """
+    from demtool.fuse.core import nmad_against_others, stack_nmad
+    from demtool.fuse.tiled import on_threads
+
+    stack = np.asarray(stack, dtype=np.float64)
+    valid = np.isfinite(stack)
+    items: list[int | None] = list(range(len(stack)))
+    if scale:
+        items.insert(1, None)
+    figures = dict(zip(items, on_threads(lambda i: stack_nmad(stack) if i is None else
+                                         nmad_against_others(stack, i, valid), items),
+                       strict=True))
+    nmads = np.array([figures[i] for i in range(len(stack))], dtype=np.float64)
+    return nmads, float(figures[None]) if scale else 0.0
+
+
 def write_outputs(outputs: Sequence[tuple[Path, int, str, dict[str, Any]]],
                   bands: np.ndarray, target: Any) -> None:
     """Write each (path, band, name, tags) of ``outputs``: ``bands[band]`` on ``target``'s
@@ -235,9 +293,9 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
     """
     from demtool import io as dio
     from demtool.errors import DemtoolError, InputError, ParameterError, ProcessingError
-    from demtool.fuse.core import consensus_nmad, estimate_shift, stack_nmad
+    from demtool.fuse.core import estimate_shift
     from demtool.fuse.params import FuseParams
-    from demtool.fuse.tiled import FuseTileJob, fuse_tiled, on_threads, sample_on_grid, single_tile
+    from demtool.fuse.tiled import FuseTileJob, fuse_tiled, on_threads, single_tile
     from demtool.tiling import wants_tiles
 
     params = params or FuseParams()
@@ -396,13 +454,13 @@ def run_fuse(dems: Sequence[PathLike], out: PathLike, params: FuseParams | None 
     if len(dem_paths) >= 2:
         window = centred(ref_window, params.coreg_size)
         with run.phase("consensus"):
-            stack = np.stack(on_threads(lambda i: sample_on_grid(
-                dem_paths[i], specs[i], target, window, shifts[i]), range(len(dem_paths))))
+            stack = consensus_stack([(dem_paths[i], specs[i], shifts[i])
+                                     for i in range(len(dem_paths))], target, window)
             stack[sorted(failed)] = np.nan
-            nmads = consensus_nmad(stack, on_threads)  # one DEM per thread
+            nmads, floor = consensus_figures(stack, scale=params.method == "huber")
             nmads[sorted(failed)] = np.inf
             if params.method == "huber":
-                scale_floor = stack_nmad(stack)
+                scale_floor = floor
         if params.method == "huber":
             log.info("Huber scale: at least %.3f m (NMAD of the heights against their "
                      "cell's median over the reference's window)", scale_floor)

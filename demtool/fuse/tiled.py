@@ -208,43 +208,27 @@ def margin(params: Any) -> int:
     return exact_margin(params.blend, params.gap)
 
 
-def kernels_run_concurrently() -> bool:
-    """Whether numba's threading layer takes parallel kernels launched from several
-    threads at once (``tbb``, ``omp``; the ``workqueue`` fallback aborts the process)."""
-    import numba
-
-    try:
-        return numba.threading_layer() != "workqueue"
-    except ValueError:  # no parallel kernel has run in this process yet: start the layer
-        from demtool.compare.grids import sample_bilinear
-
-        sample_bilinear(np.zeros((2, 2)), np.zeros((1, 1)), np.zeros((1, 1)))
-        return numba.threading_layer() != "workqueue"
-
-
 def on_threads(function: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
-    """``[function(item) for item in items]``, on a pool of threads (one compiled-kernel
-    thread each) when there are two items or more and cores for them, else in order here.
+    """``[function(item) for item in items]``, on threads when there are two items or
+    more and cores for them (:func:`demtool.tiling.rows.ordered_map` on
+    ``min(usable_threads(), len(items))`` threads, each call with its share of numba's
+    threads, as on the calling thread), else in order here.
 
     For independent jobs of similar size, such as the co-registration of each DEM to the
     reference: each runs as it would alone, with the same numbers (the compiled
-    reductions sum per row, whatever the thread count).
+    reductions sum per row, whatever the thread count).  In order here too where numba's
+    threading layer cannot launch kernels from several threads at once
+    (:func:`demtool.tiling.local_threads.kernels_run_concurrently`, which starts the
+    layer without compiling a kernel).
     """
     from demtool.tiling.distributed import usable_threads
+    from demtool.tiling.local_threads import kernels_run_concurrently
+    from demtool.tiling.rows import ordered_map
 
     threads = min(usable_threads(), len(items))
     if threads < 2 or not kernels_run_concurrently():
-        return [function(item) for item in items]
-    from concurrent.futures import ThreadPoolExecutor
-
-    def single_threaded(item: Any) -> Any:
-        import numba
-
-        numba.set_num_threads(1)  # thread-local: this pool thread only
-        return function(item)
-
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        return list(pool.map(single_threaded, items))
+        threads = 1
+    return list(ordered_map(function, items, threads=threads))
 
 
 def row_strips(tile: Tile, shape: tuple[int, int], margin: int, threads: int) -> list[Tile]:

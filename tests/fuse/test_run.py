@@ -230,8 +230,9 @@ def test_the_reference_read_once_gives_each_dems_window_to_the_bit(block, monkey
     monkeypatch.setattr(tiled, "sample_on_grid", counted)
     samples = coreg_samples(plans, {i: (paths[i], specs[i]) for i in plans},
                             (paths[0], specs[0]))
-    # once, on the union (in two halves of rows)
-    assert [w for p, w in reads if p == paths[0]] == [(20, 47, 10, 80), (47, 75, 10, 80)]
+    # once, on the union (in two halves of rows, on two threads: in either order)
+    assert sorted(w for p, w in reads if p == paths[0]) == [(20, 47, 10, 80),
+                                                             (47, 75, 10, 80)]
     for i, (_, window, _) in plans.items():
         dem, ref = samples[i]
         assert np.array_equal(dem, original(paths[i], specs[i], target, window),
@@ -280,3 +281,68 @@ def test_outputs_written_on_threads_inside_the_transaction(tmp_path, monkeypatch
     with pytest.raises(OutputError, match="disk full"), output_transaction():
         write_outputs(moved, bands, target)
     assert not (tmp_path / "again").exists()
+
+
+def test_consensus_read_in_halves_and_figures_on_threads_give_the_numbers_of_one_each(
+        block, monkeypatch):
+    """consensus_stack reads each DEM in two halves of rows, on threads, and
+    consensus_figures computes the N NMADs and the stack's beside each other: the numbers
+    of one read per DEM and of consensus_nmad and stack_nmad in turn, to the bit."""
+    from demtool.fuse import tiled
+    from demtool.fuse.core import consensus_nmad, stack_nmad
+    from demtool.fuse.grids import grid_of, union_grid
+    from demtool.fuse.run import consensus_figures, consensus_stack
+    from demtool.tiling import distributed
+
+    monkeypatch.setattr(distributed, "usable_threads", lambda: 2)
+    _, paths = block
+    specs = [grid_of(dio.raster_info(p)) for p in paths]
+    target = union_grid(specs, specs[0])
+    shifts = [(0.0, 0.0, 0.0), (-0.6, 0.4, -1.5), (0.25, 0.0, 0.8)]
+    window = (15, 96, 8, 101)
+    reads: list[tuple] = []
+    original = tiled.sample_on_grid
+
+    def counted(path, src, dst, cells, *args, **kwargs):
+        reads.append((path, cells))
+        return original(path, src, dst, cells, *args, **kwargs)
+
+    monkeypatch.setattr(tiled, "sample_on_grid", counted)
+    stack = consensus_stack(list(zip(paths, specs, shifts, strict=True)), target, window)
+    assert sorted(cells for p, cells in reads if p == paths[1]) == [(15, 55, 8, 101),
+                                                                    (55, 96, 8, 101)]
+    whole = np.stack([original(p, s, target, window, shift)
+                      for p, s, shift in zip(paths, specs, shifts, strict=True)])
+    assert np.array_equal(stack.view(np.uint64), whole.view(np.uint64))
+    nmads, floor = consensus_figures(stack, scale=True)
+    assert np.array_equal(nmads, consensus_nmad(stack), equal_nan=True)
+    assert floor == stack_nmad(stack) > 0
+    again, none = consensus_figures(stack, scale=False)
+    assert np.array_equal(again, nmads, equal_nan=True) and none == 0.0
+
+
+def test_on_threads_maps_in_order_on_the_callers_limits(monkeypatch):
+    """on_threads is demtool.tiling.rows.ordered_map on min(usable threads, items)
+    threads: results in the items' order, each call with the caller's context; here in
+    turn where numba's threading layer cannot launch kernels from two threads."""
+    import threading
+
+    from demtool.fuse.tiled import on_threads
+    from demtool.tiling import distributed, local_threads
+    from demtool.tiling.tasks import threads_limited
+
+    def where(item):
+        return item, threading.current_thread().name, distributed.usable_threads()
+
+    monkeypatch.setattr(local_threads, "kernels_run_concurrently", lambda: True)
+    with threads_limited(2):
+        results = on_threads(where, range(5))
+    assert [r[0] for r in results] == list(range(5))
+    if distributed.available_cores() >= 2:
+        assert all(name.startswith("demtool") for _, name, _ in results)
+        assert {limit for *_, limit in results} == {2}  # the caller's limit, carried
+    here = threading.current_thread().name
+    with threads_limited(1):
+        assert {r[1] for r in on_threads(where, range(3))} == {here}
+    monkeypatch.setattr(local_threads, "kernels_run_concurrently", lambda: False)
+    assert {r[1] for r in on_threads(where, range(3))} == {here}

@@ -286,23 +286,24 @@ def points_on_map(xyz: np.ndarray, body, *, gsd_m: float, projection: str = "aut
     xyz : (N, 3) float, metres, body-fixed, finite; body, gsd_m, projection, crs as in
     :func:`dem_on_map`.
     """
-    from demtool.mapproject.threads import batched
+    from demtool.dem.map_parts import batched_into, finite_extent
     from demtool.maps.frames import xyz_to_lonlat_height
     from demtool.maps.grids import snap_grid
     from demtool.maps.projections import choose_projection, lonlat_to_map
 
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-    lon, lat, height = batched(lambda p: xyz_to_lonlat_height(p, radii=body.surface), xyz)
+    lon, lat, height = batched_into(lambda p: xyz_to_lonlat_height(p, radii=body.surface),
+                                    xyz, outputs=3)
     if crs is None:
         crs = choose_projection(body, lon, lat, projection)
-    x, y = batched(lambda a, b: tuple(lonlat_to_map(crs, a, b)), lon, lat)
+    x, y = batched_into(lambda a, b: lonlat_to_map(crs, a, b), lon, lat, outputs=2)
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
-    good = np.isfinite(x) & np.isfinite(y)
-    if not good.any():
+    extent = finite_extent(x, y)  # of the points with a finite x and y
+    if extent is None:
         raise ValueError("footprint cannot be projected in the chosen CRS")
-    grid = snap_grid(crs, x[good].min(), y[good].min(), x[good].max(), y[good].max(), gsd_m)
+    grid = snap_grid(crs, *extent, gsd_m)
     if grid.crs != crs:  # the grid's own CRS object places the points, as dem_on_map did
-        x, y = batched(lambda a, b: tuple(lonlat_to_map(grid.crs, a, b)), lon, lat)
+        x, y = batched_into(lambda a, b: lonlat_to_map(grid.crs, a, b), lon, lat, outputs=2)
     return MapPoints(grid, np.asarray(x), np.asarray(y), height)
 
 
@@ -337,60 +338,61 @@ def dem_on_map(xyz: np.ndarray, gap: np.ndarray, body, *, gsd_m: float,
     MapDem
     """
     from demtool.dem.grid import fill_and_smooth
+    from demtool.dem.map_parts import finish_grid, finite_points, map_pixels, point_columns
     from demtool.mapproject.threads import available_threads, ordered_map
 
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
     gap = np.asarray(gap, dtype=np.float64).ravel()
-    keep = np.isfinite(xyz).all(axis=1)
+    keep = finite_points(xyz)
     if not keep.all():
         xyz, gap = xyz[keep], gap[keep]
     if len(xyz) < 3:
         raise ProcessingError(f"only {len(xyz)} triangulated points: nothing to grid")
-    index = np.flatnonzero(keep)
+    index = np.flatnonzero(keep) if len(xyz) < len(keep) else np.arange(len(keep))
     if placed is None or placed.x.size != len(xyz):
         placed = points_on_map(xyz, body, gsd_m=gsd_m, projection=projection, crs=crs)
     grid, x, y, height = placed
-    t = grid.transform  # north-up: col = (x − c) / a, row = (y − f) / e
-    cols = (np.asarray(x) - t.c) / t.a
-    rows = (np.asarray(y) - t.f) / t.e
-    pixels = np.stack([cols - 0.5, rows - 0.5], axis=-1)
-    # the heights' and the gaps' medians at once (nogil kernels)
-    (dem, counts), (error, _) = ordered_map(lambda v: splat_median(pixels, v, grid.shape),
-                                            (height, gap), threads=min(2, available_threads()))
-    measured = np.isfinite(dem)
-    median_height = float(np.median(height))
+    # north-up: col = (x − c) / a, row = (y − f) / e; pixel centres at integers
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    pixels = map_pixels(x, y, grid.transform)
+    # Two threads, each a chain of independent work (2048² map: about 2 CPU s each): the
+    # heights' medians then the gap fill, which needs them and runs on one core (scipy's
+    # sparse solve); beside them the stereo overlap (the two cameras one after the
+    # other) then the gaps' medians.  Before, the two medians ran side by side, then the
+    # fill beside the overlap, whose two threads were done long before the fill.
+    def heights_then_fill():
+        dem, counts = splat_median(pixels, height, grid.shape)
+        full = (fill_and_smooth(dem, median_px=median_px).dem
+                if fill and np.isfinite(dem).any() else None)
+        return dem, counts, full
 
-    def overlap_cells():
+    def overlap_then_gaps():
+        median_height = float(np.median(height))
         if left is not None and right is not None:
-            return overlap_mask(grid, left, right, median_height)
-        return np.ones(grid.shape, dtype=bool)
+            # on this thread alone (ordered_map gives each call one numba thread)
+            overlap = overlap_mask(grid, left, right, median_height)
+        else:
+            overlap = np.ones(grid.shape, dtype=bool)
+        error, _ = splat_median(pixels, gap, grid.shape)
+        return median_height, overlap, error
 
-    def filled_grid():
-        return fill_and_smooth(dem, median_px=median_px).dem if fill and measured.any() \
-            else None
-
-    # the stereo overlap (two cameras, two threads) beside the gap fill (one): independent
-    overlap, full = ordered_map(lambda task: task(), (overlap_cells, filled_grid),
-                                 threads=min(2, available_threads()))
-    overlap |= measured
-    filled = np.zeros(grid.shape, dtype=bool)
-    out = dem.copy()
-    if full is not None:
-        filled = overlap & ~measured
-        out = np.where(filled | (median_px > 1), full, dem)
-    out[~overlap] = np.nan
+    (dem, counts, full), (median_height, overlap, error) = ordered_map(
+        lambda task: task(), (heights_then_fill, overlap_then_gaps),
+        threads=min(2, available_threads()))
+    done = finish_grid(dem, error, counts, overlap, full, median_px)
     report = {
         "map_shape": list(grid.shape),
         "map_gsd_m": float(gsd_m),
-        "overlap_cells": int(overlap.sum()),
-        "measured_cells": int(measured.sum()),
-        "filled_cells": int(filled.sum()),
-        "measured_fraction_of_overlap": float(measured.sum() / max(1, overlap.sum())),
-        "points_per_measured_cell": float(counts[measured].mean()) if measured.any() else 0.0,
-        "height_min_m": float(np.nanmin(out)),
-        "height_max_m": float(np.nanmax(out)),
+        "overlap_cells": done.overlap_cells,
+        "measured_cells": done.measured_cells,
+        "filled_cells": done.filled_cells,
+        "measured_fraction_of_overlap": float(done.measured_cells
+                                              / max(1, done.overlap_cells)),
+        "points_per_measured_cell": done.points_per_measured_cell,
+        "height_min_m": done.height_min,
+        "height_max_m": done.height_max,
         "height_median_m": median_height,
     }
-    return MapDem(out.astype(np.float32), error.astype(np.float32), filled, overlap, grid,
-                  report, points=np.column_stack([x, y, height]), point_gaps=gap,
+    return MapDem(done.dem, done.error, done.filled, overlap, grid, report,
+                  points=point_columns(x, y, height), point_gaps=gap,
                   point_index=index)

@@ -90,3 +90,30 @@ def test_overlap_mask(scene):
     grid = grid_from_xyz(moon, xyz, 5.0)
     mask = overlap_mask(grid, scene.left, scene.right, 0.0)
     assert 0.5 < mask.mean() <= 1.0
+
+
+def test_dem_on_map_same_bits_on_one_thread(scene, monkeypatch):
+    """The heights' medians and fill beside the overlap and the gaps' medians, and the
+    numpy steps on row parts (demtool.dem.map_parts), give one thread's grid."""
+    from demtool.dem import map_parts
+    from demtool.tiling.tasks import numba_threads_at_most, threads_limited
+
+    monkeypatch.setattr(map_parts, "MIN_PART_ELEMENTS", 256)
+    moon = body_by_name("Moon")
+    rng = np.random.default_rng(5)
+    lines, samples = rng.uniform(0, 96, 8000), rng.uniform(0, 96, 8000)
+    keep = ~((lines > 30) & (lines < 50) & (samples > 40) & (samples < 60))  # a hole
+    ground = scene.left.image_to_ground(lines[keep], samples[keep])
+    unit = ground / np.linalg.norm(ground, axis=1, keepdims=True)
+    xyz = unit * (moon.radius + rng.normal(10.0, 1.0, len(unit)))[:, None]
+    gap = rng.random(len(xyz))
+    found = [dem_on_map(xyz, gap, moon, gsd_m=4.0, left=scene.left, right=scene.right)]
+    with threads_limited(1), numba_threads_at_most(1):
+        found.append(dem_on_map(xyz, gap, moon, gsd_m=4.0, left=scene.left,
+                                right=scene.right))
+    many, one = found
+    assert many.filled.any() and np.isnan(many.dem).any()
+    for name in ("dem", "error", "filled", "overlap", "points", "point_gaps", "point_index"):
+        a, b = getattr(many, name), getattr(one, name)
+        np.testing.assert_array_equal(a.view(np.uint8), b.view(np.uint8), err_msg=name)
+    assert many.report == one.report and many.grid == one.grid

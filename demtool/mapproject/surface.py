@@ -28,6 +28,8 @@ HOLD_MAX_CELLS = 16 * 2**20
 #: grid is the DEM's lattice over the footprint snapped outward, and each window read
 #: reaches 1–3 cells past its points)
 HOLD_MARGIN = 8
+#: Fewest DEM rows per thread of :meth:`DemSurface.holding`'s read (a part opens the file)
+HOLD_MIN_ROWS_PER_PART = 256
 
 
 class DemSurface(NamedTuple):
@@ -110,7 +112,27 @@ class DemSurface(NamedTuple):
                   max(c0 - margin, 0), min(c1 + margin, self.info.width))
         if (window[1] - window[0]) * (window[3] - window[2]) > max_cells:
             return self
-        return self._replace(held=(window, self._window(window)))
+        return self._replace(held=(window, self._read_rows_on_threads(window)))
+
+    def _read_rows_on_threads(self, window: tuple[int, int, int, int]) -> np.ndarray:
+        """The DEM's values in ``window`` (float32, NaN nodata), its rows read in parts
+        on this thread and its helpers (:func:`demtool.tiling.rows.on_row_parts`): GDAL's
+        read and decompression and the conversion to float32 release the GIL, and this
+        read is on the critical path before the first map tile.  Each part is
+        :func:`demtool.io.read_window` of its rows, elementwise: the values equal one
+        read of the whole window."""
+        from demtool import io as dio
+        from demtool.tiling.rows import on_row_parts
+
+        r0, r1, c0, c1 = window
+        out = np.empty((r1 - r0, c1 - c0), dtype=np.float32)
+
+        def read(start: int, stop: int) -> None:
+            out[start:stop] = dio.read_window(self.info.path, (r0 + start, r0 + stop, c0, c1),
+                                              what="DEM")
+
+        on_row_parts(read, r1 - r0, min_rows=HOLD_MIN_ROWS_PER_PART)
+        return out
 
 
 def require_same_body(path: str | os.PathLike, crs: Any, body: Any,

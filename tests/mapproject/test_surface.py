@@ -44,3 +44,35 @@ def test_held_window_gives_the_files_heights_to_the_bit(tmp_path, monkeypatch):
     assert len(reads) == 3
     # a window over the cap stays on disk
     assert surface.holding(lon, lat, max_cells=10).held is None
+
+
+def test_held_window_read_in_row_parts_equals_one_read(tmp_path, monkeypatch):
+    """holding()'s read, split into row parts on threads, gives one read's values to the
+    bit (NaN nodata included), and reads each part once."""
+    from demtool import io as dio
+    from demtool.mapproject import surface as surface_module
+    from demtool.tiling import rows
+
+    sensor = linescan_sensor(lines=120, samples=90)
+    grid = ortho_grid(sensor, MOON, height=0.0)
+    grid = snap_grid(grid.crs, *grid.bounds(), 2.0)
+    lon, lat = grid_lonlat(grid)
+    heights = (1000.0 * np.sin(lon * 7.0) + 37.25 * lat).astype(np.float32)
+    heights[5:9, 3:40] = np.nan  # a hole: nodata stays NaN
+    dem_path = tmp_path / "dem.tif"
+    dio.write_raster(dem_path, heights, transform=grid.transform, crs=grid.crs,
+                     tags=MOON.tags())
+    surface = read_dem_surface(dem_path, "sensor.json", MOON)
+    window = (1, grid.height - 2, 2, grid.width - 1)
+    whole = dio.read_window(dem_path, window, what="DEM")
+    monkeypatch.setattr(surface_module, "HOLD_MIN_ROWS_PER_PART", 4)
+    monkeypatch.setattr(rows, "usable_threads", lambda: 3)
+    monkeypatch.setattr(rows, "_numba_threads", lambda: 3)
+    reads = []
+    original = dio.read_window
+    monkeypatch.setattr(dio, "read_window", lambda *a, **k: (reads.append(a[1]),
+                                                             original(*a, **k))[1])
+    parts = surface._read_rows_on_threads(window)
+    assert len(reads) == 3 and sorted(r[0] for r in reads)[0] == window[0]
+    assert np.isnan(parts).sum() == np.isnan(whole).sum() > 0
+    np.testing.assert_array_equal(parts.view(np.uint32), whole.view(np.uint32))

@@ -173,7 +173,8 @@ register(ScaleCase(
         f"Scale-out of fuse (three {size}² DEMs with holes, 0.3 m noise, offsets 0/0.5/1 m; "
         "huber, nuth-kaab): untiled vs tiles on 1 and 2 workers"),
     prepare=_fuse_prepare, command=_fuse_command, quality=_fuse_quality,
-    agreement=_fuse_agreement, phases=("coregister", "combine"), tile_size=TILE))
+    agreement=_fuse_agreement, phases=("coregister", "consensus", "combine"),
+    tile_size=TILE))
 
 
 # --- compare -----------------------------------------------------------------------------

@@ -214,7 +214,7 @@ def test_the_reference_read_once_gives_each_dems_window_to_the_bit(block, monkey
     and cuts each DEM's window from it: the numbers of one read per window."""
     from demtool.fuse import tiled
     from demtool.fuse.grids import grid_of, union_grid
-    from demtool.fuse.run import coreg_samples
+    from demtool.fuse.overlap import coreg_samples
 
     _, paths = block
     specs = [grid_of(dio.raster_info(p)) for p in paths]
@@ -291,7 +291,7 @@ def test_consensus_read_in_halves_and_figures_on_threads_give_the_numbers_of_one
     from demtool.fuse import tiled
     from demtool.fuse.core import consensus_nmad, stack_nmad
     from demtool.fuse.grids import grid_of, union_grid
-    from demtool.fuse.run import consensus_figures, consensus_stack
+    from demtool.fuse.overlap import consensus_figures, consensus_stack
     from demtool.tiling import distributed
 
     monkeypatch.setattr(distributed, "usable_threads", lambda: 2)

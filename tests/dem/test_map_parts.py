@@ -42,10 +42,14 @@ def test_point_steps_equal_numpy(small_parts):
     np.testing.assert_array_equal(pixels.view(np.uint64), expected.view(np.uint64))
     np.testing.assert_array_equal(map_parts.point_columns(x, y, xyz[:, 2]),
                                   np.column_stack([x, y, xyz[:, 2]]))
-    one = _on_one_thread(map_parts.batched_into, lambda a, b: (a + b, a * b), x, y,
-                         outputs=2)
-    many = map_parts.batched_into(lambda a, b: (a + b, a * b), x, y, outputs=2)
-    for a, b, c in zip(one, many, (x + y, x * y), strict=True):
+
+    def function(a, b):  # (N, 3) float64, (N,) bool and (N,) float64 results
+        return np.stack([a, b, a * b], axis=-1), a > b, a + b
+
+    one = _on_one_thread(map_parts.batched_into, function, x, y)
+    many = map_parts.batched_into(function, x, y)
+    for a, b, c in zip(one, many, function(x, y), strict=True):
+        assert a.dtype == b.dtype == c.dtype and a.shape == b.shape == c.shape
         np.testing.assert_array_equal(a, c)
         np.testing.assert_array_equal(b, c)
 

@@ -80,7 +80,7 @@ from demtool.refine.shadow_lengths import (
     segment_residuals,
     shadow_segments,
 )
-from demtool.refine.shadows import dark_pixels, shadow_mask
+from demtool.refine.shadows import image_shadows, shadow_mask
 from demtool.tiling.rows import on_row_parts
 from demtool.tiling.tasks import available_cores
 
@@ -220,9 +220,11 @@ class _Solver:
             self.anchor_hat[start:stop] = tau * g2 * self.z0_hat[start:stop]
 
         on_row_parts(height_step_terms, self.shape[0])
-        self.segments = shadow_segments(
-            dark_pixels(self.image_nan, params.shadow_threshold, median=self.image_median),
-            valid, self.spacing, illumination)
+        # the image's dark and dim pixels do not change with the DEM: computed once
+        self.image_masks = image_shadows(self.image_nan, params.shadow_threshold,
+                                         median=self.image_median)
+        self.segments = shadow_segments(self.image_masks[0], valid, self.spacing,
+                                        illumination)
         # groups of shadow crossings without a common pixel: corrected on every core
         self.segment_splits = independent_splits(self.segments, available_cores())
 
@@ -284,7 +286,8 @@ class _Solver:
         p = self.params
         shadow = shadow_mask(self.heights_metres(state.z), self.image_nan, self.spacing,
                              self.illumination, threshold=p.shadow_threshold,
-                             use_dem=p.cast_shadows, median=self.image_median)
+                             use_dem=p.cast_shadows, median=self.image_median,
+                             image_masks=self.image_masks)
         # lit pixels, the albedo's weight and the intensity weight, on row parts
         albedo_weight = np.empty(self.shape, dtype=bool)
         weight = np.empty(self.shape, dtype=np.float32)

@@ -221,7 +221,8 @@ def dark_pixels(image: np.ndarray, threshold: float, valid: np.ndarray | None = 
 def shadow_mask(dem: np.ndarray, image: np.ndarray, spacing: tuple[float, float],
                 illumination: Illumination, *, threshold: float = 0.0,
                 use_dem: bool = True, dim_fraction: float = 0.2,
-                dilate_px: int = 1, median: float | None = None) -> np.ndarray:
+                dilate_px: int = 1, median: float | None = None,
+                image_masks: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Combined shadow mask: dark image pixels, and the DEM's shadows where the image is dim.
 
     The image decides: a pixel darker than ``threshold`` × the median is shadow.  The
@@ -251,20 +252,35 @@ def shadow_mask(dem: np.ndarray, image: np.ndarray, spacing: tuple[float, float]
         Grow the mask by this many pixels (penumbra, DEM errors at shadow edges).
     median : float, optional
         The median of the valid image, if already known (saves a selection).
+    image_masks : (dark, dim), optional
+        :func:`image_shadows` of ``image`` with the same ``threshold``, ``dim_fraction``
+        and median, if already known (a solver re-estimating the shadows of a changing
+        DEM computes them once).
 
     Returns
     -------
     (H, W) bool
         True where the intensity term must be dropped.
     """
+    dark, dim = image_masks if image_masks is not None else image_shadows(
+        image, threshold, dim_fraction=dim_fraction, median=median)
+    if use_dem:
+        shadow = dark | (cast_shadows(dem, spacing, illumination, candidates=dim) & dim)
+    else:
+        shadow = dark.copy()
+    if dilate_px > 0 and shadow.any():
+        shadow = dilate(shadow, int(dilate_px))
+    return shadow
+
+
+def image_shadows(image: np.ndarray, threshold: float, *, dim_fraction: float = 0.2,
+                  median: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The image's masks of :func:`shadow_mask`, which do not change with the DEM: the
+    dark pixels (below ``threshold`` × the median) and the dim ones (below
+    ``dim_fraction`` × the median), (H, W) bool each (:func:`dark_pixels`)."""
     values = np.asarray(image, dtype=np.float32)
     if median is None:
         finite = np.isfinite(values)
         median = float(np.median(values[finite])) if finite.any() else 0.0
-    shadow = dark_pixels(values, threshold, median=median)
-    if use_dem:
-        dim = dark_pixels(values, dim_fraction, median=median)
-        shadow |= cast_shadows(dem, spacing, illumination, candidates=dim) & dim
-    if dilate_px > 0 and shadow.any():
-        shadow = dilate(shadow, int(dilate_px))
-    return shadow
+    return (dark_pixels(values, threshold, median=median),
+            dark_pixels(values, dim_fraction, median=median))

@@ -244,7 +244,7 @@ def border_taper(shape: tuple[int, int], width: float) -> np.ndarray:
     height, width_px = shape
     if width <= 0:
         return np.ones(shape, dtype=np.float32)
-    from demtool.tiling.rows import on_row_parts
+    from demtool.refine.rowwork import on_row_blocks
 
     rows = np.arange(height)
     cols = np.arange(width_px)
@@ -258,7 +258,7 @@ def border_taper(shape: tuple[int, int], width: float) -> np.ndarray:
         ramp = np.clip(distance / width, 0.0, 1.0)
         taper[start:stop] = np.sin(0.5 * np.pi * ramp) ** 2
 
-    on_row_parts(part, height)
+    on_row_blocks(part, height, width_px)
     return taper
 
 

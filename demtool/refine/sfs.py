@@ -73,6 +73,7 @@ from demtool.refine.filters import (
     neumann_laplacian_eigenvalues,
 )
 from demtool.refine.params import SfsParameters
+from demtool.refine.rowwork import on_row_blocks
 from demtool.refine.shading import Illumination, reflectance_and_gradient
 from demtool.refine.shadow_lengths import (
     correct_slope_step,
@@ -194,7 +195,7 @@ class _Solver:
             self.image[start:stop] = np.where(usable, rows, 0.0)
             self.image_nan[start:stop] = np.where(usable, rows, np.nan)
 
-        on_row_parts(images, self.shape[0])
+        on_row_blocks(images, *self.shape)
         if image_median is None:
             image_median = float(np.median(image[valid])) if valid.any() else 0.0
         self.image_median = float(image_median)
@@ -219,7 +220,7 @@ class _Solver:
                 denominator > 0, denominator, 1.0), 0.0)
             self.anchor_hat[start:stop] = tau * g2 * self.z0_hat[start:stop]
 
-        on_row_parts(height_step_terms, self.shape[0])
+        on_row_blocks(height_step_terms, *self.shape)
         # the image's dark and dim pixels do not change with the DEM: computed once
         self.image_masks = image_shadows(self.image_nan, params.shadow_threshold,
                                          median=self.image_median)
@@ -238,7 +239,7 @@ class _Solver:
             out[start:stop] = (np.asarray(heights[start:stop], dtype=np.float64)
                                - self.mean_height) / self.spacing[0]
 
-        on_row_parts(part, heights.shape[0])
+        on_row_blocks(part, *heights.shape)
         return out
 
     def state_from_heights(self, heights: np.ndarray) -> _State:
@@ -271,7 +272,7 @@ class _Solver:
             out[start:stop] = (z[start:stop].astype(np.float64) * self.spacing[0]
                                + self.mean_height)
 
-        on_row_parts(part, z.shape[0])
+        on_row_blocks(part, *z.shape)
         return out
 
     def normalised(self, albedo: np.ndarray) -> np.ndarray:
@@ -289,6 +290,7 @@ class _Solver:
                              use_dem=p.cast_shadows, median=self.image_median,
                              image_masks=self.image_masks)
         # lit pixels, the albedo's weight and the intensity weight, on row parts
+        # (lit_rows: the count of each block, at its first row)
         albedo_weight = np.empty(self.shape, dtype=bool)
         weight = np.empty(self.shape, dtype=np.float32)
         lit_rows = np.zeros(self.shape[0], dtype=np.int64)
@@ -299,7 +301,7 @@ class _Solver:
             np.logical_and(lit, self.inner[start:stop], out=albedo_weight[start:stop])
             np.multiply(self.taper[start:stop], lit, out=weight[start:stop])
 
-        on_row_parts(lit_part, self.shape[0])
+        on_row_blocks(lit_part, *self.shape)
         lit_fraction = int(lit_rows.sum()) / self.count  # = lit.mean(): an exact count
         if lit_fraction < MIN_LIT_FRACTION:
             raise ProcessingError(

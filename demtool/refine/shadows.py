@@ -11,6 +11,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from demtool.refine.rowwork import on_row_blocks
 from demtool.refine.shading import Illumination, cosine, slopes
 from demtool.tiling.rows import on_row_parts
 
@@ -154,7 +155,7 @@ def _as_float64(dem: np.ndarray) -> tuple[np.ndarray, float]:
             z[start:stop] = dem[start:stop]
         maxima[start] = z[start:stop].max()
 
-    on_row_parts(part, dem.shape[0])
+    on_row_blocks(part, *dem.shape)
     return z, float(maxima.max())
 
 
@@ -173,7 +174,7 @@ def _or_attached(z: np.ndarray, spacing: tuple[float, float], sun: np.ndarray,
         inner = slice(start - top, stop - top)  # the halo rows' own slopes are dropped
         shadow[start:stop] |= cosine(p[inner], q[inner], sun) <= 0.0
 
-    on_row_parts(part, height)
+    on_row_blocks(part, height, z.shape[1])
 
 
 def dark_pixels(image: np.ndarray, threshold: float, valid: np.ndarray | None = None,
@@ -209,7 +210,7 @@ def dark_pixels(image: np.ndarray, threshold: float, valid: np.ndarray | None = 
                 np.asarray(valid)[start:stop] & np.isfinite(rows)
             np.logical_and(usable, rows < level, out=dark[start:stop])
 
-        on_row_parts(part, values.shape[0])
+        on_row_blocks(part, *values.shape)
         return dark
     valid = np.isfinite(values) if valid is None else valid & np.isfinite(values)
     if threshold <= 0 or not valid.any():

@@ -209,12 +209,13 @@ def test_shadow_corrections_in_groups_without_common_pixels_are_the_serial_ones(
     assert independent_splits(chained, 2).tolist() == [0, 30]
 
 
-def test_solver_arrays_on_row_parts_are_one_threads(two_threads):
+def test_solver_arrays_on_row_parts_are_one_threads(two_threads, monkeypatch):
     """The solver's numpy work between the kernels (images, DCT-domain terms, heights in
     pixel units and back, I/ρ, the lit weights, the dark and attached shadows, the
-    Gaussian low-pass's product) runs on row parts: the refined DEM, albedo, shadows and
-    energies of two threads equal one thread's, to the bit."""
-    from demtool.refine import refine_heights
+    Gaussian low-pass's product) runs on row parts in blocks: the refined DEM, albedo,
+    shadows and energies of two threads in blocks of a few rows equal those of one
+    thread in one block (the whole-array expressions), to the bit."""
+    from demtool.refine import refine_heights, rowwork
     from demtool.refine.params import SfsParameters
     from demtool.refine.shading import make_illumination, render_dem, sun_from_angles
 
@@ -229,8 +230,10 @@ def test_solver_arrays_on_row_parts_are_one_threads(two_threads):
         return refine_heights(image, coarse, spacing=(1.0, 1.2), illumination=light,
                               parameters=SfsParameters(iterations=6, update_every=2))
 
+    monkeypatch.setattr(rowwork, "BLOCK_ELEMENTS", 700)  # blocks of 7 rows
     both = refined()
     numba.set_num_threads(1)
+    monkeypatch.setattr(rowwork, "BLOCK_ELEMENTS", 1 << 30)  # one block
     one = refined()
     numba.set_num_threads(two_threads)
     assert 0.02 < one.shadow.mean() < 0.6

@@ -152,15 +152,20 @@ def write_report(provenance: Any, out: Path, report: dict[str, Any],
 
 
 def make_figures(comparisons: Sequence[tuple[str, Any]], reference_values, lines,
-                 spacing: tuple[float, float], label: str) -> dict[str, bytes]:
+                 spacing: tuple[float, float], label: str, *,
+                 timings: dict[str, float] | None = None) -> dict[str, bytes]:
     """The PNG figures of a comparison: name -> bytes (``comparisons[0]`` is the main DEM's
     :class:`demtool.compare.Comparison`, the others the ``--also`` DEMs').
 
     On a grid of :data:`demtool.compare.threads.THREADED_CELLS` cells or more, two
     figures are drawn at a time on two threads (each its own matplotlib ``Figure`` on
     the Agg canvas, no pyplot state; matplotlib keeps its fonts per thread; numpy's
-    percentiles and gradients and Agg's rasterising run outside the GIL): the same PNG
-    bytes as one at a time."""
+    percentiles and gradients and PIL's compression run outside the GIL) while the DEMs
+    figure, which holds the GIL throughout (its contours), is drawn in a forked child
+    (:class:`demtool.compare.figure_process.Apart`; on Linux): the same PNG bytes as one
+    at a time.  ``timings``: a :class:`demtool.stagerun.StageRun`'s timings, whose
+    ``figures_cpu`` gets the child's CPU seconds (its phase's ``process_time`` counts
+    this process only)."""
     from demtool.compare import plots as figure_maker
     from demtool.compare.threads import threaded
     from demtool.tiling.tasks import carried
@@ -191,7 +196,20 @@ def make_figures(comparisons: Sequence[tuple[str, Any]], reference_values, lines
         return {name: make() for name, make in makers.items()}
     from concurrent.futures import ThreadPoolExecutor
 
-    with ThreadPoolExecutor(max_workers=2) as pool:  # the largest (dems.png) first
-        order = sorted(makers, key=lambda name: name != "dems.png")
-        drawn = {name: pool.submit(carried(makers[name])) for name in order}
-        return {name: drawn[name].result() for name in makers}
+    from demtool.compare.figure_process import Apart, forking
+
+    if not forking():
+        with ThreadPoolExecutor(max_workers=2) as pool:  # the largest (dems.png) first
+            order = sorted(makers, key=lambda name: name != "dems.png")
+            drawn = {name: pool.submit(carried(makers[name])) for name in order}
+            return {name: drawn[name].result() for name in makers}
+    figure_maker.import_matplotlib()  # once, before the fork: not again in the child
+    with Apart(makers["dems.png"]) as apart:  # forked before the threads start
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            drawn = {name: pool.submit(carried(make)) for name, make in makers.items()
+                     if name != "dems.png"}
+            figures = {name: drawn[name].result() for name in drawn}
+        figures["dems.png"] = apart.result()
+    if timings is not None:
+        timings["figures_cpu"] = timings.get("figures_cpu", 0.0) + apart.cpu_s
+    return {name: figures[name] for name in makers}

@@ -37,6 +37,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -88,6 +89,10 @@ class Source:
     same: bool = False
     reads: list[int] = field(default_factory=list)  # cells of each window read
     offset: float = 0.0  # metres subtracted: the body's radius for a map of radii
+    # each reading thread's open dataset (GDAL handles are one thread's), kept for the
+    # passes: an open costs 10–15 ms of CPU, a window's read on it none of that
+    _readers: dict[int, Any] = field(default_factory=dict, repr=False)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def __post_init__(self) -> None:
         from demtool import io as dio
@@ -106,15 +111,33 @@ class Source:
             except ProcessingError as exc:
                 raise ProcessingError(f"{self.path}: {self.what}: {exc}") from None
 
+    def _read_window(self, window: tuple[int, int, int, int]) -> np.ndarray:
+        """:func:`demtool.io.read_window` on this thread's open dataset."""
+        from demtool import io as dio
+
+        thread = threading.get_ident()  # a thread's ident is reused only after it ended
+        with self._lock:
+            reader = self._readers.get(thread)
+        if reader is None:
+            reader = dio.WindowReader(self.path, self.what)
+            with self._lock:
+                self._readers[thread] = reader
+        return reader.read(window)
+
+    def close(self) -> None:
+        """Close the datasets the reading threads opened."""
+        with self._lock:
+            readers, self._readers = list(self._readers.values()), {}
+        for reader in readers:
+            reader.close()
+
     def read(self, window: tuple[int, int, int, int]) -> np.ndarray:
         """The window's cells of the comparison grid, float64, NaN where no value."""
-        from demtool import io as dio
         from demtool.compare.grids import sample_bilinear, source_pixels
 
         if self.same:
             self.reads.append((window[1] - window[0]) * (window[3] - window[2]))
-            return dio.read_window(self.path, window, what=self.what).astype(
-                np.float64) - self.offset
+            return self._read_window(window).astype(np.float64) - self.offset
         rows, cols = source_pixels(self.grid, self.target, window)
         shape = (window[1] - window[0], window[3] - window[2])
         finite = np.isfinite(rows) & np.isfinite(cols)
@@ -126,7 +149,7 @@ class Source:
             c1 = min(int(np.floor(cols[finite].max())) + 2, width)
             if r1 > r0 and c1 > c0:
                 self.reads.append((r1 - r0) * (c1 - c0))
-                data = dio.read_window(self.path, (r0, r1, c0, c1), what=self.what)
+                data = self._read_window((r0, r1, c0, c1))
                 return sample_bilinear(data, rows - r0, cols - c0) - self.offset
         return np.full(shape, np.nan)
 
@@ -430,21 +453,28 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
                        target)
     results = []
     with run.transaction():
-        for index, (name, path) in enumerate(((label, dem_path),
-                                              *((Path(p).stem, p) for p in also))):
-            what = "DEM" if index == 0 else "DEM (--also)"
-            sources = {"dem": Source(Path(path), what, _grid(infos[str(path)]), target),
-                       "reference": reference, "mask": mask_source}
-            def open_writer(shift):
-                return dio.raster_writer(
-                    out / DIFFERENCE, height=target.shape[0], width=target.shape[1],
-                    transform=target.transform, crs=target.crs, tags=provenance.tags(
-                        frame=frame or "unknown", label=label,
-                        quantity="aligned DEM - reference (m)", shift=shift))
+        opened = [source for source in (reference, mask_source) if source is not None]
+        try:
+            for index, (name, path) in enumerate(((label, dem_path),
+                                                  *((Path(p).stem, p) for p in also))):
+                what = "DEM" if index == 0 else "DEM (--also)"
+                sources = {"dem": Source(Path(path), what, _grid(infos[str(path)]), target),
+                           "reference": reference, "mask": mask_source}
+                opened.append(sources["dem"])
 
-            results.append((name, compare_one(sources, target, params, tile_size, log,
-                                              open_writer=open_writer if index == 0
-                                              else None, phase=run.phase)))
+                def open_writer(shift):
+                    return dio.raster_writer(
+                        out / DIFFERENCE, height=target.shape[0], width=target.shape[1],
+                        transform=target.transform, crs=target.crs, tags=provenance.tags(
+                            frame=frame or "unknown", label=label,
+                            quantity="aligned DEM - reference (m)", shift=shift))
+
+                results.append((name, compare_one(sources, target, params, tile_size, log,
+                                                  open_writer=open_writer if index == 0
+                                                  else None, phase=run.phase)))
+        finally:
+            for source in opened:  # their datasets, open for the passes
+                source.close()
         main = results[0][1]
         factor = main["factor"]
         report = assemble_report([(name, r["report"]) for name, r in results],
@@ -472,7 +502,8 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
                 figures = make_figures([(n, r["comparison"]) for n, r in results],
                                        main["comparison"].reference, decimated,
                                        (target.spacing[0] * factor,
-                                        target.spacing[1] * factor), label)
+                                        target.spacing[1] * factor), label,
+                                       timings=run.timings)
         write_report(provenance, out, report, figures, html=params.html,
                      timings=run.timings)
     return report

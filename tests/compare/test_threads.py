@@ -86,7 +86,7 @@ def test_the_spectrum_on_two_threads_and_its_plane():
             np.testing.assert_array_equal(getattr(two, name), getattr(one, name))
 
 
-@pytest.mark.slow  # two sets of six figures: ~4 CPU s
+@pytest.mark.slow  # two sets of six figures: ~4 CPU s (dems.png of the second in a child)
 def test_figures_on_two_threads_are_the_same_bytes(monkeypatch):
     from demtool.compare import compare_dems
     from demtool.compare.plots import default_profiles

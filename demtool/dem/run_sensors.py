@@ -117,6 +117,7 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
     """
     import numpy as np
 
+    from demtool.dem.map_parts import finite_points
     from demtool.dem.sensors import (
         dem_on_map,
         points_on_map,
@@ -137,7 +138,7 @@ def triangulate_to_map(run: StageRun, params: DemParams, left: SensorModel,
             ground_rays = None  # the caller's only reference: free the rays
         else:
             tri = triangulate_sensors(left, right, *left_pixels, *right_pixels)
-    finite = np.isfinite(tri.xyz).all(axis=1)
+    finite = finite_points(tri.xyz)  # on row parts: the 0.1 s of one core at 2048²
     in_front = finite & tri.in_front
     if not in_front.any():
         raise ProcessingError(f"{source}: no disparity triangulates in front of both "

@@ -207,7 +207,7 @@ def dark_pixels(image: np.ndarray, threshold: float, valid: np.ndarray | None = 
         def part(start: int, stop: int) -> None:
             rows = values[start:stop]
             usable = np.isfinite(rows) if valid is None else \
-                np.asarray(valid)[start:stop] & np.isfinite(rows)
+                np.broadcast_to(valid, values.shape)[start:stop] & np.isfinite(rows)
             np.logical_and(usable, rows < level, out=dark[start:stop])
 
         on_row_blocks(part, *values.shape)

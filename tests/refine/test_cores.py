@@ -240,3 +240,18 @@ def test_solver_arrays_on_row_parts_are_one_threads(two_threads, monkeypatch):
     for name in ("dem", "albedo", "shadow"):
         assert np.array_equal(getattr(one, name), getattr(both, name)), name
     assert one.history == both.history and one.energies == both.energies
+
+
+def test_dark_pixels_on_row_parts_are_the_formula(two_threads, monkeypatch):
+    from demtool.refine import rowwork
+    from demtool.refine.shadows import dark_pixels
+
+    monkeypatch.setattr(rowwork, "BLOCK_ELEMENTS", 500)
+    rng = np.random.default_rng(9)
+    values = rng.random((150, 61)).astype(np.float32)
+    values[rng.random(values.shape) < 0.05] = np.nan
+    valid = rng.random(values.shape) < 0.8
+    for mask in (None, valid, True):
+        usable = np.isfinite(values) if mask is None else mask & np.isfinite(values)
+        assert np.array_equal(dark_pixels(values, 0.3, valid=mask, median=0.7),
+                              usable & (values < 0.3 * 0.7))

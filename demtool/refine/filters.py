@@ -73,9 +73,17 @@ def gaussian_transfer(shape: tuple[int, int], sigma: float) -> np.ndarray:
     -------
     (H, W) float32, read-only (cached per shape and σ)
     """
+    from demtool.refine.rowwork import on_row_blocks
+
     omega_row, omega_col = dct_frequencies(tuple(shape))
-    transfer = (np.exp(-0.5 * sigma**2 * omega_row**2)
-                * np.exp(-0.5 * sigma**2 * omega_col**2)).astype(np.float32)
+    along_rows = np.exp(-0.5 * sigma**2 * omega_row**2)
+    along_cols = np.exp(-0.5 * sigma**2 * omega_col**2)
+    transfer = np.empty(tuple(shape), dtype=np.float32)
+
+    def part(start: int, stop: int) -> None:  # the outer product on every core
+        transfer[start:stop] = along_rows[start:stop] * along_cols
+
+    on_row_blocks(part, *transfer.shape)
     transfer.flags.writeable = False
     return transfer
 
@@ -91,9 +99,18 @@ def neumann_laplacian_eigenvalues(shape: tuple[int, int], aspect: float = 1.0) -
     (H, W) float32
         Zero for the constant (0, 0) coefficient.
     """
+    from demtool.refine.rowwork import on_row_blocks
+
     omega_row, omega_col = dct_frequencies(shape)
-    eigen = (2.0 - 2.0 * np.cos(omega_col)) + aspect**2 * (2.0 - 2.0 * np.cos(omega_row))
-    return eigen.astype(np.float32)
+    along_cols = 2.0 - 2.0 * np.cos(omega_col)
+    along_rows = aspect**2 * (2.0 - 2.0 * np.cos(omega_row))
+    eigen = np.empty(tuple(shape), dtype=np.float32)
+
+    def part(start: int, stop: int) -> None:  # the outer sum on every core
+        eigen[start:stop] = along_cols + along_rows[start:stop]
+
+    on_row_blocks(part, *eigen.shape)
+    return eigen
 
 
 def gaussian_lowpass(array: np.ndarray, sigma: float) -> np.ndarray:

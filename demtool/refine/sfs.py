@@ -202,7 +202,10 @@ class _Solver:
         self.taper = border_taper(self.shape, params.border_px)
         self.inner = np.zeros(self.shape, dtype=bool)
         self.inner[1:-1, 1:-1] = True
-        self.g2 = gaussian_transfer(self.shape, params.lowpass_sigma) ** 2
+        transfer = gaussian_transfer(self.shape, params.lowpass_sigma)
+        self.g2 = np.empty(self.shape, dtype=np.float32)
+        on_row_blocks(lambda start, stop: np.square(transfer[start:stop],
+                                                    out=self.g2[start:stop]), *self.shape)
         self.lowpass = BlockGaussianLowpass(self.shape, params.lowpass_sigma)
         self.laplacian = neumann_laplacian_eigenvalues(self.shape, self.aspect)
         self.z0_hat = dct2(self.z0)

@@ -255,3 +255,17 @@ def test_dark_pixels_on_row_parts_are_the_formula(two_threads, monkeypatch):
         usable = np.isfinite(values) if mask is None else mask & np.isfinite(values)
         assert np.array_equal(dark_pixels(values, 0.3, valid=mask, median=0.7),
                               usable & (values < 0.3 * 0.7))
+
+
+def test_dct_domain_terms_in_blocks_are_the_formulas(two_threads, monkeypatch):
+    from demtool.refine import filters, rowwork
+
+    monkeypatch.setattr(rowwork, "BLOCK_ELEMENTS", 300)
+    for shape in [(300, 257), (129, 64)]:
+        rows, cols = filters.dct_frequencies(shape)
+        expected = (np.exp(-0.5 * 5.25**2 * rows**2)
+                    * np.exp(-0.5 * 5.25**2 * cols**2)).astype(np.float32)
+        assert np.array_equal(filters.gaussian_transfer.__wrapped__(shape, 5.25), expected)
+        expected = ((2.0 - 2.0 * np.cos(cols))
+                    + 0.8**2 * (2.0 - 2.0 * np.cos(rows))).astype(np.float32)
+        assert np.array_equal(filters.neumann_laplacian_eigenvalues(shape, 0.8), expected)

@@ -183,14 +183,15 @@ def screen_ray_gaps(gap: np.ndarray, in_front: np.ndarray, max_ray_gap: float | 
     from demtool.errors import ParameterError
 
     gaps = gap[in_front]
-    max_gap = float(max_ray_gap) if max_ray_gap is not None else default_max_ray_gap(gaps,
-                                                                                     gsd_m)
+    median_gap = float(np.median(gaps))  # once: the default threshold starts from it too
+    max_gap = (float(max_ray_gap) if max_ray_gap is not None
+               else default_max_ray_gap(gaps, gsd_m, median=median_gap))
     keep = in_front & (gap <= max_gap)
     dropped, front = int((in_front & ~keep).sum()), int(in_front.sum())
     if max_ray_gap is not None and dropped > MAX_DROPPED_FRACTION * front:
         raise ParameterError(
             f"--max-ray-gap {max_gap:.3g} m drops {dropped} of {front} points "
-            f"({100.0 * dropped / front:.1f} %; median gap {np.median(gaps):.3g} m): the DEM "
+            f"({100.0 * dropped / front:.1f} %; median gap {median_gap:.3g} m): the DEM "
             f"would be interpolated from the {front - dropped} left (at most "
             f"{100 * MAX_DROPPED_FRACTION:.0f} % may be dropped); give a larger --max-ray-gap "
             "or leave it out (median + max(4 NMAD, 2 GSD))")
@@ -198,22 +199,27 @@ def screen_ray_gaps(gap: np.ndarray, in_front: np.ndarray, max_ray_gap: float | 
         log.warning("--max-ray-gap %.3g m drops %d of %d points (%.1f %%): the models may not "
                     "fit this disparity (or give a larger --max-ray-gap)", max_gap, dropped,
                     front, 100.0 * dropped / max(1, front))
-    return keep, max_gap, float(np.median(gaps))
+    return keep, max_gap, median_gap
 
 
-def default_max_ray_gap(gap: np.ndarray, gsd_m: float) -> float:
+def default_max_ray_gap(gap: np.ndarray, gsd_m: float, *,
+                        median: float | None = None) -> float:
     """The default ``--max-ray-gap``: ``median + max(4 NMAD, 2 GSD)`` of the gaps, metres.
 
     Relative to the pair's median gap, so that a systematic offset of the two cameras
     (unadjusted SPICE: every ray pair misses by about the same distance) is reported,
     not used to reject the whole pair; only rays that miss by much more than their
-    neighbours (mismatches) are rejected.
+    neighbours (mismatches) are rejected.  ``median``: ``np.median(gap)`` when the caller
+    has it (used where every gap is finite: then it is the median of the finite ones).
     """
     g = np.asarray(gap, dtype=np.float64)
-    g = g[np.isfinite(g)]
+    finite = np.isfinite(g)
+    if not finite.all():
+        g, median = g[finite], None  # a given median was of all the gaps
     if g.size == 0:
         return float("inf")
-    median = float(np.median(g))
+    if median is None:
+        median = float(np.median(g))
     nmad = 1.4826 * float(np.median(np.abs(g - median)))
     return median + max(GAP_NMADS * nmad, GAP_GSDS * float(gsd_m))
 

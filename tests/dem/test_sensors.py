@@ -55,6 +55,11 @@ def test_default_max_ray_gap():
     limit = default_max_ray_gap(gaps, gsd_m=1.0)
     assert 3.9 < limit < 4.1  # median + 2 GSD (the NMAD term is smaller)
     assert default_max_ray_gap(np.array([np.nan]), 1.0) == np.inf
+    # the caller's median of the gaps (screen_ray_gaps has it) gives the same threshold;
+    # with a NaN among them it is not the finite ones' median and is not used
+    assert default_max_ray_gap(gaps, 1.0, median=float(np.median(gaps))) == limit
+    with_nan = np.r_[gaps, np.nan]
+    assert default_max_ray_gap(with_nan, 1.0, median=-7.0) == limit
 
 
 def test_dem_on_map_grids_heights_above_the_sphere(scene):

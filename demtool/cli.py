@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 import click
 
-from demtool import __version__
 from demtool.errors import DemtoolError
 from demtool.stages import STAGES
 
@@ -115,8 +114,21 @@ def _is_interrupt(exc: BaseException) -> bool:
     return False
 
 
+def _print_version(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
+    """``demtool --version``: the installed version (read only when asked: see
+    :func:`demtool.__getattr__`), in click's ``version_option`` format."""
+    if not value or ctx.resilient_parsing:
+        return
+    import demtool
+
+    click.echo(f"demtool, version {demtool.__version__}")
+    ctx.exit()
+
+
 @click.group(cls=DemtoolGroup, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(__version__, prog_name="demtool")
+@click.option("--version", is_flag=True, expose_value=False, is_eager=True,
+              callback=_print_version,
+              help="Show the version and exit.")
 @click.option("-v", "--verbose", count=True, help="More log output (repeat for more).")
 @click.option("-q", "--quiet", count=True, help="Less log output (repeat for less).")
 @click.option("--debug", is_flag=True, help="Show full tracebacks on errors.")

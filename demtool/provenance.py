@@ -18,7 +18,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from demtool import __version__
+import demtool
 from demtool import io as dio
 
 
@@ -84,7 +84,7 @@ class Provenance:
         """Raster tags: stage, version, parameters, input names, plus ``extra``."""
         tags: dict[str, Any] = {
             "demtool_stage": self.stage,
-            "demtool_version": __version__,
+            "demtool_version": demtool.__version__,
             "demtool_params": self.params,
             "demtool_inputs": [p.name for p in self.inputs],
         }
@@ -96,7 +96,7 @@ class Provenance:
         """The manifest as a dict (what :meth:`write_sidecar` writes)."""
         return {
             "stage": self.stage,
-            "demtool_version": __version__,
+            "demtool_version": demtool.__version__,
             "started_utc": self.started_utc,
             "command": " ".join(["demtool", *sys.argv[1:]]) if sys.argv else None,
             "parameters": self.params,

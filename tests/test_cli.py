@@ -6,6 +6,7 @@ import click
 import pytest
 from click.testing import CliRunner
 
+import demtool
 from demtool import __version__
 from demtool.cli import STAGES, cli, stage_options
 from demtool.commands.config import load_config, to_default_map
@@ -24,8 +25,29 @@ def test_help_lists_every_stage():
 
 
 def test_version():
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        installed = version("demtool")
+    except PackageNotFoundError:  # a source tree that is not installed
+        installed = "0.1.0"
+    assert __version__ == installed
     result = CliRunner().invoke(cli, ["--version"])
-    assert result.exit_code == 0 and __version__ in result.output
+    assert result.exit_code == 0 and result.output == f"demtool, version {installed}\n"
+    with pytest.raises(AttributeError, match="no attribute 'version'"):
+        demtool.version  # noqa: B018
+
+
+def test_the_version_is_read_only_when_asked():
+    import subprocess
+    import sys
+
+    code = ("import sys, demtool, demtool.cli\n"
+            "before = 'importlib.metadata' in sys.modules\n"
+            "print(before, demtool.__version__ == demtool.__dict__['__version__'])\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=120)
+    assert out.stdout.split() == ["False", "True"]
 
 
 @pytest.mark.parametrize("stage", list(STAGES))

@@ -207,34 +207,58 @@ def to_pyproj_crs(crs: Any):
 _NAME_YEAR = re.compile(r"^(?P<name>.+?) \((?P<year>\d{4})\)")
 
 
-@functools.lru_cache(maxsize=1)
 def _registry() -> tuple[dict[int, Body], dict[str, int]]:
-    """Bodies of PROJ's IAU_2015 authority, keyed by NAIF id, and a name index."""
-    from pyproj import CRS
-    from pyproj.database import query_crs_info
+    """Every body of PROJ's IAU_2015 authority, keyed by NAIF id, and the name index.
 
-    spheres: dict[int, tuple[str, float]] = {}
-    ellipsoids: dict[int, tuple[float, float]] = {}
-    for info in query_crs_info(auth_name="IAU_2015"):
-        code = int(info.code)
-        naif, offset = divmod(code, 100)
-        if offset not in (0, 2):
-            continue
-        crs = CRS.from_user_input(f"IAU_2015:{code}")
-        match = _NAME_YEAR.match(info.name)
-        if match is None:
-            continue
-        if offset == 0:
-            spheres[naif] = (match.group("name"), crs.ellipsoid.semi_major_metre)
-        else:
-            ellipsoids[naif] = (crs.ellipsoid.semi_major_metre, crs.ellipsoid.semi_minor_metre)
-    bodies: dict[int, Body] = {}
+    Only :func:`known_bodies` and the radius match of :func:`body_from_radii` need them
+    all; a lookup by NAIF id or name builds the one body it asks for (:func:`_body`).
+    """
+    spheres = sorted(code // 100 for code in _iau_codes() if code % 100 == 0)
+    bodies = {naif: body for naif in spheres if (body := _body(naif)) is not None}
+    return bodies, _names()
+
+
+@functools.lru_cache(maxsize=1)
+def _names() -> dict[str, int]:
+    """Lower-case body name → NAIF id, from the names of PROJ's IAU_2015 ``+0`` CRSs
+    ("Moon (2015) - Sphere / Ocentric"), in PROJ's code order.
+
+    Read from PROJ's CRS list without constructing a CRS (constructing all ~115
+    geographic ones took 0.1–0.2 CPU s of every command that looked a body up).
+    """
+    from pyproj.database import query_crs_info
+    from pyproj.enums import PJType
+
     names: dict[str, int] = {}
-    for naif, (name, radius) in spheres.items():
-        a, c = ellipsoids.get(naif, (radius, radius))
-        bodies[naif] = Body(name=name, naif_id=naif, a=a, b=a, c=c, radius=radius)
-        names[name.lower()] = naif
-    return bodies, names
+    for info in query_crs_info(auth_name="IAU_2015", pj_types=[PJType.GEOGRAPHIC_2D_CRS]):
+        naif, offset = divmod(int(info.code), 100)
+        match = _NAME_YEAR.match(info.name)
+        if offset == 0 and match is not None:
+            names[match.group("name").lower()] = naif
+    return names
+
+
+@functools.cache
+def _body(naif: int) -> Body | None:
+    """The body of one NAIF id from its IAU_2015 ``+0`` (sphere) and ``+2`` (ellipsoid,
+    planetocentric) CRSs; None when PROJ has no ``+0`` CRS for it."""
+    from pyproj import CRS
+
+    codes = _iau_codes()
+    if naif * 100 not in codes:
+        return None
+    sphere = CRS.from_user_input(f"IAU_2015:{naif * 100}")
+    match = _NAME_YEAR.match(sphere.name)
+    if match is None:
+        return None
+    radius = sphere.ellipsoid.semi_major_metre
+    a = c = radius
+    if naif * 100 + 2 in codes:
+        ellipsoid = CRS.from_user_input(f"IAU_2015:{naif * 100 + 2}")
+        if _NAME_YEAR.match(ellipsoid.name) is not None:
+            a = ellipsoid.ellipsoid.semi_major_metre
+            c = ellipsoid.ellipsoid.semi_minor_metre
+    return Body(name=match.group("name"), naif_id=naif, a=a, b=a, c=c, radius=radius)
 
 
 def known_bodies() -> list[Body]:
@@ -251,11 +275,10 @@ def body_by_naif_id(naif_id: int) -> Body:
     KeyError
         When PROJ has no IAU 2015 CRS for that id.
     """
-    bodies, _ = _registry()
-    try:
-        return bodies[int(naif_id)]
-    except KeyError:
-        raise KeyError(f"PROJ has no IAU 2015 body with NAIF id {naif_id}") from None
+    body = _body(int(naif_id))
+    if body is None:
+        raise KeyError(f"PROJ has no IAU 2015 body with NAIF id {naif_id}")
+    return body
 
 
 def body_by_name(name: str) -> Body:
@@ -276,7 +299,7 @@ def body_by_name(name: str) -> Body:
 
 
 def _find_name(text: str) -> int | None:
-    _, names = _registry()
+    names = _names()
     key = text.strip().lower()
     if key in names:
         return names[key]
@@ -354,7 +377,7 @@ def body_from_radii(a: float, b: float | None = None, c: float | None = None, *,
         raise ValueError(f"body radii must be positive finite metres, got {radii}")
     known: Body | None = None
     if naif_id is not None:
-        known = _registry()[0].get(int(naif_id))
+        known = _body(int(naif_id))
     if known is None and name:
         found = _find_name(name)
         known = body_by_naif_id(found) if found is not None else None
@@ -434,7 +457,7 @@ def _identify_body(crs) -> Body:
         naif = EARTH_NAIF_ID
     # a CRS on an ellipsoid measures geodetic latitudes and heights along the normal
     reference = "sphere" if a == c else "ellipsoid"
-    if naif is not None and naif in _registry()[0]:
+    if naif is not None and _body(naif) is not None:
         known = body_by_naif_id(naif)
         return Body(name=known.name, naif_id=known.naif_id, a=a, b=a, c=c, radius=a,
                     height_reference=reference)

@@ -154,3 +154,20 @@ def test_body_from_crs_asks_proj_once_per_crs(monkeypatch):
     assert bodies.body_from_crs(CRS.from_proj4(moon)) == first and len(calls) == 1
     mars = bodies.body_from_crs("IAU_2015:49900")
     assert len(calls) == 2 and mars.naif_id == 499 and first.naif_id == 301
+
+
+def test_a_lookup_builds_only_the_body_it_asks_for():
+    from demtool.maps import bodies
+
+    bodies._body.cache_clear()
+    bodies._BODIES_OF_CRS.clear()
+    assert maps.body_by_naif_id(499).name == "Mars"
+    assert maps.body_from_radii(1737150.0, name="MOON").naif_id == 301
+    assert maps.body_from_crs("IAU_2015:100001230").naif_id == 1000012
+    assert bodies._body.cache_info().currsize == 3  # not one per body PROJ knows
+    # the whole registry (known_bodies, the radius match) gives the same bodies
+    every = {body.naif_id: body for body in maps.known_bodies()}
+    assert len(every) > 50 and bodies._body.cache_info().currsize >= len(every)
+    for naif in (10, 301, 499, 502, 1000012):
+        assert every[naif] == maps.body_by_naif_id(naif)
+    assert every[502].name == "Europa" and every[10].name == "Sun"

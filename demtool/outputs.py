@@ -29,6 +29,7 @@ import contextvars
 import errno
 import os
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
@@ -383,6 +384,36 @@ def output_transaction(inputs: Paths = None, outputs: Paths = None, *,
         _current_transaction.reset(token)
 
 
+_UMASK_SWAP = threading.Lock()
+
+
+def process_umask() -> int:
+    """The process's file-mode creation mask, read without changing it.
+
+    ``os.umask`` can only be read by setting it: done on one thread while another
+    creates a file (a tile's raster, GDAL's sidecar), the file would get the
+    temporary mask.  Linux (≥ 4.7) shows the mask in ``/proc/self/status``
+    (``Umask:`` in octal, proc(5)); elsewhere it is swapped and restored under a
+    lock, which keeps concurrent calls of this function from reading each other's 0.
+
+    Returns
+    -------
+    int
+        The mask, e.g. ``0o022``.
+    """
+    try:
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    with _UMASK_SWAP:
+        umask = os.umask(0)
+        os.umask(umask)
+    return umask
+
+
 @contextlib.contextmanager
 def atomic_path(path: PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; move it into place when the block succeeds.
@@ -418,9 +449,7 @@ def atomic_path(path: PathLike, suffix: str | None = None) -> Iterator[Path]:
                                         dir=final.parent)
         os.close(handle)
         # mkstemp creates 0600 files; outputs get the permissions any new file would get.
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(name, 0o666 & ~umask)
+        os.chmod(name, 0o666 & ~process_umask())
     except OSError as exc:
         _remove_folders(created)
         raise write_error(final, exc) from None

@@ -283,3 +283,30 @@ def test_undeclared_writes_are_refused_when_checked(files, monkeypatch):
     with dio.output_transaction(**declared):  # users are not refused: the check is for tests
         dio.write_json(folder / "extra.json", {})
     assert (folder / "extra.json").exists()
+
+
+def test_umask_read_on_threads_never_leaks_a_zero_mask(tmp_path):
+    """Outputs written on several threads get the process mask, and the mask stays put.
+
+    ``os.umask`` can only be read by setting it: read that way on one thread while
+    another creates a file, the file got mode 0666 and the process could keep mask 0.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from demtool.outputs import process_umask
+
+    before = os.umask(0o027)
+    try:
+        assert process_umask() == 0o027
+
+        def write(index):
+            with dio.atomic_path(tmp_path / f"out{index}.bin") as temporary:
+                temporary.write_bytes(b"x")
+            return (tmp_path / f"out{index}.bin").stat().st_mode & 0o777
+
+        with ThreadPoolExecutor(4) as pool:
+            modes = set(pool.map(write, range(200)))
+        assert modes == {0o640}
+        assert process_umask() == 0o027
+    finally:
+        os.umask(before)

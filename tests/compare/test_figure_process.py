@@ -1,13 +1,12 @@
 """A figure drawn in a forked child (demtool.compare.figure_process): the child's bytes
-and CPU, the same exception when it fails, and no child left behind."""
+and CPU, the same exception when it fails, and no child left behind.  (The forked
+dems.png equals one-at-a-time drawing to the byte: tests/compare/test_threads.py.)"""
 
 import os
 import time
 
-import numpy as np
 import pytest
 
-from demtool.compare import threads
 from demtool.compare.figure_process import Apart, forking
 
 pytestmark = pytest.mark.skipif(not forking(), reason="figures are forked on Linux only")
@@ -53,24 +52,3 @@ def test_leaving_early_stops_and_reaps_the_child():
     assert time.perf_counter() - start < 5
     with pytest.raises(ChildProcessError):
         os.waitpid(pid, os.WNOHANG)  # reaped: no zombie left
-
-
-@pytest.mark.slow  # six small figures, one of them in a child: ~2 CPU s
-def test_the_forked_figures_phase_counts_the_childs_cpu(monkeypatch):
-    """(The bytes equal one-at-a-time drawing: tests/compare/test_threads.py, whose grid
-    is past the lowered THREADED_CELLS too, so its dems.png is drawn in a child.)"""
-    from demtool.compare import compare_dems
-    from demtool.compare.plots import default_profiles
-    from demtool.compare.report import make_figures
-
-    rng = np.random.default_rng(5)
-    reference = rng.normal(size=(24, 30)).cumsum(0).cumsum(1) * 0.1
-    dem = reference + rng.normal(scale=0.05, size=reference.shape) - 0.3
-    comparison = compare_dems(dem, reference, spacing=2.0)
-    monkeypatch.setattr(threads, "THREADED_CELLS", 64)
-    timings = {"figures_cpu": 1.0}
-    figures = make_figures([("dem", comparison)], reference,
-                           default_profiles(reference.shape), (2.0, 2.0), "dem",
-                           timings=timings)
-    assert figures["dems.png"].startswith(b"\x89PNG") and len(figures) == 6
-    assert timings["figures_cpu"] > 1.0  # the child's CPU added to the phase's

@@ -171,3 +171,24 @@ def test_a_lookup_builds_only_the_body_it_asks_for():
     for naif in (10, 301, 499, 502, 1000012):
         assert every[naif] == maps.body_by_naif_id(naif)
     assert every[502].name == "Europa" and every[10].name == "Sun"
+    # the name index (from PROJ's spheres' names) names each body as its CRS does
+    assert all(maps.body_by_name(body.name) == body for body in every.values())
+
+
+def test_radius_match_equals_a_match_against_every_known_body():
+    from math import isclose
+
+    from demtool.maps.bodies import RADIUS_RTOL as rtol
+
+    every = maps.known_bodies()
+
+    def brute_force(a, c):  # a unique match of the sphere's radius or the ellipsoid's a, c
+        found = [b for b in every if isclose(b.radius, a, rel_tol=rtol)
+                 or (not b.is_sphere and isclose(b.a, a, rel_tol=rtol)
+                     and isclose(b.c, c, rel_tol=rtol))]
+        return found[0].naif_id if len(found) == 1 else None
+
+    for body in every:
+        for a, c in [(body.radius, body.radius), (body.a, body.c),
+                     (body.radius * (1 + 5e-7), body.radius), (body.radius * 1.01, body.c)]:
+            assert maps.body_from_radii(a, a, c).naif_id == brute_force(a, c), (body, a, c)

@@ -19,7 +19,6 @@ __all__ = [
     "dems_figure",
     "difference_figure",
     "hillshade",
-    "import_matplotlib",
     "histogram_figure",
     "profile_samples",
     "profiles_figure",
@@ -45,15 +44,6 @@ def _pyplot():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def import_matplotlib() -> None:
-    """Import what the figures use (matplotlib's Agg canvas, figure, colour bar and
-    contours; its font list is read on import), e.g. before forking a figure's process."""
-    import matplotlib.backends.backend_agg  # noqa: F401
-    import matplotlib.colorbar  # noqa: F401
-    import matplotlib.contour  # noqa: F401
-    import matplotlib.figure  # noqa: F401
 
 
 def _figure(width_in: float, height_in: float, *, left: float = 0.8, right: float = 0.25,

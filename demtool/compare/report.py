@@ -15,14 +15,6 @@ HTML = "report.html"  # compare --html (demtool.compare.html)
 # The shift in metres and in each input's own pixels (demtool.compare.shift_units).
 UNIT_KEYS = ("shift_m", "shift_uncertainty_m", "shift_input_px")
 
-#: Grids of this many cells or more have their DEMs figure drawn in a forked child (on
-#: Linux) beside the threads drawing the others.  Its full-grid work (percentiles,
-#: gradients) grows with the cells, the fork's cost (page tables, copy-on-write faults)
-#: with the process's memory: measured, at 4096² (16.8 M cells) the figure is ~4 CPU s of
-#: the figures' ~8 and the fork adds no measurable CPU; on the windowed path's 1366²
-#: decimated grid (1.9 M) the figure is ~1.5 CPU s and the fork added ~1 CPU s.
-FORKED_CELLS = 1 << 23
-
 FIGURES = ("difference.png", "dems.png", "profiles.png", "histogram.png", "completeness.png",
            "coherence.png")
 
@@ -160,21 +152,15 @@ def write_report(provenance: Any, out: Path, report: dict[str, Any],
 
 
 def make_figures(comparisons: Sequence[tuple[str, Any]], reference_values, lines,
-                 spacing: tuple[float, float], label: str, *,
-                 timings: dict[str, float] | None = None) -> dict[str, bytes]:
+                 spacing: tuple[float, float], label: str) -> dict[str, bytes]:
     """The PNG figures of a comparison: name -> bytes (``comparisons[0]`` is the main DEM's
     :class:`demtool.compare.Comparison`, the others the ``--also`` DEMs').
 
     On a grid of :data:`demtool.compare.threads.THREADED_CELLS` cells or more, two
     figures are drawn at a time on two threads (each its own matplotlib ``Figure`` on
     the Agg canvas, no pyplot state; matplotlib keeps its fonts per thread; numpy's
-    percentiles and gradients and PIL's compression run outside the GIL) while the DEMs
-    figure, which holds the GIL throughout (its contours), is drawn in a forked child
-    on a grid of :data:`FORKED_CELLS` or more
-    (:class:`demtool.compare.figure_process.Apart`; on Linux): the same PNG bytes as one
-    at a time.  ``timings``: a :class:`demtool.stagerun.StageRun`'s timings, whose
-    ``figures_cpu`` gets the child's CPU seconds (its phase's ``process_time`` counts
-    this process only)."""
+    percentiles and gradients and Agg's rasterising run outside the GIL): the same PNG
+    bytes as one at a time."""
     from demtool.compare import plots as figure_maker
     from demtool.compare.threads import threaded
     from demtool.tiling.tasks import carried
@@ -205,20 +191,7 @@ def make_figures(comparisons: Sequence[tuple[str, Any]], reference_values, lines
         return {name: make() for name, make in makers.items()}
     from concurrent.futures import ThreadPoolExecutor
 
-    from demtool.compare.figure_process import Apart, forking
-
-    if not forking() or main.aligned.size < FORKED_CELLS:
-        with ThreadPoolExecutor(max_workers=2) as pool:  # the largest (dems.png) first
-            order = sorted(makers, key=lambda name: name != "dems.png")
-            drawn = {name: pool.submit(carried(makers[name])) for name in order}
-            return {name: drawn[name].result() for name in makers}
-    figure_maker.import_matplotlib()  # once, before the fork: not again in the child
-    with Apart(makers["dems.png"]) as apart:  # forked before the threads start
-        with ThreadPoolExecutor(max_workers=2) as pool:
-            drawn = {name: pool.submit(carried(make)) for name, make in makers.items()
-                     if name != "dems.png"}
-            figures = {name: drawn[name].result() for name in drawn}
-        figures["dems.png"] = apart.result()
-    if timings is not None:
-        timings["figures_cpu"] = timings.get("figures_cpu", 0.0) + apart.cpu_s
-    return {name: figures[name] for name in makers}
+    with ThreadPoolExecutor(max_workers=2) as pool:  # the largest (dems.png) first
+        order = sorted(makers, key=lambda name: name != "dems.png")
+        drawn = {name: pool.submit(carried(makers[name])) for name in order}
+        return {name: drawn[name].result() for name in makers}

@@ -275,8 +275,7 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     main = comparisons[0][1]
 
     with run.phase("figures"):
-        figures = make_figures(comparisons, reference_values, lines, (sx, sy), label,
-                               timings=run.timings) \
+        figures = make_figures(comparisons, reference_values, lines, (sx, sy), label) \
             if params.plots else {}
     with run.transaction():
         with run.phase("write_difference"):

@@ -502,8 +502,7 @@ def compare_windowed(run: Any, dem_path: str | os.PathLike, reference_path: str 
                 figures = make_figures([(n, r["comparison"]) for n, r in results],
                                        main["comparison"].reference, decimated,
                                        (target.spacing[0] * factor,
-                                        target.spacing[1] * factor), label,
-                                       timings=run.timings)
+                                        target.spacing[1] * factor), label)
         write_report(provenance, out, report, figures, html=params.html,
                      timings=run.timings)
     return report

@@ -22,6 +22,7 @@ __all__ = [
     "histogram_figure",
     "profile_samples",
     "profiles_figure",
+    "symmetric_limit",
 ]
 
 DPI = 110
@@ -140,7 +141,9 @@ def hillshade(dem: np.ndarray, spacing: tuple[float, float] = (1.0, 1.0), *,
     return np.clip(shade, 0.0, 1.0)
 
 
-def _symmetric_limit(values: np.ndarray) -> float:
+def symmetric_limit(values: np.ndarray) -> float:
+    """The 98th percentile of |values| over the finite ones (the difference map's colour
+    limits ±; 1.5 × it, the histogram's range): 1 when none, the largest when it is 0."""
     finite = np.abs(values[np.isfinite(values)])
     if finite.size == 0:
         return 1.0
@@ -149,9 +152,11 @@ def _symmetric_limit(values: np.ndarray) -> float:
 
 
 def difference_figure(difference: np.ndarray, spacing: tuple[float, float], *,
-                      title: str = "", stats: dict[str, Any] | None = None) -> bytes:
-    """Difference map, diverging colour map with symmetric limits (±98th pct of |dh|)."""
-    limit = _symmetric_limit(difference)
+                      title: str = "", stats: dict[str, Any] | None = None,
+                      limit: float | None = None) -> bytes:
+    """Difference map, diverging colour map with symmetric limits (±98th pct of |dh|:
+    ``limit``, :func:`symmetric_limit` of ``difference``, when the caller has it)."""
+    limit = symmetric_limit(difference) if limit is None else limit
     figure, axes = _figure(7, 6, right=0.2, top=0.6)
     axis = axes[0, 0]
     image = _map_image(axis, difference, spacing, display_stride(difference.shape),
@@ -252,13 +257,15 @@ def profiles_figure(dems: Sequence[tuple[str, np.ndarray]],
 
 
 def histogram_figure(difference: np.ndarray, *, stats: dict[str, Any] | None = None,
-                     title: str = "") -> bytes:
-    """Histogram of the differences with a normal curve of the NMAD for comparison."""
+                     title: str = "", limit: float | None = None) -> bytes:
+    """Histogram of the differences with a normal curve of the NMAD for comparison
+    (within 1.5 × ``limit`` of their median; ``limit``: :func:`symmetric_limit` of
+    ``difference``, when the caller has it)."""
     values = difference[np.isfinite(difference)]
     figure, axes = _figure(7, 4.5, top=0.6)
     axis = axes[0, 0]
     if values.size:
-        limit = _symmetric_limit(values) * 1.5
+        limit = (symmetric_limit(values) if limit is None else limit) * 1.5
         inside = values[np.abs(values - np.median(values)) <= limit]
         axis.hist(inside, bins=100, density=True, color="0.55", label="DEM − reference")
         if stats and stats.get("nmad"):

@@ -161,15 +161,21 @@ def make_figures(comparisons: Sequence[tuple[str, Any]], reference_values, lines
     the Agg canvas, no pyplot state; matplotlib keeps its fonts per thread; numpy's
     percentiles and gradients and Agg's rasterising run outside the GIL): the same PNG
     bytes as one at a time."""
+    import functools
+
     from demtool.compare import plots as figure_maker
     from demtool.compare.threads import threaded
     from demtool.tiling.tasks import carried
 
     main = comparisons[0][1]
     stats = main.report
+    # the difference map's and the histogram's limit: one percentile of the finite |dh|
+    # (of the same values in the same order: the same number), not one each
+    limit = functools.cache(lambda: figure_maker.symmetric_limit(main.difference))
     makers: dict[str, Callable[[], bytes]] = {
         "difference.png": lambda: figure_maker.difference_figure(
-            main.difference, spacing, title=f"{label} − reference", stats=stats),
+            main.difference, spacing, title=f"{label} − reference", stats=stats,
+            limit=limit()),
         "dems.png": lambda: figure_maker.dems_figure(
             [(label, main.aligned), *[(n, c.aligned) for n, c in comparisons[1:]],
              ("reference", reference_values)], spacing),
@@ -177,7 +183,7 @@ def make_figures(comparisons: Sequence[tuple[str, Any]], reference_values, lines
             [("reference", reference_values), (label, main.aligned),
              *[(n, c.aligned) for n, c in comparisons[1:]]], lines, spacing),
         "histogram.png": lambda: figure_maker.histogram_figure(
-            main.difference, stats=stats, title=f"{label} − reference"),
+            main.difference, stats=stats, title=f"{label} − reference", limit=limit()),
         "completeness.png": lambda: figure_maker.completeness_figure(
             main.coverage, spacing, percent=main.report["completeness"], title=label),
     }

@@ -123,3 +123,21 @@ def test_profiles_and_grids_share_one_compiled_sampler():
     assert np.array_equal(on_grid.ravel(), along, equal_nan=True)
     assert single == on_grid[2, 3]
     assert len(grids._sample_bilinear.signatures) == 1
+
+
+def test_a_given_limit_is_the_one_each_figure_finds():
+    """make_figures computes the |dh| percentile once for the difference map and the
+    histogram: the same number, so the same bytes as each finding its own."""
+    from demtool.compare.plots import difference_figure, histogram_figure, symmetric_limit
+
+    rng = np.random.default_rng(8)
+    difference = rng.normal(scale=0.3, size=(30, 40))
+    difference[3:6, 7:9] = np.nan
+    stats = {"rmse": 0.3, "nmad": 0.3, "mean": 0.0, "median": 0.0, "count": 1194,
+             "le90": 0.5}
+    limit = symmetric_limit(difference)
+    assert limit == symmetric_limit(difference[np.isfinite(difference)])
+    assert difference_figure(difference, (2.0, 2.0), stats=stats, limit=limit) == \
+        difference_figure(difference, (2.0, 2.0), stats=stats)
+    assert histogram_figure(difference, stats=stats, limit=limit) == \
+        histogram_figure(difference, stats=stats)

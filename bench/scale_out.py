@@ -154,6 +154,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="write each stage's bench/results/<result>.json, machine "
                              "described so")
     parser.add_argument("--note", default="", help="appended to the recorded notes")
+    parser.add_argument("--record-as", metavar="SUFFIX", default="",
+                        help="record into bench/results/<result>_SUFFIX.json instead: a "
+                             "second size of a stage beside its usual one (e.g. 8192)")
     parser.add_argument("--processes", action="store_true",
                         help="also run the 2 workers as a local Dask cluster of processes "
                              "(DEMTOOL_TILE_PROCESSES=1), for an A/B in one run")
@@ -187,7 +190,8 @@ def record(case, args, tile: int, columns: list[str], rows: list[list[str]]) -> 
     stage = "" if case.stage == "sgm-census" else f" --stage {case.stage}"
     stage += " --processes" if args.processes else ""
     write_result(
-        case.result, section="Large images", order=53,
+        f"{case.result}_{args.record_as}" if args.record_as else case.result,
+        section="Large images", order=53,
         title=case.title(args.size, tile),
         command=f"python bench/scale_out.py{stage} --size {args.size}"
                 + (f" --tile-size {tile}" if case.tile_size else ""),

@@ -150,27 +150,6 @@ def test_only_windows_are_read(pair, tmp_path, monkeypatch):
     assert report["windowed"]["passes"] >= 3  # moments, then the order statistics
 
 
-def test_each_raster_is_opened_once_a_reading_thread_and_closed(pair, tmp_path,
-                                                                 monkeypatch):
-    """The windows' reads share one open dataset per raster and thread (an open costs
-    10–15 ms), all closed when the passes end (the report: the in-memory one's, as
-    test_windowed_compare_equals_the_in_memory_one checks)."""
-    opened = []
-
-    class Counted(dio.WindowReader):
-        def __init__(self, path, what="raster"):
-            super().__init__(path, what)
-            opened.append(self)
-
-    monkeypatch.setattr(dio, "WindowReader", Counted)
-    report = compare(pair, tmp_path / "kept", tile_size=32, mask="mask.tif")
-    assert report["windowed"]["windows"] == 9
-    names = sorted(r.path.name for r in opened)
-    assert set(names) == {"dem.tif", "mask.tif", "reference.tif"}
-    assert len(names) <= 3 * 2  # at most one a raster on each of two threads, not 9+
-    assert all(r._dataset.closed for r in opened)
-
-
 def test_a_grid_beyond_the_memory_budget_is_compared_in_windows(tmp_path):
     """160² cells × 160 bytes > 3 MiB: windows of √(3 MiB / 160) = 140 cells, the
     alignment on every 2nd cell (3 MiB / 400 bytes = 7864 cells < 160²)."""

@@ -375,50 +375,14 @@ def raster_info(path: str | os.PathLike, *, what: str = "raster") -> RasterInfo:
                           path=p)
 
 
-class WindowReader:
-    """:func:`read_window`'s reads from one raster (``path``; ``what``: for messages)
-    kept open: opening a GeoTIFF (header, tags, CRS) costs 10–15 ms of CPU, a window's
-    read on the open dataset none of that.  One thread's reader: a GDAL dataset handle
-    must not be used by two threads at once.  A context manager (or :meth:`close` it)."""
-
-    def __init__(self, path: str | os.PathLike, what: str = "raster") -> None:
-        self.path, self.what = Path(path), what
-        self._dataset = _open_dataset(self.path, what)
-
-    def __enter__(self) -> WindowReader:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def close(self) -> None:
-        self._dataset.close()
-
-    def read(self, window: tuple[int, int, int, int], *, band: int = 1) -> np.ndarray:
-        """Rows ``row0:row1`` and columns ``col0:col1`` of one band: see
-        :func:`read_window`."""
-        from rasterio.errors import NotGeoreferencedWarning, RasterioError
-        from rasterio.windows import Window
-
-        r0, r1, c0, c1 = (int(v) for v in window)
-        dataset = self._dataset
-        try:
-            with ignoring(NotGeoreferencedWarning):
-                data = dataset.read([band], window=Window(c0, r0, c1 - c0, r1 - r0),
-                                    masked=True)
-        except (RasterioError, ValueError) as exc:
-            raise InputError(f"{self.path}: cannot read {self.what}: "
-                             f"{_first_line(exc)}") from None
-        return physical_values(data, [dataset.scales[band - 1]],
-                               [dataset.offsets[band - 1]])[0]
-
-
 def read_window(path: str | os.PathLike, window: tuple[int, int, int, int], *,
                 band: int = 1, what: str = "raster") -> np.ndarray:
     """Read rows ``row0:row1`` and columns ``col0:col1`` of one band as float32, NaN nodata.
 
-    The band's scale and offset are applied as in :func:`read_raster`.  Many windows of
-    one raster: :class:`WindowReader` opens it once.
+    The band's scale and offset are applied as in :func:`read_raster`.  The raster is
+    opened for the window and closed: GDAL keeps the blocks an open dataset read in
+    its block cache until it is closed (up to ``GDAL_CACHEMAX``), outside any memory
+    budget of the caller.
 
     Parameters
     ----------
@@ -431,8 +395,20 @@ def read_window(path: str | os.PathLike, window: tuple[int, int, int, int], *,
     -------
     (row1 − row0, col1 − col0) float32
     """
-    with WindowReader(path, what) as reader:
-        return reader.read(window, band=band)
+    from rasterio.errors import NotGeoreferencedWarning, RasterioError
+    from rasterio.windows import Window
+
+    p = Path(path)
+    r0, r1, c0, c1 = (int(v) for v in window)
+    with _open_dataset(p, what) as dataset:
+        try:
+            with ignoring(NotGeoreferencedWarning):
+                data = dataset.read([band], window=Window(c0, r0, c1 - c0, r1 - r0),
+                                    masked=True)
+        except (RasterioError, ValueError) as exc:
+            raise InputError(f"{p}: cannot read {what}: {_first_line(exc)}") from None
+        return physical_values(data, [dataset.scales[band - 1]],
+                               [dataset.offsets[band - 1]])[0]
 
 
 def read_decimated(path: str | os.PathLike, *, max_side: int = 256, band: int = 1,

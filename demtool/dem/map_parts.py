@@ -63,41 +63,6 @@ def finite_extent(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float, fl
             float(max(e[2] for e in extents)), float(max(e[3] for e in extents)))
 
 
-def batched_into(function, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
-    """:func:`demtool.mapproject.threads.batched`, without its concatenation on the
-    calling thread (at 2048²: 0.25 CPU s of one core in the grid phase, 0.06 in the
-    triangulation): the same batches on the same threads, each writing its results
-    into whole arrays, made (of the first finished batch's dtypes and trailing shapes:
-    ``function`` must give every batch the same) as the batches end.  The values of one
-    call, as ``batched``'s."""
-    import threading
-
-    from demtool.mapproject.threads import MIN_BATCH, available_threads, ordered_map
-
-    n = len(arrays[0])
-    threads = available_threads()
-    batches = min(4 * threads, n // MIN_BATCH)
-    if threads == 1 or batches < 2:
-        return tuple(function(*arrays))
-    bounds = np.linspace(0, n, batches + 1).astype(np.int64)
-    results: list[np.ndarray] = []
-    made = threading.Lock()
-
-    def batch(k: int) -> None:
-        lo, hi = bounds[k], bounds[k + 1]
-        found = [np.asarray(part) for part in function(*(a[lo:hi] for a in arrays))]
-        with made:
-            if not results:
-                results.extend(np.empty((n, *part.shape[1:]), dtype=part.dtype)
-                               for part in found)
-        for result, part in zip(results, found, strict=True):
-            result[lo:hi] = part
-
-    for _ in ordered_map(batch, range(batches), threads=threads):
-        pass
-    return tuple(results)
-
-
 def map_pixels(x: np.ndarray, y: np.ndarray, transform) -> np.ndarray:
     """(N, 2) pixel positions (column, row) of map points on a north-up grid, pixel
     centres at integers: ``(x − c) / a − 0.5``, ``(y − f) / e − 0.5``."""

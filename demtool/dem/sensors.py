@@ -94,9 +94,9 @@ def triangulate_sensors(left: SensorModel, right: SensorModel, left_line, left_s
     Triangulation
         Rays from each model's ``image_to_ray``; ``in_front`` False where the closest
         points lie behind either camera (reject those).  Computed in batches on every
-        core (:func:`demtool.dem.map_parts.batched_into`), the same values as one batch.
+        core (:func:`demtool.mapproject.threads.batched`), the same values as one batch.
     """
-    from demtool.dem.map_parts import batched_into
+    from demtool.mapproject.threads import batched
 
     def triangulate(l_line, l_sample, r_line, r_sample):
         ray_l = left.image_to_ray(l_line, l_sample)
@@ -104,7 +104,7 @@ def triangulate_sensors(left: SensorModel, right: SensorModel, left_line, left_s
         return intersect_rays(ray_l.origin, ray_l.direction, ray_r.origin, ray_r.direction)
 
     # each correspondence on its own: in batches on every core, the values of one call
-    return Triangulation(*batched_into(triangulate, *(np.asarray(v, float).ravel() for v in (
+    return Triangulation(*batched(triangulate, *(np.asarray(v, float).ravel() for v in (
         left_line, left_sample, right_line, right_sample))))
 
 
@@ -129,7 +129,7 @@ def triangulate_ground_rays(origin_left, ground_left, origin_right, ground_right
         As :func:`triangulate_sensors`, in batches on every core (the values of one
         batch).
     """
-    from demtool.dem.map_parts import batched_into
+    from demtool.mapproject.threads import batched
 
     def triangulate(o_l, g_l, o_r, g_r):
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -139,7 +139,7 @@ def triangulate_ground_rays(origin_left, ground_left, origin_right, ground_right
             v /= np.linalg.norm(v, axis=1)[:, None]
         return intersect_rays(o_l, u, o_r, v)
 
-    return Triangulation(*batched_into(triangulate, *(np.asarray(a, dtype=np.float64).reshape(
+    return Triangulation(*batched(triangulate, *(np.asarray(a, dtype=np.float64).reshape(
         -1, 3) for a in (origin_left, ground_left, origin_right, ground_right))))
 
 
@@ -292,23 +292,24 @@ def points_on_map(xyz: np.ndarray, body, *, gsd_m: float, projection: str = "aut
     xyz : (N, 3) float, metres, body-fixed, finite; body, gsd_m, projection, crs as in
     :func:`dem_on_map`.
     """
-    from demtool.dem.map_parts import batched_into, finite_extent
+    from demtool.dem.map_parts import finite_extent
+    from demtool.mapproject.threads import batched
     from demtool.maps.frames import xyz_to_lonlat_height
     from demtool.maps.grids import snap_grid
     from demtool.maps.projections import choose_projection, lonlat_to_map
 
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-    lon, lat, height = batched_into(lambda p: xyz_to_lonlat_height(p, radii=body.surface), xyz)
+    lon, lat, height = batched(lambda p: xyz_to_lonlat_height(p, radii=body.surface), xyz)
     if crs is None:
         crs = choose_projection(body, lon, lat, projection)
-    x, y = batched_into(lambda a, b: lonlat_to_map(crs, a, b), lon, lat)
+    x, y = batched(lambda a, b: lonlat_to_map(crs, a, b), lon, lat)
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     extent = finite_extent(x, y)  # of the points with a finite x and y
     if extent is None:
         raise ValueError("footprint cannot be projected in the chosen CRS")
     grid = snap_grid(crs, *extent, gsd_m)
     if grid.crs != crs:  # the grid's own CRS object places the points, as dem_on_map did
-        x, y = batched_into(lambda a, b: lonlat_to_map(grid.crs, a, b), lon, lat)
+        x, y = batched(lambda a, b: lonlat_to_map(grid.crs, a, b), lon, lat)
     return MapPoints(grid, np.asarray(x), np.asarray(y), height)
 
 

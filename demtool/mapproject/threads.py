@@ -12,6 +12,7 @@ be alone, so the output does not depend on the number of threads.
 from __future__ import annotations
 
 import contextlib
+import threading
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -37,7 +38,7 @@ def batched(function: Callable[..., tuple[np.ndarray, ...]], *arrays: np.ndarray
             threads: int | None = None, min_batch: int | None = None
             ) -> tuple[np.ndarray, ...]:
     """``function(*arrays)`` evaluated in batches along the arrays' first axis on every
-    core, the batches' results concatenated.
+    core, each batch's results written into whole arrays on its own thread.
 
     For functions that treat each element on its own (a sensor model's ground-to-image:
     a line scanner's secant search stops point by point; ray intersections), so the
@@ -48,7 +49,7 @@ def batched(function: Callable[..., tuple[np.ndarray, ...]], *arrays: np.ndarray
     ----------
     function : callable
         Takes the arrays (sliced alike) and returns a tuple of arrays whose first axis
-        is the elements'.
+        is the elements' (every batch the same dtypes and trailing shapes).
     *arrays : (N, ...) arrays
     threads : int, optional
         Default :func:`available_threads`.
@@ -66,11 +67,24 @@ def batched(function: Callable[..., tuple[np.ndarray, ...]], *arrays: np.ndarray
     if threads == 1 or batches < 2:
         return tuple(function(*arrays))
     bounds = np.linspace(0, n, batches + 1).astype(np.int64)
-    parts = list(ordered_map(lambda k: tuple(function(*(a[bounds[k]:bounds[k + 1]]
-                                                        for a in arrays))),
-                             range(batches), threads=threads))
-    return tuple(np.concatenate([part[i] for part in parts])
-                 for i in range(len(parts[0])))
+    results: list[np.ndarray] = []
+    made = threading.Lock()
+
+    def batch(k: int) -> None:
+        # each batch writes into whole arrays (made of the first finished batch's dtypes
+        # and trailing shapes) instead of the calling thread concatenating them after
+        lo, hi = bounds[k], bounds[k + 1]
+        found = [np.asarray(part) for part in function(*(a[lo:hi] for a in arrays))]
+        with made:
+            if not results:
+                results.extend(np.empty((n, *part.shape[1:]), dtype=part.dtype)
+                               for part in found)
+        for result, part in zip(results, found, strict=True):
+            result[lo:hi] = part
+
+    for _ in ordered_map(batch, range(batches), threads=threads):
+        pass
+    return tuple(results)
 
 
 def ground_to_image_threaded(sensor: Any, xyz: np.ndarray, *, threads: int | None = None,

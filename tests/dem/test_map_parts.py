@@ -46,8 +46,10 @@ def test_point_steps_equal_numpy(small_parts):
     def function(a, b):  # (N, 3) float64, (N,) bool and (N,) float64 results
         return np.stack([a, b, a * b], axis=-1), a > b, a + b
 
-    one = _on_one_thread(map_parts.batched_into, function, x, y)
-    many = map_parts.batched_into(function, x, y)
+    from demtool.mapproject.threads import batched
+
+    one = _on_one_thread(batched, function, x, y)
+    many = batched(function, x, y)
     for a, b, c in zip(one, many, function(x, y), strict=True):
         assert a.dtype == b.dtype == c.dtype and a.shape == b.shape == c.shape
         np.testing.assert_array_equal(a, c)

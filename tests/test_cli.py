@@ -148,7 +148,8 @@ def test_an_error_that_is_no_interrupt_still_surfaces(monkeypatch):
 
 def test_main_pauses_the_cycle_collector_only_for_the_imports(monkeypatch):
     """main() turns Python's gc off for the imports; the group callback freezes what they
-    made and turns it back on, and it is on again however the command ends."""
+    made and turns it back on, and it is on again however the command ends, with what is
+    alive then frozen (the interpreter's shutdown collections skip it)."""
     import gc
     import signal
     import warnings
@@ -158,15 +159,25 @@ def test_main_pauses_the_cycle_collector_only_for_the_imports(monkeypatch):
     monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # main reroutes it
     previous = signal.getsignal(signal.SIGTERM)
     seen = []
+    original_freeze = gc.freeze
+
+    def freeze():  # record whether it ran with gc on (after the group callback's)
+        seen[-1].append(gc.isenabled())
+        original_freeze()
+
+    monkeypatch.setattr(gc, "freeze", freeze)
     try:
         for argv in (["--version"], ["--no-such-option"], ["sgm", "--no-such-option"],
                      ["warm", "--help"]):
+            seen.append([])
             with pytest.raises(SystemExit):
                 main(argv)
-            seen.append((gc.isenabled(), gc.get_freeze_count() > 0))
+            seen[-1].append((gc.isenabled(), gc.get_freeze_count() > 0))
             gc.unfreeze()
     finally:
         gc.unfreeze()
         signal.signal(signal.SIGTERM, previous)
-    # --version and the group's usage errors end before its callback: nothing frozen
-    assert seen == [(True, False), (True, False), (True, True), (True, True)]
+    # --version and the group's usage errors end before its callback: frozen only at the
+    # end; a stage's command (its usage error here) also froze the imports, with gc off
+    assert seen == [[True, (True, True)], [True, (True, True)],
+                    [False, True, (True, True)], [False, True, (True, True)]]

@@ -1,0 +1,77 @@
+"""The comparison grid's row kernels (separable shifts, bilinear sampling) on row parts:
+the same bits split over threads as on one, and the values of their formulas."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from demtool.compare import grids
+from tests.helpers.row_parts import whole_and_split
+
+
+def _surface(shape, seed=3):
+    rng = np.random.default_rng(seed)
+    values = rng.normal(size=shape).cumsum(0).cumsum(1) / 10.0
+    holes = (rng.integers(0, shape[0], 6), rng.integers(0, shape[1], 6))
+    values[holes] = np.nan  # a hole spreads to the outputs whose taps reach it
+    return values
+
+
+def _gaussian_shift_formula(values, dx, dy, sigma):
+    """``out[y, x] = Σ_ij g(y − dy − i) g(x − dx − j) values[i, j]`` written with numpy:
+    the taps of each axis around ``floor(−shift)``, NaN where a tap of non-zero weight is
+    NaN or outside the grid."""
+    radius = max(2, int(np.ceil(4.5 * sigma)))
+    out = np.asarray(values, dtype=np.float64)
+    for axis, shift in ((1, dx), (0, dy)):
+        base = int(np.floor(-shift))
+        weights = grids._gaussian_taps(-shift - base, sigma, radius)
+        taps = np.arange(-radius, radius + 2) + base
+        moved = np.moveaxis(out, axis, 0)
+        total = np.zeros(moved.shape)
+        for tap, weight in zip(taps, weights, strict=True):
+            if weight == 0.0:
+                continue
+            index = np.arange(moved.shape[0]) + tap
+            inside = (index >= 0) & (index < moved.shape[0])
+            term = np.full(moved.shape, np.nan)
+            term[inside] = weight * moved[index[inside]]
+            total = total + term
+        out = np.moveaxis(total, 0, axis)
+    return out
+
+
+def test_gaussian_shift_on_row_parts_is_one_threads_and_the_formula(monkeypatch):
+    values = _surface((200, 70))
+    whole, split, seen = whole_and_split(
+        monkeypatch, lambda: grids.gaussian_shift(values, 0.37, -1.45, 1.3))
+    assert any(len(parts) == 3 for parts in seen)  # split: 200 rows in 3 parts
+    assert whole.tobytes() == split.tobytes()
+    expected = _gaussian_shift_formula(values, 0.37, -1.45, 1.3)
+    assert np.array_equal(np.isnan(whole), np.isnan(expected))
+    assert np.nanmax(np.abs(whole - expected)) < 1e-12
+    assert np.isfinite(whole).mean() > 0.5  # not all holes: the values were compared
+
+
+def test_sample_bilinear_on_row_parts_is_one_threads_and_the_formula(monkeypatch):
+    values = _surface((200, 250), seed=5)
+    rng = np.random.default_rng(6)
+    rows = rng.uniform(-1.0, 200.5, size=(200, 250))  # some outside the grid: NaN
+    cols = rng.uniform(-1.0, 250.5, size=(200, 250))
+    rows[0, :5] = np.nan
+    whole, split, seen = whole_and_split(
+        monkeypatch, lambda: grids.sample_bilinear(values, rows, cols))
+    assert any(len(parts) == 3 for parts in seen)  # 50 000 samples in 3 parts
+    assert whole.tobytes() == split.tobytes()
+    r0, c0 = np.floor(rows), np.floor(cols)
+    fy, fx = rows - r0, cols - c0
+    inside = (r0 >= 0) & (r0 + 1 < 200) & (c0 >= 0) & (c0 + 1 < 250)
+    r, c = np.where(inside, r0, 0).astype(int), np.where(inside, c0, 0).astype(int)
+    expected = ((1 - fy) * (1 - fx) * values[r, c] + (1 - fy) * fx * values[r, c + 1]
+                + fy * (1 - fx) * values[r + 1, c] + fy * fx * values[r + 1, c + 1])
+    expected[~inside] = np.nan
+    both = np.isfinite(whole) & np.isfinite(expected)
+    assert both.mean() > 0.9
+    assert np.max(np.abs(whole[both] - expected[both])) < 1e-12
+    assert np.all(np.isnan(whole[~inside]))
+    assert np.all(np.isnan(whole[0, :5]))

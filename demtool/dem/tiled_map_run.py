@@ -57,7 +57,8 @@ def streaming_median(chunks: Callable[[], Iterable[np.ndarray]], *, bins: int = 
     def finite():
         for chunk in chunks():
             v = np.asarray(chunk, dtype=np.float64).ravel()
-            yield v[np.isfinite(v)]
+            good = np.isfinite(v)
+            yield v if good.all() else v[good]  # (no copy of an all-finite chunk)
 
     count, lo, hi = 0, math.inf, -math.inf
     kept: list[np.ndarray] | None = []
@@ -130,22 +131,39 @@ def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gs
 
     def band(name: str):
         return lambda: (decoded(name, t) for t in tiles)
-    if gsd is None:
-        gsd = streaming_median(band("range_left")) * range_to_gsd
-    median_gap = streaming_median(band("gap"))
-    if params.max_ray_gap is not None:
-        max_gap = float(params.max_ray_gap)
-    else:
+
+    def gap_threshold() -> tuple[float, float, float]:
+        """(gsd, median gap, gap threshold)."""
+        nonlocal gsd
+        if gsd is None:
+            gsd = streaming_median(band("range_left")) * range_to_gsd
+        median_gap = streaming_median(band("gap"))
+        if params.max_ray_gap is not None:
+            return gsd, median_gap, float(params.max_ray_gap)
         from demtool.dem.sensors import GAP_GSDS, GAP_NMADS
 
         deviation = streaming_median(lambda: (np.abs(g - median_gap) for g in band("gap")()))
-        max_gap = median_gap + max(GAP_NMADS * 1.4826 * deviation, GAP_GSDS * gsd)
+        return gsd, median_gap, median_gap + max(GAP_NMADS * 1.4826 * deviation,
+                                                 GAP_GSDS * gsd)
+
+    every_height = None
+    if held is None:  # streamed from the cache: one pass at a time
+        gsd, median_gap, max_gap = gap_threshold()
+    else:
+        # beside the gap medians (one core each: np.partition), the median of every
+        # height: the kept heights' when no ray misses by more than the threshold (the
+        # same values, so the same median), as is usual; else computed again below
+        from demtool.mapproject.threads import available_threads
+
+        (gsd, median_gap, max_gap), every_height = ordered_map(
+            lambda task: task(), (gap_threshold, lambda: streaming_median(band("height"))),
+            threads=min(2, available_threads()))
 
     def kept_heights():
         for t in tiles:
             yield decoded("height", t)[decoded("gap", t) <= max_gap]
 
-    kept = sum(h.size for h in kept_heights())
+    kept = sum(int(np.count_nonzero(decoded("gap", t) <= max_gap)) for t in tiles)
     from demtool.dem.sensors import MAX_DROPPED_FRACTION
 
     if params.max_ray_gap is not None and front - kept > MAX_DROPPED_FRACTION * front:
@@ -160,7 +178,9 @@ def _statistics(params, points: TileCache, tiles, gsd: float | None, range_to_gs
     log.info("%d correspondences in front of both cameras, %d rays missing by more than "
              "%.3g m (median gap %.3g m, GSD %.3g m)", front, front - kept, max_gap,
              median_gap, gsd)
-    return gsd, max_gap, median_gap, front, kept, streaming_median(kept_heights)
+    overlap_height = (every_height if every_height is not None and kept == front
+                      else streaming_median(kept_heights))
+    return gsd, max_gap, median_gap, front, kept, overlap_height
 
 
 def _grid(params, points: TileCache, tiles, body, gsd: float, max_gap: float, crs,
@@ -260,6 +280,9 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     key = cache_key(inputs, params.as_dict(), tiling_of_points,
                     {"pass": "points", "map_xy": job.points_crs_wkt, "fields": layout})
     points = TileCache(work_folder(out) / f"{key}-points")
+    from demtool.dem.ahead import FILL_MODULES, import_ahead
+
+    import_ahead(FILL_MODULES)  # beside the points tiles, not alone after the measured grid
     # the tiles this process computes are also kept decoded for the passes below (those
     # a resumed run finds cached are read from the cache): forgotten when the run ends
     stack.callback(release_points, str(points.folder))

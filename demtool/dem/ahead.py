@@ -1,0 +1,45 @@
+"""Modules a later, serial step of ``demtool dem`` needs, imported ahead on a thread of
+their own while the run's parallel work goes on.
+
+The tiled sensor-model route (:mod:`demtool.dem.tiled_map_run`) imports the gap fill's
+modules (:mod:`demtool.imaging.interpolate`: ``scipy.sparse.linalg``; ``scipy.ndimage``)
+only once its measured grid is done: the coarse global fill on the calling thread
+while the tile threads wait, then the first fill tile of each thread, one of them
+waiting for the other's import.  Those imports are Python (they hold the GIL), about
+0.6 CPU s on a 2-core VM, and they ran with nothing beside them.  Imported on a thread
+while the points tiles run (numba kernels that release the GIL), they take the cores'
+spare time instead.  An import that fails here is left to fail again where the module
+is used, with its usual error.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterable
+
+#: the modules of the fill (:func:`demtool.dem.tiled_grids.prepare_fill`,
+#: :func:`demtool.dem.tiled_grids.fill_core`, :func:`demtool.dem.grid.fill_and_smooth`)
+FILL_MODULES = ("demtool.imaging.interpolate", "scipy.ndimage")
+
+
+def import_ahead(names: Iterable[str]) -> threading.Thread:
+    """Import ``names`` on a daemon thread (started); returns the thread.
+
+    Python's import lock makes a caller importing the same module meanwhile wait for
+    this thread's import to finish rather than import it twice.
+    """
+    import importlib
+    import sys
+
+    todo = [name for name in names if name not in sys.modules]
+
+    def work() -> None:
+        for name in todo:
+            try:
+                importlib.import_module(name)
+            except Exception:  # noqa: BLE001 - raised again where the module is used
+                continue
+
+    thread = threading.Thread(target=work, name="demtool-import-ahead", daemon=True)
+    thread.start()
+    return thread

@@ -23,6 +23,10 @@ def write_dem_rasters(run: Any, params: Any, out: str | os.PathLike, result: Any
     ``result`` carries ``dem`` (H, W) float metres (NaN = none), ``filled`` (H, W) bool
     (interpolated cells) and ``error`` (H, W) float metres (median ray gap);
     ``side_tags`` are the frame or body tags the mask and error rasters carry too.
+
+    Two or three rasters are written at once, on threads (their compression and
+    overviews are GDAL's, which releases the GIL; each thread's GDAL options are its
+    own, :func:`demtool.io.layout.raster_output`): the same files as one after the other.
     """
     from demtool import io as dio
 
@@ -31,18 +35,23 @@ def write_dem_rasters(run: Any, params: Any, out: str | os.PathLike, result: Any
     filled[np.isnan(result.dem)] = np.nan
     data = np.stack([result.dem, filled]) if params.mask_band else result.dem
     band_names = ["height", "interpolated"] if params.mask_band else ["height"]
-    outputs = [Path(out)]
-    dio.write_raster(out, data, transform=transform, crs=crs, tags=tags,
-                     band_names=band_names)
+    writes = [(out, data, tags, band_names)]
     if mask_path is not None:
-        dio.write_raster(mask_path, filled, transform=transform, crs=crs,
-                         tags=prov.tags(meaning="1 = interpolated, 0 = measured",
-                                        **side_tags), band_names=["interpolated"])
-        outputs.append(Path(mask_path))
+        writes.append((mask_path, filled, prov.tags(meaning="1 = interpolated, 0 = measured",
+                                                    **side_tags), ["interpolated"]))
     if error_path is not None:
-        dio.write_raster(error_path, result.error, transform=transform, crs=crs,
-                         tags=prov.tags(meaning="median ray gap of the cell's points",
-                                        units="metres", **side_tags),
-                         band_names=["ray_gap"])
-        outputs.append(Path(error_path))
-    return outputs
+        writes.append((error_path, result.error,
+                       prov.tags(meaning="median ray gap of the cell's points",
+                                 units="metres", **side_tags), ["ray_gap"]))
+
+    def write(item) -> Path:
+        path, values, raster_tags, names = item
+        dio.write_raster(path, values, transform=transform, crs=crs, tags=raster_tags,
+                         band_names=names)
+        return Path(path)
+
+    if len(writes) == 1:
+        return [write(writes[0])]
+    from demtool.mapproject.threads import available_threads, ordered_map
+
+    return list(ordered_map(write, writes, threads=min(len(writes), available_threads())))

@@ -231,7 +231,9 @@ def _gradient_rows(grad_x, grad_y, dh, usable, params, centre, halfwidth, first,
     # gx dh, gy dh, -dh, dh².
     cols = dh.shape[1]
     for r in range(first, stop):
-        acc = np.zeros(10)
+        # ten scalar sums, not an array: no allocation code to compile (same order of
+        # additions, so the same bits)
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = 0.0
         for c in range(cols):
             if not usable[r, c]:
                 continue
@@ -244,18 +246,26 @@ def _gradient_rows(grad_x, grad_y, dh, usable, params, centre, halfwidth, first,
                 model = params[0] * gx + params[1] * gy - params[2]
                 if abs(d - model - centre) > halfwidth:
                     continue
-            acc[0] += gx * gx
-            acc[1] += gx * gy
-            acc[2] -= gx
-            acc[3] += gy * gy
-            acc[4] -= gy
-            acc[5] += 1.0
-            acc[6] += gx * d
-            acc[7] += gy * d
-            acc[8] -= d
-            acc[9] += d * d
-        for k in range(10):  # written out: numba's slice assignment compiles its
-            partial[r, k] = acc[k]  # error messages' string code (seconds in a fresh cache)
+            s0 += gx * gx
+            s1 += gx * gy
+            s2 -= gx
+            s3 += gy * gy
+            s4 -= gy
+            s5 += 1.0
+            s6 += gx * d
+            s7 += gy * d
+            s8 -= d
+            s9 += d * d
+        partial[r, 0] = s0
+        partial[r, 1] = s1
+        partial[r, 2] = s2
+        partial[r, 3] = s3
+        partial[r, 4] = s4
+        partial[r, 5] = s5
+        partial[r, 6] = s6
+        partial[r, 7] = s7
+        partial[r, 8] = s8
+        partial[r, 9] = s9
 
 
 def _gradient_sums(grad_x, grad_y, dh, usable, params, centre, halfwidth, *,

@@ -1,6 +1,11 @@
 """Modules a later, serial step of ``demtool dem`` needs, imported ahead on a thread of
 their own while the run's parallel work goes on.
 
+The untiled sensor-model routes (:mod:`demtool.dem.run_mapprojected`,
+:mod:`demtool.dem.run_sensors`) import the same modules in their grid phase, on the
+thread of the heights' medians and the gap fill (:func:`demtool.dem.sensors.dem_on_map`),
+the phase's longer chain; imported beside the ray computations instead.
+
 The tiled sensor-model route (:mod:`demtool.dem.tiled_map_run`) imports the gap fill's
 modules (:mod:`demtool.imaging.interpolate`: ``scipy.sparse.linalg``; ``scipy.ndimage``)
 only once its measured grid is done: the coarse global fill on the calling thread

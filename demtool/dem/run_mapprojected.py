@@ -84,8 +84,10 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
 
     r_rows = rows + row_shift_of(disparity.tags)  # sgm's shift of the right ortho, if any
     crs = to_pyproj_crs(li.crs)
+    from demtool.dem.ahead import FILL_MODULES, import_ahead
     from demtool.dem.ortho_rays import ortho_rays
 
+    import_ahead(FILL_MODULES)  # beside the rays (nogil kernels), not in the grid phase
     with phase(timings, "coordinates"):
         found = ortho_rays(left, right, crs, rows, l_cols, r_rows, r_cols)
     seen = found.seen

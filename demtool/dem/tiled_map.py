@@ -417,20 +417,23 @@ class MapDemTileJob:
             layout = self.point_layout
             if self.cached_xy:  # the cells first: only the points inside are decoded
                 gap, x, y = tile_points(cache, ptile, ("gap", "x", "y"), layout=layout)
-                keep = gap <= self.max_gap
-                x, y = x[keep], y[keep]
             else:
                 lon, lat, gap = tile_points(cache, ptile, ("lon", "lat", "gap"),
                                             layout=layout)
-                keep = gap <= self.max_gap
-                x, y = lonlat_to_map(crs, lon[keep], lat[keep])
+            keep = gap <= self.max_gap
+            every = bool(keep.all())  # as usual: the points used as they are, not copied
+            if self.cached_xy:
+                x, y = (x, y) if every else (x[keep], y[keep])
+            else:
+                x, y = lonlat_to_map(crs, *((lon, lat) if every else (lon[keep], lat[keep])))
             px = (np.asarray(x) - c) / a - 0.5  # as demtool.dem.sensors.dem_on_map
             py = (np.asarray(y) - f) / e - 0.5
             inside = (px > c0 - 0.5) & (px < c1 - 0.5) & (py > r0 - 0.5) & (py < r1 - 0.5)
             if not inside.any():
                 continue
             pixels.append(np.column_stack([px[inside] - c0, py[inside] - r0]))
-            chosen = np.flatnonzero(keep)[inside]  # among the tile's points
+            # among the tile's points
+            chosen = np.flatnonzero(inside) if every else np.flatnonzero(keep)[inside]
             heights.append(tile_points(cache, ptile, ("height",), chosen, layout)[0])
             gaps.append(gap[chosen])
         out = np.full((3, h, w), np.nan, dtype=np.float32)

@@ -1,11 +1,6 @@
 """Modules a later, serial step of ``demtool dem`` needs, imported ahead on a thread of
 their own while the run's parallel work goes on.
 
-The untiled sensor-model routes (:mod:`demtool.dem.run_mapprojected`,
-:mod:`demtool.dem.run_sensors`) import the same modules in their grid phase, on the
-thread of the heights' medians and the gap fill (:func:`demtool.dem.sensors.dem_on_map`),
-the phase's longer chain; imported beside the ray computations instead.
-
 The tiled sensor-model route (:mod:`demtool.dem.tiled_map_run`) imports the gap fill's
 modules (:mod:`demtool.imaging.interpolate`: ``scipy.sparse.linalg``; ``scipy.ndimage``)
 only once its measured grid is done: the coarse global fill on the calling thread
@@ -15,6 +10,11 @@ waiting for the other's import.  Those imports are Python (they hold the GIL), a
 while the points tiles run (numba kernels that release the GIL), they take the cores'
 spare time instead.  An import that fails here is left to fail again where the module
 is used, with its usual error.
+
+The untiled map-projected route (:mod:`demtool.dem.run_mapprojected`) imports the same
+modules in its grid phase, on the thread of the heights' medians and the gap fill
+(:func:`demtool.dem.sensors.dem_on_map`), the phase's longer chain; they are imported
+beside its ray computations instead.
 """
 
 from __future__ import annotations
@@ -30,8 +30,13 @@ FILL_MODULES = ("demtool.imaging.interpolate", "scipy.ndimage")
 def import_ahead(names: Iterable[str]) -> threading.Thread:
     """Import ``names`` on a daemon thread (started); returns the thread.
 
-    Python's import lock makes a caller importing the same module meanwhile wait for
-    this thread's import to finish rather than import it twice.
+    Join it before other threads may import the same packages: Python's module locks
+    make a thread importing a module meanwhile wait for this one's import, but two
+    threads importing one package's modules in crossing orders may each get the
+    other's half-initialised module (importlib's answer to the deadlock).  The callers
+    start it where the other threads import none of them (the points tiles, the ortho
+    rays: demtool's own modules and numba's) and join it before the step that uses
+    them (long done by then: the join costs nothing).
     """
     import importlib
     import sys

@@ -87,9 +87,10 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     from demtool.dem.ahead import FILL_MODULES, import_ahead
     from demtool.dem.ortho_rays import ortho_rays
 
-    import_ahead(FILL_MODULES)  # beside the rays (nogil kernels), not in the grid phase
-    with phase(timings, "coordinates"):
+    ahead = import_ahead(FILL_MODULES)  # beside the rays (nogil kernels), not in the grid
+    with phase(timings, "coordinates"):  # phase (joined before it)
         found = ortho_rays(left, right, crs, rows, l_cols, r_rows, r_cols)
+    ahead.join()
     seen = found.seen
     log.info("%d valid disparities, %d seen by both sensors", rows.size, int(seen.sum()))
     if seen.sum() < 3:

@@ -74,9 +74,6 @@ def run_dem_sensors(run: StageRun, params: DemParams, out, *, disparity_path,
     rows, cols = np.nonzero(np.isfinite(d))
     if rows.size < 3:
         raise ProcessingError(f"{disparity_path}: fewer than 3 valid disparities")
-    from demtool.dem.ahead import FILL_MODULES, import_ahead
-
-    import_ahead(FILL_MODULES)  # beside the projections, not in the grid phase
     x_left = cols.astype(np.float64)
     y = rows.astype(np.float64)
     x_right = x_left - d[rows, cols]

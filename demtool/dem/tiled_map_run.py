@@ -282,12 +282,15 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     points = TileCache(work_folder(out) / f"{key}-points")
     from demtool.dem.ahead import FILL_MODULES, import_ahead
 
-    import_ahead(FILL_MODULES)  # beside the points tiles, not alone after the measured grid
+    # beside the points tiles (which import none of them), not alone after the measured
+    # grid; joined before the passes that import them
+    ahead = import_ahead(FILL_MODULES)
     # the tiles this process computes are also kept decoded for the passes below (those
     # a resumed run finds cached are read from the cache): forgotten when the run ends
     stack.callback(release_points, str(points.folder))
     infos = run_tiles(job.at_step("points", points=str(points.folder)), points_tiles,
                       points, workers=workers, scheduler=scheduler, log=run.log)
+    ahead.join()
     valid = sum(int(i.get("valid", 0)) for i in infos)
     seen = sum(int(i.get("seen", 0)) for i in infos)
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from demtool.errors import ProcessingError
 from demtool.logs import get_logger
@@ -92,17 +92,15 @@ def _keys_weights(t: float) -> tuple[float, float, float, float]:
     return w0, w1, w2, w3
 
 
-@njit(parallel=True, cache=True, nogil=True)
-def _sample_cubic(values, rows, cols, out):
+@njit(cache=True, nogil=True)  # serial over a range of samples, driven by on_row_parts
+def _sample_cubic(values, rows, cols, out, start, stop):
+    # rows, cols, out: flat (demtool.compare.grids._prepare); samples start … stop − 1
     height, width = values.shape
-    flat_rows = rows.ravel()
-    flat_cols = cols.ravel()
-    flat_out = out.ravel()
-    for k in prange(flat_rows.size):
-        y = flat_rows[k]
-        x = flat_cols[k]
+    for k in range(start, stop):
+        y = rows[k]
+        x = cols[k]
         if not (np.isfinite(x) and np.isfinite(y)):
-            flat_out[k] = np.nan
+            out[k] = np.nan
             continue
         r0 = int(np.floor(y))
         c0 = int(np.floor(x))
@@ -128,7 +126,7 @@ def _sample_cubic(values, rows, cols, out):
                 total += wr[i] * wc[j] * v
             if bad:
                 break
-        flat_out[k] = np.nan if bad else total
+        out[k] = np.nan if bad else total
 
 
 @njit(cache=True, nogil=True)  # serial over a range of samples, driven by on_row_parts
@@ -166,8 +164,8 @@ def _sample_bilinear(values, rows, cols, out, start, stop):
         out[k] = np.nan if bad else total
 
 
-@njit(parallel=True, cache=True, nogil=True)
-def _shift_cubic(values, dx, dy, dz, out):
+@njit(cache=True, nogil=True)  # serial over rows start … stop − 1 (on_row_parts)
+def _shift_cubic(values, dx, dy, dz, out, start, stop):
     # out[r, c] = values[r - dy, c - dx] + dz: the cubic weights are the same for every
     # pixel, so they are computed once.
     height, width = values.shape
@@ -176,7 +174,7 @@ def _shift_cubic(values, dx, dy, dz, out):
     off_c = int(np.floor(-dx))
     wr = _keys_weights(-dy - off_r)
     wc = _keys_weights(-dx - off_c)
-    for r in prange(height):
+    for r in range(start, stop):
         for c in range(width):
             total = 0.0
             bad = False
@@ -364,7 +362,8 @@ def sample_cubic(values: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.n
         NaN or outside the raster.  Exact at integer positions.
     """
     data, r, c, out = _prepare(values, rows, cols)
-    _sample_cubic(data, r, c, out)
+    on_row_parts(lambda start, stop: _sample_cubic(data, r, c, out, start, stop), r.size,
+                 min_rows=SAMPLES_PER_PART)
     return out.reshape(np.shape(rows))
 
 
@@ -403,8 +402,10 @@ def shift_dem(dem: np.ndarray, dx_px: float, dy_px: float, dz: float = 0.0, *,
         return lanczos_shift(dem, dx_px, dy_px, lobes=3) + dz
     if method == "cubic":
         out = np.empty(dem.shape, dtype=np.float64)
-        _shift_cubic(np.ascontiguousarray(dem, dtype=np.float64), float(dx_px), float(dy_px),
-                     float(dz), out)
+        data = np.ascontiguousarray(dem, dtype=np.float64)
+        on_row_parts(lambda start, stop: _shift_cubic(data, float(dx_px), float(dy_px),
+                                                      float(dz), out, start, stop),
+                     out.shape[0])
         return out
     if method == "linear":
         rows, cols = np.indices(dem.shape, dtype=np.float64)

@@ -75,3 +75,34 @@ def test_sample_bilinear_on_row_parts_is_one_threads_and_the_formula(monkeypatch
     assert np.max(np.abs(whole[both] - expected[both])) < 1e-12
     assert np.all(np.isnan(whole[~inside]))
     assert np.all(np.isnan(whole[0, :5]))
+
+
+def _quadratic(rows, cols):
+    return 0.02 * rows**2 - 0.015 * rows * cols + 0.01 * cols**2 + 0.3 * rows - 0.2 * cols + 5.0
+
+
+def test_cubic_sampling_and_shift_on_row_parts_are_one_threads_and_exact_on_quadratics(
+        monkeypatch):
+    """Keys' cubic convolution (a = −0.5) reproduces quadratics exactly (Keys 1981, §III):
+    samples and shifts of one inside the grid are the polynomial's values."""
+    rows, cols = np.indices((200, 250), dtype=np.float64)
+    values = _quadratic(rows, cols)
+    values[100, 100] = np.nan  # the 4 × 4 taps around it give NaN
+    rng = np.random.default_rng(7)
+    at_rows = rng.uniform(2.0, 197.0, size=(200, 250))
+    at_cols = rng.uniform(2.0, 247.0, size=(200, 250))
+    whole, split, seen = whole_and_split(
+        monkeypatch, lambda: (grids.sample_cubic(values, at_rows, at_cols),
+                              grids.shift_dem(values, 0.35, -1.25, 2.0, method="cubic")))
+    assert any(len(parts) == 3 for parts in seen)
+    for one, several in zip(whole, split, strict=True):
+        assert one.tobytes() == several.tobytes()
+    sampled, shifted = whole
+    near_hole = (np.abs(at_rows - 100) < 2) & (np.abs(at_cols - 100) < 2)
+    assert np.all(np.isnan(sampled[near_hole]))
+    good = ~near_hole
+    assert np.max(np.abs(sampled[good] - _quadratic(at_rows, at_cols)[good])) < 1e-9
+    expected = _quadratic(rows + 1.25, cols - 0.35) + 2.0  # out[y, x] = dem[y − dy, x − dx] + dz
+    inside = np.isfinite(shifted)
+    assert inside.mean() > 0.9 and not inside[100, 100]
+    assert np.max(np.abs(shifted[inside] - expected[inside])) < 1e-9

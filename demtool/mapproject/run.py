@@ -221,7 +221,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     from demtool.logs import progress
     from demtool.mapproject.core import native_gsd, sensor_body
     from demtool.mapproject.params import MapprojectParams
-    from demtool.mapproject.threads import warm
+    from demtool.mapproject.threads import KernelsAhead, warm
     from demtool.mapproject.tiled import (
         MapprojectTileJob,
         engine_tile_size,
@@ -250,6 +250,8 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     hashes = _hash_tags_aside(image_path, sensor_path, dem_path)
     # read through the tile job's cache: its tiles, in this process, find the model there
     sensor = cached_sensor(str(sensor_path))
+    # the tiles' kernels load on a thread of their own while this one prepares the grid
+    kernels = KernelsAhead()
     tsai = _tsai_on_body(sensor, sensor_path, image_path, dem_path, params.t_srs, grid_like)
     if tsai is not None:
         sensor = cached_sensor(str(sensor_path), tsai.radii, tsai.image_size)
@@ -307,6 +309,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
             "crs": grid.crs.name, "width": grid.width, "height": grid.height, "gsd_m": gsd,
             "transform": list(grid.transform)[:6], "surface": surface_tags[SURFACE_TAG]}
     engine_size = engine_tile_size(grid.shape, params)
+    kernels.wait()  # loaded before the tiles start (none waits for another's load)
     if engine_size:
         inputs = [p for p in (image_path, sensor_path, dem_path, grid_like) if p is not None]
         warm(sensor)  # the model's lazily cached state, before tiles on threads share it

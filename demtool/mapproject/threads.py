@@ -135,6 +135,50 @@ def warm(sensor: Any) -> None:
             guess()
 
 
-__all__ = ["MIN_BATCH", "available_threads", "batched",
-           "ground_to_image_threaded", "ordered_map", "phase",
+def load_tile_kernels() -> bool:
+    """Load the tiles' compiled kernels (the lattice interpolation and the bicubic
+    resampling, numba's cache) by calling them on a few cells, with the argument types of
+    :func:`demtool.mapproject.core.image_coordinates` and
+    :func:`demtool.mapproject.sampling.resample_tile` (so no other specialisation is
+    compiled; tests/mapproject/test_kernels_ahead.py checks the types).  True when both
+    ran; a kernel that fails here loads at the first tile as before."""
+    try:
+        from demtool.mapproject.core import _interpolate_lattice
+        from demtool.mapproject.sampling import resample_tile
+
+        nodes = np.zeros((1, 2, 2))
+        heights = np.zeros((2, 2))
+        _interpolate_lattice(nodes, nodes.copy(), np.zeros(1), heights, 2.0,
+                             np.empty((2, 2)), np.empty((2, 2)))
+        resample_tile(np.zeros((4, 4), dtype=np.float32), (0, 0), np.full((2, 2), 2.0),
+                      np.full((2, 2), 2.0), 4, 4)
+    except Exception:  # noqa: BLE001 - a load ahead only: the first tile loads what failed
+        return False
+    return True
+
+
+class KernelsAhead:
+    """:func:`load_tile_kernels` on a thread of its own, started while the calling thread
+    prepares a run (the map grid, the DEM under the footprint, the checks), so the tiles
+    find their kernels loaded: loaded at the first tiles instead, one tile thread links
+    them while the others wait for numba's compiler lock (~0.1-0.2 s of every thread at
+    the start of the projection).  :meth:`wait` before the tiles start."""
+
+    def __init__(self) -> None:
+        self.loaded: bool | None = None
+        self._thread = threading.Thread(target=self._run, name="demtool-kernels-ahead",
+                                        daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        self.loaded = load_tile_kernels()
+
+    def wait(self) -> bool | None:
+        """Wait for the loading to end; whether it loaded both kernels."""
+        self._thread.join()
+        return self.loaded
+
+
+__all__ = ["MIN_BATCH", "KernelsAhead", "available_threads", "batched",
+           "ground_to_image_threaded", "load_tile_kernels", "ordered_map", "phase",
            "warm"]

@@ -1,0 +1,62 @@
+"""The tiles' kernels loaded ahead (demtool.mapproject.threads.load_tile_kernels) with
+the argument types the tiles call them with: no second specialisation is compiled (a
+fresh install would pay its compile), and a run that loads them ahead writes the same
+orthoimage."""
+
+import numba
+import numpy as np
+from click.testing import CliRunner
+
+from demtool import io as dio
+from demtool.cli import cli
+from demtool.mapproject import core, sampling, threads
+from tests.helpers.linescan import linescan_sensor, write_scene
+
+
+def _recording(monkeypatch, module, name, calls):
+    kernel = getattr(module, name)
+
+    def record(*args):
+        calls.setdefault(name, set()).add(tuple(numba.typeof(a) for a in args))
+        return kernel(*args)
+
+    monkeypatch.setattr(module, name, record)
+
+
+def test_kernels_loaded_ahead_with_the_tiles_argument_types(tmp_path, monkeypatch):
+    ahead, tiles = {}, {}
+    _recording(monkeypatch, core, "_interpolate_lattice", ahead)
+    _recording(monkeypatch, sampling, "_bicubic_csm", ahead)
+    assert threads.load_tile_kernels() is True
+    assert set(ahead) == {"_interpolate_lattice", "_bicubic_csm"}
+    monkeypatch.undo()
+    _recording(monkeypatch, core, "_interpolate_lattice", tiles)
+    _recording(monkeypatch, sampling, "_bicubic_csm", tiles)
+    # the run loads them ahead too: not recorded (a thread of its own)
+    monkeypatch.setattr(threads, "load_tile_kernels", lambda: True)
+    image, isd = write_scene(tmp_path, linescan_sensor(lines=150, samples=120,
+                                                       roll_deg=12.0))
+    outs = []
+    for ahead_run in (False, True):
+        if ahead_run:
+            monkeypatch.undo()
+        out = tmp_path / f"ortho_{ahead_run}.tif"
+        result = CliRunner().invoke(cli, ["mapproject", str(image), "--sensor", str(isd),
+                                          "--height", "0", "--tile-size", "40", "--out",
+                                          str(out)])
+        assert result.exit_code == 0, result.output
+        outs.append(dio.read_raster(out).data)
+    assert tiles == ahead
+    assert np.isfinite(outs[0]).mean() > 0.5
+    assert np.array_equal(outs[0], outs[1], equal_nan=True)
+
+
+def test_a_failed_load_ahead_is_no_error(monkeypatch):
+    def broken(*args):
+        raise RuntimeError("no cache")
+
+    monkeypatch.setattr(core, "_interpolate_lattice", broken)
+    assert threads.load_tile_kernels() is False
+    assert threads.KernelsAhead().wait() is False
+
+

@@ -6,15 +6,16 @@ modules (:mod:`demtool.imaging.interpolate`: ``scipy.sparse.linalg``; ``scipy.nd
 only once its measured grid is done: the coarse global fill on the calling thread
 while the tile threads wait, then the first fill tile of each thread, one of them
 waiting for the other's import.  Those imports are Python (they hold the GIL), about
-0.6 CPU s on a 2-core VM, and they ran with nothing beside them.  Imported on a thread
-while the points tiles run (numba kernels that release the GIL), they take the cores'
-spare time instead.  An import that fails here is left to fail again where the module
-is used, with its usual error.
+0.6 CPU s on a 2-core VM, and they ran with nothing beside them.  Imported on the
+calling thread once the first points tile is done, while the others run (numba kernels
+that release the GIL; :func:`import_after_first_tile`), they take the cores' spare time
+instead.  An import that fails here is left to fail again where the module is used,
+with its usual error.
 
 The untiled map-projected route (:mod:`demtool.dem.run_mapprojected`) imports the same
 modules in its grid phase, on the thread of the heights' medians and the gap fill
 (:func:`demtool.dem.sensors.dem_on_map`), the phase's longer chain; they are imported
-beside its ray computations instead.
+beside its ray computations instead, on a thread of their own (:func:`import_ahead`).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ def import_ahead(names: Iterable[str]) -> threading.Thread:
     make a thread importing a module meanwhile wait for this one's import, but two
     threads importing one package's modules in crossing orders may each get the
     other's half-initialised module (importlib's answer to the deadlock).  The callers
-    start it where the other threads import none of them (the points tiles, the ortho
+    start it where the other threads import none of them (the untiled route's ortho
     rays: demtool's own modules and numba's) and join it before the step that uses
     them (long done by then: the join costs nothing).
     """
@@ -53,3 +54,30 @@ def import_ahead(names: Iterable[str]) -> threading.Thread:
     thread = threading.Thread(target=work, name="demtool-import-ahead", daemon=True)
     thread.start()
     return thread
+
+
+def import_after_first_tile(names: Iterable[str]):
+    """An ``on_tile`` callback of :func:`demtool.tiling.distributed.run_tiles` that
+    imports ``names`` on the calling thread once the first tile is done, while the
+    workers compute the next ones (the calling thread only waits for them there).
+
+    On the calling thread rather than a thread of its own: an extra thread alive beside
+    the tile threads gets a malloc arena of its own, and the tiled run's peak resident
+    memory rose by 40-490 MB (2048²; the later passes' threads reuse arenas that hold
+    freed memory).  The first call (the tiles found in the cache) imports nothing.
+    """
+    import importlib
+
+    todo, calls = list(names), [0]
+
+    def on_tile() -> None:
+        calls[0] += 1
+        if calls[0] != 2:
+            return
+        for name in todo:
+            try:
+                importlib.import_module(name)
+            except Exception:  # noqa: BLE001 - raised again where the module is used
+                continue
+
+    return on_tile

@@ -280,17 +280,16 @@ def _passes(run, params, out, job: MapDemTileJob, inputs, gsd_default, range_to_
     key = cache_key(inputs, params.as_dict(), tiling_of_points,
                     {"pass": "points", "map_xy": job.points_crs_wkt, "fields": layout})
     points = TileCache(work_folder(out) / f"{key}-points")
-    from demtool.dem.ahead import FILL_MODULES, import_ahead
+    from demtool.dem.ahead import FILL_MODULES, import_after_first_tile
 
-    # beside the points tiles (which import none of them), not alone after the measured
-    # grid; joined before the passes that import them
-    ahead = import_ahead(FILL_MODULES)
     # the tiles this process computes are also kept decoded for the passes below (those
     # a resumed run finds cached are read from the cache): forgotten when the run ends
     stack.callback(release_points, str(points.folder))
+    # the fill's modules imported beside the points tiles once the first is done, not
+    # alone after the measured grid (demtool.dem.ahead)
     infos = run_tiles(job.at_step("points", points=str(points.folder)), points_tiles,
-                      points, workers=workers, scheduler=scheduler, log=run.log)
-    ahead.join()
+                      points, workers=workers, scheduler=scheduler, log=run.log,
+                      on_tile=import_after_first_tile(FILL_MODULES))
     valid = sum(int(i.get("valid", 0)) for i in infos)
     seen = sum(int(i.get("seen", 0)) for i in infos)
 

@@ -1,7 +1,7 @@
 """The statistics pass of the tiled sensor-model routes (demtool.dem.tiled_map_run):
 the gap threshold and the heights' median from cached points tiles, held in memory
 (the heights' median beside the gap medians) or streamed, equal numpy's on all points;
-and the fill's modules imported ahead on a thread (demtool.dem.ahead)."""
+and the fill's modules imported ahead (demtool.dem.ahead)."""
 
 import logging
 from types import SimpleNamespace
@@ -76,3 +76,17 @@ def test_import_ahead_imports_on_a_thread_and_leaves_failures_to_the_user(monkey
     thread.join(10)
     assert not thread.is_alive() and "colorsys" in sys.modules
     assert "demtool.dem.no_such_module" not in sys.modules
+
+
+def test_import_after_first_tile_imports_once_a_tile_is_done(monkeypatch):
+    import sys
+
+    from demtool.dem.ahead import import_after_first_tile
+
+    monkeypatch.delitem(sys.modules, "colorsys", raising=False)
+    on_tile = import_after_first_tile(["demtool.dem.no_such_module", "colorsys"])
+    on_tile()  # the tiles found in the cache: nothing yet
+    assert "colorsys" not in sys.modules
+    on_tile()  # the first tile computed
+    assert "colorsys" in sys.modules and "demtool.dem.no_such_module" not in sys.modules
+    on_tile()

@@ -251,7 +251,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     # read through the tile job's cache: its tiles, in this process, find the model there
     sensor = cached_sensor(str(sensor_path))
     # the tiles' kernels load on a thread of their own while this one prepares the grid
-    kernels = KernelsAhead()
+    kernels = KernelsAhead(sensor)
     tsai = _tsai_on_body(sensor, sensor_path, image_path, dem_path, params.t_srs, grid_like)
     if tsai is not None:
         sensor = cached_sensor(str(sensor_path), tsai.radii, tsai.image_size)

@@ -135,16 +135,18 @@ def warm(sensor: Any) -> None:
             guess()
 
 
-def load_tile_kernels() -> bool:
-    """Load the tiles' compiled kernels (the lattice interpolation and the bicubic
-    resampling, numba's cache) by calling them on a few cells, with the argument types of
-    :func:`demtool.mapproject.core.image_coordinates` and
-    :func:`demtool.mapproject.sampling.resample_tile` (so no other specialisation is
-    compiled; tests/mapproject/test_kernels_ahead.py checks the types).  True when both
-    ran; a kernel that fails here loads at the first tile as before."""
+def load_tile_kernels(sensor: Any = None) -> bool:
+    """Load the tiles' compiled kernels (numba's cache) by calling them on a few cells,
+    with the argument types the tiles call them with (so no other specialisation is
+    compiled; tests/mapproject/test_kernels_ahead.py checks the types): the lattice
+    interpolation and the bicubic resampling, the image window's bounds and, for a line
+    scanner (``sensor`` with ``_detector_view_fast``), its ground-to-image pose kernel.
+    True when every one ran; a kernel that fails here loads at the first tile as before.
+
+    Reads ``sensor``'s arrays only (none of its lazily cached state)."""
     try:
         from demtool.mapproject.core import _interpolate_lattice
-        from demtool.mapproject.sampling import resample_tile
+        from demtool.mapproject.sampling import image_window, resample_tile
 
         nodes = np.zeros((1, 2, 2))
         heights = np.zeros((2, 2))
@@ -152,29 +154,40 @@ def load_tile_kernels() -> bool:
                              np.empty((2, 2)), np.empty((2, 2)))
         resample_tile(np.zeros((4, 4), dtype=np.float32), (0, 0), np.full((2, 2), 2.0),
                       np.full((2, 2), 2.0), 4, 4)
+        lines, samples = (4, 4) if sensor is None else (sensor.lines, sensor.samples)
+        image_window(np.full((2, 2), 1.0), np.full((2, 2), 1.0), lines, samples)
+        view = getattr(sensor, "_detector_view_fast", None)
+        if callable(view):
+            # a point between the sensor and the body's centre (values unused)
+            below = 0.5 * np.asarray(sensor.positions, dtype=np.float64)[
+                len(sensor.positions) // 2]
+            with np.errstate(all="ignore"):
+                view(np.array([0.5 * lines]), below[None])
     except Exception:  # noqa: BLE001 - a load ahead only: the first tile loads what failed
         return False
     return True
 
 
 class KernelsAhead:
-    """:func:`load_tile_kernels` on a thread of its own, started while the calling thread
-    prepares a run (the map grid, the DEM under the footprint, the checks), so the tiles
-    find their kernels loaded: loaded at the first tiles instead, one tile thread links
-    them while the others wait for numba's compiler lock (~0.1-0.2 s of every thread at
-    the start of the projection).  :meth:`wait` before the tiles start."""
+    """:func:`load_tile_kernels` of ``sensor`` on a thread of its own, started while the
+    calling thread prepares a run (the map grid, the DEM under the footprint, the
+    checks), so the tiles find their kernels loaded (loaded at the first tiles instead,
+    each tile thread links some of them while the others wait for numba's compiler
+    lock: ~0.1-0.2 CPU s of every tile thread's first tile).  :meth:`wait` before the
+    tiles start."""
 
-    def __init__(self) -> None:
+    def __init__(self, sensor: Any = None) -> None:
+        self.sensor = sensor
         self.loaded: bool | None = None
         self._thread = threading.Thread(target=self._run, name="demtool-kernels-ahead",
                                         daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
-        self.loaded = load_tile_kernels()
+        self.loaded = load_tile_kernels(self.sensor)
 
     def wait(self) -> bool | None:
-        """Wait for the loading to end; whether it loaded both kernels."""
+        """Wait for the loading to end; whether it loaded every kernel."""
         self._thread.join()
         return self.loaded
 

@@ -10,6 +10,7 @@ from click.testing import CliRunner
 from demtool import io as dio
 from demtool.cli import cli
 from demtool.mapproject import core, sampling, threads
+from demtool.sensors import kernels, read_sensor
 from tests.helpers.linescan import linescan_sensor, write_scene
 
 
@@ -23,19 +24,23 @@ def _recording(monkeypatch, module, name, calls):
     monkeypatch.setattr(module, name, record)
 
 
+KERNELS = ((core, "_interpolate_lattice"), (sampling, "_bicubic_csm"),
+           (sampling, "_on_image_bounds"), (kernels, "_detector_view_rows"))
+
+
 def test_kernels_loaded_ahead_with_the_tiles_argument_types(tmp_path, monkeypatch):
-    ahead, tiles = {}, {}
-    _recording(monkeypatch, core, "_interpolate_lattice", ahead)
-    _recording(monkeypatch, sampling, "_bicubic_csm", ahead)
-    assert threads.load_tile_kernels() is True
-    assert set(ahead) == {"_interpolate_lattice", "_bicubic_csm"}
-    monkeypatch.undo()
-    _recording(monkeypatch, core, "_interpolate_lattice", tiles)
-    _recording(monkeypatch, sampling, "_bicubic_csm", tiles)
-    # the run loads them ahead too: not recorded (a thread of its own)
-    monkeypatch.setattr(threads, "load_tile_kernels", lambda: True)
     image, isd = write_scene(tmp_path, linescan_sensor(lines=150, samples=120,
                                                        roll_deg=12.0))
+    ahead, tiles = {}, {}
+    for module, name in KERNELS:
+        _recording(monkeypatch, module, name, ahead)
+    assert threads.load_tile_kernels(read_sensor(isd)) is True
+    assert set(ahead) == {name for _, name in KERNELS}
+    monkeypatch.undo()
+    for module, name in KERNELS:
+        _recording(monkeypatch, module, name, tiles)
+    # the run loads them ahead too: not recorded (a thread of its own)
+    monkeypatch.setattr(threads, "load_tile_kernels", lambda sensor=None: True)
     outs = []
     for ahead_run in (False, True):
         if ahead_run:
@@ -46,7 +51,7 @@ def test_kernels_loaded_ahead_with_the_tiles_argument_types(tmp_path, monkeypatc
                                           str(out)])
         assert result.exit_code == 0, result.output
         outs.append(dio.read_raster(out).data)
-    assert tiles == ahead
+    assert tiles == ahead  # (the pose kernel's type in the set-up's calls too)
     assert np.isfinite(outs[0]).mean() > 0.5
     assert np.array_equal(outs[0], outs[1], equal_nan=True)
 

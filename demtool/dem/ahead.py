@@ -39,19 +39,11 @@ def import_ahead(names: Iterable[str]) -> threading.Thread:
     rays: demtool's own modules and numba's) and join it before the step that uses
     them (long done by then: the join costs nothing).
     """
-    import importlib
     import sys
 
     todo = [name for name in names if name not in sys.modules]
-
-    def work() -> None:
-        for name in todo:
-            try:
-                importlib.import_module(name)
-            except Exception:  # noqa: BLE001 - raised again where the module is used
-                continue
-
-    thread = threading.Thread(target=work, name="demtool-import-ahead", daemon=True)
+    thread = threading.Thread(target=_import_all, args=(todo,), name="demtool-import-ahead",
+                              daemon=True)
     thread.start()
     return thread
 
@@ -66,18 +58,22 @@ def import_after_first_tile(names: Iterable[str]):
     memory rose by 40-490 MB (2048²; the later passes' threads reuse arenas that hold
     freed memory).  The first call (the tiles found in the cache) imports nothing.
     """
-    import importlib
-
     todo, calls = list(names), [0]
 
     def on_tile() -> None:
         calls[0] += 1
-        if calls[0] != 2:
-            return
-        for name in todo:
-            try:
-                importlib.import_module(name)
-            except Exception:  # noqa: BLE001 - raised again where the module is used
-                continue
+        if calls[0] == 2:
+            _import_all(todo)
 
     return on_tile
+
+
+def _import_all(names: Iterable[str]) -> None:
+    """Import ``names``; one that fails is left to fail again where it is used."""
+    import importlib
+
+    for name in names:
+        try:
+            importlib.import_module(name)
+        except Exception:  # noqa: BLE001 - raised again where the module is used
+            continue

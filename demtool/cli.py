@@ -49,7 +49,8 @@ def stage_options(name: str) -> list[click.Option] | None:
 
 
 class DemtoolGroup(click.Group):
-    """Lazy subcommands; DemtoolError becomes one line on stderr and exit status 1."""
+    """Lazy subcommands; DemtoolError becomes one line on stderr and exit status 1; a
+    stage's side threads are joined before the command ends."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return [*STAGES, *TOOLS]
@@ -67,9 +68,16 @@ class DemtoolGroup(click.Group):
 
     def invoke(self, ctx: click.Context):
         from demtool.logs import release_warnings
+        from demtool.side_threads import join_side_threads
 
         try:
-            result = super().invoke(ctx)
+            try:
+                result = super().invoke(ctx)
+            except BaseException as exc:
+                if not _is_interrupt(exc):  # an interrupt ends the process (daemons)
+                    join_side_threads()
+                raise
+            join_side_threads()  # none outlives the command (demtool.side_threads)
         except DemtoolError as exc:
             state = ctx.find_object(AppState)
             release_warnings(show=state is not None and state.debug)

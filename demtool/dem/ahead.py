@@ -41,11 +41,10 @@ def import_ahead(names: Iterable[str]) -> threading.Thread:
     """
     import sys
 
+    from demtool.side_threads import start_side_thread
+
     todo = [name for name in names if name not in sys.modules]
-    thread = threading.Thread(target=_import_all, args=(todo,), name="demtool-import-ahead",
-                              daemon=True)
-    thread.start()
-    return thread
+    return start_side_thread(_import_all, "demtool-import-ahead", args=(todo,))
 
 
 def import_after_first_tile(names: Iterable[str]):

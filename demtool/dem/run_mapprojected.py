@@ -88,9 +88,11 @@ def run_dem_mapprojected(run: StageRun, params: DemParams, out, *, disparity_pat
     from demtool.dem.ortho_rays import ortho_rays
 
     ahead = import_ahead(FILL_MODULES)  # beside the rays (nogil kernels), not in the grid
-    with phase(timings, "coordinates"):  # phase (joined before it)
-        found = ortho_rays(left, right, crs, rows, l_cols, r_rows, r_cols)
-    ahead.join()
+    try:
+        with phase(timings, "coordinates"):  # phase (joined before it)
+            found = ortho_rays(left, right, crs, rows, l_cols, r_rows, r_cols)
+    finally:  # also when the rays fail: no import left running after the error
+        ahead.join()
     seen = found.seen
     log.info("%d valid disparities, %d seen by both sensors", rows.size, int(seen.sum()))
     if seen.sum() < 3:

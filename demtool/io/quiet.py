@@ -11,7 +11,9 @@ a list holding the first one's filter for good.  Tiles run on threads
 :func:`ignoring` instead adds one filter to the list in place, shared by every thread
 that holds it (counted under a lock), and removes that entry (the very tuple, by
 identity) when the last holder leaves: no list is swapped, so the filters other threads
-set meanwhile stay as they are.
+set meanwhile stay as they are.  A holder that finds the entry gone (the list was swapped
+by a ``catch_warnings`` that ended while another holder was inside, e.g. a test's own
+filters put back while a tile thread still wrote) puts it back in the list in force.
 """
 
 from __future__ import annotations
@@ -42,7 +44,9 @@ def ignoring(category: type[Warning]) -> Iterator[None]:
     Safe for threads entering and leaving in any order (see the module docstring); the
     filter is in place from the first holder's entry to the last holder's exit.  A filter
     list swapped meanwhile by someone else's ``catch_warnings`` may keep the entry
-    (this category stays ignored): it never drops other filters.
+    (this category stays ignored): it never drops other filters.  Each entry checks that
+    the filter is in the list in force (not only that it is held), so one swapped list
+    cannot leave a later holder unprotected.
 
     Parameters
     ----------
@@ -57,6 +61,9 @@ def ignoring(category: type[Warning]) -> Iterator[None]:
             warnings.filters.insert(0, entry)
             _filters_changed()
             held = _HELD[category] = [0, entry]
+        elif not any(item is held[1] for item in warnings.filters):
+            warnings.filters.insert(0, held[1])
+            _filters_changed()
         held[0] += 1
     try:
         yield

@@ -7,7 +7,6 @@ from __future__ import annotations
 import contextlib
 import math
 import os
-import threading
 import time
 from concurrent.futures import Future
 from pathlib import Path
@@ -157,7 +156,9 @@ def _hash_tags_aside(image_path, sensor_path, dem_path) -> Future:
         except BaseException as exc:  # raised where the tags are needed
             future.set_exception(exc)
 
-    threading.Thread(target=work, name="demtool-hashes", daemon=True).start()
+    from demtool.side_threads import start_side_thread
+
+    start_side_thread(work, "demtool-hashes")
     return future
 
 
@@ -252,64 +253,66 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
     sensor = cached_sensor(str(sensor_path))
     # the tiles' kernels load on a thread of their own while this one prepares the grid
     kernels = KernelsAhead(sensor)
-    tsai = _tsai_on_body(sensor, sensor_path, image_path, dem_path, params.t_srs, grid_like)
-    if tsai is not None:
-        sensor = cached_sensor(str(sensor_path), tsai.radii, tsai.image_size)
-    if sensor.radii is None:
-        raise InputError(f"{sensor_path}: is a camera in a local frame, not on a body; "
-                         "mapproject needs a planetary sensor model (ISD, cube, .tsai)")
-    info = dio.raster_info(image_path, what="image")
-    if (info.height, info.width) != sensor.image_size:
-        raise InputError(f"{image_path}: image is {info.width} x {info.height} pixels but the "
-                         f"sensor model {sensor_path} describes {sensor.samples} x "
-                         f"{sensor.lines}")
-    body = sensor_body(sensor)
-    if params.height is not None:
-        from demtool.mapproject.checks import check_height
-
-        check_height(sensor, body, float(params.height))
-    radii = None if tsai is None else tsai.radii
-    image_size = None if tsai is None else tsai.image_size
-    # read through the tile job's cache too (the DEM's checks once per process)
-    surface = (cached_surface(str(dem_path), str(sensor_path), radii, image_size)
-               if dem_path is not None else None)
-    if grid_like is not None:
-        grid = _grid_like(grid_like, sensor_path, body, params)
-    else:
-        grid, surface = _grid(sensor, body, surface, params, log, pair_sensor)
-    from demtool.mapproject.checks import check_mapproject_grid
-
-    check_mapproject_grid(sensor, body, grid, params, dem_path=dem_path, out_path=out_path,
-                          bands=1 + (3 if angles_out is not None else 0), log=log)
-    same_crs = surface is not None and not surface.geographic and \
-        to_pyproj_crs(surface.info.crs) == grid.crs
-    gsd = grid.gsd[0]
-    log.info("%s -> %d x %d map cells at %.4g m on %s (%s)", Path(image_path).name,
-             grid.width, grid.height, gsd, body.name, grid.crs.name)
-    surface_tags = ({SURFACE_TAG: "dem", DEM_TAG: str(Path(dem_path).resolve())}
-                    if dem_path is not None else
-                    {SURFACE_TAG: "height", HEIGHT_TAG: float(params.height)})
-    tags = run.provenance.tags(
-        frame="map", **body.tags(), **surface_tags,
-        **{SENSOR_TAG: str(Path(sensor_path).resolve())},
-        **hashes.result(),
-        mapproject_image=str(Path(image_path).resolve()), sensor_name=sensor.name,
-        sensor_kind=sensor.kind, image_size=[sensor.lines, sensor.samples])
     try:
-        pixels_per_cell = (gsd / native_gsd(sensor, body.surface)) ** 2
-    except ValueError:
-        pixels_per_cell = 1.0
-    job = MapprojectTileJob(str(image_path), str(sensor_path),
-                            None if dem_path is None else str(dem_path), params.height,
-                            grid.crs.to_wkt(), tuple(grid.transform)[:6], same_crs,
-                            params.step, params.tolerance, params.seed,
-                            angles=angles_out is not None, pixels_per_cell=pixels_per_cell,
-                            sensor_radii=radii, sensor_image_size=image_size)
-    head = {"image": Path(image_path).name, "sensor": sensor.name, "body": body.name,
-            "crs": grid.crs.name, "width": grid.width, "height": grid.height, "gsd_m": gsd,
-            "transform": list(grid.transform)[:6], "surface": surface_tags[SURFACE_TAG]}
-    engine_size = engine_tile_size(grid.shape, params)
-    kernels.wait()  # loaded before the tiles start (none waits for another's load)
+        tsai = _tsai_on_body(sensor, sensor_path, image_path, dem_path, params.t_srs, grid_like)
+        if tsai is not None:
+            sensor = cached_sensor(str(sensor_path), tsai.radii, tsai.image_size)
+        if sensor.radii is None:
+            raise InputError(f"{sensor_path}: is a camera in a local frame, not on a body; "
+                             "mapproject needs a planetary sensor model (ISD, cube, .tsai)")
+        info = dio.raster_info(image_path, what="image")
+        if (info.height, info.width) != sensor.image_size:
+            raise InputError(f"{image_path}: image is {info.width} x {info.height} pixels but the "
+                             f"sensor model {sensor_path} describes {sensor.samples} x "
+                             f"{sensor.lines}")
+        body = sensor_body(sensor)
+        if params.height is not None:
+            from demtool.mapproject.checks import check_height
+
+            check_height(sensor, body, float(params.height))
+        radii = None if tsai is None else tsai.radii
+        image_size = None if tsai is None else tsai.image_size
+        # read through the tile job's cache too (the DEM's checks once per process)
+        surface = (cached_surface(str(dem_path), str(sensor_path), radii, image_size)
+                   if dem_path is not None else None)
+        if grid_like is not None:
+            grid = _grid_like(grid_like, sensor_path, body, params)
+        else:
+            grid, surface = _grid(sensor, body, surface, params, log, pair_sensor)
+        from demtool.mapproject.checks import check_mapproject_grid
+
+        check_mapproject_grid(sensor, body, grid, params, dem_path=dem_path, out_path=out_path,
+                              bands=1 + (3 if angles_out is not None else 0), log=log)
+        same_crs = surface is not None and not surface.geographic and \
+            to_pyproj_crs(surface.info.crs) == grid.crs
+        gsd = grid.gsd[0]
+        log.info("%s -> %d x %d map cells at %.4g m on %s (%s)", Path(image_path).name,
+                 grid.width, grid.height, gsd, body.name, grid.crs.name)
+        surface_tags = ({SURFACE_TAG: "dem", DEM_TAG: str(Path(dem_path).resolve())}
+                        if dem_path is not None else
+                        {SURFACE_TAG: "height", HEIGHT_TAG: float(params.height)})
+        tags = run.provenance.tags(
+            frame="map", **body.tags(), **surface_tags,
+            **{SENSOR_TAG: str(Path(sensor_path).resolve())},
+            **hashes.result(),
+            mapproject_image=str(Path(image_path).resolve()), sensor_name=sensor.name,
+            sensor_kind=sensor.kind, image_size=[sensor.lines, sensor.samples])
+        try:
+            pixels_per_cell = (gsd / native_gsd(sensor, body.surface)) ** 2
+        except ValueError:
+            pixels_per_cell = 1.0
+        job = MapprojectTileJob(str(image_path), str(sensor_path),
+                                None if dem_path is None else str(dem_path), params.height,
+                                grid.crs.to_wkt(), tuple(grid.transform)[:6], same_crs,
+                                params.step, params.tolerance, params.seed,
+                                angles=angles_out is not None, pixels_per_cell=pixels_per_cell,
+                                sensor_radii=radii, sensor_image_size=image_size)
+        head = {"image": Path(image_path).name, "sensor": sensor.name, "body": body.name,
+                "crs": grid.crs.name, "width": grid.width, "height": grid.height, "gsd_m": gsd,
+                "transform": list(grid.transform)[:6], "surface": surface_tags[SURFACE_TAG]}
+        engine_size = engine_tile_size(grid.shape, params)
+    finally:  # loaded before the tiles start (none waits for another's load); and
+        kernels.wait()  # no compile left running after a refusal (demtool.side_threads)
     if engine_size:
         inputs = [p for p in (image_path, sensor_path, dem_path, grid_like) if p is not None]
         warm(sensor)  # the model's lazily cached state, before tiles on threads share it

@@ -179,9 +179,10 @@ class KernelsAhead:
     def __init__(self, sensor: Any = None) -> None:
         self.sensor = sensor
         self.loaded: bool | None = None
-        self._thread = threading.Thread(target=self._run, name="demtool-kernels-ahead",
-                                        daemon=True)
-        self._thread.start()
+        from demtool.side_threads import start_side_thread
+
+        # joined by wait(), or when the command ends (a refused input raises before it)
+        self._thread = start_side_thread(self._run, "demtool-kernels-ahead")
 
     def _run(self) -> None:
         self.loaded = load_tile_kernels(self.sensor)

@@ -56,11 +56,9 @@ def start_numba():
     small random pair, saved another 0.07 s but raised the peak memory by 31 MB: the
     thread's own malloc arena.)
     """
-    import threading
+    from demtool.side_threads import start_side_thread
 
-    loading = threading.Thread(target=_first_kernel, name="demtool-numba", daemon=True)
-    loading.start()
-    return loading
+    return start_side_thread(_first_kernel, "demtool-numba")
 
 
 def run_sgm(left_path: str | os.PathLike, right_path: str | os.PathLike,

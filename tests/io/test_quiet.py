@@ -102,3 +102,27 @@ def test_ignoring_is_shared_and_leaves_the_filters_as_they_were():
             warnings.simplefilter("default")
             warnings.warn("y", NotGeoreferencedWarning, stacklevel=1)
         assert len(shown) == 1
+
+
+def test_a_holder_after_a_swapped_list_still_ignores():
+    """One holder is inside while a ``catch_warnings`` block ends (pytest's own, at a
+    test's end, while a tile thread still writes): the list put back lacks the entry.  A
+    later holder must put it back in force, not count itself in and stay unprotected
+    (CI, issue 47: a fixture's write then raised GDAL's note as an error)."""
+    from rasterio.errors import NotGeoreferencedWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        outer = ignoring(NotGeoreferencedWarning)
+        with warnings.catch_warnings():  # the block that ends while the holder is inside
+            outer.__enter__()
+        try:
+            assert not any(f[2] is NotGeoreferencedWarning for f in warnings.filters)
+            with ignoring(NotGeoreferencedWarning):
+                warnings.warn("a unit transform", NotGeoreferencedWarning, stacklevel=1)
+            # the entry put back stays while the outer holder is inside
+            warnings.warn("a unit transform", NotGeoreferencedWarning, stacklevel=1)
+        finally:
+            outer.__exit__(None, None, None)
+        with pytest.raises(NotGeoreferencedWarning):  # nothing left behind
+            warnings.warn("a unit transform", NotGeoreferencedWarning, stacklevel=1)

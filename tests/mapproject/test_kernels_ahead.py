@@ -65,3 +65,39 @@ def test_a_failed_load_ahead_is_no_error(monkeypatch):
     assert threads.KernelsAhead().wait() is False
 
 
+
+
+def test_a_refused_run_leaves_no_kernel_thread_running(tmp_path, monkeypatch):
+    """The load starts before the checks; a refusal (bounds off the footprint) waits for
+    it, so no numba compile goes on after the ``Error:`` line in the caller's process
+    (CI, issue 47: such a compile put back another command's ``sys.stderr``)."""
+    import threading
+
+    from demtool import side_threads
+
+    image, isd = write_scene(tmp_path, linescan_sensor(lines=150, samples=120,
+                                                       roll_deg=12.0))
+    release, started = threading.Event(), []
+
+    def slow_load(sensor=None):  # a compile that outlasts the checks
+        started.append(threading.current_thread())
+        assert release.wait(10)
+        return True
+
+    monkeypatch.setattr(threads, "load_tile_kernels", slow_load)
+    real_join = side_threads.join_side_threads
+
+    def join_after_release():  # the checks are done and refused: let the load end
+        release.set()
+        return real_join()
+
+    monkeypatch.setattr(side_threads, "join_side_threads", join_after_release)
+    monkeypatch.setattr(threads.KernelsAhead, "wait",
+                        lambda self: (release.set(), self._thread.join())[1])
+    result = CliRunner().invoke(cli, ["-q", "mapproject", str(image), "--sensor", str(isd),
+                                      "--height", "0", "--bounds", "100", "10", "101", "11",
+                                      "--out", str(tmp_path / "o.tif")])
+    assert result.exit_code == 1
+    assert "does not overlap the image's footprint" in result.output
+    assert started and not started[0].is_alive()
+    assert not (tmp_path / "o.tif").exists()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import gc
 import importlib
 import signal
+import sys
 from dataclasses import dataclass
 
 import click
@@ -68,16 +69,15 @@ class DemtoolGroup(click.Group):
 
     def invoke(self, ctx: click.Context):
         from demtool.logs import release_warnings
-        from demtool.side_threads import join_side_threads
 
         try:
             try:
                 result = super().invoke(ctx)
             except BaseException as exc:
                 if not _is_interrupt(exc):  # an interrupt ends the process (daemons)
-                    join_side_threads()
+                    _join_side_threads()
                 raise
-            join_side_threads()  # none outlives the command (demtool.side_threads)
+            _join_side_threads()
         except DemtoolError as exc:
             state = ctx.find_object(AppState)
             release_warnings(show=state is not None and state.debug)
@@ -103,6 +103,14 @@ class DemtoolGroup(click.Group):
             raise
         release_warnings(show=True)
         return result
+
+
+def _join_side_threads() -> None:
+    """Wait for the threads the stage started beside its work: none outlives the command
+    (:mod:`demtool.tiling.side_threads`; not imported, none was started)."""
+    side_threads = sys.modules.get("demtool.tiling.side_threads")
+    if side_threads is not None:
+        side_threads.join_side_threads()
 
 
 def _prefix(ctx: click.Context) -> str:

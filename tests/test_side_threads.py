@@ -1,4 +1,4 @@
-"""Side threads (demtool.side_threads) end before the command does, however it ends: a
+"""Side threads (demtool.tiling.side_threads) end before the command does, however it ends: a
 thread left running changes process-wide state under the caller's next command."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from demtool.cli import cli
 from demtool.errors import InputError
-from demtool.side_threads import join_side_threads, start_side_thread
+from demtool.tiling.side_threads import join_side_threads, start_side_thread
 
 
 def _command(body):

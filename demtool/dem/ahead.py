@@ -41,7 +41,7 @@ def import_ahead(names: Iterable[str]) -> threading.Thread:
     """
     import sys
 
-    from demtool.side_threads import start_side_thread
+    from demtool.tiling.side_threads import start_side_thread
 
     todo = [name for name in names if name not in sys.modules]
     return start_side_thread(_import_all, "demtool-import-ahead", args=(todo,))

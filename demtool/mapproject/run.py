@@ -156,7 +156,7 @@ def _hash_tags_aside(image_path, sensor_path, dem_path) -> Future:
         except BaseException as exc:  # raised where the tags are needed
             future.set_exception(exc)
 
-    from demtool.side_threads import start_side_thread
+    from demtool.tiling.side_threads import start_side_thread
 
     start_side_thread(work, "demtool-hashes")
     return future
@@ -312,7 +312,7 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
                 "transform": list(grid.transform)[:6], "surface": surface_tags[SURFACE_TAG]}
         engine_size = engine_tile_size(grid.shape, params)
     finally:  # loaded before the tiles start (none waits for another's load); and
-        kernels.wait()  # no compile left running after a refusal (demtool.side_threads)
+        kernels.wait()  # no compile left running after a refusal (tiling.side_threads)
     if engine_size:
         inputs = [p for p in (image_path, sensor_path, dem_path, grid_like) if p is not None]
         warm(sensor)  # the model's lazily cached state, before tiles on threads share it

@@ -179,7 +179,7 @@ class KernelsAhead:
     def __init__(self, sensor: Any = None) -> None:
         self.sensor = sensor
         self.loaded: bool | None = None
-        from demtool.side_threads import start_side_thread
+        from demtool.tiling.side_threads import start_side_thread
 
         # joined by wait(), or when the command ends (a refused input raises before it)
         self._thread = start_side_thread(self._run, "demtool-kernels-ahead")

@@ -56,7 +56,7 @@ def start_numba():
     small random pair, saved another 0.07 s but raised the peak memory by 31 MB: the
     thread's own malloc arena.)
     """
-    from demtool.side_threads import start_side_thread
+    from demtool.tiling.side_threads import start_side_thread
 
     return start_side_thread(_first_kernel, "demtool-numba")
 

@@ -73,7 +73,7 @@ def test_a_refused_run_leaves_no_kernel_thread_running(tmp_path, monkeypatch):
     (CI, issue 47: such a compile put back another command's ``sys.stderr``)."""
     import threading
 
-    from demtool import side_threads
+    from demtool.tiling import side_threads
 
     image, isd = write_scene(tmp_path, linescan_sensor(lines=150, samples=120,
                                                        roll_deg=12.0))

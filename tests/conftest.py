@@ -17,6 +17,21 @@ import pytest
 # Every write of a stage must be declared in its StageRun (demtool.outputs.CHECK_DECLARED_ENV).
 os.environ.setdefault("DEMTOOL_CHECK_DECLARED_OUTPUTS", "1")
 
+
+
+@pytest.fixture(autouse=True)
+def _side_threads_end_with_the_test():
+    """A stage called as a library (not through the command group, which joins them) may
+    leave a side thread finishing after its refusal: it ends before the next test, whose
+    streams and warning filters it would otherwise change (demtool.tiling.side_threads)."""
+    yield
+    import sys
+
+    side_threads = sys.modules.get("demtool.tiling.side_threads")
+    if side_threads is not None:
+        side_threads.join_side_threads()
+
+
 # The arguments of `demtool synth` for the small scene, and the same as SceneParams.
 SMALL_SCENE_ARGS = ["--seed", "0", "--size", "256", "--views", "4", "--image-size", "192",
                     "--craters", "20", "--crater-max", "50", "--boulders", "100"]

@@ -26,7 +26,8 @@ and lose no time; issue 47's target ≥ 75 % on 2 workers); and the agreement of
 tiled output with the untiled one.
 
 Usage: ``.venv/bin/python bench/scale_out.py [--stage sgm-census|sgm-default|mapproject|
-dem|refine|fuse|compare|all] [--size 4096] [--tile-size T] [--processes] [--record MACHINE]``
+dem|refine|fuse|compare|all] [--size 4096] [--tile-size T] [--processes] [--repeat N]
+[--record MACHINE]``
 (``--size 1024 --tile-size 512`` runs in a few minutes on a quiet 2-core machine).  Each
 stage records its own ``bench/results/<result>.json`` (sgm census: 53_scale_out.json).
 Timings depend on the machine's load: compare only numbers from the same run.
@@ -69,9 +70,51 @@ def executor_of(found: dict) -> str | None:
     return None
 
 
-def measure(case, inputs: dict, folder: Path, tile: int,
-            processes: bool = False) -> list[dict] | None:
-    """The runs of one case; None (after printing why) when one fails."""
+def measure(case, inputs: dict, folder: Path, tile: int, processes: bool = False,
+            repeat: int = 1) -> list[dict] | None:
+    """The runs of one case, ``repeat`` rounds of them one after the other (untiled, 1
+    worker, 2 workers, …, then again: each round's runs in the same minute of the
+    machine's load), merged by :func:`merge_rounds`; None (after printing why) when one
+    fails."""
+    rounds = []
+    for _ in range(max(1, repeat)):
+        results = one_round(case, inputs, folder, tile, processes)
+        if results is None:
+            return None
+        rounds.append(results)
+    results = merge_rounds(rounds)
+    for r in results[1:]:
+        r["agreement"] = case.agreement(inputs, results[0]["out"], r["out"])
+    results[0]["agreement"] = "—"
+    return results
+
+
+def merge_rounds(rounds: list[list[dict]]) -> list[dict]:
+    """Each run's median wall, CPU and phase cores over the rounds, its largest peak, and
+    its efficiency in each round (against that round's untiled CPU: ``efficiencies``,
+    whose median the table shows); the last round's outputs and quality."""
+    from statistics import median
+
+    merged = []
+    for index, last in enumerate(rounds[-1]):
+        runs = [results[index] for results in rounds]
+        workers = last["workers"]
+        efficiencies = [results[0]["cpu_s"] / (workers * results[index]["wall_s"])
+                        for results in rounds] if workers else []
+        merged.append({**last,
+                       "wall_s": median(r["wall_s"] for r in runs),
+                       "cpu_s": median(r["cpu_s"] for r in runs),
+                       "sampled_cpu_s": median(r["sampled_cpu_s"] for r in runs),
+                       "peak_mb": max(r["peak_mb"] for r in runs),
+                       "cores": {p: median(r["cores"][p] for r in runs)
+                                 for p in last["cores"]},
+                       "efficiencies": efficiencies})
+    return merged
+
+
+def one_round(case, inputs: dict, folder: Path, tile: int,
+              processes: bool = False) -> list[dict] | None:
+    """One run of each configuration (no agreement yet); None when one fails."""
     import os
 
     from bench._scale_cases import phase_seconds, sidecar
@@ -112,27 +155,34 @@ def measure(case, inputs: dict, folder: Path, tile: int,
                         "wall_s": result["wall_s"], "cpu_s": cpu,
                         "sampled_cpu_s": result["cpu_s"], "peak_mb": result["peak_mb"],
                         "cores": cores, "quality": case.quality(inputs, out)})
-    for r in results[1:]:
-        r["agreement"] = case.agreement(inputs, results[0]["out"], r["out"])
-    results[0]["agreement"] = "—"
     return results
 
 
 def table(case, results: list[dict]) -> tuple[list[str], list[list[str]]]:
-    """The recorded columns and rows (and the printed table)."""
+    """The recorded columns and rows (and the printed table); with rounds, the medians
+    (efficiency: the median of the rounds' own) and each round's efficiency."""
+    from statistics import median
+
     untiled = results[0]
     quality = list(untiled["quality"])
     columns = ["run", "wall s", "CPU s (waited-for tree)", "CPU s (sampled tree)",
                "peak MB (tree)",
                *(f"{case.untiled_label} {p} cores (CPU ÷ wall)" for p in case.phases),
                "efficiency", "wall ÷ untiled", *quality, "agreement with untiled"]
+    repeated = len(untiled.get("efficiencies") or results[-1].get("efficiencies", [])) > 1
+    if repeated:
+        columns.insert(columns.index("efficiency") + 1, "efficiency in each round")
     rows = []
     for r in results:
-        eff = untiled["cpu_s"] / (r["workers"] * r["wall_s"]) if r["workers"] else None
+        rounds = r.get("efficiencies") or []
+        eff = median(rounds) if rounds else (
+            untiled["cpu_s"] / (r["workers"] * r["wall_s"]) if r["workers"] else None)
         cores = [f"{r['cores'][p]:.2f}" if r["workers"] == 0 else "—" for p in case.phases]
         rows.append([r["run"], f"{r['wall_s']:.1f}", f"{r['cpu_s']:.1f}",
                      f"{r['sampled_cpu_s']:.1f}", f"{r['peak_mb']:.0f}", *cores,
                      f"{100 * eff:.0f} %" if eff is not None else "—",
+                     *([", ".join(f"{100 * e:.0f}" for e in rounds) + " %" if rounds
+                        else "—"] if repeated else []),
                      f"{r['wall_s'] / untiled['wall_s']:.2f}",
                      *(r["quality"].get(q, "—") for q in quality), r["agreement"]])
     widths = [max(len(c), *(len(row[i]) for row in rows)) for i, c in enumerate(columns)]
@@ -157,6 +207,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--record-as", metavar="SUFFIX", default="",
                         help="record into bench/results/<result>_SUFFIX.json instead: a "
                              "second size of a stage beside its usual one (e.g. 8192)")
+    parser.add_argument("--repeat", type=int, default=1, metavar="N",
+                        help="N rounds of the runs, one round after the other: the table "
+                             "gives medians and each round's efficiency (a shared machine's "
+                             "load moves a single run's efficiency by several points)")
     parser.add_argument("--processes", action="store_true",
                         help="also run the 2 workers as a local Dask cluster of processes "
                              "(DEMTOOL_TILE_PROCESSES=1), for an A/B in one run")
@@ -172,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory() as work:
             folder = Path(work) / f"{case.stage}_{args.size}"
             inputs = case.prepare(folder, args.size)
-            results = measure(case, inputs, folder, tile, args.processes)
+            results = measure(case, inputs, folder, tile, args.processes, args.repeat)
             if results is None:
                 status = 1
                 continue
@@ -189,6 +243,7 @@ def record(case, args, tile: int, columns: list[str], rows: list[list[str]]) -> 
 
     stage = "" if case.stage == "sgm-census" else f" --stage {case.stage}"
     stage += " --processes" if args.processes else ""
+    stage += f" --repeat {args.repeat}" if args.repeat > 1 else ""
     write_result(
         f"{case.result}_{args.record_as}" if args.record_as else case.result,
         section="Large images", order=53,
@@ -206,6 +261,10 @@ def record(case, args, tile: int, columns: list[str], rows: list[list[str]]) -> 
                "the tree's resident sets sampled every 50 ms. 2 workers: threads of the "
                "command's process (the row says where the tiles ran); 2 worker "
                "processes: a local Dask cluster (DEMTOOL_TILE_PROCESSES=1). "
+               + (f"{args.repeat} rounds of the runs one after the other: medians of wall, "
+                  "CPU and phase cores, the largest peak, and the median of the rounds' "
+                  "efficiencies (each against its round's untiled CPU), listed. "
+                  if args.repeat > 1 else "")
                + args.note).strip())
 
 

@@ -169,14 +169,13 @@ def table(case, results: list[dict]) -> tuple[list[str], list[list[str]]]:
                "peak MB (tree)",
                *(f"{case.untiled_label} {p} cores (CPU ÷ wall)" for p in case.phases),
                "efficiency", "wall ÷ untiled", *quality, "agreement with untiled"]
-    repeated = len(untiled.get("efficiencies") or results[-1].get("efficiencies", [])) > 1
+    repeated = len(results[-1]["efficiencies"]) > 1  # (the untiled run has none)
     if repeated:
         columns.insert(columns.index("efficiency") + 1, "efficiency in each round")
     rows = []
     for r in results:
-        rounds = r.get("efficiencies") or []
-        eff = median(rounds) if rounds else (
-            untiled["cpu_s"] / (r["workers"] * r["wall_s"]) if r["workers"] else None)
+        rounds = r["efficiencies"]
+        eff = median(rounds) if rounds else None
         cores = [f"{r['cores'][p]:.2f}" if r["workers"] == 0 else "—" for p in case.phases]
         rows.append([r["run"], f"{r['wall_s']:.1f}", f"{r['cpu_s']:.1f}",
                      f"{r['sampled_cpu_s']:.1f}", f"{r['peak_mb']:.0f}", *cores,

@@ -18,18 +18,15 @@ import pytest
 os.environ.setdefault("DEMTOOL_CHECK_DECLARED_OUTPUTS", "1")
 
 
-
 @pytest.fixture(autouse=True)
 def _side_threads_end_with_the_test():
-    """A stage called as a library (not through the command group, which joins them) may
-    leave a side thread finishing after its refusal: it ends before the next test, whose
-    streams and warning filters it would otherwise change (demtool.tiling.side_threads)."""
+    """A side thread a test started itself (or a library call left) ends before the next
+    test, whose streams and warning filters it would otherwise change
+    (demtool.tiling.side_threads; the command group and the stages join their own)."""
     yield
-    import sys
+    from demtool.tiling.side_threads import join_side_threads
 
-    side_threads = sys.modules.get("demtool.tiling.side_threads")
-    if side_threads is not None:
-        side_threads.join_side_threads()
+    join_side_threads()
 
 
 # The arguments of `demtool synth` for the small scene, and the same as SceneParams.

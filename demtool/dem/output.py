@@ -53,5 +53,4 @@ def write_dem_rasters(run: Any, params: Any, out: str | os.PathLike, result: Any
     from demtool.mapproject.threads import available_threads, ordered_map
 
     # (one raster: ordered_map's one thread is a plain loop on the calling thread)
-
     return list(ordered_map(write, writes, threads=min(len(writes), available_threads())))

@@ -9,6 +9,7 @@ import math
 import os
 import time
 from concurrent.futures import Future
+from concurrent.futures import wait as futures_wait
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -311,8 +312,10 @@ def run_mapproject(image_path: str | os.PathLike, sensor_path: str | os.PathLike
                 "crs": grid.crs.name, "width": grid.width, "height": grid.height, "gsd_m": gsd,
                 "transform": list(grid.transform)[:6], "surface": surface_tags[SURFACE_TAG]}
         engine_size = engine_tile_size(grid.shape, params)
-    finally:  # loaded before the tiles start (none waits for another's load); and
-        kernels.wait()  # no compile left running after a refusal (tiling.side_threads)
+    finally:  # loaded before the tiles start (none waits for another's load); and no
+        # side thread left running after a refusal (tiling.side_threads)
+        kernels.wait()
+        futures_wait([hashes])
     if engine_size:
         inputs = [p for p in (image_path, sensor_path, dem_path, grid_like) if p is not None]
         warm(sensor)  # the model's lazily cached state, before tiles on threads share it

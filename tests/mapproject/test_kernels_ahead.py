@@ -65,8 +65,6 @@ def test_a_failed_load_ahead_is_no_error(monkeypatch):
     assert threads.KernelsAhead().wait() is False
 
 
-
-
 def test_a_refused_run_leaves_no_kernel_thread_running(tmp_path, monkeypatch):
     """The load starts before the checks; a refusal (bounds off the footprint) waits for
     it, so no numba compile goes on after the ``Error:`` line in the caller's process

@@ -411,6 +411,45 @@ def read_window(path: str | os.PathLike, window: tuple[int, int, int, int], *,
                                [dataset.offsets[band - 1]])[0]
 
 
+def read_windows(path: str | os.PathLike, windows: Sequence[tuple[int, int, int, int]], *,
+                 band: int = 1, what: str = "raster") -> list[np.ndarray]:
+    """:func:`read_window` of several windows of one band, the raster opened once.
+
+    For many small windows scattered over a large raster (the cells round a few points):
+    GDAL's block cache keeps the blocks the open dataset has read, so windows that share
+    a block decompress it once; and no window spanning all of them is read.  Each
+    window's values equal :func:`read_window`'s.
+
+    Parameters
+    ----------
+    path : path-like
+    windows : sequence of (row0, row1, col0, col1), pixels, each within the raster
+    band : int, 1-based
+    what : str, for messages
+
+    Returns
+    -------
+    list of (row1 − row0, col1 − col0) float32, one per window
+    """
+    from rasterio.errors import NotGeoreferencedWarning, RasterioError
+    from rasterio.windows import Window
+
+    p = Path(path)
+    out = []
+    with _open_dataset(p, what) as dataset:
+        scales, offsets = [dataset.scales[band - 1]], [dataset.offsets[band - 1]]
+        for window in windows:
+            r0, r1, c0, c1 = (int(v) for v in window)
+            try:
+                with ignoring(NotGeoreferencedWarning):
+                    data = dataset.read([band], window=Window(c0, r0, c1 - c0, r1 - r0),
+                                        masked=True)
+            except (RasterioError, ValueError) as exc:
+                raise InputError(f"{p}: cannot read {what}: {_first_line(exc)}") from None
+            out.append(physical_values(data, scales, offsets)[0])
+    return out
+
+
 def read_decimated(path: str | os.PathLike, *, max_side: int = 256, band: int = 1,
                    what: str = "raster") -> np.ndarray:
     """One band read at most ``max_side`` cells a side (nearest cells of the whole raster,

@@ -30,6 +30,13 @@ HOLD_MAX_CELLS = 16 * 2**20
 HOLD_MARGIN = 8
 #: Fewest DEM rows per thread of :meth:`DemSurface.holding`'s read (a part opens the file)
 HOLD_MIN_ROWS_PER_PART = 256
+#: Heights at scattered points (the image's outer edge) on a DEM not held in memory: when
+#: the window spanning the points has more cells than this, and at most
+#: :data:`SPARSE_MAX_POINTS` points, each point's own 4 × 4 cells are read instead of the
+#: window (a DEM over :data:`HOLD_MAX_CELLS` would otherwise be read whole, on one core,
+#: for a few dozen heights)
+SPARSE_MIN_CELLS = 2**20
+SPARSE_MAX_POINTS = 4096
 
 
 class DemSurface(NamedTuple):
@@ -84,9 +91,48 @@ class DemSurface(NamedTuple):
         row, col, window = self._positions(x, y)
         if window is None:
             return np.full(np.shape(col), np.nan)
+        if self._sparse(window, row.size):
+            return self._heights_at_points(row, col) + self.offset_m
         r0, _, c0, _ = window
         out = bilinear_heights(self._window(window), row - r0, col - c0)
         return out + self.offset_m
+
+    def _sparse(self, window: tuple[int, int, int, int], points: int) -> bool:
+        """Whether a few points spread over a large window not held in memory are read
+        point by point (:data:`SPARSE_MIN_CELLS`)."""
+        if points > SPARSE_MAX_POINTS:
+            return False
+        r0, r1, c0, c1 = window
+        if self.held is not None:
+            (h0, h1, g0, g1), _ = self.held
+            if h0 <= r0 and r1 <= h1 and g0 <= c0 and c1 <= g1:
+                return False
+        return (r1 - r0) * (c1 - c0) > SPARSE_MIN_CELLS
+
+    def _heights_at_points(self, row: np.ndarray, col: np.ndarray) -> np.ndarray:
+        """:func:`bilinear_heights` at fractional DEM positions, each from its own cells
+        (the window :meth:`_positions` gives one point, read with the others'
+        (:func:`demtool.io.read_windows`): the cells and the clipping at the DEM's edges
+        are those of the window spanning every point, so the heights are the same)."""
+        from demtool import io as dio
+        from demtool.mapproject.core import bilinear_heights
+
+        out = np.full(row.shape, np.nan)
+        flat_row, flat_col, flat_out = row.reshape(-1), col.reshape(-1), out.reshape(-1)
+        chosen, windows = [], []
+        for index in np.flatnonzero(np.isfinite(flat_row) & np.isfinite(flat_col)):
+            r, c = math.floor(flat_row[index]), math.floor(flat_col[index])
+            window = (max(r - 1, 0), min(r + 3, self.info.height),
+                      max(c - 1, 0), min(c + 3, self.info.width))
+            if window[1] > window[0] and window[3] > window[2]:
+                chosen.append(index)
+                windows.append(window)
+        for index, window, values in zip(chosen, windows,
+                                         dio.read_windows(self.info.path, windows, what="DEM"),
+                                         strict=True):
+            flat_out[index] = bilinear_heights(values, flat_row[index:index + 1] - window[0],
+                                               flat_col[index:index + 1] - window[2])[0]
+        return out
 
     def _window(self, window: tuple[int, int, int, int]) -> np.ndarray:
         """The DEM's values in ``window``: sliced from the held window when inside it."""

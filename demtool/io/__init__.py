@@ -395,20 +395,7 @@ def read_window(path: str | os.PathLike, window: tuple[int, int, int, int], *,
     -------
     (row1 − row0, col1 − col0) float32
     """
-    from rasterio.errors import NotGeoreferencedWarning, RasterioError
-    from rasterio.windows import Window
-
-    p = Path(path)
-    r0, r1, c0, c1 = (int(v) for v in window)
-    with _open_dataset(p, what) as dataset:
-        try:
-            with ignoring(NotGeoreferencedWarning):
-                data = dataset.read([band], window=Window(c0, r0, c1 - c0, r1 - r0),
-                                    masked=True)
-        except (RasterioError, ValueError) as exc:
-            raise InputError(f"{p}: cannot read {what}: {_first_line(exc)}") from None
-        return physical_values(data, [dataset.scales[band - 1]],
-                               [dataset.offsets[band - 1]])[0]
+    return read_windows(path, [window], band=band, what=what)[0]
 
 
 def read_windows(path: str | os.PathLike, windows: Sequence[tuple[int, int, int, int]], *,

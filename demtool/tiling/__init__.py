@@ -27,6 +27,7 @@ import math
 import os
 import shutil
 import socket
+import threading
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -240,6 +241,12 @@ class TileCache:
     (``tile_<index>.json``) records its size and SHA-256, so a tile counts as done only
     when its file is the one written: a cached tile truncated or emptied since (a full
     disk, a copy cut short) is removed and recomputed, with a warning.
+
+    With :meth:`hand_over` (a run that writes its outputs while its tiles run on threads
+    of this process), the tiles stored here are also kept in memory, at most ``count`` of
+    them (the lowest indices: the writer's next), until :meth:`release`: :meth:`load`
+    returns the stored array instead of reading its file back.  The file is written as
+    before (a killed run resumes from it); the values are the same.
     """
 
     #: info keys of the cache's own bookkeeping (not returned by :meth:`info`)
@@ -248,6 +255,29 @@ class TileCache:
     def __init__(self, folder: str | os.PathLike) -> None:
         self.folder = Path(folder)
         self._verified: dict[Path, tuple[int, int]] = {}
+        self._kept: dict[int, np.ndarray] = {}
+        self._keep = 0
+        self._lock = threading.Lock()
+
+    def __getstate__(self) -> dict[str, Any]:
+        # a copy in a worker process keeps nothing in memory (no one there loads it)
+        return {"folder": self.folder, "_verified": dict(self._verified)}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(state["folder"])
+        self._verified.update(state["_verified"])
+
+    def hand_over(self, count: int) -> None:
+        """Keep up to ``count`` stored tiles in memory for :meth:`load` (0: none)."""
+        with self._lock:
+            self._keep = max(0, int(count))
+            while len(self._kept) > self._keep:
+                del self._kept[max(self._kept)]
+
+    def release(self, tile: Tile) -> None:
+        """Forget the tile's array kept in memory (its file stays)."""
+        with self._lock:
+            self._kept.pop(tile.index, None)
 
     def path(self, tile: Tile) -> Path:
         return self.folder / f"tile_{tile.index:06d}.npy"
@@ -325,8 +355,19 @@ class TileCache:
         stat = path.stat()
         if stat.st_size == size:
             self._verified[path] = (stat.st_size, stat.st_mtime_ns)
+            with self._lock:
+                if self._keep:
+                    self._kept[tile.index] = array
+                    while len(self._kept) > self._keep:  # the tile written last goes
+                        del self._kept[max(self._kept)]
 
     def load(self, tile: Tile) -> np.ndarray:
+        """The tile's core ``(B, h, w)`` float32: the array kept in memory
+        (:meth:`hand_over`), else its file's."""
+        with self._lock:
+            kept = self._kept.get(tile.index)
+        if kept is not None:
+            return kept
         return np.load(self.path(tile), allow_pickle=False)
 
     def info(self, tile: Tile) -> dict[str, Any]:

@@ -138,6 +138,11 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
             streaming.enter_context(dio.output_transaction(declared_inputs, declared_outputs))
             writer = _InOrderWriter(streaming.enter_context(contextlib.ExitStack()), outputs,
                                     tiling, cache, transform, crs)
+            if executor(job, workers, scheduler) == "threads":
+                # the writer takes the tiles computed here from memory, not from their
+                # files (written all the same, for a rerun); the next few only, so a
+                # slow tile does not hold the later ones in memory
+                cache.hand_over(2 * workers)
         infos = run_tiles(job, tiling.tiles, cache, workers=workers, scheduler=scheduler,
                           log=run.log, on_tile=writer.advance if writer else None)
         wall = time.perf_counter() - start
@@ -200,6 +205,7 @@ class _InOrderWriter:
         while self.next < len(tiles) and self.cache.done(tiles[self.next]):
             for writer in self.writers:
                 writer.write(tiles[self.next], self.cache)
+            self.cache.release(tiles[self.next])
             self.next += 1
 
     def finish(self) -> None:

@@ -271,8 +271,13 @@ class TileCache:
         """Keep up to ``count`` stored tiles in memory for :meth:`load` (0: none)."""
         with self._lock:
             self._keep = max(0, int(count))
-            while len(self._kept) > self._keep:
-                del self._kept[max(self._kept)]
+            self._trim()
+
+    def _trim(self) -> None:
+        """Drop kept tiles over the count, the highest indices first (the writer needs
+        them last); the caller holds the lock."""
+        while len(self._kept) > self._keep:
+            del self._kept[max(self._kept)]
 
     def release(self, tile: Tile) -> None:
         """Forget the tile's array kept in memory (its file stays)."""
@@ -358,8 +363,7 @@ class TileCache:
             with self._lock:
                 if self._keep:
                     self._kept[tile.index] = array
-                    while len(self._kept) > self._keep:  # the tile written last goes
-                        del self._kept[max(self._kept)]
+                    self._trim()
 
     def load(self, tile: Tile) -> np.ndarray:
         """The tile's core ``(B, h, w)`` float32: the array kept in memory

@@ -132,13 +132,14 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
         if prepare is not None and not all(cache.done(t) for t in tiling.tiles):
             job = prepare(job, cache.folder)
         writer = None
+        where = executor(job, workers, scheduler)
         if getattr(job, "stream_outputs", False) and (scheduler or workers >= 2):
             # the outputs open in the transaction now; each tile is written as soon as it
             # and every tile before it are done, while the workers compute the rest
             streaming.enter_context(dio.output_transaction(declared_inputs, declared_outputs))
             writer = _InOrderWriter(streaming.enter_context(contextlib.ExitStack()), outputs,
                                     tiling, cache, transform, crs)
-            if executor(job, workers, scheduler) == "threads":
+            if where == "threads":
                 # the writer takes the tiles computed here from memory, not from their
                 # files (written all the same, for a rerun); the next few only, so a
                 # slow tile does not hold the later ones in memory
@@ -148,7 +149,6 @@ def run_tiled(run: Any, job: TileJob, tiling: Tiling, outputs: Sequence[TiledOut
         wall = time.perf_counter() - start
         process_cpu = time.process_time() - process_cpu
         seconds = [float(i.get("seconds", 0.0)) for i in infos]
-        where = executor(job, workers, scheduler)
         # a tile's "cpu_seconds" is its process's CPU while it ran: tiles on threads of
         # this process overlap, so their sum would count the run N times; there the run's
         # own process CPU is the tiles' CPU (workers' processes report their tiles')

@@ -76,13 +76,24 @@ class DemSurface(NamedTuple):
         good = np.isfinite(col) & np.isfinite(row)
         if not good.any():
             return row, col, None
-        r0 = max(int(math.floor(row[good].min())) - 1, 0)
-        r1 = min(int(math.floor(row[good].max())) + 3, self.info.height)
-        c0 = max(int(math.floor(col[good].min())) - 1, 0)
-        c1 = min(int(math.floor(col[good].max())) + 3, self.info.width)
+        window = self._cells_round(row[good].min(), row[good].max(), col[good].min(),
+                                   col[good].max())
+        return row, col, window
+
+    def _cells_round(self, row_min: float, row_max: float, col_min: float,
+                     col_max: float) -> tuple[int, int, int, int] | None:
+        """The DEM's cells that bilinear interpolation reads for fractional positions in
+        ``[row_min, row_max] × [col_min, col_max]`` (a cell's margin each side, clipped to
+        the DEM), as ``(row0, row1, col0, col1)``; None when that is empty (off the DEM).
+        One rule for the window spanning many points and for one point's own cells, so
+        both give the same heights."""
+        r0 = max(int(math.floor(row_min)) - 1, 0)
+        r1 = min(int(math.floor(row_max)) + 3, self.info.height)
+        c0 = max(int(math.floor(col_min)) - 1, 0)
+        c1 = min(int(math.floor(col_max)) + 3, self.info.width)
         if r1 <= r0 or c1 <= c0:
-            return row, col, None
-        return row, col, (r0, r1, c0, c1)
+            return None
+        return r0, r1, c0, c1
 
     def heights_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Heights at map coordinates of the DEM's own CRS (NaN off the DEM)."""
@@ -102,11 +113,9 @@ class DemSurface(NamedTuple):
         point by point (:data:`SPARSE_MIN_CELLS`)."""
         if points > SPARSE_MAX_POINTS:
             return False
+        if self._held_part(window) is not None:
+            return False
         r0, r1, c0, c1 = window
-        if self.held is not None:
-            (h0, h1, g0, g1), _ = self.held
-            if h0 <= r0 and r1 <= h1 and g0 <= c0 and c1 <= g1:
-                return False
         return (r1 - r0) * (c1 - c0) > SPARSE_MIN_CELLS
 
     def _heights_at_points(self, row: np.ndarray, col: np.ndarray) -> np.ndarray:
@@ -121,10 +130,9 @@ class DemSurface(NamedTuple):
         flat_row, flat_col, flat_out = row.reshape(-1), col.reshape(-1), out.reshape(-1)
         chosen, windows = [], []
         for index in np.flatnonzero(np.isfinite(flat_row) & np.isfinite(flat_col)):
-            r, c = math.floor(flat_row[index]), math.floor(flat_col[index])
-            window = (max(r - 1, 0), min(r + 3, self.info.height),
-                      max(c - 1, 0), min(c + 3, self.info.width))
-            if window[1] > window[0] and window[3] > window[2]:
+            r, c = flat_row[index], flat_col[index]
+            window = self._cells_round(r, r, c, c)
+            if window is not None:
                 chosen.append(index)
                 windows.append(window)
         for index, window, values in zip(chosen, windows,
@@ -134,13 +142,22 @@ class DemSurface(NamedTuple):
                                                flat_col[index:index + 1] - window[2])[0]
         return out
 
+    def _held_part(self, window: tuple[int, int, int, int]) -> np.ndarray | None:
+        """The DEM's values in ``window`` sliced from the held window (None when no
+        window is held or ``window`` reaches outside it)."""
+        if self.held is None:
+            return None
+        r0, r1, c0, c1 = window
+        (h0, h1, g0, g1), values = self.held
+        if h0 <= r0 and r1 <= h1 and g0 <= c0 and c1 <= g1:
+            return values[r0 - h0:r1 - h0, c0 - g0:c1 - g0]
+        return None
+
     def _window(self, window: tuple[int, int, int, int]) -> np.ndarray:
         """The DEM's values in ``window``: sliced from the held window when inside it."""
-        r0, r1, c0, c1 = window
-        if self.held is not None:
-            (h0, h1, g0, g1), values = self.held
-            if h0 <= r0 and r1 <= h1 and g0 <= c0 and c1 <= g1:
-                return values[r0 - h0:r1 - h0, c0 - g0:c1 - g0]
+        held = self._held_part(window)
+        if held is not None:
+            return held
         from demtool import io as dio
 
         return dio.read_window(self.info.path, window, what="DEM")

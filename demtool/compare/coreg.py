@@ -335,22 +335,29 @@ def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
     from demtool.compare.threads import both, threaded
 
     two = threaded(dem.size)
-    reference = gaussian_shift(reference, 0.0, 0.0, sigma_px)
+    dem = np.ascontiguousarray(dem, dtype=np.float64)
+    # the shifted DEM, its pass along x and dh: filled anew in each iteration (the same
+    # numbers as new arrays; on a 4096² grid each is 128 MB of fresh pages)
+    shifted, along_x, dh = (np.empty(dem.shape) for _ in range(3))
+    reference = gaussian_shift(reference, 0.0, 0.0, sigma_px, scratch=along_x)
     # metres per pixel, y down, x right (each axis as np.gradient(reference) has it)
     grad_y, grad_x = both(lambda: np.gradient(reference, axis=0),
                           lambda: np.gradient(reference, axis=1), on=two)
     # Fix the pixel set for the level: where the DEM, shifted as it starts, is valid,
     # eroded by 2 px, so that holes and edges moving with the shift do not change the
     # objective from one iteration to the next (which would stall convergence).
-    start = np.isfinite(gaussian_shift(dem, shift[0], shift[1], sigma_px))
+    start = np.isfinite(gaussian_shift(dem, shift[0], shift[1], sigma_px, out=shifted,
+                                       scratch=along_x))
     usable = np.ascontiguousarray(usable & _eroded(start, 2))
     converged = False
     last: dict[str, Any] = {}
     iteration = 0
     subsample = max(1, int(np.sqrt(dem.size / 250_000)))  # for the robust thresholds
     for iteration in range(1, max_iterations + 1):  # noqa: B007 - used after the loop
-        aligned = gaussian_shift(dem, shift[0], shift[1], sigma_px) + shift[2]
-        dh = aligned - reference
+        aligned = gaussian_shift(dem, shift[0], shift[1], sigma_px, out=shifted,
+                                 scratch=along_x)
+        aligned += shift[2]
+        np.subtract(aligned, reference, out=dh)
         sums = _gradient_sums(grad_x, grad_y, dh, usable, np.zeros(3), 0.0, 0.0,
                               threads=two)
         if sums[5] < MIN_PIXELS:

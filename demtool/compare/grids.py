@@ -261,12 +261,16 @@ def _convolve_columns(values, offset, weights, out, start, stop):
                 out[r, c] += w * values[first + k, c]
 
 
-def _separable_shift(values: np.ndarray, dx_px: float, dy_px: float, taps_for) -> np.ndarray:
+def _separable_shift(values: np.ndarray, dx_px: float, dy_px: float, taps_for,
+                     out: np.ndarray | None = None, scratch: np.ndarray | None = None
+                     ) -> np.ndarray:
     """Shift by (dx, dy) with a separable kernel; ``taps_for(frac)`` gives the weights of
-    taps ``floor(−shift) − n … floor(−shift) + n + 1`` (n = (len − 2) / 2)."""
+    taps ``floor(−shift) − n … floor(−shift) + n + 1`` (n = (len − 2) / 2).  ``out`` and
+    ``scratch`` (the pass along x): C-contiguous float64 arrays of ``values``' shape to
+    fill instead of new ones."""
     data = np.ascontiguousarray(values, dtype=np.float64)
-    along_x = np.empty(data.shape)
-    out = np.empty(data.shape)
+    along_x = np.empty(data.shape) if scratch is None else _buffer(scratch, data.shape)
+    out = np.empty(data.shape) if out is None else _buffer(out, data.shape)
     for source, target, shift, kernel in ((data, along_x, dx_px, _convolve_rows),
                                           (along_x, out, dy_px, _convolve_columns)):
         if abs(shift - round(shift)) < 1e-6:  # snap: an integer shift stays exact
@@ -283,7 +287,15 @@ def _separable_shift(values: np.ndarray, dx_px: float, dy_px: float, taps_for) -
     return out
 
 
-def gaussian_shift(values: np.ndarray, dx_px: float, dy_px: float, sigma_px: float
+def _buffer(array: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    if array.shape != shape or array.dtype != np.float64 or not array.flags.c_contiguous:
+        raise ValueError(f"a buffer must be C-contiguous float64 of shape {shape}, got "
+                         f"{array.dtype} {array.shape}")
+    return array
+
+
+def gaussian_shift(values: np.ndarray, dx_px: float, dy_px: float, sigma_px: float, *,
+                   out: np.ndarray | None = None, scratch: np.ndarray | None = None
                    ) -> np.ndarray:
     """Gaussian smoothing and sub-pixel translation in one separable convolution.
 
@@ -303,17 +315,21 @@ def gaussian_shift(values: np.ndarray, dx_px: float, dy_px: float, sigma_px: flo
         Translation, pixels (x right, y down); the content moves by this much.
     sigma_px : float
         Gaussian standard deviation, pixels (> 0).
+    out, scratch : (H, W) C-contiguous float64 arrays, optional
+        Filled with the result and with the pass along x instead of new arrays (an
+        iteration that shifts one grid again and again); neither may be ``values``.
 
     Returns
     -------
     (H, W) float64
-        NaN where any tap is NaN or outside the array.
+        NaN where any tap is NaN or outside the array (``out`` when given).
     """
     if not sigma_px > 0:
         raise ValueError(f"sigma_px must be positive, got {sigma_px}")
     radius = max(2, int(np.ceil(4.5 * sigma_px)))
     return _separable_shift(values, dx_px, dy_px,
-                            lambda frac: _gaussian_taps(frac, sigma_px, radius))
+                            lambda frac: _gaussian_taps(frac, sigma_px, radius),
+                            out=out, scratch=scratch)
 
 
 def lanczos_shift(values: np.ndarray, dx_px: float, dy_px: float, *, lobes: int = 4

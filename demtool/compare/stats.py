@@ -45,15 +45,24 @@ def difference_statistics(difference: np.ndarray, mask: np.ndarray | None = None
     x = values[keep]
     if x.size == 0:
         return {"count": 0, **{k: float("nan") for k in STAT_KEYS[1:]}}
-    median = float(np.median(x))
+    # one scratch array for the order statistics and squares, overwritten in turn (the
+    # same numbers as a new array each; on a 4096² grid each is 128 MB of fresh pages)
+    scratch = np.empty_like(x)
+    np.copyto(scratch, x)
+    median = float(np.median(scratch, overwrite_input=True))
+    np.multiply(x, x, out=scratch)
+    rmse = float(np.sqrt(np.mean(scratch)))
+    spread = nmad(x, median=median, scratch=scratch)
+    np.abs(x, out=scratch)
+    le90 = float(np.percentile(scratch, 90, overwrite_input=True))
     return {
         "count": int(x.size),
         "mean": float(x.mean()),
         "median": median,
         "std": float(x.std()),
-        "rmse": float(np.sqrt(np.mean(x * x))),
-        "nmad": nmad(x, median=median),
-        "le90": float(np.percentile(np.abs(x), 90)),
+        "rmse": rmse,
+        "nmad": spread,
+        "le90": le90,
         "min": float(x.min()),
         "max": float(x.max()),
     }
@@ -69,7 +78,12 @@ def slope_degrees(dem: np.ndarray, spacing: tuple[float, float] = (1.0, 1.0)) ->
         Pixel size (x, y), metres.
     """
     grad_row, grad_col = np.gradient(np.asarray(dem, dtype=np.float64))
-    return np.degrees(np.arctan(np.hypot(grad_col / spacing[0], grad_row / spacing[1])))
+    # in place: the same numbers without four more grid-sized arrays
+    np.divide(grad_col, spacing[0], out=grad_col)
+    np.divide(grad_row, spacing[1], out=grad_row)
+    slope = np.hypot(grad_col, grad_row, out=grad_col)
+    np.arctan(slope, out=slope)
+    return np.degrees(slope, out=slope)
 
 
 def slope_class_statistics(difference: np.ndarray, slope: np.ndarray,

@@ -9,7 +9,8 @@ import numpy as np
 NMAD_FACTOR = 1.4826
 
 
-def nmad(values: np.ndarray, *, median: float | None = None) -> float:
+def nmad(values: np.ndarray, *, median: float | None = None,
+         scratch: np.ndarray | None = None) -> float:
     """Normalised median absolute deviation ``1.4826 · median(|x − median(x)|)``.
 
     Parameters
@@ -18,6 +19,8 @@ def nmad(values: np.ndarray, *, median: float | None = None) -> float:
         Finite values (any shape; NaN must be removed first).
     median : float, optional
         ``np.median(values)`` where the caller has it already (it is not recomputed).
+    scratch : float64 array of ``values``' shape, optional
+        Overwritten with the deviations (no new array of them: the same number).
 
     Returns
     -------
@@ -26,4 +29,8 @@ def nmad(values: np.ndarray, *, median: float | None = None) -> float:
     """
     x = np.asarray(values, dtype=np.float64)
     centre = np.median(x) if median is None else median
-    return float(NMAD_FACTOR * np.median(np.abs(x - centre)))
+    if scratch is None:
+        return float(NMAD_FACTOR * np.median(np.abs(x - centre)))
+    np.subtract(x, centre, out=scratch)
+    np.abs(scratch, out=scratch)
+    return float(NMAD_FACTOR * np.median(scratch, overwrite_input=True))

@@ -53,6 +53,25 @@ def test_gaussian_shift_on_row_parts_is_one_threads_and_the_formula(monkeypatch)
     assert np.isfinite(whole).mean() > 0.5  # not all holes: the values were compared
 
 
+def test_gaussian_shift_into_given_buffers_is_the_same_shift():
+    """Nuth & Kääb shifts one DEM again and again into the same buffers: filled buffers
+    hold the numbers of new arrays, whatever they held before; a buffer of another
+    shape, type or layout is refused, not reshaped."""
+    import pytest
+
+    values = _surface((60, 45))
+    expected = grids.gaussian_shift(values, 0.37, -1.45, 1.3)
+    out, scratch = np.full(values.shape, 7.0), np.full(values.shape, np.nan)
+    for dx in (0.37, -2.2, 0.37):  # the buffers reused, from another shift's numbers
+        got = grids.gaussian_shift(values, dx, -1.45, 1.3, out=out, scratch=scratch)
+    assert got is out
+    assert got.tobytes() == expected.tobytes()
+    for bad in (np.empty((60, 44)), np.empty(values.shape, np.float32),
+                np.empty((45, 60)).T):
+        with pytest.raises(ValueError, match="buffer"):
+            grids.gaussian_shift(values, 0.37, -1.45, 1.3, out=bad)
+
+
 def test_sample_bilinear_on_row_parts_is_one_threads_and_the_formula(monkeypatch):
     values = _surface((200, 250), seed=5)
     rng = np.random.default_rng(6)

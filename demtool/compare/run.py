@@ -274,16 +274,26 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
                  f"{coarse['count']} posts")
     main = comparisons[0][1]
 
-    with run.phase("figures"):
-        figures = make_figures(comparisons, reference_values, lines, (sx, sy), label) \
-            if params.plots else {}
+    from demtool.compare.threads import Side, threaded
+
+    def write_difference() -> None:
+        dio.write_raster(out / DIFFERENCE, main.difference, transform=target.transform,
+                         crs=target.crs,
+                         tags=provenance.tags(frame=frame or "unknown", label=label,
+                                              quantity="aligned DEM - reference (m)",
+                                              shift=report["shift"]))
+
     with run.transaction():
-        with run.phase("write_difference"):
-            dio.write_raster(out / DIFFERENCE, main.difference, transform=target.transform,
-                             crs=target.crs,
-                             tags=provenance.tags(frame=frame or "unknown", label=label,
-                                                  quantity="aligned DEM - reference (m)",
-                                                  shift=report["shift"]))
+        # the difference raster is compressed and written (GDAL, outside the GIL) on a
+        # side thread while this one draws the figures (matplotlib, mostly under it);
+        # "write_difference" is what is left of the write once the figures are drawn
+        with Side(params.plots and threaded(main.difference.size)) as side:
+            written = side.later(write_difference)
+            with run.phase("figures"):
+                figures = make_figures(comparisons, reference_values, lines, (sx, sy),
+                                       label) if params.plots else {}
+            with run.phase("write_difference"):
+                written.result()
         write_report(provenance, out, report, figures, html=params.html,
                      timings=run.timings)
     return report

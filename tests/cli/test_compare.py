@@ -196,3 +196,46 @@ def test_profile_outside_the_grid_is_a_parameter_error(pair, tmp_path):
     assert result.exit_code == 1
     assert "leaves the comparison grid" in result.output
     assert not (tmp_path / "r").exists()
+
+
+def test_difference_written_beside_the_figures_is_the_same_and_all_or_nothing(
+        pair, tmp_path, monkeypatch):
+    """On a grid large enough for two threads the difference raster is written on a side
+    thread while the figures are drawn: the same raster and figures as one after the
+    other; a figure that fails leaves no output folder, the raster written beside it
+    included."""
+    import demtool.compare.threads as compare_threads
+
+    single = tmp_path / "single"
+    monkeypatch.setattr(compare_threads, "THREADED_CELLS", 10**9)
+    assert _invoke(pair / "dem.tif", pair / "reference.tif", "--out", single).exit_code == 0
+    monkeypatch.setattr(compare_threads, "THREADED_CELLS", 1)
+    monkeypatch.setattr("demtool.tiling.tasks.usable_threads", lambda: 2)
+    written = []
+    original = dio.write_raster
+
+    def recording(path, *args, **kwargs):
+        import threading
+
+        written.append(threading.current_thread().name)
+        return original(path, *args, **kwargs)
+
+    monkeypatch.setattr(dio, "write_raster", recording)
+    beside = tmp_path / "beside"
+    assert _invoke(pair / "dem.tif", pair / "reference.tif", "--out", beside).exit_code == 0
+    assert written and written[0] != "MainThread"  # the side thread wrote it
+    first = dio.read_raster(single / "difference.tif")
+    second = dio.read_raster(beside / "difference.tif")
+    assert np.array_equal(first.data, second.data, equal_nan=True)
+    for name in FIGURES:
+        assert (single / name).read_bytes() == (beside / name).read_bytes(), name
+
+    def failing(*args, **kwargs):
+        raise RuntimeError("a figure failed")
+
+    monkeypatch.setattr("demtool.compare.plots.histogram_figure", failing)
+    failed = tmp_path / "failed"
+    result = _invoke(pair / "dem.tif", pair / "reference.tif", "--out", failed)
+    assert result.exit_code != 0
+    assert len(written) >= 2  # the raster was written beside the failing figures
+    assert not failed.exists()

@@ -146,6 +146,28 @@ def _windowed(run, dem_path, reference_path, out_dir, params, mask_path, also):
                             also=also, body_warnings=body_warnings)
 
 
+def _import_matplotlib_ahead() -> None:
+    """Import matplotlib's figure and Agg canvas (its font list, the axes, the mathtext
+    parser: ~0.3 s on one core) on a side thread, while the rasters are read and
+    compared, instead of at the first figure.
+
+    The package itself is imported here first: its ``__init__`` reads rcParams inside
+    ``warnings.catch_warnings``, which is not thread-safe (Python < 3.14) — beside this
+    thread's own ``catch_warnings`` (the rasters' reads) one of the two would put back a
+    filter list the other changed."""
+    import importlib
+
+    import matplotlib  # noqa: F401 - see above
+
+    from demtool.tiling.side_threads import start_side_thread
+
+    def load() -> None:
+        for module in ("matplotlib.figure", "matplotlib.backends.backend_agg"):
+            importlib.import_module(module)
+
+    start_side_thread(load, "demtool-matplotlib-ahead")
+
+
 def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
                 out_dir: str | os.PathLike, params: CompareParams | None = None, *,
                 mask_path: str | os.PathLike | None = None, also: Sequence[str] = (),
@@ -198,6 +220,8 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     from demtool.compare.frames import check_inputs
 
     check_inputs(dem_path, reference_path, also)  # heights, one frame (one line if not)
+    if params.plots:
+        _import_matplotlib_ahead()
     windowed = _windowed(run, dem_path, reference_path, out_dir, params, mask_path, also)
     if windowed is not None:
         return windowed

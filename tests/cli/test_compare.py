@@ -239,3 +239,19 @@ def test_difference_written_beside_the_figures_is_the_same_and_all_or_nothing(
     assert result.exit_code != 0
     assert len(written) >= 2  # the raster was written beside the failing figures
     assert not failed.exists()
+
+
+def test_matplotlib_imported_ahead_leaves_the_warning_filters_as_they_were(pair, tmp_path):
+    """compare imports matplotlib's figure and canvas on a side thread while it reads;
+    the package (whose import sets and puts back warning filters) on this one first: the
+    process's warning filters after the command are those before it, and the thread is
+    joined when the command ends."""
+    import threading
+    import warnings
+
+    before = list(warnings.filters)
+    result = _invoke(pair / "dem.tif", pair / "reference.tif", "--out", tmp_path / "r")
+    assert result.exit_code == 0, result.output
+    assert list(warnings.filters) == before
+    assert not any(t.name == "demtool-matplotlib-ahead" for t in threading.enumerate())
+    assert {p.name for p in (tmp_path / "r").iterdir()} >= FIGURES

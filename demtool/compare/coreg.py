@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from demtool.compare.grids import gaussian_shift
+from demtool.compare.shifts import gaussian_shift
 from demtool.errors import ProcessingError
 from demtool.imaging.robust import nmad
 from demtool.logs import get_logger
@@ -442,7 +442,7 @@ def nuth_kaab(dem: np.ndarray, reference: np.ndarray, *, mask: np.ndarray | None
     fit_sigma_px : float
         Both DEMs are compared after Gaussian smoothing of this standard deviation
         (pixels), the DEM's shift being applied by the same convolution
-        (:func:`demtool.compare.grids.gaussian_shift`).  This removes the
+        (:func:`demtool.compare.shifts.gaussian_shift`).  This removes the
         shift-dependent phase error of polynomial interpolators, which biases the
         estimate by 0.005–0.02 px on rough terrain, and damps noise.  At least 0.8
         (1 or more keeps the kernel practically band-limited).

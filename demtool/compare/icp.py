@@ -25,7 +25,8 @@ from demtool.compare.coreg import (
     _bootstrap_sigma,
     _solve,
 )
-from demtool.compare.grids import gaussian_shift, sample_bilinear, sample_cubic
+from demtool.compare.grids import sample_bilinear, sample_cubic
+from demtool.compare.shifts import gaussian_shift
 from demtool.errors import ProcessingError
 from demtool.imaging.robust import nmad
 from demtool.logs import get_logger

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from demtool.compare import grids
+from demtool.compare import grids, shifts
 from tests.helpers.row_parts import whole_and_split
 
 
@@ -25,7 +25,7 @@ def _gaussian_shift_formula(values, dx, dy, sigma):
     out = np.asarray(values, dtype=np.float64)
     for axis, shift in ((1, dx), (0, dy)):
         base = int(np.floor(-shift))
-        weights = grids._gaussian_taps(-shift - base, sigma, radius)
+        weights = shifts._gaussian_taps(-shift - base, sigma, radius)
         taps = np.arange(-radius, radius + 2) + base
         moved = np.moveaxis(out, axis, 0)
         total = np.zeros(moved.shape)

@@ -97,17 +97,20 @@ def _check_pair(dem: np.ndarray, reference: np.ndarray, mask: np.ndarray | None)
     return usable
 
 
-def _block_side(shape: tuple[int, int], n_target: int = 64) -> int:
-    """The side (pixels) of :func:`_block_ids`' square blocks."""
-    return max(8, int(np.sqrt(shape[0] * shape[1] / n_target)))
+def _block_grid(shape: tuple[int, int], n_target: int = 64) -> tuple[int, int, int]:
+    """:func:`_block_ids`' square blocks: their side (pixels, at least 8; about
+    ``n_target`` blocks over the grid) and how many rows and columns of them."""
+    side = max(8, int(np.sqrt(shape[0] * shape[1] / n_target)))
+    return side, (shape[0] - 1) // side + 1, (shape[1] - 1) // side + 1
 
 
 def _block_ids(shape: tuple[int, int], n_target: int = 64) -> np.ndarray:
-    """Square blocks, about ``n_target`` of them over the grid (at least 8 px wide)."""
-    side = _block_side(shape, n_target)
+    """Square blocks, about ``n_target`` of them over the grid (at least 8 px wide),
+    numbered row by row."""
+    side, _, block_cols = _block_grid(shape, n_target)
     rows = np.arange(shape[0]) // side
     cols = np.arange(shape[1]) // side
-    return rows[:, None] * (cols.max() + 1) + cols[None, :]
+    return rows[:, None] * block_cols + cols[None, :]
 
 
 @njit(nogil=True, cache=True)
@@ -162,14 +165,13 @@ def _replicate_blocks(normal: np.ndarray, rhs: np.ndarray, *, replicates: int = 
     """:func:`_bootstrap_sigma` from the blocks' normal equations (``normal``: (blocks,
     p·p), ``rhs``: (blocks, p), the blocks present in increasing id): the std of the
     solutions of ``replicates`` resamplings of whole blocks with replacement."""
-    ids = np.arange(normal.shape[0])
-    n_params = rhs.shape[1]
-    if ids.size < 8:
+    blocks, n_params = rhs.shape
+    if blocks < 8:
         return np.full(n_params, np.nan)
     rng = np.random.default_rng(seed)
-    draws = rng.integers(0, ids.size, size=(replicates, ids.size))
-    weights = np.zeros((replicates, ids.size))
-    np.add.at(weights, (np.repeat(np.arange(replicates), ids.size), draws.ravel()), 1.0)
+    draws = rng.integers(0, blocks, size=(replicates, blocks))
+    weights = np.zeros((replicates, blocks))
+    np.add.at(weights, (np.repeat(np.arange(replicates), blocks), draws.ravel()), 1.0)
     sums = (weights @ normal).reshape(replicates, n_params, n_params)
     rhs_sums = weights @ rhs
     try:
@@ -410,15 +412,15 @@ def _gradient_fit(dem: np.ndarray, reference: np.ndarray, usable: np.ndarray,
 
 @njit(nogil=True, cache=True)
 def _gradient_block_equations(dh, grad_x, grad_y, usable, p0, p1, p2, centre, halfwidth,
-                              side, part, parts, normal, rhs, count):
+                              side, block_cols, part, parts, normal, rhs, count):
     """:func:`_block_normal_equations` of Nuth & Kääb's design rows ``(∂z/∂x, ∂z/∂y, −1)``
     and target dh, read from the grids in row order: the cells that are usable and
     finite and (``halfwidth`` > 0) within ``halfwidth`` of the model ``p0 x + p1 y − p2``
-    plus ``centre``, in blocks of ``side`` px (:func:`_block_ids`) with ``b % parts ==
-    part``; ``count[b]`` their number.  The samples, their order and the operations of
-    the samples picked and stacked into a design matrix, so the same sums."""
+    plus ``centre``, in blocks of ``side`` px, ``block_cols`` a row (:func:`_block_ids`),
+    with ``b % parts == part``; ``count[b]`` their number.  The samples, their order and
+    the operations of the samples picked and stacked into a design matrix, so the same
+    sums."""
     height, width = dh.shape
-    block_cols = (width - 1) // side + 1
     for r in range(height):
         first = (r // side) * block_cols
         for c in range(width):
@@ -450,14 +452,14 @@ def _final_bootstrap(last: dict[str, Any], shape: tuple[int, int], seed: int) ->
     from demtool.compare.threads import both, threaded
 
     params = last["params"]
-    side = _block_side(shape)
-    blocks = ((shape[0] - 1) // side + 1) * ((shape[1] - 1) // side + 1)
+    side, block_rows, block_cols = _block_grid(shape)
+    blocks = block_rows * block_cols
     normal, rhs = np.zeros((blocks, 9)), np.zeros((blocks, 3))
     count = np.zeros(blocks, dtype=np.int64)
     arguments = (last["dh"], last["grad_x"], last["grad_y"],
                  np.ascontiguousarray(last["usable"], dtype=np.bool_),
                  float(params[0]), float(params[1]), float(params[2]),
-                 float(last["centre"]), float(last["halfwidth"]), side)
+                 float(last["centre"]), float(last["halfwidth"]), side, block_cols)
     if threaded(last["dh"].size):
         both(lambda: _gradient_block_equations(*arguments, 0, 2, normal, rhs, count),
              lambda: _gradient_block_equations(*arguments, 1, 2, normal, rhs, count),

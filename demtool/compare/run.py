@@ -196,7 +196,7 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
     from demtool.compare import compare_dems
     from demtool.compare import plots as figure_maker
     from demtool.compare.params import CompareParams
-    from demtool.compare.threads import both
+    from demtool.compare.threads import Side, both, threaded
     from demtool.imaging.checks import check_magnitude
     from demtool.tiling.tasks import usable_threads
 
@@ -297,8 +297,6 @@ def run_compare(dem_path: str | os.PathLike, reference_path: str | os.PathLike,
                  f"{coarse['nmad']:.3f} m, RMSE {coarse['rmse']:.3f} m over "
                  f"{coarse['count']} posts")
     main = comparisons[0][1]
-
-    from demtool.compare.threads import Side, threaded
 
     def write_difference() -> None:
         dio.write_raster(out / DIFFERENCE, main.difference, transform=target.transform,

@@ -4,7 +4,8 @@ Pure functions (arrays in, arrays out); the command ``demtool compare`` does the
 
 * :func:`compare_dems` — align one DEM to a reference on one grid and measure it.
 * :func:`summarize` — the headline figures of a comparison (one table row).
-* :mod:`~demtool.compare.grids` — resampling, shifts, reprojection.
+* :mod:`~demtool.compare.grids` — resampling, shifts, reprojection;
+  :mod:`~demtool.compare.shifts` — the separable-kernel (Gaussian, Lanczos) shifts.
 * :mod:`~demtool.compare.coreg`, :mod:`~demtool.compare.icp`,
   :mod:`~demtool.compare.align` — co-registration.
 * :mod:`~demtool.compare.stats` — error statistics; :mod:`~demtool.compare.plots` —

@@ -4,8 +4,8 @@ Pixel coordinates follow demtool's convention: column ``x`` to the right, row ``
 down, the centre of pixel ``[row, col]`` at ``(x, y) = (col, row)``.  Interpolators
 return NaN wherever a tap with non-zero weight is NaN or outside the array, so holes
 never leak invented heights into a comparison (they grow by at most one pixel for
-bilinear, two for cubic).  The separable-kernel shifts (Gaussian, Lanczos) live in
-:mod:`demtool.compare.shifts` and are re-exported here.
+bilinear, two for cubic).  The separable-kernel shifts (Gaussian, Lanczos) are in
+:mod:`demtool.compare.shifts`.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from demtool.compare.shifts import gaussian_shift, lanczos_shift
+from demtool.compare.shifts import lanczos_shift
 from demtool.errors import ProcessingError
 from demtool.logs import get_logger
 from demtool.maps.frames import wrap_longitude
@@ -25,8 +25,6 @@ from demtool.tiling.rows import on_row_parts
 
 __all__ = [
     "Grid",
-    "gaussian_shift",
-    "lanczos_shift",
     "resample_to_grid",
     "sample_bilinear",
     "same_grid",

@@ -44,7 +44,7 @@ def _gaussian_shift_formula(values, dx, dy, sigma):
 def test_gaussian_shift_on_row_parts_is_one_threads_and_the_formula(monkeypatch):
     values = _surface((200, 70))
     whole, split, seen = whole_and_split(
-        monkeypatch, lambda: grids.gaussian_shift(values, 0.37, -1.45, 1.3))
+        monkeypatch, lambda: shifts.gaussian_shift(values, 0.37, -1.45, 1.3))
     assert any(len(parts) == 3 for parts in seen)  # split: 200 rows in 3 parts
     assert whole.tobytes() == split.tobytes()
     expected = _gaussian_shift_formula(values, 0.37, -1.45, 1.3)
@@ -60,16 +60,16 @@ def test_gaussian_shift_into_given_buffers_is_the_same_shift():
     import pytest
 
     values = _surface((60, 45))
-    expected = grids.gaussian_shift(values, 0.37, -1.45, 1.3)
+    expected = shifts.gaussian_shift(values, 0.37, -1.45, 1.3)
     out, scratch = np.full(values.shape, 7.0), np.full(values.shape, np.nan)
     for dx in (0.37, -2.2, 0.37):  # the buffers reused, from another shift's numbers
-        got = grids.gaussian_shift(values, dx, -1.45, 1.3, out=out, scratch=scratch)
+        got = shifts.gaussian_shift(values, dx, -1.45, 1.3, out=out, scratch=scratch)
     assert got is out
     assert got.tobytes() == expected.tobytes()
     for bad in (np.empty((60, 44)), np.empty(values.shape, np.float32),
                 np.empty((45, 60)).T):
         with pytest.raises(ValueError, match="buffer"):
-            grids.gaussian_shift(values, 0.37, -1.45, 1.3, out=bad)
+            shifts.gaussian_shift(values, 0.37, -1.45, 1.3, out=bad)
 
 
 def test_sample_bilinear_on_row_parts_is_one_threads_and_the_formula(monkeypatch):

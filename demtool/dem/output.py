@@ -25,8 +25,9 @@ def write_dem_rasters(run: Any, params: Any, out: str | os.PathLike, result: Any
     ``side_tags`` are the frame or body tags the mask and error rasters carry too.
 
     Two or three rasters are written at once, on threads (their compression and
-    overviews are GDAL's, which releases the GIL; each thread's GDAL options are its
-    own, :func:`demtool.io.layout.raster_output`): the same files as one after the other.
+    overviews are GDAL's, run outside the GIL: :mod:`demtool.io.overviews`; each thread's
+    GDAL options are its own, :func:`demtool.io.layout.raster_output`): the same files as
+    one after the other.
     """
     from demtool import io as dio
 

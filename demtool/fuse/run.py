@@ -94,7 +94,8 @@ def write_outputs(outputs: Sequence[tuple[Path, int, str, dict[str, Any]]],
                   bands: np.ndarray, target: Any) -> None:
     """Write each (path, band, name, tags) of ``outputs``: ``bands[band]`` on ``target``'s
     grid (:func:`demtool.io.write_raster`), the files on threads at once (GDAL's
-    compression and overviews release the GIL), each as on the calling thread
+    compression, and its overviews through :mod:`demtool.io.overviews`, run outside the
+    GIL), each as on the calling thread
     (:func:`demtool.tiling.tasks.carried`: its output transaction and layout); a failure
     is raised once the others have ended, the first in the outputs' order."""
     from concurrent.futures import ThreadPoolExecutor

@@ -7,7 +7,8 @@ the same way:
 
 * **Tiled** GeoTIFF (256 × 256 blocks when both sides reach a block), as before.
 * **Internal overviews** (reduced-resolution copies inside the file, GDAL's
-  ``BuildOverviews``, what ``gdaladdo`` writes) when the larger side exceeds
+  ``BuildOverviews``, what ``gdaladdo`` writes; built on the closed file outside
+  Python's GIL, :mod:`demtool.io.overviews`) when the larger side exceeds
   :data:`OVERVIEW_MIN_SIDE` pixels: factors 2, 4, 8, … until the smallest overview
   fits in one block, as ``gdaladdo`` chooses levels when given none (GDAL ≥ 3.2).  QGIS
   and any GDAL reader then draw a zoomed-out view of a 20 000² DEM from a few blocks.
@@ -53,11 +54,13 @@ CATEGORICAL_BANDS = frozenset({"interpolated", "mask", "count", "class", "label"
 COG_OPTIONS = {"compress": "DEFLATE", "level": 1, "predictor": "YES", "blocksize": 512,
                "overviews": "IGNORE_EXISTING", "bigtiff": "IF_SAFER",
                "num_threads": "ALL_CPUS"}
-#: GDAL configuration while building internal overviews: every core, and the DEFLATE
-#: level and predictor of the full-resolution data (GDAL's overview defaults are level 6
-#: and no predictor).
+#: GDAL configuration while building internal overviews: every core, and the DEFLATE or
+#: ZSTD level and the predictor of the full-resolution data.  The overviews are built on
+#: the closed file (:mod:`demtool.io.overviews`), which no longer knows the levels it was
+#: created with: GDAL's defaults would be DEFLATE level 6, ZSTD level 9 (2.7x the CPU of
+#: level 1 for 1 % fewer bytes on an 8192² orthoimage) and no predictor.
 OVERVIEW_CONFIG = {"GDAL_NUM_THREADS": "ALL_CPUS", "ZLEVEL_OVERVIEW": 1,
-                   "PREDICTOR_OVERVIEW": 3}
+                   "ZSTD_LEVEL_OVERVIEW": 1, "PREDICTOR_OVERVIEW": 3}
 
 #: Rasters of at least this many pixels are compressed on every core: GDAL's GTiff driver
 #: reads ``GDAL_NUM_THREADS`` (the default of its ``NUM_THREADS`` creation option) when the
@@ -132,15 +135,14 @@ def overview_resampling(band_names: Sequence[str] | None) -> str:
     return "average"
 
 
-def _build_overviews(dataset: Any, resampling: str) -> None:
+def _build_overviews_in_place(dataset: Any, factors: list[int], resampling: str) -> None:
+    """rasterio's build on the open dataset (under the GIL): where GDAL's C API is not
+    reachable (:func:`demtool.io.overviews.gdal_c_api`)."""
     import rasterio
     from rasterio.enums import Resampling
 
-    factors = overview_factors(dataset.height, dataset.width)
-    if factors:
-        with rasterio.Env(**OVERVIEW_CONFIG):
-            dataset.build_overviews(factors, Resampling[resampling])
-        dataset.update_tags(ns="rio_overview", resampling=resampling)
+    with rasterio.Env(**OVERVIEW_CONFIG):
+        dataset.build_overviews(factors, Resampling[resampling])
 
 
 def _compression_threads(profile: Mapping[str, Any]) -> contextlib.AbstractContextManager:
@@ -194,6 +196,7 @@ def raster_output(path: str | os.PathLike, profile: Mapping[str, Any], *,
     from rasterio._err import CPLE_BaseError
     from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
+    from demtool.io.overviews import build_overviews_of_file, gdal_c_api
     from demtool.io.quiet import ignoring
     from demtool.outputs import atomic_path, write_error
 
@@ -213,8 +216,16 @@ def raster_output(path: str | os.PathLike, profile: Mapping[str, Any], *,
                     dst.update_tags(**tags)
                 for index, name in enumerate(band_names or [], start=1):
                     dst.set_band_description(index, name)
-                if not cog:
-                    _build_overviews(dst, method)
+                factors = [] if cog else overview_factors(dst.height, dst.width)
+                # on the closed file, outside the GIL (demtool.io.overviews): the same bytes
+                outside_gil = bool(factors) and gdal_c_api() is not None
+                if factors:
+                    dst.update_tags(ns="rio_overview", resampling=method)
+                    if not outside_gil:
+                        _build_overviews_in_place(dst, factors, method)
+            if outside_gil:
+                with rasterio.Env(**OVERVIEW_CONFIG):
+                    build_overviews_of_file(stage, factors, method)
             if cog:
                 _copy_as_cog(stage, temporary, method)
         except (RasterioError, CPLE_BaseError) as exc:  # GDAL's write errors (disk full)

@@ -1,7 +1,7 @@
 """Internal overviews built by GDAL outside Python's GIL.
 
 rasterio's ``DatasetWriter.build_overviews`` calls GDAL's ``GDALBuildOverviews`` while
-holding the GIL: for the whole build (~0.4 s for a 4096² float32 raster, ~1.6 s at
+holding the GIL: for the whole build (0.4–0.7 s for a 4096² float32 raster, ~1.6 s at
 8192²) no other Python thread runs.  A raster written on a side thread (``compare``'s
 difference beside its figures, ``dem``'s and ``fuse``'s outputs written at once) then
 stops the calling thread's work until its overviews are done.
